@@ -1,0 +1,127 @@
+"""Obstacle layouts for the wheeled navigation task.
+
+A layout is a list of :class:`~realitygap.robots.world.Primitive` standing in a
+square room. Random layouts are drawn from a generator handed down by the env
+and are checked to leave a collision-free route from start to goal for a robot
+of the given radius (grid breadth-first search on the inflated footprints).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+import numpy.typing as npt
+from realitygap.robots.world import Primitive, Shape
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def room_walls(half_size: float, height: float = 0.8, thickness: float = 0.1) -> list[Primitive]:
+    """Four walls enclosing the square ``[-half_size, half_size]²`` (inner faces)."""
+    h, t = half_size, thickness / 2.0
+    return [
+        Primitive("wall_n", Shape.BOX, (0.0, h + t), height, half_extents=(h + 2 * t, t)),
+        Primitive("wall_s", Shape.BOX, (0.0, -h - t), height, half_extents=(h + 2 * t, t)),
+        Primitive("wall_e", Shape.BOX, (h + t, 0.0), height, half_extents=(t, h + 2 * t)),
+        Primitive("wall_w", Shape.BOX, (-h - t, 0.0), height, half_extents=(t, h + 2 * t)),
+    ]
+
+
+def clearance(primitives: list[Primitive], xy: npt.ArrayLike) -> FloatArray:
+    """Distance (m) from points ``xy`` (..., 2) to the nearest primitive footprint."""
+    xy = np.asarray(xy, dtype=float)
+    if not primitives:
+        return np.full(xy.shape[:-1], np.inf)
+    return np.min(np.stack([p.footprint_distance(xy) for p in primitives]), axis=0)
+
+
+def free_route_exists(
+    primitives: list[Primitive],
+    start_xy: npt.ArrayLike,
+    goal_xy: npt.ArrayLike,
+    radius: float,
+    half_size: float,
+    resolution: float = 0.05,
+) -> bool:
+    """Whether a disc of ``radius`` can move from start to goal without touching any primitive."""
+    n = int(math.ceil(2 * half_size / resolution)) + 1
+    axis = np.linspace(-half_size, half_size, n)
+    gx, gy = np.meshgrid(axis, axis, indexing="ij")
+    free = clearance(primitives, np.stack([gx, gy], -1)) > radius
+    free &= (np.abs(gx) < half_size - radius) & (np.abs(gy) < half_size - radius)
+
+    def cell(xy: npt.ArrayLike) -> tuple[int, int]:
+        x, y = np.asarray(xy, dtype=float)
+        return int(round((x + half_size) / resolution)), int(round((y + half_size) / resolution))
+
+    s, g = cell(start_xy), cell(goal_xy)
+    for c in (s, g):
+        if not (0 <= c[0] < n and 0 <= c[1] < n):
+            return False
+    free[s] = free[g] = True
+    seen = np.zeros_like(free)
+    seen[s] = True
+    queue: deque[tuple[int, int]] = deque([s])
+    while queue:
+        i, j = queue.popleft()
+        if (i, j) == g:
+            return True
+        for di, dj in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            a, b = i + di, j + dj
+            if 0 <= a < n and 0 <= b < n and free[a, b] and not seen[a, b]:
+                seen[a, b] = True
+                queue.append((a, b))
+    return False
+
+
+def random_layout(
+    rng: np.random.Generator,
+    n_obstacles: int,
+    half_size: float,
+    keep_clear: list[tuple[float, float]],
+    clear_radius: float,
+    robot_radius: float,
+    max_tries: int = 200,
+) -> list[Primitive]:
+    """Draw ``n_obstacles`` boxes and cylinders, none within ``clear_radius`` of the
+    ``keep_clear`` points, and a free route between the first two of them."""
+    for _ in range(max_tries):
+        prims: list[Primitive] = []
+        attempts = 0
+        while len(prims) < n_obstacles and attempts < 50 * max(n_obstacles, 1):
+            attempts += 1
+            cx, cy = rng.uniform(-half_size + 0.4, half_size - 0.4, size=2)
+            height = float(rng.uniform(0.5, 0.9))
+            if rng.random() < 0.5:
+                hx, hy = rng.uniform(0.12, 0.4, size=2)
+                prim = Primitive(
+                    f"obstacle_{len(prims)}",
+                    Shape.BOX,
+                    (float(cx), float(cy)),
+                    height,
+                    yaw=float(rng.uniform(-math.pi, math.pi)),
+                    half_extents=(float(hx), float(hy)),
+                )
+            else:
+                prim = Primitive(
+                    f"obstacle_{len(prims)}",
+                    Shape.CYLINDER,
+                    (float(cx), float(cy)),
+                    height,
+                    radius=float(rng.uniform(0.1, 0.3)),
+                )
+            pts = np.asarray(keep_clear, dtype=float)
+            if np.any(prim.footprint_distance(pts) < clear_radius):
+                continue
+            if prims and np.min(clearance(prims, np.asarray(prim.center))) < 0.3:
+                continue
+            prims.append(prim)
+        if len(keep_clear) < 2 or free_route_exists(
+            prims, keep_clear[0], keep_clear[1], robot_radius + 0.02, half_size
+        ):
+            return prims
+    raise RuntimeError(
+        f"could not draw a passable layout with {n_obstacles} obstacles in {max_tries} tries"
+    )

@@ -1,0 +1,173 @@
+"""The experiment registry behind ``realitygap run``.
+
+An experiment is a function ``f(ctx: RunContext) -> dict`` registered with
+:func:`experiment`. It returns ``{"figures": {name: number, ...}, "config":
+{...}}`` and may add ``"tables"`` (name → list of row dicts) and ``"notes"``
+(list of str). The runner adds the experiment's name, prints a table and writes
+the JSON atomically.
+
+Experiment modules are listed in ``_MODULES`` and imported on first use, so the
+CLI starts fast and an experiment's heavy dependencies load only when it runs.
+"""
+
+from __future__ import annotations
+
+import difflib
+import importlib
+import json
+import math
+import os
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+_MODULES = ("realitygap.experiments.nav",)
+
+
+@dataclass
+class RunContext:
+    """What an experiment is told: quick mode, base seed, data folder, a progress sink."""
+
+    quick: bool = False
+    seed: int = 0
+    data_dir: Path | None = None
+    options: dict[str, Any] = field(default_factory=dict)
+    verbose: bool = True
+
+    def progress(self, message: str) -> None:
+        """Report progress of a long run on stderr (keeps stdout for the result table)."""
+        if self.verbose:
+            print(f"[{time.strftime('%H:%M:%S')}] {message}", file=sys.stderr, flush=True)
+
+    def data_subdir(self, name: str) -> Path:
+        """The sub-folder ``name`` of the data folder, or a clear error when it is missing."""
+        if self.data_dir is None:
+            raise FileNotFoundError(
+                f"this experiment reads recorded data from '<data>/{name}/'; no data folder was "
+                "found: pass --data DIR (a folder laid out like shared/data/)"
+            )
+        path = Path(self.data_dir) / name
+        if not path.is_dir():
+            raise FileNotFoundError(
+                f"expected a folder '{path}' with recorded data; it does not exist"
+            )
+        return path
+
+
+ExperimentFunc = Callable[[RunContext], dict[str, Any]]
+
+
+@dataclass(frozen=True)
+class Experiment:
+    name: str
+    func: ExperimentFunc
+    description: str
+    data_subdir: str | None = None
+
+
+EXPERIMENTS: dict[str, Experiment] = {}
+
+
+def experiment(
+    name: str, description: str, data_subdir: str | None = None
+) -> Callable[[ExperimentFunc], ExperimentFunc]:
+    """Decorator registering an experiment under ``name``."""
+
+    def register(func: ExperimentFunc) -> ExperimentFunc:
+        if name in EXPERIMENTS and EXPERIMENTS[name].func is not func:
+            raise ValueError(f"experiment {name!r} is registered twice")
+        EXPERIMENTS[name] = Experiment(name, func, description, data_subdir)
+        return func
+
+    return register
+
+
+def load_all() -> dict[str, Experiment]:
+    """Import every experiment module and return the registry."""
+    for module in _MODULES:
+        importlib.import_module(module)
+    return EXPERIMENTS
+
+
+def get(name: str) -> Experiment:
+    """The experiment called ``name``; a ``KeyError`` that suggests close names on a typo."""
+    registry = load_all()
+    if name not in registry:
+        close = difflib.get_close_matches(name, list(registry), n=3)
+        hint = f" Did you mean {', '.join(repr(c) for c in close)}?" if close else ""
+        raise KeyError(f"no experiment named {name!r}.{hint} Known: {', '.join(sorted(registry))}")
+    return registry[name]
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if hasattr(value, "tolist"):
+        return _jsonable(value.tolist())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def write_json_atomic(path: str | os.PathLike[str], payload: Any) -> None:
+    """Write ``payload`` as JSON to ``path`` via a temporary file and an atomic rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(_jsonable(payload), fh, indent=2, sort_keys=False)
+            fh.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def format_figures(result: dict[str, Any]) -> str:
+    """A readable two-column table of an experiment's figures."""
+    figures = result.get("figures", {})
+    width = max([len(k) for k in figures] + [6])
+    lines = [
+        f"experiment: {result.get('experiment', '?')}",
+        f"{'figure':<{width}}  value",
+        "-" * (width + 14),
+    ]
+    for key, value in figures.items():
+        if isinstance(value, float):
+            text = f"{value:.4g}"
+        else:
+            text = str(value)
+        lines.append(f"{key:<{width}}  {text}")
+    for note in result.get("notes", []):
+        lines.append(f"note: {note}")
+    return "\n".join(lines)
+
+
+def run(
+    name: str, ctx: RunContext, json_path: str | os.PathLike[str] | None = None
+) -> dict[str, Any]:
+    """Run experiment ``name`` and return its result (also written to ``json_path`` if given)."""
+    exp = get(name)
+    start = time.perf_counter()
+    out = exp.func(ctx)
+    if "figures" not in out:
+        raise RuntimeError(f"experiment {name!r} returned no 'figures'")
+    result = {"experiment": name, "figures": out["figures"], "config": out.get("config", {})}
+    for key in ("tables", "notes"):
+        if key in out:
+            result[key] = out[key]
+    result["config"] = {"quick": ctx.quick, "seed": ctx.seed, **result["config"]}
+    result["wall_seconds"] = time.perf_counter() - start
+    if json_path is not None:
+        write_json_atomic(json_path, result)
+    return result

@@ -1,0 +1,315 @@
+"""A Kobuki-like differential-drive robot with a Kinect-V2-like RGB-D camera.
+
+The body is generated as URDF from :class:`DiffDriveParams`, so a robot with
+another wheel radius or wheelbase really is another body in the simulation.
+Frames: ``base`` at the midpoint of the wheel axle on the floor, x forward,
+y left, z up; the camera's optical frame is x right, y down, z forward.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+
+import numpy as np
+import numpy.typing as npt
+import pybullet as p
+from realitygap.estimators.base import CameraIntrinsics, WheelTicks
+from realitygap.robots.world import World
+
+from realitygap.geometry import check_finite
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class RGBDCameraParams:
+    """Kinect-V2-like time-of-flight RGB-D camera.
+
+    Mounting ``mount_xyz`` (m) and ``mount_yaw`` / ``mount_pitch`` (rad) of the
+    optical centre in the base frame; 70.6° × 60° field of view; depth valid in
+    ``[range_min, range_max]`` with noise ``σ(z) = depth_noise_a + depth_noise_b·z²``
+    (≈ 2 cm at 3 m).
+    """
+
+    width: int = 320
+    height: int = 240
+    hfov_deg: float = 70.6
+    vfov_deg: float = 60.0
+    range_min: float = 0.5
+    range_max: float = 8.0
+    depth_noise_a: float = 0.001
+    depth_noise_b: float = 0.002
+    mount_xyz: tuple[float, float, float] = (0.0, 0.0, 0.30)
+    mount_yaw: float = 0.0
+    mount_pitch: float = 0.0
+    rate_hz: float = 20.0
+
+    def intrinsics(self) -> CameraIntrinsics:
+        """Pinhole intrinsics that give the stated field of view at this resolution."""
+        fx = (self.width / 2.0) / math.tan(math.radians(self.hfov_deg) / 2.0)
+        fy = (self.height / 2.0) / math.tan(math.radians(self.vfov_deg) / 2.0)
+        return CameraIntrinsics(
+            self.width, self.height, fx, fy, self.width / 2.0, self.height / 2.0
+        )
+
+    def T_base_camera(self) -> FloatArray:
+        """4×4 pose of the optical frame in the base frame."""
+        cy, sy = math.cos(self.mount_yaw), math.sin(self.mount_yaw)
+        cp, sp = math.cos(self.mount_pitch), math.sin(self.mount_pitch)
+        R_yaw = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1.0]])
+        R_pitch = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+        # optical axes expressed in a forward-looking body frame: z fwd, x right, y down
+        R_opt = np.array([[0, 0, 1.0], [-1.0, 0, 0], [0, -1.0, 0]])
+        T = np.eye(4)
+        T[:3, :3] = R_yaw @ R_pitch @ R_opt
+        T[:3, 3] = self.mount_xyz
+        return T
+
+
+@dataclass(frozen=True)
+class DiffDriveParams:
+    """Physical parameters of a Kobuki-like base, SI units.
+
+    Defaults follow the Yujin Kobuki: wheel radius 35 mm, wheelbase 230 mm,
+    0.70 m/s and 180 °/s, ≈ 2578 encoder ticks per wheel revolution.
+    """
+
+    wheel_radius_left: float = 0.035
+    wheel_radius_right: float = 0.035
+    wheelbase: float = 0.230
+    wheel_width: float = 0.021
+    body_radius: float = 0.176
+    body_height: float = 0.09
+    body_mass: float = 2.35
+    wheel_mass: float = 0.10
+    caster_radius: float = 0.012
+    caster_offset: float = 0.115
+    wheel_friction: float = 1.2
+    motor_max_torque: float = 2.0
+    ticks_per_rev: float = 2578.33
+    v_max: float = 0.70
+    w_max: float = math.pi
+    a_max: float = 1.0
+    alpha_max: float = 4.0
+    camera: RGBDCameraParams = field(default_factory=RGBDCameraParams)
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, float | int) and not isinstance(value, bool):
+                if not math.isfinite(value) or value <= 0:
+                    raise ValueError(
+                        f"DiffDriveParams.{f.name} must be a positive finite number (SI units), "
+                        f"got {value!r}"
+                    )
+        if self.wheelbase <= self.wheel_width:
+            raise ValueError(
+                f"wheelbase ({self.wheelbase} m) must exceed the wheel width ({self.wheel_width} m)"
+            )
+
+    def replace(self, **changes: object) -> DiffDriveParams:
+        """A copy with ``changes`` applied (validated)."""
+        return replace(self, **changes)  # type: ignore[arg-type]
+
+    @property
+    def max_wheel_speed(self) -> float:
+        """Largest wheel angular speed in rad/s needed by the velocity limits."""
+        r = min(self.wheel_radius_left, self.wheel_radius_right)
+        return (self.v_max + self.w_max * self.wheelbase / 2.0) / r
+
+
+def _inertia_cylinder(m: float, r: float, h: float) -> tuple[float, float, float]:
+    ixx = m * (3 * r * r + h * h) / 12.0
+    return ixx, ixx, m * r * r / 2.0
+
+
+def urdf_from_params(params: DiffDriveParams) -> str:
+    """URDF text of the robot described by ``params``.
+
+    The wheels collide as spheres of the wheel radius: a single contact point
+    on the floor, so the effective wheel radius and track are exactly the
+    parameters (a cylinder's edge contacts make both wander with load).
+
+    Links: ``base_link`` (body cylinder and two casters), ``wheel_left``,
+    ``wheel_right`` (continuous joints about the axle), ``camera_link`` (fixed, at
+    the camera mount). The base frame sits on the floor below the axle midpoint.
+    """
+    P = params
+    r_max = max(P.wheel_radius_left, P.wheel_radius_right)
+    body_z = r_max + 0.01 + P.body_height / 2.0  # body centre above the floor
+    ixx, iyy, izz = _inertia_cylinder(P.body_mass, P.body_radius, P.body_height)
+
+    def wheel(side: str, y: float, r: float) -> str:
+        wi = _inertia_cylinder(P.wheel_mass, r, P.wheel_width)
+        return f"""
+  <link name="wheel_{side}">
+    <inertial><mass value="{P.wheel_mass}"/><inertia ixx="{wi[0]:.6g}" iyy="{wi[1]:.6g}" izz="{wi[2]:.6g}" ixy="0" ixz="0" iyz="0"/></inertial>
+    <visual><geometry><cylinder radius="{r}" length="{P.wheel_width}"/></geometry><material name="black"><color rgba="0.1 0.1 0.1 1"/></material></visual>
+    <collision><geometry><sphere radius="{r}"/></geometry></collision>
+  </link>
+  <joint name="wheel_{side}_joint" type="continuous">
+    <parent link="base_link"/><child link="wheel_{side}"/>
+    <origin xyz="0 {y:.6f} {r - body_z:.6f}" rpy="-1.5707963267948966 0 0"/>
+    <axis xyz="0 0 1"/>
+  </joint>"""
+
+    cam = P.camera
+    cx, cy_, cz = cam.mount_xyz
+    caster_z = P.caster_radius - body_z
+    return f"""<?xml version="1.0"?>
+<robot name="kobuki_like">
+  <link name="base_link">
+    <inertial><origin xyz="0 0 0"/><mass value="{P.body_mass}"/><inertia ixx="{ixx:.6g}" iyy="{iyy:.6g}" izz="{izz:.6g}" ixy="0" ixz="0" iyz="0"/></inertial>
+    <visual><geometry><cylinder radius="{P.body_radius}" length="{P.body_height}"/></geometry><material name="grey"><color rgba="0.25 0.25 0.28 1"/></material></visual>
+    <collision><geometry><cylinder radius="{P.body_radius}" length="{P.body_height}"/></geometry></collision>
+    <collision><origin xyz="{P.caster_offset} 0 {caster_z:.6f}"/><geometry><sphere radius="{P.caster_radius}"/></geometry></collision>
+    <collision><origin xyz="{-P.caster_offset} 0 {caster_z:.6f}"/><geometry><sphere radius="{P.caster_radius}"/></geometry></collision>
+  </link>{wheel("left", P.wheelbase / 2.0, P.wheel_radius_left)}{wheel("right", -P.wheelbase / 2.0, P.wheel_radius_right)}
+  <link name="camera_link">
+    <inertial><mass value="0.01"/><inertia ixx="1e-6" iyy="1e-6" izz="1e-6" ixy="0" ixz="0" iyz="0"/></inertial>
+    <visual><geometry><box size="0.066 0.249 0.066"/></geometry><material name="dark"><color rgba="0.05 0.05 0.05 1"/></material></visual>
+  </link>
+  <joint name="camera_joint" type="fixed">
+    <parent link="base_link"/><child link="camera_link"/>
+    <origin xyz="{cx} {cy_} {cz - body_z:.6f}" rpy="0 {cam.mount_pitch} {cam.mount_yaw}"/>
+  </joint>
+</robot>
+"""
+
+
+class DiffDriveRobot:
+    """The simulated body: wheel motors, ground-truth state, encoder angles.
+
+    Parameters
+    ----------
+    world : the :class:`World` to live in.
+    params : physical parameters; the URDF is generated from them.
+    """
+
+    LEFT, RIGHT = 0, 1
+
+    def __init__(self, world: World, params: DiffDriveParams):
+        self.world = world
+        self.params = params
+        self._body_z = (
+            max(params.wheel_radius_left, params.wheel_radius_right) + 0.01 + params.body_height / 2
+        )
+        self.body = world.load_urdf(
+            "robot", urdf_from_params(params), [0, 0, self._body_z], [0, 0, 0, 1]
+        )
+        c = world.bullet
+        self.joint_index = {
+            c.getJointInfo(self.body, j)[1].decode(): j for j in range(c.getNumJoints(self.body))
+        }
+        self.wheel_joints = [
+            self.joint_index["wheel_left_joint"],
+            self.joint_index["wheel_right_joint"],
+        ]
+        for j in self.wheel_joints:
+            c.changeDynamics(
+                self.body,
+                j,
+                lateralFriction=params.wheel_friction,
+                rollingFriction=0.0,
+                spinningFriction=0.0,
+            )
+        # casters are part of the base: a frictionless base contact models free-swivelling casters
+        c.changeDynamics(
+            self.body, -1, lateralFriction=0.0, rollingFriction=0.0, spinningFriction=0.0
+        )
+        # make sure no default motor fights the wheel velocity motors
+        c.setJointMotorControlArray(
+            self.body, self.wheel_joints, p.VELOCITY_CONTROL, forces=[0.0, 0.0]
+        )
+        self._body_from_base = np.array([0.0, 0.0, self._body_z])
+        # bound client functions, looked up once (BulletClient rebinds on every attribute access)
+        self._get_base_pose = c.getBasePositionAndOrientation
+        self._get_joint_states = c.getJointStates
+        self._get_contacts = c.getContactPoints
+        self._set_motors = c.setJointMotorControlArray
+
+    # ------------------------------------------------------------- control
+    def set_wheel_speeds(self, w_left: float, w_right: float) -> None:
+        """Command wheel angular speeds in rad/s (velocity motors with bounded torque)."""
+        tau = self.params.motor_max_torque
+        self._set_motors(
+            self.body,
+            self.wheel_joints,
+            p.VELOCITY_CONTROL,
+            targetVelocities=[w_left, w_right],
+            forces=[tau, tau],
+        )
+
+    def wheel_speeds_from_twist(self, v: float, w: float) -> tuple[float, float]:
+        """Nominal inverse kinematics: body twist (m/s, rad/s) → wheel speeds (rad/s).
+
+        Uses the robot's own (possibly non-nominal) geometry; a controller that
+        believes other geometry must convert itself.
+        """
+        P = self.params
+        half_b = P.wheelbase / 2.0
+        return (v - w * half_b) / P.wheel_radius_left, (v + w * half_b) / P.wheel_radius_right
+
+    # --------------------------------------------------------------- state
+    def reset(self, pose: npt.ArrayLike) -> None:
+        """Place the robot at planar pose ``[x, y, theta]`` at rest."""
+        x, y, th = check_finite("pose", pose, (3,))
+        c = self.world.bullet
+        quat = c.getQuaternionFromEuler([0.0, 0.0, th])
+        c.resetBasePositionAndOrientation(self.body, [x, y, self._body_z], quat)
+        c.resetBaseVelocity(self.body, [0, 0, 0], [0, 0, 0])
+        for j in self.wheel_joints:
+            c.resetJointState(self.body, j, 0.0, 0.0)
+        self.set_wheel_speeds(0.0, 0.0)
+
+    def pose2d(self) -> FloatArray:
+        """Ground-truth planar pose ``[x, y, theta]`` of the base frame (m, m, rad)."""
+        pos, (qx, qy, qz, qw) = self._get_base_pose(self.body)
+        yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+        return np.array([pos[0], pos[1], yaw])
+
+    def pose3d(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+        """Ground-truth position (m) and orientation (quat_xyzw) of the body link."""
+        return self.world.bullet.getBasePositionAndOrientation(self.body)
+
+    def twist(self) -> FloatArray:
+        """Ground-truth body-frame velocity ``[v, w]`` (m/s, rad/s)."""
+        lin, ang = self.world.bullet.getBaseVelocity(self.body)
+        th = self.pose2d()[2]
+        return np.array([math.cos(th) * lin[0] + math.sin(th) * lin[1], ang[2]])
+
+    def in_contact_with_scenery(self) -> bool:
+        """Whether the body touches anything but the floor (a collision)."""
+        floor = self.world.bodies.get("floor", -1)
+        for contact in self._get_contacts(bodyA=self.body):
+            if contact[2] != floor:
+                return True
+        return False
+
+    def wheel_angles(self) -> tuple[float, float]:
+        """Wheel rotation angles (rad) since reset, positive driving forward."""
+        states = self._get_joint_states(self.body, self.wheel_joints)
+        return states[0][0], states[1][0]
+
+    def T_world_camera(self) -> FloatArray:
+        """4×4 pose of the camera's optical frame in the world (ground truth)."""
+        pos, quat = self.pose3d()
+        R = np.array(self.world.bullet.getMatrixFromQuaternion(quat)).reshape(3, 3)
+        T_world_body = np.eye(4)
+        T_world_body[:3, :3] = R
+        T_world_body[:3, 3] = pos
+        T_body_base = np.eye(4)
+        T_body_base[:3, 3] = -self._body_from_base
+        return T_world_body @ T_body_base @ self.params.camera.T_base_camera()
+
+
+def encoder_ticks(t: float, angles: tuple[float, float], ticks_per_rev: float) -> WheelTicks:
+    """Quantise wheel angles (rad) to cumulative encoder counts."""
+    k = ticks_per_rev / (2.0 * math.pi)
+    return WheelTicks(
+        t=t,
+        left=math.floor(angles[0] * k),
+        right=math.floor(angles[1] * k),
+        ticks_per_rev=ticks_per_rev,
+    )

@@ -1,0 +1,327 @@
+"""The simulated world: one PyBullet client per environment instance.
+
+:class:`World` owns a :class:`pybullet_utils.bullet_client.BulletClient` in
+``DIRECT`` mode (never the global client), the physics step and sub-steps, and
+the static scenery: a floor, walls and box / cylinder obstacles. Every piece of
+scenery is also kept as an analytic :class:`Primitive`, so that sensors in the
+fast geometric mode can ray-cast against it in numpy instead of asking the
+physics engine.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from enum import Enum
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+import pybullet as p
+from pybullet_utils import bullet_client
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class Shape(str, Enum):
+    """Analytic shape of a piece of static scenery."""
+
+    BOX = "box"
+    CYLINDER = "cylinder"
+
+
+@dataclass(frozen=True)
+class Primitive:
+    """A static obstacle standing on the floor.
+
+    ``center`` (x, y) m and ``yaw`` rad in the world frame; a box has
+    ``half_extents`` (hx, hy) m, a cylinder ``radius`` m; ``height`` m.
+    """
+
+    name: str
+    shape: Shape
+    center: tuple[float, float]
+    height: float
+    yaw: float = 0.0
+    half_extents: tuple[float, float] = (0.0, 0.0)
+    radius: float = 0.0
+
+    def footprint_distance(self, xy: npt.ArrayLike) -> FloatArray:
+        """Signed distance (m) from points ``xy`` (..., 2) to the footprint (negative inside)."""
+        pts = np.asarray(xy, dtype=float) - np.asarray(self.center)
+        if self.shape is Shape.CYLINDER:
+            return np.linalg.norm(pts, axis=-1) - self.radius
+        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        local = np.stack(
+            [c * pts[..., 0] + s * pts[..., 1], -s * pts[..., 0] + c * pts[..., 1]], -1
+        )
+        q = np.abs(local) - np.asarray(self.half_extents)
+        outside = np.linalg.norm(np.maximum(q, 0.0), axis=-1)
+        inside = np.minimum(np.max(q, axis=-1), 0.0)
+        return outside + inside
+
+
+class PrimitiveArrays:
+    """The primitives of a scene packed into arrays for vectorised ray casting.
+
+    Built once per scene; :meth:`ray_cast` then costs a few numpy operations on
+    ``(n_primitives, n_rays)`` arrays.
+    """
+
+    def __init__(self, primitives: list[Primitive]):
+        boxes = [q for q in primitives if q.shape is Shape.BOX]
+        cyls = [q for q in primitives if q.shape is Shape.CYLINDER]
+        self.box_center = np.array([b.center for b in boxes], dtype=float).reshape(-1, 2)
+        self.box_cos = np.cos([b.yaw for b in boxes]).reshape(-1, 1)
+        self.box_sin = np.sin([b.yaw for b in boxes]).reshape(-1, 1)
+        self.box_half = np.array([b.half_extents for b in boxes], dtype=float).reshape(-1, 2)
+        self.cyl_center = np.array([c.center for c in cyls], dtype=float).reshape(-1, 2)
+        self.cyl_r2 = np.array([c.radius**2 for c in cyls], dtype=float).reshape(-1, 1)
+
+    def ray_cast(
+        self, origin_xy: npt.ArrayLike, directions: FloatArray, range_max: float
+    ) -> FloatArray:
+        """Distance along each planar ray (n, 2 unit directions) to the first hit; ``inf`` beyond
+        ``range_max``."""
+        ox, oy = float(origin_xy[0]), float(origin_xy[1])  # type: ignore[index]
+        dx, dy = directions[:, 0], directions[:, 1]
+        best = np.full(directions.shape[0], np.inf)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            if len(self.box_center):
+                rx = ox - self.box_center[:, :1]
+                ry = oy - self.box_center[:, 1:]
+                c, s = self.box_cos, self.box_sin
+                olx, oly = c * rx + s * ry, -s * rx + c * ry
+                dlx, dly = c * dx + s * dy, -s * dx + c * dy
+                hx, hy = self.box_half[:, :1], self.box_half[:, 1:]
+                t1, t2 = (-hx - olx) / dlx, (hx - olx) / dlx
+                t3, t4 = (-hy - oly) / dly, (hy - oly) / dly
+                tmin = np.maximum(np.minimum(t1, t2), np.minimum(t3, t4))
+                tmax = np.minimum(np.maximum(t1, t2), np.maximum(t3, t4))
+                tmin = np.maximum(tmin, 0.0)
+                hit = np.where(tmax >= tmin, tmin, np.inf)
+                np.minimum(best, np.nanmin(np.where(np.isnan(hit), np.inf, hit), axis=0), out=best)
+            if len(self.cyl_center):
+                rx = ox - self.cyl_center[:, :1]
+                ry = oy - self.cyl_center[:, 1:]
+                b = rx * dx + ry * dy
+                cc = rx * rx + ry * ry - self.cyl_r2
+                disc = b * b - cc
+                t = -b - np.sqrt(np.maximum(disc, 0.0))
+                t = np.where(cc < 0, 0.0, t)
+                t = np.where((disc >= 0) & (t >= 0), t, np.inf)
+                np.minimum(best, t.min(axis=0), out=best)
+        best[best > range_max] = np.inf
+        return best
+
+
+def ray_cast_primitives(
+    origin_xy: npt.ArrayLike,
+    directions: npt.ArrayLike,
+    primitives: list[Primitive],
+    range_max: float,
+) -> FloatArray:
+    """Distance along each planar ray to the first primitive it hits.
+
+    Parameters
+    ----------
+    origin_xy : (2,) ray origin in the world frame, m.
+    directions : (n, 2) unit ray directions in the world frame.
+    primitives : scenery to hit (boxes by the slab method, cylinders as circles).
+    range_max : rays that hit nothing closer get ``inf``.
+
+    Returns
+    -------
+    (n,) ranges in m.
+    """
+    return PrimitiveArrays(primitives).ray_cast(
+        np.asarray(origin_xy, dtype=float), np.asarray(directions, dtype=float), range_max
+    )
+
+
+def procedural_texture(rng: np.random.Generator, size: int = 256) -> npt.NDArray[np.uint8]:
+    """A random, feature-rich RGB texture (blobs, lines and speckle at several scales).
+
+    Gives a camera corners and blobs to track, like posters and furniture in a room.
+    """
+    img = np.full((size, size, 3), rng.integers(90, 200, size=3), dtype=np.uint8)
+    for _ in range(int(rng.integers(25, 45))):
+        color = tuple(int(c) for c in rng.integers(0, 256, size=3))
+        kind = rng.integers(0, 3)
+        x, y = (int(v) for v in rng.integers(0, size, size=2))
+        r = int(rng.integers(size // 40, size // 8))
+        if kind == 0:
+            cv2.circle(img, (x, y), r, color, -1)
+        elif kind == 1:
+            cv2.rectangle(img, (x, y), (x + r, y + int(r * rng.uniform(0.5, 2))), color, -1)
+        else:
+            x2, y2 = (int(v) for v in rng.integers(0, size, size=2))
+            cv2.line(img, (x, y), (x2, y2), color, int(rng.integers(1, 4)))
+    noise = rng.integers(-20, 21, size=(size // 4, size // 4, 1))
+    noise = cv2.resize(noise.astype(np.int16), (size, size), interpolation=cv2.INTER_NEAREST)
+    return np.clip(img.astype(np.int16) + noise[..., None], 0, 255).astype(np.uint8)
+
+
+class World:
+    """One PyBullet simulation with static scenery.
+
+    Parameters
+    ----------
+    physics_hz : physics rate in Hz (240 by default, PyBullet's native step).
+    n_substeps : physics steps per control step; the control period is
+        ``dt = n_substeps / physics_hz`` (default 12 → 20 Hz).
+    solver_iterations : constraint-solver iterations per physics step.
+    """
+
+    def __init__(self, physics_hz: float = 240.0, n_substeps: int = 12, solver_iterations: int = 5):
+        if not (physics_hz > 0 and np.isfinite(physics_hz)):
+            raise ValueError(f"physics_hz must be a positive number, got {physics_hz!r}")
+        if int(n_substeps) != n_substeps or n_substeps < 1:
+            raise ValueError(f"n_substeps must be a positive integer, got {n_substeps!r}")
+        self.physics_hz = float(physics_hz)
+        self.n_substeps = int(n_substeps)
+        self.solver_iterations = int(solver_iterations)
+        self.client: bullet_client.BulletClient | None = bullet_client.BulletClient(
+            connection_mode=p.DIRECT
+        )
+        self._asset_dir = tempfile.mkdtemp(prefix="realitygap-")
+        self.bodies: dict[str, int] = {}
+        self.primitives: dict[str, Primitive] = {}
+        self._texture_cache: dict[str, int] = {}
+        self._arrays: PrimitiveArrays | None = None
+        self.reset_simulation()
+
+    # ------------------------------------------------------------------ time
+    @property
+    def physics_dt(self) -> float:
+        """Physics step in s."""
+        return 1.0 / self.physics_hz
+
+    @property
+    def dt(self) -> float:
+        """Control period in s: ``physics_dt * n_substeps``."""
+        return self.physics_dt * self.n_substeps
+
+    @property
+    def bullet(self) -> bullet_client.BulletClient:
+        """The live client; a clear error after :meth:`close`."""
+        if self.client is None:
+            raise RuntimeError("this World is closed; create a new one")
+        return self.client
+
+    def step(self) -> None:
+        """Advance one control period (``n_substeps`` physics steps)."""
+        step = self.bullet.stepSimulation
+        for _ in range(self.n_substeps):
+            step()
+
+    # -------------------------------------------------------------- scenery
+    def reset_simulation(self) -> None:
+        """Remove every body and start from an empty world with gravity and settings."""
+        c = self.bullet
+        c.resetSimulation()
+        c.setGravity(0.0, 0.0, -9.81)
+        c.setPhysicsEngineParameter(
+            fixedTimeStep=self.physics_dt,
+            numSolverIterations=self.solver_iterations,
+            deterministicOverlappingPairs=1,
+            enableConeFriction=0,
+        )
+        self.bodies.clear()
+        self.primitives.clear()
+        self._texture_cache.clear()
+        self._arrays = None
+
+    def add_floor(self, rgba: tuple[float, float, float, float] = (0.55, 0.5, 0.45, 1.0)) -> int:
+        """A flat floor at z = 0, friction 1."""
+        c = self.bullet
+        col = c.createCollisionShape(p.GEOM_PLANE)
+        vis = c.createVisualShape(p.GEOM_BOX, halfExtents=[15, 15, 0.001], rgbaColor=list(rgba))
+        body = c.createMultiBody(0.0, col, vis, [0, 0, 0])
+        c.changeDynamics(body, -1, lateralFriction=1.0)
+        self.bodies["floor"] = body
+        return body
+
+    def texture(self, key: str, rng: np.random.Generator) -> int:
+        """A procedural texture loaded into the renderer (cached per world and key)."""
+        if key not in self._texture_cache:
+            path = os.path.join(self._asset_dir, f"tex_{key}.png")
+            cv2.imwrite(path, procedural_texture(rng)[..., ::-1])
+            self._texture_cache[key] = self.bullet.loadTexture(path)
+        return self._texture_cache[key]
+
+    def add_primitive(
+        self,
+        prim: Primitive,
+        rgba: tuple[float, float, float, float] = (0.8, 0.8, 0.8, 1.0),
+        texture_id: int | None = None,
+    ) -> int:
+        """Create a static body for ``prim`` and remember its analytic shape."""
+        if prim.name in self.bodies:
+            raise ValueError(f"a body named {prim.name!r} already exists in this world")
+        c = self.bullet
+        half_h = prim.height / 2.0
+        if prim.shape is Shape.BOX:
+            he = [prim.half_extents[0], prim.half_extents[1], half_h]
+            col = c.createCollisionShape(p.GEOM_BOX, halfExtents=he)
+            vis = c.createVisualShape(p.GEOM_BOX, halfExtents=he, rgbaColor=list(rgba))
+        else:
+            col = c.createCollisionShape(p.GEOM_CYLINDER, radius=prim.radius, height=prim.height)
+            vis = c.createVisualShape(
+                p.GEOM_CYLINDER, radius=prim.radius, length=prim.height, rgbaColor=list(rgba)
+            )
+        quat = c.getQuaternionFromEuler([0.0, 0.0, prim.yaw])
+        body = c.createMultiBody(0.0, col, vis, [prim.center[0], prim.center[1], half_h], quat)
+        if texture_id is not None:
+            c.changeVisualShape(body, -1, textureUniqueId=texture_id, rgbaColor=[1, 1, 1, 1])
+        self.bodies[prim.name] = body
+        self.primitives[prim.name] = prim
+        self._arrays = None
+        return body
+
+    def load_urdf(
+        self, name: str, urdf_text: str, position: npt.ArrayLike, quat_xyzw: npt.ArrayLike
+    ) -> int:
+        """Write ``urdf_text`` to the world's asset folder and load it as body ``name``."""
+        path = os.path.join(self._asset_dir, f"{name}.urdf")
+        with open(path, "w", encoding="utf-8") as fh:
+            fh.write(urdf_text)
+        body = self.bullet.loadURDF(
+            path,
+            list(map(float, position)),
+            list(map(float, quat_xyzw)),
+            flags=p.URDF_USE_INERTIA_FROM_FILE,
+        )
+        self.bodies[name] = body
+        return body
+
+    def scenery_primitives(self) -> list[Primitive]:
+        """All analytic scenery (walls and obstacles)."""
+        return list(self.primitives.values())
+
+    @property
+    def scenery_arrays(self) -> PrimitiveArrays:
+        """The scenery packed for vectorised ray casting (rebuilt when scenery changes)."""
+        if self._arrays is None:
+            self._arrays = PrimitiveArrays(self.scenery_primitives())
+        return self._arrays
+
+    # ------------------------------------------------------------- lifetime
+    def close(self) -> None:
+        """Disconnect and delete generated assets; safe to call twice."""
+        if self.client is not None:
+            try:
+                self.client.disconnect()
+            except p.error:
+                pass
+            self.client = None
+        if self._asset_dir and os.path.isdir(self._asset_dir):
+            shutil.rmtree(self._asset_dir, ignore_errors=True)
+
+    def __del__(self) -> None:  # pragma: no cover - best effort at interpreter exit
+        try:
+            self.close()
+        except Exception:
+            pass
