@@ -156,7 +156,9 @@ def urdf_from_params(params: DiffDriveParams) -> str:
 
     cam = P.camera
     cx, cy_, cz = cam.mount_xyz
-    caster_z = P.caster_radius - body_z
+    # casters ride 2 mm above the floor: the weight stays on the driven wheels (as Kobuki's
+    # sprung casters do) and the casters only catch pitching under hard acceleration
+    caster_z = P.caster_radius + 0.002 - body_z
     return f"""<?xml version="1.0"?>
 <robot name="kobuki_like">
   <link name="base_link">

@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+import time
 from dataclasses import dataclass
 from enum import Enum
 
@@ -191,6 +192,8 @@ class World:
         self.primitives: dict[str, Primitive] = {}
         self._texture_cache: dict[str, int] = {}
         self._arrays: PrimitiveArrays | None = None
+        self.physics_seconds = 0.0
+        self._step_simulation = self.client.stepSimulation
         self.reset_simulation()
 
     # ------------------------------------------------------------------ time
@@ -212,10 +215,17 @@ class World:
         return self.client
 
     def step(self) -> None:
-        """Advance one control period (``n_substeps`` physics steps)."""
-        step = self.bullet.stepSimulation
+        """Advance one control period (``n_substeps`` physics steps).
+
+        The wall-clock time spent inside ``stepSimulation`` is added to
+        :attr:`physics_seconds`, so benchmarks can compare an env step with the
+        raw physics it wraps.
+        """
+        step = self._step_simulation
+        t0 = time.perf_counter()
         for _ in range(self.n_substeps):
             step()
+        self.physics_seconds += time.perf_counter() - t0
 
     # -------------------------------------------------------------- scenery
     def reset_simulation(self) -> None:
