@@ -13,6 +13,7 @@ from collections import deque
 
 import numpy as np
 import numpy.typing as npt
+
 from realitygap.robots.world import Primitive, Shape
 
 FloatArray = npt.NDArray[np.float64]

@@ -45,14 +45,14 @@ import gymnasium as gym
 import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
+
 from realitygap.envs.layouts import clearance, free_route_exists, random_layout, room_walls
 from realitygap.estimators.base import DiffDriveMeasurement, Estimate, Estimator, Scan
+from realitygap.geometry import check_finite
 from realitygap.robots.diffdrive import DiffDriveParams, DiffDriveRobot, encoder_ticks
 from realitygap.robots.effects import Reality
 from realitygap.robots.sensors import PlanarScanner, RGBDCamera, SensorMode
 from realitygap.robots.world import Primitive, World
-
-from realitygap.geometry import check_finite
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -104,6 +104,8 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     n_beams : scan beams over the camera's horizontal field of view.
     scan_hz : rate of the planar scan (Hz); steps in between re-use the last scan.
     camera_hz : rate of rendered RGB-D frames in image mode (Hz).
+    terminate_on_success : end the episode on success (otherwise ``info["is_success"]`` is
+        reported and the episode runs on, e.g. to measure where a controller settles).
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -127,6 +129,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         n_beams: int = 64,
         scan_hz: float = 10.0,
         camera_hz: float = 20.0,
+        terminate_on_success: bool = True,
     ):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
@@ -160,6 +163,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self.success_pos_tol = float(success_pos_tol)
         self.success_ang_tol = float(success_ang_tol)
         self.n_beams = int(n_beams)
+        self.terminate_on_success = bool(terminate_on_success)
         self._scan_every = self._divisor("scan_hz", scan_hz, control_hz)
         self._camera_every = self._divisor("camera_hz", camera_hz, control_hz)
         self.estimator: Estimator = (
@@ -200,6 +204,19 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     def dt(self) -> float:
         """Control period in s."""
         return self.world.dt
+
+    @property
+    def scan_angles(self) -> FloatArray:
+        """Bearings (rad, base frame) of the scan beams in the observation, as the robot
+        believes its camera is mounted (nominal parameters)."""
+        cam = self.params.camera
+        half = math.radians(cam.hfov_deg) / 2.0
+        return cam.mount_yaw + np.linspace(-half, half, self.n_beams)
+
+    @property
+    def scan_range_max(self) -> float:
+        """Range (m) that a scan value of 1 in the observation stands for."""
+        return self.params.camera.range_max
 
     @property
     def v_max(self) -> float:
@@ -272,7 +289,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         collision = self.robot.in_contact_with_scenery()
         success = self._is_success(dist, ang)
         reward, terms = self._get_rew(dist, ang, (a0, a1), collision, success)
-        terminated = collision or success
+        terminated = collision or (success and self.terminate_on_success)
         return (
             self._observation(),
             reward,

@@ -61,7 +61,7 @@ class CameraIntrinsics:
     cy: float
 
     @property
-    def K(self) -> FloatArray:  # noqa: N802 - the conventional name
+    def K(self) -> FloatArray:
         """3×3 camera matrix."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 

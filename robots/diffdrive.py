@@ -14,10 +14,10 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 import numpy.typing as npt
 import pybullet as p
-from realitygap.estimators.base import CameraIntrinsics, WheelTicks
-from realitygap.robots.world import World
 
+from realitygap.estimators.base import CameraIntrinsics, WheelTicks
 from realitygap.geometry import check_finite
+from realitygap.robots.world import World
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -86,7 +86,7 @@ class DiffDriveParams:
     caster_radius: float = 0.012
     caster_offset: float = 0.115
     wheel_friction: float = 1.2
-    motor_max_torque: float = 2.0
+    motor_max_torque: float = 0.35
     ticks_per_rev: float = 2578.33
     v_max: float = 0.70
     w_max: float = math.pi
@@ -156,9 +156,7 @@ def urdf_from_params(params: DiffDriveParams) -> str:
 
     cam = P.camera
     cx, cy_, cz = cam.mount_xyz
-    # casters ride 2 mm above the floor: the weight stays on the driven wheels (as Kobuki's
-    # sprung casters do) and the casters only catch pitching under hard acceleration
-    caster_z = P.caster_radius + 0.002 - body_z
+    caster_z = P.caster_radius - body_z
     return f"""<?xml version="1.0"?>
 <robot name="kobuki_like">
   <link name="base_link">
@@ -220,6 +218,12 @@ class DiffDriveRobot:
         c.changeDynamics(
             self.body, -1, lateralFriction=0.0, rollingFriction=0.0, spinningFriction=0.0
         )
+        # soft caster contacts model their springs (as on the Kobuki): the weight rests on the
+        # driven wheels and the body does not lean on a caster, which would load the wheel
+        # motors. (PyBullet ignores contact stiffness given together with friction: own call.)
+        c.changeDynamics(self.body, -1, contactStiffness=3000.0, contactDamping=60.0)
+        # a robot that creeps slowly must not be put to sleep by the engine (its motors would stop)
+        c.changeDynamics(self.body, -1, activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING)
         # make sure no default motor fights the wheel velocity motors
         c.setJointMotorControlArray(
             self.body, self.wheel_joints, p.VELOCITY_CONTROL, forces=[0.0, 0.0]

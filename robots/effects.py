@@ -10,7 +10,15 @@ or both of two ways:
 * by a runtime hook between the controller and the body
   (:meth:`Effect.make_command_hook`) — a command queue for latency, a motor
   dead-band, velocity saturation — or between a sensor and its reader
-  (:meth:`Effect.make_ticks_hook`).
+  (:meth:`Effect.make_ticks_hook`);
+* by a clock error of a recorded channel (:meth:`Effect.channel_time_offsets`):
+  the recorder stamps that channel's samples late or early.
+
+Every effect also says where it can be seen (:attr:`Effect.observed_in`, the
+log channels it changes) and at which stage of the pipeline it acts
+(:attr:`Effect.stage`: ``"body"``, ``"drive"``, ``"command"``, ``"sensor"``,
+``"camera"``, ``"timing"``), which the diagnosis uses to drop candidates a log
+cannot show and to explain its findings.
 
 A :class:`Reality` is the nominal parameters plus a set of effects with values;
 ``gym.make(id, reality=...)`` builds the "real" robot from it.
@@ -22,7 +30,7 @@ import difflib
 import math
 from collections import deque
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 from realitygap.robots.diffdrive import DiffDriveParams
@@ -54,6 +62,8 @@ class Effect:
     robot: ClassVar[str] = ""
     description: ClassVar[str] = ""
     specs: ClassVar[tuple[ParamSpec, ...]] = ()
+    stage: ClassVar[str] = "body"
+    observed_in: ClassVar[tuple[str, ...]] = ("pose_gt",)
 
     def __init__(self, **values: float):
         known = {s.name: s for s in self.specs}
@@ -71,6 +81,7 @@ class Effect:
             if not math.isfinite(value):
                 raise ValueError(f"effect {self.name!r}: {spec.name} must be finite, got {value!r}")
             self.values[spec.name] = value
+        self._nominal: Any = None
 
     # realisations (identity by default) ---------------------------------------
     def apply_params(self, params: Any) -> Any:
@@ -85,6 +96,31 @@ class Effect:
         """A fresh encoder hook for one episode, or ``None``."""
         return None
 
+    def make_ticks_inverse_hook(self) -> TicksHook | None:
+        """The inverse of :meth:`make_ticks_hook` (encoder reading → true wheel angle), or ``None``.
+
+        Needed to drive a simulation by logged encoder ticks; an effect with a
+        ticks hook but no inverse cannot be replayed that way.
+        """
+        return None
+
+    def channel_time_offsets(self) -> dict[str, float]:
+        """Clock errors of recorded channels, s: ``{channel: offset}``.
+
+        A channel with offset ``Δ`` is stamped ``Δ`` late: its logged sample at
+        time ``t`` is the true value at ``t − Δ``.
+        """
+        return {}
+
+    def bind_nominal(self, params: Any) -> None:
+        """Remember the robot's nominal parameters (what its firmware believes).
+
+        :class:`Reality` calls this before :meth:`apply_params`, so hooks that
+        act on the firmware's wheel-speed commands use the nominal geometry
+        whatever other effects change in the body.
+        """
+        self._nominal = params
+
     # helpers ------------------------------------------------------------------
     def __getitem__(self, key: str) -> float:
         return self.values[key]
@@ -94,7 +130,23 @@ class Effect:
         return f"{type(self).__name__}({args})"
 
     def to_dict(self) -> dict[str, Any]:
+        """``{"name": ..., "values": {param: value}}`` (JSON-able)."""
         return {"name": self.name, "values": dict(self.values)}
+
+    def spec(self, param: str) -> ParamSpec:
+        """The :class:`ParamSpec` of parameter ``param``."""
+        for s in self.specs:
+            if s.name == param:
+                return s
+        raise KeyError(f"effect {self.name!r} has no parameter {param!r}")
+
+    def is_nominal(self) -> bool:
+        """True when every parameter sits at its nominal value (the effect does nothing)."""
+        return all(self.values[s.name] == s.nominal for s in self.specs)
+
+    def _nominal_half_wheelbase(self) -> float:
+        params = self._nominal if self._nominal is not None else DiffDriveParams()
+        return float(params.wheelbase) / 2.0
 
 
 EFFECTS: dict[str, type[Effect]] = {}
@@ -118,12 +170,19 @@ def make_effect(name: str, **values: float) -> Effect:
 
 
 # --------------------------------------------------------------------------- diff drive
+GRAVITY = 9.81
+"""Standard gravity, m/s²."""
+
+
 @register_effect
 class WheelRadiusScale(Effect):
     name = "wheel_radius_scale"
     robot = "diffdrive"
+    stage = "body"
+    observed_in = ("pose_gt", "pose_cam")
     description = (
-        "Both wheels larger or smaller than nominal (tyre wear, inflation): scales distance."
+        "Both wheels larger or smaller than nominal (tyre wear, inflation): scales distance "
+        "and rotation per wheel revolution. Realised as a body with other wheel radii."
     )
     specs = (ParamSpec("scale", "1", 1.0, 0.9, 1.1, "true radius / nominal radius, both wheels"),)
 
@@ -139,9 +198,11 @@ class WheelRadiusScale(Effect):
 class WheelDiameterRatio(Effect):
     name = "wheel_diameter_ratio"
     robot = "diffdrive"
+    stage = "body"
+    observed_in = ("pose_gt", "pose_cam")
     description = (
         "Unequal wheel diameters, E_d = D_R / D_L (Borenstein): the robot curves when driving straight. "
-        "The mean diameter is kept."
+        "The mean diameter is kept. Realised as a body with other wheel radii."
     )
     specs = (ParamSpec("E_d", "1", 1.0, 0.95, 1.05, "right / left wheel diameter"),)
 
@@ -157,7 +218,12 @@ class WheelDiameterRatio(Effect):
 class WheelbaseError(Effect):
     name = "wheelbase_error"
     robot = "diffdrive"
-    description = "Effective wheelbase differs from nominal, E_b = b_actual / b_nominal: turns are over/under-rotated."
+    stage = "body"
+    observed_in = ("pose_gt", "pose_cam")
+    description = (
+        "Effective wheelbase differs from nominal, E_b = b_actual / b_nominal: turns are "
+        "over/under-rotated. Realised as a body with the wheels further apart or closer."
+    )
     specs = (ParamSpec("E_b", "1", 1.0, 0.9, 1.1, "actual / nominal wheelbase"),)
 
     def apply_params(self, params: DiffDriveParams) -> DiffDriveParams:
@@ -165,10 +231,53 @@ class WheelbaseError(Effect):
 
 
 @register_effect
+class LongitudinalSlip(Effect):
+    r"""Reduced traction: the wheels spin or skid when the drive asks for more force than the floor gives.
+
+    Realised by the tyre–floor friction coefficient of the body's wheels
+    (PyBullet multiplies it with the floor's 1.0). While the wheels grip,
+    nothing changes; when a speed change needs more than the friction force,
+    the wheel keeps turning at its commanded speed (the encoder counts it) while
+    the ground speed follows at the traction limit
+
+    .. math::
+
+        |\dot u| \le a_{\max} = \frac{\mu g}{1 + \mu h / l},
+
+    with ``h`` the height of the centre of mass and ``l`` the caster offset
+    (load moves onto a caster under hard acceleration). The ground then lags
+    the wheels after a start and runs on after a stop.
+
+    A *constant* creep ratio is not part of this effect on purpose: it changes
+    metres per wheel revolution exactly as a wheel-radius scale does, so no log
+    could tell the two apart; it is reported as ``wheel_radius_scale``.
+    """
+
+    name = "longitudinal_slip"
+    robot = "diffdrive"
+    stage = "drive"
+    observed_in = ("pose_gt", "pose_cam")
+    description = (
+        "Reduced tyre-floor traction (dust, polished or wet floor): on hard speed changes the "
+        "wheels spin or skid, so the ground moves less than the wheel rotation on a start and "
+        "more on a stop. Realised as the wheels' friction coefficient."
+    )
+    specs = (ParamSpec("mu", "1", 1.2, 0.05, 1.2, "tyre-floor friction coefficient (nominal 1.2)"),)
+
+    def apply_params(self, params: DiffDriveParams) -> DiffDriveParams:
+        return params.replace(wheel_friction=self["mu"])
+
+
+@register_effect
 class CameraMountOffset(Effect):
     name = "camera_mount_offset"
     robot = "diffdrive"
-    description = "The camera is mounted off its nominal place: offset in x, y (m) and yaw (rad) in the base frame."
+    stage = "camera"
+    observed_in = ("pose_cam",)
+    description = (
+        "The camera is mounted off its nominal place: offset in x, y (m) and yaw (rad) in the "
+        "base frame. Realised by moving the camera link of the body."
+    )
     specs = (
         ParamSpec("dx", "m", 0.0, -0.03, 0.03, "forward offset"),
         ParamSpec("dy", "m", 0.0, -0.03, 0.03, "leftward offset"),
@@ -178,8 +287,6 @@ class CameraMountOffset(Effect):
     def apply_params(self, params: DiffDriveParams) -> DiffDriveParams:
         cam = params.camera
         x, y, z = cam.mount_xyz
-        from dataclasses import replace
-
         new_cam = replace(
             cam,
             mount_xyz=(x + self["dx"], y + self["dy"], z),
@@ -192,8 +299,11 @@ class CameraMountOffset(Effect):
 class CommandLatency(Effect):
     name = "command_latency"
     robot = "diffdrive"
+    stage = "command"
+    observed_in = ("pose_gt", "ticks", "pose_cam")
     description = (
-        "Commands reach the motors late (bus, firmware queue): a pure delay of the commanded twist."
+        "Commands reach the motors late (bus, firmware queue): a pure delay of the commanded "
+        "twist. Realised as a command queue (fractional delays interpolate between steps)."
     )
     specs = (ParamSpec("delay", "s", 0.0, 0.0, 0.3, "command delay"),)
 
@@ -220,8 +330,11 @@ class CommandLatency(Effect):
 class MotorDeadband(Effect):
     name = "motor_deadband"
     robot = "diffdrive"
+    stage = "command"
+    observed_in = ("pose_gt", "ticks", "pose_cam")
     description = (
-        "Motors do not turn below a minimum wheel-speed command (static friction, PWM dead zone)."
+        "Motors do not turn below a minimum wheel-speed command (static friction, PWM dead zone). "
+        "Realised on the firmware's wheel-speed commands (nominal geometry)."
     )
     specs = (
         ParamSpec(
@@ -234,19 +347,11 @@ class MotorDeadband(Effect):
         ),
     )
 
-    def __init__(self, **values: float):
-        super().__init__(**values)
-        self._half_b = DiffDriveParams().wheelbase / 2.0
-
-    def apply_params(self, params: DiffDriveParams) -> DiffDriveParams:
-        self._half_b = params.wheelbase / 2.0
-        return params
-
     def make_command_hook(self, dt: float) -> CommandHook | None:
         thr = self["threshold"]
         if thr <= 0:
             return None
-        hb = self._half_b
+        hb = self._nominal_half_wheelbase()
 
         def hook(v: float, w: float, dt_: float) -> tuple[float, float]:
             vl, vr = v - w * hb, v + w * hb
@@ -261,20 +366,23 @@ class MotorDeadband(Effect):
 class VelocitySaturation(Effect):
     name = "velocity_saturation"
     robot = "diffdrive"
-    description = "The drive reaches a lower top speed than specified (weak battery, motor limit)."
+    stage = "command"
+    observed_in = ("pose_gt", "ticks", "pose_cam")
+    description = (
+        "The drive reaches a lower top speed than specified (weak battery, motor limit). "
+        "Realised by clipping the firmware's wheel-speed commands (nominal geometry)."
+    )
     specs = (
         ParamSpec(
             "v_limit", "m/s", 10.0, 0.2, 10.0, "largest wheel surface speed actually reached"
         ),
     )
 
-    def apply_params(self, params: DiffDriveParams) -> DiffDriveParams:
-        self._half_b = params.wheelbase / 2.0
-        return params
-
     def make_command_hook(self, dt: float) -> CommandHook | None:
         lim = self["v_limit"]
-        hb = getattr(self, "_half_b", DiffDriveParams().wheelbase / 2.0)
+        if lim >= self.spec("v_limit").nominal:
+            return None
+        hb = self._nominal_half_wheelbase()
 
         def hook(v: float, w: float, dt_: float) -> tuple[float, float]:
             vl, vr = v - w * hb, v + w * hb
@@ -288,19 +396,50 @@ class VelocitySaturation(Effect):
 class EncoderScale(Effect):
     name = "encoder_scale"
     robot = "diffdrive"
-    description = "Encoders count more or fewer ticks per revolution than specified (wrong gear ratio in firmware)."
+    stage = "sensor"
+    observed_in = ("ticks",)
+    description = (
+        "Encoders count more or fewer ticks per revolution than specified (wrong gear ratio in "
+        "firmware). Realised between the wheel joints and the encoder reading."
+    )
     specs = (ParamSpec("scale", "1", 1.0, 0.9, 1.1, "counted / specified ticks per revolution"),)
 
     def make_ticks_hook(self) -> TicksHook | None:
         s = self["scale"]
+        if s == 1.0:
+            return None
         return lambda left, right: (left * s, right * s)
+
+    def make_ticks_inverse_hook(self) -> TicksHook | None:
+        s = self["scale"]
+        if s == 1.0:
+            return None
+        return lambda left, right: (left / s, right / s)
+
+
+@register_effect
+class TimestampOffset(Effect):
+    name = "timestamp_offset"
+    robot = "diffdrive"
+    stage = "timing"
+    observed_in = ("pose_gt",)
+    description = (
+        "The ground-truth (motion-capture) clock is offset from the robot's clock: each "
+        "ground-truth sample is stamped `offset` seconds late. Realised by the recorder."
+    )
+    specs = (ParamSpec("offset", "s", 0.0, -0.3, 0.3, "ground-truth stamp minus true time"),)
+
+    def channel_time_offsets(self) -> dict[str, float]:
+        return {"pose_gt": self["offset"]} if self["offset"] != 0.0 else {}
 
 
 @dataclass
 class Reality:
     """Nominal parameters plus effects: the description of a "real" robot.
 
-    ``Reality()`` is the nominal robot. Effects apply in order.
+    ``Reality()`` is the nominal robot. Effects apply in order; hooks that act
+    on the firmware's commands see the *nominal* geometry (see
+    :meth:`Effect.bind_nominal`).
     """
 
     effects: tuple[Effect, ...] = ()
@@ -314,21 +453,61 @@ class Reality:
                 raise TypeError(f"Reality.effects must hold Effect objects, got {type(e).__name__}")
 
     def apply_params(self, params: Any) -> Any:
+        """The physical parameters of the real robot, built from the nominal ``params``."""
+        for effect in self.effects:
+            effect.bind_nominal(params)
         for effect in self.effects:
             params = effect.apply_params(params)
         return params
 
     def command_hooks(self, dt: float) -> list[CommandHook]:
+        """Fresh command hooks for one episode, in effect order."""
         return [h for e in self.effects if (h := e.make_command_hook(dt)) is not None]
 
     def ticks_hooks(self) -> list[TicksHook]:
+        """Fresh encoder hooks for one episode, in effect order."""
         return [h for e in self.effects if (h := e.make_ticks_hook()) is not None]
 
+    def ticks_inverse_hooks(self) -> list[TicksHook]:
+        """Inverse encoder hooks in reverse effect order (reading → true wheel angle).
+
+        Raises
+        ------
+        ValueError
+            If an effect changes the encoder reading but cannot be inverted.
+        """
+        out: list[TicksHook] = []
+        for e in reversed(self.effects):
+            inv = e.make_ticks_inverse_hook()
+            if inv is None and e.make_ticks_hook() is not None:
+                raise ValueError(
+                    f"effect {e.name!r} changes the encoder reading but has no inverse; "
+                    "a simulation driven by logged ticks cannot include it"
+                )
+            if inv is not None:
+                out.append(inv)
+        return out
+
+    def channel_time_offsets(self) -> dict[str, float]:
+        """Total clock error per recorded channel, s (see :meth:`Effect.channel_time_offsets`)."""
+        out: dict[str, float] = {}
+        for e in self.effects:
+            for channel, offset in e.channel_time_offsets().items():
+                out[channel] = out.get(channel, 0.0) + float(offset)
+        return out
+
+    @property
+    def effect_names(self) -> tuple[str, ...]:
+        """Names of the effects, in order."""
+        return tuple(e.name for e in self.effects)
+
     def to_dict(self) -> dict[str, Any]:
+        """JSON-able description; :meth:`from_dict` rebuilds it."""
         return {"name": self.name, "effects": [e.to_dict() for e in self.effects]}
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Reality:
+        """Rebuild a :class:`Reality` from :meth:`to_dict` output."""
         effects = tuple(
             make_effect(e["name"], **e.get("values", {})) for e in data.get("effects", ())
         )

@@ -20,6 +20,7 @@ from enum import Enum
 import numpy as np
 import numpy.typing as npt
 import pybullet as p
+
 from realitygap.estimators.base import RGBDFrame, Scan
 from realitygap.robots.diffdrive import DiffDriveRobot, RGBDCameraParams
 

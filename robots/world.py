@@ -176,7 +176,9 @@ class World:
     solver_iterations : constraint-solver iterations per physics step.
     """
 
-    def __init__(self, physics_hz: float = 240.0, n_substeps: int = 12, solver_iterations: int = 5):
+    def __init__(
+        self, physics_hz: float = 240.0, n_substeps: int = 12, solver_iterations: int = 20
+    ):
         if not (physics_hz > 0 and np.isfinite(physics_hz)):
             raise ValueError(f"physics_hz must be a positive number, got {physics_hz!r}")
         if int(n_substeps) != n_substeps or n_substeps < 1:

@@ -8,7 +8,12 @@ import numpy as np
 import pytest
 
 from realitygap.envs.layouts import room_walls
-from realitygap.robots.diffdrive import DiffDriveParams, DiffDriveRobot, encoder_ticks, urdf_from_params
+from realitygap.robots.diffdrive import (
+    DiffDriveParams,
+    DiffDriveRobot,
+    encoder_ticks,
+    urdf_from_params,
+)
 from realitygap.robots.effects import EFFECTS, Reality, make_effect
 from realitygap.robots.sensors import PlanarScanner
 from realitygap.robots.world import Primitive, Shape, World, ray_cast_primitives
@@ -49,7 +54,7 @@ def test_straight_drive_matches_wheel_kinematics(world: World) -> None:
     expected = omega * params.wheel_radius_left * 2.0
     assert x == pytest.approx(expected, rel=0.03)
     assert abs(y) < 2e-3 and abs(th) < 2e-3
-    v, w = robot.twist()
+    v, _ = robot.twist()
     # no slip: the body moves exactly as fast as the measured wheel rotation says
     states = world.bullet.getJointStates(robot.body, robot.wheel_joints)
     wheel_speed = (states[0][1] + states[1][1]) / 2.0

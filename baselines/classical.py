@@ -1,0 +1,303 @@
+"""The classical navigation baseline: improved APF → QP smoothing → Kanayama tracker → polar stabiliser.
+
+:class:`ClassicalNavPolicy` has stable-baselines3's ``predict`` signature, so the
+same harness scores it and a trained PPO model. It plans only from the
+observation — the estimated pose, the goal and the scan — and keeps a memory of
+the obstacle points it has seen (world frame, through the estimated pose).
+
+Per episode it runs a small state machine:
+
+``align``      turn in place towards the planned path's initial direction;
+``track``      follow the time-parameterised smoothed path with the Kanayama law;
+``stabilise``  polar-coordinate point stabilisation onto the goal pose;
+``done``       stand still.
+
+It re-plans when newly seen obstacles come close to the remaining path, when the
+tracking error grows too large, or when a plan failed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial import cKDTree
+
+from realitygap.controllers import (
+    APFParams,
+    ImprovedAPF,
+    KanayamaTracker,
+    PolarStabiliser,
+    TimedReference,
+    VelocityLimits,
+    shortcut_waypoints,
+    smooth_path,
+)
+from realitygap.geometry import wrap_angle
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ClassicalNavConfig:
+    """Settings of the classical pipeline (SI units)."""
+
+    inflation_radius: float = 0.25
+    """Obstacle inflation for planning: robot radius plus a margin (m)."""
+    stabilise_radius: float = 0.20
+    """Switch from path tracking to point stabilisation within this distance of the goal (m)."""
+    align_tolerance: float = math.radians(10.0)
+    """Heading error (rad) below which the initial turn-in-place ends."""
+    replan_tracking_error: float = 0.20
+    """Re-plan when the robot is this far from its reference (m)."""
+    path_clearance: float = 0.22
+    """Re-plan when a newly seen obstacle point is this close to the remaining path (m)."""
+    memory_resolution: float = 0.05
+    """Obstacle memory cell size (m); one point is kept per cell."""
+    replan_interval: float = 1.0
+    """Minimum time between re-plans triggered by new obstacles (s)."""
+    speed_fraction: float = 0.8
+    """Fraction of the velocity limits the reference may use."""
+    acceleration_fraction: float = 0.5
+    """Fraction of the base's acceleration limits the policy uses: gentle acceleration keeps
+    the wheels from slipping, which wheel odometry cannot see."""
+    done_pos_tol: float = 0.002
+    done_ang_tol: float = math.radians(0.3)
+    apf: APFParams = field(default_factory=lambda: APFParams(inflation_radius=0.25, max_escapes=8))
+
+
+@dataclass
+class _EpisodeState:
+    memory: dict[tuple[int, int], tuple[float, float]] = field(default_factory=dict)
+    new_points: list[tuple[float, float]] = field(default_factory=list)
+    goal: FloatArray | None = None
+    phase: str = "plan"
+    reference: TimedReference | None = None
+    path_tree: cKDTree | None = None
+    t_ref: float = 0.0
+    t: float = 0.0
+    last_replan: float = -1e9
+    path_heading: float = 0.0
+    plans: int = 0
+    stuck_events: int = 0
+    gave_up: int = 0
+    failed_smoothing: int = 0
+
+
+class ClassicalNavPolicy:
+    """SB3-compatible classical policy for ``realitygap/WheeledNav-v0``.
+
+    Parameters
+    ----------
+    scan_angles : (n,) beam bearings in the base frame (rad), as in the observation.
+    scan_range_max : range (m) of a scan value of 1.
+    limits : velocity and acceleration limits of the base.
+    dt : control period (s).
+    config : pipeline settings.
+
+    Use :meth:`from_env` to read all of these from an environment.
+    """
+
+    def __init__(
+        self,
+        scan_angles: npt.ArrayLike,
+        scan_range_max: float,
+        limits: VelocityLimits,
+        dt: float,
+        config: ClassicalNavConfig | None = None,
+    ):
+        self.scan_angles = np.asarray(scan_angles, dtype=float)
+        self.scan_cos, self.scan_sin = np.cos(self.scan_angles), np.sin(self.scan_angles)
+        self.scan_range_max = float(scan_range_max)
+        self.limits = limits
+        self.dt = float(dt)
+        self.config = config or ClassicalNavConfig()
+        self.apf = ImprovedAPF(self.config.apf)
+        self.tracker = KanayamaTracker()
+        self._stabilisers: dict[int, PolarStabiliser] = {}
+        self._states: dict[int, _EpisodeState] = {}
+        self.n_obs = 12 + len(self.scan_angles)
+
+    @classmethod
+    def from_env(cls, env: Any, config: ClassicalNavConfig | None = None) -> ClassicalNavPolicy:
+        """Build the policy for a (possibly wrapped) WheeledNav env, with its nominal limits."""
+        base = env.unwrapped
+        p = base.params
+        cfg = config or ClassicalNavConfig()
+        limits = VelocityLimits(
+            v_max=p.v_max,
+            w_max=p.w_max,
+            a_max=p.a_max * cfg.acceleration_fraction,
+            alpha_max=p.alpha_max * cfg.acceleration_fraction,
+        )
+        return cls(base.scan_angles, base.scan_range_max, limits, base.dt, cfg)
+
+    # ------------------------------------------------------------------ SB3 interface
+    def predict(
+        self,
+        observation: npt.ArrayLike,
+        state: Any = None,
+        episode_start: npt.ArrayLike | None = None,
+        deterministic: bool = True,
+    ) -> tuple[npt.NDArray[np.float32], Any]:
+        """Actions for one observation ``(n_obs,)`` or a batch ``(n_envs, n_obs)``."""
+        obs = np.asarray(observation, dtype=np.float64)
+        single = obs.ndim == 1
+        batch = obs[None] if single else obs
+        if batch.ndim != 2 or batch.shape[1] != self.n_obs:
+            raise ValueError(
+                f"observation must have shape ({self.n_obs},) or (n_envs, {self.n_obs}) for a scan of "
+                f"{len(self.scan_angles)} beams, got {obs.shape}"
+            )
+        starts = (
+            np.zeros(len(batch), dtype=bool)
+            if episode_start is None
+            else np.asarray(episode_start, bool)
+        )
+        actions = np.zeros((len(batch), 2), dtype=np.float32)
+        for i, row in enumerate(batch):
+            if starts.reshape(-1)[i] if starts.size else False:
+                self.reset(i)
+            actions[i] = self._act(i, row)
+        return (actions[0] if single else actions), state
+
+    def reset(self, env_index: int | None = None) -> None:
+        """Forget the episode state of one env (or of all)."""
+        if env_index is None:
+            self._states.clear()
+            self._stabilisers.clear()
+        else:
+            self._states.pop(env_index, None)
+            self._stabilisers.pop(env_index, None)
+
+    def episode_stats(self, env_index: int = 0) -> dict[str, Any]:
+        """Planner statistics of the current episode (plans, APF dead-ends, give-ups, phase)."""
+        st = self._states.get(env_index, _EpisodeState())
+        return {
+            "plans": st.plans,
+            "apf_stuck_events": st.stuck_events,
+            "apf_gave_up": st.gave_up,
+            "smoothing_failures": st.failed_smoothing,
+            "phase": st.phase,
+        }
+
+    def is_done(self, env_index: int = 0) -> bool:
+        """Whether the policy has settled on the goal (by its own estimate)."""
+        st = self._states.get(env_index)
+        return st is not None and st.phase == "done"
+
+    # ------------------------------------------------------------------ internals
+    def _act(self, i: int, obs: FloatArray) -> FloatArray:
+        pose = np.array([obs[0], obs[1], math.atan2(obs[3], obs[2])])
+        goal = np.array([obs[4], obs[5], math.atan2(obs[7], obs[6])])
+        v_prev, w_prev = obs[10] * self.limits.v_max, obs[11] * self.limits.w_max
+        st = self._states.get(i)
+        if st is None or st.goal is None or np.any(np.abs(st.goal - goal) > 1e-6):
+            self.reset(i)
+            st = self._states[i] = _EpisodeState(goal=goal)
+            self._stabilisers[i] = PolarStabiliser(limits=self.limits)
+        st.t += self.dt
+        self._remember(st, pose, obs[12:])
+        v, w = self._control(i, st, pose, goal, v_prev)
+        v, w = self.limits.clip(v, w, v_prev, w_prev, self.dt)
+        return np.array([v / self.limits.v_max, w / self.limits.w_max])
+
+    def _remember(self, st: _EpisodeState, pose: FloatArray, scan: FloatArray) -> None:
+        hit = scan < 0.999
+        if not np.any(hit):
+            return
+        r = scan[hit] * self.scan_range_max
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        bx, by = r * self.scan_cos[hit], r * self.scan_sin[hit]
+        xs, ys = pose[0] + c * bx - s * by, pose[1] + s * bx + c * by
+        res = self.config.memory_resolution
+        for x, y in zip(xs.tolist(), ys.tolist()):
+            key = (int(math.floor(x / res)), int(math.floor(y / res)))
+            if key not in st.memory:
+                st.memory[key] = (x, y)
+                st.new_points.append((x, y))
+
+    def _obstacles(self, st: _EpisodeState) -> FloatArray:
+        if not st.memory:
+            return np.zeros((0, 2))
+        return np.array(list(st.memory.values()), dtype=float)
+
+    def _plan(self, st: _EpisodeState, pose: FloatArray, goal: FloatArray) -> bool:
+        st.plans += 1
+        st.last_replan = st.t
+        st.new_points.clear()
+        obstacles = self._obstacles(st)
+        result = self.apf.plan(pose[:2], goal[:2], obstacles)
+        st.stuck_events += result.stuck_events
+        if not result.reached:
+            st.gave_up += 1
+            st.reference = None
+            return False
+        waypoints = shortcut_waypoints(
+            result.waypoints, obstacles, self.config.apf.inflation_radius
+        )
+        if len(waypoints) < 2 or np.hypot(*(waypoints[-1] - waypoints[0])) < 1e-3:
+            st.reference = None
+            return False
+        first = waypoints[min(1, len(waypoints) - 1)] - waypoints[0]
+        st.path_heading = math.atan2(first[1], first[0])
+        path = smooth_path(waypoints, st.path_heading, None)
+        if not path.feasible:
+            st.failed_smoothing += 1
+        st.reference = TimedReference(path, self.limits, speed_fraction=self.config.speed_fraction)
+        st.path_tree = cKDTree(path.xy)
+        st.t_ref = 0.0
+        st.phase = "align"
+        return True
+
+    def _needs_replan(self, st: _EpisodeState, pose: FloatArray) -> bool:
+        if st.reference is None:
+            return st.t - st.last_replan >= self.config.replan_interval or st.plans == 0
+        sample = st.reference.sample(st.t_ref)
+        if math.hypot(*(sample.pose[:2] - pose[:2])) > self.config.replan_tracking_error:
+            return True
+        if st.new_points and st.t - st.last_replan >= 0.25 and st.path_tree is not None:
+            d, idx = st.path_tree.query(np.asarray(st.new_points))
+            s_now = sample.s
+            ahead = st.reference.path.s[idx] >= s_now - 0.05
+            st.new_points.clear()
+            return bool(np.any(ahead & (d < self.config.path_clearance)))
+        return False
+
+    def _control(
+        self, i: int, st: _EpisodeState, pose: FloatArray, goal: FloatArray, v_prev: float
+    ) -> tuple[float, float]:
+        stab = self._stabilisers[i]
+        dist = math.hypot(goal[0] - pose[0], goal[1] - pose[1])
+        if st.phase in ("stabilise", "done") or dist < self.config.stabilise_radius:
+            if st.phase not in ("stabilise", "done"):
+                stab.reset()
+            st.phase = "stabilise"
+            if stab.done(pose, goal, self.config.done_pos_tol, self.config.done_ang_tol):
+                st.phase = "done"
+                return 0.0, 0.0
+            if st.phase == "done" and dist > 5 * self.config.done_pos_tol:
+                st.phase = "stabilise"
+            return stab.command(pose, goal)
+        if self._needs_replan(st, pose):
+            if abs(v_prev) > 0.05:  # brake before planning from a new heading
+                return 0.0, 0.0
+            if not self._plan(st, pose, goal):
+                return 0.0, 0.0
+        assert st.reference is not None
+        if st.phase == "align":
+            err = float(wrap_angle(st.path_heading - pose[2]))
+            if abs(err) > self.config.align_tolerance:
+                return stab.command(pose, np.array([pose[0], pose[1], st.path_heading]))
+            st.phase = "track"
+            st.t_ref = 0.0
+        st.t_ref += self.dt
+        ref = st.reference.sample(st.t_ref)
+        if st.t_ref >= st.reference.duration:
+            st.phase = "stabilise"
+            stab.reset()
+            return stab.command(pose, goal)
+        return self.tracker.command(pose, ref.pose, ref.v, ref.w)
