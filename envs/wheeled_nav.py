@@ -190,6 +190,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._steps = 0
         self._cmd = np.zeros(2)
         self._goal = np.zeros(3)
+        self._start_pose = np.zeros(3)
         self._scan: Scan | None = None
         self._estimate: Estimate | None = None
         self._layout: list[Primitive] = []
@@ -241,6 +242,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         rng = self.np_random
         start, goal = self._draw_start_goal(rng, options)
         self._goal = goal
+        self._start_pose = start.copy()
         self._build_world(rng, start, goal)
 
         self._t, self._steps = 0.0, 0

@@ -466,17 +466,34 @@ def propagate_pose(
         q^+ = q \oplus \delta(\Delta s, \Delta\theta), \qquad
         P^+ = J_a P J_a^\top + (J_b J_\delta) Q (J_b J_\delta)^\top .
     """
-    delta = arc_increment(ds, dtheta)
-    J_a, J_b = se2_compose_jacobians(pose, delta)
-    G = J_b @ arc_increment_jacobian(ds, dtheta)
+    # scalar arithmetic throughout: this runs once per control step inside the envs
+    ds, dtheta = float(ds), float(dtheta)
+    th = dtheta
+    if abs(th) < _SERIES_LIMIT:
+        th2 = th * th
+        f1 = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
+        f2 = th / 2.0 - th * th2 / 24.0 + th * th2 * th2 / 720.0
+        df1 = -th / 3.0 + th * th2 / 30.0 - th * th2 * th2 / 840.0
+        df2 = 0.5 - th2 / 8.0 + th2 * th2 / 144.0
+    else:
+        st, ct = math.sin(th), math.cos(th)
+        f1, f2 = st / th, (1.0 - ct) / th
+        df1 = (th * ct - st) / (th * th)
+        df2 = (th * st - 1.0 + ct) / (th * th)
+    dx, dy = ds * f1, ds * f2
     c, s = math.cos(pose[2]), math.sin(pose[2])
     new = np.array(
         [
-            pose[0] + c * delta[0] - s * delta[1],
-            pose[1] + s * delta[0] + c * delta[1],
-            float(wrap_angle(pose[2] + delta[2])),
+            pose[0] + c * dx - s * dy,
+            pose[1] + s * dx + c * dy,
+            (pose[2] + dtheta + math.pi) % (2.0 * math.pi) - math.pi,
         ]
     )
+    # J_a = ∂(a ⊕ δ)/∂a, G = ∂(a ⊕ δ)/∂δ · ∂δ/∂(Δs, Δθ)
+    J_a = np.array([[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]])
+    g00, g01 = c * f1 - s * f2, ds * (c * df1 - s * df2)
+    g10, g11 = s * f1 + c * f2, ds * (s * df1 + c * df2)
+    G = np.array([[g00, g01], [g10, g11], [0.0, 1.0]])
     new_cov = J_a @ cov @ J_a.T + G @ noise.covariance(ds, dtheta) @ G.T
     return new, 0.5 * (new_cov + new_cov.T)
 
@@ -567,12 +584,11 @@ class WheelOdometry:
             raise TypeError(
                 f"WheelOdometry.update expects WheelTicks or None, got {type(measurement).__name__}"
             )
-        values = np.array(
-            [measurement.t, measurement.left, measurement.right, measurement.ticks_per_rev],
-            dtype=float,
-        )
         reason = None
-        if not np.all(np.isfinite(values)):
+        if not all(
+            math.isfinite(v)
+            for v in (measurement.t, measurement.left, measurement.right, measurement.ticks_per_rev)
+        ):
             reason = "non-finite wheel ticks"
         elif measurement.ticks_per_rev <= 0:
             reason = f"ticks_per_rev must be > 0, got {measurement.ticks_per_rev}"

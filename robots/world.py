@@ -10,10 +10,13 @@ physics engine.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
+import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from enum import Enum
 
@@ -165,6 +168,27 @@ def procedural_texture(rng: np.random.Generator, size: int = 256) -> npt.NDArray
     return np.clip(img.astype(np.int16) + noise[..., None], 0, 255).astype(np.uint8)
 
 
+@contextlib.contextmanager
+def _quiet_c_stdout() -> Iterator[None]:
+    """Silence output written by C code to file descriptor 1 (Python's own prints unaffected
+    when stdout is not fd 1, e.g. under pytest's capture)."""
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):
+        yield
+        return
+    sys.stdout.flush()
+    saved = os.dup(fd)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, fd)
+        yield
+    finally:
+        os.dup2(saved, fd)
+        os.close(saved)
+        os.close(devnull)
+
+
 class World:
     """One PyBullet simulation with static scenery.
 
@@ -186,9 +210,10 @@ class World:
         self.physics_hz = float(physics_hz)
         self.n_substeps = int(n_substeps)
         self.solver_iterations = int(solver_iterations)
-        self.client: bullet_client.BulletClient | None = bullet_client.BulletClient(
-            connection_mode=p.DIRECT
-        )
+        with _quiet_c_stdout():  # PyBullet's C layer prints "argv[0]=" on every connect
+            self.client: bullet_client.BulletClient | None = bullet_client.BulletClient(
+                connection_mode=p.DIRECT
+            )
         self._asset_dir = tempfile.mkdtemp(prefix="realitygap-")
         self.bodies: dict[str, int] = {}
         self.primitives: dict[str, Primitive] = {}

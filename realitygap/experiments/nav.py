@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Any
 
@@ -57,3 +58,205 @@ def bench_speed(ctx: RunContext) -> dict[str, Any]:
         "figures": figures,
         "config": {"steps": n_steps, "physics_hz": 240, "control_hz": 20, "n_obstacles": 6},
     }
+
+
+def run_episode(
+    env: gym.Env,
+    policy: Any,
+    seed: int,
+    options: dict[str, Any] | None = None,
+    settle: bool = False,
+) -> dict[str, Any]:
+    """Run one episode of ``policy`` on ``env``; return the final info and path statistics.
+
+    With ``settle`` the episode also ends as soon as the policy reports it has settled on the
+    goal (classical policy) — used where the env does not terminate on success.
+    """
+    obs, info = env.reset(seed=seed, options=options)
+    path = 0.0
+    prev = np.asarray(info["true_pose"][:2])
+    steps, collided, success_seen = 0, False, False
+    terminated = truncated = False
+    start = True
+    while not (terminated or truncated):
+        action, _ = policy.predict(obs, episode_start=np.array([start]), deterministic=True)
+        start = False
+        obs, _, terminated, truncated, info = env.step(action)
+        steps += 1
+        xy = np.asarray(info["true_pose"][:2])
+        path += float(np.hypot(*(xy - prev)))
+        prev = xy
+        collided |= bool(info["collision"])
+        success_seen |= bool(info["is_success"])
+        if (
+            settle
+            and getattr(policy, "is_done", lambda: False)()
+            and abs(obs[10]) < 1e-6
+            and abs(obs[11]) < 1e-6
+        ):
+            break
+    return {
+        "info": info,
+        "steps": steps,
+        "path_length": path,
+        "collision": collided,
+        "success": success_seen,
+    }
+
+
+@experiment("nav8", "seed 001's test: 8 start poses to goal (0, 0, π/2), estimator in the loop")
+def nav8(ctx: RunContext) -> dict[str, Any]:
+    from realitygap.baselines import ClassicalNavPolicy
+    from realitygap.envs import NAV8_STARTS
+
+    goal = (0.0, 0.0, math.pi / 2)
+    rows = []
+    for k, start in enumerate(NAV8_STARTS):
+        env = _make_env(n_obstacles=0, start=start, goal=goal, terminate_on_success=False)
+        policy = ClassicalNavPolicy.from_env(env)
+        t0 = time.perf_counter()
+        ep = run_episode(env, policy, seed=ctx.seed + k, settle=True)
+        env.close()
+        info = ep["info"]
+        x, y, th = info["true_pose"]
+        err_heading = abs(math.degrees((th - goal[2] + math.pi) % (2 * math.pi) - math.pi))
+        row = {
+            "start": list(start),
+            "final_pose": [float(x), float(y), float(th)],
+            "abs_x_cm": abs(x) * 100,
+            "abs_y_cm": abs(y) * 100,
+            "pos_err_cm": math.hypot(x, y) * 100,
+            "abs_heading_deg": err_heading,
+            "success": bool(math.hypot(x, y) <= 0.03 and err_heading <= 5.0),
+            "time_s": ep["steps"] * 0.05,
+            "wall_s": time.perf_counter() - t0,
+        }
+        rows.append(row)
+        ctx.progress(
+            f"nav8 start {k + 1}/8 {start}: error {row['pos_err_cm']:.2f} cm, {err_heading:.2f}°"
+        )
+    figures = {
+        "mean_abs_x_cm": float(np.mean([r["abs_x_cm"] for r in rows])),
+        "mean_abs_y_cm": float(np.mean([r["abs_y_cm"] for r in rows])),
+        "mean_pos_err_cm": float(np.mean([r["pos_err_cm"] for r in rows])),
+        "max_pos_err_cm": float(np.max([r["pos_err_cm"] for r in rows])),
+        "mean_abs_heading_deg": float(np.mean([r["abs_heading_deg"] for r in rows])),
+        "success_rate": float(np.mean([r["success"] for r in rows])),
+        "mean_time_to_goal_s": float(np.mean([r["time_s"] for r in rows])),
+    }
+    return {
+        "figures": figures,
+        "config": {
+            "goal": list(goal),
+            "estimator": "wheel odometry",
+            "policy": "classical APF→QP→Kanayama→polar",
+        },
+        "tables": {"episodes": rows},
+    }
+
+
+@experiment(
+    "nav-obstacles",
+    "classical baseline over 50 seeded obstacle layouts: success, collisions, APF dead-ends",
+)
+def nav_obstacles(ctx: RunContext) -> dict[str, Any]:
+    from realitygap.baselines import ClassicalNavPolicy
+    from realitygap.controllers import grid_shortest_path_length
+
+    n_layouts = 10 if ctx.quick else 50
+    rows = []
+    for k in range(n_layouts):
+        env = _make_env(n_obstacles=8)
+        policy = ClassicalNavPolicy.from_env(env)
+        seed = ctx.seed * 1000 + k
+        ep = run_episode(env, policy, seed=seed)
+        base = env.unwrapped
+        info = ep["info"]
+        # reference: grid shortest path around the true obstacles (inflated by the body radius)
+        pts = _obstacle_outline_points(base)
+        start_xy = np.asarray(base._start_pose)[:2]
+        shortest = grid_shortest_path_length(
+            start_xy,
+            info["goal"][:2],
+            pts,
+            resolution=0.05,
+            inflation_radius=base.true_params.body_radius + 0.02,
+            bounds=(
+                -base.room_half_size,
+                -base.room_half_size,
+                base.room_half_size,
+                base.room_half_size,
+            ),
+        )
+        stats = policy.episode_stats()
+        env.close()
+        rows.append(
+            {
+                "seed": seed,
+                "success": bool(info["is_success"]),
+                "collision": bool(ep["collision"]),
+                "apf_stuck": bool(stats["apf_stuck_events"] > 0),
+                "apf_gave_up": int(stats["apf_gave_up"]),
+                "path_length_m": ep["path_length"],
+                "shortest_m": shortest,
+                "final_pos_err_cm": info["pos_error"] * 100,
+                "time_s": ep["steps"] * 0.05,
+            }
+        )
+        ctx.progress(
+            f"nav-obstacles {k + 1}/{n_layouts}: success={rows[-1]['success']} collision={rows[-1]['collision']} "
+            f"path {ep['path_length']:.2f} m / shortest {shortest:.2f} m"
+        )
+    ok = [
+        r for r in rows if r["success"] and math.isfinite(r["shortest_m"]) and r["shortest_m"] > 0
+    ]
+    figures = {
+        "success_rate": float(np.mean([r["success"] for r in rows])),
+        "collision_rate": float(np.mean([r["collision"] for r in rows])),
+        "apf_stuck_rate": float(np.mean([r["apf_stuck"] for r in rows])),
+        "path_length_ratio": float(np.mean([r["path_length_m"] / r["shortest_m"] for r in ok]))
+        if ok
+        else float("nan"),
+        "mean_time_to_goal_s": float(np.mean([r["time_s"] for r in rows if r["success"]]))
+        if ok
+        else float("nan"),
+        "episodes": n_layouts,
+    }
+    return {
+        "figures": figures,
+        "config": {"n_obstacles": 8, "layouts": n_layouts},
+        "tables": {"episodes": rows},
+    }
+
+
+def _obstacle_outline_points(base: Any, spacing: float = 0.02) -> np.ndarray:
+    """Points on the outlines of the env's true obstacles and walls (for the grid reference)."""
+    pts = []
+    for prim in base.world.scenery_primitives():
+        if prim.shape.value == "cylinder":
+            n = max(8, int(2 * math.pi * prim.radius / spacing))
+            a = np.linspace(0, 2 * math.pi, n, endpoint=False)
+            pts.append(
+                np.stack(
+                    [
+                        prim.center[0] + prim.radius * np.cos(a),
+                        prim.center[1] + prim.radius * np.sin(a),
+                    ],
+                    1,
+                )
+            )
+        else:
+            hx, hy = prim.half_extents
+            nx, ny = max(2, int(2 * hx / spacing) + 1), max(2, int(2 * hy / spacing) + 1)
+            xs, ys = np.linspace(-hx, hx, nx), np.linspace(-hy, hy, ny)
+            local = np.concatenate(
+                [
+                    np.stack([xs, np.full(nx, -hy)], 1),
+                    np.stack([xs, np.full(nx, hy)], 1),
+                    np.stack([np.full(ny, -hx), ys], 1),
+                    np.stack([np.full(ny, hx), ys], 1),
+                ]
+            )
+            c, s = math.cos(prim.yaw), math.sin(prim.yaw)
+            pts.append(local @ np.array([[c, s], [-s, c]]) + np.asarray(prim.center))
+    return np.concatenate(pts) if pts else np.zeros((0, 2))

@@ -1,0 +1,55 @@
+"""The classical baseline policy, closed loop in the simulator."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import realitygap  # noqa: F401
+from realitygap.baselines import ClassicalNavPolicy
+from realitygap.experiments.nav import run_episode
+
+
+def test_reaches_a_goal_pose_precisely_from_the_estimate() -> None:
+    env = gym.make(
+        "realitygap/WheeledNav-v0",
+        n_obstacles=0,
+        start=(-2.4, 0.0, 0.0),
+        goal=(0.0, 0.0, math.pi / 2),
+        terminate_on_success=False,
+    )
+    policy = ClassicalNavPolicy.from_env(env)
+    ep = run_episode(env, policy, seed=0, settle=True)
+    env.close()
+    info = ep["info"]
+    assert policy.is_done()
+    assert info["pos_error"] < 0.01
+    assert math.degrees(info["heading_error"]) < 1.0
+    assert not ep["collision"]
+
+
+@pytest.mark.parametrize("seed", [11, 12])
+def test_avoids_obstacles_it_only_sees_through_the_scan(seed: int) -> None:
+    env = gym.make("realitygap/WheeledNav-v0", n_obstacles=8)
+    policy = ClassicalNavPolicy.from_env(env)
+    ep = run_episode(env, policy, seed=seed)
+    env.close()
+    assert not ep["collision"]
+    assert ep["success"]
+
+
+def test_batch_predict_and_bad_shapes() -> None:
+    env = gym.make("realitygap/WheeledNav-v0", n_obstacles=0)
+    policy = ClassicalNavPolicy.from_env(env)
+    obs, _ = env.reset(seed=0)
+    env.close()
+    actions, state = policy.predict(np.stack([obs, obs]), episode_start=np.array([True, True]))
+    assert actions.shape == (2, 2) and state is None
+    assert np.all(np.abs(actions) <= 1.0)
+    single, _ = policy.predict(obs)
+    assert single.shape == (2,)
+    with pytest.raises(ValueError, match="observation must have shape"):
+        policy.predict(obs[:10])
