@@ -39,7 +39,7 @@ and ``success_ang_tol`` (rad) of the goal pose and at rest.
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -108,7 +108,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         reported and the episode runs on, e.g. to measure where a controller settles).
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 20}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 20}  # noqa: RUF012 (gymnasium's name)
 
     def __init__(
         self,
@@ -185,6 +185,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         low[12:] = 0.0
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
 
+        self._obs_low, self._obs_high = low, high
         # episode state
         self._t = 0.0
         self._steps = 0
@@ -333,8 +334,8 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self, rng: np.random.Generator, options: dict[str, Any]
     ) -> tuple[FloatArray, FloatArray]:
         lim = self.room_half_size - 0.6
-        start = options.get("start", self.fixed_start)
-        goal = options.get("goal", self.fixed_goal)
+        start: Any = options.get("start", self.fixed_start)
+        goal: Any = options.get("goal", self.fixed_goal)
         if start is None:
             start = np.array([*rng.uniform(-lim, lim, 2), rng.uniform(-math.pi, math.pi)])
         if goal is None:
@@ -451,7 +452,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         np.divide(self._scan.ranges, self._scan.range_max, out=obs[12:])
         np.minimum(obs[12:], 1.0, out=obs[12:])  # inf (nothing seen) -> 1
         out = obs.astype(np.float32)
-        np.clip(out, self.observation_space.low, self.observation_space.high, out=out)
+        np.clip(out, self._obs_low, self._obs_high, out=out)
         return out
 
     def _pose_error(self, pose: FloatArray) -> tuple[float, float]:

@@ -89,7 +89,7 @@ class PrimitiveArrays:
     ) -> FloatArray:
         """Distance along each planar ray (n, 2 unit directions) to the first hit; ``inf`` beyond
         ``range_max``."""
-        ox, oy = float(origin_xy[0]), float(origin_xy[1])  # type: ignore[index]
+        ox, oy = (float(v) for v in np.asarray(origin_xy, dtype=float)[:2])
         dx, dy = directions[:, 0], directions[:, 1]
         best = np.full(directions.shape[0], np.inf)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -163,8 +163,8 @@ def procedural_texture(rng: np.random.Generator, size: int = 256) -> npt.NDArray
         else:
             x2, y2 = (int(v) for v in rng.integers(0, size, size=2))
             cv2.line(img, (x, y), (x2, y2), color, int(rng.integers(1, 4)))
-    noise = rng.integers(-20, 21, size=(size // 4, size // 4, 1))
-    noise = cv2.resize(noise.astype(np.int16), (size, size), interpolation=cv2.INTER_NEAREST)
+    coarse = rng.integers(-20, 21, size=(size // 4, size // 4)).astype(np.int16)
+    noise = cv2.resize(coarse, (size, size), interpolation=cv2.INTER_NEAREST)
     return np.clip(img.astype(np.int16) + noise[..., None], 0, 255).astype(np.uint8)
 
 
@@ -327,8 +327,8 @@ class World:
             fh.write(urdf_text)
         body = self.bullet.loadURDF(
             path,
-            list(map(float, position)),
-            list(map(float, quat_xyzw)),
+            np.asarray(position, dtype=float).tolist(),
+            np.asarray(quat_xyzw, dtype=float).tolist(),
             flags=p.URDF_USE_INERTIA_FROM_FILE,
         )
         self.bodies[name] = body

@@ -12,7 +12,7 @@ import numpy as np
 from realitygap.experiments import RunContext, experiment
 
 
-def _make_env(**kwargs: Any) -> gym.Env:
+def _make_env(**kwargs: Any) -> Any:
     import realitygap  # noqa: F401  (registers the ids)
 
     return gym.make("realitygap/WheeledNav-v0", **kwargs)
