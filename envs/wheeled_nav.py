@@ -69,8 +69,15 @@ NAV8_STARTS: tuple[tuple[float, float, float], ...] = (
 """The eight start poses of seed 001's test (goal ``(0, 0, π/2)``)."""
 
 
-def default_estimator(params: DiffDriveParams) -> Estimator:
-    """Wheel odometry with the robot's nominal geometry."""
+def default_estimator(
+    params: DiffDriveParams, sensor_mode: SensorMode = SensorMode.FAST
+) -> Estimator:
+    """The default observation pipeline for ``params`` (the robot's nominal parameters).
+
+    Image fidelity: wheel odometry fused with RGB-D visual odometry in an EKF, plus an
+    occupancy grid (:class:`~realitygap.estimators.pipelines.FusedOdometryVO`). Fast
+    fidelity renders no images, so the default is wheel odometry alone.
+    """
     from realitygap.estimators.diffdrive_model import DiffDriveKinematics, WheelOdometry
 
     kin = DiffDriveKinematics(
@@ -79,6 +86,10 @@ def default_estimator(params: DiffDriveParams) -> Estimator:
         wheelbase=params.wheelbase,
         ticks_per_rev=params.ticks_per_rev,
     )
+    if SensorMode(sensor_mode) is SensorMode.IMAGE:
+        from realitygap.estimators.pipelines import FusedOdometryVO
+
+        return FusedOdometryVO(kin, params.camera.T_base_camera())
     return WheelOdometry(kin)
 
 
@@ -91,8 +102,9 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     sensor_mode : ``"fast"`` (analytic scan, no rendering) or ``"image"`` (rendered RGB-D
         frames; the scan is derived from depth).
     estimator : the observation pipeline's estimator (any object with ``reset``/``update``,
-        see :class:`~realitygap.estimators.base.Estimator`); default: wheel odometry with the
-        nominal geometry. Built fresh per env from ``estimator_factory`` if given instead.
+        see :class:`~realitygap.estimators.base.Estimator`); default: see
+        :func:`default_estimator` (odometry + RGB-D VO fusion in image mode, wheel odometry
+        in fast mode), with the nominal geometry.
     params : nominal robot parameters (what the robot is believed to be).
     reality : effects that make the simulated robot differ from ``params`` ("the real robot").
     n_obstacles : random obstacles per episode (0: empty room).
@@ -167,7 +179,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._scan_every = self._divisor("scan_hz", scan_hz, control_hz)
         self._camera_every = self._divisor("camera_hz", camera_hz, control_hz)
         self.estimator: Estimator = (
-            estimator if estimator is not None else default_estimator(self.params)
+            estimator if estimator is not None else default_estimator(self.params, self.sensor_mode)
         )
 
         self.world = World(physics_hz=physics_hz, n_substeps=int(round(ratio)))

@@ -122,3 +122,25 @@ def test_walls_enclose_the_room() -> None:
     inside = np.array([[0.0, 0.0], [2.9, 2.9]])
     for w in walls:
         assert np.all(w.footprint_distance(inside) > 0)
+
+
+def test_image_mode_default_pipeline_fuses_vo_with_odometry() -> None:
+    env = gym.make(
+        "realitygap/WheeledNav-v0",
+        sensor_mode="image",
+        n_obstacles=4,
+        start=(0, 0, 0),
+        goal=(2, 2, 0),
+    )
+    env.reset(seed=2)
+    for k in range(30):
+        _, _, terminated, _, info = env.step(
+            np.array([0.4, 0.3 * math.sin(k / 10)], dtype=np.float32)
+        )
+        assert not terminated
+    extras = env.unwrapped._estimate.extras
+    env.close()
+    assert extras["n_vo_updates"] > 0
+    assert extras["occupancy"].occupied_points().shape[0] > 10  # walls seen and mapped
+    err = info["true_pose"] - info["estimated_pose"]
+    assert np.hypot(err[0], err[1]) < 0.02 and abs(err[2]) < 0.02
