@@ -201,7 +201,7 @@ class World:
     """
 
     def __init__(
-        self, physics_hz: float = 240.0, n_substeps: int = 12, solver_iterations: int = 20
+        self, physics_hz: float = 240.0, n_substeps: int = 12, solver_iterations: int = 10
     ):
         if not (physics_hz > 0 and np.isfinite(physics_hz)):
             raise ValueError(f"physics_hz must be a positive number, got {physics_hz!r}")
