@@ -64,9 +64,7 @@ def naca4_digits(code: str) -> tuple[float, float, float]:
     (0.04, 0.4, 0.18)
     """
     if not isinstance(code, str) or len(code) != 4 or not code.isdigit():
-        raise ValueError(
-            f"NACA profile must be a 4-digit string such as '4418', got {code!r}"
-        )
+        raise ValueError(f"NACA profile must be a 4-digit string such as '4418', got {code!r}")
     m = int(code[0]) / 100.0
     p = int(code[1]) / 10.0
     t = int(code[2:]) / 100.0
@@ -129,7 +127,9 @@ class BladeParams:
         for name in ("length", "root_chord", "tip_chord", "texture_tile"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"BladeParams.{name} must be a positive length in m, got {value!r}")
+                raise ValueError(
+                    f"BladeParams.{name} must be a positive length in m, got {value!r}"
+                )
         for name in ("twist_root", "twist_tip", "prebend_tip", "twist_exponent"):
             value = getattr(self, name)
             if not math.isfinite(value):
@@ -146,7 +146,9 @@ class BladeParams:
         naca4_digits(self.root_profile)
         naca4_digits(self.tip_profile)
         if int(self.n_sections) != self.n_sections or self.n_sections < 2:
-            raise ValueError(f"BladeParams.n_sections must be an integer ≥ 2, got {self.n_sections!r}")
+            raise ValueError(
+                f"BladeParams.n_sections must be an integer ≥ 2, got {self.n_sections!r}"
+            )
         if (
             int(self.n_profile_points) != self.n_profile_points
             or self.n_profile_points < 8
@@ -191,9 +193,13 @@ def _naca_section(
     xi = cos_pu**2
     upper = np.where(u >= 0.5, 1.0, -1.0)
     # sqrt(xi) carries its sign through -cos(pi u): smooth across the leading edge.
-    yt = 5.0 * t * (
-        0.2969 * (-cos_pu)
-        + upper * (-0.1260 * xi - 0.3516 * xi**2 + 0.2843 * xi**3 - 0.1036 * xi**4)
+    yt = (
+        5.0
+        * t
+        * (
+            0.2969 * (-cos_pu)
+            + upper * (-0.1260 * xi - 0.3516 * xi**2 + 0.2843 * xi**3 - 0.1036 * xi**4)
+        )
     )
     cambered = m > 0.0
     p_safe = np.where(cambered, p, 0.5)
@@ -268,9 +274,7 @@ class BladeSurface:
         z = -sin_t * y0 + cos_t * z0 + prm.prebend_at(s)
         return np.stack([s * prm.length, y, z], axis=-1)
 
-    def _tangents(
-        self, span: FloatArray, u: FloatArray, fn: str
-    ) -> tuple[FloatArray, FloatArray]:
+    def _tangents(self, span: FloatArray, u: FloatArray, fn: str) -> tuple[FloatArray, FloatArray]:
         f = getattr(self, fn)
         d_s = (f(span + _FD_STEP, u) - f(span - _FD_STEP, u)) / (2.0 * _FD_STEP)
         d_u = (f(span, u + _FD_STEP) - f(span, u - _FD_STEP)) / (2.0 * _FD_STEP)
@@ -329,9 +333,10 @@ def _mesh(surface: BladeSurface) -> tuple[FloatArray, IntArray, FloatArray]:
     grid[:, n] = grid[:, 0]
     seg = np.linalg.norm(np.diff(grid, axis=1), axis=-1)
     arc = np.concatenate([np.zeros((ns, 1)), np.cumsum(seg, axis=1)], axis=1)
-    uv = np.stack(
-        [np.broadcast_to(span[:, None] * prm.length, arc.shape), arc], axis=-1
-    ) / prm.texture_tile
+    uv = (
+        np.stack([np.broadcast_to(span[:, None] * prm.length, arc.shape), arc], axis=-1)
+        / prm.texture_tile
+    )
     vertices = grid.reshape(-1, 3)
     uv = uv.reshape(-1, 2)
     stride = n + 1
@@ -591,8 +596,7 @@ def write_obj(
         mtl_name = path.with_suffix(".mtl").name
         lines.append(f"mtllib {mtl_name}")
         mtl_text = (
-            "newmtl blade\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nd 1\nillum 1\n"
-            f"map_Kd {texture_file}\n"
+            f"newmtl blade\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nd 1\nillum 1\nmap_Kd {texture_file}\n"
         )
     lines.extend(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in v)
     if uv is not None:
