@@ -512,3 +512,352 @@ class Reality:
             make_effect(e["name"], **e.get("values", {})) for e in data.get("effects", ())
         )
         return cls(effects=effects, name=str(data.get("name", "custom")))
+
+
+# =============================================================================
+# arm (realitygap/ArmCalib-v0): realised on :class:`realitygap.robots.arm.ArmParams`
+# =============================================================================
+def _arm_mdh_delta(params: Any, deltas: Mapping[str, float]) -> Any:
+    """``params`` with MDH parameters shifted by ``{name: delta}`` (m or rad)."""
+    table = params.mdh
+    cur = table.param_dict()
+    names = [n for n, v in deltas.items() if v != 0.0]
+    if not names:
+        return params
+    return params.replace(mdh=table.with_params([cur[n] + deltas[n] for n in names], names))
+
+
+@register_effect
+class ArmJointOffset(Effect):
+    name = "arm_joint_offset"
+    robot = "arm"
+    stage = "body"
+    observed_in = ("camera_pose",)
+    description = (
+        "Joint zero offsets: the encoder's zero is not where the kinematic model puts it "
+        "(mastering error). Realised as the MDH offsets theta_i of the arm's body."
+    )
+    specs = tuple(
+        ParamSpec(f"dtheta{k}", "rad", 0.0, -0.01, 0.01, f"zero offset of joint {k}")
+        for k in range(1, 7)
+    )
+
+    def apply_params(self, params: Any) -> Any:
+        return _arm_mdh_delta(params, {f"theta{k}": self[f"dtheta{k}"] for k in range(1, 7)})
+
+
+@register_effect
+class ArmLinkLength(Effect):
+    name = "arm_link_length"
+    robot = "arm"
+    stage = "body"
+    observed_in = ("camera_pose",)
+    description = (
+        "Link lengths and offsets differ from the data sheet (machining, assembly): the "
+        "non-zero MDH lengths d1, a2, a3, d4, d5, d6. Realised as a body with other links."
+    )
+    specs = tuple(
+        ParamSpec(f"d{nm}", "m", 0.0, -0.005, 0.005, f"error of MDH length {nm}")
+        for nm in ("d1", "a2", "a3", "d4", "d5", "d6")
+    )
+
+    def apply_params(self, params: Any) -> Any:
+        return _arm_mdh_delta(
+            params, {nm: self[f"d{nm}"] for nm in ("d1", "a2", "a3", "d4", "d5", "d6")}
+        )
+
+
+@register_effect
+class ArmParallelTwist(Effect):
+    name = "arm_parallel_twist"
+    robot = "arm"
+    stage = "body"
+    observed_in = ("camera_pose",)
+    description = (
+        "The nominally parallel axes of joints 2, 3 and 4 are tilted against each other about "
+        "the common normal's y axis (Hayati twist beta, the case classical DH cannot describe). "
+        "Realised as a body whose joint 3 and 4 axes are tilted."
+    )
+    specs = (
+        ParamSpec("beta2", "rad", 0.0, -0.005, 0.005, "tilt of axis 3 against axis 2"),
+        ParamSpec("beta3", "rad", 0.0, -0.005, 0.005, "tilt of axis 4 against axis 3"),
+    )
+
+    def apply_params(self, params: Any) -> Any:
+        return _arm_mdh_delta(params, {"beta2": self["beta2"], "beta3": self["beta3"]})
+
+
+@register_effect
+class ArmTwistError(Effect):
+    name = "arm_twist_error"
+    robot = "arm"
+    stage = "body"
+    observed_in = ("camera_pose",)
+    description = (
+        "The right angles between the non-parallel axes are not exact (twists alpha1, alpha4, "
+        "alpha5). Realised as a body with tilted joint axes."
+    )
+    specs = tuple(
+        ParamSpec(f"dalpha{k}", "rad", 0.0, -0.005, 0.005, f"twist error of row {k}")
+        for k in (1, 4, 5)
+    )
+
+    def apply_params(self, params: Any) -> Any:
+        return _arm_mdh_delta(params, {f"alpha{k}": self[f"dalpha{k}"] for k in (1, 4, 5)})
+
+
+@register_effect
+class ArmJointCompliance(Effect):
+    name = "arm_joint_compliance"
+    robot = "arm"
+    stage = "drive"
+    observed_in = ("camera_pose",)
+    description = (
+        "Elastic gearboxes: the links of the gravity-loaded joints 2, 3, 4 sag by compliance x "
+        "gravity torque while the motor-side encoders read the command. Realised by the servo: "
+        "the link settles at command - c * tau_g(q), tau_g the holding torque (PyBullet inverse "
+        "dynamics of the body)."
+    )
+    specs = tuple(
+        ParamSpec(f"c{k}", "rad/(N*m)", 0.0, 0.0, 5e-5, f"compliance of joint {k}")
+        for k in (2, 3, 4)
+    )
+
+    def apply_params(self, params: Any) -> Any:
+        c = list(params.joint_compliance)
+        for k in (2, 3, 4):
+            c[k - 1] = self[f"c{k}"]
+        return params.replace(joint_compliance=tuple(c))
+
+
+@register_effect
+class ArmBacklash(Effect):
+    name = "arm_backlash"
+    robot = "arm"
+    stage = "drive"
+    observed_in = ("camera_pose",)
+    description = (
+        "Gear play: the link trails the motor by half the play in the direction of the last "
+        "move, so the same reading gives two link angles. Realised by the servo model."
+    )
+    specs = tuple(
+        ParamSpec(f"b{k}", "rad", 0.0, 0.0, 2e-3, f"full play of joint {k}") for k in range(1, 7)
+    )
+
+    def apply_params(self, params: Any) -> Any:
+        return params.replace(backlash=tuple(self[f"b{k}"] for k in range(1, 7)))
+
+
+@register_effect
+class ArmEncoderScale(Effect):
+    name = "arm_encoder_scale"
+    robot = "arm"
+    stage = "sensor"
+    observed_in = ("camera_pose", "joint_angles")
+    description = (
+        "Joint encoders (or the gear ratios the controller assumes) are off by a factor: the "
+        "reading is s times the motor angle. Realised between the joints and their readings."
+    )
+    specs = tuple(
+        ParamSpec(f"s{k}", "1", 1.0, 0.998, 1.002, f"reading / motor angle of joint {k}")
+        for k in range(1, 7)
+    )
+
+    def apply_params(self, params: Any) -> Any:
+        return params.replace(encoder_scale=tuple(self[f"s{k}"] for k in range(1, 7)))
+
+
+@register_effect
+class ArmHandEyeError(Effect):
+    name = "arm_handeye_error"
+    robot = "arm"
+    stage = "camera"
+    observed_in = ("camera_pose",)
+    description = (
+        "The flange camera is mounted off its nominal place: translation (flange frame) and a "
+        "small rotation (rotation vector in the camera frame). Realised by moving the camera "
+        "link of the body."
+    )
+    specs = (
+        ParamSpec("dx", "m", 0.0, -0.01, 0.01, "offset along flange x"),
+        ParamSpec("dy", "m", 0.0, -0.01, 0.01, "offset along flange y"),
+        ParamSpec("dz", "m", 0.0, -0.01, 0.01, "offset along flange z"),
+        ParamSpec("drx", "rad", 0.0, -0.05, 0.05, "rotation about the camera x axis"),
+        ParamSpec("dry", "rad", 0.0, -0.05, 0.05, "rotation about the camera y axis"),
+        ParamSpec("drz", "rad", 0.0, -0.05, 0.05, "rotation about the optical axis"),
+    )
+
+    def apply_params(self, params: Any) -> Any:
+        from scipy.spatial.transform import Rotation
+
+        cam = params.camera
+        R = Rotation.from_euler("xyz", cam.mount_rpy) * Rotation.from_rotvec(
+            [self["drx"], self["dry"], self["drz"]]
+        )
+        xyz = tuple(v + d for v, d in zip(cam.mount_xyz, (self["dx"], self["dy"], self["dz"])))
+        rpy = tuple(float(v) for v in R.as_euler("xyz"))
+        return params.replace(camera=cam.replace(mount_xyz=xyz, mount_rpy=rpy))
+
+
+@register_effect
+class ArmCameraIntrinsics(Effect):
+    name = "arm_camera_intrinsics"
+    robot = "arm"
+    stage = "camera"
+    observed_in = ("camera_pose",)
+    description = (
+        "The flange camera's intrinsics differ from the ones the measurement uses: focal "
+        "length scale, principal point and radial distortion. Realised in the image formation."
+    )
+    specs = (
+        ParamSpec("f_scale", "1", 1.0, 0.97, 1.03, "true / nominal focal length"),
+        ParamSpec("dcx", "px", 0.0, -10.0, 10.0, "principal point offset, x"),
+        ParamSpec("dcy", "px", 0.0, -10.0, 10.0, "principal point offset, y"),
+        ParamSpec("k1", "1", 0.0, -0.3, 0.3, "added radial distortion k1"),
+        ParamSpec("k2", "1", 0.0, -0.2, 0.2, "added radial distortion k2"),
+    )
+
+    def apply_params(self, params: Any) -> Any:
+        cam = params.camera
+        dist = list(cam.dist) + [0.0] * (5 - len(cam.dist))
+        dist[0] += self["k1"]
+        dist[1] += self["k2"]
+        return params.replace(
+            camera=cam.replace(
+                fx=cam.fx * self["f_scale"],
+                fy=cam.fy * self["f_scale"],
+                cx=cam.cx + self["dcx"],
+                cy=cam.cy + self["dcy"],
+                dist=tuple(dist),
+            )
+        )
+
+
+# =============================================================================
+# climber (realitygap/WallClimb-v0): realised on :class:`realitygap.robots.climber.ClimberParams`
+# =============================================================================
+@register_effect
+class ClimberTetherSag(Effect):
+    name = "climber_tether_sag"
+    robot = "climber"
+    stage = "sensor"
+    observed_in = ("tether",)
+    description = (
+        "The tether sags under its weight: the paid-out length exceeds the straight line by "
+        "k·d². Realised in the tether sensor model."
+    )
+    specs = (ParamSpec("k", "1/m", 0.0, 0.0, 0.005, "extra length per squared distance"),)
+
+    def apply_params(self, params: Any) -> Any:
+        return params.replace(tether_sag=self["k"])
+
+
+@register_effect
+class ClimberTetherStretch(Effect):
+    name = "climber_tether_stretch"
+    robot = "climber"
+    stage = "sensor"
+    observed_in = ("tether",)
+    description = "The tether stretches under tension: reading grows by strain·d."
+    specs = (ParamSpec("strain", "1", 0.0, -0.01, 0.01, "elastic strain of the tether"),)
+
+    def apply_params(self, params: Any) -> Any:
+        return params.replace(tether_stretch=self["strain"])
+
+
+@register_effect
+class ClimberAnchorError(Effect):
+    name = "climber_anchor_error"
+    robot = "climber"
+    stage = "sensor"
+    observed_in = ("tether",)
+    description = "The tether anchor is not where the model puts it (world-frame offset)."
+    specs = (
+        ParamSpec("dx", "m", 0.0, -0.05, 0.05, "anchor offset along world x"),
+        ParamSpec("dy", "m", 0.0, -0.05, 0.05, "anchor offset along world y"),
+        ParamSpec("dz", "m", 0.0, -0.05, 0.05, "anchor offset along world z"),
+    )
+
+    def apply_params(self, params: Any) -> Any:
+        return params.replace(anchor_offset=(self["dx"], self["dy"], self["dz"]))
+
+
+@register_effect
+class ClimberSpoolScale(Effect):
+    name = "climber_spool_scale"
+    robot = "climber"
+    stage = "sensor"
+    observed_in = ("tether",)
+    description = "The spool encoder's length per count is off: reading = s · paid-out length."
+    specs = (ParamSpec("s", "1", 1.0, 0.98, 1.02, "reading / paid-out length"),)
+
+    def apply_params(self, params: Any) -> Any:
+        return params.replace(spool_scale=self["s"])
+
+
+@register_effect
+class ClimberGyroBias(Effect):
+    name = "climber_gyro_bias"
+    robot = "climber"
+    stage = "sensor"
+    observed_in = ("imu",)
+    description = "Constant gyroscope bias (body frame) on top of the random turn-on bias."
+    specs = tuple(
+        ParamSpec(f"b{a}", "rad/s", 0.0, -0.05, 0.05, f"gyro bias about body {a}") for a in "xyz"
+    )
+
+    def apply_params(self, params: Any) -> Any:
+        return params.replace(gyro_bias=(self["bx"], self["by"], self["bz"]))
+
+
+@register_effect
+class ClimberAccelBias(Effect):
+    name = "climber_accel_bias"
+    robot = "climber"
+    stage = "sensor"
+    observed_in = ("imu",)
+    description = "Constant accelerometer bias (body frame) on top of the random turn-on bias."
+    specs = tuple(
+        ParamSpec(f"b{a}", "m/s^2", 0.0, -0.3, 0.3, f"accelerometer bias along body {a}")
+        for a in "xyz"
+    )
+
+    def apply_params(self, params: Any) -> Any:
+        return params.replace(accel_bias=(self["bx"], self["by"], self["bz"]))
+
+
+@register_effect
+class ClimberSurfaceDeviation(Effect):
+    name = "climber_surface_deviation"
+    robot = "climber"
+    stage = "body"
+    observed_in = ("pose_gt", "tether")
+    description = (
+        "The real blade deviates from its CAD model by a smooth normal displacement (largest "
+        "value d, shape from seed). Realised by building the simulated blade from the deformed "
+        "surface while the estimator keeps the nominal CAD cloud."
+    )
+    specs = (
+        ParamSpec("d", "m", 0.0, 0.0, 0.02, "largest normal deviation"),
+        ParamSpec("seed", "1", 0.0, 0.0, 1000.0, "seed of the deviation's shape"),
+    )
+
+    def apply_params(self, params: Any) -> Any:
+        return params.replace(surface_deviation=self["d"], surface_seed=int(self["seed"]))
+
+
+@register_effect
+class ClimberAdsorptionGap(Effect):
+    name = "climber_adsorption_gap"
+    robot = "climber"
+    stage = "body"
+    observed_in = ("pose_gt", "imu")
+    description = (
+        "The adsorption unit rides higher than designed (worn skirt, larger wheels): the body "
+        "sits gap m higher than the estimator's h and the suction force drops by exp(-gap/λ). "
+        "Realised in the body (wheel radius) and in the adsorption force."
+    )
+    specs = (ParamSpec("gap", "m", 0.0, -0.005, 0.01, "extra ride height"),)
+
+    def apply_params(self, params: Any) -> Any:
+        return params.replace(gap_offset=self["gap"])

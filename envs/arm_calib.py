@@ -1,0 +1,1015 @@
+"""``realitygap/ArmCalib-v0``: choose the measurement poses of a kinematic calibration.
+
+An episode is one calibration campaign of a 6-DOF arm (UR-like, joints 2, 3, 4
+parallel; :mod:`realitygap.robots.arm`) with a camera on its flange that looks
+at an absolutely coded board on the table. The campaign has a budget of ``K``
+attempts; at each step the policy names the next joint configuration. The env
+
+1. moves the arm there and lets the servo settle (refused when out of reach,
+   reported when the target collides);
+2. captures an image of the board (PyBullet rendering in ``"image"`` mode, the
+   board renderer from the true camera pose in ``"fast"`` mode) and reads the
+   joint encoders;
+3. measures the camera pose against the board (:func:`measure_board`: corners,
+   code decoding, PnP; a frame that cannot be measured unambiguously is
+   rejected, never mislabelled). The default ``"geometric"`` mode skips the
+   image: the camera reports the corners a detector would find, with pixel
+   noise, and only the PnP stage runs (:func:`observation_from_corners`) — fast
+   enough for reinforcement learning;
+4. forms pose pairs with every earlier pose, their hierarchical displacements
+   :math:`\\delta' = t + t'` (:func:`hierarchical_displacement`), and identifies
+   the MDH parameters and the camera point from the distance-accuracy residuals
+   :math:`\\|p_j(u) - p_i(u)\\| - \\|\\delta'_{ij}\\|` (:func:`identify`), from the
+   nominal model, once ``min_poses`` poses are in and then every
+   ``identify_every`` poses (and always at the last attempt). An estimate that
+   fails its sanity checks (not converged, implausible, poorly fitting) is not
+   adopted; the previous one stays and ``info`` says why.
+
+The reward is the drop of the positioning error of the current model on a
+fixed set of validation poses, measured against the true arm (ground truth the
+real cell would not have, reported in ``info``).
+
+Action space — ``Box(-1, 1, (6,), float32)``
+
+=====  =================================================================
+idx    meaning
+=====  =================================================================
+0..5   joint command :math:`q_k = c_k + h_k a_k` (rad), ``c = joint_center``,
+       ``h = joint_half_range`` (a box inside the joint limits)
+=====  =================================================================
+
+Observation space — ``Box(float32, (83,))``
+
+======  ==================================================================
+idx     meaning
+======  ==================================================================
+0..29   estimated minus nominal MDH parameters, joint by joint
+        ``theta, d, a, alpha, beta`` (angles in mrad, lengths in mm; ±50)
+30..32  estimated minus nominal camera point in the flange frame (mm; ±50)
+33..65  log10 of the singular values of the unit-column-scaled identification
+        Jacobian, descending, padded with -12
+66      log10 of its condition number (0 before the first identification)
+67      identified parameters / 33
+68      poses used / K
+69      attempts left / K
+70      attempts wasted (invalid poses, failed measurements) / K
+71      RMS distance residual of the fit (mm, ≤ 10)
+72..77  current joint readings mapped to the action box (±2)
+78..82  outcome of the last attempt, one-hot: ok, out of reach, collision,
+        board not visible, measurement failed (all 0 after reset)
+======  ==================================================================
+
+Reward — a named sum (``info["reward_terms"]``): ``error_drop`` = drop of the
+validation RMS positioning error (mm) since the last step; ``invalid_pose`` =
+``-invalid_penalty`` when the attempt gave no usable measurement.
+
+Positioning error: the camera point (the identified tool point) predicted by the
+model at each validation pose's joint readings, compared with the true point
+after the rigid registration that best aligns the two (the base-to-world pose
+is not part of a distance calibration).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import numpy.typing as npt
+from gymnasium import spaces
+
+from realitygap.estimators.arm.board_measurement import (
+    BoardMeasurementSettings,
+    BoardObservation,
+    MeasurementStatus,
+    cell_under_optical_axis,
+    hierarchical_displacement,
+    measure_board,
+)
+from realitygap.estimators.arm.coded_board import WINDOW, CodedBoard
+from realitygap.estimators.arm.identification import (
+    IdentificationResult,
+    IdentificationSettings,
+    PairObservations,
+    ResidualMode,
+    identify,
+    registered_position_errors,
+)
+from realitygap.estimators.arm.mdh import TOOL_PARAM_NAMES, MDHTable, joint_frames, tool_positions
+from realitygap.robots.arm import (
+    ArmParams,
+    ArmRobot,
+    BoardPlacement,
+    CaptureMode,
+    FlangeCamera,
+    MoveOutcome,
+    build_arm_scene,
+)
+from realitygap.robots.effects import Reality
+from realitygap.robots.world import World
+
+FloatArray = npt.NDArray[np.float64]
+
+__all__ = [
+    "DEFAULT_JOINT_CENTER",
+    "DEFAULT_JOINT_HALF_RANGE",
+    "N_OBS",
+    "ArmCalibEnv",
+    "ArmPoseMeasurement",
+    "AttemptOutcome",
+    "CalibrationEstimate",
+    "MDHCalibrationEstimator",
+    "ViewConstraints",
+    "default_arm_reality",
+    "nominal_view_ok",
+    "observation_from_corners",
+    "random_arm_reality",
+]
+
+DEFAULT_JOINT_CENTER: tuple[float, ...] = (0.0, -1.3, 1.6, -1.87, -1.57, 0.0)
+"""Centre of the action box (rad): the camera looks down at the board from about 0.3 m."""
+DEFAULT_JOINT_HALF_RANGE: tuple[float, ...] = (0.6, 0.5, 0.6, 0.5, 0.4, math.pi)
+"""Half-widths of the action box (rad); about 28 % of it sees the board."""
+
+N_PARAMS = 33  # 30 MDH + 3 tool
+N_OBS = 83
+_OUTCOMES = ("ok", "out_of_reach", "collision", "board_not_visible", "measurement_failed")
+_SV_FLOOR = -12.0
+
+
+class AttemptOutcome(str, Enum):
+    """What became of one attempted measurement pose."""
+
+    OK = "ok"
+    OUT_OF_REACH = "out_of_reach"
+    COLLISION = "collision"
+    BOARD_NOT_VISIBLE = "board_not_visible"
+    MEASUREMENT_FAILED = "measurement_failed"
+
+
+@dataclass(frozen=True)
+class ViewConstraints:
+    """When the nominal model expects the camera to see the board well.
+
+    Attributes
+    ----------
+    max_tilt_deg : float
+        Largest angle between the optical axis and the board normal (deg).
+    min_distance, max_distance : float
+        Range along the optical axis to the board plane (m).
+    board_margin : float
+        The optical axis must meet the board at least this far inside its edge (m).
+    """
+
+    max_tilt_deg: float = 35.0
+    min_distance: float = 0.22
+    max_distance: float = 0.42
+    board_margin: float = 0.12
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.max_tilt_deg < 90.0:
+            raise ValueError(f"max_tilt_deg must be in (0, 90), got {self.max_tilt_deg}")
+        if not 0.0 < self.min_distance < self.max_distance:
+            raise ValueError("need 0 < min_distance < max_distance (m)")
+        if self.board_margin < 0:
+            raise ValueError("board_margin must be >= 0 (m)")
+
+
+def nominal_view_ok(
+    params: ArmParams,
+    board: CodedBoard,
+    placement: BoardPlacement,
+    q: npt.ArrayLike,
+    view: ViewConstraints | None = None,
+) -> npt.NDArray[np.bool_]:
+    """Whether the board is expected in good view at joint readings ``q`` (N, 6) (nominal model).
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+    """
+    v = view or ViewConstraints()
+    qa = np.atleast_2d(np.asarray(q, dtype=float))
+    F = joint_frames(params.mdh, qa, params.T_world_base)[:, -1] @ params.camera.T_flange_camera()
+    C = np.linalg.inv(placement.T_world_board()) @ F  # camera in board
+    z = C[:, :3, 2]
+    c = C[:, :3, 3]
+    facing = z[:, 2] > math.cos(math.radians(v.max_tilt_deg))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lam = np.where(facing, -c[:, 2] / z[:, 2], np.nan)
+    hit = c + lam[:, None] * z
+    m, s = v.board_margin, board.side
+    inside = (hit[:, 0] > m) & (hit[:, 0] < s - m) & (hit[:, 1] > m) & (hit[:, 1] < s - m)
+    return facing & inside & (lam > v.min_distance) & (lam < v.max_distance)
+
+
+# =========================================================================== geometric measurement
+def _failed(status: MeasurementStatus, n: int) -> BoardObservation:
+    return BoardObservation(
+        ok=False,
+        status=status,
+        cell_index=None,
+        T_camera_board=np.full((4, 4), np.nan),
+        n_corners=int(n),
+        reprojection_rms_px=float("nan"),
+    )
+
+
+def observation_from_corners(
+    image_points: npt.ArrayLike,
+    corner_ids: npt.ArrayLike,
+    K: npt.ArrayLike,
+    dist: npt.ArrayLike | None,
+    board: CodedBoard,
+    settings: BoardMeasurementSettings | None = None,
+    min_spacing_px: float = 6.0,
+) -> BoardObservation:
+    """The camera-pose stage of :func:`measure_board` on identified corners.
+
+    For the ``"geometric"`` sensor mode, which reports the corners a detector
+    would find (pixel positions and board ids) instead of an image. The frame is
+    rejected like an image would be: fewer than ``settings.min_corners`` corners
+    or corners closer than ``min_spacing_px`` (too far or too oblique to resolve)
+    → ``TOO_FEW_CORNERS``; fewer than 8 × 8 cells with all four corners, or their
+    extent less than 8 cells either way → ``CODE_WINDOW_INCOMPLETE``;
+    optical axis off the board → ``OPTICAL_AXIS_OFF_BOARD``; PnP failure or
+    reprojection RMS above ``settings.max_reprojection_rms_px`` → ``PNP_FAILED``.
+
+    Parameters
+    ----------
+    image_points : array_like, shape (k, 2)
+        Corner pixel positions (px).
+    corner_ids : array_like of int, shape (k, 2)
+        Their board corner indices ``(row, col)``.
+    K : array_like, shape (3, 3)
+    dist : array_like or None
+        Intrinsics and distortion the measurement assumes.
+    board : CodedBoard
+    settings : BoardMeasurementSettings, optional
+
+    Returns
+    -------
+    BoardObservation
+    """
+    import cv2
+    from scipy.spatial import cKDTree
+
+    s = settings or BoardMeasurementSettings()
+    uv = np.asarray(image_points, dtype=float).reshape(-1, 2)
+    ids = np.asarray(corner_ids).astype(np.int64).reshape(-1, 2)
+    if len(ids) != len(uv):
+        raise ValueError(f"got {len(uv)} image points but {len(ids)} corner ids")
+    n = len(uv)
+    if n < s.min_corners:
+        return _failed(MeasurementStatus.TOO_FEW_CORNERS, n)
+    spacing = float(np.median(cKDTree(uv).query(uv, k=2)[0][:, 1]))
+    if spacing < min_spacing_px:
+        return _failed(MeasurementStatus.TOO_FEW_CORNERS, n)
+    nc = board.cells + 1
+    occ = np.zeros((nc, nc), dtype=bool)
+    occ[ids[:, 0], ids[:, 1]] = True
+    full = occ[:-1, :-1] & occ[1:, :-1] & occ[:-1, 1:] & occ[1:, 1:]
+    rows, cols = np.nonzero(full)
+    if rows.size < WINDOW * WINDOW or np.ptp(rows) + 1 < WINDOW or np.ptp(cols) + 1 < WINDOW:
+        return _failed(MeasurementStatus.CODE_WINDOW_INCOMPLETE, n)
+    Km = np.asarray(K, dtype=float)
+    d = np.zeros(5) if dist is None else np.asarray(dist, dtype=float)
+    cs = board.cell_size
+    obj = np.column_stack([ids[:, 1] * cs, ids[:, 0] * cs, np.zeros(n)])
+    img = uv.reshape(-1, 1, 2)
+    ok, rvec, tvec = cv2.solvePnP(obj, img, Km, d, flags=cv2.SOLVEPNP_IPPE)
+    if not ok:
+        return _failed(MeasurementStatus.PNP_FAILED, n)
+    T_cb = np.eye(4)
+    T_cb[:3, :3] = cv2.Rodrigues(rvec)[0]
+    T_cb[:3, 3] = np.asarray(tvec).reshape(3)
+    cell = cell_under_optical_axis(np.linalg.inv(T_cb), cs)
+    if cell is None or not (0 <= cell[0] < board.cells and 0 <= cell[1] < board.cells):
+        return _failed(MeasurementStatus.OPTICAL_AXIS_OFF_BOARD, n)
+    # refine in the centre-cell frame, as measure_board does
+    offset = np.array([cell[1] * cs, cell[0] * cs, 0.0])
+    obj_c = obj - offset
+    tvec_c = T_cb[:3, :3] @ offset + T_cb[:3, 3]
+    rvec, tvec_c = cv2.solvePnPRefineLM(
+        obj_c,
+        img,
+        Km,
+        d,
+        rvec,
+        tvec_c.reshape(3, 1).copy(),
+        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-12),
+    )
+    proj, _ = cv2.projectPoints(obj_c, rvec, tvec_c, Km, d)
+    rms = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - uv) ** 2, axis=1))))
+    if not rms <= s.max_reprojection_rms_px:
+        return _failed(MeasurementStatus.PNP_FAILED, n)
+    T_cc = np.eye(4)
+    T_cc[:3, :3] = cv2.Rodrigues(rvec)[0]
+    T_cc[:3, 3] = np.asarray(tvec_c).reshape(3)
+    T_cell_board = np.eye(4)
+    T_cell_board[:3, 3] = -offset
+    return BoardObservation(
+        ok=True,
+        status=MeasurementStatus.OK,
+        cell_index=(int(cell[0]), int(cell[1])),
+        T_camera_board=T_cc @ T_cell_board,
+        n_corners=n,
+        reprojection_rms_px=rms,
+        T_camera_cell=T_cc,
+        code_mismatches=0,
+        n_code_bits=0,
+        image_points=uv.copy(),
+        corner_ids=ids.copy(),
+    )
+
+
+# =========================================================================== realities
+def default_arm_reality() -> Reality:
+    """The default "real" arm: fixed, realistic geometric errors.
+
+    Joint offsets of about 0.1°, length errors of about 0.5 mm, twists β of about
+    0.05° on the parallel rows, twists α of about 0.05°, and a hand–eye error of
+    about 1 mm / 0.2°.
+    """
+    from realitygap.robots.effects import make_effect
+
+    return Reality(
+        effects=(
+            make_effect(
+                "arm_joint_offset",
+                dtheta1=1.1e-3,
+                dtheta2=-1.9e-3,
+                dtheta3=1.4e-3,
+                dtheta4=-0.8e-3,
+                dtheta5=2.0e-3,
+                dtheta6=-1.2e-3,
+            ),
+            make_effect(
+                "arm_link_length",
+                dd1=0.4e-3,
+                da2=-0.6e-3,
+                da3=0.5e-3,
+                dd4=-0.3e-3,
+                dd5=0.7e-3,
+                dd6=-0.4e-3,
+            ),
+            make_effect("arm_parallel_twist", beta2=0.9e-3, beta3=-0.8e-3),
+            make_effect("arm_twist_error", dalpha1=0.7e-3, dalpha4=-0.9e-3, dalpha5=0.6e-3),
+            make_effect("arm_handeye_error", dx=0.8e-3, dy=-1.1e-3, dz=0.6e-3, drz=3e-3),
+        ),
+        name="arm_default_errors",
+    )
+
+
+def random_arm_reality(
+    rng: np.random.Generator,
+    joint_offset_std: float = math.radians(0.1),
+    length_std: float = 0.5e-3,
+    beta_std: float = math.radians(0.05),
+    alpha_std: float = math.radians(0.05),
+    handeye_std: float = 1e-3,
+) -> Reality:
+    """A "real" arm with random geometric errors of the given standard deviations (rad, m)."""
+    from realitygap.robots.effects import make_effect
+
+    def n(std: float) -> float:
+        return float(rng.normal(0.0, std))
+
+    return Reality(
+        effects=(
+            make_effect(
+                "arm_joint_offset", **{f"dtheta{k}": n(joint_offset_std) for k in range(1, 7)}
+            ),
+            make_effect(
+                "arm_link_length",
+                **{nm: n(length_std) for nm in ("dd1", "da2", "da3", "dd4", "dd5", "dd6")},
+            ),
+            make_effect("arm_parallel_twist", beta2=n(beta_std), beta3=n(beta_std)),
+            make_effect(
+                "arm_twist_error",
+                **{f"dalpha{k}": n(alpha_std) for k in (1, 4, 5)},
+            ),
+            make_effect(
+                "arm_handeye_error",
+                dx=n(handeye_std),
+                dy=n(handeye_std),
+                dz=n(handeye_std),
+                drz=n(3 * handeye_std),
+            ),
+        ),
+        name="arm_random_errors",
+    )
+
+
+# =========================================================================== pipeline
+@dataclass(frozen=True)
+class ArmPoseMeasurement:
+    """One usable calibration pose: encoder readings and the board measurement.
+
+    Attributes
+    ----------
+    q : ndarray, shape (6,)
+        Joint encoder readings (rad).
+    board : BoardObservation
+        Successful measurement of the camera pose against the board.
+    """
+
+    q: FloatArray
+    board: BoardObservation
+
+
+@dataclass(frozen=True)
+class CalibrationEstimate:
+    """The calibration pipeline's current model.
+
+    Attributes
+    ----------
+    table : MDHTable
+        Estimated geometry (the nominal one until the first accepted identification).
+    tool : ndarray, shape (3,)
+        Estimated camera point in the flange frame (m).
+    n_poses : int
+        Poses measured so far.
+    identified : bool
+        Whether ``table`` comes from an identification.
+    ok : bool
+        False when the last identification attempt failed or was rejected.
+    status : str
+        What happened at the last update.
+    result : IdentificationResult or None
+        The adopted identification.
+    """
+
+    table: MDHTable
+    tool: FloatArray
+    n_poses: int
+    identified: bool
+    ok: bool
+    status: str
+    result: IdentificationResult | None = None
+    extras: dict[str, Any] = field(default_factory=dict)
+
+
+class MDHCalibrationEstimator:
+    """Pose measurements → pair displacements → MDH identification (distance accuracy).
+
+    Follows the estimator protocol: :meth:`reset`, then :meth:`update` with an
+    :class:`ArmPoseMeasurement` (or ``None``: nothing new).
+
+    Parameters
+    ----------
+    nominal : MDHTable
+        Start geometry.
+    tool0 : array_like, shape (3,)
+        Start camera point in the flange frame (m), from the nominal mount.
+    cell_size : float
+        Cell side of the board (m).
+    settings : IdentificationSettings, optional
+        Default: distance residuals, Gauss–Newton, 5-parameter MDH, camera point estimated.
+    min_poses : int
+        Identify only from this many poses on.
+    identify_every : int
+        Then identify after every ``identify_every`` new poses (see :meth:`update`).
+    max_fit_rms : float
+        Reject an identification whose RMS distance residual exceeds this (m).
+    max_length_change, max_angle_change : float
+        Reject one that moves a length (m) or an angle (rad) further than this from nominal.
+    max_condition : float
+        Reject one whose scaled Jacobian is worse conditioned than this.
+    """
+
+    def __init__(
+        self,
+        nominal: MDHTable,
+        tool0: npt.ArrayLike,
+        cell_size: float,
+        settings: IdentificationSettings | None = None,
+        min_poses: int = 8,
+        identify_every: int = 1,
+        max_fit_rms: float = 0.5e-3,
+        max_length_change: float = 0.02,
+        max_angle_change: float = 0.05,
+        max_condition: float = 1e6,
+    ):
+        self.nominal = nominal
+        self.tool0 = np.asarray(tool0, dtype=float).reshape(3).copy()
+        self.cell_size = float(cell_size)
+        self.settings = settings or IdentificationSettings(mode=ResidualMode.DISTANCE)
+        if self.settings.mode is ResidualMode.POSITION:
+            raise ValueError(
+                "the board gives displacements, not positions in a fixed frame: settings.mode "
+                "must be 'distance' or 'displacement'"
+            )
+        if int(min_poses) < 3:
+            raise ValueError(f"min_poses must be >= 3, got {min_poses}")
+        if int(identify_every) < 1:
+            raise ValueError(f"identify_every must be >= 1, got {identify_every}")
+        self.min_poses = int(min_poses)
+        self.identify_every = int(identify_every)
+        self.max_fit_rms = float(max_fit_rms)
+        self.max_length_change = float(max_length_change)
+        self.max_angle_change = float(max_angle_change)
+        self.max_condition = float(max_condition)
+        self.measurements: list[ArmPoseMeasurement] = []
+        self._last_identified_at = 0
+        self._estimate = self._start_estimate("no poses yet")
+        self.identify_seconds = 0.0
+
+    def _start_estimate(self, status: str) -> CalibrationEstimate:
+        return CalibrationEstimate(self.nominal, self.tool0.copy(), 0, False, True, status)
+
+    def reset(self, initial: Any | None = None) -> CalibrationEstimate:
+        """Forget every measurement; the estimate is the nominal model."""
+        self.measurements = []
+        self._last_identified_at = 0
+        self.identify_seconds = 0.0
+        self._estimate = self._start_estimate("no poses yet")
+        return self._estimate
+
+    @property
+    def estimate(self) -> CalibrationEstimate:
+        return self._estimate
+
+    def pair_observations(self) -> PairObservations:
+        """Hierarchical displacements between every pair of measured poses (board frame)."""
+        ms = self.measurements
+        if len(ms) < 2:
+            raise ValueError(f"pairs need at least 2 poses, have {len(ms)}")
+        i, j = np.triu_indices(len(ms), k=1)
+        disp = np.array(
+            [
+                hierarchical_displacement(ms[a].board, ms[b].board, self.cell_size).delta
+                for a, b in zip(i, j)
+            ]
+        )
+        q = np.array([m.q for m in ms])
+        return PairObservations(q[i], q[j], disp)
+
+    def update(
+        self, measurement: ArmPoseMeasurement | None, force: bool = False
+    ) -> CalibrationEstimate:
+        """Add a pose (``None``: none) and re-identify when due (or when ``force``)."""
+        if measurement is not None:
+            if not measurement.board.ok:
+                raise ValueError(
+                    "only successful board measurements can be added, got status "
+                    f"{measurement.board.status.value!r}"
+                )
+            self.measurements.append(measurement)
+        n = len(self.measurements)
+        prev = self._estimate
+        due = n >= self.min_poses and (
+            n - self._last_identified_at >= self.identify_every
+            or (force and n > self._last_identified_at)
+        )
+        if not due:
+            status = (
+                f"waiting: {n} of {self.min_poses} poses needed"
+                if n < self.min_poses
+                else prev.status
+            )
+            self._estimate = CalibrationEstimate(
+                prev.table, prev.tool, n, prev.identified, prev.ok, status, prev.result
+            )
+            return self._estimate
+        self._last_identified_at = n
+        t0 = time.perf_counter()
+        try:
+            res = identify(
+                self.nominal, self.pair_observations(), tool=self.tool0, settings=self.settings
+            )
+            reason = self._reject_reason(res)
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            res, reason = None, f"identification failed: {exc}"
+        self.identify_seconds += time.perf_counter() - t0
+        if res is None or reason:
+            self._estimate = CalibrationEstimate(
+                prev.table, prev.tool, n, prev.identified, False, reason, prev.result
+            )
+        else:
+            self._estimate = CalibrationEstimate(
+                res.table, res.tool.copy(), n, True, True, f"identified from {n} poses", res
+            )
+        return self._estimate
+
+    def _reject_reason(self, res: IdentificationResult) -> str:
+        if not res.converged:
+            return "identification rejected: did not converge"
+        if not (np.isfinite(res.rms_after) and np.all(np.isfinite(res.table.params()))):
+            return "identification rejected: non-finite result"
+        if res.rms_after > self.max_fit_rms:
+            return (
+                f"identification rejected: RMS residual {res.rms_after * 1e3:.3f} mm exceeds "
+                f"{self.max_fit_rms * 1e3:.3f} mm (outlier measurement or unmodelled effect)"
+            )
+        if not res.condition_number <= self.max_condition:
+            return (
+                f"identification rejected: condition number {res.condition_number:.3g} above "
+                f"{self.max_condition:.3g} (poses too similar)"
+            )
+        for nm, dv in res.deltas.items():
+            is_length = nm.rstrip("0123456789") in ("d", "a") or nm in TOOL_PARAM_NAMES
+            lim = self.max_length_change if is_length else self.max_angle_change
+            if abs(dv) > lim:
+                return (
+                    f"identification rejected: {nm} moved {dv:+.4g} {'m' if is_length else 'rad'} "
+                    f"from nominal (limit {lim:g})"
+                )
+        return ""
+
+
+# =========================================================================== env
+class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
+    """Kinematic calibration campaign; see the module docstring for spaces and reward.
+
+    Parameters
+    ----------
+    render_mode : ``None`` or ``"rgb_array"`` (a view of the cell).
+    sensor_mode : ``"geometric"`` (default: the corners a detector would report,
+        projected from the true camera pose with pixel noise; then PnP), ``"fast"``
+        (board renderer from the true camera pose, then :func:`measure_board`) or
+        ``"image"`` (PyBullet TinyRenderer, then :func:`measure_board`). The pose
+        pairs, displacements and identification downstream are the same.
+    params : ArmParams, optional
+        The nominal arm (what the controller believes).
+    reality : Reality, optional
+        Effects that make the simulated arm differ from ``params``;
+        :func:`default_arm_reality` when omitted.
+    randomize_reality : bool
+        Draw a new "real" arm (:func:`random_arm_reality`) at every reset
+        (the arm body is rebuilt); ``reality`` is then ignored.
+    budget : int
+        Attempts per campaign ``K``.
+    joint_center, joint_half_range : array_like, shape (6,)
+        The action box (rad).
+    n_validation : int
+        Validation poses (drawn once, with ``validation_seed``, where the nominal
+        model expects a good view; collision-free).
+    min_poses, identify_every : int
+        When the pipeline identifies (:class:`MDHCalibrationEstimator`).
+    identification : IdentificationSettings, optional
+    measurement : BoardMeasurementSettings, optional
+    board : CodedBoard, optional
+    placement : BoardPlacement, optional
+    view : ViewConstraints, optional
+    invalid_penalty : float
+        Reward lost by an attempt that yields no measurement.
+    estimator : MDHCalibrationEstimator, optional
+        A configured pipeline instead of the default one.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 4}  # noqa: RUF012 (gymnasium's name)
+
+    def __init__(
+        self,
+        render_mode: str | None = None,
+        sensor_mode: str | CaptureMode = CaptureMode.GEOMETRIC,
+        params: ArmParams | None = None,
+        reality: Reality | None = None,
+        randomize_reality: bool = False,
+        budget: int = 20,
+        joint_center: npt.ArrayLike = DEFAULT_JOINT_CENTER,
+        joint_half_range: npt.ArrayLike = DEFAULT_JOINT_HALF_RANGE,
+        n_validation: int = 40,
+        validation_seed: int = 20240,
+        min_poses: int = 8,
+        identify_every: int = 1,
+        identification: IdentificationSettings | None = None,
+        measurement: BoardMeasurementSettings | None = None,
+        board: CodedBoard | None = None,
+        placement: BoardPlacement | None = None,
+        view: ViewConstraints | None = None,
+        invalid_penalty: float = 0.2,
+        estimator: MDHCalibrationEstimator | None = None,
+    ):
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        try:
+            self.sensor_mode = CaptureMode(sensor_mode)
+        except ValueError:
+            raise ValueError(
+                f"sensor_mode must be one of {[m.value for m in CaptureMode]}, got {sensor_mode!r}"
+            ) from None
+        if int(budget) != budget or budget < 1:
+            raise ValueError(f"budget must be a positive whole number of poses, got {budget!r}")
+        if int(n_validation) < 4:
+            raise ValueError(f"n_validation must be >= 4, got {n_validation}")
+        self.render_mode = render_mode
+        self.params = params if params is not None else ArmParams()
+        self.randomize_reality = bool(randomize_reality)
+        self.reality = reality if reality is not None else default_arm_reality()
+        self.true_params: ArmParams = self.reality.apply_params(self.params)
+        self.budget = int(budget)
+        self.joint_center = _check_vec("joint_center", joint_center)
+        self.joint_half_range = _check_vec("joint_half_range", joint_half_range)
+        if np.any(self.joint_half_range <= 0):
+            raise ValueError("joint_half_range must be positive (rad)")
+        self.board = board or CodedBoard()
+        self.placement = placement or BoardPlacement()
+        self.view = view or ViewConstraints()
+        self.measurement_settings = measurement or BoardMeasurementSettings()
+        self.invalid_penalty = float(invalid_penalty)
+        self.tool0 = self.params.camera.T_flange_camera()[:3, 3].copy()
+        self.estimator = estimator or MDHCalibrationEstimator(
+            self.params.mdh,
+            self.tool0,
+            self.board.cell_size,
+            identification,
+            min_poses=min_poses,
+            identify_every=identify_every,
+        )
+
+        self.world = World()
+        textured = self.sensor_mode is CaptureMode.IMAGE or render_mode == "rgb_array"
+        self.robot: ArmRobot
+        self.camera: FlangeCamera
+        self.robot, self.camera = build_arm_scene(
+            self.world, self.true_params, self.board, self.placement, textured=textured
+        )
+        self.home = self.joint_center.copy()
+
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(6,), dtype=np.float32)
+        low = np.full(N_OBS, -50.0, dtype=np.float32)
+        high = np.full(N_OBS, 50.0, dtype=np.float32)
+        low[33:66], high[33:66] = _SV_FLOOR, 4.0
+        low[66], high[66] = 0.0, 16.0
+        low[67:71], high[67:71] = 0.0, 1.0
+        low[71], high[71] = 0.0, 10.0
+        low[72:78], high[72:78] = -2.0, 2.0
+        low[78:83], high[78:83] = 0.0, 1.0
+        self.observation_space = spaces.Box(low, high, dtype=np.float32)
+        self._obs_low, self._obs_high = low, high
+
+        self.validation_q = self._draw_validation(int(n_validation), int(validation_seed))
+        self._truth_cache: FloatArray | None = None
+        self._nominal_param_vec = self.params.mdh.params()
+        # episode state
+        self._attempts = 0
+        self._wasted = 0
+        self._last_outcome: AttemptOutcome | None = None
+        self._q_enc = self.home.copy()
+        self._err = 0.0
+        self._err_nominal = 0.0
+        self._capture_seconds = 0.0
+        self._measure_seconds = 0.0
+
+    # ------------------------------------------------------------------ helpers
+    @property
+    def nominal_params(self) -> ArmParams:
+        """The nominal arm (what the controller and the pipeline believe)."""
+        return self.params
+
+    @property
+    def capture_seconds(self) -> float:
+        """Wall time spent forming images (or corner lists) this episode (s)."""
+        return self._capture_seconds
+
+    @property
+    def measure_seconds(self) -> float:
+        """Wall time spent measuring camera poses this episode (s)."""
+        return self._measure_seconds
+
+    def q_from_action(self, action: npt.ArrayLike) -> FloatArray:
+        """Joint command (6,) (rad) for a normalised action (clipped to ±1)."""
+        a = np.clip(np.asarray(action, dtype=float).reshape(6), -1.0, 1.0)
+        return self.joint_center + self.joint_half_range * a
+
+    def action_from_q(self, q: npt.ArrayLike) -> npt.NDArray[np.float32]:
+        """Normalised action(s) ``(..., 6)`` for joint command(s) (rad); not clipped."""
+        return ((np.asarray(q, dtype=float) - self.joint_center) / self.joint_half_range).astype(
+            np.float32
+        )
+
+    def candidate_pool(self, n: int, seed: int, max_draws: int = 200_000) -> FloatArray:
+        """``n`` joint commands (n, 6) inside the action box that the nominal model
+        expects to see the board well (:class:`ViewConstraints`) and that do not collide.
+
+        Drawn uniformly with ``numpy.random.default_rng(seed)``.
+        """
+        rng = np.random.default_rng(seed)
+        out: list[FloatArray] = []
+        drawn = 0
+        while len(out) < n and drawn < max_draws:
+            k = max(64, 4 * (n - len(out)))
+            q = self.joint_center + self.joint_half_range * rng.uniform(-1.0, 1.0, (k, 6))
+            drawn += k
+            ok = nominal_view_ok(self.params, self.board, self.placement, q, self.view)
+            ok &= np.all(q >= self.params.joint_lower, axis=1) & np.all(
+                q <= self.params.joint_upper, axis=1
+            )
+            for qq in q[ok]:
+                if not self.robot.collides_at(qq):
+                    out.append(qq)
+                    if len(out) == n:
+                        break
+        if len(out) < n:
+            raise ValueError(
+                f"found only {len(out)} of {n} feasible poses in {drawn} draws; widen the action "
+                "box or relax the view constraints"
+            )
+        return np.array(out)
+
+    def _draw_validation(self, n: int, seed: int) -> FloatArray:
+        return self.candidate_pool(n, seed)
+
+    def _true_validation_points(self) -> FloatArray:
+        """True camera points (n_val, 3) in the world at the validation readings (cached)."""
+        if self._truth_cache is None:
+            tp = self.true_params
+            q_link = np.array([self.robot.link_target(q, np.ones(6)) for q in self.validation_q])
+            self._truth_cache = tool_positions(
+                tp.mdh, q_link, tp.camera.T_flange_camera()[:3, 3], tp.T_world_base
+            )
+        return self._truth_cache
+
+    def validation_errors(self, table: MDHTable, tool: npt.ArrayLike) -> FloatArray:
+        """Positioning errors (n_val,) (m) of a model on the validation poses (after the best
+        rigid registration)."""
+        p_model = tool_positions(table, self.validation_q, np.asarray(tool, dtype=float))
+        return registered_position_errors(p_model, self._true_validation_points())
+
+    # ------------------------------------------------------------------ gym API
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[npt.NDArray[np.float32], dict[str, Any]]:
+        """Start a campaign at the home configuration (the action box centre)."""
+        super().reset(seed=seed)
+        if options:
+            raise ValueError(f"ArmCalib-v0 takes no reset options, got {sorted(options)}")
+        rng = self.np_random
+        if self.randomize_reality:
+            self._rebuild(random_arm_reality(rng))
+        self.robot.reset(self.home)
+        self._q_enc = self.robot.read_encoders(rng)
+        self.estimator.reset()
+        self._attempts = 0
+        self._wasted = 0
+        self._last_outcome = None
+        self._capture_seconds = 0.0
+        self._measure_seconds = 0.0
+        est = self.estimator.estimate
+        errs = self.validation_errors(est.table, est.tool)
+        self._err = float(np.sqrt(np.mean(errs**2)))
+        self._err_nominal = self._err
+        info = self._info(est, errs, {}, "", None)
+        return self._observation(est), info
+
+    def step(
+        self, action: npt.ArrayLike
+    ) -> tuple[npt.NDArray[np.float32], float, bool, bool, dict[str, Any]]:
+        a = np.asarray(action, dtype=np.float64)
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"action must be finite, got {a.tolist()}")
+        if a.shape != (6,):
+            raise ValueError(f"action must have shape (6,), got {np.shape(action)}")
+        if self._attempts >= self.budget:
+            raise RuntimeError("the campaign's budget is spent; call reset()")
+        rng = self.np_random
+        q_cmd = self.q_from_action(a)
+        self._attempts += 1
+        outcome, message, board_status, measurement = self._attempt(q_cmd, rng)
+        last = self._attempts >= self.budget
+        est = self.estimator.update(measurement, force=last)
+        self._last_outcome = outcome
+        if outcome is not AttemptOutcome.OK:
+            self._wasted += 1
+        errs = self.validation_errors(est.table, est.tool)
+        err = float(np.sqrt(np.mean(errs**2)))
+        terms = {
+            "error_drop": 1e3 * (self._err - err),
+            "invalid_pose": -self.invalid_penalty if outcome is not AttemptOutcome.OK else 0.0,
+        }
+        self._err = err
+        reward = float(sum(terms.values()))
+        info = self._info(est, errs, terms, message, board_status)
+        info["outcome"] = outcome.value
+        return self._observation(est), reward, last, False, info
+
+    def render(self) -> npt.NDArray[np.uint8] | None:
+        if self.render_mode != "rgb_array":
+            return None
+        import pybullet as p
+
+        c = self.world.bullet
+        view = c.computeViewMatrix([0.6, 1.2, 1.1], [-0.45, 0.0, 0.1], [0, 0, 1])
+        proj = c.computeProjectionMatrixFOV(55, 4 / 3, 0.05, 6)
+        _, _, rgba, _, _ = c.getCameraImage(320, 240, view, proj, renderer=p.ER_TINY_RENDERER)
+        return np.asarray(rgba, dtype=np.uint8).reshape(240, 320, 4)[..., :3].copy()
+
+    def close(self) -> None:
+        self.world.close()
+
+    # ------------------------------------------------------------------ internals
+    def _rebuild(self, reality: Reality) -> None:
+        self.reality = reality
+        self.true_params = reality.apply_params(self.params)
+        c = self.world.bullet
+        c.removeBody(self.robot.body)
+        self.world.bodies.pop("arm", None)
+        self.robot = ArmRobot(self.world, self.true_params)
+        self.camera = FlangeCamera(self.robot, self.board, self.placement)
+        self._truth_cache = None
+
+    def _attempt(
+        self, q_cmd: FloatArray, rng: np.random.Generator
+    ) -> tuple[AttemptOutcome, str, str | None, ArmPoseMeasurement | None]:
+        move = self.robot.move_to(q_cmd)
+        self._q_enc = self.robot.read_encoders(rng)
+        if move.outcome is MoveOutcome.OUT_OF_REACH:
+            return AttemptOutcome.OUT_OF_REACH, move.message, None, None
+        if move.outcome is MoveOutcome.COLLISION:
+            return AttemptOutcome.COLLISION, move.message, None, None
+        # the optical axis misses the board: no frame could be measured (skip the rendering)
+        if not self.camera.axis_hits_board():
+            return (
+                AttemptOutcome.BOARD_NOT_VISIBLE,
+                "the camera's optical axis does not meet the board",
+                None,
+                None,
+            )
+        t0 = time.perf_counter()
+        cp = self.params.camera  # the pipeline measures with the nominal intrinsics
+        if self.sensor_mode is CaptureMode.GEOMETRIC:
+            uv, ids = self.camera.visible_corners(rng)
+            t1 = time.perf_counter()
+            obs = observation_from_corners(
+                uv, ids, cp.K, cp.dist_array, self.board, self.measurement_settings
+            )
+        else:
+            img = self.camera.capture(self.sensor_mode, rng)
+            t1 = time.perf_counter()
+            obs = measure_board(img, cp.K, cp.dist_array, self.board, self.measurement_settings)
+        self._capture_seconds += t1 - t0
+        self._measure_seconds += time.perf_counter() - t1
+        if not obs.ok:
+            return (
+                AttemptOutcome.MEASUREMENT_FAILED,
+                f"board measurement failed: {obs.status.value}",
+                obs.status.value,
+                None,
+            )
+        return AttemptOutcome.OK, "", obs.status.value, ArmPoseMeasurement(self._q_enc.copy(), obs)
+
+    def _observation(self, est: CalibrationEstimate) -> npt.NDArray[np.float32]:
+        obs = np.zeros(N_OBS, dtype=np.float64)
+        d = est.table.params() - self._nominal_param_vec
+        obs[:30] = 1e3 * d  # rad -> mrad, m -> mm
+        obs[30:33] = 1e3 * (est.tool - self.tool0)
+        obs[33:66] = _SV_FLOOR
+        if est.result is not None:
+            sv = np.asarray(est.result.singular_values, dtype=float)[:33]
+            with np.errstate(divide="ignore"):
+                obs[33 : 33 + sv.size] = np.maximum(np.log10(np.maximum(sv, 1e-300)), _SV_FLOOR)
+            obs[66] = math.log10(max(est.result.condition_number, 1.0))
+            obs[67] = len(est.result.free_params) / N_PARAMS
+            obs[71] = 1e3 * est.result.rms_after
+        obs[68] = est.n_poses / self.budget
+        obs[69] = (self.budget - self._attempts) / self.budget
+        obs[70] = self._wasted / self.budget
+        obs[72:78] = (self._q_enc - self.joint_center) / self.joint_half_range
+        if self._last_outcome is not None:
+            obs[78 + _OUTCOMES.index(self._last_outcome.value)] = 1.0
+        out = obs.astype(np.float32)
+        np.clip(out, self._obs_low, self._obs_high, out=out)
+        return out
+
+    def _info(
+        self,
+        est: CalibrationEstimate,
+        errs: FloatArray,
+        terms: dict[str, float],
+        message: str,
+        board_status: str | None,
+    ) -> dict[str, Any]:
+        res = est.result
+        return {
+            "true_pose": self.robot.T_world_camera(),
+            "q_command": self.robot.q_cmd.copy(),
+            "q_encoder": self._q_enc.copy(),
+            "outcome": None,
+            "message": message,
+            "measurement_status": board_status,
+            "estimate_ok": est.ok,
+            "estimate_status": est.status,
+            "poses_used": est.n_poses,
+            "attempts": self._attempts,
+            "validation_rms_mm": 1e3 * float(np.sqrt(np.mean(errs**2))),
+            "validation_max_mm": 1e3 * float(np.max(errs)),
+            "nominal_validation_rms_mm": 1e3 * self._err_nominal,
+            "free_params": res.free_params if res is not None else (),
+            "condition_number": res.condition_number if res is not None else None,
+            "fit_rms_mm": 1e3 * res.rms_after if res is not None else None,
+            "reward_terms": dict(terms),
+            "is_success": bool(errs.size and 1e3 * np.sqrt(np.mean(errs**2)) <= 0.1),
+        }
+
+
+def _check_vec(name: str, value: npt.ArrayLike) -> FloatArray:
+    arr = np.asarray(value, dtype=float).reshape(-1)
+    if arr.shape != (6,) or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be 6 finite joint angles (rad), got {value!r}")
+    return arr
