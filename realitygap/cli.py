@@ -88,6 +88,10 @@ def build_parser() -> argparse.ArgumentParser:
     p_run.add_argument("--json", help="write the result as JSON to this path")
     p_run.add_argument("--silent", action="store_true", help="no progress output")
     p_run.set_defaults(func=_cmd_run)
+
+    from realitygap.calibrate import add_calibrate_parser
+
+    add_calibrate_parser(sub)
     return parser
 
 

@@ -25,7 +25,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-_MODULES = ("realitygap.experiments.nav",)
+_MODULES = (
+    "realitygap.experiments.nav",
+    "realitygap.experiments.perception",
+    "realitygap.experiments.arm",
+)
 
 
 @dataclass

@@ -106,13 +106,24 @@ def run_episode(
 
 @experiment("nav8", "seed 001's test: 8 start poses to goal (0, 0, π/2), estimator in the loop")
 def nav8(ctx: RunContext) -> dict[str, Any]:
+    return _nav8(
+        ctx,
+        lambda start, goal: _make_env(
+            n_obstacles=0, start=start, goal=goal, terminate_on_success=False
+        ),
+        {"estimator": "wheel odometry"},
+    )
+
+
+def _nav8(ctx: RunContext, make_env: Any, config: dict[str, Any]) -> dict[str, Any]:
+    """Seed 001's eight-start test with envs from ``make_env(start, goal)``."""
     from realitygap.baselines import ClassicalNavPolicy
     from realitygap.envs import NAV8_STARTS
 
     goal = (0.0, 0.0, math.pi / 2)
     rows = []
     for k, start in enumerate(NAV8_STARTS):
-        env = _make_env(n_obstacles=0, start=start, goal=goal, terminate_on_success=False)
+        env = make_env(start, goal)
         policy = ClassicalNavPolicy.from_env(env)
         t0 = time.perf_counter()
         ep = run_episode(env, policy, seed=ctx.seed + k, settle=True)
@@ -146,13 +157,59 @@ def nav8(ctx: RunContext) -> dict[str, Any]:
     }
     return {
         "figures": figures,
-        "config": {
-            "goal": list(goal),
-            "estimator": "wheel odometry",
-            "policy": "classical APF→QP→Kanayama→polar",
-        },
+        "config": {"goal": list(goal), "policy": "classical APF→QP→Kanayama→polar", **config},
         "tables": {"episodes": rows},
     }
+
+
+@experiment(
+    "nav8-vo",
+    "nav8 with calib000's imperfect robot after calibration, fused odometry+RGB-D VO in the loop",
+)
+def nav8_vo(ctx: RunContext) -> dict[str, Any]:
+    from dataclasses import replace
+
+    from realitygap.estimators.diffdrive_model import DiffDriveKinematics
+    from realitygap.estimators.pipelines import FusedOdometryVO
+    from realitygap.experiments.perception import CalibConfig, calib000, calibration_room
+    from realitygap.robots.diffdrive import DiffDriveParams
+
+    ctx.progress("nav8-vo: calibrating the imperfect robot (calib000)")
+    calib = calib000(ctx)
+    cal = calib["config"]["calibrated"]
+    nominal = DiffDriveParams()
+    kin = DiffDriveKinematics(
+        cal["wheel_radius_left"], cal["wheel_radius_right"], cal["wheelbase"], nominal.ticks_per_rev
+    )
+    mx, my, myaw = cal["mounting_xy_yaw"]
+    cam = replace(nominal.camera, mount_xyz=(mx, my, nominal.camera.mount_xyz[2]), mount_yaw=myaw)
+    reality = (CalibConfig.quick() if ctx.quick else CalibConfig()).reality()
+    room = calibration_room(3.5)
+
+    def make_env(start: Any, goal: Any) -> Any:
+        return _make_env(
+            sensor_mode="image",
+            obstacles=room,
+            room_half_size=3.5,
+            reality=reality,
+            start=start,
+            goal=goal,
+            terminate_on_success=False,
+            estimator=FusedOdometryVO(kin, cam.T_base_camera()),
+        )
+
+    out = _nav8(
+        ctx,
+        make_env,
+        {
+            "estimator": "fused odometry + RGB-D VO, calibrated",
+            "reality": reality.to_dict(),
+            "calibration": cal,
+        },
+    )
+    out["figures"]["calib_max_err_mm_straight"] = calib["figures"]["max_err_mm_straight"]
+    out["figures"]["calib_max_err_mm_curve"] = calib["figures"]["max_err_mm_curve"]
+    return out
 
 
 @experiment(
