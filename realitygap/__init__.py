@@ -17,12 +17,14 @@ __version__ = "0.1.0"
 ENV_IDS: tuple[str, ...] = (
     "realitygap/WheeledNav-v0",
     "realitygap/ArmCalib-v0",
+    "realitygap/WallClimb-v0",
 )
 """Every environment id this package registers."""
 
 _ENTRY_POINTS = {
     "realitygap/WheeledNav-v0": ("realitygap.envs.wheeled_nav:WheeledNavEnv", 1200),
     "realitygap/ArmCalib-v0": ("realitygap.envs.arm_calib:ArmCalibEnv", 200),
+    "realitygap/WallClimb-v0": ("realitygap.envs.wall_climb:WallClimbEnv", 1200),
 }
 
 for _env_id, (_entry, _steps) in _ENTRY_POINTS.items():

@@ -29,6 +29,7 @@ _MODULES = (
     "realitygap.experiments.nav",
     "realitygap.experiments.perception",
     "realitygap.experiments.arm",
+    "realitygap.experiments.climb",
 )
 
 

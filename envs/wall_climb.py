@@ -1,0 +1,640 @@
+"""``realitygap/WallClimb-v0``: an adsorption climber drives to a goal point on an 8 m blade.
+
+The robot (:mod:`realitygap.robots.climber`) climbs the suction side of a blade pitched
+tip-up, held by an adsorption force; it carries an IMU, a down-looking camera and a
+tether to a fixed anchor. The policy sees the estimator's output only; ``info`` carries
+ground truth, reward terms and every detected anomaly.
+
+Action space — ``Box(-1, 1, (2,), float32)``: ``v = a0 · v_max`` (m/s),
+``ω = a1 · w_max`` (rad/s); the firmware limits acceleration and maps the twist to
+wheel speeds with the nominal geometry.
+
+Observation space — ``Box(float32, (18,))`` (world = CAD frame, z up, m)
+
+=========  ==============================================================
+idx        meaning
+=========  ==============================================================
+0–2        estimated body position
+3–5        estimated body x-axis (heading, unit vector)
+6–8        estimated body z-axis (surface normal, unit vector)
+9–11       goal position
+12, 13     goal in the estimated body frame, x and y
+14         last tether reading, m
+15, 16     last applied command v / v_max, ω / w_max
+17         1 when the estimate is usable (estimator ``ok``), else 0
+=========  ==============================================================
+
+Observation pipelines (``estimator=``):
+
+* ``"docked"`` (default, fast enough for RL): each episode starts from a docking pose
+  known to the accuracy of the global initialisation (σ = 1 cm, 0.03 rad yaw); the VIO
+  is initialised from one second of still IMU data, then :class:`.SlidingWindowVIO`
+  (geometric camera mode) feeds :class:`.ConstrainedEstimator` (tether + adsorption
+  constraints) — :class:`DockedClimbPipeline`;
+* ``"localiser"``: the full :class:`.ClimbLocaliser` (static init → excitation path →
+  Algorithm 1 → constrained tracking); until the global initialisation succeeds the
+  estimate is in the VIO frame and ``ok`` is 0. ``info["anchor_observable"]`` is
+  False when the excitation path did not suffice (status ``init_degraded``);
+* any object with ``reset(initial=None)`` and ``update(measurement)`` returning a
+  :class:`.ClimbEstimate`.
+
+Bad input is detected and reported, never raised: tether slack / jumps / invalid
+readings (``info["estimator_flags"]``), lost visual tracking (``info["visual_ok"]``),
+the robot leaving the surface (``info["detached"]``, terminates the episode), a
+non-finite estimate (replaced by the last finite one, ``info["estimate_ok"] = False``).
+
+Reward — named sum (``info["reward_terms"]``): progress towards the goal (true
+distance), a time cost, an effort cost, a detachment penalty and a success bonus
+(within ``success_tol`` m).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import numpy.typing as npt
+from gymnasium import spaces
+
+from realitygap.estimators.climb import (
+    ClimbEstimate,
+    ClimbLocaliser,
+    ConstrainedConfig,
+    ConstrainedEstimator,
+    LocaliserConfig,
+    LocaliserPhase,
+    SlidingWindowVIO,
+    StaticInit,
+    SurfaceModel,
+    TetherReading,
+    VioConfig,
+    static_initialise,
+)
+from realitygap.estimators.climb.vio import quat_xyzw_from_matrix, so3_exp
+from realitygap.robots.climber import (
+    BodyState,
+    CameraMode,
+    CameraModel,
+    ClimberParams,
+    ClimberRobot,
+    ClimbFaults,
+    ClimbWorld,
+    ImuModel,
+    TetherModel,
+    chart_pose,
+)
+from realitygap.robots.effects import Reality
+
+FloatArray = npt.NDArray[np.float64]
+
+__all__ = ["DockedClimbPipeline", "DockedStart", "WallClimbEnv"]
+
+
+@dataclass(frozen=True, eq=False)
+class DockedStart:
+    """Initial state of :class:`DockedClimbPipeline`.
+
+    Attributes
+    ----------
+    static
+        VIO static initialisation (from still IMU data).
+    pose
+        Body pose in the CAD frame at ``static.t`` (``frame="cad"``).
+    cov : (6, 6)
+        Its covariance (position m², attitude rad²).
+    """
+
+    static: StaticInit
+    pose: ClimbEstimate
+    cov: FloatArray
+
+
+class DockedClimbPipeline:
+    """VIO → adsorption-constrained tracking from a known docking pose.
+
+    The tracking phase of :class:`.ClimbLocaliser` without the excitation path: the
+    global pose is given by :class:`DockedStart`; VIO keyframes and tether readings
+    update :class:`.ConstrainedEstimator`, and between keyframes the constrained pose is
+    carried forward by the VIO's IMU-rate motion.
+
+    Parameters
+    ----------
+    surface
+        CAD surface model (world = CAD frame).
+    anchor_cad : (3,)
+        Nominal anchor, m.
+    h
+        Nominal body height above the surface, m.
+    vio_config, config
+        :class:`.VioConfig`, :class:`.ConstrainedConfig`.
+    """
+
+    def __init__(
+        self,
+        surface: SurfaceModel,
+        anchor_cad: npt.ArrayLike,
+        h: float,
+        *,
+        vio_config: VioConfig | None = None,
+        config: ConstrainedConfig | None = None,
+    ) -> None:
+        self.vio = SlidingWindowVIO(vio_config)
+        self.backend = ConstrainedEstimator(surface, anchor_cad, h, config)
+        self._last: ClimbEstimate | None = None
+        self._kf_last: ClimbEstimate | None = None
+        self._backend_last: ClimbEstimate | None = None
+        self._kf_count = 0
+
+    def reset(self, initial: DockedStart | None = None) -> ClimbEstimate:
+        """Start from ``initial`` (required)."""
+        if not isinstance(initial, DockedStart):
+            raise ValueError(
+                "DockedClimbPipeline.reset needs a DockedStart (static IMU init + docking pose), "
+                f"got {type(initial).__name__}"
+            )
+        self.vio.reset(initial.static)
+        self._kf_count = self.vio.keyframe_count
+        self._kf_last = self.vio.keyframe_estimate()
+        self.backend.reset(initial.pose, initial.cov)
+        self._backend_last = self.backend.update(self._kf_last)
+        self._last = self._backend_last
+        return self._last
+
+    def update(self, measurement: Any) -> ClimbEstimate:
+        """Consume one measurement (or ``None``); returns the CAD-frame estimate."""
+        if self._last is None:
+            raise RuntimeError("call reset(DockedStart(...)) before update()")
+        if measurement is None:
+            return self._last
+        if isinstance(measurement, TetherReading):
+            self._backend_last = self.backend.update(measurement)
+            self._last = self._backend_last
+            return self._last
+        vio_now = self.vio.update(measurement)
+        if self.vio.keyframe_count != self._kf_count:
+            self._kf_count = self.vio.keyframe_count
+            self._kf_last = self.vio.keyframe_estimate()
+            self._backend_last = self.backend.update(self._kf_last)
+            self._last = self._backend_last
+            return self._last
+        kf, c = self._kf_last, self._backend_last
+        assert kf is not None and c is not None
+        R_kf = kf.rotation
+        dR = R_kf.T @ vio_now.rotation
+        dp = R_kf.T @ (vio_now.position - kf.position)
+        R_c = c.rotation
+        self._last = dataclasses.replace(
+            c,
+            t=vio_now.t,
+            position=c.position + R_c @ dp,
+            quat_xyzw=quat_xyzw_from_matrix(R_c @ dR),
+            velocity=R_c @ R_kf.T @ vio_now.velocity,
+        )
+        return self._last
+
+
+class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
+    """Reach a goal point on the blade; see the module docstring for the spaces.
+
+    Parameters
+    ----------
+    render_mode
+        ``None`` or ``"rgb_array"``.
+    sensor_mode
+        ``"fast"`` (geometric camera) or ``"image"`` (TinyRenderer frames).
+    estimator
+        ``"docked"``, ``"localiser"`` or an estimator object (see module docstring).
+    params
+        Nominal robot and blade (what the estimator believes).
+    reality
+        Effects that make the simulated robot differ from ``params``.
+    faults
+        :class:`.ClimbFaults` (bad-input injection).
+    start, goal
+        Fixed chart points ``(x [m], ξ)`` on the suction side (start also takes a
+        heading ``(x, ξ, heading [rad])``); random when ``None``.
+    success_tol
+        m.
+    physics_hz, control_hz
+        Hz; the ratio must be even (IMU at half the physics rate by default).
+    detach_margin
+        Height above the rolling height beyond which the robot counts as detached, m.
+    vio_config
+        VIO settings; default: the robot's noise and camera mount with a 5-keyframe
+        window and 3 solver iterations (the cost of RL rollouts is dominated by the
+        window solve; on the ``climb003`` paths the accuracy is unchanged).
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 20}  # noqa: RUF012 (gymnasium's name)
+
+    def __init__(
+        self,
+        render_mode: str | None = None,
+        sensor_mode: str | CameraMode = CameraMode.FAST,
+        estimator: str | Any = "docked",
+        params: ClimberParams | None = None,
+        reality: Reality | None = None,
+        faults: ClimbFaults | None = None,
+        start: npt.ArrayLike | None = None,
+        goal: npt.ArrayLike | None = None,
+        success_tol: float = 0.05,
+        physics_hz: float = 240.0,
+        control_hz: float = 20.0,
+        detach_margin: float = 0.03,
+        vio_config: VioConfig | None = None,
+    ) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        try:
+            self.sensor_mode = CameraMode(sensor_mode)
+        except ValueError:
+            raise ValueError(
+                f"sensor_mode must be 'fast' or 'image', got {sensor_mode!r}"
+            ) from None
+        ratio = physics_hz / control_hz
+        if control_hz <= 0 or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise ValueError(
+                f"physics_hz / control_hz must be a positive whole number, got {physics_hz} / {control_hz}"
+            )
+        self.render_mode = render_mode
+        self.params = params if params is not None else ClimberParams()
+        if not isinstance(self.params, ClimberParams):
+            raise TypeError(f"params must be ClimberParams, got {type(self.params).__name__}")
+        self.reality = reality if reality is not None else Reality()
+        self.true_params: ClimberParams = self.reality.apply_params(self.params)
+        self.faults = faults if faults is not None else ClimbFaults()
+        self.fixed_start = None if start is None else np.asarray(start, dtype=float)
+        self.fixed_goal = None if goal is None else np.asarray(goal, dtype=float)
+        self.success_tol = float(success_tol)
+        self.detach_margin = float(detach_margin)
+        imu_every = physics_hz / self.params.imu_rate
+        if abs(imu_every - round(imu_every)) > 1e-9:
+            raise ValueError(
+                f"physics_hz / imu_rate must be whole, got {physics_hz} / {self.params.imu_rate}"
+            )
+        self._imu_every = int(round(imu_every))
+        cam_every = control_hz / self.params.camera_rate
+        if abs(cam_every - round(cam_every)) > 1e-9 or cam_every < 1:
+            raise ValueError(
+                f"control_hz / camera_rate must be a whole number ≥ 1, got {control_hz} / "
+                f"{self.params.camera_rate}"
+            )
+        self._cam_every = int(round(cam_every))
+
+        textured = self.sensor_mode is CameraMode.IMAGE or render_mode == "rgb_array"
+        self.scene = ClimbWorld(
+            self.true_params,
+            physics_hz=physics_hz,
+            n_substeps=int(round(ratio)),
+            textured=textured,
+        )
+        self.robot = ClimberRobot(self.scene, self.true_params)
+        pts, nrm = self.params.cad_cloud(0.02)
+        self.cad_surface = SurfaceModel(pts, nrm)
+        self.vio_config = (
+            vio_config
+            if vio_config is not None
+            else self.params.vio_config(window_size=5, max_iterations=3)
+        )
+        self.estimator_kind = estimator if isinstance(estimator, str) else "custom"
+        self.estimator: Any = self._make_estimator(estimator)
+
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+        big = 30.0
+        low = np.full(18, -big, dtype=np.float32)
+        high = np.full(18, big, dtype=np.float32)
+        low[3:9], high[3:9] = -1.0, 1.0
+        low[14], high[14] = 0.0, big
+        low[15:17], high[15:17] = -1.0, 1.0
+        low[17], high[17] = 0.0, 1.0
+        self.observation_space = spaces.Box(low, high, dtype=np.float32)
+        self._obs_low, self._obs_high = low, high
+
+        self._t = 0.0
+        self._steps = 0
+        self._cmd = np.zeros(2)
+        self._goal = np.zeros(3)
+        self._estimate: ClimbEstimate | None = None
+        self._good_estimate: ClimbEstimate | None = None
+        self._state: BodyState | None = None
+        self._tether_len = 0.0
+        self._visual_ok = True
+        self._prev_dist = 0.0
+        self._flags: dict[str, int] = {}
+        self._closed = False
+
+    # ------------------------------------------------------------------ helpers
+    def _make_estimator(self, estimator: str | Any) -> Any:
+        nominal = self.params
+        if estimator == "docked":
+            return DockedClimbPipeline(
+                self.cad_surface,
+                nominal.anchor_world,
+                nominal.h,
+                vio_config=self.vio_config,
+                config=nominal.constrained_config(),
+            )
+        if estimator == "localiser":
+            return ClimbLocaliser(
+                self.cad_surface,
+                nominal.anchor_world,
+                nominal.h,
+                vio_config=self.vio_config,
+                config=nominal.constrained_config(),
+                localiser_config=LocaliserConfig(init_path_length=2.0, init_max_path_length=6.0),
+            )
+        if isinstance(estimator, str):
+            raise ValueError(
+                f"estimator must be 'docked', 'localiser' or an estimator object, got {estimator!r}"
+            )
+        if not (
+            callable(getattr(estimator, "reset", None))
+            and callable(getattr(estimator, "update", None))
+        ):
+            raise TypeError(
+                "estimator must have reset(initial=None) and update(measurement) methods, "
+                f"got {type(estimator).__name__}"
+            )
+        return estimator
+
+    @property
+    def dt(self) -> float:
+        """Control period, s."""
+        return self.scene.world.dt
+
+    @property
+    def v_max(self) -> float:
+        return self.params.v_max
+
+    @property
+    def w_max(self) -> float:
+        return self.params.w_max
+
+    @property
+    def goal(self) -> FloatArray:
+        """Goal position (world), m."""
+        return self._goal.copy()
+
+    # ------------------------------------------------------------------ gym API
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[npt.NDArray[np.float32], dict[str, Any]]:
+        """Start an episode; ``options`` may hold ``start`` ``(x, ξ[, heading])`` and ``goal`` ``(x, ξ)``."""
+        super().reset(seed=seed)
+        if self._closed:
+            raise RuntimeError("this env is closed; create a new one")
+        options = dict(options or {})
+        unknown = set(options) - {"start", "goal"}
+        if unknown:
+            raise ValueError(f"unknown reset option(s) {sorted(unknown)}; expected 'start', 'goal'")
+        rng = self.np_random
+        start = options.get("start", self.fixed_start)
+        goal = options.get("goal", self.fixed_goal)
+        if start is None:
+            start = np.array(
+                [rng.uniform(1.5, 6.0), rng.uniform(0.2, 0.55), rng.uniform(-np.pi, np.pi)]
+            )
+        start = self._check_chart("start", start, allow_heading=True)
+        if goal is None:
+            for _ in range(50):
+                goal = np.array([rng.uniform(1.0, 7.0), rng.uniform(0.15, 0.6)])
+                if 0.5 < abs(goal[0] - start[0]) + abs(goal[1] - start[1]) < 2.5:
+                    break
+        goal = self._check_chart("goal", goal, allow_heading=False)
+        tp = self.true_params
+        surf = self.scene.surface
+        heading = float(start[2]) if len(start) == 3 else 0.0
+        pos, R = chart_pose(surf, tp, float(start[0]), float(start[1]), heading, tp.h_true)
+        self._goal = chart_pose(surf, tp, float(goal[0]), float(goal[1]), 0.0, 0.0)[0]
+        # a fresh body each episode: no contact manifolds or solver warm starts carried
+        # over from the previous episode, so a seeded episode is exactly repeatable
+        self.scene.world.bullet.removeBody(self.robot.body)
+        self.robot = ClimberRobot(self.scene, tp)
+        self.robot.reset(pos, R)
+        self.robot.adsorption_scale = 1.0
+        self._imu = ImuModel(tp, rng)
+        self._tether = TetherModel(tp, rng, self.faults)
+        self._camera = CameraModel(self.robot, tp, self.sensor_mode, rng, self.faults)
+        self._flags = {}
+        # one second standing still before the episode (VIO static initialisation)
+        n_static = int(round(tp.imu_rate))
+        still = self._imu.at_rest(R, 0.0, n_static)
+        self._t0 = n_static / tp.imu_rate
+        self._t, self._steps = self._t0, 0
+        self._cmd = np.zeros(2)
+        self._state = self.robot.state(self._t)
+        self._state_prev_imu = self._state
+        self._tether_len = self._tether.read(self._t, pos, 1.0 / tp.camera_rate).length
+        self._visual_ok = True
+        if self.estimator_kind == "docked":
+            static = static_initialise(still, gravity=self.vio_config.gravity)
+            static = dataclasses.replace(static, t=self._t)
+            cfg = LocaliserConfig()
+            p_err = rng.normal(0, cfg.init_position_sigma, 3)
+            R_err = so3_exp(np.array([0.0, 0.0, rng.normal(0, cfg.init_yaw_sigma)]))
+            start_est = ClimbEstimate(
+                t=self._t,
+                position=pos + p_err,
+                quat_xyzw=quat_xyzw_from_matrix(R_err @ R),
+                frame="cad",
+            )
+            cov = np.diag(
+                [cfg.init_position_sigma**2] * 3
+                + [cfg.init_tilt_sigma**2] * 2
+                + [cfg.init_yaw_sigma**2]
+            )
+            est = self.estimator.reset(DockedStart(static, start_est, cov))
+        else:
+            est = self.estimator.reset()
+            for m in still:
+                est = self.estimator.update(m)
+        self._camera.capture(self._state, tp.h_true)
+        self._set_estimate(est)
+        self._prev_dist = self._true_distance()
+        info = self._info({}, detached=False, success=False)
+        return self._observation(), info
+
+    def step(
+        self, action: npt.ArrayLike
+    ) -> tuple[npt.NDArray[np.float32], float, bool, bool, dict[str, Any]]:
+        if self._state is None:
+            raise RuntimeError("call reset() before step()")
+        a = np.asarray(action, dtype=np.float64).reshape(-1)
+        if a.shape != (2,):
+            raise ValueError(f"action must have shape (2,), got {np.shape(action)}")
+        if not (math.isfinite(a[0]) and math.isfinite(a[1])):
+            raise ValueError(f"action must be finite, got {a.tolist()}")
+        a0, a1 = min(1.0, max(-1.0, a[0])), min(1.0, max(-1.0, a[1]))
+        prm = self.params
+        dv, dw = 0.5 * self.dt, 2.0 * self.dt  # firmware acceleration limits
+        v = self._cmd[0] + min(dv, max(-dv, a0 * prm.v_max - self._cmd[0]))
+        w = self._cmd[1] + min(dw, max(-dw, a1 * prm.w_max - self._cmd[1]))
+        self._cmd[:] = (v, w)
+        self.robot.set_twist(v, w, prm)
+        measurements = self._simulate()
+        for m in measurements:
+            self._set_estimate(self.estimator.update(m))
+        self._steps += 1
+        height = self.robot.last_height
+        detached = not (-0.02 < height < self.true_params.h_true + self.detach_margin)
+        dist = self._true_distance()
+        success = dist < self.success_tol and not detached
+        reward, terms = self._get_rew(dist, (a0, a1), detached, success)
+        obs = self._observation()
+        return obs, reward, bool(detached or success), False, self._info(terms, detached, success)
+
+    def _simulate(self) -> list[Any]:
+        """One control period of physics; returns the measurements in time order."""
+        w = self.scene.world
+        c = w.bullet
+        out: list[Any] = []
+        dtp = w.physics_dt
+        t0 = time_start = self._t
+        for k in range(w.n_substeps):
+            self.robot.apply_adsorption()
+            c.stepSimulation()
+            if (k + 1) % self._imu_every == 0:
+                t = time_start + (k + 1) * dtp
+                s = self.robot.state(t)
+                out.append(self._imu.sample(self._state_prev_imu, s))
+                self._state_prev_imu = s
+        self._t = t0 + w.n_substeps * dtp
+        self._state = self._state_prev_imu
+        if (self._steps + 1) % self._cam_every == 0:
+            height = self.robot.height_above_surface()
+            frame = self._camera.capture(self._state, height)
+            if frame is not None:
+                self._visual_ok = bool(getattr(frame, "ok", True))
+                out.append(frame)
+            reading = self._tether.read(
+                self._t, self._state.position, 1.0 / self.params.camera_rate
+            )
+            self._tether_len = reading.length
+            out.append(reading)
+        return out
+
+    def render(self) -> npt.NDArray[np.uint8] | None:
+        if self.render_mode != "rgb_array" or self._state is None:
+            return None
+        import pybullet as p
+
+        c = self.scene.world.bullet
+        pos = self._state.position
+        n = self._state.R[:, 2]
+        eye = pos + 1.2 * n + np.array([0.0, 0.0, 0.4])
+        view = c.computeViewMatrix(eye.tolist(), pos.tolist(), [0, 0, 1])
+        proj = c.computeProjectionMatrixFOV(60, 4 / 3, 0.05, 20)
+        _, _, rgba, _, _ = c.getCameraImage(320, 240, view, proj, renderer=p.ER_TINY_RENDERER)
+        return np.asarray(rgba, dtype=np.uint8).reshape(240, 320, 4)[..., :3].copy()
+
+    def close(self) -> None:
+        self.scene.close()
+        self._state = None
+        self._closed = True
+
+    # ------------------------------------------------------------------ internals
+    def _check_chart(self, name: str, value: Any, *, allow_heading: bool) -> FloatArray:
+        arr = np.asarray(value, dtype=float).reshape(-1)
+        sizes = (2, 3) if allow_heading else (2,)
+        if arr.shape[0] not in sizes or not np.all(np.isfinite(arr)):
+            raise ValueError(
+                f"{name} must be {' or '.join(str(s) for s in sizes)} finite numbers (x [m], ξ"
+                f"{', heading [rad]' if allow_heading else ''}), got {value!r}"
+            )
+        L = self.params.blade.length
+        if not (0.3 < arr[0] < L - 0.3 and 0.05 <= arr[1] <= 0.9):
+            raise ValueError(
+                f"{name} ({arr[0]:.3g}, {arr[1]:.3g}) must lie on the suction side: "
+                f"0.3 < x < {L - 0.3} m, 0.05 ≤ ξ ≤ 0.9"
+            )
+        return arr
+
+    def _set_estimate(self, est: ClimbEstimate) -> None:
+        finite = bool(np.all(np.isfinite(est.position)) and np.all(np.isfinite(est.quat_xyzw)))
+        if finite:
+            self._good_estimate = est
+            self._estimate = est
+        else:
+            self._flags["non_finite_estimate"] = self._flags.get("non_finite_estimate", 0) + 1
+            last = self._good_estimate
+            if last is None:
+                raise RuntimeError("the estimator returned a non-finite first estimate")
+            self._estimate = dataclasses.replace(last, ok=False, status="non_finite_estimate")
+        for f in self._estimate.status.split("|"):
+            if f and f != "ok":
+                self._flags[f] = self._flags.get(f, 0) + 1
+
+    def _true_distance(self) -> float:
+        assert self._state is not None
+        return float(np.linalg.norm(self._state.position - self._goal))
+
+    def _observation(self) -> npt.NDArray[np.float32]:
+        est = self._estimate
+        assert est is not None
+        R = est.rotation
+        rel = R.T @ (self._goal - est.position)
+        obs = np.empty(18, dtype=np.float64)
+        obs[0:3] = est.position
+        obs[3:6] = R[:, 0]
+        obs[6:9] = R[:, 2]
+        obs[9:12] = self._goal
+        obs[12:14] = rel[:2]
+        obs[14] = self._tether_len
+        obs[15] = self._cmd[0] / self.v_max
+        obs[16] = self._cmd[1] / self.w_max
+        obs[17] = 1.0 if est.ok else 0.0
+        out = obs.astype(np.float32)
+        np.clip(out, self._obs_low, self._obs_high, out=out)
+        return out
+
+    def _get_rew(
+        self, dist: float, action: tuple[float, float], detached: bool, success: bool
+    ) -> tuple[float, dict[str, float]]:
+        terms = {
+            "progress": 5.0 * (self._prev_dist - dist),
+            "time": -0.01,
+            "effort": -0.002 * (action[0] ** 2 + action[1] ** 2),
+            "detach": -5.0 if detached else 0.0,
+            "success": 5.0 if success else 0.0,
+        }
+        self._prev_dist = dist
+        return float(sum(terms.values())), terms
+
+    def _info(self, terms: dict[str, float], detached: bool, success: bool) -> dict[str, Any]:
+        est, s = self._estimate, self._state
+        assert est is not None and s is not None
+        info: dict[str, Any] = {
+            "true_pose": np.concatenate([s.position, quat_xyzw_from_matrix(s.R)]),
+            "estimated_pose": np.concatenate([est.position, est.quat_xyzw]),
+            "position_error": float(np.linalg.norm(est.position - s.position)),
+            "estimate_ok": bool(est.ok),
+            "estimate_status": est.status,
+            "estimate_frame": est.frame,
+            "estimator_flags": dict(self._flags),
+            "goal": self._goal.copy(),
+            "goal_distance": self._true_distance(),
+            "height_above_surface": float(self.robot.last_height),
+            "adsorption_force": float(self.robot.last_force),
+            "tether_length": float(self._tether_len),
+            "tether_true_distance": self._tether.true_distance(s.position),
+            "visual_ok": self._visual_ok,
+            "detached": bool(detached),
+            "is_success": bool(success),
+            "reward_terms": dict(terms),
+            "t": self._t,
+        }
+        if isinstance(self.estimator, ClimbLocaliser):
+            loc = self.estimator
+            info["localiser_phase"] = loc.phase.value
+            gi = loc.global_init
+            info["global_init_status"] = None if gi is None else gi.status
+            info["anchor_observable"] = (
+                None
+                if loc.phase is not LocaliserPhase.TRACKING
+                else bool(gi is not None and gi.converged)
+            )
+        return info
