@@ -92,6 +92,10 @@ def build_parser() -> argparse.ArgumentParser:
     from realitygap.calibrate import add_calibrate_parser
 
     add_calibrate_parser(sub)
+
+    from realitygap.diagnosis.cli import add_diagnose_parser
+
+    add_diagnose_parser(sub)
     return parser
 
 

@@ -30,6 +30,7 @@ _MODULES = (
     "realitygap.experiments.perception",
     "realitygap.experiments.arm",
     "realitygap.experiments.climb",
+    "realitygap.experiments.diagnosis",
 )
 
 

@@ -1,0 +1,730 @@
+r"""Attribute a sim-to-real gap to effects: fit, score on held-out data, decide or refuse.
+
+For every candidate effect (and pairs of the best ones) the parameters are
+fitted on the training windows by least squares on the normalised window
+residuals
+
+.. math::  z(θ) = \big(f_{real} - f_{sim}(θ)\big) / s ,
+
+where :math:`f_{sim}(θ)` is the fast surrogate plus its own error at the
+nominal point (``bias``: nominal PyBullet replay minus nominal surrogate) and
+``s`` the feature scales. A model is scored by the Gaussian profile likelihood
+per feature group ``g`` with a BIC penalty,
+
+.. math::  S = \sum_g n_g \log\big(\overline{z_g^2} + ε^2\big) + p \log n ,
+
+on the training windows (``bic``) and on the held-out windows
+(``heldout_score``, the ranking key). The best models are then *verified*:
+the bias is recomputed with PyBullet at the fitted parameters, the parameters
+refined, and the held-out residual taken from a PyBullet replay — every
+reported number after the fit comes from the simulator, not the surrogate.
+
+The verdict names the best model only if it closes at least ``min_shrink`` of
+the held-out gap and what remains looks like noise: no group's residual may be
+much larger than its white (window-to-window) part, depend on the motion
+regime, or follow the commanded speed, turn rate or acceleration. Otherwise
+it is ``"unexplained"``, with a description of the remaining residual. When
+two explanations fit the logged motions equally well (their parameters are
+strongly correlated in a joint fit), the report says so and proposes the
+library manoeuvre that separates them best.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from scipy.optimize import least_squares
+
+from realitygap.diagnosis.adapters import PreparedLog, RobotAdapter
+from realitygap.diagnosis.features import FEATURE_COLUMNS, REGIMES, FeatureSettings
+from realitygap.diagnosis.replay import Drive, SimSettings
+from realitygap.robots.effects import EFFECTS
+
+FloatArray = npt.NDArray[np.float64]
+
+__all__ = [
+    "AttributionSettings",
+    "Layout",
+    "ModelFit",
+    "Problem",
+    "Verdict",
+    "describe_residual",
+    "fit_model",
+    "model_keys",
+    "profile_score",
+]
+
+
+@dataclass(frozen=True)
+class AttributionSettings:
+    """Settings of the fit, the ranking and the verdict.
+
+    Attributes
+    ----------
+    pair_candidates : int
+        The best this many single effects are also fitted in pairs.
+    verify_top : int
+        Models verified with PyBullet (defect-corrected refit and PyBullet
+        held-out residual); the rest keep surrogate scores.
+    defect_iterations : int
+        PyBullet bias updates per verified model.
+    min_shrink : float
+        Fraction of the held-out RMS gap the chosen model must close.
+    excess_ratio : float
+        A group's residual is structured if its RMS exceeds this many times
+        its white, window-to-window level.
+    regime_t : float
+        … or if a regime's mean residual exceeds this many standard errors.
+    trend_r2 : float
+        … or if the commanded motion explains this fraction of its variance.
+    floor : float
+        Residual level (in feature-scale units) below which nothing counts as
+        structured: effects that small are below what the logs resolve.
+    score_floor : float
+        ``ε`` of the profile score (feature-scale units).
+    confound_corr : float
+        |correlation| of jointly fitted parameters above which two effects are
+        reported as not separable by the logged motions.
+    margin_strong : float
+        Score difference to the runner-up for a "strong" attribution; also
+        the least improvement over the nominal replay that counts as a gap.
+    parsimony_margin : float
+        A model with one effect fewer whose score is within this of a larger
+        model's is preferred (Occam's razor on held-out scores).
+    grid_points : int
+        Grid points per parameter of single-parameter fits.
+    seed : int
+        Seed of the random starts of models with more than two parameters.
+    """
+
+    pair_candidates: int = 5
+    verify_top: int = 2
+    defect_iterations: int = 1
+    min_shrink: float = 0.5
+    excess_ratio: float = 2.5
+    regime_t: float = 6.0
+    trend_r2: float = 0.5
+    floor: float = 0.3
+    score_floor: float = 0.3
+    confound_corr: float = 0.95
+    margin_strong: float = 10.0
+    parsimony_margin: float = 6.0
+    grid_points: int = 41
+    seed: int = 0
+
+
+# --------------------------------------------------------------------------- parameters
+_LOG_PARAMS = {"velocity_saturation.v_limit"}
+
+
+def model_keys(effects: Sequence[str]) -> tuple[str, ...]:
+    """``"effect.param"`` keys of a model's parameters, in effect order."""
+    return tuple(f"{e}.{s.name}" for e in effects for s in EFFECTS[e].specs)
+
+
+def _spec(key: str) -> Any:
+    effect, _, param = key.partition(".")
+    for s in EFFECTS[effect].specs:
+        if s.name == param:
+            return s
+    raise KeyError(key)
+
+
+def _to_x(key: str, u: FloatArray) -> FloatArray:
+    s = _spec(key)
+    if key in _LOG_PARAMS:
+        return np.exp(np.log(s.low) + u * (np.log(s.high) - np.log(s.low)))
+    return s.low + u * (s.high - s.low)
+
+
+def _to_u(key: str, x: float) -> float:
+    s = _spec(key)
+    if key in _LOG_PARAMS:
+        return float((math.log(x) - math.log(s.low)) / (math.log(s.high) - math.log(s.low)))
+    return float((x - s.low) / (s.high - s.low))
+
+
+def _dx_du(key: str, x: float) -> float:
+    s = _spec(key)
+    if key in _LOG_PARAMS:
+        return x * (math.log(s.high) - math.log(s.low))
+    return s.high - s.low
+
+
+# --------------------------------------------------------------------------- layout
+MOTION_COLUMNS = ("v_mean", "w_mean", "dv", "dw", "v_range", "w_range")
+"""Commanded motion of a window: mean speed and turn rate, their signed change over the
+window (m/s, rad/s) and their ranges."""
+
+
+@dataclass
+class Layout:
+    """Where each entry of a stacked residual vector comes from.
+
+    ``blocks`` lists ``(log index, group, window indices)``; the per-entry
+    arrays (length n) give group, column, regime, log, window and the
+    commanded motion of the window (:data:`MOTION_COLUMNS`).
+    """
+
+    blocks: list[tuple[int, str, npt.NDArray[np.int64]]]
+    # entries below have one value per residual entry
+    group: npt.NDArray[np.str_]
+    column: npt.NDArray[np.str_]
+    regime: npt.NDArray[np.str_]
+    log: npt.NDArray[np.int64]
+    window: npt.NDArray[np.int64]
+    motion: FloatArray
+
+    @property
+    def n(self) -> int:
+        return int(self.group.shape[0])
+
+    @classmethod
+    def build(cls, logs: Sequence[PreparedLog], split: str) -> Layout:
+        blocks = []
+        g_all, c_all, r_all, l_all, w_all, m_all = [], [], [], [], [], []
+        for i, p in enumerate(logs):
+            if split == "train":
+                wins = np.flatnonzero(~p.holdout_windows)
+            else:
+                wins = np.flatnonzero(p.holdout_windows)
+            if wins.size == 0:
+                continue
+            twist = p.context.get("twist")
+            motion = np.zeros((p.bounds.shape[0], len(MOTION_COLUMNS)))
+            if twist is not None:
+                for m, (a, b) in enumerate(p.bounds):
+                    seg = twist[a:b]
+                    before = twist[max(a - 1, 0)]
+                    motion[m] = (
+                        seg[:, 0].mean(),
+                        seg[:, 1].mean(),
+                        twist[b - 1, 0] - before[0],
+                        twist[b - 1, 1] - before[1],
+                        np.ptp(twist[max(a - 1, 0) : b, 0]),
+                        np.ptp(twist[max(a - 1, 0) : b, 1]),
+                    )
+            for g in p.groups:
+                cols = FEATURE_COLUMNS[g]
+                blocks.append((i, g, wins))
+                for w in wins:
+                    for c in cols:
+                        g_all.append(g)
+                        c_all.append(c)
+                        r_all.append(p.regimes[w])
+                        l_all.append(i)
+                        w_all.append(w)
+                        m_all.append(motion[w])
+        return cls(
+            blocks=blocks,
+            group=np.asarray(g_all, dtype=str),
+            column=np.asarray(c_all, dtype=str),
+            regime=np.asarray(r_all, dtype=str),
+            log=np.asarray(l_all, dtype=np.int64),
+            window=np.asarray(w_all, dtype=np.int64),
+            motion=np.asarray(m_all, dtype=float).reshape(-1, len(MOTION_COLUMNS)),
+        )
+
+
+def profile_score(z: FloatArray, layout: Layout, floor: float) -> FloatArray:
+    """``Σ_g n_g log(mean(z_g²) + floor²)`` for residual vectors z (..., n)."""
+    z = np.asarray(z, dtype=float)
+    total = np.zeros(z.shape[:-1])
+    for g in np.unique(layout.group):
+        sel = layout.group == g
+        ms = np.mean(z[..., sel] ** 2, axis=-1)
+        total = total + sel.sum() * np.log(ms + floor**2)
+    return total
+
+
+# --------------------------------------------------------------------------- problem
+@dataclass
+class Problem:
+    """Everything a fit needs: adapter, prepared logs, drive, settings (picklable)."""
+
+    adapter: RobotAdapter
+    logs: list[PreparedLog]
+    drive: Drive
+    features: FeatureSettings
+    sim: SimSettings | None
+    settings: AttributionSettings
+    train: Layout = field(init=False)
+    holdout: Layout = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.train = Layout.build(self.logs, "train")
+        self.holdout = Layout.build(self.logs, "holdout")
+
+    def real_minus(
+        self,
+        layout: Layout,
+        predict: Callable[[PreparedLog, int], dict[str, FloatArray]],
+        batch: int,
+    ) -> FloatArray:
+        """Normalised residuals (B, n): real features minus ``predict(log, i)`` (B, M, k)."""
+        out = np.empty((batch, layout.n))
+        pos = 0
+        cache: dict[int, dict[str, FloatArray]] = {}
+        for i, g, wins in layout.blocks:
+            p = self.logs[i]
+            if i not in cache:
+                cache[i] = predict(p, i)
+            pred = cache[i][g][..., wins, :]
+            res = (p.real[g][wins] - pred) / self.features.scale(g)
+            k = res.shape[-1] * res.shape[-2]
+            out[:, pos : pos + k] = res.reshape(res.shape[0] if res.ndim == 3 else 1, -1)
+            pos += k
+        return out
+
+    def surrogate_residuals(
+        self,
+        layout: Layout,
+        values: Mapping[str, FloatArray],
+        batch: int,
+        bias: Mapping[int, dict[str, FloatArray]] | None = None,
+    ) -> FloatArray:
+        """Residuals (B, n) of a batch of effect values on the bias-corrected surrogate."""
+
+        def predict(p: PreparedLog, i: int) -> dict[str, FloatArray]:
+            sur = self.adapter.surrogate_features(p, values, self.drive)
+            b = bias[i] if bias is not None and i in bias else p.bias
+            return {g: sur[g] + b[g][None] for g in p.groups}
+
+        return self.real_minus(layout, predict, batch)
+
+    def nominal_residuals(self, layout: Layout) -> FloatArray:
+        """Residual (n,) of the nominal PyBullet replays."""
+        return self.real_minus(layout, lambda p, i: {g: p.nominal[g][None] for g in p.groups}, 1)[0]
+
+
+# --------------------------------------------------------------------------- fits
+@dataclass
+class ModelFit:
+    """One candidate model: its fitted parameters, scores and residuals.
+
+    Scores are the profile scores of :func:`profile_score` (lower is better);
+    ``rank_score`` = held-out score + ``p log n_train``.
+    """
+
+    effects: tuple[str, ...]
+    keys: tuple[str, ...]
+    values: dict[str, float]
+    stderr: dict[str, float]
+    corr: FloatArray
+    train_score: float
+    bic: float
+    heldout_score: float
+    rank_score: float
+    heldout_rms: float
+    z_heldout: FloatArray
+    verified: bool = False
+    message: str = ""
+    n_train: int = 0
+    effect_sizes: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        return " + ".join(self.effects) if self.effects else "nominal"
+
+    @property
+    def n_params(self) -> int:
+        return len(self.keys)
+
+
+def _grid(
+    keys: Sequence[str], settings: AttributionSettings, rng: np.random.Generator
+) -> FloatArray:
+    p = len(keys)
+    if p == 1:
+        return np.linspace(0.0, 1.0, settings.grid_points)[:, None]
+    if p == 2:
+        g = np.linspace(0.0, 1.0, 13)
+        return np.array(list(itertools.product(g, g)))
+    if p == 3:
+        g = np.linspace(0.0, 1.0, 7)
+        return np.array(list(itertools.product(g, g, g)))
+    n = 300
+    # Latin hypercube from the seeded generator
+    u = (rng.permuted(np.tile(np.arange(n), (p, 1)), axis=1).T + rng.random((n, p))) / n
+    return u
+
+
+def _values(keys: Sequence[str], U: FloatArray) -> dict[str, FloatArray]:
+    return {k: _to_x(k, U[:, j]) for j, k in enumerate(keys)}
+
+
+def fit_model(
+    problem: Problem,
+    effects: Sequence[str],
+    *,
+    starts: Sequence[Mapping[str, float]] = (),
+    bias: Mapping[int, dict[str, FloatArray]] | None = None,
+    local_only: bool = False,
+) -> ModelFit:
+    """Fit one model's parameters on the training windows and score it on the held-out ones.
+
+    Parameters
+    ----------
+    problem : Problem
+    effects : sequence of str
+        Effect names of the model (empty: the nominal model).
+    starts : sequence of mappings
+        Extra start points ``{"effect.param": value}`` (e.g. single-effect optima).
+    bias : mapping, optional
+        Per-log surrogate bias replacing the nominal one (PyBullet defect correction).
+    local_only : bool
+        Skip the grid; refine from ``starts`` only.
+    """
+    settings = problem.settings
+    keys = model_keys(effects)
+    p = len(keys)
+    tr, ho = problem.train, problem.holdout
+    if p == 0:
+        z_tr = problem.surrogate_residuals(tr, {}, 1, bias)[0]
+        z_ho = problem.surrogate_residuals(ho, {}, 1, bias)[0] if ho.n else np.zeros(0)
+        return _finish(problem, tuple(effects), keys, np.zeros(0), z_tr, z_ho, np.zeros((0, 0)))
+
+    def residual_batch(U: FloatArray, layout: Any) -> FloatArray:
+        return problem.surrogate_residuals(layout, _values(keys, U), U.shape[0], bias)
+
+    seed = settings.seed + sum(ord(c) for c in "".join(effects))
+    rng = np.random.default_rng(seed)
+    cand: list[FloatArray] = []
+    for st in starts:
+        u = np.array([_to_u(k, float(st.get(k, _spec(k).nominal))) for k in keys])
+        cand.append(np.clip(u, 0.0, 1.0))
+    if not local_only:
+        U = _grid(keys, settings, rng)
+        U = np.vstack([U, np.array([[_to_u(k, _spec(k).nominal) for k in keys]]), *cand])
+        costs = np.empty(U.shape[0])
+        for a in range(0, U.shape[0], 128):
+            z = residual_batch(U[a : a + 128], tr)
+            costs[a : a + 128] = np.sum(z**2, axis=1)
+        order = np.argsort(costs)
+        picks: list[FloatArray] = []
+        for idx in order:
+            if all(np.max(np.abs(U[idx] - q)) > 0.08 for q in picks):
+                picks.append(U[idx])
+            if len(picks) >= 3:
+                break
+        cand = picks
+    if not cand:
+        cand = [np.array([_to_u(k, _spec(k).nominal) for k in keys])]
+
+    h = 1e-3
+    cache: dict[bytes, FloatArray] = {}
+
+    def fun(u: FloatArray) -> FloatArray:
+        key = u.tobytes()
+        if key not in cache:
+            cache[key] = residual_batch(u[None], tr)[0]
+        return cache[key]
+
+    def jac(u: FloatArray) -> FloatArray:
+        steps = np.where(u + h <= 1.0, h, -h)
+        U = np.vstack([u] + [u + np.eye(p)[j] * steps[j] for j in range(p)])
+        z = residual_batch(U, tr)
+        cache[u.tobytes()] = z[0]
+        return ((z[1:] - z[0]) / steps[:, None]).T
+
+    best = None
+    for u0 in cand:
+        try:
+            res = least_squares(
+                fun, u0, jac=jac, bounds=(0.0, 1.0), x_scale=0.1, max_nfev=30 * p, method="trf"
+            )
+        except (ValueError, np.linalg.LinAlgError):  # pragma: no cover - defensive
+            continue
+        if best is None or res.cost < best.cost:
+            best = res
+    assert best is not None
+    u_hat = best.x
+    z_tr = fun(u_hat)
+    J = jac(u_hat)
+    z_ho = residual_batch(u_hat[None], ho)[0] if ho.n else np.zeros(0)
+    return _finish(problem, tuple(effects), keys, u_hat, z_tr, z_ho, J)
+
+
+def _finish(
+    problem: Problem,
+    effects: tuple[str, ...],
+    keys: tuple[str, ...],
+    u_hat: FloatArray,
+    z_tr: FloatArray,
+    z_ho: FloatArray,
+    J_u: FloatArray,
+    verified: bool = False,
+) -> ModelFit:
+    settings = problem.settings
+    p = len(keys)
+    n = max(z_tr.shape[0], 1)
+    values = {k: float(_to_x(k, np.array([u_hat[j]]))[0]) for j, k in enumerate(keys)}
+    stderr: dict[str, float] = {}
+    corr = np.eye(p)
+    if p and J_u.shape[-1] == p:
+        scale = np.array([_dx_du(k, values[k]) for k in keys])
+        J = J_u / scale[None, :]
+        dof = max(n - p, 1)
+        s2 = float(np.sum(z_tr**2)) / dof
+        try:
+            cov = s2 * np.linalg.pinv(J.T @ J)
+            sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+            stderr = {k: float(sd[j]) for j, k in enumerate(keys)}
+            with np.errstate(invalid="ignore", divide="ignore"):
+                corr = cov / np.outer(sd, sd)
+            corr = np.nan_to_num(corr, nan=0.0)
+        except np.linalg.LinAlgError:  # pragma: no cover - pinv does not raise in practice
+            stderr = {k: math.inf for k in keys}
+    effect_sizes = _effect_sizes(problem, effects, values) if p else {}
+    floor = settings.score_floor
+    train_score = float(profile_score(z_tr, problem.train, floor))
+    bic = train_score + p * math.log(n)
+    if z_ho.size:
+        ho_score = float(profile_score(z_ho, problem.holdout, floor))
+        ho_rms = float(np.sqrt(np.mean(z_ho**2)))
+    else:
+        ho_score, ho_rms = math.nan, math.nan
+    return ModelFit(
+        effects=effects,
+        keys=keys,
+        values=values,
+        stderr=stderr,
+        corr=corr,
+        train_score=train_score,
+        bic=bic,
+        heldout_score=ho_score,
+        rank_score=ho_score + p * math.log(n),
+        heldout_rms=ho_rms,
+        z_heldout=z_ho,
+        verified=verified,
+        n_train=n,
+        effect_sizes=effect_sizes,
+    )
+
+
+def _effect_sizes(
+    problem: Problem, effects: Sequence[str], values: Mapping[str, float]
+) -> dict[str, float]:
+    """How much each effect of a fitted model changes the predicted training features.
+
+    RMS (feature-scale units) of the surrogate's features at the fitted point
+    minus the same with that effect's parameters put back to nominal.
+    """
+    keys = list(values)
+    rows = [dict(values)]
+    for e in effects:
+        row = dict(values)
+        for k in keys:
+            if k.split(".")[0] == e:
+                row[k] = _spec(k).nominal
+        rows.append(row)
+    batch = {k: np.array([r[k] for r in rows]) for k in keys}
+    z = problem.surrogate_residuals(problem.train, batch, len(rows))
+    return {e: float(np.sqrt(np.mean((z[j + 1] - z[0]) ** 2))) for j, e in enumerate(effects)}
+
+
+# --------------------------------------------------------------------------- residual structure
+@dataclass
+class Verdict:
+    """The conclusion of an attribution.
+
+    ``kind`` is ``"effects"`` (``effects`` names them), ``"unexplained"`` or
+    ``"none"`` (no significant gap on the held-out data).
+    """
+
+    kind: str
+    effects: tuple[str, ...]
+    reason: str
+    margin: float
+    confidence: str
+    residual: dict[str, Any]
+    ambiguous_with: list[str] = field(default_factory=list)
+
+    @property
+    def label(self) -> str | list[str]:
+        """What the JSON ``verdict`` holds: a list of effect names or a keyword."""
+        if self.kind == "effects":
+            return list(self.effects)
+        return self.kind
+
+
+def _white_level(z: FloatArray, layout: Layout, sel: npt.NDArray[np.bool_]) -> float:
+    """Noise level of a residual group: robust spread of its window-to-window differences.
+
+    ``1.4826 · MAD(Δz) / √2`` over consecutive windows of each log and column,
+    so that a few large structured windows (starts, stops, slow legs) do not
+    pass for noise.
+    """
+    diffs = []
+    for col in np.unique(layout.column[sel]):
+        for lg in np.unique(layout.log[sel]):
+            m = sel & (layout.column == col) & (layout.log == lg)
+            v = z[m]
+            if v.size >= 2:
+                diffs.append(np.diff(v))
+    if not diffs:
+        return 0.0
+    d = np.concatenate(diffs)
+    mad = float(np.median(np.abs(d - np.median(d))))
+    return 1.4826 * mad / math.sqrt(2.0)
+
+
+def describe_residual(
+    z: FloatArray,
+    layout: Layout,
+    settings: AttributionSettings,
+    scales: FeatureSettings,
+) -> dict[str, Any]:
+    """Whether a held-out residual (n,) still has structure, and what it looks like.
+
+    Returns
+    -------
+    dict
+        ``structured`` (bool), ``reasons`` (list of str) and per group
+        ``groups[g]``: RMS (scale units and SI units per column), white level,
+        excess ratio, lag-1 autocorrelation, mean per regime (SI units per
+        column), the regime t statistics and the fraction of variance
+        explained by the commanded motion.
+    """
+    out: dict[str, Any] = {"structured": False, "reasons": [], "groups": {}}
+    for g in FEATURE_COLUMNS:
+        sel = layout.group == g
+        if sel.sum() < 6:
+            continue
+        zg = z[sel]
+        rms = float(np.sqrt(np.mean(zg**2)))
+        white = _white_level(z, layout, sel)
+        level = max(white, settings.floor)
+        excess = rms / level
+        cols = FEATURE_COLUMNS[g]
+        scale = scales.scale(g)
+        per_col_rms = {}
+        for j, c in enumerate(cols):
+            m = sel & (layout.column == c)
+            per_col_rms[c] = float(np.sqrt(np.mean(z[m] ** 2)) * scale[j]) if m.any() else 0.0
+        # lag-1 autocorrelation within logs and columns
+        num = den = 0.0
+        for c in cols:
+            for lg in np.unique(layout.log[sel]):
+                m = sel & (layout.column == c) & (layout.log == lg)
+                v = z[m]
+                if v.size >= 3:
+                    num += float(np.sum(v[1:] * v[:-1]))
+                    den += float(np.sum(v * v))
+        lag1 = num / den if den > 0 else 0.0
+        # residual concentrated in one column or one regime (heteroscedastic structure)
+        worst_ratio, worst_ratio_where = 0.0, ""
+        for c in cols:
+            mc = sel & (layout.column == c)
+            if mc.sum() < 6:
+                continue
+            # noise reference: the column's white level, or its quietest regime if lower
+            quiet = [
+                float(np.sqrt(np.mean(z[mc & (layout.regime == r)] ** 2)))
+                for r in REGIMES
+                if (mc & (layout.regime == r)).sum() >= 10
+            ]
+            lvl_c = max(min([_white_level(z, layout, mc), *quiet]), settings.floor)
+            for r in ("all", *REGIMES):
+                m = mc if r == "all" else mc & (layout.regime == r)
+                if m.sum() < 5:
+                    continue
+                r_rms = float(np.sqrt(np.mean(z[m] ** 2)))
+                if r_rms > settings.floor and r_rms / lvl_c > worst_ratio:
+                    worst_ratio = r_rms / lvl_c
+                    worst_ratio_where = c if r == "all" else f"{c} while {r}"
+        regime_means: dict[str, dict[str, float]] = {}
+        worst_t, worst_where = 0.0, ""
+        for r in REGIMES:
+            for j, c in enumerate(cols):
+                m = sel & (layout.regime == r) & (layout.column == c)
+                if m.sum() < 3:
+                    continue
+                mean = float(np.mean(z[m]))
+                regime_means.setdefault(r, {})[c] = mean * float(scale[j])
+                t = abs(mean) / (level / math.sqrt(m.sum()))
+                if t > worst_t and abs(mean) > settings.floor:
+                    worst_t, worst_where = t, f"{c} while {r}"
+        # dependence on the commanded motion (per column, least squares)
+        r2_best, r2_where = 0.0, ""
+        for c in cols:
+            m = sel & (layout.column == c)
+            if m.sum() < 8:
+                continue
+            y = z[m]
+            mot = layout.motion[m]
+            X = np.column_stack(
+                [
+                    np.ones(m.sum()),
+                    mot[:, 0],
+                    mot[:, 1],
+                    np.abs(mot[:, 0]),
+                    np.abs(mot[:, 1]),
+                    mot[:, 2],
+                    mot[:, 3],
+                    mot[:, 4],
+                    mot[:, 5],
+                ]
+            )
+            n_m = int(m.sum())
+            if n_m < 3 * X.shape[1]:
+                continue
+            beta, *_ = np.linalg.lstsq(X, y, rcond=None)
+            fit = X @ beta
+            ss_tot = float(np.sum(y**2))
+            ss_res = float(np.sum((y - fit) ** 2))
+            explained_rms = math.sqrt(max(ss_tot - ss_res, 0.0) / n_m)
+            # share of the (uncentred) residual energy explained, adjusted for the regressors
+            r2 = 1.0 - (ss_res / ss_tot) * n_m / (n_m - X.shape[1]) if ss_tot > 0 else 0.0
+            if r2 > r2_best and explained_rms > settings.floor:
+                r2_best, r2_where = r2, c
+        info = {
+            "rms": rms,
+            "rms_units": per_col_rms,
+            "units": dict(zip(cols, _units(g))),
+            "white_level": white,
+            "excess_ratio": excess,
+            "lag1_autocorrelation": lag1,
+            "regime_means": regime_means,
+            "worst_regime_t": worst_t,
+            "worst_regime": worst_where,
+            "motion_r2": r2_best,
+            "motion_r2_column": r2_where,
+            "worst_concentration": worst_ratio,
+            "worst_concentration_where": worst_ratio_where,
+        }
+        out["groups"][g] = info
+        if rms <= settings.floor:
+            continue
+        if excess > settings.excess_ratio:
+            out["reasons"].append(
+                f"{g}: residual RMS is {excess:.1f}× its window-to-window noise level "
+                f"(lag-1 autocorrelation {lag1:.2f})"
+            )
+        if worst_ratio > settings.excess_ratio:
+            out["reasons"].append(
+                f"{g}: the residual of {worst_ratio_where} is {worst_ratio:.1f}× the noise level"
+            )
+        if worst_t > settings.regime_t:
+            out["reasons"].append(
+                f"{g}: mean residual of {worst_where} is {worst_t:.1f} standard errors from zero"
+            )
+        if r2_best > settings.trend_r2:
+            out["reasons"].append(
+                f"{g}: the commanded speed / turn rate / acceleration explains "
+                f"{100 * r2_best:.0f} % of the {r2_where} residual"
+            )
+    out["structured"] = bool(out["reasons"])
+    return out
+
+
+def _units(group: str) -> tuple[str, ...]:
+    from realitygap.diagnosis.features import FEATURE_UNITS
+
+    return FEATURE_UNITS[group]

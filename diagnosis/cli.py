@@ -1,0 +1,201 @@
+"""``realitygap diagnose``: the sim-to-real gap diagnosis from the command line.
+
+::
+
+    realitygap diagnose LOG... [--holdout LOG...] [--robot diffdrive] [--effects a,b,…]
+                        [--drive commands|ticks] --report DIR --json PATH
+
+A LOG is a saved ``.npz`` log, an OptiOdom session folder, a CSV file (with
+``--columns``) or a ROS bag (with ``--truth-topic`` …). :func:`add_diagnose_parser`
+adds the sub-command to the main ``realitygap`` parser.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+__all__ = ["add_diagnose_parser", "main", "run_diagnose"]
+
+EXAMPLES = """\
+examples:
+  realitygap diagnose shared/data/optiodom_diffdrive/square/230620202042 \\
+      --holdout shared/data/optiodom_diffdrive/ivanjko/231220200057 --report out/ --json out/d.json
+  realitygap diagnose run.csv --columns 't=time:ms,cmd.v=v,cmd.w=w,pose_gt.x=x,pose_gt.y=y,pose_gt.theta=yaw:deg' \\
+      --report out/ --json out/d.json
+  realitygap diagnose drive.bag --truth-topic /mocap/robot/pose --report out/ --json out/d.json
+"""
+
+
+def _parse_kv(text: str, what: str) -> dict[str, Any]:
+    """``"a=1,b=2"`` or a JSON object / JSON file → dict."""
+    text = text.strip()
+    if text.endswith(".json") and Path(text).is_file():
+        with open(text, encoding="utf-8") as fh:
+            data = json.load(fh)
+        if not isinstance(data, dict):
+            raise ValueError(f"{what}: {text} must hold a JSON object")
+        return data
+    if text.startswith("{"):
+        data = json.loads(text)
+        if not isinstance(data, dict):
+            raise ValueError(f"{what}: expected a JSON object")
+        return data
+    out: dict[str, Any] = {}
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        key, sep, value = part.partition("=")
+        if not sep:
+            raise ValueError(f"{what}: expected key=value pairs, got {part!r}")
+        try:
+            out[key.strip()] = float(value)
+        except ValueError:
+            raise ValueError(f"{what}: {key.strip()} must be a number, got {value!r}") from None
+    return out
+
+
+def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Add the ``diagnose`` sub-command to an ``argparse`` sub-parsers object."""
+    p = subparsers.add_parser(
+        "diagnose",
+        help="diagnose the sim-to-real gap of recorded logs",
+        description=(
+            "Replay real logs in the nominal simulation, localise the gap, attribute it to "
+            "effects fitted on training logs and scored on held-out ones, and report how far "
+            "it shrinks."
+        ),
+        epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("logs", nargs="+", metavar="LOG", help="training logs")
+    p.add_argument("--holdout", nargs="+", metavar="LOG", default=[], help="held-out logs")
+    p.add_argument("--robot", default="diffdrive", help="robot adapter (default: diffdrive)")
+    p.add_argument(
+        "--effects", help="comma-separated candidate effects (default: every effect of the robot)"
+    )
+    p.add_argument(
+        "--drive",
+        choices=("commands", "ticks"),
+        default="commands",
+        help="replay the logged commands (default) or the logged wheel rotation",
+    )
+    p.add_argument("--report", metavar="DIR", help="write report.md and figures here")
+    p.add_argument("--json", metavar="PATH", help="write the diagnosis as JSON here")
+    p.add_argument(
+        "--backend",
+        choices=("serial", "process", "ray"),
+        default="process",
+        help="where fits and replays run (default: process pool; ray needs realitygap[ray])",
+    )
+    p.add_argument("--workers", type=int, help="processes of the process backend")
+    p.add_argument("--ray-address", help="Ray cluster address (default: a local cluster)")
+    p.add_argument("--window", type=float, default=1.0, help="feature window, s (default 1)")
+    g = p.add_argument_group("importers")
+    g.add_argument("--columns", help="CSV column map, e.g. 't=time:ms,cmd.v=v,…' or a .json file")
+    g.add_argument("--decimal", choices=(".", ","), help="CSV decimal mark (default: detected)")
+    g.add_argument("--delimiter", help="CSV separator (default: detected)")
+    g.add_argument(
+        "--nan",
+        choices=("raise", "interpolate", "drop"),
+        default="raise",
+        help="missing CSV values",
+    )
+    g.add_argument("--params", help="nominal robot parameters: 'k=v,…', JSON or a .json file")
+    g.add_argument("--firmware", help="firmware rate limits of the commands: 'a_max=…,alpha_max=…'")
+    g.add_argument("--cmd-topic", default="/cmd_vel")
+    g.add_argument("--odom-topic", default="/odom")
+    g.add_argument("--truth-topic", help="ground-truth pose topic, or /tf with --truth-frame")
+    g.add_argument("--truth-frame", help="tracked frame in /tf")
+    g.add_argument("--wheels-topic", help="JointState topic with the wheel joints")
+    g.add_argument("--rate", type=float, default=20.0, help="bag resampling rate, Hz (default 20)")
+    g.add_argument("--resample", type=float, help="resample every log to this step, s")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.set_defaults(func=run_diagnose)
+    return p
+
+
+def run_diagnose(args: argparse.Namespace) -> int:
+    """Run the ``diagnose`` sub-command; returns the exit status."""
+    from realitygap.diagnosis.attribute import AttributionSettings
+    from realitygap.diagnosis.backends import make_backend
+    from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
+    from realitygap.diagnosis.features import FeatureSettings
+    from realitygap.diagnosis.io import ReadOptions, read_many
+    from realitygap.diagnosis.log import LogError
+    from realitygap.diagnosis.report import write_json, write_report
+
+    def say(msg: str) -> None:
+        if not args.quiet:
+            print(f"[diagnose] {msg}", file=sys.stderr, flush=True)
+
+    try:
+        if not args.report and not args.json:
+            raise ValueError("nothing to write: give --report DIR and/or --json PATH")
+        options = ReadOptions(
+            columns=args.columns,
+            decimal=args.decimal,
+            delimiter=args.delimiter,
+            nan=args.nan,
+            params=_parse_kv(args.params, "--params") if args.params else None,
+            firmware=_parse_kv(args.firmware, "--firmware") if args.firmware else None,
+            cmd_topic=args.cmd_topic,
+            odom_topic=args.odom_topic or None,
+            truth_topic=args.truth_topic,
+            truth_frame=args.truth_frame,
+            wheels_topic=args.wheels_topic,
+            rate_hz=args.rate,
+            resample=args.resample,
+        )
+        train = read_many(args.logs, options)
+        holdout = read_many(args.holdout, options) if args.holdout else None
+        effects = (
+            tuple(e.strip() for e in args.effects.split(",") if e.strip()) if args.effects else None
+        )
+        settings = DiagnosisSettings(
+            robot=args.robot,
+            drive=args.drive,
+            effects=effects,
+            features=FeatureSettings(window_s=args.window),
+            attribution=AttributionSettings(),
+        )
+        backend = make_backend(args.backend, workers=args.workers, address=args.ray_address)
+        say(f"{len(train)} training log(s), {len(holdout or [])} held-out log(s)")
+        result = diagnose(train, holdout, settings=settings, backend=backend, progress=say)
+    except (LogError, ValueError, FileNotFoundError, ImportError, KeyError) as exc:
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        print(f"error: {msg}", file=sys.stderr)
+        return 2
+    if args.json:
+        write_json(args.json, result.to_json())
+        say(f"wrote {args.json}")
+    if args.report:
+        path = write_report(result, args.report)
+        say(f"wrote {path}")
+    v = result.verdict
+    print(f"verdict: {', '.join(v.effects) if v.kind == 'effects' else v.kind}")
+    print(f"reason: {v.reason}")
+    for row in result.ranking_rows()[:5]:
+        vals = ", ".join(f"{k}={p['value']:.4g}" for k, p in row["params"].items())
+        print(
+            f"  {row['rank']}. {row['name']:<40} held-out shrink {row['heldout_shrink_pct']:6.1f} %"
+            f"  {vals}"
+        )
+    for info in result.identifiability:
+        if not info.get("separable"):
+            print(f"note: {info['message']}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Stand-alone entry point (``python -m realitygap.diagnosis.cli``)."""
+    parser = argparse.ArgumentParser(prog="realitygap")
+    sub = parser.add_subparsers(dest="command", required=True)
+    add_diagnose_parser(sub)
+    args = parser.parse_args(argv)
+    return int(args.func(args))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,274 @@
+"""Read anything the diagnosis accepts as a LOG: a saved log, an OptiOdom session, a CSV, a bag.
+
+:func:`read_logs` looks at what a path *is* (its content, not its extension)
+and hands it to the right reader:
+
+* a ``.npz`` log written by :meth:`~realitygap.diagnosis.log.Log.save`;
+* an OptiOdom session folder ``<ID>/`` (or a folder holding sessions):
+  one log per run, via :mod:`realitygap.diagnosis.importers.optiodom`
+  (:func:`logs_from_optiodom`);
+* a CSV file with a column map (:mod:`realitygap.diagnosis.importers.csv_log`);
+* a ROS 1 bag or a ROS 2 bag folder (:mod:`realitygap.diagnosis.importers.rosbag`).
+
+A file whose extension promises something else than its content is refused
+with a message naming both.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from realitygap.diagnosis.log import Log, LogError, sniff_file_kind
+from realitygap.diagnosis.replay import nominal_odometry, params_to_meta
+from realitygap.robots.diffdrive import DiffDriveParams
+
+__all__ = ["ReadOptions", "logs_from_optiodom", "read_logs"]
+
+_EXT_KIND = {
+    ".npz": {"npz"},
+    ".csv": {"text"},
+    ".txt": {"text"},
+    ".tsv": {"text"},
+    ".bag": {"rosbag1"},
+    ".db3": {"sqlite"},
+    ".mcap": {"mcap"},
+}
+
+
+@dataclass(frozen=True)
+class ReadOptions:
+    """Options for the importers (all optional).
+
+    Attributes
+    ----------
+    columns : str or None
+        CSV column map (see :class:`~realitygap.diagnosis.importers.csv_log.ColumnMap`).
+    decimal, delimiter : str or None
+        CSV number format (default: detected).
+    nan : {"raise", "interpolate", "drop"}
+        Missing CSV values.
+    params : mapping or None
+        Nominal robot parameters for CSV and bag logs.
+    firmware : mapping or None
+        ``{"a_max", "alpha_max"}`` if the commands are requests the firmware rate-limits.
+    cmd_topic, odom_topic, truth_topic, truth_frame, wheels_topic : str or None
+        ROS bag topics.
+    rate_hz : float
+        Resampling rate of bags.
+    resample : float or None
+        Resample every log to this step (s) — for jittery time stamps.
+    """
+
+    columns: str | None = None
+    decimal: str | None = None
+    delimiter: str | None = None
+    nan: str = "raise"
+    params: Mapping[str, Any] | None = None
+    firmware: Mapping[str, Any] | None = None
+    cmd_topic: str = "/cmd_vel"
+    odom_topic: str | None = "/odom"
+    truth_topic: str | None = None
+    truth_frame: str | None = None
+    wheels_topic: str | None = None
+    rate_hz: float = 20.0
+    resample: float | None = None
+
+
+def logs_from_optiodom(folder: str | os.PathLike[str]) -> list[Log]:
+    """One :class:`Log` per run of an OptiOdom session folder (or of every session below a folder).
+
+    Channels: ``pose_gt`` (OptiTrack, start frame), ``ticks`` (cumulative
+    counts from the per-cycle increments), ``pose_est`` (the robot's own
+    odometry from its log, in the start frame; nominal dead reckoning of the
+    ticks when the robot log cannot be aligned) and, when
+    the robot log could be aligned, ``cmd`` — the commanded linear
+    (ticks/cycle → m/s) and angular (rad/cycle → rad/s) velocity. The
+    firmware's acceleration limits from the robot-log header (``DVMAX``
+    ticks/cycle², ``DWMAX`` rad/cycle²) go to ``meta["firmware"]``, so a replay
+    ramps the commands as the robot did.
+    """
+    from realitygap.diagnosis.importers.optiodom import find_sessions, read_session
+
+    root = Path(folder)
+    sessions = find_sessions(root)
+    if not sessions:
+        raise LogError(
+            f"{root}: no OptiOdom session found (expected <ID>/<ID>_metadata.csv below it)"
+        )
+    logs: list[Log] = []
+    for sdir in sessions:
+        session = read_session(sdir)
+        m = session.metadata
+        tpr = m.gear_ratio * m.encoder_resolution
+        params = DiffDriveParams(
+            wheel_radius_left=m.wheel_diameter_left / 2.0,
+            wheel_radius_right=m.wheel_diameter_right / 2.0,
+            wheelbase=m.wheelbase,
+            ticks_per_rev=tpr,
+        )
+        mean_d = 0.5 * (m.wheel_diameter_left + m.wheel_diameter_right)
+        m_per_tick = math.pi * mean_d / tpr
+        header = session.robot_log_header
+        for run in session.runs:
+            t = np.asarray(run.time, dtype=float)
+            if t.shape[0] < 3:
+                continue
+            dt = float(np.median(np.diff(t)))
+            inc = np.column_stack([run.ticks_left, run.ticks_right]).astype(float)
+            inc[0] = 0.0
+            ticks = np.cumsum(inc, axis=0)
+            channels: dict[str, Any] = {
+                "pose_gt": np.asarray(run.gt_pose, dtype=float),
+                "ticks": ticks,
+            }
+            # the robot's own odometry when the robot log is aligned, else nominal dead reckoning
+            rl, off = run.robot_log, run.robot_log_offset
+            if rl is not None and off is not None and off + t.shape[0] <= rl.odo_pose.shape[0]:
+                est = np.asarray(rl.odo_pose[off : off + t.shape[0]], dtype=float)
+                channels["pose_est"] = _to_start_frame(est)
+            else:
+                channels["pose_est"] = nominal_odometry(ticks, params, np.zeros(3))
+            meta: dict[str, Any] = {
+                "robot": "diffdrive",
+                "params": params_to_meta(params),
+                "name": f"{session.session_id}_run-{run.index:02d}",
+                "source": str(run.path),
+                "dataset": "optiodom",
+                "path_type": session.path_type.value,
+                "direction": run.direction,
+                "session": session.session_id,
+                "run": run.index,
+            }
+            if run.cmd_linear is not None and run.cmd_angular is not None:
+                channels["cmd"] = np.column_stack(
+                    [np.asarray(run.cmd_linear) * m_per_tick / dt, np.asarray(run.cmd_angular) / dt]
+                )
+                fw: dict[str, float] = {}
+                for key, name, scale in (
+                    ("DVMAX(ticks/cyc^2)", "a_max", m_per_tick / dt**2),
+                    ("DWMAX(ticks/cyc^2)", "alpha_max", 1.0 / dt**2),
+                ):
+                    vals = header.get(key)
+                    if vals:
+                        try:
+                            fw[name] = float(vals[0]) * scale
+                        except ValueError:
+                            pass
+                if fw:
+                    meta["firmware"] = fw
+            meta["command_alignment"] = run.alignment
+            logs.append(Log(t=t - t[0], channels=channels, meta=meta, source=str(run.path)))
+    return logs
+
+
+def _to_start_frame(pose: np.ndarray) -> np.ndarray:
+    """Poses (N, 3) expressed in the frame of the first one, continuous heading."""
+    c, s = math.cos(pose[0, 2]), math.sin(pose[0, 2])
+    dx, dy = pose[:, 0] - pose[0, 0], pose[:, 1] - pose[0, 1]
+    th = np.unwrap(pose[:, 2] - pose[0, 2])
+    return np.column_stack([c * dx + s * dy, -s * dx + c * dy, th])
+
+
+def _looks_like_optiodom(p: Path) -> bool:
+    if (p / f"{p.name}_metadata.csv").is_file():
+        return True
+    return any(p.glob("*/*_metadata.csv")) or any(p.glob("*/*/*_metadata.csv"))
+
+
+def read_logs(path: str | os.PathLike[str], options: ReadOptions | None = None) -> list[Log]:
+    """Read one LOG argument (file or folder) into one or more logs.
+
+    Raises
+    ------
+    LogError
+        Unknown content, an extension that contradicts the content, a CSV
+        without a column map, or an importer's own error (which names the
+        file, the channel and the fix).
+    """
+    opt = options if options is not None else ReadOptions()
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"no such file or folder: {p}")
+    kind = sniff_file_kind(p)
+    ext = p.suffix.lower()
+    if kind != "directory" and ext in _EXT_KIND and kind not in _EXT_KIND[ext]:
+        raise LogError(
+            f"{p}: the extension {ext!r} promises {'/'.join(sorted(_EXT_KIND[ext]))} but the "
+            f"content looks like {kind}. Fix: rename the file or export it again"
+        )
+    if kind == "directory":
+        if (p / "metadata.yaml").is_file():
+            logs = [_read_bag(p, opt)]
+        elif _looks_like_optiodom(p):
+            logs = logs_from_optiodom(p)
+        else:
+            raise LogError(
+                f"{p}: a folder that is neither an OptiOdom session (<ID>/<ID>_metadata.csv) nor "
+                "a ROS 2 bag (metadata.yaml)"
+            )
+    elif kind == "npz":
+        logs = [Log.load(p)]
+    elif kind == "text":
+        if not opt.columns:
+            raise LogError(
+                f"{p}: a CSV file needs a column map saying which column is what, e.g. "
+                "--columns 't=time:s,cmd.v=v,cmd.w=w,pose_gt.x=x,pose_gt.y=y,pose_gt.theta=yaw'"
+            )
+        from realitygap.diagnosis.importers.csv_log import read_csv_log
+
+        meta = {"firmware": dict(opt.firmware)} if opt.firmware else None
+        logs = [
+            read_csv_log(
+                p,
+                opt.columns,
+                delimiter=opt.delimiter,
+                decimal=opt.decimal,
+                params=opt.params,
+                meta=meta,
+                nan=opt.nan,
+            )
+        ]
+    elif kind in ("rosbag1", "sqlite", "mcap"):
+        logs = [_read_bag(p, opt)]
+    else:
+        raise LogError(
+            f"{p}: not a log the diagnosis can read (content looks like {kind}); expected a .npz "
+            "log, a CSV file, a ROS bag or an OptiOdom session folder"
+        )
+    if opt.resample is not None:
+        logs = [lg.resampled(opt.resample) for lg in logs]
+    return logs
+
+
+def _read_bag(p: Path, opt: ReadOptions) -> Log:
+    from realitygap.diagnosis.importers.rosbag import BagTopics, read_bag
+
+    topics = BagTopics(
+        cmd=opt.cmd_topic,
+        odom=opt.odom_topic,
+        truth=opt.truth_topic,
+        truth_frame=opt.truth_frame,
+        wheels=opt.wheels_topic,
+    )
+    meta = {"firmware": dict(opt.firmware)} if opt.firmware else None
+    return read_bag(p, topics, rate_hz=opt.rate_hz, params=opt.params, meta=meta)
+
+
+def read_many(
+    paths: Sequence[str | os.PathLike[str]], options: ReadOptions | None = None
+) -> list[Log]:
+    """:func:`read_logs` over several paths, concatenated."""
+    out: list[Log] = []
+    for path in paths:
+        out += read_logs(path, options)
+    return out
+
+
+__all__ += ["read_many"]

@@ -1,0 +1,226 @@
+"""Ordinary test manoeuvres of a differential drive, as command sequences.
+
+A :class:`Manoeuvre` is a list of segments ``(duration s, v m/s, ω rad/s)``
+held in turn. With ``ramp=True`` the commands pass through the firmware's
+acceleration limits (``a_max``, ``alpha_max`` of the robot), as they do in
+:class:`~realitygap.envs.wheeled_nav.WheeledNavEnv`; with ``ramp=False`` they
+are applied as steps (hard starts and stops).
+
+:data:`MANOEUVRES` holds the library used by the validation suite and by the
+identifiability advice ("drive X to tell A from B").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from realitygap.robots.diffdrive import DiffDriveParams
+
+FloatArray = npt.NDArray[np.float64]
+
+__all__ = ["MANOEUVRES", "Manoeuvre", "square"]
+
+
+@dataclass(frozen=True)
+class Manoeuvre:
+    """A named command sequence.
+
+    Attributes
+    ----------
+    name : str
+    description : str
+    segments : tuple of (float, float, float)
+        ``(duration, v, w)`` in s, m/s, rad/s.
+    ramp : bool
+        Pass the commands through the firmware's acceleration limits.
+    """
+
+    name: str
+    description: str
+    segments: tuple[tuple[float, float, float], ...]
+    ramp: bool = True
+
+    @property
+    def duration(self) -> float:
+        return float(sum(s[0] for s in self.segments))
+
+    def requested(self, dt: float) -> tuple[FloatArray, FloatArray]:
+        """Time stamps (N,) and requested twists (N, 2), with one rest row at each end."""
+        rows = [np.zeros((1, 2))]
+        for duration, v, w in self.segments:
+            k = max(1, int(round(duration / dt)))
+            rows.append(np.tile([v, w], (k, 1)))
+        rows.append(np.zeros((1, 2)))
+        cmd = np.concatenate(rows, axis=0).astype(np.float64)
+        return (dt * np.arange(cmd.shape[0])).astype(np.float64), cmd
+
+    def applied(self, dt: float, params: DiffDriveParams) -> tuple[FloatArray, FloatArray]:
+        """Time stamps and the twists the drive receives (ramped if ``ramp``), (N,), (N, 2)."""
+        t, cmd = self.requested(dt)
+        if not self.ramp:
+            return t, cmd
+        out = np.empty_like(cmd)
+        v = w = 0.0
+        dv, dw = params.a_max * dt, params.alpha_max * dt
+        for k in range(cmd.shape[0]):
+            v += min(dv, max(-dv, cmd[k, 0] - v))
+            w += min(dw, max(-dw, cmd[k, 1] - w))
+            out[k] = v, w
+        return t, out
+
+
+def square(name: str, side: float, v: float, w: float, clockwise: bool) -> Manoeuvre:
+    """A square of side ``side`` m driven at ``v`` m/s with in-place turns at ``w`` rad/s."""
+    sign = -1.0 if clockwise else 1.0
+    seg: list[tuple[float, float, float]] = []
+    for _ in range(4):
+        seg += [
+            (side / v, v, 0.0),
+            (0.5, 0.0, 0.0),
+            (0.5 * math.pi / w, 0.0, sign * w),
+            (0.5, 0, 0),
+        ]
+    direction = "clockwise" if clockwise else "counter-clockwise"
+    return Manoeuvre(name, f"{side} m square, {direction}, turning in place", tuple(seg))
+
+
+MANOEUVRES: dict[str, Manoeuvre] = {
+    m.name: m
+    for m in (
+        Manoeuvre(
+            "straight_runs",
+            "straight runs forward at 0.3, 0.65 and 0.05 m/s and backward, with stops",
+            (
+                (3.0, 0.3, 0.0),
+                (1.0, 0.0, 0.0),
+                (3.0, 0.65, 0.0),
+                (1.0, 0.0, 0.0),
+                (4.0, 0.05, 0.0),
+                (1.0, 0.0, 0.0),
+                (2.0, -0.3, 0.0),
+                (1.0, 0.0, 0.0),
+            ),
+        ),
+        Manoeuvre(
+            "turns_in_place",
+            "turning in place both ways, fast (1.5 rad/s) and slow (0.4 rad/s)",
+            (
+                (2.5, 0.0, 1.5),
+                (1.0, 0.0, 0.0),
+                (2.5, 0.0, -1.5),
+                (1.0, 0.0, 0.0),
+                (3.0, 0.0, 0.4),
+                (1.0, 0.0, 0.0),
+                (3.0, 0.0, -0.4),
+                (1.0, 0.0, 0.0),
+            ),
+        ),
+        Manoeuvre(
+            "arcs",
+            "arcs to the left and right at two curvatures",
+            (
+                (3.0, 0.3, 0.8),
+                (1.0, 0.0, 0.0),
+                (3.0, 0.3, -0.8),
+                (1.0, 0.0, 0.0),
+                (3.0, 0.5, 0.4),
+                (3.0, 0.5, -0.4),
+                (1.0, 0.0, 0.0),
+            ),
+        ),
+        Manoeuvre(
+            "accelerations",
+            "hard starts and stops (step commands) straight and turning",
+            (
+                (1.5, 0.4, 0.0),
+                (1.0, 0.0, 0.0),
+                (1.5, 0.6, 0.0),
+                (1.0, 0.0, 0.0),
+                (1.0, 0.0, 1.5),
+                (1.0, 0.0, 0.0),
+                (1.5, -0.4, 0.0),
+                (1.0, 0.0, 0.0),
+                (1.0, 0.2, 0.0),
+                (1.0, 0.0, 0.0),
+            ),
+            ramp=False,
+        ),
+        square("square_cw", 0.8, 0.25, 0.8, clockwise=True),
+        square("square_ccw", 0.8, 0.25, 0.8, clockwise=False),
+        Manoeuvre(
+            "tour",
+            "a mixed path: cruising, creeping, a fast leg, arcs both ways, a hard stop",
+            (
+                (2.0, 0.35, 0.0),
+                (2.0, 0.3, 0.6),
+                (2.0, 0.3, -0.6),
+                (2.5, 0.06, 0.0),
+                (1.0, 0.0, 0.0),
+                (2.0, 0.6, 0.0),
+                (1.5, 0.0, 0.0),
+                (1.5, 0.0, 1.0),
+                (1.5, 0.0, -0.3),
+                (2.0, -0.2, 0.0),
+                (1.0, 0.0, 0.0),
+            ),
+        ),
+        Manoeuvre(
+            "circle_ccw",
+            "a full counter-clockwise circle (0.3 m/s, 0.5 rad/s)",
+            ((12.6, 0.3, 0.5), (1.0, 0.0, 0.0)),
+        ),
+        Manoeuvre(
+            "circle_cw",
+            "a full clockwise circle (0.3 m/s, −0.5 rad/s)",
+            ((12.6, 0.3, -0.5), (1.0, 0.0, 0.0)),
+        ),
+        Manoeuvre(
+            "straight_fast",
+            "a straight run at 0.65 m/s",
+            ((4.0, 0.65, 0.0), (1.0, 0.0, 0.0)),
+        ),
+        Manoeuvre(
+            "straight_slow",
+            "a straight creep at 0.04 m/s",
+            ((6.0, 0.04, 0.0), (1.0, 0.0, 0.0)),
+        ),
+        Manoeuvre(
+            "turn_ccw",
+            "turning in place counter-clockwise at 1 rad/s",
+            ((3.0, 0.0, 1.0), (1.0, 0.0, 0.0)),
+        ),
+        Manoeuvre(
+            "turn_cw",
+            "turning in place clockwise at 1 rad/s",
+            ((3.0, 0.0, -1.0), (1.0, 0.0, 0.0)),
+        ),
+        Manoeuvre(
+            "straight_medium",
+            "a straight run at 0.3 m/s",
+            ((4.0, 0.3, 0.0), (1.0, 0.0, 0.0)),
+        ),
+        Manoeuvre(
+            "hard_starts",
+            "hard starts and stops at 0.3 and 0.6 m/s (step commands)",
+            ((1.0, 0.3, 0.0), (1.0, 0.0, 0.0), (1.0, 0.6, 0.0), (1.0, 0.0, 0.0)),
+            ramp=False,
+        ),
+    )
+}
+"""The manoeuvre library, by name."""
+
+PROBE_MANOEUVRES: tuple[str, ...] = (
+    "straight_medium",
+    "straight_fast",
+    "straight_slow",
+    "turn_ccw",
+    "turn_cw",
+    "circle_ccw",
+    "circle_cw",
+    "hard_starts",
+)
+"""Short single-purpose manoeuvres proposed to separate confounded effects."""

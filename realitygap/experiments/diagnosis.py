@@ -1,0 +1,261 @@
+"""Sim-to-real diagnosis experiments: ``diagnose-suite``, ``diagnose-real``, ``diagnose-bench``."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter
+from typing import Any
+
+import numpy as np
+
+from realitygap.experiments import RunContext, experiment
+
+GOALS = {
+    "top1_accuracy": 0.95,
+    "open_set_unexplained_rate": 0.90,
+    "heldout_shrink_pct_median": 80.0,
+}
+
+
+@experiment(
+    "diagnose-suite",
+    "blind cases: hidden effects realised in PyBullet, diagnosed without the truth",
+)
+def diagnose_suite(ctx: RunContext) -> dict[str, Any]:
+    from realitygap.diagnosis.backends import ProcessBackend
+    from realitygap.diagnosis.suite import SuiteSettings, draw_cases, run_suite, summarise
+
+    n = int(ctx.options.get("cases", 12 if ctx.quick else 48))
+    settings = SuiteSettings()
+    cases = draw_cases(n, ctx.seed, settings)
+    backend = ProcessBackend(ctx.options.get("workers"))
+    chunk = max(1, 2 * backend.workers)
+    outcomes: list[dict[str, Any]] = []
+    t0 = time.perf_counter()
+    for a in range(0, n, chunk):
+        part = run_suite(cases[a : a + chunk], settings, backend)
+        outcomes += part
+        ok = sum(o["correct"] for o in outcomes)
+        ctx.progress(
+            f"{len(outcomes)}/{n} cases, {ok} correct, {time.perf_counter() - t0:.0f} s "
+            f"(last: {', '.join(str(o['verdict']) for o in part)})"
+        )
+    figures, tables = summarise(outcomes)
+    figures["seconds_per_case_median"] = float(
+        np.median([o["seconds_record"] + o["seconds_diagnose"] for o in outcomes])
+    )
+    notes = []
+    for key, goal in GOALS.items():
+        value = figures.get(key, math.nan)
+        met = value >= goal if math.isfinite(value) else False
+        notes.append(f"goal {key} >= {goal}: {'met' if met else 'NOT met'} ({value:.3g})")
+    missed = [o for o in outcomes if not o["correct"]]
+    for o in missed:
+        notes.append(
+            f"case {o['index']}: truth {'+'.join(o['truth_names'])}"
+            f"{' (withheld ' + o['withheld'][0] + ')' if o['open_set'] else ''} → {o['verdict']}: "
+            f"{o['reason']}"
+        )
+    return {
+        "figures": figures,
+        "tables": tables,
+        "notes": notes,
+        "config": {
+            "cases": n,
+            "open_set_every": settings.open_set_every,
+            "pair_probability": settings.pair_probability,
+            "workers": backend.workers,
+        },
+    }
+
+
+def _optiodom_groups(ctx: RunContext) -> dict[str, list[Any]]:
+    from realitygap.diagnosis.io import logs_from_optiodom
+
+    root = ctx.data_subdir("optiodom_diffdrive")
+    logs = logs_from_optiodom(root)
+    groups: dict[str, list[Any]] = {}
+    for lg in logs:
+        groups.setdefault(str(lg.meta.get("path_type", "unknown")), []).append(lg)
+    return groups
+
+
+def _pick(logs: list[Any], per_session: int, max_sessions: int | None) -> list[Any]:
+    by_session: dict[str, list[Any]] = {}
+    for lg in logs:
+        by_session.setdefault(str(lg.meta.get("session")), []).append(lg)
+    out = []
+    for i, (_, runs) in enumerate(sorted(by_session.items())):
+        if max_sessions is not None and i >= max_sessions:
+            break
+        # balance directions: alternate cw / ccw runs where both exist
+        cw = [r for r in runs if r.meta.get("direction") == "cw"]
+        ccw = [r for r in runs if r.meta.get("direction") == "ccw"]
+        rest = [r for r in runs if r.meta.get("direction") not in ("cw", "ccw")]
+        mixed = [x for pair in zip(cw, ccw) for x in pair] + cw[len(ccw) :] + ccw[len(cw) :] + rest
+        out += mixed[:per_session]
+    return out
+
+
+@experiment(
+    "diagnose-real",
+    "OptiOdom robot: where the real gap lies, which effects explain it, held-out shrink",
+    data_subdir="optiodom_diffdrive",
+)
+def diagnose_real(ctx: RunContext) -> dict[str, Any]:
+    from realitygap.diagnosis.backends import ProcessBackend
+    from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
+
+    groups = _optiodom_groups(ctx)
+    if "square" not in groups:
+        raise FileNotFoundError(
+            "diagnose-real trains on the UMBmark square runs: no session under "
+            "'<data>/optiodom_diffdrive/square/' was found"
+        )
+    quick = ctx.quick
+    # training: UMBmark squares (a cw and a ccw run of each session); held out: other paths
+    train = _pick(groups["square"], per_session=2, max_sessions=2 if quick else None)
+    holdout: list[Any] = []
+    for kind in ("ivanjko", "circular", "free"):
+        if kind in groups:
+            holdout += _pick(groups[kind], per_session=2, max_sessions=1 if quick else 2)
+    if not holdout:
+        raise FileNotFoundError("diagnose-real needs held-out runs of another path type")
+    backend = ProcessBackend(ctx.options.get("workers"))
+    figures: dict[str, Any] = {}
+    tables: dict[str, Any] = {}
+    notes: list[str] = []
+    for drive in ("commands", "ticks"):
+        tr = [lg for lg in train if drive == "ticks" or lg.has("cmd")]
+        ho = [lg for lg in holdout if drive == "ticks" or lg.has("cmd")]
+        ctx.progress(f"{drive}-driven replay: {len(tr)} training runs, {len(ho)} held-out runs")
+        d = diagnose(
+            tr,
+            ho,
+            settings=DiagnosisSettings(drive=drive),
+            backend=backend,
+            progress=ctx.progress,
+        )
+        best = next(f for f in d.ranking)
+        prefix = "" if drive == "commands" else "ticks_"
+        g = d.gap
+        figures[prefix + "heldout_gap_cm_nominal"] = 100.0 * g["heldout_trajectory_gap_m_nominal"]
+        figures[prefix + "heldout_gap_cm_corrected"] = 100.0 * g.get(
+            "heldout_trajectory_gap_m_best", g["heldout_trajectory_gap_m_nominal"]
+        )
+        figures[prefix + "heldout_window_gap_mm_nominal"] = 1e3 * g.get(
+            "heldout_window_gap_m_nominal", math.nan
+        )
+        figures[prefix + "heldout_window_gap_mm_corrected"] = 1e3 * g.get(
+            "heldout_window_gap_m_best", math.nan
+        )
+        figures[prefix + "shrink_pct"] = g["heldout_shrink_pct_best"]
+        figures[prefix + "top_effect"] = best.name
+        figures[prefix + "verdict"] = (
+            "+".join(d.verdict.effects) if d.verdict.kind == "effects" else d.verdict.kind
+        )
+        figures[prefix + "diagnose_seconds"] = d.timing["total"]
+        js = d.to_json()
+        tables[f"{drive}_ranking"] = [
+            {
+                "rank": r["rank"],
+                "model": r["name"],
+                "params": {k: round(p["value"], 6) for k, p in r["params"].items()},
+                "heldout_shrink_pct": round(r["heldout_shrink_pct"], 2),
+                "verified": r["verified_in_pybullet"],
+            }
+            for r in js["ranking"][:10]
+        ]
+        tables[f"{drive}_where"] = [
+            {
+                k: r[k]
+                for k in (
+                    "kind",
+                    "where",
+                    "column",
+                    "regime",
+                    "n_windows",
+                    "rms",
+                    "mean",
+                    "unit",
+                    "share",
+                )
+            }
+            for r in js["localisation"]["table"][:12]
+        ]
+        tables[f"{drive}_shrink_best_candidate"] = [
+            r for r in js["shrink_best_candidate"] if r["regime"] == "all"
+        ]
+        notes.append(f"{drive}: verdict {figures[prefix + 'verdict']} — {d.verdict.reason}")
+        for info in d.identifiability:
+            if not info.get("separable"):
+                notes.append(f"{drive}: {info['message']}")
+    figures["n_train_runs"] = float(len(train))
+    figures["n_holdout_runs"] = float(len(holdout))
+    kinds = Counter(str(lg.meta.get("path_type")) for lg in holdout)
+    return {
+        "figures": figures,
+        "tables": tables,
+        "notes": notes,
+        "config": {
+            "train": [lg.name for lg in train],
+            "holdout": [lg.name for lg in holdout],
+            "holdout_path_types": dict(kinds),
+        },
+    }
+
+
+@experiment(
+    "diagnose-bench",
+    "time to diagnose one 90 s log against the full effect library (process pool)",
+)
+def diagnose_bench(ctx: RunContext) -> dict[str, Any]:
+    from realitygap.diagnosis.backends import ProcessBackend, SerialBackend
+    from realitygap.diagnosis.diagnose import diagnose
+    from realitygap.diagnosis.manoeuvres import MANOEUVRES
+    from realitygap.diagnosis.replay import MeasurementNoise, simulate
+    from realitygap.robots.diffdrive import DiffDriveParams
+    from realitygap.robots.effects import Reality, make_effect
+
+    params = DiffDriveParams()
+    dt = 0.05
+    parts = []
+    for name in ("tour", "square_cw", "arcs", "turns_in_place", "straight_runs", "square_ccw"):
+        _, cmd = MANOEUVRES[name].applied(dt, params)
+        parts.append(cmd)
+    cmd = np.concatenate(parts, axis=0)
+    n = int(round(90.0 / dt)) + 1
+    cmd = np.resize(cmd, (n, 2)) if cmd.shape[0] < n else cmd[:n]
+    cmd[-1] = 0.0
+    t = dt * np.arange(n)
+    rng = np.random.default_rng(ctx.seed)
+    log = simulate(
+        t,
+        params=params,
+        reality=Reality((make_effect("wheel_diameter_ratio", E_d=1.008),)),
+        commands=cmd,
+        noise=MeasurementNoise(0.0005, 0.001, 0.001, 0.002),
+        rng=rng,
+        meta={"name": "bench-90s"},
+    )
+    backend = ProcessBackend(ctx.options.get("workers"))
+    ctx.progress(f"diagnosing a {log.duration:.0f} s log with {backend.workers} worker(s)")
+    t0 = time.perf_counter()
+    d = diagnose([log], backend=backend, progress=ctx.progress)
+    seconds = time.perf_counter() - t0
+    figures: dict[str, Any] = {
+        "diagnose_seconds": seconds,
+        "log_seconds": log.duration,
+        "workers": float(backend.workers),
+        "verdict": "+".join(d.verdict.effects) if d.verdict.kind == "effects" else d.verdict.kind,
+    }
+    if not ctx.quick:
+        t1 = time.perf_counter()
+        diagnose([log], backend=SerialBackend())
+        figures["diagnose_seconds_serial"] = time.perf_counter() - t1
+    return {
+        "figures": figures,
+        "config": {"library": "all diffdrive effects", "window_s": 1.0, "hidden": "E_d = 1.008"},
+        "notes": [f"goal diagnose_seconds <= 30: {'met' if seconds <= 30 else 'NOT met'}"],
+    }

@@ -1,0 +1,158 @@
+"""Each differential-drive effect really does, in PyBullet, what its description says."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from realitygap.diagnosis.replay import simulate
+from realitygap.robots.diffdrive import DiffDriveParams
+from realitygap.robots.effects import EFFECTS, Reality, make_effect
+
+P = DiffDriveParams()
+DT = 0.05
+
+
+def run(cmd: list[tuple[float, float, float]], *effects, ramp: bool = False):
+    rows = [np.zeros((1, 2))]
+    for duration, v, w in cmd:
+        rows.append(np.tile([v, w], (int(round(duration / DT)), 1)))
+    rows.append(np.zeros((1, 2)))
+    c = np.concatenate(rows)
+    if ramp:  # the firmware's acceleration limits, as in the env
+        v = w = 0.0
+        for k in range(c.shape[0]):
+            v += float(np.clip(c[k, 0] - v, -P.a_max * DT, P.a_max * DT))
+            w += float(np.clip(c[k, 1] - w, -P.alpha_max * DT, P.alpha_max * DT))
+            c[k] = v, w
+    t = DT * np.arange(c.shape[0])
+    reality = Reality(tuple(make_effect(n, **vals) for n, vals in effects))
+    return simulate(t, params=P, commands=c, reality=reality)
+
+
+@pytest.fixture(scope="module")
+def straight():
+    return run([(2.0, 0.3, 0.0)])
+
+
+def test_library_is_documented() -> None:
+    names = {n for n, cls in EFFECTS.items() if cls.robot == "diffdrive"}
+    assert {
+        "wheel_radius_scale",
+        "wheel_diameter_ratio",
+        "wheelbase_error",
+        "longitudinal_slip",
+        "command_latency",
+        "motor_deadband",
+        "velocity_saturation",
+        "encoder_scale",
+        "camera_mount_offset",
+        "timestamp_offset",
+    } <= names
+    for n in names:
+        cls = EFFECTS[n]
+        assert cls.description and cls.observed_in and cls.stage
+        for s in cls.specs:
+            assert s.unit and s.low <= s.nominal <= s.high and s.description
+
+
+def test_wheel_radius_scale_scales_distance_not_ticks(straight) -> None:
+    big = run([(2.0, 0.3, 0.0)], ("wheel_radius_scale", {"scale": 1.05}))
+    assert big["pose_gt"][-1, 0] / straight["pose_gt"][-1, 0] == pytest.approx(1.05, rel=0.01)
+    np.testing.assert_allclose(big["ticks"][-1], straight["ticks"][-1], rtol=0.01)
+
+
+def test_wheel_diameter_ratio_curves_a_straight_command(straight) -> None:
+    log = run([(2.0, 0.3, 0.0)], ("wheel_diameter_ratio", {"E_d": 1.02}))
+    # right wheel larger: turns left; Δθ = s (E_d − 1)/(E_d + 1) · 2 / b
+    s = log["pose_gt"][-1, 0]
+    expected = s * 2 * 0.02 / 2.02 / P.wheelbase
+    assert log["pose_gt"][-1, 2] == pytest.approx(expected, rel=0.1)
+    assert abs(straight["pose_gt"][-1, 2]) < 1e-3
+
+
+def test_wheelbase_error_slows_turns() -> None:
+    nominal = run([(2.0, 0.0, 1.0)])
+    wide = run([(2.0, 0.0, 1.0)], ("wheelbase_error", {"E_b": 1.1}))
+    ratio = wide["pose_gt"][-1, 2] / nominal["pose_gt"][-1, 2]
+    assert ratio == pytest.approx(1 / 1.1, rel=0.02)
+
+
+def test_longitudinal_slip_loses_ground_on_hard_starts(straight) -> None:
+    slip = run([(2.0, 0.3, 0.0)], ("longitudinal_slip", {"mu": 0.15}))
+    # the wheels spin up at once (the encoders count it), the ground lags them after the start
+    assert np.all(slip["ticks"][10] >= straight["ticks"][10])
+    np.testing.assert_allclose(slip["ticks"][10], straight["ticks"][10], rtol=0.05)
+    assert slip["pose_gt"][4, 0] < 0.7 * straight["pose_gt"][4, 0]
+    # a gentle (firmware-ramped) start needs less traction than the floor gives: no loss
+    ramped = run([(2.0, 0.3, 0.0)], ("longitudinal_slip", {"mu": 0.15}), ramp=True)
+    ramped_nominal = run([(2.0, 0.3, 0.0)], ramp=True)
+    ramp_loss = ramped_nominal["pose_gt"][-1, 0] - ramped["pose_gt"][-1, 0]
+    hard_loss = straight["pose_gt"][-1, 0] - slip["pose_gt"][-1, 0]
+    assert hard_loss > 0.01 and abs(ramp_loss) < 0.25 * hard_loss
+
+
+def test_command_latency_delays_motion(straight) -> None:
+    late = run([(2.0, 0.3, 0.0)], ("command_latency", {"delay": 0.1}))
+    np.testing.assert_allclose(late["pose_gt"][3:, 0], straight["pose_gt"][1:-2, 0], atol=2e-3)
+    assert late["pose_gt"][2, 0] == pytest.approx(0.0, abs=1e-4)
+
+
+def test_motor_deadband_stops_slow_commands() -> None:
+    slow = run([(2.0, 0.03, 0.0)], ("motor_deadband", {"threshold": 0.05}))
+    assert abs(slow["pose_gt"][-1, 0]) < 2e-3
+    fast = run([(2.0, 0.2, 0.0)], ("motor_deadband", {"threshold": 0.05}))
+    assert fast["pose_gt"][-1, 0] > 0.35
+
+
+def test_velocity_saturation_caps_speed() -> None:
+    log = run([(3.0, 0.6, 0.0)], ("velocity_saturation", {"v_limit": 0.3}))
+    v = np.diff(log["pose_gt"][20:50, 0]) / DT
+    assert np.mean(v) == pytest.approx(0.3, rel=0.03)
+
+
+def test_encoder_scale_changes_counts_only(straight) -> None:
+    log = run([(2.0, 0.3, 0.0)], ("encoder_scale", {"scale": 0.95}))
+    np.testing.assert_allclose(log["pose_gt"][-1], straight["pose_gt"][-1], atol=1e-6)
+    assert log["ticks"][-1, 0] / straight["ticks"][-1, 0] == pytest.approx(0.95, rel=1e-3)
+
+
+def test_camera_mount_offset_moves_the_camera_link(straight) -> None:
+    log = run([(2.0, 0.3, 0.0)], ("camera_mount_offset", {"dx": 0.02, "dy": -0.01, "dyaw": 0.03}))
+    gt, cam = log["pose_gt"][-1], log["pose_cam"][-1]
+    c, s = math.cos(gt[2]), math.sin(gt[2])
+    rel = [
+        c * (cam[0] - gt[0]) + s * (cam[1] - gt[1]),
+        -s * (cam[0] - gt[0]) + c * (cam[1] - gt[1]),
+    ]
+    np.testing.assert_allclose(rel, [0.02, -0.01], atol=1e-3)
+    assert cam[2] - gt[2] == pytest.approx(0.03, abs=1e-3)
+
+
+def test_timestamp_offset_shifts_ground_truth_only(straight) -> None:
+    log = run([(2.0, 0.3, 0.0)], ("timestamp_offset", {"offset": 0.1}))
+    np.testing.assert_allclose(log["pose_gt"][2:, 0], straight["pose_gt"][:-2, 0], atol=1e-6)
+    np.testing.assert_allclose(log["ticks"], straight["ticks"])
+
+
+def test_effects_reach_the_env() -> None:
+    from realitygap.diagnosis.record import RecordLog
+    from realitygap.envs.wheeled_nav import WheeledNavEnv
+
+    reality = Reality(
+        (make_effect("timestamp_offset", offset=0.1), make_effect("wheel_radius_scale", scale=1.1))
+    )
+    logs = []
+    for r in (Reality(), reality):
+        env = WheeledNavEnv(
+            reality=r, n_obstacles=0, start=(0, 0, 0), goal=(2.5, 2.5, 0), n_beams=8
+        )
+        rec = RecordLog(env)
+        rec.reset(seed=0)
+        for _ in range(30):
+            rec.step(np.array([0.4, 0.0], dtype=np.float32))
+        logs.append(rec.log)
+        env.close()
+    assert logs[1]["pose_gt"][-1, 0] / logs[0]["pose_gt"][-3, 0] == pytest.approx(1.1, rel=0.02)
