@@ -66,6 +66,11 @@ class ClassicalNavConfig:
     the wheels from slipping, which wheel odometry cannot see."""
     done_pos_tol: float = 0.002
     done_ang_tol: float = math.radians(0.3)
+    settle_timeout: float = 10.0
+    """Time (s) the point stabiliser may take; if by then the robot is within
+    ``settle_radius`` it finishes by turning in place onto the goal heading (a robot
+    whose drive differs from its model can limit-cycle around a millimetre goal)."""
+    settle_radius: float = 0.015
     apf: APFParams = field(default_factory=lambda: APFParams(inflation_radius=0.25, max_escapes=8))
 
 
@@ -85,6 +90,7 @@ class _EpisodeState:
     stuck_events: int = 0
     gave_up: int = 0
     failed_smoothing: int = 0
+    t_stabilise: float = 0.0
 
 
 class ClassicalNavPolicy:
@@ -272,15 +278,25 @@ class ClassicalNavPolicy:
     ) -> tuple[float, float]:
         stab = self._stabilisers[i]
         dist = math.hypot(goal[0] - pose[0], goal[1] - pose[1])
+        if st.phase == "align_final":
+            heading_err = abs(float(wrap_angle(goal[2] - pose[2])))
+            if heading_err <= self.config.done_ang_tol:
+                st.phase = "done"
+                return 0.0, 0.0
+            return stab.command(pose, np.array([pose[0], pose[1], goal[2]]))
         if st.phase in ("stabilise", "done") or dist < self.config.stabilise_radius:
             if st.phase not in ("stabilise", "done"):
                 stab.reset()
+                st.t_stabilise = st.t
+            if st.phase == "done":
+                return 0.0, 0.0
             st.phase = "stabilise"
             if stab.done(pose, goal, self.config.done_pos_tol, self.config.done_ang_tol):
                 st.phase = "done"
                 return 0.0, 0.0
-            if st.phase == "done" and dist > 5 * self.config.done_pos_tol:
-                st.phase = "stabilise"
+            if st.t - st.t_stabilise > self.config.settle_timeout and dist < self.config.settle_radius:
+                st.phase = "align_final"
+                stab.reset()
             return stab.command(pose, goal)
         if self._needs_replan(st, pose):
             if abs(v_prev) > 0.05:  # brake before planning from a new heading
