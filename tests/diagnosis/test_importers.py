@@ -103,6 +103,7 @@ def test_dispatcher_checks_content_against_extension(tmp_path) -> None:
 
 # --------------------------------------------------------------------------- bags
 def _write_bag(path: Path, ros: int, with_truth: bool = True) -> None:
+    pytest.importorskip("rosbags", reason="ROS bag support is the 'ros' extra")
     from rosbags.typesys import Stores, get_typestore
 
     ts = get_typestore(Stores.ROS2_HUMBLE)
@@ -115,11 +116,13 @@ def _write_bag(path: Path, ros: int, with_truth: bool = True) -> None:
     Header = ts.types["std_msgs/msg/Header"]
     Time = ts.types["builtin_interfaces/msg/Time"]
     if ros == 2:
+        pytest.importorskip("rosbags", reason="ROS bag support is the 'ros' extra")
         from rosbags.rosbag2 import Writer
 
         writer = Writer(path, version=8)
         ser = ts.serialize_cdr
     else:
+        pytest.importorskip("rosbags", reason="ROS bag support is the 'ros' extra")
         from rosbags.rosbag1 import Writer  # type: ignore[assignment]
 
         writer = Writer(path)  # type: ignore[call-arg]
@@ -161,7 +164,10 @@ def test_bag_round_trip(tmp_path, ros: int) -> None:
 
 
 def test_bag_with_tf_ground_truth(tmp_path) -> None:
+    pytest.importorskip("rosbags", reason="ROS bag support is the 'ros' extra")
     from rosbags.rosbag2 import Writer
+
+    pytest.importorskip("rosbags", reason="ROS bag support is the 'ros' extra")
     from rosbags.typesys import Stores, get_typestore
 
     ts = get_typestore(Stores.ROS2_HUMBLE)
