@@ -51,7 +51,6 @@ distance), a time cost, an effort cost, a detachment penalty and a success bonus
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -60,6 +59,7 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
 
+from realitygap.envs.common import check_twist_action
 from realitygap.estimators.climb import (
     ClimbEstimate,
     ClimbLocaliser,
@@ -463,12 +463,7 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     ) -> tuple[npt.NDArray[np.float32], float, bool, bool, dict[str, Any]]:
         if self._state is None:
             raise RuntimeError("call reset() before step()")
-        a = np.asarray(action, dtype=np.float64).reshape(-1)
-        if a.shape != (2,):
-            raise ValueError(f"action must have shape (2,), got {np.shape(action)}")
-        if not (math.isfinite(a[0]) and math.isfinite(a[1])):
-            raise ValueError(f"action must be finite, got {a.tolist()}")
-        a0, a1 = min(1.0, max(-1.0, a[0])), min(1.0, max(-1.0, a[1]))
+        a0, a1 = check_twist_action(action)
         prm = self.params
         dv, dw = 0.5 * self.dt, 2.0 * self.dt  # firmware acceleration limits
         v = self._cmd[0] + min(dv, max(-dv, a0 * prm.v_max - self._cmd[0]))

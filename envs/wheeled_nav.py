@@ -46,6 +46,7 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
 
+from realitygap.envs.common import check_twist_action
 from realitygap.envs.layouts import clearance, free_route_exists, random_layout, room_walls
 from realitygap.estimators.base import DiffDriveMeasurement, Estimate, Estimator, Scan
 from realitygap.geometry import check_finite
@@ -275,12 +276,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     ) -> tuple[npt.NDArray[np.float32], float, bool, bool, dict[str, Any]]:
         if self.robot is None:
             raise RuntimeError("call reset() before step()")
-        a = np.asarray(action, dtype=np.float64).reshape(-1)
-        if a.shape != (2,):
-            raise ValueError(f"action must have shape (2,), got {np.shape(action)}")
-        if not (math.isfinite(a[0]) and math.isfinite(a[1])):
-            raise ValueError(f"action must be finite, got {a.tolist()}")
-        a0, a1 = min(1.0, max(-1.0, a[0])), min(1.0, max(-1.0, a[1]))
+        a0, a1 = check_twist_action(action)
         v, w = self._limit_acceleration(a0 * self.v_max, a1 * self.w_max)
         self._cmd[0], self._cmd[1] = v, w
         for hook in self._command_hooks:
