@@ -96,6 +96,11 @@ def build_parser() -> argparse.ArgumentParser:
     from realitygap.diagnosis.cli import add_diagnose_parser
 
     add_diagnose_parser(sub)
+
+    from realitygap.baselines.cli import add_benchmark_parser, add_train_parser
+
+    add_benchmark_parser(sub)
+    add_train_parser(sub)
     return parser
 
 

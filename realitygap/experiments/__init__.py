@@ -31,6 +31,7 @@ _MODULES = (
     "realitygap.experiments.arm",
     "realitygap.experiments.climb",
     "realitygap.experiments.diagnosis",
+    "realitygap.experiments.benchmark",
 )
 
 

@@ -1,0 +1,345 @@
+"""``realitygap benchmark`` and ``realitygap train``: parsers and commands.
+
+The main CLI adds them with::
+
+    from realitygap.baselines.cli import add_benchmark_parser, add_train_parser
+
+    add_benchmark_parser(sub)
+    add_train_parser(sub)
+
+Each sets ``func`` on its sub-parser to a command returning an exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+
+def _csv_list(text: str) -> list[str]:
+    return [t.strip() for t in text.split(",") if t.strip()]
+
+
+def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Add ``benchmark`` to ``subparsers`` (from ``ArgumentParser.add_subparsers``)."""
+    p = subparsers.add_parser(
+        "benchmark",
+        help="every policy on identical seeded episodes, nominal and under a reality profile",
+        description=(
+            "Run classical, learned and random policies on identical seeded episodes of each "
+            "environment, on the nominal robot and under a reality profile; write a Markdown "
+            "and CSV table, plots and the streamed episodes."
+        ),
+    )
+    p.add_argument("--envs", default="all", help="comma-separated env ids (default: all)")
+    p.add_argument(
+        "--policies",
+        default="classical,ppo,sac,random",
+        help="comma-separated: classical, ppo, sac, random, or name=path/to/model.zip",
+    )
+    p.add_argument("--episodes", type=int, default=50, help="episodes per cell (default 50)")
+    p.add_argument(
+        "--image-episodes",
+        type=int,
+        default=10,
+        help="episodes per cell in image sensor mode, which renders and is ~50x slower "
+        "(default 10)",
+    )
+    p.add_argument(
+        "--reality",
+        default="kobuki-worn,arm-worn",
+        help="reality profile(s) besides nominal, comma-separated (each applies to the envs of "
+        "its robot), or a Reality JSON file (default kobuki-worn,arm-worn; 'none' for "
+        "nominal only)",
+    )
+    p.add_argument(
+        "--sensor-modes", default="fast,image", help="fast and/or image (default fast,image)"
+    )
+    p.add_argument("--seed", type=int, default=0, help="episode k uses env seed 1000*seed + k")
+    p.add_argument("--out", default="runs/benchmark", help="output folder (default runs/benchmark)")
+    p.add_argument("--backend", choices=("local", "ray"), default="local")
+    p.add_argument("--address", default=None, help="Ray cluster address (default: a local one)")
+    p.add_argument(
+        "--workers", type=int, default=1, help="local worker processes (default 1: in-process)"
+    )
+    p.add_argument("--fresh", action="store_true", help="discard finished episodes in --out")
+    p.add_argument(
+        "--train",
+        action="store_true",
+        help="train the ppo/sac policies first (deterministic, hyperparameter files) instead "
+        "of loading the shipped ones",
+    )
+    p.add_argument(
+        "--train-timesteps", type=int, default=None, help="training budget (default: files)"
+    )
+    p.add_argument("--train-seeds", default="0", help="training seeds, comma-separated")
+    p.add_argument("--silent", action="store_true", help="no progress output")
+    p.set_defaults(func=cmd_benchmark)
+    return p
+
+
+def add_train_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Add ``train`` to ``subparsers``."""
+    p = subparsers.add_parser(
+        "train",
+        help="train a PPO or SAC baseline (stable-baselines3) with the hyperparameter files",
+    )
+    p.add_argument("--env", default="realitygap/WheeledNav-v0", help="env id")
+    p.add_argument("--algo", choices=("ppo", "sac"), default="ppo")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--timesteps", type=int, default=None, help="budget (default: file)")
+    p.add_argument("--n-envs", type=int, default=None, help="parallel envs (default: file)")
+    p.add_argument(
+        "--vec-env", choices=("subproc", "dummy"), default=None, help="default: the file's"
+    )
+    p.add_argument("--hyperparams", default=None, help="another hyperparameter JSON file")
+    p.add_argument("--out", default=None, help="folder (default runs/train/<env>/<algo>/seed<k>)")
+    p.add_argument(
+        "--init-model",
+        default=None,
+        help="continue training this saved model.zip (a long run split into shorter ones)",
+    )
+    p.add_argument("--eval-every", type=int, default=50_000, help="steps between evaluations")
+    p.add_argument("--eval-episodes", type=int, default=20)
+    p.add_argument(
+        "--ship",
+        action="store_true",
+        help="copy the trained policy and its curves into the package's baselines/policies/",
+    )
+    p.set_defaults(func=cmd_train)
+    return p
+
+
+# --------------------------------------------------------------------------- commands
+def cmd_train(args: argparse.Namespace) -> int:
+    from realitygap.baselines import rl
+
+    try:
+        env_id = rl.check_env_id(args.env)
+        hp = rl.load_hyperparams(args.algo, env_id, args.hyperparams)
+        rl.require_sb3()
+    except (ValueError, KeyError, FileNotFoundError, ImportError) as exc:
+        print(f"error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
+        return 2
+    out = (
+        Path(args.out)
+        if args.out
+        else Path("runs") / "train" / rl.env_slug(env_id) / args.algo / f"seed{args.seed}"
+    )
+    cfg = rl.TrainConfig(
+        env_id=env_id,
+        algo=args.algo,
+        out_dir=out,
+        seed=args.seed,
+        total_timesteps=args.timesteps,
+        n_envs=args.n_envs,
+        vec_env=args.vec_env,
+        hyperparams=hp,
+        eval_every=args.eval_every,
+        eval_episodes=args.eval_episodes,
+        init_model=Path(args.init_model) if args.init_model else None,
+    )
+    try:
+        result = rl.train(cfg)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"model: {result.model_path}\nwall-clock: {result.wall_seconds / 60:.1f} min")
+    for key, value in result.final_eval.items():
+        print(f"final eval {key}: {value:.3f}")
+    if args.ship:
+        dest = rl.ship_policy(out, env_id, args.algo)
+        print(f"shipped: {dest}")
+    return 0
+
+
+def cmd_benchmark(args: argparse.Namespace) -> int:
+    import realitygap
+    from realitygap.baselines import benchmark as bm
+    from realitygap.baselines import rl
+
+    try:
+        env_ids = (
+            list(realitygap.ENV_IDS)
+            if args.envs == "all"
+            else [rl.check_env_id(e) for e in _csv_list(args.envs)]
+        )
+        policies = bm.parse_policies(args.policies)
+        realities = [] if args.reality in ("none", "") else _csv_list(args.reality)
+        modes = tuple(_csv_list(args.sensor_modes))
+        if args.episodes < 1:
+            raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+        if args.backend == "ray":
+            bm.require_ray()
+        curves: list[tuple[str, Path | None, Path | None]] = []
+        if args.train:
+            policies, curves = train_for_benchmark(
+                policies,
+                env_ids,
+                seeds=[int(s) for s in _csv_list(args.train_seeds)],
+                timesteps=args.train_timesteps,
+                out_dir=Path(args.out) / "train",
+                backend=args.backend,
+                address=args.address,
+            )
+        notes: list[str] = []
+        policies = bm.resolve_learned_paths(policies, env_ids, notes)
+        for note in notes:
+            print(f"note: {note}", file=sys.stderr)
+        if not args.train:
+            curves = shipped_curves(policies, env_ids)
+        counts = {"image": args.image_episodes} if args.image_episodes is not None else {}
+        cfg = bm.BenchmarkConfig(
+            env_ids=tuple(env_ids),
+            policies=tuple(policies),
+            episodes=args.episodes,
+            realities=tuple(realities),
+            sensor_modes=modes,
+            seed=args.seed,
+            episode_counts=counts,
+        )
+        result = bm.run_benchmark(
+            cfg,
+            args.out,
+            backend=args.backend,
+            workers=args.workers,
+            address=args.address,
+            resume=not args.fresh,
+            verbose=not args.silent,
+            learning_curves=curves,
+            notes=notes,
+        )
+    except (ValueError, FileNotFoundError, ImportError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(result.files["markdown"].read_text(encoding="utf-8"))
+    for name, path in result.files.items():
+        print(f"wrote {name}: {path}")
+    if result.errors:
+        print(f"{len(result.errors)} task(s) failed; re-run the same command to retry them")
+        return 1
+    return 0
+
+
+def shipped_curves(policies: Any, env_ids: list[str]) -> list[tuple[str, Path | None, Path | None]]:
+    """Learning-curve files shipped beside the learned policies."""
+    out = []
+    for spec in policies:
+        for env_id in env_ids:
+            path = spec.path_for(env_id)
+            if path is None:
+                continue
+            ep = path.with_suffix(".episodes.csv")
+            ev = path.with_suffix(".eval.csv")
+            if ep.is_file() or ev.is_file():
+                out.append(
+                    (
+                        f"{spec.name} {env_id.split('/')[-1]}",
+                        ep if ep.is_file() else None,
+                        ev if ev.is_file() else None,
+                    )
+                )
+    return out
+
+
+def train_for_benchmark(
+    policies: Any,
+    env_ids: list[str],
+    seeds: list[int],
+    timesteps: int | None,
+    out_dir: Path,
+    backend: str = "local",
+    address: str | None = None,
+) -> tuple[list[Any], list[tuple[str, Path | None, Path | None]]]:
+    """Train every ``ppo``/``sac`` policy for every env and seed; return specs pointing at the
+    new files (one policy per seed, named ``ppo/s<seed>`` when there are several)."""
+    from realitygap.baselines import rl
+    from realitygap.baselines.benchmark import PolicySpec
+
+    jobs = []
+    for spec in policies:
+        if spec.kind not in ("ppo", "sac"):
+            continue
+        for env_id in env_ids:
+            try:
+                rl.load_hyperparams(spec.kind, env_id)
+            except KeyError:
+                print(
+                    f"note: no {spec.kind} hyperparameters for {env_id}; not trained",
+                    file=sys.stderr,
+                )
+                continue
+            for seed in seeds:
+                jobs.append(
+                    rl.TrainConfig(
+                        env_id=env_id,
+                        algo=spec.kind,
+                        seed=seed,
+                        total_timesteps=timesteps,
+                        out_dir=out_dir / rl.env_slug(env_id) / spec.kind / f"seed{seed}",
+                    )
+                )
+    results = run_training_jobs(jobs, backend, address)
+    new_specs: list[Any] = []
+    curves = []
+    for spec in policies:
+        if spec.kind not in ("ppo", "sac"):
+            new_specs.append(spec)
+            continue
+        for seed in seeds:
+            paths = tuple(
+                (cfg.env_id, str(res.model_path))
+                for cfg, res in zip(jobs, results)
+                if res is not None and cfg.algo == spec.kind and cfg.seed == seed
+            )
+            if not paths:
+                continue
+            name = spec.name if len(seeds) == 1 else f"{spec.name}/s{seed}"
+            new_specs.append(PolicySpec(name, spec.kind, paths))
+    for cfg, res in zip(jobs, results):
+        if res is None:
+            continue
+        curves.append(
+            rl.learning_curve_files(
+                res.model_path.parent, f"{cfg.algo} {rl.env_slug(cfg.env_id)} s{cfg.seed}"
+            )
+        )
+    return new_specs, curves
+
+
+def run_training_jobs(
+    jobs: list[Any], backend: str = "local", address: str | None = None
+) -> list[Any]:
+    """Run training configs in this process one after another, or as Ray tasks (each asks
+    for two CPUs: its vectorised env). A failed run is reported and left out (``None``)."""
+    from realitygap.baselines import rl
+
+    if backend != "ray":
+        return [rl.train(cfg) for cfg in jobs]
+    from realitygap.baselines.benchmark import require_ray
+
+    ray = require_ray()
+    if not ray.is_initialized():
+        ray.init(address=address, ignore_reinit_error=True)
+    remote = ray.remote(num_cpus=2)(rl.train)
+    t0 = time.perf_counter()
+    refs = [remote.remote(cfg) for cfg in jobs]
+    results: list[Any] = []
+    for cfg, ref in zip(jobs, refs):
+        try:
+            results.append(ray.get(ref))
+        except Exception as exc:  # RayTaskError, WorkerCrashedError, …
+            print(
+                f"error: training {cfg.algo} on {cfg.env_id} seed {cfg.seed} failed: {exc}",
+                file=sys.stderr,
+            )
+            results.append(None)
+    print(
+        f"trained {sum(r is not None for r in results)}/{len(jobs)} policies on Ray in "
+        f"{(time.perf_counter() - t0) / 60:.1f} min",
+        file=sys.stderr,
+    )
+    return results

@@ -1,0 +1,341 @@
+"""Learned baselines: training, saving, loading and refusing policies that do not fit."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import realitygap
+from realitygap.baselines import rl
+
+ENV_ID = "realitygap/WheeledNav-v0"
+
+pytest.importorskip("stable_baselines3")
+
+
+def _tiny_hyperparams(n_beams: int = 8) -> dict:
+    return {
+        "n_timesteps": 256,
+        "n_envs": 1,
+        "vec_env": "dummy",
+        "env_kwargs": {"sensor_mode": "fast", "n_obstacles": 0, "n_beams": n_beams},
+        "policy": "MlpPolicy",
+        "n_steps": 128,
+        "batch_size": 64,
+        "n_epochs": 1,
+        "policy_kwargs": {"net_arch": [16, 16]},
+        "action_deadband": 0.1,
+        "obs_features": "wheeled_nav_goal_polar",
+        "normalize": {"obs": True},
+        "curriculum": {
+            "start": {"success_pos_tol": 0.3, "success_ang_tol": 0.5},
+            "end": {"success_pos_tol": 0.03, "success_ang_tol": 0.0872665},
+            "n_stages": 4,
+            "gate": "eval",
+            "max_stage_steps": 100,
+        },
+    }
+
+
+@pytest.fixture(scope="module")
+def tiny_ppo(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("ppo")
+    cfg = rl.TrainConfig(
+        env_id=ENV_ID,
+        algo="ppo",
+        out_dir=out,
+        seed=3,
+        hyperparams=_tiny_hyperparams(),
+        checkpoint_every=128,
+        eval_every=256,
+        eval_episodes=1,
+        progress_every_s=1e9,
+    )
+    result = rl.train(cfg)
+    assert result.timesteps == 256
+    return result.model_path
+
+
+def test_training_writes_model_metadata_curve_and_checkpoints(tiny_ppo: Path) -> None:
+    folder = tiny_ppo.parent
+    meta = json.loads((folder / "model.json").read_text())
+    assert meta["env_id"] == ENV_ID and meta["algo"] == "ppo" and meta["seed"] == 3
+    assert meta["env_observation_space"]["shape"] == [12 + 8]
+    assert meta["observation_space"]["shape"] == [12 + 8 + 5]  # with the goal features
+    assert meta["action_deadband"] == 0.1 and len(meta["obs_normalizer"]["mean"]) == 25
+    assert meta["curriculum_stage"] >= 1  # the stage step limit promoted it
+    assert (folder / "episodes.csv").read_text().startswith("timesteps,")
+    assert (folder / "eval.csv").read_text().startswith("timesteps,wall_s,success,reached_10cm")
+    assert set(meta["final_eval"]) == {"success", "reached_10cm", "collision", "return"}
+    assert sorted(p.name for p in (folder / "checkpoints").iterdir()) == [
+        "model_128_steps.json",
+        "model_128_steps.zip",
+        "model_256_steps.json",
+        "model_256_steps.zip",
+    ]
+    assert not [p for p in folder.iterdir() if p.name.startswith(".")], "temporary files left"
+
+
+def test_saved_policy_loads_and_predicts_the_right_shape(tiny_ppo: Path) -> None:
+    env = gym.make(ENV_ID, n_obstacles=0, n_beams=8)
+    policy = rl.load_policy(tiny_ppo, env)
+    obs, _ = env.reset(seed=0)
+    env.close()
+    action, state = policy.predict(obs, deterministic=True)
+    assert action.shape == (2,) and action.dtype == np.float32 and state is None
+    assert np.all(np.abs(action) <= 1.0)
+    batch, _ = policy.predict(np.stack([obs, obs, obs]))
+    assert batch.shape == (3, 2)
+    np.testing.assert_array_equal(batch[0], action)
+    # features, normalisation and dead band are part of the policy
+    assert policy.obs_normalizer is not None
+    x = policy.obs_normalizer(rl.wheeled_nav_goal_features(obs))
+    raw, _ = policy.model.predict(x, deterministic=True)
+    np.testing.assert_allclose(action, rl.deadband(raw, 0.1))
+
+
+def test_policy_for_another_observation_space_is_refused(tiny_ppo: Path) -> None:
+    env = gym.make(ENV_ID, n_beams=64)
+    with pytest.raises(ValueError, match=r"expects observations of shape \(20,\).*\(76,\)"):
+        rl.load_policy(tiny_ppo, env)
+    env.close()
+
+
+def test_policy_for_another_env_is_refused(tiny_ppo: Path, tmp_path: Path) -> None:
+    other = tmp_path / "other.zip"
+    other.write_bytes(tiny_ppo.read_bytes())
+    meta = json.loads(tiny_ppo.with_suffix(".json").read_text())
+    meta["env_id"] = "realitygap/ArmCalib-v0"
+    other.with_suffix(".json").write_text(json.dumps(meta))
+    env = gym.make(ENV_ID, n_obstacles=0, n_beams=8)
+    with pytest.raises(ValueError, match="was trained for 'realitygap/ArmCalib-v0'"):
+        rl.load_policy(other, env)
+    env.close()
+
+
+def test_not_a_policy_file_is_refused(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.zip"
+    bad.write_text("not a zip")
+    with pytest.raises(ValueError, match="not a stable-baselines3 policy file"):
+        rl.read_policy_meta(bad)
+    with pytest.raises(FileNotFoundError, match="no policy file"):
+        rl.read_policy_meta(tmp_path / "missing.zip")
+
+
+def test_missing_stable_baselines3_gives_the_install_hint(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "stable_baselines3", None)
+    with pytest.raises(ImportError, match=r"pip install 'realitygap\[rl\]'"):
+        rl.require_sb3()
+    with pytest.raises(ImportError, match=r"pip install 'realitygap\[rl\]'"):
+        rl.algo_class("ppo")
+
+
+@pytest.mark.parametrize("algo", rl.ALGOS)
+def test_hyperparameter_files_are_valid_and_keyed_by_registered_envs(algo: str) -> None:
+    table = json.loads((rl.HYPERPARAMS_DIR / f"{algo}.json").read_text())
+    env_ids = [k for k in table if not k.startswith("_")]
+    assert "realitygap/WheeledNav-v0" in env_ids
+    for env_id in env_ids:
+        assert env_id in realitygap.ENV_IDS
+        hp = rl.load_hyperparams(algo, env_id)
+        assert hp["n_timesteps"] > 0 and "sensor_mode" in hp["env_kwargs"]
+        if "curriculum" in hp:
+            rl.Curriculum.from_dict(hp["curriculum"])
+        rl.obs_feature_fn(hp.get("obs_features"))
+    for env_id in set(realitygap.ENV_IDS) - set(env_ids):
+        with pytest.raises(KeyError, match="Add an entry"):
+            rl.load_hyperparams(algo, env_id)
+
+
+def test_bad_names_are_refused_with_suggestions(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="unknown algorithm 'ddpg'"):
+        rl.check_algo("ddpg")
+    with pytest.raises(ValueError, match="Did you mean 'realitygap/WheeledNav-v0'"):
+        rl.check_env_id("realitygap/WheeledNav-v1")
+    with pytest.raises(KeyError, match="no hyperparameters for 'realitygap/Nope-v0'"):
+        rl.load_hyperparams("ppo", "realitygap/Nope-v0")
+
+
+def test_deadband_closed_form() -> None:
+    a = np.array([-1.0, -0.55, -0.1, -0.05, 0.0, 0.05, 0.1, 0.55, 1.0])
+    expected = np.array([-1.0, -0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.5, 1.0])
+    np.testing.assert_allclose(rl.deadband(a, 0.1), expected, atol=1e-7)
+    np.testing.assert_array_equal(rl.deadband(a, 0.0), a.astype(np.float32))
+    with pytest.raises(ValueError, match=r"action_deadband must be in \[0, 1\)"):
+        rl.deadband(a, 1.0)
+
+
+def test_stop_gate_closed_form() -> None:
+    a = np.array([[0.5, -0.3, -0.2], [0.5, -0.3, 0.1], [0.05, 1.0, -1.0]], dtype=np.float32)
+    np.testing.assert_allclose(rl.stop_gate(a), [[0.5, -0.3], [0.0, 0.0], [0.05, 1.0]])
+    np.testing.assert_allclose(rl.stop_gate(a, 0.1)[2], [0.0, 1.0])
+    io = rl.PolicyIO(action_stop_gate=True)
+    assert rl.PolicyIO.from_dict(io.to_dict()) == io
+    env = io.wrap(gym.make(ENV_ID, n_obstacles=0))
+    assert env.action_space.shape == (3,)
+    env.reset(seed=0)
+    env.step(np.array([1.0, 0.0, 1.0], dtype=np.float32))  # gate open: the robot stays
+    assert env.unwrapped._cmd.tolist() == [0.0, 0.0]
+    env.close()
+
+
+def test_goal_features_match_the_closed_form() -> None:
+    rng = np.random.default_rng(2)
+    obs = rng.uniform(-1, 1, size=(6, 20)).astype(np.float32)
+    theta, theta_goal = rng.uniform(-np.pi, np.pi, 6), rng.uniform(-np.pi, np.pi, 6)
+    obs[:, 2], obs[:, 3] = np.cos(theta), np.sin(theta)
+    obs[:, 6], obs[:, 7] = np.cos(theta_goal), np.sin(theta_goal)
+    x = rl.wheeled_nav_goal_features(obs)
+    assert x.shape == (6, 25)
+    np.testing.assert_array_equal(x[:, :20], obs)
+    np.testing.assert_allclose(x[:, 20], np.hypot(obs[:, 8], obs[:, 9]), rtol=1e-6)
+    alpha = np.arctan2(obs[:, 9], obs[:, 8])
+    np.testing.assert_allclose(x[:, 21:23], np.stack([np.cos(alpha), np.sin(alpha)], 1), atol=1e-6)
+    beta = theta_goal - theta
+    np.testing.assert_allclose(x[:, 23:25], np.stack([np.cos(beta), np.sin(beta)], 1), atol=1e-6)
+    with pytest.raises(ValueError, match="unknown obs_features 'polar'"):
+        rl.obs_feature_fn("polar")
+
+
+def test_curriculum_is_geometric_from_start_to_end() -> None:
+    cur = rl.Curriculum(start={"tol": 0.32}, end={"tol": 0.02}, n_stages=4)
+    got = [cur.values(k)["tol"] for k in range(6)]
+    np.testing.assert_allclose(got, [0.32, 0.16, 0.08, 0.04, 0.02, 0.02])
+    ints = rl.Curriculum.from_dict(
+        {"start": {"n_obstacles": 0}, "end": {"n_obstacles": 6}, "n_stages": 4}
+    )
+    assert [ints.values(k)["n_obstacles"] for k in range(5)] == [0, 2, 3, 4, 6]
+    with pytest.raises(ValueError, match="unknown curriculum key"):
+        rl.Curriculum.from_dict({"start": {}, "end": {}, "stages": 3})
+
+
+def test_observation_normaliser_round_trips_through_json() -> None:
+    rng = np.random.default_rng(0)
+    norm = rl.ObsNormalizer(rng.normal(size=5), rng.uniform(0.5, 2.0, size=5), clip=3.0)
+    again = rl.ObsNormalizer.from_dict(json.loads(json.dumps(norm.to_dict())))
+    x = rng.normal(size=(4, 5)) * 10
+    np.testing.assert_array_equal(norm(x), again(x))
+    assert np.all(np.abs(norm(x)) <= 3.0)
+    np.testing.assert_allclose(
+        norm(x[0]), np.clip((x[0] - norm.mean) / np.sqrt(norm.var + 1e-8), -3, 3), rtol=1e-6
+    )
+
+
+def test_learned_policy_runs_through_the_benchmark_harness(tiny_ppo: Path) -> None:
+    from realitygap.baselines import benchmark as bm
+
+    spec = bm.PolicySpec("mine", "file", (("*", str(tiny_ppo)),))
+    task = bm.ChunkTask(ENV_ID, (("n_beams", 8), ("n_obstacles", 0)), "nominal", "fast", spec, (5,))
+    (rec,) = bm.run_chunk(task)
+    assert rec["policy"] == "mine" and rec["seed"] == 5 and rec["steps"] > 0
+    assert math.isfinite(rec["compute_ms"]) and rec["compute_ms"] > 0
+
+
+def test_training_is_seeded(tmp_path: Path) -> None:
+    hp = {**_tiny_hyperparams(), "n_timesteps": 128, "curriculum": None}
+    params = []
+    for run in ("a", "b"):
+        cfg = rl.TrainConfig(
+            env_id=ENV_ID,
+            algo="ppo",
+            out_dir=tmp_path / run,
+            seed=11,
+            hyperparams=hp,
+            checkpoint_every=0,
+            eval_every=0,
+            eval_episodes=0,
+            progress_every_s=1e9,
+        )
+        model_path = rl.train(cfg).model_path
+        env = gym.make(ENV_ID, n_obstacles=0, n_beams=8)
+        policy = rl.load_policy(model_path, env)
+        env.close()
+        params.append({k: v.numpy().copy() for k, v in policy.model.policy.state_dict().items()})
+    assert params[0].keys() == params[1].keys()
+    for key in params[0]:
+        np.testing.assert_array_equal(params[0][key], params[1][key], err_msg=key)
+
+
+def test_rest_relaxation_and_attributes_through_the_wrapper_chain() -> None:
+    base = gym.make(
+        ENV_ID, n_obstacles=0, start=(0.0, 0.0, 0.0), goal=(0.1, 0.0, 0.0), success_pos_tol=0.2
+    )
+    env = rl.AttributeSetter(
+        rl.apply_train_wrappers(base, [{"name": "wheeled_nav_rest_relaxation"}])
+    )
+    env.reset(seed=0)
+    _, reward, terminated, _, info = env.step(np.array([1.0, 0.0], dtype=np.float32))
+    assert terminated and info["is_success"] and info["relaxed_success"] and float(reward) > 4.0
+    env.set_env_attrs({"rest_v_tol": 0.01, "success_pos_tol": 0.05})
+    assert env.env.rest_v_tol == 0.01 and env.unwrapped.success_pos_tol == 0.05
+    env.reset(seed=0)
+    _, _, terminated, _, info = env.step(np.array([1.0, 0.0], dtype=np.float32))
+    assert not terminated and not info["is_success"]  # moving, and 10 cm off
+    with pytest.raises(AttributeError, match="attribute 'nope'"):
+        env.set_env_attrs({"nope": 1})
+    with pytest.raises(ValueError, match="unknown training wrapper 'x'"):
+        rl.apply_train_wrappers(base, [{"name": "x"}])
+    env.close()
+
+
+def _predictions(policy: rl.LearnedPolicy, n: int = 5) -> np.ndarray:
+    env = gym.make(ENV_ID, n_obstacles=2, n_beams=8)
+    obs = [env.reset(seed=k)[0] for k in range(n)]
+    env.close()
+    return np.stack([policy.predict(o)[0] for o in obs])
+
+
+def test_exported_weights_load_without_pickle_and_act_the_same(
+    tiny_ppo: Path, tmp_path: Path
+) -> None:
+    env = gym.make(ENV_ID, n_obstacles=0, n_beams=8)
+    from_zip = rl.load_policy(tiny_ppo, env)
+    meta = rl.read_policy_meta(tiny_ppo)
+    dest = rl.export_policy(from_zip.model, meta, tmp_path / "WheeledNav-v0_ppo")
+    assert dest.suffix == ".pth" and dest.stat().st_size < tiny_ppo.stat().st_size
+    from_weights = rl.load_policy(dest, env)
+    env.close()
+    np.testing.assert_array_equal(_predictions(from_zip), _predictions(from_weights))
+    other = gym.make(ENV_ID)
+    with pytest.raises(ValueError, match="expects observations of shape"):
+        rl.load_policy(dest, other)
+    other.close()
+
+
+def test_sac_trains_exports_and_loads(tmp_path: Path) -> None:
+    hp = {
+        **_tiny_hyperparams(),
+        "n_timesteps": 160,
+        "learning_starts": 64,
+        "batch_size": 32,
+        "train_freq": 8,
+        "gradient_steps": 1,
+        "buffer_size": 1000,
+        "curriculum": None,
+    }
+    for key in ("n_steps", "n_epochs"):
+        hp.pop(key)
+    cfg = rl.TrainConfig(
+        env_id=ENV_ID,
+        algo="sac",
+        out_dir=tmp_path,
+        seed=1,
+        hyperparams=hp,
+        checkpoint_every=0,
+        eval_every=0,
+        eval_episodes=0,
+        progress_every_s=1e9,
+    )
+    result = rl.train(cfg)
+    env = gym.make(ENV_ID, n_obstacles=0, n_beams=8)
+    from_zip = rl.load_policy(result.model_path, env)
+    dest = rl.export_policy(from_zip.model, rl.read_policy_meta(result.model_path), tmp_path / "s")
+    from_weights = rl.load_policy(dest, env)
+    env.close()
+    np.testing.assert_allclose(_predictions(from_zip), _predictions(from_weights), atol=1e-6)
