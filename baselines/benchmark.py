@@ -22,10 +22,12 @@ Episode metrics (:func:`run_episode`)
 ``final_heading_deg``   true heading error at the end (deg)
 ``path_length_m``       length of the true path (m)
 ``time_to_goal_s``      time of the first success (s; successful episodes only)
-``collision``           the robot touched an obstacle or wall
+``collision``           the robot touched an obstacle or wall (or detached, climber)
 ``effort``              mean squared action, ``mean(|a|²)`` (normalised units)
 ``jerk``                mean ``|a_t − 2a_{t−1} + a_{t−2}| / dt²`` (1/s²), normalised
 ``compute_ms``          mean wall time of one ``predict`` call (ms)
+``error``               the exception that ended the episode, if the policy or env raised
+                        one (the episode counts as failed; its other metrics are NaN)
 ======================  =====================================================
 
 Aggregates per cell are mean ± standard deviation and a 95 % confidence
@@ -109,6 +111,16 @@ REALITY_PROFILES: dict[str, dict[str, Any]] = {
             {"name": "arm_backlash", "values": {"b2": 1e-3, "b3": 1e-3}},
         ],
     },
+    "climber-worn": {
+        "robot": "climber",
+        "description": "sagging, stretched tether read by a mis-scaled spool, and a gyro bias",
+        "effects": [
+            {"name": "climber_tether_sag", "values": {"k": 0.002}},
+            {"name": "climber_tether_stretch", "values": {"strain": 0.005}},
+            {"name": "climber_spool_scale", "values": {"s": 1.01}},
+            {"name": "climber_gyro_bias", "values": {"bz": 0.01}},
+        ],
+    },
     "kobuki-slippery": {
         "robot": "diffdrive",
         "description": "polished floor (tyre friction 0.3) and a 2 cm/s motor dead-band",
@@ -146,6 +158,7 @@ ENV_SENSOR_MODES: dict[str, dict[str, str]] = {
 
 ENV_EXTRA_METRICS: dict[str, tuple[str, ...]] = {
     "realitygap/ArmCalib-v0": ("validation_rms_mm", "poses_used"),
+    "realitygap/WallClimb-v0": ("goal_distance", "position_error"),
 }
 """Scalar ``info`` entries at the end of an episode that the table reports per env."""
 
@@ -321,9 +334,16 @@ def _classical_arm_calib(env: gym.Env[Any, Any]) -> Any:
     return ObservabilityGreedyPolicy.from_env(env)
 
 
+def _classical_wall_climb(env: gym.Env[Any, Any]) -> Any:
+    from realitygap.baselines.climb_policy import ClimbChartPolicy
+
+    return ClimbChartPolicy.from_env(env)
+
+
 CLASSICAL_POLICIES: dict[str, Callable[[gym.Env[Any, Any]], Any]] = {
     "realitygap/WheeledNav-v0": _classical_wheeled_nav,
     "realitygap/ArmCalib-v0": _classical_arm_calib,
+    "realitygap/WallClimb-v0": _classical_wall_climb,
 }
 """Classical baseline factory per env id (built from the env's nominal parameters)."""
 
@@ -467,7 +487,7 @@ def run_episode(
         if xy is not None and prev_xy is not None:
             path += float(np.hypot(*(xy - prev_xy)))
         prev_xy = xy
-        collided |= bool(info.get("collision", False))
+        collided |= bool(info.get("collision", False) or info.get("detached", False))
         if not collided:
             best_before_collision = min(best_before_collision, _float(info.get("pos_error")))
         if info.get("is_success", False) and not success:
@@ -508,15 +528,18 @@ def run_episode(
 
 
 def _xy(info: Mapping[str, Any]) -> npt.NDArray[np.float64] | None:
-    """Planar position from ``info["true_pose"]`` when it is a pose vector ``[x, y, …]``."""
+    """Position from ``info["true_pose"]``: ``[x, y, θ]`` → ``(x, y)``; ``[x, y, z,
+    quaternion]`` → ``(x, y, z)``; a 4×4 transform → its translation."""
     pose = info.get("true_pose")
     if pose is None:
         return None
     arr = np.asarray(pose, dtype=float)
-    if arr.ndim == 1 and arr.size >= 2:
+    if arr.ndim == 1 and arr.size == 3:
         return arr[:2].copy()
-    if arr.shape == (4, 4):  # a homogeneous transform: its translation
-        return arr[:2, 3].copy()
+    if arr.ndim == 1 and arr.size == 7:
+        return arr[:3].copy()
+    if arr.shape == (4, 4):
+        return arr[:3, 3].copy()
     return None
 
 
@@ -624,6 +647,21 @@ def plan_tasks(
     return tasks
 
 
+def _error_record(seed: int, exc: BaseException) -> dict[str, Any]:
+    """The record of an episode that ended in an exception: failed, metrics unknown."""
+    rec: dict[str, Any] = {m: math.nan for m in METRICS}
+    rec.update(
+        seed=int(seed),
+        success=False,
+        reached_10cm=None,
+        collision=None,
+        truncated=False,
+        final_info={},
+        error=f"{type(exc).__name__}: {exc}".strip(),
+    )
+    return rec
+
+
 def run_chunk(task: ChunkTask) -> list[dict[str, Any]]:
     """Run one task's episodes (in any process); returns one record per episode."""
     return list(iter_chunk(task))
@@ -652,7 +690,13 @@ def iter_chunk(task: ChunkTask) -> Iterator[dict[str, Any]]:
             task.policy, env, task.env_id, seed=task.seeds[0] if task.seeds else 0
         )
         for seed in task.seeds:
-            record = run_episode(env, policy, seed)
+            t0 = time.perf_counter()
+            try:
+                record = run_episode(env, policy, seed)
+            except Exception as exc:  # a crashing policy fails its episode, not the run
+                record = _error_record(seed, exc)
+                policy = build_policy(task.policy, env, task.env_id, seed=seed)
+            record["wall_s"] = time.perf_counter() - t0
             final = record.pop("final_info")
             for key in extra:
                 record[key] = final.get(key, math.nan)
@@ -855,6 +899,7 @@ def summarise(
             "reality": reality,
             "sensor_mode": mode,
             "n": len(recs),
+            "errors": sum(1 for r in recs if r.get("error")),
         }
         extra = ENV_EXTRA_METRICS.get(env_id, ())
         for m in (*METRICS, *extra):
@@ -1124,6 +1169,16 @@ def run_benchmark(
     write_csv_atomic(files["summary_csv"], summary)
     write_csv_atomic(files["transfer_csv"], transfer)
     all_notes = list(notes) + [f"failed task: {e}" for e in errors]
+    crashed: dict[tuple[str, ...], list[Mapping[str, Any]]] = {}
+    for r in records:
+        if r.get("error"):
+            crashed.setdefault(record_key(r)[:4], []).append(r)
+    for (env_id, pol, reality, mode), recs in sorted(crashed.items()):
+        seeds = ", ".join(str(r["seed"]) for r in recs)
+        all_notes.append(
+            f"{env_slug(env_id)} {pol} {reality} {mode}: {len(recs)} episode(s) ended in an "
+            f"exception, counted as failures (seeds {seeds}; first: {recs[0]['error']})"
+        )
     for name in cfg.realities:
         if name in REALITY_PROFILES:
             all_notes.append(f"reality `{name}`: {REALITY_PROFILES[name]['description']}")

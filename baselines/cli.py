@@ -50,10 +50,10 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--reality",
-        default="kobuki-worn,arm-worn",
+        default="kobuki-worn,arm-worn,climber-worn",
         help="reality profile(s) besides nominal, comma-separated (each applies to the envs of "
-        "its robot), or a Reality JSON file (default kobuki-worn,arm-worn; 'none' for "
-        "nominal only)",
+        "its robot), or a Reality JSON file (default: the worn profile of each robot; 'none' "
+        "for nominal only)",
     )
     p.add_argument(
         "--sensor-modes", default="fast,image", help="fast and/or image (default fast,image)"

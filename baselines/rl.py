@@ -1390,7 +1390,7 @@ def export_policy(model: Any, meta: Mapping[str, Any], dest: str | os.PathLike[s
     state = (model.policy.actor if algo == "sac" else model.policy).state_dict()
     policy_kwargs = dict(meta.get("hyperparams", {}).get("policy_kwargs", {}) or {})
     out_meta = {
-        **dict(meta),
+        **{k: v for k, v in meta.items() if k != "init_model"},
         "format": "realitygap-policy-weights/1",
         "policy_kwargs": _jsonable(policy_kwargs),
         "model_observation_space": _box_to_dict(model.observation_space),

@@ -1,7 +1,7 @@
 """The ``benchmark`` experiment: classical vs learned vs random, nominal vs a reality profile.
 
-Every registered env; reality profiles ``kobuki-worn`` (WheeledNav) and ``arm-worn``
-(ArmCalib). Episode counts per cell:
+Every registered env; reality profiles ``kobuki-worn`` (WheeledNav), ``arm-worn``
+(ArmCalib) and ``climber-worn`` (WallClimb). Episode counts per cell:
 
 ===========================  ================  =====
 cell                         ``--quick``       full
@@ -10,6 +10,8 @@ WheeledNav, fast sensors     10                100
 WheeledNav, image sensors    2 (not random)    20
 ArmCalib, geometric sensors  3                 20
 ArmCalib, image sensors      –                 3
+WallClimb, fast sensors      3                 20
+WallClimb, image sensors     –                 3
 ===========================  ================  =====
 
 Quick mode takes about 5 minutes on two free cores, full mode about 1.5 hours;
@@ -48,7 +50,7 @@ def benchmark(ctx: RunContext) -> dict[str, Any]:
             notes.append(f"{spec.name} left out: {exc}")
     names = [p.name for p in policies]
     learned_and_classical = tuple(n for n in names if n != "random")
-    realities = tuple(ctx.options.get("realities", ("kobuki-worn", "arm-worn")))
+    realities = tuple(ctx.options.get("realities", ("kobuki-worn", "arm-worn", "climber-worn")))
     cfg = bm.BenchmarkConfig(
         env_ids=tuple(env_ids),
         policies=tuple(policies),
@@ -57,9 +59,21 @@ def benchmark(ctx: RunContext) -> dict[str, Any]:
         sensor_modes=("fast", "image"),
         seed=ctx.seed,
         episode_counts=(
-            {"image": 2, "realitygap/ArmCalib-v0": 3, "realitygap/ArmCalib-v0:image": 0}
+            {
+                "image": 2,
+                "realitygap/ArmCalib-v0": 3,
+                "realitygap/ArmCalib-v0:image": 0,
+                "realitygap/WallClimb-v0": 3,
+                "realitygap/WallClimb-v0:image": 0,
+            }
             if ctx.quick
-            else {"image": 20, "realitygap/ArmCalib-v0": 20, "realitygap/ArmCalib-v0:image": 3}
+            else {
+                "image": 20,
+                "realitygap/ArmCalib-v0": 20,
+                "realitygap/ArmCalib-v0:image": 3,
+                "realitygap/WallClimb-v0": 20,
+                "realitygap/WallClimb-v0:image": 3,
+            }
         ),
         policies_by_mode={"image": learned_and_classical} if ctx.quick else {},
     )

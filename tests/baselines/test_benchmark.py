@@ -37,7 +37,7 @@ def _cfg(**kw: Any) -> bm.BenchmarkConfig:
 
 
 def _strip(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    return [{k: v for k, v in r.items() if k != "compute_ms"} for r in records]
+    return [{k: v for k, v in r.items() if k not in ("compute_ms", "wall_s")} for r in records]
 
 
 @pytest.fixture(scope="module")
@@ -172,14 +172,12 @@ def test_files_are_written_atomically(tmp_path: Path, monkeypatch: pytest.Monkey
 def test_finished_episodes_survive_a_failing_task_and_are_resumed(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    class Boom:
-        def predict(self, *args: Any, **kwargs: Any) -> Any:
-            raise RuntimeError("worker died")
-
     real_build = bm.build_policy
 
     def build(spec: bm.PolicySpec, env: Any, env_id: str, seed: int = 0) -> Any:
-        return Boom() if spec.name == "classical" else real_build(spec, env, env_id, seed)
+        if spec.name == "classical":
+            raise RuntimeError("worker died")
+        return real_build(spec, env, env_id, seed)
 
     monkeypatch.setattr(bm, "build_policy", build)
     cfg = _cfg(realities=(), episodes=1)
@@ -194,6 +192,29 @@ def test_finished_episodes_survive_a_failing_task_and_are_resumed(
     done = {bm.record_key(r) for r in store.load()}
     left = bm.plan_tasks(cfg, done)
     assert [(t.policy.name, t.seeds) for t in left] == [("classical", (0,))]
+
+
+def test_a_policy_that_raises_fails_its_episode_only(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    class Boom:
+        def predict(self, *args: Any, **kwargs: Any) -> Any:
+            raise AssertionError("planner state")
+
+    real_build = bm.build_policy
+
+    def build(spec: bm.PolicySpec, env: Any, env_id: str, seed: int = 0) -> Any:
+        return Boom() if spec.name == "classical" else real_build(spec, env, env_id, seed)
+
+    monkeypatch.setattr(bm, "build_policy", build)
+    result = bm.run_benchmark(_cfg(realities=(), episodes=2), tmp_path, verbose=False)
+    assert result.errors == []
+    crashed = [r for r in bm.ResultStore(result.files["episodes"]).load() if r.get("error")]
+    assert [r["seed"] for r in crashed] == [0, 1]
+    assert all(r["success"] is False and "planner state" in r["error"] for r in crashed)
+    row = next(r for r in result.summary if r["policy"] == "classical")
+    assert row["errors"] == 2 and row["success_mean"] == 0.0
+    assert "2 episode(s) ended in an exception" in result.files["markdown"].read_text()
 
 
 # --------------------------------------------------------------------------- bad input
