@@ -59,6 +59,7 @@ __all__ = [
     "PreparedLog",
     "RobotAdapter",
     "get_adapter",
+    "known_robots",
     "reality_from_values",
     "split_key",
 ]
@@ -148,6 +149,10 @@ class RobotAdapter(Protocol):
     ) -> PreparedLog: ...
 
     def observable(self, effect: str, prepared: Sequence[PreparedLog], drive: Drive) -> str: ...
+
+    def probe_manoeuvres(self) -> dict[str, str]: ...
+
+    def log_features(self, prepared: PreparedLog, log: Log) -> Features: ...
 
     def replay_features(
         self, prepared: PreparedLog, values: Mapping[str, float], drive: Drive, sim: SimSettings
@@ -304,6 +309,11 @@ class DiffDriveAdapter:
             feats.pop("ticks", None)
         return feats, rep
 
+    def log_features(self, prepared: PreparedLog, log: Log) -> Features:
+        """Window features of another log of the same episode (e.g. a replay)."""
+        mpt = self.meters_per_tick(prepared.context["params"])
+        return features(log.channels, prepared.bounds, mpt)
+
     def surrogate_features(
         self, prepared: PreparedLog, values: Mapping[str, npt.ArrayLike], drive: Drive
     ) -> Features:
@@ -312,6 +322,12 @@ class DiffDriveAdapter:
         out = sur.simulate(prepared.context["inputs"], values)
         feats = features(out, prepared.bounds, self.meters_per_tick(prepared.context["params"]))
         return {g: v for g, v in feats.items() if g in prepared.real}
+
+    def probe_manoeuvres(self) -> dict[str, str]:
+        """Manoeuvres the identifiability advice may suggest, with descriptions."""
+        from realitygap.diagnosis.manoeuvres import PROBE_MANOEUVRES
+
+        return {name: MANOEUVRES[name].description for name in PROBE_MANOEUVRES}
 
     def probe_features(
         self, manoeuvre: str, params_like: PreparedLog, values: Mapping[str, npt.ArrayLike]
@@ -354,13 +370,28 @@ class DiffDriveAdapter:
 
 
 ADAPTERS: dict[str, RobotAdapter] = {"diffdrive": DiffDriveAdapter()}
-"""Robot adapters by robot name."""
+"""Robot adapters by robot name (the others are loaded on first use, see :data:`LAZY_ADAPTERS`)."""
+
+LAZY_ADAPTERS: dict[str, str] = {
+    "arm": "realitygap.diagnosis.arm_adapter:ArmAdapter",
+}
+"""``robot`` → ``"module:Class"`` of adapters built when first asked for."""
+
+
+def known_robots() -> tuple[str, ...]:
+    """Names of every robot with a diagnosis adapter."""
+    return tuple(sorted(set(ADAPTERS) | set(LAZY_ADAPTERS)))
 
 
 def get_adapter(robot: str) -> RobotAdapter:
     """The adapter of ``robot``; a ``ValueError`` listing the known robots otherwise."""
+    if robot not in ADAPTERS and robot in LAZY_ADAPTERS:
+        import importlib
+
+        module, _, cls = LAZY_ADAPTERS[robot].partition(":")
+        ADAPTERS[robot] = getattr(importlib.import_module(module), cls)()
     if robot not in ADAPTERS:
         raise ValueError(
-            f"no diagnosis adapter for robot {robot!r}; known: {', '.join(sorted(ADAPTERS))}"
+            f"no diagnosis adapter for robot {robot!r}; known: {', '.join(known_robots())}"
         )
     return ADAPTERS[robot]

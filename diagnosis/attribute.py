@@ -198,7 +198,10 @@ class Layout:
                 continue
             twist = p.context.get("twist")
             motion = np.zeros((p.bounds.shape[0], len(MOTION_COLUMNS)))
-            if twist is not None:
+            if p.context.get("motion") is not None:
+                # the adapter's own per-window description (e.g. an arm's reach and load)
+                motion[:] = p.context["motion"]
+            elif twist is not None:
                 for m, (a, b) in enumerate(p.bounds):
                     seg = twist[a:b]
                     before = twist[max(a - 1, 0)]
@@ -580,8 +583,16 @@ def describe_residual(
     layout: Layout,
     settings: AttributionSettings,
     scales: FeatureSettings,
+    noise: Mapping[str, float] | None = None,
 ) -> dict[str, Any]:
     """Whether a held-out residual (n,) still has structure, and what it looks like.
+
+    The noise level a group's residual is compared with is, by default, its
+    white, window-to-window level (:func:`_white_level`: right for time series,
+    where an effect drifts slowly from window to window). Where windows are
+    independent — an arm measured at random poses, so any effect looks
+    different in every window — the adapter states the measurement noise
+    instead: ``noise[group]`` in feature-scale units.
 
     Returns
     -------
@@ -599,7 +610,7 @@ def describe_residual(
             continue
         zg = z[sel]
         rms = float(np.sqrt(np.mean(zg**2)))
-        white = _white_level(z, layout, sel)
+        white = noise[g] if noise is not None and g in noise else _white_level(z, layout, sel)
         level = max(white, settings.floor)
         excess = rms / level
         cols = FEATURE_COLUMNS[g]
@@ -630,7 +641,10 @@ def describe_residual(
                 for r in REGIMES
                 if (mc & (layout.regime == r)).sum() >= 10
             ]
-            lvl_c = max(min([_white_level(z, layout, mc), *quiet]), settings.floor)
+            if noise is not None and g in noise:
+                lvl_c = max(noise[g], settings.floor)
+            else:
+                lvl_c = max(min([_white_level(z, layout, mc), *quiet]), settings.floor)
             for r in ("all", *REGIMES):
                 m = mc if r == "all" else mc & (layout.regime == r)
                 if m.sum() < 5:
@@ -717,7 +731,8 @@ def describe_residual(
             )
         if r2_best > settings.trend_r2:
             out["reasons"].append(
-                f"{g}: the commanded speed / turn rate / acceleration explains "
+                f"{g}: the commanded motion (speed, turn rate, acceleration; an arm's reach "
+                "and load) explains "
                 f"{100 * r2_best:.0f} % of the {r2_where} residual"
             )
     out["structured"] = bool(out["reasons"])

@@ -2,12 +2,12 @@
 
 ::
 
-    realitygap diagnose LOG... [--holdout LOG...] [--robot diffdrive] [--effects a,b,…]
+    realitygap diagnose LOG... [--holdout LOG...] [--robot diffdrive|arm] [--effects a,b,…]
                         [--drive commands|ticks] --report DIR --json PATH
 
-A LOG is a saved ``.npz`` log, an OptiOdom session folder, a CSV file (with
-``--columns``) or a ROS bag (with ``--truth-topic`` …). :func:`add_diagnose_parser`
-adds the sub-command to the main ``realitygap`` parser.
+A LOG is a saved ``.npz`` log, an OptiOdom session folder, a UR10 laser-tracker set,
+a CSV file (with ``--columns``) or a ROS bag (with ``--truth-topic`` …).
+:func:`add_diagnose_parser` adds the sub-command to the main ``realitygap`` parser.
 """
 
 from __future__ import annotations
@@ -27,6 +27,10 @@ examples:
   realitygap diagnose run.csv --columns 't=time:ms,cmd.v=v,cmd.w=w,pose_gt.x=x,pose_gt.y=y,pose_gt.theta=yaw:deg' \\
       --report out/ --json out/d.json
   realitygap diagnose drive.bag --truth-topic /mocap/robot/pose --report out/ --json out/d.json
+
+  # an arm measured by a laser tracker (UR10 layout: Series_*/measurements_*.csv);
+  # the first series trains, the last is held out
+  realitygap diagnose shared/data/ipa_ur10_lasertracker --json out/ur10.json
 """
 
 
@@ -71,7 +75,10 @@ def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     p.add_argument("logs", nargs="+", metavar="LOG", help="training logs")
     p.add_argument("--holdout", nargs="+", metavar="LOG", default=[], help="held-out logs")
-    p.add_argument("--robot", default="diffdrive", help="robot adapter (default: diffdrive)")
+    p.add_argument(
+        "--robot",
+        help="robot adapter: diffdrive or arm (default: the robot the logs name, else diffdrive)",
+    )
     p.add_argument(
         "--effects", help="comma-separated candidate effects (default: every effect of the robot)"
     )
@@ -153,8 +160,12 @@ def run_diagnose(args: argparse.Namespace) -> int:
         effects = (
             tuple(e.strip() for e in args.effects.split(",") if e.strip()) if args.effects else None
         )
+        robot = args.robot
+        if robot is None:
+            named = {str(lg.meta.get("robot", "diffdrive")) for lg in train + list(holdout or [])}
+            robot = named.pop() if len(named) == 1 else "diffdrive"
         settings = DiagnosisSettings(
-            robot=args.robot,
+            robot=robot,
             drive=args.drive,
             effects=effects,
             features=FeatureSettings(window_s=args.window),

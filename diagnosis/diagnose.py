@@ -46,7 +46,6 @@ from realitygap.diagnosis.backends import Backend, SerialBackend
 from realitygap.diagnosis.features import FeatureSettings
 from realitygap.diagnosis.localise import localise
 from realitygap.diagnosis.log import Log, LogError
-from realitygap.diagnosis.manoeuvres import MANOEUVRES, PROBE_MANOEUVRES
 from realitygap.diagnosis.replay import Drive, SimSettings
 from realitygap.diagnosis.shrink import overall_shrink, shrink_table, trajectory_gap
 from realitygap.robots.effects import EFFECTS
@@ -361,7 +360,8 @@ def _identifiability(problem: Problem, a: ModelFit, b: ModelFit) -> dict[str, An
         return out
     best = None
     ref = problem.logs[0]
-    for name in PROBE_MANOEUVRES:
+    probes = problem.adapter.probe_manoeuvres()
+    for name in probes:
 
         def probe_res(batch: dict[str, FloatArray], name: str = name) -> FloatArray:
             feats, groups = problem.adapter.probe_features(name, ref, batch)
@@ -379,12 +379,12 @@ def _identifiability(problem: Problem, a: ModelFit, b: ModelFit) -> dict[str, An
     assert best is not None
     out["separating_motion"] = {
         "name": best[0],
-        "description": MANOEUVRES[best[0]].description,
+        "description": probes[best[0]],
         "correlation_after": float(best[1]),
     }
     out["message"] = (
         f"the logged motions cannot tell {a.name} from {b.name} (parameter correlation "
-        f"{cross:.2f}); driving '{best[0]}' ({MANOEUVRES[best[0]].description}) would "
+        f"{cross:.2f}); recording '{best[0]}' ({probes[best[0]]}) would "
         f"separate them (correlation {best[1]:.2f})"
     )
     return out
@@ -591,7 +591,9 @@ def diagnose(
 
     # ------------------------------------------------------------------ verdict
     z_nom = problem.nominal_residuals(problem.holdout)
-    nominal_desc = describe_residual(z_nom, problem.holdout, st, s.features)
+    noise_fn = getattr(adapter, "noise_levels", None)
+    noise = noise_fn(prepared, s.features) if noise_fn is not None else None
+    nominal_desc = describe_residual(z_nom, problem.holdout, st, s.features, noise)
     best = ranking[0]
     # the runner-up: the best model that is neither this one nor a superset rejected for it
     runner = next(
@@ -614,7 +616,7 @@ def diagnose(
     if not gap_mask.any():
         gap_mask[:] = True
     shrink_all = overall_shrink(z_nom[gap_mask], best.z_heldout[gap_mask])
-    best_desc = describe_residual(best.z_heldout, problem.holdout, st, s.features)
+    best_desc = describe_residual(best.z_heldout, problem.holdout, st, s.features, noise)
     gain = nominal_fit.rank_score - best.rank_score
     if not nominal_desc["structured"] and gain < st.margin_strong:
         verdict = Verdict(

@@ -16,6 +16,13 @@ pose_cam    ex, ey, etheta   m, m, rad  camera pose seen from the ground-truth b
 The *regime* of a window comes from the commands applied during it (or, when
 the replay is driven by encoder ticks, from the wheel motion): ``standing``,
 ``straight``, ``turning_ccw``, ``turning_cw`` or ``accelerating``.
+
+An arm is measured at rest, pose after pose; a window is four consecutive
+poses and its feature the six distances between their tool points
+(``tool_dist``, m), which no registration of the measuring instrument to the
+robot base can change. Its regime says how far the arm reaches out
+(``folded``, ``mid_reach``, ``outstretched``), i.e. how hard gravity loads
+the shoulder and elbow (see :mod:`realitygap.diagnosis.arm_adapter`).
 """
 
 from __future__ import annotations
@@ -33,6 +40,7 @@ __all__ = [
     "FEATURE_COLUMNS",
     "FEATURE_UNITS",
     "REGIMES",
+    "TOOL_DIST_COLUMNS",
     "FeatureSettings",
     "classify_regimes",
     "features",
@@ -40,17 +48,32 @@ __all__ = [
     "window_bounds",
 ]
 
+TOOL_DIST_COLUMNS: tuple[str, ...] = ("d01", "d02", "d03", "d12", "d13", "d23")
+"""Pairs of the four poses of an arm window whose tool-point distance is compared."""
+
 FEATURE_COLUMNS: dict[str, tuple[str, ...]] = {
     "pose_gt": ("dx", "dy", "dtheta"),
     "ticks": ("left", "right"),
     "pose_cam": ("ex", "ey", "etheta"),
+    "tool_dist": TOOL_DIST_COLUMNS,
 }
 FEATURE_UNITS: dict[str, tuple[str, ...]] = {
     "pose_gt": ("m", "m", "rad"),
     "ticks": ("m", "m"),
     "pose_cam": ("m", "m", "rad"),
+    "tool_dist": ("m",) * len(TOOL_DIST_COLUMNS),
 }
-REGIMES: tuple[str, ...] = ("standing", "straight", "turning_ccw", "turning_cw", "accelerating")
+REGIMES: tuple[str, ...] = (
+    "standing",
+    "straight",
+    "turning_ccw",
+    "turning_cw",
+    "accelerating",
+    # arm windows, by how far the wrist reaches out from the base axis
+    "folded",
+    "mid_reach",
+    "outstretched",
+)
 
 
 def _default_scales() -> dict[str, tuple[float, ...]]:
@@ -58,6 +81,7 @@ def _default_scales() -> dict[str, tuple[float, ...]]:
         "pose_gt": (0.002, 0.002, 0.002),
         "ticks": (0.002, 0.002),
         "pose_cam": (0.002, 0.002, 0.003),
+        "tool_dist": (1e-4,) * len(TOOL_DIST_COLUMNS),
     }
 
 
@@ -73,7 +97,7 @@ class FeatureSettings:
         Residual size that counts as one unit per column (SI units per
         window): the weights of the fit and of the statistics. Defaults:
         ground truth 2 mm, 2 mm, 2 mrad; encoder travel 2 mm per wheel;
-        camera 2 mm, 2 mm, 3 mrad.
+        camera 2 mm, 2 mm, 3 mrad; arm tool-point distances 0.1 mm.
     standing_speed, standing_rate : float
         Below these commanded speeds (m/s, rad/s) a window is ``standing``.
     turning_rate : float

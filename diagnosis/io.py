@@ -29,7 +29,13 @@ from realitygap.diagnosis.log import Log, LogError, sniff_file_kind
 from realitygap.diagnosis.replay import nominal_odometry, params_to_meta
 from realitygap.robots.diffdrive import DiffDriveParams
 
-__all__ = ["ReadOptions", "logs_from_optiodom", "read_logs"]
+__all__ = [
+    "ReadOptions",
+    "log_from_ur10_series",
+    "logs_from_optiodom",
+    "logs_from_ur10",
+    "read_logs",
+]
 
 _EXT_KIND = {
     ".npz": {"npz"},
@@ -176,6 +182,97 @@ def _to_start_frame(pose: np.ndarray) -> np.ndarray:
     return np.column_stack([c * dx + s * dy, -s * dx + c * dy, th])
 
 
+UR10_LINK_MASSES: tuple[float, ...] = (7.1, 12.7, 4.27, 2.0, 2.0, 0.365)
+"""Link masses of the UR10 (kg), from Universal Robots' published dynamics parameters."""
+
+UR10_REPEATABILITY_SIGMA = 0.1e-3 / 3.0
+"""One standard deviation of the UR10's pose repeatability (m): its data sheet gives ±0.1 mm,
+taken as a 3-σ bound."""
+
+UR10_TRACKER_SIGMA = 1.0e-5
+"""Per-axis noise of the laser tracker (m) for series that do not report their own."""
+
+UR10_PROBE_MASS = 1.2
+"""Mass of the tracker probe and its adapter on the flange (kg); an assumption (a T-Mac
+probe weighs about 1.1 kg), used only for the holding torques of the compliance effect."""
+
+
+def log_from_ur10_series(series: Any) -> Log:
+    """An arm :class:`Log` from one UR10 laser-tracker series
+    (:class:`~realitygap.diagnosis.importers.ur10.UR10Series`).
+
+    One row per pose in file order (``t`` counts poses): ``joints`` are the joint
+    readings, ``tool_pos`` the probe positions in the tracker frame; the nominal
+    arm is the published UR10 table with UR10 link masses, the tool the probe
+    point in the flange frame from the series' ``Trafo_TM_F_init.txt``, and the
+    noise of one measurement (``meta["tool_noise_m"]``) the tracker's reported
+    standard deviation (or :data:`UR10_TRACKER_SIGMA`) combined with the arm's
+    repeatability (:data:`UR10_REPEATABILITY_SIGMA`).
+    """
+    from realitygap.diagnosis.arm_adapter import arm_params_to_meta
+    from realitygap.estimators.arm.mdh import MDHTable
+    from realitygap.robots.arm import ArmParams
+
+    params = ArmParams(
+        mdh=MDHTable.ur10(), link_masses=UR10_LINK_MASSES, camera_mass=UR10_PROBE_MASS
+    )
+    tracker = (
+        float(np.median(series.position_std))
+        if series.position_std is not None
+        else UR10_TRACKER_SIGMA
+    )
+    noise = math.hypot(tracker, UR10_REPEATABILITY_SIGMA)
+    return Log(
+        t=np.arange(series.n, dtype=float),
+        channels={"joints": series.joint_angles, "tool_pos": series.probe_positions},
+        meta={
+            "robot": "arm",
+            "name": series.name,
+            "params": arm_params_to_meta(params),
+            "tool": series.probe_in_flange.tolist(),
+            "tool_noise_m": noise,
+            "importer": "ur10",
+            "timestamps_valid": bool(series.timestamps_valid),
+        },
+        source=series.source,
+    )
+
+
+def logs_from_ur10(path: str | os.PathLike[str]) -> list[Log]:
+    """Arm logs from a UR10 laser-tracker folder (``Series_*/measurements_*.csv``), one
+    ``Series_*`` folder, or one ``measurements_*.csv`` file; one log per measurement file."""
+    from realitygap.diagnosis.importers.ur10 import (
+        read_transform_txt,
+        read_ur10_dataset,
+        read_ur10_measurements,
+    )
+
+    p = Path(path)
+    try:
+        if p.is_dir() and any(p.glob("Series_*/measurements_*.csv")):
+            series = list(read_ur10_dataset(p).series)
+        else:
+            files = sorted(p.glob("measurements_*.csv")) if p.is_dir() else [p]
+            folder = p if p.is_dir() else p.parent
+            init = folder / "Trafo_TM_F_init.txt"
+            T0 = read_transform_txt(init) if init.exists() else None
+            series = [read_ur10_measurements(f, T0, name=f"{folder.name}/{f.stem}") for f in files]
+    except ValueError as exc:
+        raise LogError(str(exc)) from None
+    return [log_from_ur10_series(s) for s in series]
+
+
+def _looks_like_ur10(p: Path) -> bool:
+    if p.is_dir():
+        return any(p.glob("Series_*/measurements_*.csv")) or any(p.glob("measurements_*.csv"))
+    try:
+        with open(p, encoding="utf-8-sig", errors="replace") as fh:
+            head = fh.readline()
+    except OSError:
+        return False
+    return "Goal x" in head and "measurement_x" in head and "shoulder_pan_joint" in head
+
+
 def _looks_like_optiodom(p: Path) -> bool:
     if (p / f"{p.name}_metadata.csv").is_file():
         return True
@@ -208,13 +305,18 @@ def read_logs(path: str | os.PathLike[str], options: ReadOptions | None = None) 
             logs = [_read_bag(p, opt)]
         elif _looks_like_optiodom(p):
             logs = logs_from_optiodom(p)
+        elif _looks_like_ur10(p):
+            logs = logs_from_ur10(p)
         else:
             raise LogError(
-                f"{p}: a folder that is neither an OptiOdom session (<ID>/<ID>_metadata.csv) nor "
-                "a ROS 2 bag (metadata.yaml)"
+                f"{p}: a folder that is neither an OptiOdom session (<ID>/<ID>_metadata.csv), "
+                "a UR10 laser-tracker set (Series_*/measurements_*.csv) nor a ROS 2 bag "
+                "(metadata.yaml)"
             )
     elif kind == "npz":
         logs = [Log.load(p)]
+    elif kind == "text" and not opt.columns and _looks_like_ur10(p):
+        logs = logs_from_ur10(p)
     elif kind == "text":
         if not opt.columns:
             raise LogError(

@@ -23,13 +23,24 @@ channel     columns             units                       role      meaning
                                                                       camera localisation
 ==========  ==================  ==========================  ========  =====================================
 
+Standard channels of an arm (one row per measurement pose, the arm at rest)
+-------------------------------------------------------------------------------
+
+============  ==================  =========  ========  ==========================================
+channel       columns             units      role      meaning
+============  ==================  =========  ========  ==========================================
+``joints``    q1 … q6             rad        sensor    joint encoder readings
+``tool_pos``  x, y, z             m          truth     tool point measured by an external
+                                                       instrument (laser tracker) in its frame
+============  ==================  =========  ========  ==========================================
+
 Other channels may be stored with any units; the standard ones must use the
 units above (importers convert).
 
 Metadata keys used by the diagnosis
 -----------------------------------
 ``robot``
-    Robot kind, ``"diffdrive"``.
+    Robot kind, ``"diffdrive"`` or ``"arm"``.
 ``params``
     Nominal robot parameters in SI units (for a differential drive the fields
     of :class:`~realitygap.robots.diffdrive.DiffDriveParams`, at least
@@ -175,6 +186,21 @@ STANDARD_CHANNELS: dict[str, ChannelSpec] = {
         Role.SENSOR,
         "planar camera pose from a camera localisation",
         angle_columns=(2,),
+    ),
+    # arm: one row per measurement pose, the arm at rest
+    "joints": ChannelSpec(
+        "joints",
+        ("q1", "q2", "q3", "q4", "q5", "q6"),
+        ("rad",) * 6,
+        Role.SENSOR,
+        "joint encoder readings of the arm at rest",
+    ),
+    "tool_pos": ChannelSpec(
+        "tool_pos",
+        ("x", "y", "z"),
+        ("m", "m", "m"),
+        Role.TRUTH,
+        "tool point measured by an external instrument (laser tracker), in its own frame",
     ),
 }
 

@@ -21,7 +21,6 @@ from typing import IO, Any
 import numpy as np
 
 from realitygap.diagnosis.diagnose import Diagnosis
-from realitygap.diagnosis.features import features
 from realitygap.diagnosis.log import atomic_write
 
 __all__ = ["jsonable", "write_json", "write_report"]
@@ -90,7 +89,9 @@ def _figures(d: Diagnosis, out: Path) -> list[tuple[str, str]]:
 
     made: list[tuple[str, str]] = []
     prepared = d.prepared
-    ho_idx = [i for i, p in enumerate(prepared) if p.holdout_windows.any()][:6]
+    ho_idx = [
+        i for i, p in enumerate(prepared) if p.holdout_windows.any() and p.log.has("pose_gt")
+    ][:6]
 
     # trajectories ---------------------------------------------------------
     if ho_idx:
@@ -173,8 +174,7 @@ def _figures(d: Diagnosis, out: Path) -> list[tuple[str, str]]:
         point = {k: np.array([v]) for k, v in chosen.values.items()}
         for i, rep in d.corrected_replays.items():
             p = prepared[i]
-            mpt = adapter.meters_per_tick(p.context["params"])
-            pb = features(rep.channels, p.bounds, mpt)
+            pb = adapter.log_features(p, rep)
             sur = adapter.surrogate_features(p, point, d.problem.drive)
             for g in p.groups:
                 s = d.settings.features.scale(g)

@@ -11,6 +11,12 @@ without telling it the truth. In a quarter of the cases a true effect is
 removed from the candidate library (open set): the right answer is then
 ``"unexplained"``.
 
+For the arm (``SuiteSettings(robot="arm")``) the hidden effects are the
+kinematic, drive and encoder effects of :data:`ARM_HIDDEN_EFFECTS`; each case
+measures one training and one held-out set of random poses of the PyBullet arm
+with a simulated laser tracker
+(:func:`~realitygap.diagnosis.arm_adapter.record_arm_log`).
+
 :func:`summarise` turns case outcomes into the suite's figures (top-1 / top-2
 accuracy, parameter error, held-out shrink, open-set and false-attribution
 rates) and a confusion matrix.
@@ -36,6 +42,8 @@ from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import EFFECTS, Reality, make_effect
 
 __all__ = [
+    "ARM_HIDDEN_EFFECTS",
+    "HIDDEN_BY_ROBOT",
     "HIDDEN_EFFECTS",
     "BlindCase",
     "SuiteSettings",
@@ -64,6 +72,29 @@ HIDDEN_EFFECTS: dict[str, tuple[tuple[str, float, float, bool], ...]] = {
 }
 """Realistic magnitudes of the hidden effects (absolute values for the non-symmetric ones)."""
 
+ARM_HIDDEN_EFFECTS: dict[str, tuple[tuple[str, float, float, bool], ...]] = {
+    # joint 1's offset and d1 are invisible to tool-point distances: left at nominal
+    "arm_joint_offset": tuple((f"dtheta{k}", 5e-4, 2.5e-3, True) for k in range(2, 7)),
+    "arm_link_length": tuple((nm, 2e-4, 1e-3, True) for nm in ("da2", "da3", "dd4", "dd5", "dd6")),
+    "arm_parallel_twist": tuple(
+        (nm, 3e-4, 1.5e-3, True) for nm in ("beta2", "beta3", "dalpha2", "dalpha3")
+    ),
+    "arm_tool_offset": tuple((nm, 3e-4, 3e-3, True) for nm in ("dx", "dy", "dz")),
+    "arm_twist_error": tuple((f"dalpha{k}", 3e-4, 1.5e-3, True) for k in (1, 4, 5)),
+    # wrist 1 carries almost no gravity torque: its compliance stays nominal
+    "arm_joint_compliance": (("c2", 1e-5, 4e-5, False), ("c3", 1e-5, 4e-5, False)),
+    "arm_backlash": tuple((f"b{k}", 2e-4, 1e-3, False) for k in range(1, 7)),
+    "arm_encoder_scale": tuple((f"s{k}", 2e-4, 1e-3, True) for k in range(1, 7)),
+}
+"""Realistic magnitudes of the arm's hidden effects (joint offsets ~0.1°, lengths ~0.5 mm,
+twists ~0.05°, sag of 0.3–1.5 mrad at 30 N·m, play ≤ 1 mrad, encoder scale ≤ 0.1 %)."""
+
+HIDDEN_BY_ROBOT: dict[str, dict[str, tuple[tuple[str, float, float, bool], ...]]] = {
+    "diffdrive": HIDDEN_EFFECTS,
+    "arm": ARM_HIDDEN_EFFECTS,
+}
+"""The hidden-effect table of every robot the suite runs for."""
+
 TRAIN_MANOEUVRES = ("straight_runs", "turns_in_place", "arcs", "accelerations")
 HOLDOUT_MANOEUVRES = ("square_cw", "square_ccw", "tour", "hard_starts")
 
@@ -81,6 +112,12 @@ class SuiteSettings:
     open_set_every : int
         Every this-many-th case withholds a true effect from the library.
     diagnosis : DiagnosisSettings
+    robot : str
+        ``"diffdrive"`` or ``"arm"`` (:data:`HIDDEN_BY_ROBOT`).
+    arm_poses : int
+        Arm: measured poses per log (one training and one held-out log).
+    arm_tracker_noise : float
+        Arm: laser-tracker noise per axis (m).
     """
 
     noise: MeasurementNoise = field(
@@ -91,6 +128,20 @@ class SuiteSettings:
     pair_probability: float = 0.25
     open_set_every: int = 4
     diagnosis: DiagnosisSettings = field(default_factory=DiagnosisSettings)
+    robot: str = "diffdrive"
+    arm_poses: int = 96
+    arm_tracker_noise: float = 2e-5
+
+    def __post_init__(self) -> None:
+        if self.robot not in HIDDEN_BY_ROBOT:
+            raise ValueError(
+                f"the blind suite runs for {', '.join(HIDDEN_BY_ROBOT)}; got robot {self.robot!r}"
+            )
+
+    @property
+    def hidden_effects(self) -> dict[str, tuple[tuple[str, float, float, bool], ...]]:
+        """The hidden-effect table of :attr:`robot`."""
+        return HIDDEN_BY_ROBOT[self.robot]
 
 
 @dataclass(frozen=True)
@@ -117,9 +168,13 @@ class BlindCase:
         return {f"{n}.{k}": x for n, vals in self.truth for k, x in vals}
 
 
-def _draw_values(name: str, rng: np.random.Generator) -> tuple[tuple[str, float], ...]:
+def _draw_values(
+    name: str,
+    rng: np.random.Generator,
+    table: dict[str, tuple[tuple[str, float, float, bool], ...]] | None = None,
+) -> tuple[tuple[str, float], ...]:
     out = []
-    for param, low, high, symmetric in HIDDEN_EFFECTS[name]:
+    for param, low, high, symmetric in (table if table is not None else HIDDEN_EFFECTS)[name]:
         nominal = next(s.nominal for s in EFFECTS[name].specs if s.name == param)
         mag = float(rng.uniform(low, high))
         if name in ("longitudinal_slip", "velocity_saturation"):
@@ -141,7 +196,8 @@ def draw_cases(n: int, seed: int, settings: SuiteSettings | None = None) -> list
     """
     s = settings if settings is not None else SuiteSettings()
     rng = np.random.default_rng(seed)
-    names = list(HIDDEN_EFFECTS)
+    table = s.hidden_effects
+    names = list(table)
     order: list[str] = []
     cases = []
     for i in range(n):
@@ -152,7 +208,7 @@ def draw_cases(n: int, seed: int, settings: SuiteSettings | None = None) -> list
         if rng.random() < s.pair_probability:
             others = [x for x in names if x != first]
             chosen.append(str(rng.choice(others)))
-        truth = tuple((name, _draw_values(name, rng)) for name in chosen)
+        truth = tuple((name, _draw_values(name, rng, table)) for name in chosen)
         withheld: tuple[str, ...] = ()
         if s.open_set_every > 0 and i % s.open_set_every == s.open_set_every - 1:
             withheld = (str(rng.choice(chosen)),)
@@ -227,13 +283,29 @@ def run_case(settings: SuiteSettings, case: BlindCase) -> dict[str, Any]:
     t0 = time.perf_counter()
     rng = np.random.default_rng(case.seed)
     reality = case.reality()
-    train = record_case_logs(reality, rng, settings.noise, TRAIN_MANOEUVRES)
-    holdout = record_case_logs(reality, rng, settings.noise, HOLDOUT_MANOEUVRES)
+    if settings.robot == "arm":
+        from realitygap.diagnosis.arm_adapter import record_arm_log
+
+        train, holdout = (
+            [
+                record_arm_log(
+                    reality,
+                    rng,
+                    settings.arm_poses,
+                    tracker_noise=settings.arm_tracker_noise,
+                    name=name,
+                )
+            ]
+            for name in ("arm_train", "arm_holdout")
+        )
+    else:
+        train = record_case_logs(reality, rng, settings.noise, TRAIN_MANOEUVRES)
+        holdout = record_case_logs(reality, rng, settings.noise, HOLDOUT_MANOEUVRES)
     t_rec = time.perf_counter() - t0
-    library = tuple(n for n in HIDDEN_EFFECTS if n not in case.withheld)
+    library = tuple(n for n in settings.hidden_effects if n not in case.withheld)
     dset = settings.diagnosis
     dset = DiagnosisSettings(
-        robot=dset.robot,
+        robot=settings.robot,
         drive=dset.drive,
         effects=library,
         features=dset.features,

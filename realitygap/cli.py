@@ -49,8 +49,23 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.data and not Path(args.data).is_dir():
         print(f"error: --data {args.data!r} is not a folder", file=sys.stderr)
         return 2
+    options: dict[str, object] = {}
+    if args.robot is not None:
+        try:
+            spec = experiments.get(args.experiment)
+        except KeyError as exc:
+            print(f"error: {exc.args[0]}", file=sys.stderr)
+            return 2
+        if args.robot not in spec.robots:
+            can = f"one of {', '.join(spec.robots)}" if spec.robots else "no --robot option"
+            print(
+                f"error: experiment {args.experiment!r} takes {can}, got --robot {args.robot!r}",
+                file=sys.stderr,
+            )
+            return 2
+        options["robot"] = args.robot
     ctx = experiments.RunContext(
-        quick=args.quick, seed=args.seed, data_dir=data, verbose=not args.silent
+        quick=args.quick, seed=args.seed, data_dir=data, verbose=not args.silent, options=options
     )
     try:
         result = experiments.run(args.experiment, ctx, json_path=args.json)
@@ -84,6 +99,9 @@ def build_parser() -> argparse.ArgumentParser:
     p_run.add_argument("--seed", type=int, default=0, help="base random seed (default 0)")
     p_run.add_argument(
         "--data", help="folder laid out like shared/data/ (default: shared/data when present)"
+    )
+    p_run.add_argument(
+        "--robot", help="robot, for experiments that run for several (e.g. diagnose-suite)"
     )
     p_run.add_argument("--json", help="write the result as JSON to this path")
     p_run.add_argument("--silent", action="store_true", help="no progress output")

@@ -532,7 +532,7 @@ class ArmJointOffset(Effect):
     name = "arm_joint_offset"
     robot = "arm"
     stage = "body"
-    observed_in = ("camera_pose",)
+    observed_in = ("camera_pose", "tool_dist")
     description = (
         "Joint zero offsets: the encoder's zero is not where the kinematic model puts it "
         "(mastering error). Realised as the MDH offsets theta_i of the arm's body."
@@ -551,7 +551,7 @@ class ArmLinkLength(Effect):
     name = "arm_link_length"
     robot = "arm"
     stage = "body"
-    observed_in = ("camera_pose",)
+    observed_in = ("camera_pose", "tool_dist")
     description = (
         "Link lengths and offsets differ from the data sheet (machining, assembly): the "
         "non-zero MDH lengths d1, a2, a3, d4, d5, d6. Realised as a body with other links."
@@ -572,19 +572,30 @@ class ArmParallelTwist(Effect):
     name = "arm_parallel_twist"
     robot = "arm"
     stage = "body"
-    observed_in = ("camera_pose",)
+    observed_in = ("camera_pose", "tool_dist")
     description = (
-        "The nominally parallel axes of joints 2, 3 and 4 are tilted against each other about "
-        "the common normal's y axis (Hayati twist beta, the case classical DH cannot describe). "
-        "Realised as a body whose joint 3 and 4 axes are tilted."
+        "The nominally parallel axes of joints 2, 3 and 4 are tilted against each other: about "
+        "the common normal's y axis (Hayati twist beta, the case classical DH cannot describe) "
+        "and about the common normal itself (twist alpha). Realised as a body whose joint 3 and "
+        "4 axes are tilted."
     )
     specs = (
-        ParamSpec("beta2", "rad", 0.0, -0.005, 0.005, "tilt of axis 3 against axis 2"),
-        ParamSpec("beta3", "rad", 0.0, -0.005, 0.005, "tilt of axis 4 against axis 3"),
+        ParamSpec("beta2", "rad", 0.0, -0.005, 0.005, "tilt of axis 3 against axis 2 about y"),
+        ParamSpec("beta3", "rad", 0.0, -0.005, 0.005, "tilt of axis 4 against axis 3 about y"),
+        ParamSpec("dalpha2", "rad", 0.0, -0.005, 0.005, "tilt of axis 3 against axis 2 about x"),
+        ParamSpec("dalpha3", "rad", 0.0, -0.005, 0.005, "tilt of axis 4 against axis 3 about x"),
     )
 
     def apply_params(self, params: Any) -> Any:
-        return _arm_mdh_delta(params, {"beta2": self["beta2"], "beta3": self["beta3"]})
+        return _arm_mdh_delta(
+            params,
+            {
+                "beta2": self["beta2"],
+                "beta3": self["beta3"],
+                "alpha2": self["dalpha2"],
+                "alpha3": self["dalpha3"],
+            },
+        )
 
 
 @register_effect
@@ -592,7 +603,7 @@ class ArmTwistError(Effect):
     name = "arm_twist_error"
     robot = "arm"
     stage = "body"
-    observed_in = ("camera_pose",)
+    observed_in = ("camera_pose", "tool_dist")
     description = (
         "The right angles between the non-parallel axes are not exact (twists alpha1, alpha4, "
         "alpha5). Realised as a body with tilted joint axes."
@@ -611,7 +622,7 @@ class ArmJointCompliance(Effect):
     name = "arm_joint_compliance"
     robot = "arm"
     stage = "drive"
-    observed_in = ("camera_pose",)
+    observed_in = ("camera_pose", "tool_dist")
     description = (
         "Elastic gearboxes: the links of the gravity-loaded joints 2, 3, 4 sag by compliance x "
         "gravity torque while the motor-side encoders read the command. Realised by the servo: "
@@ -635,7 +646,7 @@ class ArmBacklash(Effect):
     name = "arm_backlash"
     robot = "arm"
     stage = "drive"
-    observed_in = ("camera_pose",)
+    observed_in = ("camera_pose", "tool_dist")
     description = (
         "Gear play: the link trails the motor by half the play in the direction of the last "
         "move, so the same reading gives two link angles. Realised by the servo model."
@@ -653,7 +664,7 @@ class ArmEncoderScale(Effect):
     name = "arm_encoder_scale"
     robot = "arm"
     stage = "sensor"
-    observed_in = ("camera_pose", "joint_angles")
+    observed_in = ("camera_pose", "tool_dist")
     description = (
         "Joint encoders (or the gear ratios the controller assumes) are off by a factor: the "
         "reading is s times the motor angle. Realised between the joints and their readings."
@@ -665,6 +676,38 @@ class ArmEncoderScale(Effect):
 
     def apply_params(self, params: Any) -> Any:
         return params.replace(encoder_scale=tuple(self[f"s{k}"] for k in range(1, 7)))
+
+
+@register_effect
+class ArmToolOffset(Effect):
+    name = "arm_tool_offset"
+    robot = "arm"
+    stage = "tool"
+    observed_in = ("tool_dist",)
+    description = (
+        "The measured tool point (a tracker probe, a TCP) is not where its nominal definition "
+        "puts it on the flange: a mounting or tool-length error. Realised by moving the point "
+        "the instrument measures, in the flange frame."
+    )
+    specs = (
+        ParamSpec("dx", "m", 0.0, -0.02, 0.02, "offset along flange x"),
+        ParamSpec("dy", "m", 0.0, -0.02, 0.02, "offset along flange y"),
+        ParamSpec("dz", "m", 0.0, -0.02, 0.02, "offset along flange z (tool length)"),
+    )
+
+    def tool_offset(self) -> tuple[float, float, float]:
+        """The offset of the measured point in the flange frame (m)."""
+        return (self["dx"], self["dy"], self["dz"])
+
+
+def arm_tool_offset(reality: Reality | None) -> tuple[float, float, float]:
+    """Total tool-point offset (flange frame, m) of the :class:`ArmToolOffset` effects in
+    ``reality`` (zero without)."""
+    total = [0.0, 0.0, 0.0]
+    for e in reality.effects if reality is not None else ():
+        if isinstance(e, ArmToolOffset):
+            total = [a + b for a, b in zip(total, e.tool_offset())]
+    return (total[0], total[1], total[2])
 
 
 @register_effect

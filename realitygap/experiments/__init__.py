@@ -74,20 +74,22 @@ class Experiment:
     func: ExperimentFunc
     description: str
     data_subdir: str | None = None
+    robots: tuple[str, ...] = ()
+    """Robots the experiment can run for (``realitygap run NAME --robot R``); empty: one."""
 
 
 EXPERIMENTS: dict[str, Experiment] = {}
 
 
 def experiment(
-    name: str, description: str, data_subdir: str | None = None
+    name: str, description: str, data_subdir: str | None = None, robots: tuple[str, ...] = ()
 ) -> Callable[[ExperimentFunc], ExperimentFunc]:
-    """Decorator registering an experiment under ``name``."""
+    """Decorator registering an experiment under ``name`` (``robots``: see :class:`Experiment`)."""
 
     def register(func: ExperimentFunc) -> ExperimentFunc:
         if name in EXPERIMENTS and EXPERIMENTS[name].func is not func:
             raise ValueError(f"experiment {name!r} is registered twice")
-        EXPERIMENTS[name] = Experiment(name, func, description, data_subdir)
+        EXPERIMENTS[name] = Experiment(name, func, description, data_subdir, tuple(robots))
         return func
 
     return register

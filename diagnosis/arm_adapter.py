@@ -1,0 +1,706 @@
+r"""The arm's diagnosis adapter: tool-point distances, PyBullet replay, analytic surrogate.
+
+An arm log is a sequence of measurement poses (``t`` counts poses, one per
+second): joint encoder readings ``joints`` (N, 6) and the tool point
+``tool_pos`` (N, 3) as an external instrument measured it — a laser tracker
+on a probe, in the tracker's own frame. Its metadata gives the nominal arm
+(``meta["params"]``: MDH table, link masses, payload) and the tool point in the
+flange frame (``meta["tool"]``, m) and the noise of one tool-point measurement
+(``meta["tool_noise_m"]``, m per axis: instrument noise and the arm's own
+repeatability).
+
+Features
+    Poses are grouped in windows of four consecutive ones; each window's
+    features are the six distances between their tool points (group
+    ``tool_dist``). Distances do not depend on where the instrument stands, so
+    no base registration enters the comparison — the distance-accuracy idea of
+    the calibration, applied to the gap. (The base yaw offset ``dtheta1`` and
+    the base height ``d1`` are invisible to distances, and say so.)
+
+Regimes
+    ``folded``, ``mid_reach`` or ``outstretched`` by the horizontal reach of the
+    wrist from the base axis relative to the arm's length (upper arm plus
+    forearm): below 0.45, above 0.8, or between. Gravity loads shoulder and
+    elbow in proportion to the reach.
+
+Replay (the simulator)
+    Every pose of the log is set in a PyBullet arm built from the nominal
+    parameters with the effects applied
+    (:meth:`~realitygap.robots.effects.Reality.apply_params`); the link angles
+    follow from the readings through the arm's transmission model
+    (:meth:`~realitygap.robots.arm.ArmRobot.link_target`: encoder scale, gearbox
+    compliance under the holding torque from PyBullet's inverse dynamics,
+    backlash in the direction of the last move), and the tool point is read
+    from PyBullet's link state.
+
+Surrogate (for the fit)
+    The same model in closed form, batched over effect values: link angles
+
+    .. math:: q^{link} = q^{enc} / s - c\,\tau^g(q^{enc}) - \tfrac{b}{2}\,\mathrm{dir},
+
+    with :math:`\tau^g` precomputed once per pose from the nominal body, then
+    vectorised 5-parameter MDH forward kinematics with the geometric effects
+    added to the table. It matches the replay to well below the noise (the only
+    approximation is :math:`\tau^g` at the reading instead of the sagged
+    angle: a second-order term).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from realitygap.diagnosis.adapters import PreparedLog, reality_from_values
+from realitygap.diagnosis.features import TOOL_DIST_COLUMNS, FeatureSettings
+from realitygap.diagnosis.log import Log, LogError
+from realitygap.diagnosis.replay import Drive, SimSettings
+from realitygap.estimators.arm.mdh import MDHTable
+from realitygap.robots.effects import EFFECTS
+
+FloatArray = npt.NDArray[np.float64]
+Features = dict[str, FloatArray]
+
+__all__ = [
+    "ARM_PROBE_SETS",
+    "POSES_PER_WINDOW",
+    "ArmAdapter",
+    "arm_params_from_meta",
+    "arm_params_to_meta",
+    "backlash_directions",
+    "probe_poses",
+    "probe_positions",
+    "reach_ratio",
+    "record_arm_log",
+    "sample_arm_poses",
+    "surrogate_points",
+    "tool_distance_features",
+]
+
+POSES_PER_WINDOW = 4
+"""Consecutive poses per window (their 6 pairwise distances are the features)."""
+
+_PAIRS = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
+assert len(_PAIRS) == len(TOOL_DIST_COLUMNS)
+
+_FOLDED, _OUTSTRETCHED = 0.45, 0.8
+
+DEFAULT_TOOL_NOISE = 2.5e-5
+"""Per-axis noise of a tool-point measurement (m) when a log does not state it
+(``meta["tool_noise_m"]``): a laser tracker at a few metres."""
+_DIR_THRESHOLD = 1e-5
+"""A reading change below this (rad) keeps the joint's last direction of motion."""
+
+ARM_PROBE_SETS: dict[str, str] = {
+    "outstretched_poses": "poses with the upper arm and forearm stretched out near the "
+    "horizontal (largest gravity torque on shoulder and elbow)",
+    "approach_reversals": "each pose measured twice, approached once from below and once from "
+    "above on every joint",
+    "wrist_sweep": "the wrist joints 4-6 over their full range with the arm held still",
+    "base_sweep": "joint 1 over its full range at a few fixed arm postures",
+}
+"""Pose sets suggested to separate confounded arm effects (identifiability advice)."""
+
+
+# --------------------------------------------------------------------------- parameters
+def arm_params_to_meta(params: Any) -> dict[str, Any]:
+    """The nominal-arm metadata of a log (``meta["params"]``) from an :class:`ArmParams`."""
+    return {
+        "mdh": params.mdh.param_dict(),
+        "mdh_name": params.mdh.name,
+        "link_masses": list(params.link_masses),
+        "payload_mass": float(params.camera_mass),
+        "joint_lower": list(params.joint_lower),
+        "joint_upper": list(params.joint_upper),
+    }
+
+
+def arm_params_from_meta(log: Log) -> Any:
+    """The nominal :class:`~realitygap.robots.arm.ArmParams` of an arm log.
+
+    Raises
+    ------
+    LogError
+        ``meta["params"]`` missing or without a full 6-joint MDH table.
+    """
+    from realitygap.robots.arm import ArmParams
+
+    raw = log.meta.get("params")
+    if not isinstance(raw, Mapping) or not isinstance(raw.get("mdh"), Mapping):
+        raise LogError(
+            f"{log.source}: an arm log needs meta['params']['mdh'] (the nominal MDH table, "
+            "e.g. MDHTable.param_dict()); got "
+            f"{sorted(raw) if isinstance(raw, Mapping) else type(raw).__name__}"
+        )
+    mdh = raw["mdh"]
+    base = MDHTable(np.zeros(6), np.zeros(6), np.zeros(6), np.zeros(6), np.zeros(6))
+    names = base.param_names()
+    missing = [n for n in names if n not in mdh]
+    if missing:
+        raise LogError(
+            f"{log.source}: meta['params']['mdh'] lacks {', '.join(missing[:6])}"
+            f"{' …' if len(missing) > 6 else ''} (a 6-joint table needs theta1..beta6)"
+        )
+    table = base.with_params([float(mdh[n]) for n in names], names)
+    table = MDHTable(
+        table.theta_offset,
+        table.d,
+        table.a,
+        table.alpha,
+        table.beta,
+        str(raw.get("mdh_name", "arm")),
+    )
+    kw: dict[str, Any] = {"mdh": table}
+    if "link_masses" in raw:
+        kw["link_masses"] = tuple(float(v) for v in raw["link_masses"])
+    if "payload_mass" in raw:
+        kw["camera_mass"] = float(raw["payload_mass"])
+    for key in ("joint_lower", "joint_upper"):
+        if key in raw:
+            kw[key] = tuple(float(v) for v in raw[key])
+    try:
+        return ArmParams(**kw)
+    except ValueError as exc:
+        raise LogError(f"{log.source}: meta['params'] is not a valid arm: {exc}") from None
+
+
+def _tool(log: Log) -> FloatArray:
+    tool = np.asarray(log.meta.get("tool", (0.0, 0.0, 0.0)), dtype=float).reshape(-1)
+    if tool.shape != (3,) or not np.all(np.isfinite(tool)):
+        raise LogError(
+            f"{log.source}: meta['tool'] must be the tool point in the flange frame, 3 finite "
+            f"numbers in m; got {log.meta.get('tool')!r}"
+        )
+    return tool
+
+
+# --------------------------------------------------------------------------- kinematics
+def backlash_directions(q: FloatArray, threshold: float = _DIR_THRESHOLD) -> FloatArray:
+    """Direction of the last move of every joint at every pose, ±1 (N, 6).
+
+    The first pose counts as approached from below (+1), as the arm's
+    :meth:`~realitygap.robots.arm.ArmRobot.reset` assumes; a joint that moves
+    less than ``threshold`` keeps its previous direction.
+    """
+    q = np.asarray(q, dtype=float)
+    out = np.ones_like(q)
+    for k in range(1, q.shape[0]):
+        step = q[k] - q[k - 1]
+        out[k] = np.where(step > threshold, 1.0, np.where(step < -threshold, -1.0, out[k - 1]))
+    return out
+
+
+def probe_positions(
+    theta: FloatArray,
+    d: FloatArray,
+    a: FloatArray,
+    alpha: FloatArray,
+    beta: FloatArray,
+    q_link: FloatArray,
+    tool: FloatArray,
+) -> FloatArray:
+    """Tool points (B, N, 3) in the base frame for B tables (B, 6) and link angles (B, N, 6).
+
+    ``tool`` is the point in the flange frame, (3,) or one per table (B, 3).
+
+    The MDH transform of row i is :math:`R_z(q_i+θ_i) T_z(d_i) T_x(a_i) R_x(α_i) R_y(β_i)`
+    (as :func:`realitygap.estimators.arm.mdh.forward_kinematics`).
+    """
+    th = q_link + theta[:, None, :]
+    ct, st = np.cos(th), np.sin(th)
+    ca, sa = np.cos(alpha)[:, None, :], np.sin(alpha)[:, None, :]
+    cb, sb = np.cos(beta)[:, None, :], np.sin(beta)[:, None, :]
+    B, N, n = th.shape
+    # R = Rz(th) Rx(alpha) Ry(beta), written out
+    r00 = ct * cb - st * sa * sb
+    r01 = -st * ca
+    r02 = ct * sb + st * sa * cb
+    r10 = st * cb + ct * sa * sb
+    r11 = ct * ca
+    r12 = st * sb - ct * sa * cb
+    r20 = -ca * sb
+    r21 = sa * np.ones_like(ct)
+    r22 = ca * cb
+    R = np.stack(
+        [
+            np.stack([r00, r01, r02], axis=-1),
+            np.stack([r10, r11, r12], axis=-1),
+            np.stack([r20 * np.ones_like(ct), r21, r22 * np.ones_like(ct)], axis=-1),
+        ],
+        axis=-2,
+    )  # (B, N, n, 3, 3)
+    t = np.stack([a[:, None, :] * ct, a[:, None, :] * st, d[:, None, :] * np.ones_like(ct)], -1)
+    # tool point backwards through the chain: p_{i-1} = R_i p_i + t_i
+    tool = np.asarray(tool, dtype=float)
+    p = np.broadcast_to(tool.reshape(-1, 1, 3) if tool.ndim == 2 else tool, (B, N, 3)).copy()
+    for i in range(n - 1, -1, -1):
+        p = np.einsum("bnij,bnj->bni", R[:, :, i], p) + t[:, :, i]
+    return p
+
+
+def tool_distance_features(points: FloatArray, bounds: npt.NDArray[np.int64]) -> FloatArray:
+    """Pairwise distances (…, M, 6) of the tool points (…, N, 3) of every window."""
+    a = bounds[:, 0]
+    cols = [
+        np.linalg.norm(points[..., a + i, :] - points[..., a + j, :], axis=-1) for i, j in _PAIRS
+    ]
+    return np.stack(cols, axis=-1)
+
+
+def reach_ratio(table: MDHTable, q: FloatArray) -> FloatArray:
+    """Horizontal distance of the wrist (frame 4) from the base axis over |a2| + |a3| (N,)."""
+    from realitygap.estimators.arm.mdh import joint_frames
+
+    frames = joint_frames(table, q)
+    r = np.hypot(frames[:, 4, 0, 3], frames[:, 4, 1, 3])
+    length = abs(float(table.a[1])) + abs(float(table.a[2]))
+    return r / max(length, 1e-9)
+
+
+def _windows(n: int) -> npt.NDArray[np.int64]:
+    m = n // POSES_PER_WINDOW
+    a = np.arange(m) * POSES_PER_WINDOW
+    return np.stack([a, a + POSES_PER_WINDOW], axis=1).astype(np.int64)
+
+
+# --------------------------------------------------------------------------- surrogate
+_GEOMETRY: dict[str, tuple[str, int]] = {}
+"""``"effect.param"`` → (MDH column, joint index) for the geometric effects."""
+for _k in range(6):
+    _GEOMETRY[f"arm_joint_offset.dtheta{_k + 1}"] = ("theta", _k)
+for _nm in ("d1", "a2", "a3", "d4", "d5", "d6"):
+    _GEOMETRY[f"arm_link_length.d{_nm}"] = (_nm[0], int(_nm[1]) - 1)
+_GEOMETRY["arm_parallel_twist.beta2"] = ("beta", 1)
+_GEOMETRY["arm_parallel_twist.beta3"] = ("beta", 2)
+_GEOMETRY["arm_parallel_twist.dalpha2"] = ("alpha", 1)
+_GEOMETRY["arm_parallel_twist.dalpha3"] = ("alpha", 2)
+for _k in (1, 4, 5):
+    _GEOMETRY[f"arm_twist_error.dalpha{_k}"] = ("alpha", _k - 1)
+
+_SURROGATE_EFFECTS = (
+    "arm_tool_offset",
+    "arm_joint_offset",
+    "arm_link_length",
+    "arm_parallel_twist",
+    "arm_twist_error",
+    "arm_joint_compliance",
+    "arm_backlash",
+    "arm_encoder_scale",
+)
+_UNOBSERVABLE = {
+    "arm_joint_offset.dtheta1": "a base rotation, which distances cannot see",
+    "arm_link_length.dd1": "a base height, which distances cannot see",
+}
+
+
+def _batch_size(values: Mapping[str, npt.ArrayLike]) -> int:
+    sizes = {np.size(v) for v in values.values()}
+    if len(sizes) > 1:
+        raise ValueError(f"effect values of one batch must have one length, got {sorted(sizes)}")
+    return sizes.pop() if sizes else 1
+
+
+def surrogate_points(
+    table: MDHTable,
+    q_enc: FloatArray,
+    tau_g: FloatArray,
+    direction: FloatArray,
+    tool: FloatArray,
+    values: Mapping[str, npt.ArrayLike],
+    max_elements: int = 400_000,
+) -> FloatArray:
+    """Tool points (B, N, 3) predicted for a batch of effect values ``{"effect.param": (B,)}``."""
+    B = _batch_size(values)
+    cols = {
+        "theta": np.tile(table.theta_offset, (B, 1)),
+        "d": np.tile(table.d, (B, 1)),
+        "a": np.tile(table.a, (B, 1)),
+        "alpha": np.tile(table.alpha, (B, 1)),
+        "beta": np.tile(table.beta, (B, 1)),
+    }
+    scale = np.ones((B, 6))
+    comp = np.zeros((B, 6))
+    play = np.zeros((B, 6))
+    tools = np.tile(np.asarray(tool, dtype=float).reshape(1, 3), (B, 1))
+    axes = {"dx": 0, "dy": 1, "dz": 2}
+    for key, v in values.items():
+        arr = np.asarray(v, dtype=float).reshape(-1)
+        if key in _GEOMETRY:
+            kind, j = _GEOMETRY[key]
+            cols[kind][:, j] += arr
+        elif key.startswith("arm_tool_offset."):
+            tools[:, axes[key.partition(".")[2]]] += arr
+        elif key.startswith("arm_encoder_scale.s"):
+            scale[:, int(key[-1]) - 1] = arr
+        elif key.startswith("arm_joint_compliance.c"):
+            comp[:, int(key[-1]) - 1] = arr
+        elif key.startswith("arm_backlash.b"):
+            play[:, int(key[-1]) - 1] = arr
+        else:
+            raise KeyError(f"the arm surrogate has no parameter {key!r}")
+    N = q_enc.shape[0]
+    out = np.empty((B, N, 3))
+    step = max(1, max_elements // max(N, 1))
+    for lo in range(0, B, step):
+        sl = slice(lo, min(B, lo + step))
+        q_link = (
+            q_enc[None] / scale[sl, None, :]
+            - comp[sl, None, :] * tau_g[None]
+            - 0.5 * play[sl, None, :] * direction[None]
+        )
+        out[sl] = probe_positions(
+            cols["theta"][sl],
+            cols["d"][sl],
+            cols["a"][sl],
+            cols["alpha"][sl],
+            cols["beta"][sl],
+            q_link,
+            tools[sl],
+        )
+    return out
+
+
+# --------------------------------------------------------------------------- replay
+def replay_arm(
+    params: Any,
+    q_enc: FloatArray,
+    tool: FloatArray,
+    reality: Any = None,
+    direction: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray]:
+    """Tool points (N, 3) in the base frame of the PyBullet arm for readings ``q_enc``.
+
+    ``direction`` (N, 6) is each joint's last direction of motion (from the
+    readings by default, :func:`backlash_directions`). Returns the points and the
+    holding torques (N, 6) (N·m) at the link angles.
+    """
+    from realitygap.robots.arm import ArmRobot, constant_transform
+    from realitygap.robots.effects import arm_tool_offset
+    from realitygap.robots.world import World
+
+    body_params = reality.apply_params(params) if reality is not None else params
+    tool = np.asarray(tool, dtype=float) + np.asarray(arm_tool_offset(reality))
+    if direction is None:
+        direction = backlash_directions(q_enc)
+    world = World()
+    try:
+        robot = ArmRobot(world, body_params)
+        T_base_inv = np.linalg.inv(body_params.T_world_base)
+        last = constant_transform(body_params.mdh, 5)
+        pts = np.empty((q_enc.shape[0], 3))
+        taus = np.empty((q_enc.shape[0], 6))
+        for k, (q, dirn) in enumerate(zip(q_enc, direction)):
+            q_link = robot.link_target(q, dirn)
+            robot.set_link_angles(q_link)
+            F = T_base_inv @ robot.link_pose("link6") @ last
+            pts[k] = F[:3, :3] @ tool + F[:3, 3]
+            taus[k] = robot.gravity_torques(q_link)
+        return pts, taus
+    finally:
+        world.close()
+
+
+# --------------------------------------------------------------------------- the adapter
+class ArmAdapter:
+    """Arm: effects, PyBullet replay, tool-distance features and the analytic surrogate.
+
+    Parameters
+    ----------
+    max_windows : int
+        A log with more windows is thinned to this many, evenly spread (the
+        directions of motion still come from the full sequence of poses), so a
+        10 000-pose tracker series is diagnosed in a minute.
+    """
+
+    robot = "arm"
+
+    def __init__(self, max_windows: int = 600):
+        if max_windows < 2:
+            raise ValueError(f"max_windows must be at least 2, got {max_windows}")
+        self.max_windows = int(max_windows)
+
+    def effect_names(self) -> tuple[str, ...]:
+        return tuple(n for n, cls in EFFECTS.items() if cls.robot == self.robot)
+
+    def probe_manoeuvres(self) -> dict[str, str]:
+        """Pose sets the identifiability advice may suggest, with descriptions."""
+        return dict(ARM_PROBE_SETS)
+
+    # ------------------------------------------------------------------ checks
+    def check(self, log: Log, drive: Drive) -> Log:
+        robot = log.meta.get("robot", self.robot)
+        if robot != self.robot:
+            raise LogError(
+                f"{log.source}: the log is for robot {robot!r}, not {self.robot!r}; pass --robot"
+            )
+        if drive is not Drive.COMMANDS:
+            raise LogError(
+                f"{log.source}: an arm log is replayed from its joint readings; use the default "
+                f"drive ('commands'), not {drive.value!r}"
+            )
+        log.require(["joints", "tool_pos"], "an arm diagnosis")
+        arm_params_from_meta(log)
+        _tool(log)
+        if log.n < 2 * POSES_PER_WINDOW:
+            raise LogError(
+                f"{log.source}: {log.n} poses are too few; the diagnosis needs at least "
+                f"{2 * POSES_PER_WINDOW} (two windows of {POSES_PER_WINDOW})"
+            )
+        return log
+
+    # ------------------------------------------------------------------ preparation
+    def prepare(
+        self,
+        log: Log,
+        *,
+        split: str,
+        drive: Drive,
+        features_settings: FeatureSettings,
+        sim: SimSettings | None,
+    ) -> PreparedLog:
+        params = arm_params_from_meta(log)
+        tool = _tool(log)
+        q_all = np.asarray(log["joints"], dtype=float)
+        dir_all = backlash_directions(q_all)  # from the full sequence of moves
+        windows = _windows(log.n)
+        if windows.shape[0] > self.max_windows:
+            # evenly spread windows; every pose keeps the direction of its real last move
+            pick = np.unique(np.linspace(0, windows.shape[0] - 1, self.max_windows).round())
+            windows = windows[pick.astype(np.int64)]
+        keep = np.concatenate([np.arange(a, b) for a, b in windows])
+        q, direction = q_all[keep], dir_all[keep]
+        points = np.asarray(log["tool_pos"], dtype=float)[keep]
+        bounds = _windows(keep.size)
+        reach = reach_ratio(params.mdh, q)
+        reach_w = np.array([reach[a:b].mean() for a, b in bounds])
+        regimes = [
+            "folded" if r < _FOLDED else "outstretched" if r > _OUTSTRETCHED else "mid_reach"
+            for r in reach_w
+        ]
+        real = {"tool_dist": tool_distance_features(points, bounds)}
+        nominal_pts, tau = replay_arm(params, q, tool, direction=direction)
+        motion = np.zeros((bounds.shape[0], 6))
+        for m, (a, b) in enumerate(bounds):
+            motion[m, :3] = (reach[a:b].mean(), tau[a:b, 1].mean() / 100, tau[a:b, 2].mean() / 100)
+        context = {
+            "params": params,
+            "tool": tool,
+            "q": q,
+            "tau": tau,
+            "direction": direction,
+            "rows": keep,
+            "motion": motion,
+            "sim": sim if sim is not None else SimSettings(),
+        }
+        prepared = PreparedLog(
+            log=log,
+            split=split,
+            bounds=bounds,
+            regimes=regimes,
+            real=real,
+            nominal={"tool_dist": tool_distance_features(nominal_pts, bounds)},
+            replay_log=self._replay_log(log, q, nominal_pts),
+            holdout_windows=np.full(bounds.shape[0], split == "holdout"),
+            context=context,
+        )
+        sur = self.surrogate_features(prepared, {}, drive)
+        prepared.bias = {g: prepared.nominal[g] - sur[g][0] for g in prepared.groups}
+        return prepared
+
+    @staticmethod
+    def _replay_log(log: Log, q: FloatArray, points: FloatArray) -> Log:
+        return Log(
+            t=np.arange(q.shape[0], dtype=float),
+            channels={"joints": q, "tool_pos": points},
+            meta={**dict(log.meta), "replay": True},
+            source=f"replay of {log.name}",
+        )
+
+    # ------------------------------------------------------------------ observability
+    def observable(self, effect: str, prepared: Sequence[PreparedLog], drive: Drive) -> str:
+        cls = EFFECTS.get(effect)
+        if cls is None or cls.robot != self.robot:
+            return f"not an {self.robot} effect"
+        groups = set().union(*(p.groups for p in prepared)) if prepared else set()
+        seen = [c for c in cls.observed_in if c in groups]
+        if not seen:
+            return (
+                f"shows only in {', '.join(cls.observed_in)}, which the logs do not compare "
+                "(a tool point measured from outside sees neither the camera mounting nor its "
+                "intrinsics)"
+            )
+        if effect not in _SURROGATE_EFFECTS:
+            return "no analytic surrogate"
+        return ""
+
+    @staticmethod
+    def noise_levels(
+        prepared: Sequence[PreparedLog], settings: FeatureSettings
+    ) -> dict[str, float]:
+        """Noise of the tool-point distances in feature-scale units.
+
+        Windows of random poses are independent, so the window-to-window spread
+        cannot tell noise from effects; the level comes from the measurement
+        instead: each log's ``meta["tool_noise_m"]`` (per-axis standard deviation
+        of a tool-point measurement, m; :data:`DEFAULT_TOOL_NOISE` when absent).
+        A distance between two points carries √2 times that.
+        """
+        sigma = max(
+            (float(p.log.meta.get("tool_noise_m", DEFAULT_TOOL_NOISE)) for p in prepared),
+            default=DEFAULT_TOOL_NOISE,
+        )
+        scale = float(np.min(settings.scale("tool_dist")))
+        return {"tool_dist": math.sqrt(2.0) * sigma / scale}
+
+    @staticmethod
+    def unobservable_parameters() -> dict[str, str]:
+        """Parameters that tool-point distances cannot see, and why."""
+        return dict(_UNOBSERVABLE)
+
+    # ------------------------------------------------------------------ models
+    def replay_features(
+        self, prepared: PreparedLog, values: Mapping[str, float], drive: Drive, sim: SimSettings
+    ) -> tuple[Features, Log]:
+        reality = reality_from_values(values) if values else None
+        ctx = prepared.context
+        pts, _ = replay_arm(ctx["params"], ctx["q"], ctx["tool"], reality, ctx["direction"])
+        feats = {"tool_dist": tool_distance_features(pts, prepared.bounds)}
+        return feats, self._replay_log(prepared.log, ctx["q"], pts)
+
+    def log_features(self, prepared: PreparedLog, log: Log) -> Features:
+        """Window features of a replay of the prepared poses."""
+        return {"tool_dist": tool_distance_features(np.asarray(log["tool_pos"]), prepared.bounds)}
+
+    def surrogate_features(
+        self, prepared: PreparedLog, values: Mapping[str, npt.ArrayLike], drive: Drive
+    ) -> Features:
+        ctx = prepared.context
+        pts = surrogate_points(
+            ctx["params"].mdh, ctx["q"], ctx["tau"], ctx["direction"], ctx["tool"], values
+        )
+        return {"tool_dist": tool_distance_features(pts, prepared.bounds)}
+
+    def probe_features(
+        self, manoeuvre: str, params_like: PreparedLog, values: Mapping[str, npt.ArrayLike]
+    ) -> tuple[Features, list[str]]:
+        ctx = params_like.context
+        q = probe_poses(manoeuvre, ctx["params"].mdh)
+        # holding torques of the nominal body at the probe poses
+        from realitygap.robots.arm import ArmRobot
+        from realitygap.robots.world import World
+
+        world = World()
+        try:
+            robot = ArmRobot(world, ctx["params"])
+            tau = np.array([robot.gravity_torques(x) for x in q])
+        finally:
+            world.close()
+        pts = surrogate_points(
+            ctx["params"].mdh, q, tau, backlash_directions(q), ctx["tool"], values
+        )
+        bounds = _windows(q.shape[0])
+        return {"tool_dist": tool_distance_features(pts, bounds)}, ["tool_dist"]
+
+
+def probe_poses(name: str, table: MDHTable, n: int = 40) -> FloatArray:
+    """The joint readings (n, 6) of a pose set of :data:`ARM_PROBE_SETS` (deterministic)."""
+    if name not in ARM_PROBE_SETS:
+        raise ValueError(f"unknown arm pose set {name!r}; known: {', '.join(ARM_PROBE_SETS)}")
+    rng = np.random.default_rng(sum(ord(c) for c in name))
+    q = rng.uniform(-math.pi, math.pi, (n, 6))
+    if name == "outstretched_poses":
+        q[:, 1] = rng.choice([-0.15, -math.pi + 0.15], n) + rng.normal(0, 0.1, n)
+        q[:, 2] = rng.normal(0.0, 0.15, n)
+    elif name == "approach_reversals":
+        # P - δ, P (from below), P + δ, P (from above): one window per pose
+        base = q[: max(n // POSES_PER_WINDOW, 1)]
+        q = np.stack([base - 0.2, base, base + 0.2, base], axis=1).reshape(-1, 6)
+    elif name == "wrist_sweep":
+        q[:, :3] = (0.3, -1.2, 1.2)
+    elif name == "base_sweep":
+        postures = np.array([[-1.0, 1.2], [-0.5, 0.6], [-1.6, 1.8], [-0.2, 0.3]])
+        q[:, 1:3] = postures[np.arange(n) % 4]
+    return q
+
+
+# --------------------------------------------------------------------------- recording
+def sample_arm_poses(
+    robot: Any, rng: np.random.Generator, n: int, max_tries: int = 50_000
+) -> FloatArray:
+    """``n`` random collision-free joint commands (n, 6) of a PyBullet arm, from ``rng``.
+
+    Shoulder above the horizontal, elbow anywhere but fully folded, wrist free;
+    configurations that collide (with the arm itself or the scenery) are drawn
+    again.
+    """
+    out: list[FloatArray] = []
+    for _ in range(max_tries):
+        q = rng.uniform(-math.pi, math.pi, 6)
+        q[1] = rng.uniform(-math.pi, 0.0)
+        q[2] = rng.uniform(-2.6, 2.6)
+        if not robot.collides_at(q):
+            out.append(q)
+            if len(out) == n:
+                return np.asarray(out)
+    raise RuntimeError(f"found only {len(out)} of {n} collision-free poses in {max_tries} draws")
+
+
+def record_arm_log(
+    reality: Any,
+    rng: np.random.Generator,
+    n_poses: int,
+    *,
+    params: Any = None,
+    tool: npt.ArrayLike = (0.0, 0.05, 0.1),
+    tracker_noise: float = 2e-5,
+    name: str = "arm",
+) -> Log:
+    """Measure ``n_poses`` random poses of the PyBullet arm ``reality`` with a laser tracker.
+
+    The arm (nominal ``params`` with the effects of ``reality`` built in) moves
+    pose to pose through its servo (:meth:`~realitygap.robots.arm.ArmRobot.move_to`,
+    so backlash follows the real order of moves and compliance sags under the
+    real holding torque); at each pose the encoders are read (noise,
+    quantisation) and the tool point ``tool`` (flange frame, m) is measured in
+    the world with isotropic Gaussian noise of ``tracker_noise`` (m) per axis.
+    """
+    from realitygap.robots.arm import ArmParams, ArmRobot, constant_transform
+    from realitygap.robots.effects import arm_tool_offset
+    from realitygap.robots.world import World
+
+    nominal = params if params is not None else ArmParams()
+    body = reality.apply_params(nominal) if reality is not None else nominal
+    tool = np.asarray(tool, dtype=float).reshape(3)
+    measured = tool + np.asarray(arm_tool_offset(reality))
+    world = World()
+    try:
+        robot = ArmRobot(world, body)
+        poses = sample_arm_poses(robot, rng, n_poses)
+        robot.reset(poses[0] - 0.05)
+        last = constant_transform(body.mdh, 5)
+        q_enc = np.empty((n_poses, 6))
+        pts = np.empty((n_poses, 3))
+        for k, q in enumerate(poses):
+            res = robot.move_to(q)
+            if not res.ok:
+                raise RuntimeError(f"pose {k} could not be reached: {res.message}")
+            q_enc[k] = robot.read_encoders(rng)
+            F = robot.link_pose("link6") @ last
+            pts[k] = F[:3, :3] @ measured + F[:3, 3] + rng.normal(0.0, tracker_noise, 3)
+    finally:
+        world.close()
+    return Log(
+        t=np.arange(n_poses, dtype=float),
+        channels={"joints": q_enc, "tool_pos": pts},
+        meta={
+            "robot": "arm",
+            "name": name,
+            "params": arm_params_to_meta(nominal),
+            "tool": tool.tolist(),
+            "tool_noise_m": float(tracker_noise),
+        },
+        source=name,
+    )

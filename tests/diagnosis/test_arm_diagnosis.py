@@ -1,0 +1,218 @@
+"""The arm's diagnosis: kinematics against the estimator, surrogate against PyBullet,
+blind cases end to end, the UR10 importer and bad input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from realitygap.diagnosis.adapters import get_adapter, reality_from_values
+from realitygap.diagnosis.arm_adapter import (
+    backlash_directions,
+    probe_positions,
+    record_arm_log,
+    replay_arm,
+    surrogate_points,
+    tool_distance_features,
+)
+from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
+from realitygap.diagnosis.features import FeatureSettings
+from realitygap.diagnosis.io import read_logs
+from realitygap.diagnosis.log import Log, LogError
+from realitygap.diagnosis.replay import Drive
+from realitygap.diagnosis.suite import SuiteSettings, draw_cases
+from realitygap.estimators.arm.mdh import MDHTable, tool_positions
+from realitygap.robots.arm import ArmParams
+from realitygap.robots.effects import Reality, make_effect
+
+TOOL = np.array([0.01, 0.05, 0.1])
+
+
+def _poses(n: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-2.0, 2.0, (n, 6))
+    q[:, 1] = rng.uniform(-2.8, -0.3, n)
+    return q
+
+
+# --------------------------------------------------------------------------- kinematics
+def test_batched_probe_positions_match_the_mdh_forward_kinematics() -> None:
+    tables = [
+        MDHTable.ur_like_6dof().with_params([0.01, 0.003, -0.002], ["beta2", "theta3", "alpha4"]),
+        MDHTable.ur10().with_params([0.004, -0.001], ["beta3", "a2"]),
+    ]
+    q = _poses(30)
+    stack = {k: np.stack([getattr(t, k) for t in tables]) for k in ("d", "a", "alpha", "beta")}
+    theta = np.stack([t.theta_offset for t in tables])
+    got = probe_positions(
+        theta, stack["d"], stack["a"], stack["alpha"], stack["beta"], np.stack([q, q]), TOOL
+    )
+    for b, t in enumerate(tables):
+        np.testing.assert_allclose(got[b], tool_positions(t, q, TOOL), atol=1e-12)
+
+
+def test_tool_distances_ignore_where_the_instrument_stands() -> None:
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(12, 3))
+    c, s = np.cos(0.7), np.sin(0.7)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    moved = pts @ R.T + np.array([2.0, -1.0, 0.5])
+    bounds = np.array([[0, 4], [4, 8], [8, 12]])
+    np.testing.assert_allclose(
+        tool_distance_features(pts, bounds), tool_distance_features(moved, bounds)
+    )
+    assert tool_distance_features(pts, bounds)[0, 0] == pytest.approx(
+        np.linalg.norm(pts[1] - pts[0])
+    )
+
+
+def test_backlash_directions_follow_the_last_move() -> None:
+    q = np.zeros((4, 6))
+    q[1, 0], q[2, 0], q[3, 0] = 0.1, 0.05, 0.05  # up, down, stay
+    d = backlash_directions(q)
+    assert d[:, 0].tolist() == [1.0, 1.0, -1.0, -1.0]
+    assert np.all(d[:, 1:] == 1.0)
+
+
+def test_surrogate_agrees_with_the_pybullet_replay() -> None:
+    params = ArmParams()
+    q = _poses(40, seed=1)
+    values = {
+        "arm_joint_compliance.c2": 3e-5,
+        "arm_joint_compliance.c3": 2e-5,
+        "arm_backlash.b2": 1e-3,
+        "arm_encoder_scale.s3": 1.001,
+        "arm_link_length.da2": 0.002,
+        "arm_parallel_twist.beta2": 0.003,
+        "arm_parallel_twist.dalpha3": -0.002,
+        "arm_twist_error.dalpha4": 0.002,
+        "arm_joint_offset.dtheta5": 0.002,
+        "arm_tool_offset.dz": -0.004,
+    }
+    nominal, tau = replay_arm(params, q, TOOL)
+    effect, _ = replay_arm(params, q, TOOL, reality_from_values(values))
+    batch = {k: np.array([0.0 if "scale" not in k else 1.0, v]) for k, v in values.items()}
+    sur = surrogate_points(params.mdh, q, tau, backlash_directions(q), TOOL, batch)
+    assert np.max(np.abs(effect - nominal)) > 2e-3  # the effects are large …
+    np.testing.assert_allclose(sur[0], nominal, atol=1e-7)
+    np.testing.assert_allclose(sur[1], effect, atol=1e-5)  # … and the surrogate follows them
+
+
+# --------------------------------------------------------------------------- end to end
+def _record(effect: str, values: dict[str, float], seed: int) -> tuple[list[Log], list[Log]]:
+    rng = np.random.default_rng(seed)
+    real = Reality((make_effect(effect, **values),))
+    return (
+        [record_arm_log(real, rng, 64, name="train")],
+        [record_arm_log(real, rng, 64, name="holdout")],
+    )
+
+
+def test_a_hidden_compliance_is_named_and_closes_the_gap() -> None:
+    train, holdout = _record("arm_joint_compliance", {"c2": 3e-5, "c3": 2e-5}, seed=0)
+    d = diagnose(train, holdout, settings=DiagnosisSettings(robot="arm"))
+    assert d.verdict.kind == "effects"
+    assert d.verdict.effects == ("arm_joint_compliance",)
+    assert d.gap["heldout_shrink_pct"] > 75.0
+    fit = d.ranking[0].values
+    assert fit["arm_joint_compliance.c2"] == pytest.approx(3e-5, rel=0.1)
+    # the camera effects cannot be seen by a tracker, and the diagnosis says so
+    assert "arm_handeye_error" in d.not_observable
+
+
+def test_a_withheld_effect_is_left_unexplained() -> None:
+    train, holdout = _record(
+        "arm_link_length", {"da2": 8e-4, "da3": -6e-4, "dd4": 5e-4, "dd5": -7e-4}, seed=1
+    )
+    library = tuple(e for e in get_adapter("arm").effect_names() if e not in ("arm_link_length",))
+    d = diagnose(train, holdout, settings=DiagnosisSettings(robot="arm", effects=library))
+    assert d.verdict.kind == "unexplained", d.verdict.reason
+
+
+def test_the_arm_suite_draws_only_arm_effects() -> None:
+    cases = draw_cases(8, seed=0, settings=SuiteSettings(robot="arm"))
+    assert all(name.startswith("arm_") for c in cases for name in c.truth_names)
+    with pytest.raises(ValueError, match="diffdrive, arm"):
+        SuiteSettings(robot="tank")
+
+
+# --------------------------------------------------------------------------- importer
+HEADER = (
+    "Timestamp;Goal x;Goal y;Goal z;Goal roll;Goal pitch;Goal yaw;shoulder_pan_joint;"
+    "shoulder_lift_joint;elbow_joint;wrist_1_joint;wrist_2_joint;wrist_3_joint;"
+    "measurement_temperature;measurement_x;measurement_y;measurement_z;measurement_rx;"
+    "measurement_ry;measurement_rz"
+)
+
+
+def _ur10_csv(path: Path, q: np.ndarray, pts_mm: np.ndarray) -> None:
+    def num(x: float) -> str:
+        return f"{x:.9g}".replace(".", ",")
+
+    rows = [HEADER]
+    for k, (qk, pk) in enumerate(zip(q, pts_mm)):
+        cells = [f"2020071416{k:04d}", *["0"] * 6, *map(num, qk), "23,5", *map(num, pk), "0;0;0"]
+        rows.append(";".join(cells))
+    path.write_text("\n".join(rows) + "\n", encoding="utf-8")
+
+
+def test_a_ur10_folder_reads_as_arm_logs(tmp_path: Path) -> None:
+    series = tmp_path / "Series_X"
+    series.mkdir()
+    q = _poses(12, seed=4)
+    pts = tool_positions(MDHTable.ur10(), q, (0.0, 0.0, 0.109))
+    _ur10_csv(series / "measurements_test.csv", q, 1e3 * pts)
+    logs = read_logs(tmp_path)
+    assert len(logs) == 1
+    lg = logs[0]
+    assert lg.meta["robot"] == "arm" and lg.n == 12
+    np.testing.assert_allclose(lg["tool_pos"], pts, atol=1e-9)
+    np.testing.assert_allclose(lg["joints"], q, atol=1e-8)
+    assert lg.meta["tool_noise_m"] > 3e-5  # tracker and the arm's repeatability
+    # a nominal UR10 measured exactly: its replay has no gap
+    prepared = get_adapter("arm").prepare(
+        lg, split="train", drive=Drive.COMMANDS, features_settings=FeatureSettings(), sim=None
+    )
+    np.testing.assert_allclose(prepared.real["tool_dist"], prepared.nominal["tool_dist"], atol=1e-6)
+
+
+# --------------------------------------------------------------------------- bad input
+def _arm_log(**changes: object) -> Log:
+    rng = np.random.default_rng(0)
+    lg = record_arm_log(None, rng, 16)
+    meta = dict(lg.meta)
+    channels = dict(lg.channels)
+    for key, value in changes.items():
+        if key == "drop":
+            channels.pop(str(value))
+        else:
+            meta[key] = value
+    return Log(t=lg.t, channels=channels, meta=meta, source="bad.npz")
+
+
+@pytest.mark.parametrize(
+    ("log_changes", "message"),
+    [
+        ({"drop": "tool_pos"}, "tool_pos"),
+        ({"params": {"link_masses": [1.0] * 6}}, r"meta\['params'\]\['mdh'\]"),
+        ({"params": {"mdh": {"theta1": 0.0}}}, "lacks"),
+        ({"tool": [0.0, 0.1]}, r"meta\['tool'\]"),
+        ({"robot": "diffdrive"}, "not 'arm'"),
+    ],
+)
+def test_bad_arm_logs_are_refused_with_the_reason(
+    log_changes: dict[str, object], message: str
+) -> None:
+    with pytest.raises(LogError, match=message):
+        diagnose([_arm_log(**log_changes)], settings=DiagnosisSettings(robot="arm"))
+
+
+def test_too_few_poses_and_tick_drive_are_refused() -> None:
+    lg = _arm_log()
+    short = Log(t=lg.t[:6], channels={k: v[:6] for k, v in lg.channels.items()}, meta=lg.meta)
+    with pytest.raises(LogError, match="too few"):
+        diagnose([short], settings=DiagnosisSettings(robot="arm"))
+    with pytest.raises(LogError, match="joint readings"):
+        diagnose([lg], settings=DiagnosisSettings(robot="arm", drive="ticks"))
