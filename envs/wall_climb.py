@@ -51,6 +51,7 @@ distance), a time cost, an effort cost, a detachment penalty and a success bonus
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -128,7 +129,8 @@ class DockedClimbPipeline:
     anchor_cad : (3,)
         Nominal anchor, m.
     h
-        Nominal body height above the surface, m.
+        Nominal height above the surface of the wheel centres (see
+        :class:`.ConstrainedConfig` ``wheel_track``), m.
     vio_config, config
         :class:`.VioConfig`, :class:`.ConstrainedConfig`.
     """
@@ -148,6 +150,8 @@ class DockedClimbPipeline:
         self._kf_last: ClimbEstimate | None = None
         self._backend_last: ClimbEstimate | None = None
         self._kf_count = 0
+        self._rotations_of: tuple[ClimbEstimate, ClimbEstimate] | None = None
+        self._rotations = (np.eye(3), np.eye(3))
 
     def reset(self, initial: DockedStart | None = None) -> ClimbEstimate:
         """Start from ``initial`` (required)."""
@@ -183,10 +187,14 @@ class DockedClimbPipeline:
             return self._last
         kf, c = self._kf_last, self._backend_last
         assert kf is not None and c is not None
-        R_kf = kf.rotation
+        key = self._rotations_of
+        if key is None or key[0] is not kf or key[1] is not c:
+            # rotation matrices of the keyframe pair, converted once per keyframe
+            self._rotations = (kf.rotation, c.rotation)
+            self._rotations_of = (kf, c)
+        R_kf, R_c = self._rotations
         dR = R_kf.T @ vio_now.rotation
         dp = R_kf.T @ (vio_now.position - kf.position)
-        R_c = c.rotation
         self._last = dataclasses.replace(
             c,
             t=vio_now.t,
@@ -489,9 +497,10 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         out: list[Any] = []
         dtp = w.physics_dt
         t0 = time_start = self._t
+        step_simulation, apply_adsorption = c.stepSimulation, self.robot.apply_adsorption
         for k in range(w.n_substeps):
-            self.robot.apply_adsorption()
-            c.stepSimulation()
+            apply_adsorption()
+            step_simulation()
             if (k + 1) % self._imu_every == 0:
                 t = time_start + (k + 1) * dtp
                 s = self.robot.state(t)
@@ -549,7 +558,8 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         return arr
 
     def _set_estimate(self, est: ClimbEstimate) -> None:
-        finite = bool(np.all(np.isfinite(est.position)) and np.all(np.isfinite(est.quat_xyzw)))
+        # a sum of finite numbers is finite (positions in m, unit quaternion)
+        finite = math.isfinite(float(np.sum(est.position) + np.sum(est.quat_xyzw)))
         if finite:
             self._good_estimate = est
             self._estimate = est

@@ -9,8 +9,12 @@ nominal CAD point cloud transformed by the mount.
 
 Frames: ``world`` (= ``cad``), z up, m; ``blade`` (x along the span, z towards the
 suction side, see :mod:`.blade_geometry`); ``body``: origin on the wheel axle midpoint,
-x forward, y left, z away from the surface (the body origin sits ``h`` above the
-surface, ``h`` = wheel radius on the nominal robot).
+x forward, y left, z away from the surface. The two sphere wheels (radius ``h`` =
+wheel radius on the nominal robot) touch the surface where its normal passes
+through their centres, so the *wheel centres* sit ``h`` above the surface; across a
+convex curvature :math:`\\kappa` the axle is a chord and the body origin sits lower,
+by :math:`\\approx b^2\\kappa/8` (track ``b``; up to 5 mm on the suction side). The
+estimators model exactly this contact (:meth:`ClimberParams.constrained_config`).
 
 Physics (PyBullet, 240 Hz): the blade is a static concave triangle mesh
 (``GEOM_FORCE_CONCAVE_TRIMESH``) of the *real* surface (:func:`.deformed` when the
@@ -163,9 +167,11 @@ class ClimberParams:
     caster_radius, caster_offset, caster_clearance
         Frictionless support spheres ahead of and behind the axle, m; they sit
         ``caster_clearance`` above the wheels' contact plane so that on the convex
-        section the driven wheels carry the load. The chassis therefore rocks on them:
-        its z-axis deviates from the surface normal by ≈ 2° on average (6° at the
-        95th percentile, measured on the ``climb003`` paths).
+        section the driven wheels carry the load. The chassis therefore rocks on them
+        about the axle, resting on the front or the rear caster with the drive
+        torque: :attr:`caster_pitch_limit` (3.9°) on a flat surface, more where the
+        surface curves along the body x-axis (up to ≈ 10° while turning across the
+        chord on the ``climb003`` paths).
     max_wheel_torque
         N·m.
     adsorption_force, adsorption_decay
@@ -322,12 +328,13 @@ class ClimberParams:
     # ------------------------------------------------------------------ geometry
     @property
     def h(self) -> float:
-        """Nominal height of the body origin above the surface, m."""
+        """Nominal height of the wheel centres above the surface (the wheel radius; the
+        body origin's height on a flat surface), m."""
         return self.wheel_radius
 
     @property
     def h_true(self) -> float:
-        """Height of the body origin above the surface with ``gap_offset``, m."""
+        """Height of the wheel centres above the surface with ``gap_offset``, m."""
         return self.wheel_radius + self.gap_offset
 
     @property
@@ -388,10 +395,32 @@ class ClimberParams:
             **changes,
         )
 
+    @property
+    def caster_pitch_limit(self) -> float:
+        """Largest pitch of the chassis about the axle on a flat surface, rad.
+
+        The chassis turns about the wheel axle until a caster sphere (centre at
+        ``(±caster_offset, 0, c_z)`` in the body frame, ``c_z = -(r - r_c) + clearance``)
+        touches the wheels' contact plane ``z = -r``:
+        :math:`\\pm a \\sin\\theta + c_z \\cos\\theta = r_c - r` with ``a = caster_offset``,
+        i.e. :math:`\\theta = \\arcsin\\big((r - r_c)/\\sqrt{a^2 + c_z^2}\\big)
+        - \\operatorname{atan2}(-c_z, a)` (≈ clearance / caster_offset).
+        """
+        r, rc = self.wheel_radius, self.caster_radius
+        a = self.caster_offset
+        cz = -(r - rc) + self.caster_clearance
+        return math.asin(min(1.0, (r - rc) / math.hypot(a, cz))) - math.atan2(-cz, a)
+
     def constrained_config(self, **changes: Any) -> ConstrainedConfig:
-        """A :class:`.ConstrainedConfig` matching this robot: the chassis rocks on its
-        casters, so its z-axis follows the surface normal to ≈ 0.05 rad, not 0.01."""
-        return ConstrainedConfig(**{"normal_sigma": 0.05, **changes})
+        """A :class:`.ConstrainedConfig` for this robot's contact geometry.
+
+        Two sphere wheels (radius ``h``) ``wheelbase`` apart on the axle; the chassis
+        rests on one caster or the other depending on the drive torque, so its pitch
+        about the axle relative to the surface is ±:attr:`caster_pitch_limit` (standard
+        deviation of that two-point spread: the limit itself).
+        """
+        base = {"wheel_track": self.wheelbase, "pitch_sigma": self.caster_pitch_limit}
+        return ConstrainedConfig(**{**base, **changes})
 
     def camera_intrinsics(self) -> FloatArray:
         """Pinhole matrix K (3, 3), pixels."""
@@ -480,6 +509,53 @@ def chart_pose(
 # --------------------------------------------------------------------------- world
 
 
+class _LocalNearest:
+    """Exact nearest-sample look-up for a query point that moves a little per call.
+
+    Keeps the samples within ``radius`` of a centre ``c`` (one k-d tree ball query)
+    and answers by brute force over them. That answer is exact while
+    :math:`d + \\lVert q - c \\rVert \\le` ``radius`` (``d``: distance to the nearest
+    kept sample): every sample outside the ball is then farther from ``q`` than
+    ``d``. Otherwise the ball is re-centred on ``q`` (radius at least twice the
+    distance to the nearest sample), so the adsorption force, called on every physics
+    sub-step, does a ball query every few centimetres of travel instead of a tree
+    query per call.
+
+    Parameters
+    ----------
+    tree, points
+        k-d tree over ``points`` (M, 3), m.
+    radius
+        Least ball radius, m.
+    """
+
+    def __init__(self, tree: cKDTree, points: FloatArray, radius: float = 0.1) -> None:
+        self._tree = tree
+        self._points = points
+        self._radius0 = float(radius)
+        self._centre = np.full(3, np.inf)
+        self._radius = 0.0
+        self._idx = np.zeros(0, dtype=np.intp)
+        self._local = np.zeros((0, 3))
+
+    def __call__(self, q: FloatArray) -> int:
+        """Index of the sample nearest to ``q`` (3,)."""
+        step = q - self._centre
+        moved = math.sqrt(float(step @ step)) if len(self._idx) else math.inf
+        if moved < self._radius:
+            diff = self._local - q
+            d2 = np.einsum("ij,ij->i", diff, diff)
+            k = int(d2.argmin())
+            if math.sqrt(float(d2[k])) + moved <= self._radius:
+                return int(self._idx[k])
+        d, i = self._tree.query(q)
+        self._centre = q.copy()
+        self._radius = max(self._radius0, 2.0 * float(d))
+        self._idx = np.asarray(self._tree.query_ball_point(q, self._radius), dtype=np.intp)
+        self._local = self._points[self._idx]
+        return int(i)
+
+
 class ClimbWorld:
     """The blade scene: a :class:`.World` with the real blade as a static concave mesh.
 
@@ -534,11 +610,12 @@ class ClimbWorld:
         self.real_points = params.world_from_blade(pts)
         self.real_normals = nrm @ params.R_world_blade.T
         self._tree = cKDTree(self.real_points)
+        self._nearest = _LocalNearest(self._tree, self.real_points)
 
     def surface_at(self, position: npt.ArrayLike) -> tuple[FloatArray, FloatArray, float]:
         """Nearest real surface sample, its normal (world) and the signed height along it."""
         pos = np.asarray(position, dtype=float)
-        _, idx = self._tree.query(pos)
+        idx = self._nearest(pos)
         q, n = self.real_points[idx], self.real_normals[idx]
         return q, n, float(n @ (pos - q))
 
@@ -585,6 +662,16 @@ class ClimberRobot:
             )
         c.changeDynamics(self.body, -1, lateralFriction=0.0, rollingFriction=0.0)
         self._c = c
+        # client methods bound once (each attribute look-up on the client builds a
+        # new partial; these run on every physics sub-step)
+        self._get_pose = c.getBasePositionAndOrientation
+        self._get_velocity = c.getBaseVelocity
+        self._matrix_of = c.getMatrixFromQuaternion
+        self._apply_force = c.applyExternalForce
+        # F0·exp(-gap_offset/λ): the adsorption force at the rolling height, N
+        self._suction_at_contact = params.adsorption_force * math.exp(
+            -max(0.0, params.gap_offset) / params.adsorption_decay
+        )
         self.adsorption_scale = 1.0
         """Multiplier on the adsorption force (e.g. a pump failure in a test)."""
         self.last_force = 0.0
@@ -623,44 +710,45 @@ class ClimberRobot:
 
     def state(self, t: float) -> BodyState:
         """Ground truth now."""
-        c = self._c
-        pos, quat = c.getBasePositionAndOrientation(self.body)
-        lin, ang = c.getBaseVelocity(self.body)
-        R = np.array(c.getMatrixFromQuaternion(quat)).reshape(3, 3)
+        pos, quat = self._get_pose(self.body)
+        lin, ang = self._get_velocity(self.body)
+        R = np.array(self._matrix_of(quat)).reshape(3, 3)
         return BodyState(t, np.array(pos), R, np.array(lin), np.array(ang))
 
     def apply_adsorption(self) -> None:
         """Apply the adsorption force for the next physics step (world frame, at the body origin)."""
-        c = self._c
-        pos, _ = c.getBasePositionAndOrientation(self.body)
+        pos, _ = self._get_pose(self.body)
         _, n, height = self.scene.surface_at(pos)
-        gap = height - self.params.h_true
         prm = self.params
+        gap = height - prm.h_true
         force = (
             self.adsorption_scale
-            * prm.adsorption_force
-            * math.exp(-max(0.0, prm.gap_offset) / prm.adsorption_decay)
+            * self._suction_at_contact
             * math.exp(-max(0.0, gap) / prm.adsorption_decay)
         )
         self.last_force = force
         self.last_height = height
-        c.applyExternalForce(self.body, -1, (-force * n).tolist(), list(pos), p.WORLD_FRAME)
+        self._apply_force(self.body, -1, (-force * n).tolist(), pos, p.WORLD_FRAME)
 
     def height_above_surface(self) -> float:
         """Signed height of the body origin above the real surface, m."""
-        pos, _ = self._c.getBasePositionAndOrientation(self.body)
+        pos, _ = self._get_pose(self.body)
         return self.scene.surface_at(pos)[2]
 
 
 # --------------------------------------------------------------------------- sensors
 
 
-def _gamma1(theta: FloatArray) -> FloatArray:
-    a = float(np.linalg.norm(theta))
+def _gamma1_inv(theta: FloatArray) -> FloatArray:
+    """Inverse of :math:`\\Gamma_1(\\theta) = \\int_0^1 \\mathrm{Exp}(\\sigma\\theta)d\\sigma`
+    (the left Jacobian of SO(3)), in closed form:
+    :math:`I - \\tfrac12 K + \\left(\\tfrac{1}{a^2} - \\tfrac{1 + \\cos a}{2 a \\sin a}\\right) K^2`,
+    :math:`K = [\\theta]_\\times`, :math:`a = \\lVert\\theta\\rVert` (rad)."""
+    a = math.sqrt(float(theta @ theta))
     K = np.array([[0, -theta[2], theta[1]], [theta[2], 0, -theta[0]], [-theta[1], theta[0], 0]])
     if a < 1e-4:
-        return np.eye(3) + K / 2 + K @ K / 6
-    return np.eye(3) + (1 - math.cos(a)) / a**2 * K + (a - math.sin(a)) / a**3 * K @ K
+        return np.eye(3) - K / 2 + K @ K / 12
+    return np.eye(3) - K / 2 + (1 / a**2 - (1 + math.cos(a)) / (2 * a * math.sin(a))) * K @ K
 
 
 class ImuModel:
@@ -705,7 +793,7 @@ class ImuModel:
         theta = so3_log(s0.R.T @ s1.R)
         omega = theta / dt
         dv = s1.velocity - s0.velocity - self._g * dt
-        accel = np.asarray(np.linalg.solve(s0.R @ _gamma1(theta) * dt, dv), dtype=np.float64)
+        accel = _gamma1_inv(theta) @ (s0.R.T @ dv) / dt  # solves R Γ1 dt · f = Δv
         g, a = self._noisy(omega, accel)
         return ImuSample(s0.t, g, a)
 

@@ -6,7 +6,11 @@ world-frame angles :math:`\\delta\\theta` (:math:`R_{true} = \\mathrm{Exp}(\\del
 
 *Prediction* with the VIO increment between consecutive VIO poses,
 :math:`\\Delta R = R_{w,k-1}^\\top R_{w,k}`, :math:`\\Delta p = R_{w,k-1}^\\top
-(p_{w,k} - p_{w,k-1})`:
+(p_{w,k} - p_{w,k-1})`, both poses taken from the VIO's *current* window solution
+when it provides the previous keyframe (``extras["previous_keyframe"]`` of
+:meth:`.SlidingWindowVIO.keyframe_estimate`): the previous keyframe's estimate at its
+own creation has been refined since (by millimetres), and differencing against
+that stale value would feed the refinement to the filter as motion:
 
 .. math::
 
@@ -21,19 +25,41 @@ world-frame angles :math:`\\delta\\theta` (:math:`R_{true} = \\mathrm{Exp}(\\del
   longer than the straight line; beyond twice the gate such a reading only bounds
   the distance from above and is dropped) or short; a length step inconsistent with
   the motion is flagged as a jump and skipped;
-* adsorption position: the body origin sits ``h`` above the surface; with the
-  projection :math:`\\pi` of :math:`p` along the body z-axis (:class:`.SurfaceModel`),
-  :math:`n^\\top(\\pi(p) - p) = 0`;
-* adsorption direction: the body z-axis must be the surface normal. Roll and pitch
-  stay with gravity, so the residual is on the horizontal parts,
-  :math:`r = n_{xy}(p) - (R e_z)_{xy}`, with the attitude Jacobian restricted to yaw:
-  its component along the normal's azimuth is the yaw residual
-  (:math:`\\approx \\lVert n_{xy}\\rVert` times the angle between the horizontal
-  parts), its radial component compares the tilt of the surface under the body with
-  the body's (gravity-given) tilt and so locates the body along the curvature. The
-  dependence of :math:`n(p)` on position (large near a crest) is linearised by
-  central differences; noise :math:`\\sigma_n` per component; innovations beyond
-  twice the gate are rejected.
+* adsorption, **point contact** (``wheel_track = 0``; the body is a point ``h``
+  above the surface whose z-axis is the normal):
+
+  - position: with the projection :math:`\\pi` of :math:`p` along the body z-axis
+    (:class:`.SurfaceModel`), :math:`n^\\top(\\pi(p) - p) = 0`;
+  - direction: the body z-axis must be the surface normal. Roll and pitch stay with
+    gravity, so the residual is on the horizontal parts,
+    :math:`r = n_{xy}(p) - (R e_z)_{xy}`, with the attitude Jacobian restricted to yaw:
+    its component along the normal's azimuth is the yaw residual
+    (:math:`\\approx \\lVert n_{xy}\\rVert` times the angle between the horizontal
+    parts), its radial component compares the tilt of the surface under the body
+    with the body's (gravity-given) tilt and so locates the body along the
+    curvature. The dependence of :math:`n(p)` on position is linearised by central
+    differences; noise :math:`\\sigma_n` per component; innovations beyond twice the
+    gate are rejected;
+
+* adsorption, **two-wheel contact** (``wheel_track = b > 0``; a wheeled chassis
+  whose two sphere wheels of radius ``h`` sit on the axle, the body y-axis, at
+  :math:`c_\\pm = p \\pm \\tfrac{b}{2} R e_y`). A sphere touches the surface where the
+  surface normal passes through its centre, so each wheel centre is ``h`` above the
+  surface along its *own* contact normal (closest-point projection
+  :math:`x_\\pm, n_\\pm`):
+
+  .. math::  n_\\pm^\\top (c_\\pm - x_\\pm) = h, \\qquad
+             H_\\pm = \\left[n_\\pm^\\top,\\; -n_\\pm^\\top [R\\,(\\pm\\tfrac{b}{2} e_y)]_\\times\\right].
+
+  On a convex section the axle is a chord of the surface, so the body origin (the
+  axle midpoint) sits *lower* than ``h`` (by :math:`\\approx b^2\\kappa/8` for a
+  curvature :math:`\\kappa` along the axle), and the two residuals together also say
+  that the axle is parallel to the surface (roll about the body x-axis). The
+  chassis itself is free to rock about the axle until a caster touches, so the only
+  direction residual is the pitch about the axle,
+  :math:`(R e_x)^\\top \\bar n = 0` with :math:`\\bar n` the mean contact normal and
+  noise ``pitch_sigma`` (the caster geometry's rocking range); it is not used to
+  locate the body (no position Jacobian).
 
 A surface residual beyond ``detach_threshold`` (and beyond 5 σ of its prediction)
 is taken as the robot having left the surface: the adsorption updates are skipped
@@ -127,6 +153,15 @@ class ConstrainedConfig:
         Least :math:`\\lVert n_{xy} \\rVert` for the yaw-only residual.
     normal_step
         Step of the central differences of the normal's azimuth over position, m.
+    wheel_track
+        Contact model, m. ``0``: point contact (the body origin ``h`` above the
+        surface, z-axis along the normal; ``surface_sigma`` and ``normal_sigma``).
+        ``> 0``: distance between the centres of two sphere wheels of radius ``h`` on
+        the body y-axis (two height residuals with ``surface_sigma`` each, plus the
+        pitch about the axle with ``pitch_sigma``).
+    pitch_sigma
+        Two-wheel contact: spread of the chassis pitch about the axle relative to
+        the surface (it rocks between its casters), rad.
     detach_threshold
         Surface residual beyond which the robot counts as detached, m.
     gate
@@ -151,6 +186,8 @@ class ConstrainedConfig:
     tilt_constrains_position: bool = True
     min_normal_tilt: float = 0.05
     normal_step: float = 0.01
+    wheel_track: float = 0.0
+    pitch_sigma: float = 0.07
     detach_threshold: float = 0.03
     gate: float = 4.0
 
@@ -169,12 +206,17 @@ class ConstrainedConfig:
             "normal_sigma",
             "min_normal_tilt",
             "normal_step",
+            "pitch_sigma",
             "detach_threshold",
             "gate",
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"ConstrainedConfig.{name} must be positive, got {value!r}")
+        if not (math.isfinite(self.wheel_track) and self.wheel_track >= 0):
+            raise ValueError(
+                f"ConstrainedConfig.wheel_track must be ≥ 0 m, got {self.wheel_track!r}"
+            )
 
 
 class ConstrainedEstimator:
@@ -187,7 +229,8 @@ class ConstrainedEstimator:
     anchor_cad : (3,)
         Tether anchor in the CAD frame, m.
     h
-        Height of the body origin above the surface, m.
+        Height above the surface of the body origin (point contact) or of the wheel
+        centres (two-wheel contact, ``ConstrainedConfig.wheel_track > 0``), m.
     config
         :class:`ConstrainedConfig`.
 
@@ -309,9 +352,14 @@ class ConstrainedEstimator:
             self._t = vio.t
             self._v = self._R @ R_w.T @ vio.velocity
         else:
-            R_prev = self._ref.rotation
+            R_prev, p_prev = self._ref.rotation, self._ref.position
+            prev_kf = vio.extras.get("previous_keyframe")
+            if prev_kf is not None and abs(prev_kf[0] - self._ref.t) < 1e-9:
+                # the increment within the VIO's current solution (see
+                # SlidingWindowVIO.keyframe_estimate)
+                _, p_prev, R_prev = prev_kf
             dR = R_prev.T @ R_w
-            dp = R_prev.T @ (vio.position - self._ref.position)
+            dp = R_prev.T @ (vio.position - p_prev)
             step = float(np.linalg.norm(dp))
             turn = float(np.linalg.norm(so3_log(dR)))
             dt = max(vio.t - self._ref.t, 0.0)
@@ -374,6 +422,48 @@ class ConstrainedEstimator:
         self._correct(r, H, np.eye(3) * self.config.gravity_sigma**2, self.config.gate)
 
     def _surface_update(self) -> None:
+        if self.config.wheel_track > 0:
+            self._wheel_contact_update()
+        else:
+            self._point_contact_update()
+
+    def _wheel_contact_update(self) -> None:
+        """Two sphere wheels on the axle: wheel-centre heights and the pitch about the axle."""
+        cfg = self.config
+        y_w = self._R[:, 1]
+        levers = np.outer([0.5, -0.5], cfg.wheel_track * y_w)  # (2, 3): c± − p, world
+        centres = self._p + levers
+        pr = self.surface.project(centres, None, 0.0)
+        if not np.all(pr.ok):
+            self._flags.add("off_surface")
+            return
+        normals = np.asarray(pr.normal)
+        heights = np.einsum("ij,ij->i", normals, centres - np.asarray(pr.incidence))
+        r = self.h - heights
+        H = np.zeros((2, 6))
+        H[:, 0:3] = normals
+        for i in range(2):
+            H[i, 3:6] = -normals[i] @ hat(levers[i])
+        Rn = np.eye(2) * cfg.surface_sigma**2
+        s_pred = np.diag(H @ self._P @ H.T) + cfg.surface_sigma**2
+        self._extras["surface_residual"] = float(np.mean(r))
+        if np.any((np.abs(r) > cfg.detach_threshold) & (np.abs(r) > 5.0 * np.sqrt(s_pred))):
+            self._flags.add("detached")
+            return
+        self._correct(r, H, Rn, cfg.gate)
+        # pitch about the axle: the body x-axis lies in the tangent plane up to the
+        # caster rocking; attitude only
+        n_bar = normals.sum(axis=0)
+        n_bar /= np.linalg.norm(n_bar)
+        x_w = self._R[:, 0]
+        r_pitch = -float(x_w @ n_bar)
+        Hp = np.zeros((1, 6))
+        Hp[0, 3:6] = -n_bar @ hat(x_w)  # d(x_w·n)/dδθ with x_w → x_w + δθ × x_w
+        self._extras["pitch_residual"] = r_pitch
+        self._correct(np.array([r_pitch]), Hp, np.array([[cfg.pitch_sigma**2]]), cfg.gate)
+
+    def _point_contact_update(self) -> None:
+        """Point contact: origin height along the body z-axis and the normal direction."""
         cfg = self.config
         bz = self._R @ _E_Z
         pr = self.surface.project(self._p, bz, self.h)
@@ -542,7 +632,8 @@ class ClimbLocaliser:
     anchor_cad : (3,)
         Tether anchor in the CAD frame, m.
     h
-        Height of the body origin above the surface, m.
+        Height above the surface of the body origin (point contact) or of the wheel
+        centres (two-wheel contact, ``ConstrainedConfig.wheel_track > 0``), m.
     vio_config, config, localiser_config
         :class:`.VioConfig`, :class:`ConstrainedConfig`, :class:`LocaliserConfig`.
     """
@@ -579,6 +670,8 @@ class ClimbLocaliser:
         self._tethers: list[TetherReading] = []
         self._kf_last: ClimbEstimate | None = None
         self._backend_last: ClimbEstimate | None = None
+        self._rotations_of: tuple[ClimbEstimate, ClimbEstimate] | None = None
+        self._rotations = (np.eye(3), np.eye(3))
         self._last = self.vio.estimate()
         return self._last
 
@@ -641,10 +734,14 @@ class ClimbLocaliser:
         kf, c = self._kf_last, self._backend_last
         if kf is None or c is None:
             return self._last
-        R_kf = kf.rotation
+        key = self._rotations_of
+        if key is None or key[0] is not kf or key[1] is not c:
+            # rotation matrices of the keyframe pair, converted once per keyframe
+            self._rotations = (kf.rotation, c.rotation)
+            self._rotations_of = (kf, c)
+        R_kf, R_c = self._rotations
         dR = R_kf.T @ vio_now.rotation
         dp = R_kf.T @ (vio_now.position - kf.position)
-        R_c = c.rotation
         return dataclasses.replace(
             c,
             t=vio_now.t,

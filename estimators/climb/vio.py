@@ -35,6 +35,7 @@ from typing import Any
 import cv2
 import numpy as np
 import numpy.typing as npt
+from scipy.linalg import solve_triangular
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
@@ -76,7 +77,7 @@ def hat(v: npt.ArrayLike) -> FloatArray:
 def so3_exp(phi: npt.ArrayLike) -> FloatArray:
     """Rotation matrix :math:`\\mathrm{Exp}(\\phi)` of a rotation vector (rad), Rodrigues."""
     phi = np.asarray(phi, dtype=float)
-    angle = float(np.linalg.norm(phi))
+    angle = math.sqrt(float(phi @ phi))
     K = hat(phi)
     if angle < 1e-8:
         return np.eye(3) + K + 0.5 * K @ K
@@ -106,7 +107,7 @@ def right_jacobian(phi: npt.ArrayLike) -> FloatArray:
     """Right Jacobian :math:`J_r(\\phi)`: :math:`\\mathrm{Exp}(\\phi+\\delta) \\approx
     \\mathrm{Exp}(\\phi)\\mathrm{Exp}(J_r\\delta)`."""
     phi = np.asarray(phi, dtype=float)
-    a = float(np.linalg.norm(phi))
+    a = math.sqrt(float(phi @ phi))
     K = hat(phi)
     if a < 1e-6:
         return np.eye(3) - 0.5 * K + K @ K / 6.0
@@ -116,7 +117,7 @@ def right_jacobian(phi: npt.ArrayLike) -> FloatArray:
 def right_jacobian_inv(phi: npt.ArrayLike) -> FloatArray:
     """Inverse right Jacobian :math:`J_r^{-1}(\\phi)`."""
     phi = np.asarray(phi, dtype=float)
-    a = float(np.linalg.norm(phi))
+    a = math.sqrt(float(phi @ phi))
     K = hat(phi)
     if a < 1e-6:
         return np.eye(3) + 0.5 * K + K @ K / 12.0
@@ -126,35 +127,41 @@ def right_jacobian_inv(phi: npt.ArrayLike) -> FloatArray:
 
 def quat_xyzw_from_matrix(R: npt.ArrayLike) -> FloatArray:
     """Unit quaternion (x, y, z, w), ``w ≥ 0``, of a rotation matrix (Shepperd's method)."""
-    m = np.asarray(R, dtype=float)
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
-    k = int(np.argmax([tr, m[0, 0], m[1, 1], m[2, 2]]))
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = np.asarray(R, dtype=float).tolist()
+    tr = m00 + m11 + m22
+    k = max(range(4), key=(tr, m00, m11, m22).__getitem__)
     if k == 0:
         w = 0.5 * math.sqrt(max(1.0 + tr, 0.0))
         f = 0.25 / w
-        q = np.array([(m[2, 1] - m[1, 2]) * f, (m[0, 2] - m[2, 0]) * f, (m[1, 0] - m[0, 1]) * f, w])
+        q = [(m21 - m12) * f, (m02 - m20) * f, (m10 - m01) * f, w]
     elif k == 1:
-        x = 0.5 * math.sqrt(max(1.0 + 2 * m[0, 0] - tr, 0.0))
+        x = 0.5 * math.sqrt(max(1.0 + 2 * m00 - tr, 0.0))
         f = 0.25 / x
-        q = np.array([x, (m[0, 1] + m[1, 0]) * f, (m[0, 2] + m[2, 0]) * f, (m[2, 1] - m[1, 2]) * f])
+        q = [x, (m01 + m10) * f, (m02 + m20) * f, (m21 - m12) * f]
     elif k == 2:
-        y = 0.5 * math.sqrt(max(1.0 + 2 * m[1, 1] - tr, 0.0))
+        y = 0.5 * math.sqrt(max(1.0 + 2 * m11 - tr, 0.0))
         f = 0.25 / y
-        q = np.array([(m[0, 1] + m[1, 0]) * f, y, (m[1, 2] + m[2, 1]) * f, (m[0, 2] - m[2, 0]) * f])
+        q = [(m01 + m10) * f, y, (m12 + m21) * f, (m02 - m20) * f]
     else:
-        z = 0.5 * math.sqrt(max(1.0 + 2 * m[2, 2] - tr, 0.0))
+        z = 0.5 * math.sqrt(max(1.0 + 2 * m22 - tr, 0.0))
         f = 0.25 / z
-        q = np.array([(m[0, 2] + m[2, 0]) * f, (m[1, 2] + m[2, 1]) * f, z, (m[1, 0] - m[0, 1]) * f])
-    q /= np.linalg.norm(q)
-    return q if q[3] >= 0 else -q
+        q = [(m02 + m20) * f, (m12 + m21) * f, z, (m10 - m01) * f]
+    scale = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if q[3] < 0:
+        scale = -scale
+    return np.array(q) * scale
 
 
 def matrix_from_quat_xyzw(quat_xyzw: npt.ArrayLike) -> FloatArray:
     """Rotation matrix of a quaternion in xyzw order (normalised here)."""
     q = np.asarray(quat_xyzw, dtype=float)
-    if q.shape != (4,) or not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-12:
+    if q.shape != (4,):
         raise ValueError(f"quat_xyzw must be a finite non-zero (4,) array, got {quat_xyzw!r}")
-    x, y, z, w = q / np.linalg.norm(q)
+    x, y, z, w = q.tolist()
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    if not (math.isfinite(n) and n >= 1e-12):
+        raise ValueError(f"quat_xyzw must be a finite non-zero (4,) array, got {quat_xyzw!r}")
+    x, y, z, w = x / n, y / n, z / n, w / n
     return np.array(
         [
             [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
@@ -167,7 +174,7 @@ def matrix_from_quat_xyzw(quat_xyzw: npt.ArrayLike) -> FloatArray:
 def _gamma(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
     """:math:`\\int_0^1 \\mathrm{Exp}(\\sigma\\theta)d\\sigma` and
     :math:`\\int_0^1 (1-\\sigma)\\mathrm{Exp}(\\sigma\\theta)d\\sigma`."""
-    a = float(np.linalg.norm(theta))
+    a = math.sqrt(float(theta @ theta))
     K = hat(theta)
     K2 = K @ K
     if a < 1e-4:
@@ -182,7 +189,7 @@ def _gamma(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 def _vec3(name: str, value: npt.ArrayLike) -> FloatArray:
     arr = np.asarray(value, dtype=float)
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+    if arr.shape != (3,) or not math.isfinite(arr[0] + arr[1] + arr[2]):
         raise ValueError(f"{name} must be a finite (3,) array, got {value!r}")
     return arr
 
@@ -192,6 +199,66 @@ def _time(name: str, value: float) -> float:
     if not math.isfinite(t):
         raise ValueError(f"{name} must be a finite time in s, got {value!r}")
     return t
+
+
+# ------------------------------------------------------------- batched SO(3)
+# The same maps over stacks of K vectors / matrices (shapes (K, 3), (K, 3, 3)); the
+# window solver evaluates all its factors at once with them.
+
+
+def _hat_n(v: FloatArray) -> FloatArray:
+    """Skew matrices (K, 3, 3) of vectors (K, 3)."""
+    K = np.zeros((len(v), 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
+    return K
+
+
+def _series_n(
+    phi: FloatArray, small: float
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """``(K, K², mask of angles below small, angle with 1 there)`` of rotation vectors (K, 3)."""
+    a = np.linalg.norm(phi, axis=1)
+    K = _hat_n(phi)
+    K2 = K @ K
+    tiny = a < small
+    return K, K2, tiny, np.where(tiny, 1.0, a)
+
+
+def _exp_n(phi: FloatArray) -> FloatArray:
+    """:func:`so3_exp` of rotation vectors (K, 3) → (K, 3, 3)."""
+    K, K2, tiny, s = _series_n(phi, 1e-8)
+    c1 = np.where(tiny, 1.0, np.sin(s) / s)
+    c2 = np.where(tiny, 0.5, (1.0 - np.cos(s)) / s**2)
+    return np.eye(3) + c1[:, None, None] * K + c2[:, None, None] * K2
+
+
+def _jr_n(phi: FloatArray) -> FloatArray:
+    """:func:`right_jacobian` of rotation vectors (K, 3) → (K, 3, 3)."""
+    K, K2, tiny, s = _series_n(phi, 1e-6)
+    c1 = np.where(tiny, 0.5, (1 - np.cos(s)) / s**2)
+    c2 = np.where(tiny, 1.0 / 6.0, (s - np.sin(s)) / s**3)
+    return np.eye(3) - c1[:, None, None] * K + c2[:, None, None] * K2
+
+
+def _jr_inv_n(phi: FloatArray) -> FloatArray:
+    """:func:`right_jacobian_inv` of rotation vectors (K, 3) → (K, 3, 3)."""
+    K, K2, tiny, s = _series_n(phi, 1e-6)
+    c = np.where(tiny, 1.0 / 12.0, 1.0 / s**2 - (1 + np.cos(s)) / (2 * s * np.sin(s)))
+    return np.eye(3) + 0.5 * K + c[:, None, None] * K2
+
+
+def _log_n(R: FloatArray) -> FloatArray:
+    """:func:`so3_log` of rotation matrices (K, 3, 3) → (K, 3) (near π: the scalar one)."""
+    cos_a = np.clip(0.5 * (np.trace(R, axis1=1, axis2=2) - 1.0), -1.0, 1.0)
+    w = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], 1)
+    a = np.arccos(cos_a)
+    near0 = cos_a > 1.0 - 1e-10
+    f = np.where(near0, 0.5, a / (2.0 * np.sin(np.where(near0, 1.0, a))))
+    out = f[:, None] * w
+    for k in np.flatnonzero(cos_a < -0.99):
+        out[k] = so3_log(R[k])
+    return out
 
 
 # --------------------------------------------------------------------------- measurements
@@ -443,7 +510,13 @@ class Preintegration:
         self.cov = np.zeros((9, 9))
 
     def integrate(self, gyro: npt.ArrayLike, accel: npt.ArrayLike, dt: float) -> None:
-        """Add one reading held for ``dt`` s (``dt = 0`` is a no-op)."""
+        """Add one reading held for ``dt`` s (``dt = 0`` is a no-op).
+
+        :math:`\\mathrm{Exp}(\\theta)`, :math:`J_r(\\theta)`, :math:`\\Gamma_1` and
+        :math:`\\Gamma_2` share :math:`[\\theta]_\\times` and its square; the
+        accelerometer noise enters the covariance through :math:`\\Delta R` only as
+        :math:`\\Delta R \\Delta R^\\top = I`, so its term is a constant pattern.
+        """
         if not (math.isfinite(dt) and dt >= 0.0):
             raise ValueError(f"dt must be a non-negative time in s, got {dt!r}")
         if dt == 0.0:
@@ -451,32 +524,54 @@ class Preintegration:
         w = np.asarray(gyro, dtype=float) - self.bias_gyro
         a = np.asarray(accel, dtype=float) - self.bias_accel
         theta = w * dt
-        E = so3_exp(theta)
-        Jr = right_jacobian(theta)
-        g1, g2 = _gamma(theta)
+        ang = math.sqrt(float(theta @ theta))
+        K = hat(theta)
+        K2 = K @ K
+        eye = np.eye(3)
+        if ang < 1e-8:
+            E = eye + K + 0.5 * K2
+        else:
+            E = eye + (math.sin(ang) / ang) * K + ((1.0 - math.cos(ang)) / ang**2) * K2
+        if ang < 1e-6:
+            Jr = eye - 0.5 * K + K2 / 6.0
+        else:
+            c1 = (1 - math.cos(ang)) / ang**2
+            c2 = (ang - math.sin(ang)) / ang**3
+            Jr = eye - c1 * K + c2 * K2
+        if ang < 1e-4:
+            g1 = eye + K / 2.0 + K2 / 6.0
+            g2 = 0.5 * eye + K / 6.0 + K2 / 24.0
+        else:
+            sn, cs = math.sin(ang), math.cos(ang)
+            g1 = eye + ((1 - cs) / ang**2) * K + ((ang - sn) / ang**3) * K2
+            g2 = 0.5 * eye + ((ang - sn) / ang**3) * K + ((ang * ang / 2 - 1 + cs) / ang**4) * K2
         dR = self.delta_R
-        a_hat = hat(a)
+        dR_a = dR @ hat(a)
+        dR_a_J = dR_a @ self.J_R_bg
+        dt2 = dt * dt
         # Jacobians (old ΔR), p before v before R
-        self.J_p_ba = self.J_p_ba + self.J_v_ba * dt - 0.5 * dR * dt * dt
-        self.J_p_bg = self.J_p_bg + self.J_v_bg * dt - 0.5 * dR @ a_hat @ self.J_R_bg * dt * dt
+        self.J_p_ba = self.J_p_ba + self.J_v_ba * dt - 0.5 * dR * dt2
+        self.J_p_bg = self.J_p_bg + self.J_v_bg * dt - 0.5 * dR_a_J * dt2
         self.J_v_ba = self.J_v_ba - dR * dt
-        self.J_v_bg = self.J_v_bg - dR @ a_hat @ self.J_R_bg * dt
+        self.J_v_bg = self.J_v_bg - dR_a_J * dt
         self.J_R_bg = E.T @ self.J_R_bg - Jr * dt
         # covariance of [dtheta, dv, dp]
         A = np.eye(9)
         A[0:3, 0:3] = E.T
-        A[3:6, 0:3] = -dR @ a_hat * dt
-        A[6:9, 0:3] = -0.5 * dR @ a_hat * dt * dt
-        A[6:9, 3:6] = np.eye(3) * dt
-        Bg = np.zeros((9, 3))
-        Bg[0:3] = Jr * dt
-        Ba = np.zeros((9, 3))
-        Ba[3:6] = dR * dt
-        Ba[6:9] = 0.5 * dR * dt * dt
-        self.cov = A @ self.cov @ A.T + (self._sg2 / dt) * Bg @ Bg.T + (self._sa2 / dt) * Ba @ Ba.T
+        A[3:6, 0:3] = -dR_a * dt
+        A[6:9, 0:3] = -0.5 * dR_a * dt2
+        A[6:9, 3:6] = eye * dt
+        cov = A @ self.cov @ A.T
+        cov[0:3, 0:3] += (self._sg2 * dt) * (Jr @ Jr.T)
+        qa = self._sa2 * dt
+        cov[3:6, 3:6] += qa * eye
+        cov[3:6, 6:9] += (0.5 * qa * dt) * eye
+        cov[6:9, 3:6] += (0.5 * qa * dt) * eye
+        cov[6:9, 6:9] += (0.25 * qa * dt2) * eye
+        self.cov = cov
         # mean
-        self.delta_p = self.delta_p + self.delta_v * dt + dR @ g2 @ a * dt * dt
-        self.delta_v = self.delta_v + dR @ g1 @ a * dt
+        self.delta_p = self.delta_p + self.delta_v * dt + dR @ (g2 @ a) * dt2
+        self.delta_v = self.delta_v + dR @ (g1 @ a) * dt
         self.delta_R = dR @ E
         self.dt += dt
 
@@ -486,6 +581,8 @@ class Preintegration:
         """``(ΔR, Δv, Δp)`` for other biases, to first order (no re-integration)."""
         dbg = np.asarray(bias_gyro, dtype=float) - self.bias_gyro
         dba = np.asarray(bias_accel, dtype=float) - self.bias_accel
+        if not (dbg.any() or dba.any()):  # at the linearisation point (the usual case)
+            return self.delta_R.copy(), self.delta_v.copy(), self.delta_p.copy()
         dR = self.delta_R @ so3_exp(self.J_R_bg @ dbg)
         dv = self.delta_v + self.J_v_bg @ dbg + self.J_v_ba @ dba
         dp = self.delta_p + self.J_p_bg @ dbg + self.J_p_ba @ dba
@@ -788,6 +885,11 @@ class VioConfig:
         Robust loss and its scale on whitened residuals (``"linear"``: none).
     max_iterations
         Iterations per window solve.
+    cost_tolerance
+        The window solve stops once a step lowers the whitened cost (a χ² with
+        ≈ 15 residuals per keyframe, so a standard deviation of several units) by
+        less than this fraction of it, or the linear model predicts less for the
+        next step (–).
     prior_position_sigma, prior_yaw_sigma, prior_tilt_sigma, prior_velocity_sigma,
     prior_gyro_bias_sigma, prior_accel_bias_sigma
         Prior on the first state (m, rad, rad, m/s, rad/s, m/s²).
@@ -813,6 +915,7 @@ class VioConfig:
     loss: str = "huber"
     loss_scale: float = 3.0
     max_iterations: int = 6
+    cost_tolerance: float = 1e-4
     prior_position_sigma: float = 1e-3
     prior_yaw_sigma: float = 1e-3
     prior_tilt_sigma: float = 0.01
@@ -832,6 +935,7 @@ class VioConfig:
             "visual_rotation_sigma",
             "visual_translation_sigma",
             "loss_scale",
+            "cost_tolerance",
             "prior_position_sigma",
             "prior_yaw_sigma",
             "prior_tilt_sigma",
@@ -1018,6 +1122,193 @@ def _prior_residual(
     return r, prior.W @ J
 
 
+@dataclass
+class _Stack:
+    """Window states as arrays: ``R`` (n, 3, 3), ``p, v, bg, ba`` (n, 3)."""
+
+    R: FloatArray
+    p: FloatArray
+    v: FloatArray
+    bg: FloatArray
+    ba: FloatArray
+
+    @classmethod
+    def of(cls, states: Sequence[_State]) -> _Stack:
+        return cls(
+            np.array([s.R for s in states]),
+            np.array([s.p for s in states]),
+            np.array([s.v for s in states]),
+            np.array([s.bg for s in states]),
+            np.array([s.ba for s in states]),
+        )
+
+    def retract(self, dx: FloatArray) -> _Stack:
+        """Right perturbation by ``dx`` (n, 15) = [δθ, δp, δv, δb_g, δb_a] per state."""
+        return _Stack(
+            self.R @ _exp_n(dx[:, 0:3]),
+            self.p + dx[:, 3:6],
+            self.v + dx[:, 6:9],
+            self.bg + dx[:, 9:12],
+            self.ba + dx[:, 12:15],
+        )
+
+    def states(self, times: Sequence[float]) -> list[_State]:
+        return [
+            _State(t, self.R[k], self.p[k], self.v[k], self.bg[k], self.ba[k])
+            for k, t in enumerate(times)
+        ]
+
+
+class _WindowProblem:
+    """The window's least-squares problem with every factor evaluated at once.
+
+    Same residuals and analytic Jacobians as :func:`_prior_residual`,
+    :func:`_imu_residual` and :func:`_visual_residual` (which stay the reference and
+    serve the marginalisation), stacked over the window's ``K = n - 1`` IMU factors
+    and its visual factors, and accumulated straight into the blocks of the
+    block-tridiagonal normal equations.
+    """
+
+    def __init__(
+        self,
+        imu: Sequence[_ImuFactor],
+        vis: Sequence[_VisualFactor | None],
+        prior: _Prior,
+        gravity: FloatArray,
+        loss_scale: float,
+        robust: bool,
+    ) -> None:
+        pres = [f.pre for f in imu]
+        self.T = np.array([q.dt for q in pres])
+        self.dR = np.array([q.delta_R for q in pres])
+        self.dv = np.array([q.delta_v for q in pres])
+        self.dp = np.array([q.delta_p for q in pres])
+        self.bg0 = np.array([q.bias_gyro for q in pres])
+        self.ba0 = np.array([q.bias_accel for q in pres])
+        self.J_R_bg = np.array([q.J_R_bg for q in pres])
+        self.J_v_bg = np.array([q.J_v_bg for q in pres])
+        self.J_v_ba = np.array([q.J_v_ba for q in pres])
+        self.J_p_bg = np.array([q.J_p_bg for q in pres])
+        self.J_p_ba = np.array([q.J_p_ba for q in pres])
+        self.W = np.array([f.W for f in imu])
+        self.W_bias = np.array([f.W_bias for f in imu])
+        self.vis_idx = np.array([k for k, f in enumerate(vis) if f is not None], dtype=int)
+        present = [f for f in vis if f is not None]
+        self.vis_dR = np.array([f.dR for f in present]).reshape(-1, 3, 3)
+        self.vis_dp = np.array([f.dp for f in present]).reshape(-1, 3)
+        self.vis_W = np.array([f.W for f in present]).reshape(-1, 6, 6)
+        self.prior = prior
+        self.g = gravity
+        self.k_h = loss_scale
+        self.robust = robust
+
+    def linearise(self, X: _Stack) -> tuple[float, FloatArray, FloatArray, FloatArray]:
+        """Robust cost and ``D (n, 15, 15), B (n-1, 15, 15), b (n, 15)`` as in
+        :meth:`SlidingWindowVIO._normal_equations`."""
+        n = len(X.p)
+        D = np.zeros((n, 15, 15))
+        B = np.zeros((n - 1, 15, 15))
+        b = np.zeros((n, 15))
+        # prior on state 0
+        s0 = _State(0.0, X.R[0], X.p[0], X.v[0], X.bg[0], X.ba[0])
+        r0, J0 = _prior_residual(s0, self.prior, True)
+        assert J0 is not None
+        cost = float(r0 @ r0)
+        D[0] += J0.T @ J0
+        b[0] += J0.T @ r0
+        if n < 2:
+            return cost, D, B, b
+        # IMU factors k: states k → k + 1
+        T, g = self.T, self.g
+        Ri, Rj = X.R[:-1], X.R[1:]
+        RiT = np.swapaxes(Ri, 1, 2)
+        dbg = X.bg[:-1] - self.bg0
+        dba = X.ba[:-1] - self.ba0
+        corr = np.einsum("kij,kj->ki", self.J_R_bg, dbg)
+        dRc = self.dR @ _exp_n(corr)
+        RiT_Rj = RiT @ Rj
+        E = np.swapaxes(dRc, 1, 2) @ RiT_Rj
+        rR = _log_n(E)
+        dv_w = X.v[1:] - X.v[:-1] - g * T[:, None]
+        dp_w = X.p[1:] - X.p[:-1] - X.v[:-1] * T[:, None] - 0.5 * g * (T * T)[:, None]
+        bv = np.einsum("kij,kj->ki", RiT, dv_w)
+        bp = np.einsum("kij,kj->ki", RiT, dp_w)
+        mv = lambda J, x: np.einsum("kij,kj->ki", J, x)  # noqa: E731
+        rv = bv - (self.dv + mv(self.J_v_bg, dbg) + mv(self.J_v_ba, dba))
+        rp = bp - (self.dp + mv(self.J_p_bg, dbg) + mv(self.J_p_ba, dba))
+        r9 = np.concatenate([rR, rv, rp], axis=1)
+        rb = np.concatenate([X.bg[1:] - X.bg[:-1], X.ba[1:] - X.ba[:-1]], axis=1)
+        r = np.concatenate([mv(self.W, r9), mv(self.W_bias, rb)], axis=1)  # (K, 15)
+        cost += float(np.sum(r * r))
+        K = len(T)
+        Ji = np.zeros((K, 9, 15))
+        Jj = np.zeros((K, 9, 15))
+        Jrinv = _jr_inv_n(rR)
+        Ji[:, 0:3, 0:3] = -Jrinv @ np.swapaxes(RiT_Rj, 1, 2)
+        Jj[:, 0:3, 0:3] = Jrinv
+        Ji[:, 0:3, 9:12] = -Jrinv @ np.swapaxes(E, 1, 2) @ _jr_n(corr) @ self.J_R_bg
+        Ji[:, 3:6, 0:3] = _hat_n(bv)
+        Ji[:, 3:6, 6:9] = -RiT
+        Jj[:, 3:6, 6:9] = RiT
+        Ji[:, 3:6, 9:12] = -self.J_v_bg
+        Ji[:, 3:6, 12:15] = -self.J_v_ba
+        Ji[:, 6:9, 0:3] = _hat_n(bp)
+        Ji[:, 6:9, 3:6] = -RiT
+        Jj[:, 6:9, 3:6] = RiT
+        Ji[:, 6:9, 6:9] = -RiT * T[:, None, None]
+        Ji[:, 6:9, 9:12] = -self.J_p_bg
+        Ji[:, 6:9, 12:15] = -self.J_p_ba
+        Ji_f = np.zeros((K, 15, 15))
+        Jj_f = np.zeros((K, 15, 15))
+        Ji_f[:, :9] = self.W @ Ji
+        Jj_f[:, :9] = self.W @ Jj
+        Ji_f[:, 9:, 9:] = -self.W_bias
+        Jj_f[:, 9:, 9:] = self.W_bias
+        JiT, JjT = np.swapaxes(Ji_f, 1, 2), np.swapaxes(Jj_f, 1, 2)
+        D[:-1] += JiT @ Ji_f
+        D[1:] += JjT @ Jj_f
+        B += JjT @ Ji_f
+        b[:-1] += mv(JiT, r)
+        b[1:] += mv(JjT, r)
+        # visual factors (Huber-weighted blocks)
+        idx = self.vis_idx
+        if len(idx):
+            Ri_v, Rj_v = X.R[idx], X.R[idx + 1]
+            RiT_v = np.swapaxes(Ri_v, 1, 2)
+            RiT_Rj_v = RiT_v @ Rj_v
+            Ev = np.swapaxes(self.vis_dR, 1, 2) @ RiT_Rj_v
+            rRv = _log_n(Ev)
+            bd = np.einsum("kij,kj->ki", RiT_v, X.p[idx + 1] - X.p[idx])
+            rv6 = mv(self.vis_W, np.concatenate([rRv, bd - self.vis_dp], axis=1))
+            nr = np.linalg.norm(rv6, axis=1)
+            w = np.ones(len(idx))
+            if self.robust:
+                big = nr > self.k_h
+                w = np.where(big, self.k_h / np.where(big, nr, 1.0), 1.0)
+                cost += float(np.sum(np.where(big, 2.0 * self.k_h * nr - self.k_h**2, nr * nr)))
+            else:
+                cost += float(np.sum(nr * nr))
+            M = len(idx)
+            Jvi = np.zeros((M, 6, 15))
+            Jvj = np.zeros((M, 6, 15))
+            Jr_v = _jr_inv_n(rRv)
+            Jvi[:, 0:3, 0:3] = -Jr_v @ np.swapaxes(RiT_Rj_v, 1, 2)
+            Jvj[:, 0:3, 0:3] = Jr_v
+            Jvi[:, 3:6, 0:3] = _hat_n(bd)
+            Jvi[:, 3:6, 3:6] = -RiT_v
+            Jvj[:, 3:6, 3:6] = RiT_v
+            Jvi = self.vis_W @ Jvi
+            Jvj = self.vis_W @ Jvj
+            JviT = np.swapaxes(Jvi, 1, 2) * w[:, None, None]
+            JvjT = np.swapaxes(Jvj, 1, 2) * w[:, None, None]
+            D[idx] += JviT @ Jvi  # idx is unique: one visual factor per interval
+            D[idx + 1] += JvjT @ Jvj
+            B[idx] += JvjT @ Jvi
+            b[idx] += mv(JviT, rv6)
+            b[idx + 1] += mv(JvjT, rv6)
+        return cost, D, B, b
+
+
 class SlidingWindowVIO:
     """Sliding-window visual-inertial odometry (world = gravity-aligned VIO frame).
 
@@ -1143,10 +1434,20 @@ class SlidingWindowVIO:
         )
 
     def keyframe_estimate(self) -> ClimbEstimate:
-        """The newest keyframe's state (no IMU propagation)."""
+        """The newest keyframe's state (no IMU propagation).
+
+        ``extras["previous_keyframe"]`` is ``(t, position, R)`` of the keyframe before
+        it *in the same window solution* (absent for the first keyframe): the
+        relative motion between the two is the VIO's current best estimate, whereas
+        the previous keyframe's own estimate at its creation has since been refined.
+        """
         if not self._states:
             return self.estimate()
         s = self._states[-1]
+        extras: dict[str, Any] = {"bias_gyro": s.bg.copy(), "bias_accel": s.ba.copy()}
+        if len(self._states) > 1:
+            q = self._states[-2]
+            extras["previous_keyframe"] = (q.t, q.p.copy(), q.R.copy())
         return ClimbEstimate(
             t=s.t,
             position=s.p.copy(),
@@ -1156,7 +1457,7 @@ class SlidingWindowVIO:
             ok=self._status == "ok",
             status=self._status,
             frame="world",
-            extras=MappingProxyType({"bias_gyro": s.bg.copy(), "bias_accel": s.ba.copy()}),
+            extras=MappingProxyType(extras),
         )
 
     # ---------------------------------------------------------------- measurements
@@ -1398,23 +1699,25 @@ class SlidingWindowVIO:
     def _solve_block_tridiagonal(
         D: FloatArray, B: FloatArray, rhs: FloatArray
     ) -> tuple[FloatArray, FloatArray]:
-        """Solve :math:`H x = rhs` by block Cholesky; also return the last diagonal factor."""
+        """Solve :math:`H x = rhs` for the block-tridiagonal ``H`` (diagonal blocks ``D``,
+        sub-diagonal blocks ``B``) by one dense Cholesky factorisation (for a window of
+        ~8 states one LAPACK call beats a Python loop over the blocks); also return the
+        last diagonal block of the factor (the newest state's information).
+
+        Raises :class:`numpy.linalg.LinAlgError` if ``H`` is not positive definite.
+        """
         n = len(D)
-        L = np.empty_like(D)
-        C = np.empty_like(B)
-        y = np.empty_like(rhs)
-        L[0] = np.linalg.cholesky(D[0])
-        y[0] = np.linalg.solve(L[0], rhs[0])
-        for k in range(1, n):
-            C[k - 1] = np.linalg.solve(L[k - 1], B[k - 1].T).T  # B L^{-T}
-            Dk = D[k] - C[k - 1] @ C[k - 1].T
-            L[k] = np.linalg.cholesky(0.5 * (Dk + Dk.T))
-            y[k] = np.linalg.solve(L[k], rhs[k] - C[k - 1] @ y[k - 1])
-        x = np.empty_like(rhs)
-        x[n - 1] = np.linalg.solve(L[n - 1].T, y[n - 1])
-        for k in range(n - 2, -1, -1):
-            x[k] = np.linalg.solve(L[k].T, y[k] - C[k].T @ x[k + 1])
-        return x, L[n - 1]
+        H = np.zeros((n, 15, n, 15))
+        k = np.arange(n)
+        H[k, :, k, :] = D
+        H[k[1:], :, k[:-1], :] = B
+        H[k[:-1], :, k[1:], :] = np.swapaxes(B, 1, 2)
+        L = np.linalg.cholesky(H.reshape(15 * n, 15 * n))
+        y = solve_triangular(L, rhs.reshape(-1), lower=True, check_finite=False)
+        x = solve_triangular(L.T, y, lower=False, check_finite=False)
+        if not np.all(np.isfinite(x)):
+            raise np.linalg.LinAlgError("non-finite solution of the window's normal equations")
+        return x.reshape(n, 15), L[-15:, -15:]
 
     def _optimise(self) -> None:
         n = len(self._states)
@@ -1441,13 +1744,27 @@ class SlidingWindowVIO:
 
     def _optimise_lm(self) -> tuple[FloatArray, FloatArray]:
         """Levenberg–Marquardt with Huber IRLS weights on the visual factors; returns the
-        blocks of :math:`H` at the solution."""
-        states = self._states
-        n = len(states)
-        cost, D, B, b = self._normal_equations(self._factors(states, True), n)
+        blocks of :math:`H` at the solution. All factors are evaluated at once
+        (:class:`_WindowProblem`); the previous solution warm-starts every state but
+        the newest."""
+        assert self._prior is not None
+        times = [s.t for s in self._states]
+        n = len(times)
+        cfg = self.config
+        problem = _WindowProblem(
+            self._imu_factors,
+            self._vis_factors,
+            self._prior,
+            cfg.gravity_vector,
+            cfg.loss_scale,
+            cfg.loss != "linear",
+        )
+        X = _Stack.of(self._states)
+        cost, D, B, b = problem.linearise(X)
         lam = 1e-6
         eye = np.eye(15)
-        for _ in range(self.config.max_iterations):
+        tol = cfg.cost_tolerance
+        for it in range(cfg.max_iterations):
             diag = np.einsum("kii->ki", D)
             A = D + (lam * diag)[:, :, None] * eye + 1e-12 * eye
             try:
@@ -1455,19 +1772,26 @@ class SlidingWindowVIO:
             except np.linalg.LinAlgError:
                 lam *= 10.0
                 continue
-            trial = [s.retract(dx[k]) for k, s in enumerate(states)]
-            new_cost, D_new, B_new, b_new = self._normal_equations(self._factors(trial, True), n)
+            if it > 0:
+                # decrease of ‖r‖² predicted by the linear model at X:
+                # -2 bᵀdx - dxᵀ H dx with (H + λ diag) dx = -b
+                predicted = float(-np.sum(b * dx) + lam * np.sum(diag * dx * dx))
+                if predicted < tol * max(cost, 1.0):
+                    break
+            trial = X.retract(dx)
+            new_cost, D_new, B_new, b_new = problem.linearise(trial)
             if np.isfinite(new_cost) and new_cost <= cost:
                 decrease = cost - new_cost
-                states, cost, D, B, b = trial, new_cost, D_new, B_new, b_new
+                X, cost, D, B, b = trial, new_cost, D_new, B_new, b_new
                 lam = max(lam / 10.0, 1e-9)
-                if float(np.max(np.abs(dx))) < 1e-7 or decrease < 1e-6 * max(cost, 1.0):
+                if float(np.max(np.abs(dx))) < 1e-7 or decrease < tol * max(cost, 1.0):
                     break
             else:
                 lam *= 10.0
                 if lam > 1e6:
                     break
-        self._states = states
+        self._states = X.states(times)
+        assert len(self._states) == n
         return D, B
 
     def _optimise_scipy(self) -> None:

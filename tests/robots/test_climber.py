@@ -105,3 +105,42 @@ def test_bad_parameters_are_clear_errors() -> None:
         ClimbFaults(tether_slack_rate=-1.0)
     with pytest.raises(TypeError, match="did you mean 's'"):
         make_effect("climber_spool_scale", ss=1.0)
+
+
+def test_caster_pitch_limit_is_where_a_caster_touches_the_contact_plane() -> None:
+    """Turned about the axle by the limit, the front caster sphere touches the wheels'
+    contact plane z = -r (body frame, flat surface); at half the limit it is clear."""
+    prm = ClimberParams()
+    r, rc, a = prm.wheel_radius, prm.caster_radius, prm.caster_offset
+    cz = -(r - rc) + prm.caster_clearance
+
+    def caster_gap(theta: float) -> float:  # caster-sphere bottom above z = -r, m
+        z = -a * np.sin(theta) + cz * np.cos(theta)  # (a, 0, cz) turned about y
+        return z - rc + r
+
+    limit = prm.caster_pitch_limit
+    assert caster_gap(limit) == pytest.approx(0.0, abs=1e-12)
+    assert caster_gap(0.5 * limit) > 0.0
+    assert limit == pytest.approx(prm.caster_clearance / prm.caster_offset, rel=0.05)
+    cfg = prm.constrained_config()
+    assert cfg.wheel_track == prm.wheelbase and cfg.pitch_sigma == limit
+
+
+def test_local_nearest_sample_matches_the_tree() -> None:
+    from scipy.spatial import cKDTree
+
+    from realitygap.robots.climber import _LocalNearest
+
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(0.0, 1.0, (5000, 3))
+    pts[:, 2] = 0.02 * np.sin(6 * pts[:, 0])
+    tree = cKDTree(pts)
+    nearest = _LocalNearest(tree, pts, radius=0.05)
+    q = np.array([0.5, 0.5, 0.04])
+    for k in range(3000):
+        q = q + rng.normal(0.0, 0.003, 3)
+        q[:2] = np.clip(q[:2], 0.05, 0.95)
+        q[2] = 0.04 + 0.03 * np.sin(k / 50)
+        if k == 1500:
+            q = q + np.array([0.3, 0.0, 0.5])  # a jump far off the cloud
+        assert nearest(q) == tree.query(q)[1]

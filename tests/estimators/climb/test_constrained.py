@@ -235,3 +235,30 @@ def test_localiser_phases_on_synthetic_recording(surface: SurfaceModel) -> None:
     assert all(e.frame == "cad" for e in between)
     with pytest.raises(ValueError, match="no initial state"):
         loc.reset(initial=last)  # type: ignore[arg-type]
+
+
+def test_increment_is_taken_within_the_current_vio_solution(surface: SurfaceModel) -> None:
+    """The previous keyframe as re-estimated in the VIO's current window (extras) is
+    the start of the increment, not its stale estimate from one keyframe earlier."""
+    cfg = ConstrainedConfig(use_tether=False, use_surface=False, use_gravity=False)
+    ekf = ConstrainedEstimator(surface, ANCHOR, SC.h, cfg)
+    start = ClimbEstimate(t=0.0, position=np.zeros(3), quat_xyzw=np.array([0, 0, 0, 1.0]))
+    ekf.reset(dataclasses.replace(start, frame="cad"))
+    ekf.update(start)
+    refined_prev = (0.0, np.array([0.004, -0.003, 0.0]), np.eye(3))
+    new = ClimbEstimate(
+        t=0.1,
+        position=np.array([0.1, 0.0, 0.0]),
+        quat_xyzw=np.array([0, 0, 0, 1.0]),
+        extras={"previous_keyframe": refined_prev},
+    )
+    est = ekf.update(new)
+    np.testing.assert_allclose(est.position, [0.096, 0.003, 0.0], atol=1e-12)
+    # a previous keyframe of another time (e.g. after a reset) is not used
+    later = ClimbEstimate(
+        t=0.2,
+        position=np.array([0.2, 0.0, 0.0]),
+        quat_xyzw=np.array([0, 0, 0, 1.0]),
+        extras={"previous_keyframe": (0.15, np.zeros(3), np.eye(3))},
+    )
+    np.testing.assert_allclose(ekf.update(later).position, [0.196, 0.003, 0.0], atol=1e-12)

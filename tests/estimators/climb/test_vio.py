@@ -372,3 +372,86 @@ def test_update_errors() -> None:
         vio.update("frame")  # type: ignore[arg-type]
     with pytest.raises(TypeError, match="VioConfig"):
         SlidingWindowVIO("fast")  # type: ignore[arg-type]
+
+
+# ------------------------------------------------------------------ window solver
+
+
+def test_batched_window_linearisation_matches_the_per_factor_reference(
+    loop_recording: ClimbRecording,
+) -> None:
+    """All factors evaluated at once give the per-factor residuals, Jacobians and normal
+    equations, also away from the optimum (perturbed states)."""
+    from realitygap.estimators.climb import vio as vio_module
+
+    ms = [
+        m
+        for m in loop_recording.measurements
+        if not isinstance(m, TetherReading)
+        and (m.t1 if isinstance(m, RelativeMotion) else m.t) < 4.0
+    ]
+    vio = SlidingWindowVIO()
+    _run(vio, ms)
+    assert len(vio._states) == vio.config.window_size
+    rng = np.random.default_rng(3)
+    states = [s.retract(rng.normal(0, 0.02, 15)) for s in vio._states]
+    cfg = vio.config
+    # one visual factor far off so that its Huber weight is active
+    vis = list(vio._vis_factors)
+    k = next(i for i, f in enumerate(vis) if f is not None)
+    vis[k] = dataclasses.replace(vis[k], dp=vis[k].dp + 0.05)
+    vio._vis_factors = vis
+    cost0, D0, B0, b0 = vio._normal_equations(vio._factors(states, True), len(states))
+    problem = vio_module._WindowProblem(
+        vio._imu_factors, vis, vio._prior, cfg.gravity_vector, cfg.loss_scale, True
+    )
+    cost1, D1, B1, b1 = problem.linearise(vio_module._Stack.of(states))
+    assert cost1 == pytest.approx(cost0, rel=1e-12)
+    np.testing.assert_allclose(D1, D0, rtol=1e-10, atol=1e-9 * np.abs(D0).max())
+    np.testing.assert_allclose(B1, B0, rtol=1e-10, atol=1e-9 * np.abs(B0).max())
+    np.testing.assert_allclose(b1, b0, rtol=1e-10, atol=1e-9 * np.abs(b0).max())
+    # the dense factorisation solves the block-tridiagonal system
+    n = len(states)
+    A = D0 + 1e-3 * np.eye(15)
+    x, L_last = SlidingWindowVIO._solve_block_tridiagonal(A, B0, b0)
+    H = np.zeros((15 * n, 15 * n))
+    for i in range(n):
+        H[15 * i : 15 * i + 15, 15 * i : 15 * i + 15] = A[i]
+        if i < n - 1:
+            H[15 * i + 15 : 15 * i + 30, 15 * i : 15 * i + 15] = B0[i]
+            H[15 * i : 15 * i + 15, 15 * i + 15 : 15 * i + 30] = B0[i].T
+    np.testing.assert_allclose(H @ x.reshape(-1), b0.reshape(-1), atol=1e-8 * np.abs(b0).max())
+    cov_last = np.linalg.inv(H)[-15:, -15:]
+    L_inv = np.linalg.inv(L_last)
+    np.testing.assert_allclose(L_inv.T @ L_inv, cov_last, rtol=1e-6, atol=1e-12)
+
+
+def test_batched_so3_maps_match_the_scalar_ones() -> None:
+    from realitygap.estimators.climb import vio as vio_module
+
+    rng = np.random.default_rng(5)
+    phi = np.vstack([rng.normal(0, s, (4, 3)) for s in (1e-9, 1e-5, 1e-2, 1.0)])
+    phi = np.vstack([phi, [[0.0, 0.0, 3.1]]])  # near π: the scalar log's branch
+    R = vio_module._exp_n(phi)
+    for k, v in enumerate(phi):
+        np.testing.assert_allclose(R[k], so3_exp(v), atol=1e-14)
+        np.testing.assert_allclose(vio_module._log_n(R)[k], so3_log(so3_exp(v)), atol=1e-10)
+        np.testing.assert_allclose(vio_module._jr_n(phi)[k], right_jacobian(v), atol=1e-12)
+        np.testing.assert_allclose(vio_module._jr_inv_n(phi)[k], right_jacobian_inv(v), atol=1e-9)
+
+
+def test_keyframe_estimate_carries_the_refined_previous_keyframe(
+    loop_recording: ClimbRecording,
+) -> None:
+    ms = [
+        m
+        for m in loop_recording.measurements
+        if not isinstance(m, TetherReading)
+        and (m.t1 if isinstance(m, RelativeMotion) else m.t) < 3.0
+    ]
+    vio = SlidingWindowVIO()
+    kfs = _run(vio, ms)
+    t_prev, p_prev, R_prev = vio.keyframe_estimate().extras["previous_keyframe"]
+    assert t_prev == kfs[-2].t
+    np.testing.assert_array_equal(p_prev, vio._states[-2].p)
+    np.testing.assert_array_equal(R_prev, vio._states[-2].R)
