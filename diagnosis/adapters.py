@@ -374,6 +374,7 @@ ADAPTERS: dict[str, RobotAdapter] = {"diffdrive": DiffDriveAdapter()}
 
 LAZY_ADAPTERS: dict[str, str] = {
     "arm": "realitygap.diagnosis.arm_adapter:ArmAdapter",
+    "climber": "realitygap.diagnosis.climb_adapter:ClimberAdapter",
 }
 """``robot`` → ``"module:Class"`` of adapters built when first asked for."""
 

@@ -37,6 +37,7 @@ from realitygap.diagnosis.attribute import (
     Problem,
     Verdict,
     _finish,
+    _spec,
     _to_u,
     describe_residual,
     fit_model,
@@ -390,6 +391,34 @@ def _identifiability(problem: Problem, a: ModelFit, b: ModelFit) -> dict[str, An
     return out
 
 
+def _pinned(problem: Problem, fit: ModelFit) -> list[str]:
+    """Parameters of ``fit`` that sit at the far edge of their plausible range and matter.
+
+    An effect fitted at the bound of its plausible range (the end away from "no
+    effect") is being stretched to absorb a gap it does not cause. Parameters
+    the logs cannot see (moving them back to nominal changes the training
+    residual by less than the floor) are ignored.
+    """
+    out = []
+    point = {k: np.array([v]) for k, v in fit.values.items()}
+    base: FloatArray | None = None
+    for key, value in fit.values.items():
+        spec = _spec(key)
+        span = spec.high - spec.low
+        at_low = spec.low != spec.nominal and value - spec.low < 0.005 * span
+        at_high = spec.high != spec.nominal and spec.high - value < 0.005 * span
+        if not (at_low or at_high):
+            continue
+        if base is None:
+            base = problem.surrogate_residuals(problem.train, point, 1)[0]
+        alt = problem.surrogate_residuals(
+            problem.train, {**point, key: np.array([spec.nominal])}, 1
+        )[0]
+        if float(np.sqrt(np.mean((alt - base) ** 2))) > problem.settings.floor:
+            out.append(key)
+    return out
+
+
 def _confidence(margin: float, settings: AttributionSettings) -> str:
     if margin >= settings.margin_strong:
         return "strong"
@@ -642,6 +671,22 @@ def diagnose(
             (),
             f"the best candidate ({best.name}) closes only {shrink_all:.0f} % of the held-out "
             f"gap (needs {100 * st.min_shrink:.0f} %)",
+            margin,
+            "n/a",
+            best_desc,
+        )
+    elif pinned := _pinned(problem, best):
+        edges = ", ".join(
+            f"{k} = {best.values[k]:.4g} {_spec(k).unit} (range {_spec(k).low:g} … "
+            f"{_spec(k).high:g})"
+            for k in pinned
+        )
+        verdict = Verdict(
+            "unexplained",
+            (),
+            f"the best candidate ({best.name}, {shrink_all:.0f} % of the held-out gap) needs "
+            f"{edges}: at the edge of the plausible range, so the effect is being stretched to "
+            "absorb a gap it does not cause",
             margin,
             "n/a",
             best_desc,

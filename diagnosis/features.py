@@ -23,6 +23,11 @@ poses and its feature the six distances between their tool points
 robot base can change. Its regime says how far the arm reaches out
 (``folded``, ``mid_reach``, ``outstretched``), i.e. how hard gravity loads
 the shoulder and elbow (see :mod:`realitygap.diagnosis.arm_adapter`).
+
+A climber's windows compare the mean tether reading (``tether``, m) and the
+mean ride height above the CAD surface (``surface``, m); its regimes are
+``standing``, ``climbing``, ``descending`` and ``traversing``
+(:mod:`realitygap.diagnosis.climb_adapter`).
 """
 
 from __future__ import annotations
@@ -56,12 +61,16 @@ FEATURE_COLUMNS: dict[str, tuple[str, ...]] = {
     "ticks": ("left", "right"),
     "pose_cam": ("ex", "ey", "etheta"),
     "tool_dist": TOOL_DIST_COLUMNS,
+    "tether": ("length",),
+    "surface": ("height",),
 }
 FEATURE_UNITS: dict[str, tuple[str, ...]] = {
     "pose_gt": ("m", "m", "rad"),
     "ticks": ("m", "m"),
     "pose_cam": ("m", "m", "rad"),
     "tool_dist": ("m",) * len(TOOL_DIST_COLUMNS),
+    "tether": ("m",),
+    "surface": ("m",),
 }
 REGIMES: tuple[str, ...] = (
     "standing",
@@ -73,6 +82,10 @@ REGIMES: tuple[str, ...] = (
     "folded",
     "mid_reach",
     "outstretched",
+    # climber windows, by the true motion on the blade
+    "climbing",
+    "descending",
+    "traversing",
 )
 
 
@@ -82,6 +95,8 @@ def _default_scales() -> dict[str, tuple[float, ...]]:
         "ticks": (0.002, 0.002),
         "pose_cam": (0.002, 0.002, 0.003),
         "tool_dist": (1e-4,) * len(TOOL_DIST_COLUMNS),
+        "tether": (1e-3,),
+        "surface": (1e-3,),
     }
 
 
@@ -97,7 +112,8 @@ class FeatureSettings:
         Residual size that counts as one unit per column (SI units per
         window): the weights of the fit and of the statistics. Defaults:
         ground truth 2 mm, 2 mm, 2 mrad; encoder travel 2 mm per wheel;
-        camera 2 mm, 2 mm, 3 mrad; arm tool-point distances 0.1 mm.
+        camera 2 mm, 2 mm, 3 mrad; arm tool-point distances 0.1 mm; climber
+        tether and ride height 1 mm.
     standing_speed, standing_rate : float
         Below these commanded speeds (m/s, rad/s) a window is ``standing``.
     turning_rate : float

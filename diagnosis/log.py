@@ -34,13 +34,23 @@ channel       columns             units      role      meaning
                                                        instrument (laser tracker) in its frame
 ============  ==================  =========  ========  ==========================================
 
+Standard channels of a climber (at the tether rate)
+---------------------------------------------------
+
+============  ==========================  ==============  ========  ===========================
+channel       columns                     units           role      meaning
+============  ==========================  ==============  ========  ===========================
+``pose3_gt``  x, y, z, rx, ry, rz         m ×3, rad ×3    truth     body pose (rotation vector)
+``tether``    length                      m               sensor    spool reading
+============  ==========================  ==============  ========  ===========================
+
 Other channels may be stored with any units; the standard ones must use the
 units above (importers convert).
 
 Metadata keys used by the diagnosis
 -----------------------------------
 ``robot``
-    Robot kind, ``"diffdrive"`` or ``"arm"``.
+    Robot kind, ``"diffdrive"``, ``"arm"`` or ``"climber"``.
 ``params``
     Nominal robot parameters in SI units (for a differential drive the fields
     of :class:`~realitygap.robots.diffdrive.DiffDriveParams`, at least
@@ -201,6 +211,17 @@ STANDARD_CHANNELS: dict[str, ChannelSpec] = {
         ("m", "m", "m"),
         Role.TRUTH,
         "tool point measured by an external instrument (laser tracker), in its own frame",
+    ),
+    # climber
+    "pose3_gt": ChannelSpec(
+        "pose3_gt",
+        ("x", "y", "z", "rx", "ry", "rz"),
+        ("m", "m", "m", "rad", "rad", "rad"),
+        Role.TRUTH,
+        "ground-truth 3-D body pose: position and rotation vector in the world (CAD) frame",
+    ),
+    "tether": ChannelSpec(
+        "tether", ("length",), ("m",), Role.SENSOR, "tether length reported by the spool"
     ),
 }
 

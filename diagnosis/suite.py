@@ -15,7 +15,10 @@ For the arm (``SuiteSettings(robot="arm")``) the hidden effects are the
 kinematic, drive and encoder effects of :data:`ARM_HIDDEN_EFFECTS`; each case
 measures one training and one held-out set of random poses of the PyBullet arm
 with a simulated laser tracker
-(:func:`~realitygap.diagnosis.arm_adapter.record_arm_log`).
+(:func:`~realitygap.diagnosis.arm_adapter.record_arm_log`). For the climber
+(``robot="climber"``) each case drives the PyBullet climber along a training
+and a held-out path on the blade
+(:func:`~realitygap.diagnosis.climb_adapter.record_climber_logs`).
 
 :func:`summarise` turns case outcomes into the suite's figures (top-1 / top-2
 accuracy, parameter error, held-out shrink, open-set and false-attribution
@@ -43,6 +46,7 @@ from realitygap.robots.effects import EFFECTS, Reality, make_effect
 
 __all__ = [
     "ARM_HIDDEN_EFFECTS",
+    "CLIMBER_HIDDEN_EFFECTS",
     "HIDDEN_BY_ROBOT",
     "HIDDEN_EFFECTS",
     "BlindCase",
@@ -89,9 +93,22 @@ ARM_HIDDEN_EFFECTS: dict[str, tuple[tuple[str, float, float, bool], ...]] = {
 """Realistic magnitudes of the arm's hidden effects (joint offsets ~0.1°, lengths ~0.5 mm,
 twists ~0.05°, sag of 0.3–1.5 mrad at 30 N·m, play ≤ 1 mrad, encoder scale ≤ 0.1 %)."""
 
+CLIMBER_HIDDEN_EFFECTS: dict[str, tuple[tuple[str, float, float, bool], ...]] = {
+    "climber_tether_sag": (("k", 0.001, 0.004, False),),
+    "climber_anchor_error": tuple((nm, 0.01, 0.04, True) for nm in ("dx", "dy", "dz")),
+    "climber_spool_scale": (("s", 0.004, 0.015, True),),
+    "climber_adsorption_gap": (("gap", 0.002, 0.008, False),),
+}
+"""Realistic magnitudes of the climber's hidden effects: sag of 2.5–10 cm at 5 m, an anchor
+surveyed 1–4 cm off, a spool scale off by 0.4–1.5 %, a skirt worn by 2–8 mm. (A tether
+stretch reads exactly like a spool-scale error and is not drawn separately; the other
+climber effects do not show in tether and ride-height logs, see
+:mod:`~realitygap.diagnosis.climb_adapter`.)"""
+
 HIDDEN_BY_ROBOT: dict[str, dict[str, tuple[tuple[str, float, float, bool], ...]]] = {
     "diffdrive": HIDDEN_EFFECTS,
     "arm": ARM_HIDDEN_EFFECTS,
+    "climber": CLIMBER_HIDDEN_EFFECTS,
 }
 """The hidden-effect table of every robot the suite runs for."""
 
@@ -113,7 +130,7 @@ class SuiteSettings:
         Every this-many-th case withholds a true effect from the library.
     diagnosis : DiagnosisSettings
     robot : str
-        ``"diffdrive"`` or ``"arm"`` (:data:`HIDDEN_BY_ROBOT`).
+        ``"diffdrive"``, ``"arm"`` or ``"climber"`` (:data:`HIDDEN_BY_ROBOT`).
     arm_poses : int
         Arm: measured poses per log (one training and one held-out log).
     arm_tracker_noise : float
@@ -298,6 +315,10 @@ def run_case(settings: SuiteSettings, case: BlindCase) -> dict[str, Any]:
             ]
             for name in ("arm_train", "arm_holdout")
         )
+    elif settings.robot == "climber":
+        from realitygap.diagnosis.climb_adapter import record_climber_logs
+
+        train, holdout = record_climber_logs(reality, rng)
     else:
         train = record_case_logs(reality, rng, settings.noise, TRAIN_MANOEUVRES)
         holdout = record_case_logs(reality, rng, settings.noise, HOLDOUT_MANOEUVRES)

@@ -281,7 +281,7 @@ class CameraMountOffset(Effect):
     specs = (
         ParamSpec("dx", "m", 0.0, -0.03, 0.03, "forward offset"),
         ParamSpec("dy", "m", 0.0, -0.03, 0.03, "leftward offset"),
-        ParamSpec("dyaw", "rad", 0.0, -0.05, 0.05, "yaw offset"),
+        ParamSpec("dyaw", "rad", 0.0, -0.1, 0.1, "yaw offset"),
     )
 
     def apply_params(self, params: DiffDriveParams) -> DiffDriveParams:
@@ -874,7 +874,7 @@ class ClimberSurfaceDeviation(Effect):
     name = "climber_surface_deviation"
     robot = "climber"
     stage = "body"
-    observed_in = ("pose_gt", "tether")
+    observed_in = ("surface", "pose_gt", "tether")
     description = (
         "The real blade deviates from its CAD model by a smooth normal displacement (largest "
         "value d, shape from seed). Realised by building the simulated blade from the deformed "
@@ -894,7 +894,7 @@ class ClimberAdsorptionGap(Effect):
     name = "climber_adsorption_gap"
     robot = "climber"
     stage = "body"
-    observed_in = ("pose_gt", "imu")
+    observed_in = ("surface", "pose_gt", "imu")
     description = (
         "The adsorption unit rides higher than designed (worn skirt, larger wheels): the body "
         "sits gap m higher than the estimator's h and the suction force drops by exp(-gap/λ). "

@@ -22,8 +22,8 @@ GOALS = {
 @experiment(
     "diagnose-suite",
     "blind cases: hidden effects realised in PyBullet, diagnosed without the truth "
-    "(--robot diffdrive|arm)",
-    robots=("diffdrive", "arm"),
+    "(--robot diffdrive|arm|climber)",
+    robots=("diffdrive", "arm", "climber"),
 )
 def diagnose_suite(ctx: RunContext) -> dict[str, Any]:
     from realitygap.diagnosis.backends import ProcessBackend
