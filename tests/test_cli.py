@@ -46,3 +46,13 @@ def test_failed_write_leaves_nothing(tmp_path) -> None:
     with pytest.raises(TypeError):
         experiments.write_json_atomic(target, {"bad": object()})
     assert list(tmp_path.iterdir()) == []
+
+
+def test_robot_option_only_for_experiments_that_take_it(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    assert cli.main(["run", "nav8", "--robot", "arm"]) == 2
+    assert "takes no --robot option" in capsys.readouterr().err
+    assert cli.main(["run", "diagnose-suite", "--robot", "tank"]) == 2
+    err = capsys.readouterr().err
+    assert "diffdrive" in err and "climber" in err and "'tank'" in err
