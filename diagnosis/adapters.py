@@ -55,6 +55,7 @@ Features = dict[str, FloatArray]
 
 __all__ = [
     "ADAPTERS",
+    "AdapterBase",
     "DiffDriveAdapter",
     "PreparedLog",
     "RobotAdapter",
@@ -167,25 +168,74 @@ class RobotAdapter(Protocol):
     ) -> tuple[Features, list[str]]: ...
 
 
-class DiffDriveAdapter:
-    """Differential drive: effects, PyBullet replay, channels, features and surrogate."""
+class AdapterBase:
+    """What every adapter shares: its effect library, the robot check, observability.
 
-    robot = "diffdrive"
+    Subclasses set :attr:`robot`, :attr:`surrogate_effects` (effects the fast
+    surrogate models) and may give :attr:`unobservable` (effect → why these
+    channels cannot show it, whatever the log).
+    """
 
-    # effects acting before the wheels cannot be seen when the replay is driven by the wheels
-    _COMMAND_STAGE = ("command_latency", "motor_deadband", "velocity_saturation")
+    robot: str = ""
+    surrogate_effects: tuple[str, ...] = ()
+    unobservable: Mapping[str, str] = {}
 
     def effect_names(self) -> tuple[str, ...]:
         return tuple(n for n, cls in EFFECTS.items() if cls.robot == self.robot)
 
-    # ------------------------------------------------------------------ checks
-    def check(self, log: Log, drive: Drive) -> Log:
-        """Validate a log for this robot; returns it (raises :class:`LogError` with the fix)."""
+    def check_robot(self, log: Log, drive: Drive, replayed_from: str | None = None) -> None:
+        """The log names this robot; ``replayed_from`` (e.g. "its joint readings"): only the
+        default command drive is meaningful."""
         robot = log.meta.get("robot", self.robot)
         if robot != self.robot:
             raise LogError(
                 f"{log.source}: the log is for robot {robot!r}, not {self.robot!r}; pass --robot"
             )
+        if replayed_from is not None and drive is not Drive.COMMANDS:
+            raise LogError(
+                f"{log.source}: a {self.robot} log is replayed from {replayed_from}; use the "
+                f"default drive ('commands'), not {drive.value!r}"
+            )
+
+    @staticmethod
+    def time_windows(log: Log, settings: FeatureSettings) -> npt.NDArray[np.int64]:
+        """Window bounds of a time series; at least two windows or a :class:`LogError`."""
+        bounds = window_bounds(log.n, log.dt, settings.window_s)
+        if bounds.shape[0] < 2:
+            raise LogError(
+                f"{log.source}: the log is {log.duration:.2f} s long; the diagnosis needs at least "
+                f"two {settings.window_s:g}-s windows. Fix: record longer episodes"
+            )
+        return bounds
+
+    def observable(self, effect: str, prepared: Sequence[PreparedLog], drive: Drive) -> str:
+        """``""`` if the logs can show ``effect``, else why not."""
+        cls = EFFECTS.get(effect)
+        if cls is None or cls.robot != self.robot:
+            return f"not a {self.robot} effect"
+        if effect in self.unobservable:
+            return self.unobservable[effect]
+        groups = set().union(*(p.groups for p in prepared)) if prepared else set()
+        if not [c for c in cls.observed_in if c in groups]:
+            return f"shows only in {', '.join(cls.observed_in)}, which the logs do not compare"
+        if effect not in self.surrogate_effects:
+            return "no analytic surrogate"
+        return ""
+
+
+class DiffDriveAdapter(AdapterBase):
+    """Differential drive: effects, PyBullet replay, channels, features and surrogate."""
+
+    robot = "diffdrive"
+    surrogate_effects = tuple(SURROGATE_EFFECTS)
+
+    # effects acting before the wheels cannot be seen when the replay is driven by the wheels
+    _COMMAND_STAGE = ("command_latency", "motor_deadband", "velocity_saturation")
+
+    # ------------------------------------------------------------------ checks
+    def check(self, log: Log, drive: Drive) -> Log:
+        """Validate a log for this robot; returns it (raises :class:`LogError` with the fix)."""
+        self.check_robot(log, drive)
         params_from_meta(log)
         log.check_uniform()
         if drive is Drive.COMMANDS:
@@ -209,12 +259,7 @@ class DiffDriveAdapter:
         """Windows, regimes, real features, the nominal replay and the surrogate's bias."""
         params = params_from_meta(log)
         dt = log.dt
-        bounds = window_bounds(log.n, dt, features_settings.window_s)
-        if bounds.shape[0] < 2:
-            raise LogError(
-                f"{log.source}: the log is {log.duration:.2f} s long; the diagnosis needs at least "
-                f"two {features_settings.window_s:g}-s windows. Fix: record longer episodes"
-            )
+        bounds = self.time_windows(log, features_settings)
         if drive is Drive.COMMANDS:
             twist = applied_commands(log)
         else:
@@ -274,20 +319,12 @@ class DiffDriveAdapter:
     # ------------------------------------------------------------------ observability
     def observable(self, effect: str, prepared: Sequence[PreparedLog], drive: Drive) -> str:
         """``""`` if the logs can show ``effect``, else why not."""
-        cls = EFFECTS.get(effect)
-        if cls is None or cls.robot != self.robot:
-            return f"not a {self.robot} effect"
         if drive is Drive.TICKS and effect in self._COMMAND_STAGE:
             return "acts on the commands, which a tick-driven replay does not use"
-        groups = set().union(*(p.groups for p in prepared)) if prepared else set()
-        seen = [c for c in cls.observed_in if c in groups]
-        if not seen:
-            return f"shows only in {', '.join(cls.observed_in)}, which the logs do not compare" + (
-                " (ticks drive the replay)" if drive is Drive.TICKS else ""
-            )
-        if effect not in SURROGATE_EFFECTS:
-            return "no analytic surrogate"
-        return ""
+        why = super().observable(effect, prepared, drive)
+        if why.startswith("shows only in") and drive is Drive.TICKS:
+            why += " (ticks drive the replay)"
+        return why
 
     # ------------------------------------------------------------------ models
     def replay_features(

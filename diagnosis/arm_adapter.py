@@ -54,12 +54,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.diagnosis.adapters import PreparedLog, reality_from_values
+from realitygap.diagnosis.adapters import AdapterBase, PreparedLog, reality_from_values
 from realitygap.diagnosis.features import TOOL_DIST_COLUMNS, FeatureSettings
 from realitygap.diagnosis.log import Log, LogError
 from realitygap.diagnosis.replay import Drive, SimSettings
 from realitygap.estimators.arm.mdh import MDHTable
-from realitygap.robots.effects import EFFECTS
 
 FloatArray = npt.NDArray[np.float64]
 Features = dict[str, FloatArray]
@@ -404,7 +403,7 @@ def replay_arm(
 
 
 # --------------------------------------------------------------------------- the adapter
-class ArmAdapter:
+class ArmAdapter(AdapterBase):
     """Arm: effects, PyBullet replay, tool-distance features and the analytic surrogate.
 
     Parameters
@@ -416,14 +415,12 @@ class ArmAdapter:
     """
 
     robot = "arm"
+    surrogate_effects = _SURROGATE_EFFECTS
 
     def __init__(self, max_windows: int = 600):
         if max_windows < 2:
             raise ValueError(f"max_windows must be at least 2, got {max_windows}")
         self.max_windows = int(max_windows)
-
-    def effect_names(self) -> tuple[str, ...]:
-        return tuple(n for n, cls in EFFECTS.items() if cls.robot == self.robot)
 
     def probe_manoeuvres(self) -> dict[str, str]:
         """Pose sets the identifiability advice may suggest, with descriptions."""
@@ -431,16 +428,7 @@ class ArmAdapter:
 
     # ------------------------------------------------------------------ checks
     def check(self, log: Log, drive: Drive) -> Log:
-        robot = log.meta.get("robot", self.robot)
-        if robot != self.robot:
-            raise LogError(
-                f"{log.source}: the log is for robot {robot!r}, not {self.robot!r}; pass --robot"
-            )
-        if drive is not Drive.COMMANDS:
-            raise LogError(
-                f"{log.source}: an arm log is replayed from its joint readings; use the default "
-                f"drive ('commands'), not {drive.value!r}"
-            )
+        self.check_robot(log, drive, replayed_from="its joint readings")
         log.require(["joints", "tool_pos"], "an arm diagnosis")
         arm_params_from_meta(log)
         _tool(log)
@@ -521,20 +509,13 @@ class ArmAdapter:
 
     # ------------------------------------------------------------------ observability
     def observable(self, effect: str, prepared: Sequence[PreparedLog], drive: Drive) -> str:
-        cls = EFFECTS.get(effect)
-        if cls is None or cls.robot != self.robot:
-            return f"not an {self.robot} effect"
-        groups = set().union(*(p.groups for p in prepared)) if prepared else set()
-        seen = [c for c in cls.observed_in if c in groups]
-        if not seen:
-            return (
-                f"shows only in {', '.join(cls.observed_in)}, which the logs do not compare "
-                "(a tool point measured from outside sees neither the camera mounting nor its "
+        why = super().observable(effect, prepared, drive)
+        if why.startswith("shows only in camera_pose"):
+            why += (
+                " (a tool point measured from outside sees neither the camera mounting nor its "
                 "intrinsics)"
             )
-        if effect not in _SURROGATE_EFFECTS:
-            return "no analytic surrogate"
-        return ""
+        return why
 
     @staticmethod
     def noise_levels(

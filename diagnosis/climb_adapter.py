@@ -38,18 +38,17 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
-from realitygap.diagnosis.adapters import PreparedLog
-from realitygap.diagnosis.features import FeatureSettings, window_bounds
+from realitygap.diagnosis.adapters import AdapterBase, PreparedLog
+from realitygap.diagnosis.features import FeatureSettings
 from realitygap.diagnosis.log import Log, LogError
 from realitygap.diagnosis.replay import Drive, SimSettings
-from realitygap.robots.effects import EFFECTS
 
 FloatArray = npt.NDArray[np.float64]
 Features = dict[str, FloatArray]
@@ -265,29 +264,19 @@ def _window_means(x: FloatArray, bounds: npt.NDArray[np.int64]) -> FloatArray:
 
 
 # --------------------------------------------------------------------------- the adapter
-class ClimberAdapter:
+class ClimberAdapter(AdapterBase):
     """Climber: tether and ride-height features, sensor replay with PyBullet ride height."""
 
     robot = "climber"
-
-    def effect_names(self) -> tuple[str, ...]:
-        return tuple(n for n, cls in EFFECTS.items() if cls.robot == self.robot)
+    surrogate_effects = _SURROGATE_EFFECTS
+    unobservable = _WHY_NOT
 
     def probe_manoeuvres(self) -> dict[str, str]:
         return dict(CLIMB_PROBES)
 
     # ------------------------------------------------------------------ checks
     def check(self, log: Log, drive: Drive) -> Log:
-        robot = log.meta.get("robot", self.robot)
-        if robot != self.robot:
-            raise LogError(
-                f"{log.source}: the log is for robot {robot!r}, not {self.robot!r}; pass --robot"
-            )
-        if drive is not Drive.COMMANDS:
-            raise LogError(
-                f"{log.source}: a climber log is replayed along its true path; use the default "
-                f"drive ('commands'), not {drive.value!r}"
-            )
+        self.check_robot(log, drive, replayed_from="its true path")
         log.require(["pose3_gt", "tether"], "a climber diagnosis")
         climber_params_from_meta(log)
         log.check_uniform()
@@ -306,12 +295,7 @@ class ClimberAdapter:
         sim: SimSettings | None,
     ) -> PreparedLog:
         params = climber_params_from_meta(log)
-        bounds = window_bounds(log.n, log.dt, features_settings.window_s)
-        if bounds.shape[0] < 2:
-            raise LogError(
-                f"{log.source}: the log is {log.duration:.2f} s long; the diagnosis needs at least "
-                f"two {features_settings.window_s:g}-s windows"
-            )
+        bounds = self.time_windows(log, features_settings)
         pos = np.asarray(log["pose3_gt"], dtype=float)[:, :3]
         heights = heights_above_cad(params, pos)
         real = {
@@ -363,19 +347,6 @@ class ClimberAdapter:
         return prepared
 
     # ------------------------------------------------------------------ observability
-    def observable(self, effect: str, prepared: Sequence[PreparedLog], drive: Drive) -> str:
-        cls = EFFECTS.get(effect)
-        if cls is None or cls.robot != self.robot:
-            return f"not a {self.robot} effect"
-        if effect in _WHY_NOT:
-            return _WHY_NOT[effect]
-        groups = set().union(*(p.groups for p in prepared)) if prepared else set()
-        if not [c for c in cls.observed_in if c in groups]:
-            return f"shows only in {', '.join(cls.observed_in)}, which the logs do not compare"
-        if effect not in _SURROGATE_EFFECTS:
-            return "no analytic surrogate"
-        return ""
-
     # ------------------------------------------------------------------ models
     def _predict(
         self, prepared: PreparedLog, values: Mapping[str, npt.ArrayLike], heights: FloatArray
