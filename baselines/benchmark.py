@@ -400,6 +400,11 @@ def build_policy(spec: PolicySpec, env: gym.Env[Any, Any], env_id: str, seed: in
             raise ValueError(f"no classical baseline registered for {env_id}")
         return CLASSICAL_POLICIES[env_id](env)
     if spec.kind == "random":
+        if not isinstance(env.action_space, gym.spaces.Box):
+            raise ValueError(
+                f"the random baseline needs a Box action space, {env_id} has "
+                f"{type(env.action_space).__name__}"
+            )
         return RandomPolicy(env.action_space, seed)
     path = spec.path_for(env_id)
     if path is None:
@@ -1170,11 +1175,11 @@ def run_benchmark(
     write_csv_atomic(files["transfer_csv"], transfer)
     all_notes = list(notes) + [f"failed task: {e}" for e in errors]
     crashed: dict[tuple[str, ...], list[Mapping[str, Any]]] = {}
-    for r in records:
-        if r.get("error"):
-            crashed.setdefault(record_key(r)[:4], []).append(r)
+    for rec in records:
+        if rec.get("error"):
+            crashed.setdefault(record_key(rec)[:4], []).append(rec)
     for (env_id, pol, reality, mode), recs in sorted(crashed.items()):
-        seeds = ", ".join(str(r["seed"]) for r in recs)
+        seeds = ", ".join(str(x["seed"]) for x in recs)
         all_notes.append(
             f"{env_slug(env_id)} {pol} {reality} {mode}: {len(recs)} episode(s) ended in an "
             f"exception, counted as failures (seeds {seeds}; first: {recs[0]['error']})"

@@ -1717,7 +1717,9 @@ class SlidingWindowVIO:
         x = solve_triangular(L.T, y, lower=False, check_finite=False)
         if not np.all(np.isfinite(x)):
             raise np.linalg.LinAlgError("non-finite solution of the window's normal equations")
-        return x.reshape(n, 15), L[-15:, -15:]
+        step: FloatArray = np.asarray(x, dtype=np.float64).reshape(n, 15)
+        l_last: FloatArray = np.asarray(L[-15:, -15:], dtype=np.float64)
+        return step, l_last
 
     def _optimise(self) -> None:
         n = len(self._states)
