@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.baselines.common import as_batch, episode_starts
 from realitygap.estimators.arm.identification import (
     IdentificationSettings,
     PairObservations,
@@ -230,22 +231,7 @@ class _Episode:
 
 
 def _check_obs(observation: npt.ArrayLike) -> tuple[FloatArray, bool]:
-    obs = np.asarray(observation, dtype=np.float64)
-    single = obs.ndim == 1
-    batch = obs[None] if single else obs
-    if batch.ndim != 2 or batch.shape[1] != N_OBS:
-        raise ValueError(
-            f"observation must have shape ({N_OBS},) or (n_envs, {N_OBS}) (ArmCalib-v0), "
-            f"got {obs.shape}"
-        )
-    return batch, single
-
-
-def _starts(episode_start: npt.ArrayLike | None, n: int) -> npt.NDArray[np.bool_]:
-    if episode_start is None:
-        return np.zeros(n, dtype=bool)
-    s = np.asarray(episode_start, dtype=bool).reshape(-1)
-    return np.broadcast_to(s, (n,)) if s.size == 1 else s
+    return as_batch(observation, N_OBS, "ArmCalib-v0")
 
 
 class ObservabilityGreedyPolicy:
@@ -308,7 +294,7 @@ class ObservabilityGreedyPolicy:
     ) -> tuple[npt.NDArray[np.float32], Any]:
         """Next pose as a normalised action, for one observation (83,) or a batch (n, 83)."""
         batch, single = _check_obs(observation)
-        starts = _starts(episode_start, len(batch))
+        starts = episode_starts(episode_start, len(batch))
         actions = np.zeros((len(batch), 6), dtype=np.float32)
         for k, row in enumerate(batch):
             if starts[k] or row[OBS_ATTEMPTS_LEFT] >= 1.0 - 1e-6 or k not in self._episodes:
@@ -407,7 +393,7 @@ class RandomPosePolicy:
     ) -> tuple[npt.NDArray[np.float32], Any]:
         """A random pose (``deterministic`` does not apply: the draws come from ``seed``)."""
         batch, single = _check_obs(observation)
-        starts = _starts(episode_start, len(batch))
+        starts = episode_starts(episode_start, len(batch))
         actions = np.zeros((len(batch), 6), dtype=np.float32)
         for k, row in enumerate(batch):
             if starts[k] or row[OBS_ATTEMPTS_LEFT] >= 1.0 - 1e-6 or k not in self._episodes:

@@ -26,6 +26,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
+from realitygap.baselines.common import PerEnvPolicy
 from realitygap.controllers import (
     APFParams,
     ImprovedAPF,
@@ -93,7 +94,7 @@ class _EpisodeState:
     t_stabilise: float = 0.0
 
 
-class ClassicalNavPolicy:
+class ClassicalNavPolicy(PerEnvPolicy):
     """SB3-compatible classical policy for ``realitygap/WheeledNav-v0``.
 
     Parameters
@@ -126,6 +127,7 @@ class ClassicalNavPolicy:
         self._stabilisers: dict[int, PolarStabiliser] = {}
         self._states: dict[int, _EpisodeState] = {}
         self.n_obs = 12 + len(self.scan_angles)
+        self.obs_what = f"WheeledNav-v0 with a scan of {len(self.scan_angles)} beams"
 
     @classmethod
     def from_env(cls, env: Any, config: ClassicalNavConfig | None = None) -> ClassicalNavPolicy:
@@ -142,34 +144,6 @@ class ClassicalNavPolicy:
         return cls(base.scan_angles, base.scan_range_max, limits, base.dt, cfg)
 
     # ------------------------------------------------------------------ SB3 interface
-    def predict(
-        self,
-        observation: npt.ArrayLike,
-        state: Any = None,
-        episode_start: npt.ArrayLike | None = None,
-        deterministic: bool = True,
-    ) -> tuple[npt.NDArray[np.float32], Any]:
-        """Actions for one observation ``(n_obs,)`` or a batch ``(n_envs, n_obs)``."""
-        obs = np.asarray(observation, dtype=np.float64)
-        single = obs.ndim == 1
-        batch = obs[None] if single else obs
-        if batch.ndim != 2 or batch.shape[1] != self.n_obs:
-            raise ValueError(
-                f"observation must have shape ({self.n_obs},) or (n_envs, {self.n_obs}) for a scan of "
-                f"{len(self.scan_angles)} beams, got {obs.shape}"
-            )
-        starts = (
-            np.zeros(len(batch), dtype=bool)
-            if episode_start is None
-            else np.asarray(episode_start, bool)
-        )
-        actions = np.zeros((len(batch), 2), dtype=np.float32)
-        for i, row in enumerate(batch):
-            if starts.reshape(-1)[i] if starts.size else False:
-                self.reset(i)
-            actions[i] = self._act(i, row)
-        return (actions[0] if single else actions), state
-
     def reset(self, env_index: int | None = None) -> None:
         """Forget the episode state of one env (or of all)."""
         if env_index is None:
@@ -196,7 +170,8 @@ class ClassicalNavPolicy:
         return st is not None and st.phase == "done"
 
     # ------------------------------------------------------------------ internals
-    def _act(self, i: int, obs: FloatArray) -> FloatArray:
+    def act(self, i: int, obs: FloatArray) -> FloatArray:
+        """The action of env ``i`` for its observation row (see :class:`PerEnvPolicy`)."""
         pose = np.array([obs[0], obs[1], math.atan2(obs[3], obs[2])])
         goal = np.array([obs[4], obs[5], math.atan2(obs[7], obs[6])])
         v_prev, w_prev = obs[10] * self.limits.v_max, obs[11] * self.limits.w_max
@@ -294,7 +269,10 @@ class ClassicalNavPolicy:
             if stab.done(pose, goal, self.config.done_pos_tol, self.config.done_ang_tol):
                 st.phase = "done"
                 return 0.0, 0.0
-            if st.t - st.t_stabilise > self.config.settle_timeout and dist < self.config.settle_radius:
+            if (
+                st.t - st.t_stabilise > self.config.settle_timeout
+                and dist < self.config.settle_radius
+            ):
                 st.phase = "align_final"
                 stab.reset()
             return stab.command(pose, goal)

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.baselines.common import PerEnvPolicy
 from realitygap.controllers import (
     APFParams,
     ImprovedAPF,
@@ -78,7 +79,7 @@ class _State:
     plans: int = 0
 
 
-class ClimbChartPolicy:
+class ClimbChartPolicy(PerEnvPolicy):
     """SB3-compatible classical policy for ``WallClimb-v0`` (see module docstring).
 
     Parameters
@@ -90,6 +91,9 @@ class ClimbChartPolicy:
     config
         :class:`ClimbPolicyConfig`.
     """
+
+    n_obs = N_OBS
+    obs_what = "WallClimb-v0"
 
     def __init__(
         self, params: ClimberParams, dt: float, config: ClimbPolicyConfig | None = None
@@ -113,35 +117,6 @@ class ClimbChartPolicy:
         base = env.unwrapped
         return cls(base.params, base.dt, config)
 
-    def predict(
-        self,
-        observation: npt.ArrayLike,
-        state: Any = None,
-        episode_start: npt.ArrayLike | None = None,
-        deterministic: bool = True,
-    ) -> tuple[npt.NDArray[np.float32], Any]:
-        """Actions for one observation ``(18,)`` or a batch ``(n_envs, 18)``."""
-        obs = np.asarray(observation, dtype=np.float64)
-        single = obs.ndim == 1
-        batch = obs[None] if single else obs
-        if batch.ndim != 2 or batch.shape[1] != N_OBS:
-            raise ValueError(
-                f"observation must have shape ({N_OBS},) or (n_envs, {N_OBS}), got {obs.shape}"
-            )
-        if not np.all(np.isfinite(batch)):
-            raise ValueError("observation must be finite")
-        starts = (
-            np.zeros(len(batch), bool)
-            if episode_start is None
-            else np.asarray(episode_start, bool).reshape(-1)
-        )
-        actions = np.zeros((len(batch), 2), dtype=np.float32)
-        for i, row in enumerate(batch):
-            if starts.size and starts[i]:
-                self.reset(i)
-            actions[i] = self._act(i, row)
-        return (actions[0] if single else actions), state
-
     def reset(self, env_index: int | None = None) -> None:
         """Forget the episode state of one env (or all)."""
         if env_index is None:
@@ -157,7 +132,8 @@ class ClimbChartPolicy:
         return "plan" if st is None else st.phase
 
     # ------------------------------------------------------------------ internals
-    def _act(self, i: int, obs: FloatArray) -> FloatArray:
+    def act(self, i: int, obs: FloatArray) -> FloatArray:
+        """The action of env ``i`` for its observation row (see :class:`PerEnvPolicy`)."""
         pose = chart_from_world(self.params, obs[0:3], obs[3:6])
         goal = chart_from_world(self.params, obs[9:12])
         st = self._states.get(i)
