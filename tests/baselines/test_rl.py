@@ -203,6 +203,76 @@ def test_goal_features_match_the_closed_form() -> None:
         rl.obs_feature_fn("polar")
 
 
+def test_zoomed_goal_features_match_the_closed_form() -> None:
+    rng = np.random.default_rng(4)
+    obs = rng.uniform(-0.2, 0.2, size=(6, 20)).astype(np.float32)
+    theta, beta = rng.uniform(-np.pi, np.pi, 6), rng.uniform(-0.3, 0.3, 6)
+    obs[:, 2], obs[:, 3] = np.cos(theta), np.sin(theta)
+    obs[:, 6], obs[:, 7] = np.cos(theta + beta), np.sin(theta + beta)
+    x = rl.wheeled_nav_goal_zoom_features(obs)
+    assert x.shape == (6, 20 + rl.OBS_FEATURES["wheeled_nav_goal_zoom"][1])
+    np.testing.assert_array_equal(x[:, :25], rl.wheeled_nav_goal_features(obs))
+    xr, yr = obs[:, 8], obs[:, 9]
+    expected = [np.tanh(xr / 0.05), np.tanh(yr / 0.05), np.tanh(xr / 0.3), np.tanh(yr / 0.3)]
+    expected += [np.tanh(beta / 0.1), np.tanh(beta / 0.5)]
+    np.testing.assert_allclose(x[:, 25:], np.stack(expected, 1), atol=1e-5)
+    # a 1 cm offset moves the finest column by about 0.2, the polar distance by 0.01
+    near = np.zeros((2, 20), np.float32)
+    near[:, 2] = near[:, 6] = 1.0
+    near[1, 8] = 0.01
+    d = np.diff(rl.wheeled_nav_goal_zoom_features(near), axis=0)[0]
+    assert d[20] == pytest.approx(0.01, abs=1e-6) and d[25] == pytest.approx(0.197, abs=1e-3)
+
+
+def test_shaping_potential_telescopes_and_collisions_cost_more() -> None:
+    def run(wrappers: list) -> tuple[list[float], list[dict]]:
+        env = rl.apply_train_wrappers(
+            gym.make(ENV_ID, n_obstacles=0, start=(0.0, 0.0, 0.0), goal=(1.5, 0.2, 1.0)),
+            wrappers,
+        )
+        _, info = env.reset(seed=0)
+        rewards, infos = [], [info]
+        for _ in range(40):
+            _, r, term, trunc, info = env.step(np.array([0.6, 0.3], dtype=np.float32))
+            rewards.append(float(r))
+            infos.append(info)
+            if term or trunc:
+                break
+        env.close()
+        return rewards, infos
+
+    shaping = {"name": "wheeled_nav_shaping", "precision": 2.0}
+    plain, infos = run([])
+    shaped, _ = run([shaping])
+    w = rl.WheeledNavShaping(gym.make(ENV_ID, n_obstacles=0), precision=2.0)
+    phi = [w.potential(i["pos_error"], i["heading_error"]) for i in infos]
+    # the extra reward sums to 2 (Φ(end) − Φ(start)) whatever the path
+    assert sum(shaped) - sum(plain) == pytest.approx(2.0 * (phi[-1] - phi[0]), abs=1e-9)
+    assert w.potential(0.0, 0.0) == 1.0
+    assert w.potential(0.02, 0.05) > w.potential(0.03, 0.05) > w.potential(0.03, 0.09)
+    assert w.potential(3.0, 3.0) < 1e-6
+
+    # drive into a wall: the collision costs the extra penalty
+    def crash(wrappers: list) -> float:
+        env = rl.apply_train_wrappers(
+            gym.make(ENV_ID, n_obstacles=0, start=(2.6, 0.0, 0.0), goal=(-2.0, 0.0, 0.0)),
+            wrappers,
+        )
+        env.reset(seed=0)
+        for _ in range(100):
+            _, r, term, _, info = env.step(np.array([1.0, 0.0], dtype=np.float32))
+            if term:
+                break
+        env.close()
+        assert info["collision"]
+        return float(r)
+
+    extra = crash([{"name": "wheeled_nav_shaping", "collision_penalty": 10.0}]) - crash([])
+    assert extra == pytest.approx(-10.0)
+    with pytest.raises(ValueError, match="pos_scale and ang_scale"):
+        rl.WheeledNavShaping(gym.make(ENV_ID, n_obstacles=0), pos_scale=0.0)
+
+
 def test_curriculum_is_geometric_from_start_to_end() -> None:
     cur = rl.Curriculum(start={"tol": 0.32}, end={"tol": 0.02}, n_stages=4)
     got = [cur.values(k)["tol"] for k in range(6)]
