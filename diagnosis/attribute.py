@@ -718,7 +718,8 @@ def describe_residual(
             continue
         if excess > settings.excess_ratio:
             out["reasons"].append(
-                f"{g}: residual RMS is {excess:.1f}× its window-to-window noise level "
+                f"{g}: residual RMS is {excess:.1f}× its noise level "
+                f"({'as measured' if noise is not None and g in noise else 'window to window'}) "
                 f"(lag-1 autocorrelation {lag1:.2f})"
             )
         if worst_ratio > settings.excess_ratio:
