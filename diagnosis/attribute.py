@@ -718,9 +718,9 @@ def describe_residual(
             continue
         if excess > settings.excess_ratio:
             out["reasons"].append(
-                f"{g}: residual RMS is {excess:.1f}× its noise level "
-                f"({'as measured' if noise is not None and g in noise else 'window to window'}) "
-                f"(lag-1 autocorrelation {lag1:.2f})"
+                f"{g}: residual RMS is {excess:.1f}× its noise level ("
+                f"{'stated by the logs' if noise is not None and g in noise else 'window to window'}"
+                f"; lag-1 autocorrelation {lag1:.2f})"
             )
         if worst_ratio > settings.excess_ratio:
             out["reasons"].append(
