@@ -361,7 +361,7 @@ def obs_feature_fn(name: str | None) -> Callable[[npt.ArrayLike], npt.NDArray[np
     return OBS_FEATURES[name][0]
 
 
-class ObsFeatures(gym.ObservationWrapper):  # type: ignore[type-arg]
+class ObsFeatures(gym.ObservationWrapper):
     """Appends the columns of feature map ``name`` to each observation (training side)."""
 
     def __init__(self, env: gym.Env[Any, Any], name: str):
@@ -406,7 +406,7 @@ def set_env_attrs(env: gym.Env[Any, Any], values: Mapping[str, Any]) -> None:
             layer = layer.env
 
 
-class AttributeSetter(gym.Wrapper):  # type: ignore[type-arg]
+class AttributeSetter(gym.Wrapper):
     """Lets a vectorised env set attributes of the env and its training wrappers
     (``env_method("set_env_attrs", {...})``, see :func:`set_env_attrs`)."""
 
@@ -414,7 +414,7 @@ class AttributeSetter(gym.Wrapper):  # type: ignore[type-arg]
         set_env_attrs(self.env, values)
 
 
-class WheeledNavRestRelaxation(gym.Wrapper):  # type: ignore[type-arg]
+class WheeledNavRestRelaxation(gym.Wrapper):
     """Training only: WheeledNav success with a looser "at rest" condition.
 
     The env's success needs the pose within tolerance *and* the robot at rest
@@ -453,7 +453,7 @@ class WheeledNavRestRelaxation(gym.Wrapper):  # type: ignore[type-arg]
         return obs, reward, terminated, truncated, info
 
 
-class WheeledNavShaping(gym.Wrapper):  # type: ignore[type-arg]
+class WheeledNavShaping(gym.Wrapper):
     r"""Training only: extra WheeledNav reward terms for the final approach and for collisions.
 
     ``precision`` weighs a potential-based term :math:`F = \Phi(s') - \Phi(s)` on the true
@@ -667,7 +667,7 @@ class PolicyIO:
         return env
 
 
-class _ActionMap(gym.ActionWrapper):  # type: ignore[type-arg]
+class _ActionMap(gym.ActionWrapper):
     """Training side of :meth:`PolicyIO.action` (dead band, stop gate)."""
 
     def __init__(self, env: gym.Env[Any, Any], io: PolicyIO):
@@ -714,10 +714,7 @@ class _EnvFactory:
 
         import realitygap  # noqa: F401  (registers the ids in a fresh worker)
 
-        limit = (
-            {} if self.max_episode_steps is None else {"max_episode_steps": self.max_episode_steps}
-        )
-        env = gym.make(self.env_id, **self.env_kwargs, **limit)
+        env = gym.make(self.env_id, max_episode_steps=self.max_episode_steps, **self.env_kwargs)
         env = self.io.wrap(apply_train_wrappers(env, self.train_wrappers))
         env = AttributeSetter(Monitor(env))
         env.reset(seed=self.seed)
@@ -745,6 +742,7 @@ def make_vec_env(
         make_env_fn(env_id, env_kwargs, seed + i, io, max_episode_steps, train_wrappers)
         for i in range(n_envs)
     ]
+    venv: SubprocVecEnv | DummyVecEnv
     if vec_env == "subproc" and n_envs > 1:
         venv = SubprocVecEnv(fns, start_method="forkserver")
     else:
@@ -793,7 +791,7 @@ def _make_callback(
 ) -> Any:
     from stable_baselines3.common.callbacks import BaseCallback
 
-    class _Recorder(BaseCallback):  # type: ignore[misc]
+    class _Recorder(BaseCallback):
         """Learning curve, curriculum, evaluations, checkpoints, progress lines."""
 
         def __init__(self) -> None:
@@ -1145,8 +1143,10 @@ def train(cfg: TrainConfig) -> TrainResult:
         )
         if init_meta.get("obs_normalizer"):
             prev = ObsNormalizer.from_dict(init_meta["obs_normalizer"])
-            venv.obs_rms.mean, venv.obs_rms.var = prev.mean.copy(), prev.var.copy()
-            venv.obs_rms.count = float(init_meta.get("timesteps", 1e4))
+            rms = venv.obs_rms
+            assert not isinstance(rms, dict), "Box observations have one running mean"
+            rms.mean, rms.var = prev.mean.copy(), prev.var.copy()
+            rms.count = float(init_meta.get("timesteps", 1e4))
     if cfg.init_model is not None:
         model = cls.load(cfg.init_model, env=venv, device="cpu")
         model.set_random_seed(cfg.seed)
@@ -1523,8 +1523,9 @@ def _policy_from_weights(path: Path, meta: Mapping[str, Any], algo: str) -> Any:
     if algo == "sac":
         from stable_baselines3.sac.policies import SACPolicy
 
-        policy = SACPolicy(obs_space, act_space, lambda _: 0.0, **kwargs)
-        policy.actor.load_state_dict(state)
+        sac = SACPolicy(obs_space, act_space, lambda _: 0.0, **kwargs)
+        sac.actor.load_state_dict(state)
+        policy: Any = sac
     else:
         from stable_baselines3.common.policies import ActorCriticPolicy
 
