@@ -490,7 +490,7 @@ def run_episode(
         actions.append(np.asarray(action, dtype=np.float64).reshape(-1))
         xy = _xy(info)
         if xy is not None and prev_xy is not None:
-            path += float(np.hypot(*(xy - prev_xy)))
+            path += float(np.linalg.norm(xy - prev_xy))
         prev_xy = xy
         collided |= bool(info.get("collision", False) or info.get("detached", False))
         if not collided:

@@ -281,7 +281,8 @@ class ClassicalNavPolicy(PerEnvPolicy):
                 return 0.0, 0.0
             if not self._plan(st, pose, goal):
                 return 0.0, 0.0
-        assert st.reference is not None
+        if st.reference is None:  # the last plan failed: wait still until the next attempt
+            return 0.0, 0.0
         if st.phase == "align":
             err = float(wrap_angle(st.path_heading - pose[2]))
             if abs(err) > self.config.align_tolerance:

@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -336,3 +337,27 @@ def test_ray_backend_streams_results_and_survives_a_crashed_worker(
     assert len(result.errors) == 1 and "worker crashed" in result.errors[0]
     assert [(r["policy"], r["reality"]) for r in result.summary] == [("random", "nominal")]
     assert "failed task" in (tmp_path / "benchmark.md").read_text()
+
+
+class _Line3D(gym.Env):  # type: ignore[type-arg]
+    """Moves 0.1 m along (1, 2, 2)/3 per step for three steps; 3-D pose + quaternion in info."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+    action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+    def reset(self, *, seed: int | None = None, options: Any = None) -> Any:
+        super().reset(seed=seed)
+        self.k = 0
+        return np.zeros(1, np.float32), {"true_pose": [0, 0, 0, 0, 0, 0, 1], "pos_error": 0.3}
+
+    def step(self, action: Any) -> Any:
+        self.k += 1
+        p = 0.1 * self.k * np.array([1.0, 2.0, 2.0]) / 3.0
+        info = {"true_pose": [*p, 0, 0, 0, 1], "pos_error": 0.3 - 0.1 * self.k}
+        return np.zeros(1, np.float32), 0.0, self.k == 3, False, info
+
+
+def test_path_length_counts_all_three_axes_of_a_3d_pose() -> None:
+    rec = bm.run_episode(_Line3D(), bm.RandomPolicy(_Line3D.action_space, 0), seed=0)
+    assert rec["path_length_m"] == pytest.approx(0.3)
+    assert rec["reached_10cm"] is True

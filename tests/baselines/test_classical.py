@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -53,3 +54,25 @@ def test_batch_predict_and_bad_shapes() -> None:
     assert single.shape == (2,)
     with pytest.raises(ValueError, match="observation must have shape"):
         policy.predict(obs[:10])
+
+
+def test_a_failed_plan_makes_the_robot_wait_not_crash(monkeypatch: pytest.MonkeyPatch) -> None:
+    env = gym.make("realitygap/WheeledNav-v0", n_obstacles=0, sensor_mode="fast")
+    policy = ClassicalNavPolicy.from_env(env)
+    obs, _ = env.reset(seed=0)
+    env.close()
+    calls = []
+
+    def no_route(st: Any, pose: Any, goal: Any) -> bool:
+        calls.append(1)
+        st.plans += 1
+        st.last_replan = st.t
+        st.reference = None
+        return False
+
+    monkeypatch.setattr(policy, "_plan", no_route)
+    # the planner gives up; until the next attempt is due the robot stands still
+    for _ in range(5):
+        action, _ = policy.predict(obs)
+        assert np.all(action == 0.0)
+    assert len(calls) == 1
