@@ -234,7 +234,29 @@ def _check_obs(observation: npt.ArrayLike) -> tuple[FloatArray, bool]:
     return as_batch(observation, N_OBS, "ArmCalib-v0")
 
 
-class ObservabilityGreedyPolicy:
+class _PoolEpisodes:
+    """Per-env campaign bookkeeping shared by the pool policies: which poses were tried and
+    which were measured (the env reports in ``OBS_LAST_OK`` whether the last one worked)."""
+
+    _episodes: dict[int, _Episode]
+
+    def _episode(self, k: int, start: bool, row: FloatArray) -> _Episode:
+        """Env ``k``'s episode, new at a start or a full attempt budget; the pending pose
+        counts as measured when the env accepted it."""
+        if start or row[OBS_ATTEMPTS_LEFT] >= 1.0 - 1e-6 or k not in self._episodes:
+            self._episodes[k] = _Episode()
+        ep = self._episodes[k]
+        if ep.pending is not None and row[OBS_LAST_OK] > 0.5:
+            ep.used.append(ep.pending)
+        return ep
+
+    def chosen(self, env_index: int = 0) -> tuple[list[int], list[int]]:
+        """Pool indices measured and tried so far in the current episode of ``env_index``."""
+        ep = self._episodes.get(env_index, _Episode())
+        return list(ep.used), sorted(ep.tried)
+
+
+class ObservabilityGreedyPolicy(_PoolEpisodes):
     """Greedy observability-maximising pose selection (see the module docstring).
 
     Parameters
@@ -297,11 +319,7 @@ class ObservabilityGreedyPolicy:
         starts = episode_starts(episode_start, len(batch))
         actions = np.zeros((len(batch), 6), dtype=np.float32)
         for k, row in enumerate(batch):
-            if starts[k] or row[OBS_ATTEMPTS_LEFT] >= 1.0 - 1e-6 or k not in self._episodes:
-                self._episodes[k] = _Episode()
-            ep = self._episodes[k]
-            if ep.pending is not None and row[OBS_LAST_OK] > 0.5:
-                ep.used.append(ep.pending)
+            ep = self._episode(k, bool(starts[k]), row)
             ep.pending = self.select(ep.used, ep.tried)
             ep.tried.add(ep.pending)
             actions[k] = self.action_for(ep.pending)
@@ -314,11 +332,6 @@ class ObservabilityGreedyPolicy:
     def action_for(self, index: int) -> npt.NDArray[np.float32]:
         """Normalised action of pool pose ``index``."""
         return ((self.pool_q[index] - self.center) / self.half).astype(np.float32)
-
-    def chosen(self, env_index: int = 0) -> tuple[list[int], list[int]]:
-        """Pool indices measured and tried so far in the current episode of ``env_index``."""
-        ep = self._episodes.get(env_index, _Episode())
-        return list(ep.used), sorted(ep.tried)
 
     # ------------------------------------------------------------------ selection
     def select(self, used: Sequence[int], tried: set[int] | None = None) -> int:
@@ -344,7 +357,7 @@ class ObservabilityGreedyPolicy:
         return int(cand[int(np.argmax(logdet))])
 
 
-class RandomPosePolicy:
+class RandomPosePolicy(_PoolEpisodes):
     """Random pose selection, the comparison baseline.
 
     Parameters
@@ -396,11 +409,7 @@ class RandomPosePolicy:
         starts = episode_starts(episode_start, len(batch))
         actions = np.zeros((len(batch), 6), dtype=np.float32)
         for k, row in enumerate(batch):
-            if starts[k] or row[OBS_ATTEMPTS_LEFT] >= 1.0 - 1e-6 or k not in self._episodes:
-                self._episodes[k] = _Episode()
-            ep = self._episodes[k]
-            if ep.pending is not None and row[OBS_LAST_OK] > 0.5:
-                ep.used.append(ep.pending)
+            ep = self._episode(k, bool(starts[k]), row)
             if self.pool_q is None:
                 ep.pending = None
                 actions[k] = self.rng.uniform(-1.0, 1.0, 6).astype(np.float32)
@@ -417,8 +426,3 @@ class RandomPosePolicy:
         """Forget every episode and restart the generator from ``seed``."""
         self._episodes.clear()
         self.rng = np.random.default_rng(self.seed)
-
-    def chosen(self, env_index: int = 0) -> tuple[list[int], list[int]]:
-        """Pool indices measured and tried so far in the current episode of ``env_index``."""
-        ep = self._episodes.get(env_index, _Episode())
-        return list(ep.used), sorted(ep.tried)

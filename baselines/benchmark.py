@@ -64,10 +64,10 @@ from realitygap.baselines.rl import (
     check_env_id,
     env_slug,
     load_policy,
-    publish_file,
     shipped_policy,
     write_csv_atomic,
     write_text_atomic,
+    write_via_temp,
 )
 
 INSTALL_RAY = "pip install 'realitygap[ray]'"
@@ -1049,7 +1049,6 @@ def plot_success(summary: Sequence[Mapping[str, Any]], out: str | os.PathLike[st
         import matplotlib.pyplot as plt
     except ImportError:
         return None
-    import tempfile
 
     panels = sorted(
         {(r["env"], r["sensor_mode"]) for r in summary}, key=lambda k: (k[0], k[1] != "fast")
@@ -1081,18 +1080,10 @@ def plot_success(summary: Sequence[Mapping[str, Any]], out: str | os.PathLike[st
             ax.set_title(f"{env} ({mode} sensors): {title}", fontsize=9)
             ax.legend(fontsize=7)
     fig.tight_layout()
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=".png", dir=out.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp, dpi=110)
-        publish_file(tmp, out)
+        return write_via_temp(out, lambda tmp: fig.savefig(tmp, dpi=110), ".png")
     finally:
         plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return out
 
 
 # --------------------------------------------------------------------------- the whole run

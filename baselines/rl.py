@@ -1295,16 +1295,7 @@ def save_policy(
     Both are written to temporary files first and renamed, so a crash never leaves a
     half-written policy. Returns the metadata path.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".zip", dir=path.parent)
-    os.close(fd)
-    try:
-        model.save(tmp)
-        publish_file(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    path = write_via_temp(path, model.save, ".zip")
     import stable_baselines3
 
     meta = {
@@ -1494,15 +1485,8 @@ def export_policy(model: Any, meta: Mapping[str, Any], dest: str | os.PathLike[s
         "model_observation_space": _box_to_dict(model.observation_space),
         "model_action_space": _box_to_dict(model.action_space),
     }
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{dest.stem}.", suffix=".pth", dir=dest.parent)
-    os.close(fd)
-    try:
-        torch.save({k: v.detach().cpu() for k, v in state.items()}, tmp)
-        publish_file(tmp, dest)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    weights = {k: v.detach().cpu() for k, v in state.items()}
+    write_via_temp(dest, lambda tmp: torch.save(weights, tmp), ".pth")
     write_text_atomic(dest.with_suffix(".json"), json.dumps(out_meta, indent=2) + "\n")
     return dest
 
@@ -1581,6 +1565,27 @@ def publish_file(tmp: str | os.PathLike[str], path: str | os.PathLike[str]) -> N
     os.umask(umask)
     os.chmod(tmp, 0o666 & ~umask)
     os.replace(tmp, path)
+
+
+def write_via_temp(
+    path: str | os.PathLike[str], write: Callable[[str], Any], suffix: str = ""
+) -> Path:
+    """Let ``write(tmp)`` write a temporary file beside ``path``, then rename it onto ``path``.
+
+    For writers that take a file name (SB3 ``save``, ``torch.save``, ``savefig``): a crash
+    never leaves a half-written file. Returns ``path``.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        write(tmp)
+        publish_file(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path
 
 
 def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
@@ -1700,17 +1705,10 @@ def plot_learning_curves(
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7)
     fig.tight_layout()
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{out_path.stem}.", suffix=".png", dir=out_path.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp, dpi=110)
-        publish_file(tmp, out_path)
+        return write_via_temp(out_path, lambda tmp: fig.savefig(tmp, dpi=110), ".png")
     finally:
         plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return out_path
 
 
 def ship_policy(run_dir: str | os.PathLike[str], env_id: str, algo: str) -> Path:
