@@ -37,7 +37,7 @@ structured ride-height residual left "unexplained").
 from __future__ import annotations
 
 import dataclasses
-import functools
+import json
 from collections.abc import Mapping
 from typing import Any
 
@@ -124,29 +124,9 @@ def climber_params_from_meta(log: Log) -> Any:
         raise LogError(f"{log.source}: meta['params'] is not a valid climber: {exc}") from None
 
 
-@functools.lru_cache(maxsize=8)
-def _surface_model(key: str) -> Any:
-    import json
-
-    from realitygap.estimators.climb import SurfaceModel
-    from realitygap.robots.blade_geometry import BladeParams
-    from realitygap.robots.climber import ClimberParams
-
-    raw = json.loads(key)
-    params = ClimberParams(
-        blade=BladeParams(**raw["blade"]),
-        mount_pitch=raw["mount_pitch"],
-        mount_position=tuple(raw["mount_position"]),
-    )
-    pts, nrm = params.cad_cloud(0.01)
-    return SurfaceModel(pts, nrm)
-
-
-def cad_surface(params: Any) -> Any:
-    """The CAD point-cloud surface model of a climber's blade (cached per geometry)."""
-    import json
-
-    key = json.dumps(
+def _geometry_key(params: Any) -> str:
+    """What a blade scene and its CAD cloud depend on: the blade and its mount."""
+    return json.dumps(
         {
             "blade": dataclasses.asdict(params.blade),
             "mount_pitch": float(params.mount_pitch),
@@ -154,7 +134,20 @@ def cad_surface(params: Any) -> Any:
         },
         sort_keys=True,
     )
-    return _surface_model(key)
+
+
+_SURFACES: dict[str, Any] = {}
+"""CAD surface models of this process, by geometry."""
+
+
+def cad_surface(params: Any) -> Any:
+    """The CAD point-cloud surface model of a climber's blade (cached per geometry)."""
+    from realitygap.estimators.climb import SurfaceModel
+
+    key = _geometry_key(params)
+    if key not in _SURFACES:
+        _SURFACES[key] = SurfaceModel(*params.cad_cloud(0.01))
+    return _SURFACES[key]
 
 
 def heights_above_cad(params: Any, positions: FloatArray) -> FloatArray:
@@ -168,18 +161,9 @@ _SCENES: dict[str, Any] = {}
 
 
 def _scene(params: Any) -> Any:
-    import json
-
     from realitygap.robots.climber import ClimbWorld
 
-    key = json.dumps(
-        {
-            "blade": dataclasses.asdict(params.blade),
-            "mount_pitch": float(params.mount_pitch),
-            "mount_position": [float(v) for v in params.mount_position],
-        },
-        sort_keys=True,
-    )
+    key = _geometry_key(params)
     if key not in _SCENES:
         scene = ClimbWorld(params.replace(gap_offset=0.0))
         # bodies of other ride heights are loaded from the same file name: no caching
