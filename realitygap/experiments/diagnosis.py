@@ -103,6 +103,20 @@ def _pick(logs: list[Any], per_session: int, max_sessions: int | None) -> list[A
     return out
 
 
+def _ranking_table(js: dict[str, Any], n: int) -> list[dict[str, Any]]:
+    """The first ``n`` models of a diagnosis (its JSON form) as table rows."""
+    return [
+        {
+            "rank": r["rank"],
+            "model": r["name"],
+            "params": {k: round(p["value"], 6) for k, p in r["params"].items()},
+            "heldout_shrink_pct": round(r["heldout_shrink_pct"], 2),
+            "verified": r["verified_in_pybullet"],
+        }
+        for r in js["ranking"][:n]
+    ]
+
+
 @experiment(
     "diagnose-real",
     "OptiOdom robot: where the real gap lies, which effects explain it, held-out shrink",
@@ -162,16 +176,7 @@ def diagnose_real(ctx: RunContext) -> dict[str, Any]:
         )
         figures[prefix + "diagnose_seconds"] = d.timing["total"]
         js = d.to_json()
-        tables[f"{drive}_ranking"] = [
-            {
-                "rank": r["rank"],
-                "model": r["name"],
-                "params": {k: round(p["value"], 6) for k, p in r["params"].items()},
-                "heldout_shrink_pct": round(r["heldout_shrink_pct"], 2),
-                "verified": r["verified_in_pybullet"],
-            }
-            for r in js["ranking"][:10]
-        ]
+        tables[f"{drive}_ranking"] = _ranking_table(js, 10)
         tables[f"{drive}_where"] = [
             {
                 k: r[k]
@@ -268,16 +273,7 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
             )
             figures[f"ur10_{prefix}diagnose_seconds"] = d.timing["total"]
             js = d.to_json()
-            tables[f"{prefix or 'forward_'}ranking"] = [
-                {
-                    "rank": r["rank"],
-                    "model": r["name"],
-                    "params": {k: round(p["value"], 6) for k, p in r["params"].items()},
-                    "heldout_shrink_pct": round(r["heldout_shrink_pct"], 2),
-                    "verified": r["verified_in_pybullet"],
-                }
-                for r in js["ranking"][:8]
-            ]
+            tables[f"{prefix or 'forward_'}ranking"] = _ranking_table(js, 8)
             tables[f"{prefix or 'forward_'}where"] = [
                 {k: r[k] for k in ("where", "column", "regime", "n_windows", "rms", "share")}
                 for r in js["localisation"]["table"][:8]
