@@ -289,10 +289,6 @@ _SURROGATE_EFFECTS = (
     "arm_backlash",
     "arm_encoder_scale",
 )
-_UNOBSERVABLE = {
-    "arm_joint_offset.dtheta1": "a base rotation, which distances cannot see",
-    "arm_link_length.dd1": "a base height, which distances cannot see",
-}
 
 
 def _batch_size(values: Mapping[str, npt.ArrayLike]) -> int:
@@ -535,11 +531,6 @@ class ArmAdapter(AdapterBase):
         )
         scale = float(np.min(settings.scale("tool_dist")))
         return {"tool_dist": math.sqrt(2.0) * sigma / scale}
-
-    @staticmethod
-    def unobservable_parameters() -> dict[str, str]:
-        """Parameters that tool-point distances cannot see, and why."""
-        return dict(_UNOBSERVABLE)
 
     # ------------------------------------------------------------------ models
     def replay_features(

@@ -160,7 +160,9 @@ def _dx_du(key: str, x: float) -> float:
 # --------------------------------------------------------------------------- layout
 MOTION_COLUMNS = ("v_mean", "w_mean", "dv", "dw", "v_range", "w_range")
 """Commanded motion of a window: mean speed and turn rate, their signed change over the
-window (m/s, rad/s) and their ranges."""
+window (m/s, rad/s) and their ranges. An adapter may describe its windows itself in six
+columns (``context["motion"]``: an arm's reach and holding torques, a climber's speed and
+vertical speed); the trend test regresses the residual on whichever is given."""
 
 
 @dataclass
