@@ -357,23 +357,27 @@ class ClimberAdapter(AdapterBase):
             h = replay_heights(ctx["params"], ctx["window_poses"], gap)
             if gap == 0.0:
                 ctx["nominal_heights"] = h
-        feats = self._predict(prepared, {k: np.array([v]) for k, v in values.items()}, h)
-        out = {g: v[0] for g, v in feats.items()}
         tether = tether_model(
             ctx["anchor"], ctx["positions"], {k: np.array([v]) for k, v in values.items()}
         )[0]
         rep = Log(
             t=prepared.log.t,
             channels={"pose3_gt": prepared.log["pose3_gt"], "tether": tether},
-            meta={**dict(prepared.log.meta), "replay": True},
+            meta={
+                **dict(prepared.log.meta),
+                "replay": True,
+                "window_ride_heights": [float(x) for x in h],
+            },
             source=f"replay of {prepared.log.name}",
         )
-        return out, rep
+        return self.log_features(prepared, rep), rep
 
     def log_features(self, prepared: PreparedLog, log: Log) -> Features:
-        """Tether feature of a replay (its ride height is not a channel): surrogate groups only."""
+        """Features of a replay: its tether readings and the ride heights it measured per
+        window (``meta["window_ride_heights"]``)."""
         tether = _window_means(np.asarray(log["tether"])[:, 0], prepared.bounds)[:, None]
-        return {"tether": tether, "surface": prepared.nominal["surface"]}
+        heights = np.asarray(log.meta["window_ride_heights"], dtype=float)[:, None]
+        return {"tether": tether, "surface": heights}
 
     def surrogate_features(
         self, prepared: PreparedLog, values: Mapping[str, npt.ArrayLike], drive: Drive
