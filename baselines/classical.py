@@ -72,6 +72,23 @@ class ClassicalNavConfig:
     ``settle_radius`` it finishes by turning in place onto the goal heading (a robot
     whose drive differs from its model can limit-cycle around a millimetre goal)."""
     settle_radius: float = 0.015
+    ramp_commands: bool = True
+    """Ramp each command from the last applied one within the acceleration limits above.
+    ``False`` returns the command the pipeline asks for, only saturated to the velocity
+    limits (the base's firmware still limits acceleration): the label a learned policy
+    imitates (:mod:`realitygap.baselines.imitation`)."""
+    reference_lead: float | None = None
+    """``None``: the path reference runs on the clock (time since tracking began). A number
+    (s): the reference is the path point nearest to the robot, advanced by this lead time,
+    and the robot re-plans when it is ``replan_tracking_error`` away from the path — the
+    command is then a function of where the robot is, not of how long it has driven, which
+    is what an expert must be when another policy drives (DAgger)."""
+    brake_before_replan: bool = True
+    """Stop before planning from a new pose (a plan starts from standstill)."""
+    sticky_final: bool = True
+    """Once turning onto the goal heading (``align_final``) or ``done``, stay there. ``False``
+    leaves these phases again when the robot is out of their region (another policy
+    drives)."""
     apf: APFParams = field(default_factory=lambda: APFParams(inflation_radius=0.25, max_escapes=8))
 
 
@@ -169,6 +186,53 @@ class ClassicalNavPolicy(PerEnvPolicy):
         st = self._states.get(env_index)
         return st is not None and st.phase == "done"
 
+    def carrot(
+        self, pose: npt.ArrayLike, lookahead: float, env_index: int = 0
+    ) -> FloatArray | None:
+        """The point ``lookahead`` m along the current path beyond the path point nearest to
+        ``pose``, as ``[x, y, heading]``; ``None`` when there is no path to follow (no plan
+        yet, a failed one, or the final phases on the goal)."""
+        st = self._states.get(env_index)
+        if (
+            st is None
+            or st.reference is None
+            or st.path_tree is None
+            or st.phase in ("stabilise", "align_final", "done")
+        ):
+            return None
+        p = np.asarray(pose, dtype=float)
+        nearest = int(st.path_tree.query(p[:2])[1])
+        s = float(st.reference.path.s[nearest]) + float(lookahead)
+        return st.reference.sample_at_s(s).pose.copy()
+
+    @staticmethod
+    def expert_config(**overrides: Any) -> ClassicalNavConfig:
+        """Settings that make the command a function of the state another policy drives the
+        robot into — the expert of :mod:`realitygap.baselines.imitation`:
+
+        - no acceleration ramp of its own: a ramped command is "the last command plus a small
+          step", which a network cannot copy from standstill; the base's firmware limits
+          acceleration anyway;
+        - the path reference is the nearest path point plus a 0.3 s lead, not a point that runs
+          on the clock (which would run away from a slower driver and make it re-plan);
+        - no braking to a stop before a re-plan (an all-zero command means "stop here");
+        - docking a smooth network can follow: within 2 cm of the goal it turns in place onto
+          the goal heading at once, stops within 1.5 cm and 2.5° (inside the env's 3 cm and
+          5°) and leaves these final phases when the robot leaves their region.
+        """
+        settings: dict[str, Any] = {
+            "ramp_commands": False,
+            "reference_lead": 0.3,
+            "brake_before_replan": False,
+            "sticky_final": False,
+            "done_pos_tol": 0.015,
+            "done_ang_tol": math.radians(2.5),
+            "settle_timeout": 0.0,
+            "settle_radius": 0.02,
+            **overrides,
+        }
+        return ClassicalNavConfig(**settings)
+
     # ------------------------------------------------------------------ internals
     def act(self, i: int, obs: FloatArray) -> FloatArray:
         """The action of env ``i`` for its observation row (see :class:`PerEnvPolicy`)."""
@@ -183,7 +247,10 @@ class ClassicalNavPolicy(PerEnvPolicy):
         st.t += self.dt
         self._remember(st, pose, obs[12:])
         v, w = self._control(i, st, pose, goal, v_prev)
-        v, w = self.limits.clip(v, w, v_prev, w_prev, self.dt)
+        if self.config.ramp_commands:
+            v, w = self.limits.clip(v, w, v_prev, w_prev, self.dt)
+        else:
+            v, w = self.limits.saturate(v, w)
         return np.array([v / self.limits.v_max, w / self.limits.w_max])
 
     def _remember(self, st: _EpisodeState, pose: FloatArray, scan: FloatArray) -> None:
@@ -238,7 +305,11 @@ class ClassicalNavPolicy(PerEnvPolicy):
         if st.reference is None:
             return st.t - st.last_replan >= self.config.replan_interval or st.plans == 0
         sample = st.reference.sample(st.t_ref)
-        if math.hypot(*(sample.pose[:2] - pose[:2])) > self.config.replan_tracking_error:
+        if self.config.reference_lead is not None and st.path_tree is not None:
+            off_path = float(st.path_tree.query(pose[:2])[0])
+        else:
+            off_path = math.hypot(*(sample.pose[:2] - pose[:2]))
+        if off_path > self.config.replan_tracking_error:
             return True
         if st.new_points and st.t - st.last_replan >= 0.25 and st.path_tree is not None:
             d, idx = st.path_tree.query(np.asarray(st.new_points))
@@ -253,6 +324,12 @@ class ClassicalNavPolicy(PerEnvPolicy):
     ) -> tuple[float, float]:
         stab = self._stabilisers[i]
         dist = math.hypot(goal[0] - pose[0], goal[1] - pose[1])
+        if not self.config.sticky_final and st.phase in ("align_final", "done"):
+            inside = dist <= 2.0 * self.config.settle_radius
+            if st.phase == "done":
+                inside = stab.done(pose, goal, self.config.done_pos_tol, self.config.done_ang_tol)
+            if not inside:
+                st.phase = "stabilise"
         if st.phase == "align_final":
             heading_err = abs(float(wrap_angle(goal[2] - pose[2])))
             if heading_err <= self.config.done_ang_tol:
@@ -277,7 +354,8 @@ class ClassicalNavPolicy(PerEnvPolicy):
                 stab.reset()
             return stab.command(pose, goal)
         if self._needs_replan(st, pose):
-            if abs(v_prev) > 0.05:  # brake before planning from a new heading
+            if self.config.brake_before_replan and abs(v_prev) > 0.05:
+                # brake before planning from a new heading
                 return 0.0, 0.0
             if not self._plan(st, pose, goal):
                 return 0.0, 0.0
@@ -289,7 +367,11 @@ class ClassicalNavPolicy(PerEnvPolicy):
                 return stab.command(pose, np.array([pose[0], pose[1], st.path_heading]))
             st.phase = "track"
             st.t_ref = 0.0
-        st.t_ref += self.dt
+        if self.config.reference_lead is not None and st.path_tree is not None:
+            nearest = int(st.path_tree.query(pose[:2])[1])
+            st.t_ref = float(st.reference.t[nearest]) + self.config.reference_lead
+        else:
+            st.t_ref += self.dt
         ref = st.reference.sample(st.t_ref)
         if st.t_ref >= st.reference.duration:
             st.phase = "stabilise"

@@ -103,6 +103,9 @@ def add_train_parser(subparsers: Any) -> argparse.ArgumentParser:
         help="continue training this saved model.zip (a long run split into shorter ones)",
     )
     p.add_argument("--eval-every", type=int, default=50_000, help="steps between evaluations")
+    p.add_argument(
+        "--checkpoint-every", type=int, default=100_000, help="steps between checkpoints (0: none)"
+    )
     p.add_argument("--eval-episodes", type=int, default=20)
     p.add_argument(
         "--ship",
@@ -139,6 +142,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         vec_env=args.vec_env,
         hyperparams=hp,
         eval_every=args.eval_every,
+        checkpoint_every=args.checkpoint_every,
         eval_episodes=args.eval_episodes,
         init_model=Path(args.init_model) if args.init_model else None,
     )

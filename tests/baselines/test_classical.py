@@ -76,3 +76,30 @@ def test_a_failed_plan_makes_the_robot_wait_not_crash(monkeypatch: pytest.Monkey
         action, _ = policy.predict(obs)
         assert np.all(action == 0.0)
     assert len(calls) == 1
+
+
+@pytest.mark.parametrize("lead", [None, 0.3])
+def test_a_lead_reference_makes_the_command_a_function_of_the_state(lead: float | None) -> None:
+    from realitygap.baselines.classical import ClassicalNavConfig
+
+    env = gym.make(
+        "realitygap/WheeledNav-v0", n_obstacles=0, start=(-2.4, 0.0, 0.0), goal=(2.0, 0.5, 0.0)
+    )
+    config = ClassicalNavConfig(reference_lead=lead, ramp_commands=lead is None)
+    policy = ClassicalNavPolicy.from_env(env, config)
+    obs, _ = env.reset(seed=0)
+    start = True
+    while policy.episode_stats()["phase"] != "track":
+        action, _ = policy.predict(obs, episode_start=np.array([start]))
+        start = False
+        obs, *_ = env.step(action)
+    for _ in range(20):  # drive on a while, then freeze the observation
+        action, _ = policy.predict(obs)
+        obs, *_ = env.step(action)
+    repeated = np.array([policy.predict(obs)[0] for _ in range(10)])
+    env.close()
+    spread = float(np.ptp(repeated, axis=0).max())
+    if lead is None:
+        assert spread > 1e-3  # the clock reference runs on while the robot stands still
+    else:
+        assert spread == 0.0  # the same state gets the same command

@@ -409,3 +409,44 @@ def test_sac_trains_exports_and_loads(tmp_path: Path) -> None:
     from_weights = rl.load_policy(dest, env)
     env.close()
     np.testing.assert_allclose(_predictions(from_zip), _predictions(from_weights), atol=1e-6)
+
+
+def test_a_continued_run_takes_the_files_optimisation_settings(
+    tiny_ppo: Path, tmp_path: Path
+) -> None:
+    hp = {**_tiny_hyperparams(), "learning_rate": 1e-5, "clip_range": 0.05, "n_epochs": 2}
+    cfg = rl.TrainConfig(
+        env_id=ENV_ID,
+        algo="ppo",
+        out_dir=tmp_path,
+        seed=3,
+        total_timesteps=128,
+        hyperparams=hp,
+        checkpoint_every=0,
+        eval_every=0,
+        eval_episodes=0,
+        progress_every_s=1e9,
+        init_model=tiny_ppo,
+    )
+    result = rl.train(cfg)
+    assert result.timesteps == 256 + 128  # the step count goes on
+    from stable_baselines3 import PPO
+
+    model = PPO.load(result.model_path, device="cpu")
+    assert model.learning_rate == pytest.approx(1e-5) and model.n_epochs == 2
+    assert model.clip_range(1.0) == pytest.approx(0.05)
+    assert rl.read_policy_meta(result.model_path)["init_model"] == str(tiny_ppo)
+
+
+@pytest.mark.parametrize("path", sorted(rl.POLICIES_DIR.glob("*.pth")), ids=lambda p: p.stem)
+def test_shipped_policies_load_for_their_env_and_act_in_bounds(path: Path) -> None:
+    meta = json.loads(path.with_suffix(".json").read_text(encoding="utf-8"))
+    env = gym.make(meta["env_id"], **meta["env_kwargs"])
+    policy = rl.load_policy(path, env)
+    obs, _ = env.reset(seed=0)
+    for k in range(5):
+        action, _ = policy.predict(obs, episode_start=np.array([k == 0]))
+        assert action.shape == env.action_space.shape
+        assert np.all(action >= env.action_space.low) and np.all(action <= env.action_space.high)
+        obs, *_ = env.step(action)
+    env.close()
