@@ -52,22 +52,24 @@ through a 70° camera. PPO from scratch learns to approach the goal but seldom t
 recipe in ``ppo.json``:
 
 1. **Inputs.** The goal in polar form and "zoomed" (:func:`wheeled_nav_goal_zoom_features`),
-   so centimetre and degree errors are visible after normalisation, and an obstacle
-   memory all around the robot (``obs_memory``,
-   :class:`~realitygap.baselines.episode_features.ObstacleMemory`).
+   so centimetre and degree errors are visible after normalisation; an obstacle memory
+   all around the robot (``obs_memory``,
+   :class:`~realitygap.baselines.episode_features.ObstacleMemory`); and a rest timer
+   (``obs_rest_timer``, :class:`~realitygap.baselines.episode_features.RestTimer`), without
+   which "stopped short of the goal" is a fixed point of a deterministic policy.
 2. **Outputs.** A stop gate (:func:`stop_gate`): stopping is one decision, not two
    commands that must both be near zero.
-3. **Warm start.** DAgger from the classical pipeline
+3. **Warm start.** DAgger from the classical pipeline in state-feedback form
    (:mod:`realitygap.baselines.imitation`): six rounds of 60 episodes, the network fitted
    to the expert's commands, small commands weighted up; the observation normalisation
    is then frozen.
-4. **Fine-tuning.** PPO with a small learning rate, clipping and KL limit, low
-   exploration noise, the env's reward plus a precision potential and a larger collision
-   penalty (:class:`WheeledNavShaping`), and a looser at-rest condition in training
-   (:class:`WheeledNavRestRelaxation`). Training episodes are cut at 600 steps (30 s).
+4. **Fine-tuning.** PPO with a small learning rate (5e-5), clipping 0.1 and a KL limit,
+   low exploration noise, on the env's reward plus a precision potential and a larger
+   collision penalty (:class:`WheeledNavShaping`), with the env's own success criterion.
+   Training episodes are cut at 600 steps (30 s).
 
-The older from-scratch settings (curriculum, dead band) remain available as
-hyperparameter keys.
+The from-scratch settings of earlier versions (curriculum, dead band, relaxed
+at-rest condition) remain available as hyperparameter keys.
 
 Training is seeded (algorithm, every env worker, the curriculum) and runs
 single-threaded torch, so a run repeats exactly on the same machine and
