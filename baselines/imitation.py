@@ -10,7 +10,11 @@ observation, so the learned policy can start from it:
    network's otherwise, and every visited state is labelled with what the expert
    would do there. The expert is stateful (plan, obstacle memory) and keeps observing
    while the network drives, so its labels are its answers to the states the network
-   reaches. After each round the network is fitted on all data so far.
+   reaches. After each round the network is fitted on all data so far. The expert is
+   the classical pipeline in state-feedback form
+   (:meth:`~realitygap.baselines.classical.ClassicalNavPolicy.expert_config`): as it runs
+   for the benchmark, its command depends on its own past commands and on a clock, so
+   its labels for states another driver reaches teach a network to stop.
 2. **Behaviour cloning** fits the Gaussian policy's mean to the expert's actions in the
    network's action space (the inverse of the dead band; the stop gate is +1 where the
    expert stands still, −1 elsewhere), and the value head to the discounted training
