@@ -100,7 +100,10 @@ def add_train_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument(
         "--init-model",
         default=None,
-        help="continue training this saved model.zip (a long run split into shorter ones)",
+        help=(
+            "continue training this saved model.zip (a long run split into shorter ones), "
+            "or a PPO policy's exported weights (.pth + .json, e.g. a shipped policy)"
+        ),
     )
     p.add_argument("--eval-every", type=int, default=50_000, help="steps between evaluations")
     p.add_argument(

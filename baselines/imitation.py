@@ -23,6 +23,14 @@ observation, so the learned policy can start from it:
    so the inputs the cloned network learned on keep their meaning.
 
 PPO then fine-tunes the network on the training reward (:func:`~realitygap.baselines.rl.train`).
+
+ArmCalib uses the same machinery with the observability-greedy pose selector as the
+expert, in one round (plain behaviour cloning, see :data:`EXPERT_DRIVES_ONLY`). A
+Gaussian policy trained by PPO alone draws its spread of poses from its exploration
+noise; its deterministic action (the mean) barely depends on the state and asks for
+nearly the same pose twenty times, which no identification can use. The greedy
+selector's poses follow from the campaign's state (attempt count, joint readings,
+conditioning), which the network can learn.
 Rollouts run in worker processes (the network is evaluated there in numpy), each
 seeded from the run's seed.
 """
@@ -66,6 +74,9 @@ class DemoSettings:
     epochs : behaviour-cloning epochs over all data after each round.
     batch_size, learning_rate : of the cloning optimiser (Adam).
     value_weight : weight of the value loss next to the action loss.
+    train_wrappers : training wrappers of the demonstration episodes
+        (:data:`~realitygap.baselines.rl.TRAIN_WRAPPERS`), in place of the run's own
+        ``train_wrappers`` (``None``: the run's), e.g. more docking starts than PPO gets.
     small_action_scale : each sample's action loss is weighted by
         ``1 / max(‖a‖, small_action_scale)²`` (``a``: the expert's motion command, without
         the stop gate), normalised to mean 1, so the small commands of the last centimetres
@@ -83,6 +94,7 @@ class DemoSettings:
     value_weight: float = 0.5
     small_action_scale: float = 0.0
     workers: int = 2
+    train_wrappers: tuple[Mapping[str, Any], ...] | None = None
 
     def __post_init__(self) -> None:
         if self.expert != "classical":
@@ -103,7 +115,19 @@ class DemoSettings:
             raise ValueError(
                 f"unknown demonstrations setting(s) {sorted(unknown)}; known: {', '.join(sorted(known))}"
             )
-        return cls(**dict(data))
+        values = dict(data)
+        if values.get("train_wrappers") is not None:
+            from realitygap.baselines.rl import TRAIN_WRAPPERS
+
+            wrappers = tuple(dict(w) for w in values["train_wrappers"])
+            for w in wrappers:
+                if w.get("name") not in TRAIN_WRAPPERS:
+                    raise ValueError(
+                        f"unknown training wrapper {w.get('name')!r} in demonstrations; "
+                        f"known: {', '.join(TRAIN_WRAPPERS)}"
+                    )
+            values["train_wrappers"] = wrappers
+        return cls(**values)
 
 
 def expert_action_to_model(
@@ -413,6 +437,11 @@ def pretrain(
     """
     if env_id not in EXPERTS:
         raise ValueError(f"no demonstration expert for {env_id}; known: {', '.join(EXPERTS)}")
+    if env_id in EXPERT_DRIVES_ONLY and settings.rounds != 1:
+        raise ValueError(
+            f"the expert of {env_id} labels only the episodes it drives; demonstrations "
+            f"need rounds = 1 (behaviour cloning), got {settings.rounds}"
+        )
     activation = _activation_name(model)
     data = Rollouts()
     normalizer = None
@@ -432,7 +461,9 @@ def pretrain(
             actor_state=model.policy.state_dict() if k > 0 else None,
             activation=activation,
             normalizer=normalizer,
-            train_wrappers=train_wrappers,
+            train_wrappers=(
+                train_wrappers if settings.train_wrappers is None else settings.train_wrappers
+            ),
             max_episode_steps=max_episode_steps,
             workers=settings.workers,
             rng_seed=seed * 100 + k,
@@ -467,8 +498,22 @@ def _classical_wheeled_nav_expert(env: gym.Env[Any, Any]) -> Any:
     return ClassicalNavPolicy.from_env(env, ClassicalNavPolicy.expert_config())
 
 
+def _greedy_arm_calib_expert(env: gym.Env[Any, Any]) -> Any:
+    from realitygap.baselines.arm_policy import ObservabilityGreedyPolicy
+
+    return ObservabilityGreedyPolicy.from_env(env)
+
+
 EXPERTS: dict[str, Callable[[gym.Env[Any, Any]], Any]] = {
     "realitygap/WheeledNav-v0": _classical_wheeled_nav_expert,
+    "realitygap/ArmCalib-v0": _greedy_arm_calib_expert,
 }
-"""Expert per env id (for WheeledNav: the classical pipeline with
-:meth:`~realitygap.baselines.classical.ClassicalNavPolicy.expert_config`)."""
+"""Expert per env id: for WheeledNav the classical pipeline with
+:meth:`~realitygap.baselines.classical.ClassicalNavPolicy.expert_config`, for ArmCalib the
+observability-greedy pose selector
+(:class:`~realitygap.baselines.arm_policy.ObservabilityGreedyPolicy`)."""
+
+EXPERT_DRIVES_ONLY: frozenset[str] = frozenset({"realitygap/ArmCalib-v0"})
+"""Envs whose expert can label only the episodes it drives itself (``rounds`` must be 1):
+the greedy pose selector keeps its own record of the poses it chose, which a step of
+another driver would falsify."""

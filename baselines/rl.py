@@ -67,9 +67,25 @@ recipe in ``ppo.json``:
    low exploration noise, on the env's reward plus a precision potential and a larger
    collision penalty (:class:`WheeledNavShaping`), with the env's own success criterion.
    Training episodes are cut at 600 steps (30 s).
+5. **Docking starts**, in the demonstrations and in PPO: 30 % of the training episodes
+   start next to the goal facing anywhere (:class:`WheeledNavDockingStarts`). A robot
+   that reaches the goal position with a large heading error must turn in place; the
+   expert seldom arrives that way, so without these starts the network never learns it
+   and stalls there.
 
 The from-scratch settings of earlier versions (curriculum, dead band, relaxed
 at-rest condition) remain available as hyperparameter keys.
+
+ArmCalib recipe. A campaign is good when its poses are spread so that the
+identification is well conditioned. A Gaussian policy trained by PPO from scratch
+gets that spread from its exploration noise: its success in training is that of random
+poses, while its deterministic action (the mean, what the benchmark scores) hardly
+depends on the state and asks for nearly the same pose twenty times (0 % success). The
+recipe in ``ppo.json`` clones the observability-greedy selector (one round of
+demonstrations, :mod:`realitygap.baselines.imitation`), then fine-tunes with small
+exploration noise on the env's reward plus an observability potential
+(:class:`ArmObservabilityShaping`), which pays from the second pose on instead of only
+after the first identification.
 
 Training is seeded (algorithm, every env worker, the curriculum) and runs
 single-threaded torch, so a run repeats exactly on the same machine and
@@ -85,7 +101,8 @@ library versions. It writes, under ``out_dir``::
     learning_curve.png  when matplotlib is installed
 
 A long training can be split into runs of bounded wall time with
-``TrainConfig(init_model=...)`` (``realitygap train --init-model``).
+``TrainConfig(init_model=...)`` (``realitygap train --init-model``); a PPO run can also
+start from a shipped policy's exported weights.
 
 .. warning::
    ``PPO.load`` / ``SAC.load`` unpickle parts of the zip file (cloudpickle), which
@@ -531,9 +548,127 @@ class WheeledNavShaping(gym.Wrapper):
         return obs, float(reward) + extra, terminated, truncated, info
 
 
+class WheeledNavDockingStarts(gym.Wrapper):
+    """Training only: some episodes start next to the goal, facing anywhere.
+
+    Docking — the last centimetres and the turn onto the goal heading — is a few seconds
+    at the end of an episode, and a robot that arrives with a large heading error is
+    rarer still, so a network sees little of it. With probability ``probability`` a reset
+    draws the episode as usual (layout, goal), then starts it again from a pose within
+    ``radius`` (m) of the goal position, with a uniform heading and bearing and the
+    distance ``radius · u²`` (``u`` uniform): half of these starts lie within ``radius / 4``
+    of the goal, where the robot must turn in place onto the goal heading.
+    The env keeps obstacles ``body_radius + 0.25`` m clear of its start and goal, so such
+    a start is free. Every draw comes from the env's own seeded generator.
+    """
+
+    def __init__(self, env: gym.Env[Any, Any], probability: float = 0.3, radius: float = 0.25):
+        super().__init__(env)
+        if not 0.0 <= probability <= 1.0:
+            raise ValueError(f"probability must be in [0, 1], got {probability}")
+        if not 0.0 < radius <= 0.25:
+            raise ValueError(
+                f"radius must be in (0, 0.25] m (the obstacle-free margin around the goal), "
+                f"got {radius}"
+            )
+        self.probability = float(probability)
+        self.radius = float(radius)
+
+    def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
+        obs, info = self.env.reset(**kwargs)
+        if kwargs.get("options"):
+            return obs, info  # the caller chose the poses
+        rng: np.random.Generator = self.env.unwrapped.np_random
+        if rng.random() >= self.probability:
+            return obs, info
+        goal = np.asarray(info["goal"], dtype=float)
+        r = self.radius * rng.random() ** 2
+        phi = rng.uniform(-math.pi, math.pi)
+        start = np.array(
+            [
+                goal[0] + r * math.cos(phi),
+                goal[1] + r * math.sin(phi),
+                rng.uniform(-math.pi, math.pi),
+            ]
+        )
+        return self.env.reset(options={"start": start, "goal": goal})
+
+
+class ArmObservabilityShaping(gym.Wrapper):
+    r"""Training only: ArmCalib reward for measured poses that make the identification
+    better conditioned.
+
+    The env pays for a drop of the validation error, which needs an identification, so
+    for the first ``min_poses`` attempts every choice of pose earns nothing. This adds the
+    potential-based term :math:`w\,(\Phi' - \Phi)` with
+
+    .. math::
+
+        \Phi = \frac{1}{p} \sum_{i=1}^{p} \log_{10}(\sigma_i + \varepsilon)
+
+    over the singular values :math:`\sigma_i` of the column-scaled pair Jacobian of the
+    poses measured so far (the O1 observability index in logarithms, the analysis of
+    :class:`~realitygap.baselines.arm_policy.PairObservability` on the *nominal* model,
+    as a real cell could compute it). Its sum over a campaign is
+    :math:`w(\Phi_\text{end} - \Phi_0)`, so it pays for the final pose set, not for an
+    order of visits.
+    """
+
+    def __init__(
+        self,
+        env: gym.Env[Any, Any],
+        weight: float = 1.0,
+        epsilon: float = 1e-2,
+        pool_size: int = 200,
+    ):
+        super().__init__(env)
+        from realitygap.baselines.arm_policy import PairObservability, identifiable_parameters
+
+        if not (weight >= 0.0 and epsilon > 0.0 and pool_size >= 10):
+            raise ValueError(
+                f"weight >= 0, epsilon > 0 and pool_size >= 10 expected, got {weight}, "
+                f"{epsilon}, {pool_size}"
+            )
+        base: Any = env.unwrapped
+        if not hasattr(base, "candidate_pool"):
+            raise ValueError(
+                f"arm_observability_shaping needs ArmCalib-v0, got {type(base).__name__}"
+            )
+        pool = base.candidate_pool(int(pool_size), 7)
+        table = base.nominal_params.mdh
+        names = identifiable_parameters(table, base.tool0, pool[:60], base.estimator.settings)
+        self.model = PairObservability(table, base.tool0, pool, names)
+        self.weight = float(weight)
+        self.epsilon = float(epsilon)
+        self._q: list[npt.NDArray[np.float64]] = []
+        self._phi = self.potential(self._q)
+
+    def potential(self, q: Sequence[npt.ArrayLike]) -> float:
+        """``Φ`` of the measured joint readings ``q``."""
+        sv = self.model.singular_values_of(np.asarray(q).reshape(-1, 6))
+        return float(np.mean(np.log10(sv + self.epsilon)))
+
+    def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
+        obs, info = self.env.reset(**kwargs)
+        self._q = []
+        self._phi = self.potential(self._q)
+        return obs, info
+
+    def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        if info.get("outcome") == "ok":
+            self._q.append(np.asarray(info["q_encoder"], dtype=float))
+        phi = self.potential(self._q)
+        extra = self.weight * (phi - self._phi)
+        self._phi = phi
+        return obs, float(reward) + extra, terminated, truncated, info
+
+
 TRAIN_WRAPPERS: dict[str, Callable[..., gym.Env[Any, Any]]] = {
+    "arm_observability_shaping": ArmObservabilityShaping,
     "wheeled_nav_rest_relaxation": WheeledNavRestRelaxation,
     "wheeled_nav_shaping": WheeledNavShaping,
+    "wheeled_nav_docking_starts": WheeledNavDockingStarts,
 }
 """Training-only wrappers by name (hyperparameter ``train_wrappers``)."""
 
@@ -571,7 +706,8 @@ class TrainConfig:
     eval_every : env steps between deterministic evaluations (0: none).
     eval_episodes : episodes per evaluation (held-out seeds, the env's default criterion).
     progress_every_s : seconds between progress lines.
-    init_model : continue training this saved model (same env and algorithm); the
+    init_model : continue training this saved model (same env and algorithm), a
+        ``model.zip`` or, for PPO, exported weights (``.pth``; the optimiser starts anew); the
         curriculum schedule keeps referring to the file's ``n_timesteps``, and the file's
         learning rate, clip range, KL target, epochs, batch size and entropy coefficient
         replace the saved ones.
@@ -1234,9 +1370,12 @@ def train(cfg: TrainConfig) -> TrainResult:
             rms.count = float(init_meta.get("timesteps", 1e4))
     demo_rows: list[dict[str, float]] = list(init_meta.get("demonstrations", []) or [])
     if cfg.init_model is not None:
-        model = cls.load(cfg.init_model, env=venv, device="cpu")
-        model.set_random_seed(cfg.seed)
-        _continue_with(model, algo_kwargs)
+        if Path(cfg.init_model).suffix == ".pth":
+            model = _model_from_weights(cls, hp, venv, cfg, init_meta, algo_kwargs)
+        else:
+            model = cls.load(cfg.init_model, env=venv, device="cpu")
+            model.set_random_seed(cfg.seed)
+            _continue_with(model, algo_kwargs)
         if init_meta.get("obs_norm_frozen") and normalize:
             venv.training = False
     else:
@@ -1379,6 +1518,39 @@ def _continue_with(model: Any, algo_kwargs: Mapping[str, Any]) -> None:
             continue  # SAC's "auto" entropy coefficient lives in the saved optimiser
         else:
             setattr(model, key, value)
+
+
+def _model_from_weights(
+    cls: Any,
+    hp: Mapping[str, Any],
+    venv: Any,
+    cfg: TrainConfig,
+    init_meta: Mapping[str, Any],
+    algo_kwargs: Mapping[str, Any],
+) -> Any:
+    """A new PPO model on ``venv`` whose policy network is the exported weights
+    ``cfg.init_model`` (``.pth`` + ``.json``, :func:`export_policy`): a shipped policy can be
+    trained on. The optimiser starts afresh; the step count continues from the metadata."""
+    import torch
+
+    if cfg.algo != "ppo" or init_meta.get("algo") != "ppo":
+        raise ValueError(
+            f"continuing from exported weights works for PPO (the whole actor-critic is "
+            f"exported); {cfg.init_model} is {init_meta.get('algo')!r}, the run is {cfg.algo!r}. "
+            "Continue a SAC run from its model.zip"
+        )
+    if init_meta.get("policy_kwargs", {}) != _jsonable(hp.get("policy_kwargs", {})):
+        raise ValueError(
+            f"{cfg.init_model} has policy_kwargs {init_meta.get('policy_kwargs')}, the "
+            f"hyperparameters say {hp.get('policy_kwargs')}; continue with the same network"
+        )
+    model = cls(
+        hp.get("policy", "MlpPolicy"), venv, seed=cfg.seed, verbose=0, device="cpu", **algo_kwargs
+    )
+    state = torch.load(Path(cfg.init_model), map_location="cpu", weights_only=True)
+    model.policy.load_state_dict(state)
+    model.num_timesteps = int(init_meta.get("timesteps", 0))
+    return model
 
 
 def _pretrain_from_demonstrations(

@@ -450,3 +450,119 @@ def test_shipped_policies_load_for_their_env_and_act_in_bounds(path: Path) -> No
         assert np.all(action >= env.action_space.low) and np.all(action <= env.action_space.high)
         obs, *_ = env.step(action)
     env.close()
+
+
+def test_docking_starts_put_some_episodes_next_to_the_goal_and_are_seeded() -> None:
+    def starts(seed0: int, probability: float) -> list[tuple[float, float]]:
+        env = rl.apply_train_wrappers(
+            gym.make(ENV_ID, n_obstacles=6),
+            [{"name": "wheeled_nav_docking_starts", "probability": probability, "radius": 0.2}],
+        )
+        out = []
+        for s in range(seed0, seed0 + 30):
+            _, info = env.reset(seed=s)
+            # the episode really starts where the info says, next to an unchanged goal
+            base = env.unwrapped
+            assert np.allclose(base.robot.pose2d()[:2], info["true_pose"][:2])
+            assert info["pos_error"] == pytest.approx(
+                float(np.hypot(*(info["true_pose"][:2] - info["goal"][:2])))
+            )
+            out.append((info["pos_error"], info["heading_error"]))
+        env.close()
+        return out
+
+    all_near = starts(0, 1.0)
+    assert max(d for d, _ in all_near) <= 0.2 + 1e-9
+    assert max(a for _, a in all_near) > 1.5  # facing anywhere, not towards the goal
+    none_near = starts(0, 0.0)
+    assert min(d for d, _ in none_near) > 1.0  # the env's own goals are > 1 m away
+    some = starts(100, 0.5)
+    near = sum(d <= 0.2 for d, _ in some)
+    assert 5 <= near <= 25
+    assert some == starts(100, 0.5)  # seeded by the env
+    # a caller's own poses are left alone
+    env = rl.WheeledNavDockingStarts(gym.make(ENV_ID, n_obstacles=0), probability=1.0)
+    _, info = env.reset(seed=0, options={"start": [2.0, 2.0, 0.0], "goal": [-2.0, -2.0, 0.0]})
+    assert info["pos_error"] == pytest.approx(math.hypot(4.0, 4.0), abs=1e-3)
+    with pytest.raises(ValueError, match="obstacle-free margin"):
+        rl.WheeledNavDockingStarts(gym.make(ENV_ID, n_obstacles=0), radius=0.5)
+    with pytest.raises(ValueError, match="probability"):
+        rl.WheeledNavDockingStarts(gym.make(ENV_ID, n_obstacles=0), probability=1.5)
+
+
+def test_a_run_continues_from_exported_weights(tiny_ppo: Path, tmp_path: Path) -> None:
+    env = gym.make(ENV_ID, n_obstacles=0, n_beams=8)
+    from_zip = rl.load_policy(tiny_ppo, env)
+    env.close()
+    weights = rl.export_policy(
+        from_zip.model, rl.read_policy_meta(tiny_ppo), tmp_path / "shipped" / "WheeledNav-v0_ppo"
+    )
+    common = {
+        "env_id": ENV_ID,
+        "algo": "ppo",
+        "seed": 3,
+        "checkpoint_every": 0,
+        "eval_every": 0,
+        "eval_episodes": 0,
+        "progress_every_s": 1e9,
+        "init_model": weights,
+    }
+    # zero updates: the continued model is the exported network, step count included
+    frozen = {**_tiny_hyperparams(), "learning_rate": 0.0}
+    result = rl.train(
+        rl.TrainConfig(out_dir=tmp_path / "a", total_timesteps=128, hyperparams=frozen, **common)
+    )
+    assert result.timesteps == 256 + 128
+    import torch
+    from stable_baselines3 import PPO
+
+    continued = PPO.load(result.model_path, device="cpu").policy.state_dict()
+    exported = torch.load(weights, weights_only=True)
+    assert continued.keys() == exported.keys()
+    for key, value in exported.items():
+        torch.testing.assert_close(continued[key], value, msg=key)
+    other_net = {**_tiny_hyperparams(), "policy_kwargs": {"net_arch": [8]}}
+    with pytest.raises(ValueError, match="same network"):
+        rl.train(
+            rl.TrainConfig(
+                out_dir=tmp_path / "b", total_timesteps=128, hyperparams=other_net, **common
+            )
+        )
+
+
+def test_arm_observability_shaping_telescopes_and_pays_for_spread_poses() -> None:
+    def campaign(actions: np.ndarray, weight: float) -> tuple[float, list[dict], object]:
+        env = rl.apply_train_wrappers(
+            gym.make("realitygap/ArmCalib-v0", sensor_mode="geometric"),
+            [{"name": "arm_observability_shaping", "weight": weight}] if weight else [],
+        )
+        env.reset(seed=1)
+        total, infos = 0.0, []
+        for a in actions:
+            _, r, term, _, info = env.step(a.astype(np.float32))
+            total += float(r)
+            infos.append(info)
+            if term:
+                break
+        env.close()
+        return total, infos, env
+
+    rng = np.random.default_rng(0)
+    spread = rng.uniform(-0.8, 0.8, size=(20, 6))
+    plain, infos, _ = campaign(spread, 0.0)
+    shaped, _, env = campaign(spread, 2.0)
+    shaping = env
+    while not isinstance(shaping, rl.ArmObservabilityShaping):
+        shaping = shaping.env
+    measured = [i["q_encoder"] for i in infos if i["outcome"] == "ok"]
+    assert len(measured) >= 8
+    # the extra reward sums to w (Φ(measured poses) − Φ(none)), whatever the order
+    assert shaped - plain == pytest.approx(
+        2.0 * (shaping.potential(measured) - shaping.potential([])), abs=1e-9
+    )
+    assert shaping.potential(measured[::-1]) == pytest.approx(shaping.potential(measured))
+    # the same pose twice over tells nothing; spread poses tell more
+    same = [measured[0]] * len(measured)
+    assert shaping.potential(same) < shaping.potential(measured[:4]) < shaping.potential(measured)
+    with pytest.raises(ValueError, match="needs ArmCalib-v0"):
+        rl.ArmObservabilityShaping(gym.make(ENV_ID, n_obstacles=0))
