@@ -380,10 +380,45 @@ def wheeled_nav_goal_zoom_features(obs: npt.ArrayLike) -> npt.NDArray[np.float32
     return np.concatenate([x, np.stack(cols, axis=-1).astype(np.float32)], axis=-1)
 
 
+BEARING_FADE: float = 0.05
+"""Distance (m) below which :func:`wheeled_nav_goal_smooth_features` fades the goal bearing."""
+
+
+def wheeled_nav_goal_smooth_features(obs: npt.ArrayLike) -> npt.NDArray[np.float32]:
+    r"""The zoomed goal features (:func:`wheeled_nav_goal_zoom_features`) with a goal
+        bearing that is continuous at the goal.
+
+        ``cos α, sin α`` are undefined at the goal position: a millimetre of motion next to it
+        swings them through the whole circle, and a network that reads them turns this into
+        noise in its command just where it must turn in place and stop. Here the two bearing
+        columns are
+
+        .. math::
+
+            rac{(x_g^r,\ y_g^r)}{\sqrt{
+    ho^2 +
+    ho_0^2}}
+
+        the unit bearing far from the goal, fading to zero within ``ρ0`` =
+        :data:`BEARING_FADE`; every other column is the zoomed features'.
+    """
+    x = wheeled_nav_goal_zoom_features(obs)
+    n0 = np.shape(obs)[-1]
+    xr, yr = x[..., 8], x[..., 9]
+    scale = 1.0 / np.sqrt(xr.astype(np.float64) ** 2 + yr.astype(np.float64) ** 2 + BEARING_FADE**2)
+    x[..., n0 + 1] = (xr * scale).astype(np.float32)
+    x[..., n0 + 2] = (yr * scale).astype(np.float32)
+    return x
+
+
 OBS_FEATURES: dict[str, tuple[Callable[[npt.ArrayLike], npt.NDArray[np.float32]], int]] = {
     "wheeled_nav_goal_polar": (wheeled_nav_goal_features, 5),
     "wheeled_nav_goal_zoom": (
         wheeled_nav_goal_zoom_features,
+        5 + 2 * len(ZOOM_POS_SCALES) + len(ZOOM_ANG_SCALES),
+    ),
+    "wheeled_nav_goal_smooth": (
+        wheeled_nav_goal_smooth_features,
         5 + 2 * len(ZOOM_POS_SCALES) + len(ZOOM_ANG_SCALES),
     ),
 }

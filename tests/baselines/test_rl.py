@@ -224,6 +224,29 @@ def test_zoomed_goal_features_match_the_closed_form() -> None:
     assert d[20] == pytest.approx(0.01, abs=1e-6) and d[25] == pytest.approx(0.197, abs=1e-3)
 
 
+def test_smooth_goal_bearing_is_continuous_at_the_goal() -> None:
+    # a millimetre circle around the goal: the polar bearing turns through 360°, the
+    # smooth one stays within a few hundredths of zero
+    phi = np.linspace(-np.pi, np.pi, 9)
+    obs = np.zeros((9, 20), np.float32)
+    obs[:, 2] = obs[:, 6] = 1.0
+    obs[:, 8], obs[:, 9] = 1e-3 * np.cos(phi), 1e-3 * np.sin(phi)
+    polar = rl.wheeled_nav_goal_zoom_features(obs)[:, 21:23]
+    smooth = rl.wheeled_nav_goal_smooth_features(obs)
+    assert np.ptp(polar[:, 0]) > 1.9
+    assert np.max(np.abs(smooth[:, 21:23])) == pytest.approx(1e-3 / np.hypot(1e-3, 0.05), rel=1e-4)
+    # elsewhere the same columns as the zoomed features; the bearing, far away, a unit vector
+    rng = np.random.default_rng(5)
+    far = rng.uniform(-3, 3, size=(6, 20)).astype(np.float32)
+    zoom, smooth = rl.wheeled_nav_goal_zoom_features(far), rl.wheeled_nav_goal_smooth_features(far)
+    keep = [k for k in range(zoom.shape[1]) if k not in (21, 22)]
+    np.testing.assert_array_equal(smooth[:, keep], zoom[:, keep])
+    rho = np.hypot(far[:, 8], far[:, 9])
+    np.testing.assert_allclose(
+        smooth[:, 21:23], zoom[:, 21:23] * (rho / np.hypot(rho, 0.05))[:, None], rtol=1e-5
+    )
+
+
 def test_shaping_potential_telescopes_and_collisions_cost_more() -> None:
     def run(wrappers: list) -> tuple[list[float], list[dict]]:
         env = rl.apply_train_wrappers(
