@@ -49,10 +49,12 @@ WheeledNav recipe. Success needs the robot *at rest* (``|v| < 0.01`` m/s,
 ``|ω| < 0.05`` rad/s) within 3 cm and 5° of the goal pose, among obstacles seen only
 through a 70° camera. PPO from scratch learns to approach the goal but seldom to dock
 (10 % strict success after 700 k steps with a curriculum on the tolerances). The
-recipe in ``ppo.json``:
+recipe in ``ppo.json`` (about 75 % strict success on the benchmark's episodes, where the
+classical pipeline it imitates reaches 97 %):
 
-1. **Inputs.** The goal in polar form and "zoomed" (:func:`wheeled_nav_goal_zoom_features`),
-   so centimetre and degree errors are visible after normalisation; an obstacle memory
+1. **Inputs.** The goal in polar form and "zoomed", so centimetre and degree errors are
+   visible after normalisation, with a goal bearing that fades out at the goal instead
+   of spinning round it (:func:`wheeled_nav_goal_smooth_features`); an obstacle memory
    all around the robot (``obs_memory``,
    :class:`~realitygap.baselines.episode_features.ObstacleMemory`); and a rest timer
    (``obs_rest_timer``, :class:`~realitygap.baselines.episode_features.RestTimer`), without
