@@ -1570,6 +1570,8 @@ def _model_from_weights(
     trained on. The optimiser starts afresh; the step count continues from the metadata."""
     import torch
 
+    assert cfg.init_model is not None
+
     if cfg.algo != "ppo" or init_meta.get("algo") != "ppo":
         raise ValueError(
             f"continuing from exported weights works for PPO (the whole actor-critic is "

@@ -14,7 +14,7 @@ WallClimb, fast sensors      3                 20
 WallClimb, image sensors     –                 3
 ===========================  ================  =====
 
-Quick mode takes about 5 minutes on two free cores, full mode about 1.5 hours;
+Quick mode takes about 5–10 minutes on two cores, full mode about 1.5 hours;
 ``realitygap benchmark`` runs the same harness with every option exposed.
 
 Learned policies (PPO, SAC) are the ones shipped in ``baselines/policies/``; without
