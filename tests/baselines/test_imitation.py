@@ -147,20 +147,26 @@ def _hyperparams() -> dict:
     }
 
 
-@pytest.fixture(scope="module")
-def cloned(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    cfg = rl.TrainConfig(
-        env_id=ENV_ID,
+def _quiet_ppo(env_id: str, out_dir: Path, hyperparams: dict, seed: int = 0) -> rl.TrainConfig:
+    """A PPO run without checkpoints, evaluations or progress lines."""
+    return rl.TrainConfig(
+        env_id=env_id,
         algo="ppo",
-        out_dir=tmp_path_factory.mktemp("dagger"),
-        seed=2,
-        hyperparams=_hyperparams(),
+        out_dir=out_dir,
+        seed=seed,
+        hyperparams=hyperparams,
         checkpoint_every=0,
         eval_every=0,
         eval_episodes=0,
         progress_every_s=1e9,
     )
-    return rl.train(cfg).model_path
+
+
+@pytest.fixture(scope="module")
+def cloned(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return rl.train(
+        _quiet_ppo(ENV_ID, tmp_path_factory.mktemp("dagger"), _hyperparams(), 2)
+    ).model_path
 
 
 def test_cloning_fits_the_expert_and_freezes_the_normaliser(cloned: Path) -> None:
@@ -233,18 +239,7 @@ def test_arm_pose_selection_clones_the_greedy_expert(tmp_path: Path) -> None:
     the same pose every time)."""
     from realitygap.baselines.arm_policy import ObservabilityGreedyPolicy
 
-    cfg = rl.TrainConfig(
-        env_id=ARM_ID,
-        algo="ppo",
-        out_dir=tmp_path,
-        seed=0,
-        hyperparams=_arm_hyperparams(),
-        checkpoint_every=0,
-        eval_every=0,
-        eval_episodes=0,
-        progress_every_s=1e9,
-    )
-    result = rl.train(cfg)
+    result = rl.train(_quiet_ppo(ARM_ID, tmp_path, _arm_hyperparams()))
     env = gym.make(ARM_ID, sensor_mode="geometric", budget=10)
     student = rl.load_policy(result.model_path, env)
     expert = ObservabilityGreedyPolicy.from_env(env)
@@ -272,13 +267,5 @@ def test_arm_pose_selection_clones_the_greedy_expert(tmp_path: Path) -> None:
 
 
 def test_arm_expert_labels_only_its_own_episodes(tmp_path: Path) -> None:
-    cfg = rl.TrainConfig(
-        env_id=ARM_ID,
-        algo="ppo",
-        out_dir=tmp_path,
-        hyperparams=_arm_hyperparams(rounds=2),
-        eval_episodes=0,
-        progress_every_s=1e9,
-    )
     with pytest.raises(ValueError, match="need rounds = 1"):
-        rl.train(cfg)
+        rl.train(_quiet_ppo(ARM_ID, tmp_path, _arm_hyperparams(rounds=2)))
