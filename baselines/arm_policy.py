@@ -142,6 +142,19 @@ class PairObservability:
         self._table = table
         self._tool = t
 
+    @classmethod
+    def from_env(
+        cls, env: Any, pool_size: int, pool_seed: int = 7, analysis_poses: int = 60
+    ) -> PairObservability:
+        """The observability of an ``ArmCalib-v0`` env's candidate pool (``pool_size`` poses
+        drawn with ``pool_seed``), linearised at the nominal model, over the parameters the
+        identification frees for the first ``analysis_poses`` of them."""
+        e = env.unwrapped
+        pool = e.candidate_pool(pool_size, pool_seed)
+        table = e.nominal_params.mdh
+        names = identifiable_parameters(table, e.tool0, pool[:analysis_poses], e.estimator.settings)
+        return cls(table, e.tool0, pool, names)
+
     @property
     def n_params(self) -> int:
         return len(self.names)
@@ -298,13 +311,8 @@ class ObservabilityGreedyPolicy(_PoolEpisodes):
         """Build the pool and Jacobians from an ``ArmCalib-v0`` env (nominal model only)."""
         cfg = config or GreedyConfig()
         e = env.unwrapped
-        pool = e.candidate_pool(cfg.pool_size, cfg.pool_seed)
-        table = e.nominal_params.mdh
-        names = identifiable_parameters(
-            table, e.tool0, pool[: cfg.analysis_poses], e.estimator.settings
-        )
-        model = PairObservability(table, e.tool0, pool, names)
-        return cls(pool, e.joint_center, e.joint_half_range, model, cfg)
+        model = PairObservability.from_env(env, cfg.pool_size, cfg.pool_seed, cfg.analysis_poses)
+        return cls(model.q, e.joint_center, e.joint_half_range, model, cfg)
 
     # ------------------------------------------------------------------ SB3 interface
     def predict(

@@ -117,16 +117,9 @@ class DemoSettings:
             )
         values = dict(data)
         if values.get("train_wrappers") is not None:
-            from realitygap.baselines.rl import TRAIN_WRAPPERS
+            from realitygap.baselines.rl import check_train_wrappers
 
-            wrappers = tuple(dict(w) for w in values["train_wrappers"])
-            for w in wrappers:
-                if w.get("name") not in TRAIN_WRAPPERS:
-                    raise ValueError(
-                        f"unknown training wrapper {w.get('name')!r} in demonstrations; "
-                        f"known: {', '.join(TRAIN_WRAPPERS)}"
-                    )
-            values["train_wrappers"] = wrappers
+            values["train_wrappers"] = check_train_wrappers(values["train_wrappers"])
         return cls(**values)
 
 

@@ -69,7 +69,7 @@ classical pipeline it imitates reaches 97 %):
    low exploration noise, on the env's reward plus a precision potential and a larger
    collision penalty (:class:`WheeledNavShaping`), with the env's own success criterion.
    Training episodes are cut at 600 steps (30 s).
-5. **Docking starts**, in the demonstrations and in PPO: 30 % of the training episodes
+5. **Docking starts**: 30 % of the demonstration episodes and 15 % of the PPO episodes
    start next to the goal facing anywhere (:class:`WheeledNavDockingStarts`). A robot
    that reaches the goal position with a large heading error must turn in place; the
    expert seldom arrives that way, so without these starts the network never learns it
@@ -388,21 +388,19 @@ BEARING_FADE: float = 0.05
 
 def wheeled_nav_goal_smooth_features(obs: npt.ArrayLike) -> npt.NDArray[np.float32]:
     r"""The zoomed goal features (:func:`wheeled_nav_goal_zoom_features`) with a goal
-        bearing that is continuous at the goal.
+    bearing that is continuous at the goal.
 
-        ``cos α, sin α`` are undefined at the goal position: a millimetre of motion next to it
-        swings them through the whole circle, and a network that reads them turns this into
-        noise in its command just where it must turn in place and stop. Here the two bearing
-        columns are
+    ``cos α, sin α`` are undefined at the goal position: a millimetre of motion next to it
+    swings them through the whole circle, and a network that reads them turns this into
+    noise in its command just where it must turn in place and stop. Here the two bearing
+    columns are
 
-        .. math::
+    .. math::
 
-            rac{(x_g^r,\ y_g^r)}{\sqrt{
-    ho^2 +
-    ho_0^2}}
+        \frac{(x_g^r,\ y_g^r)}{\sqrt{\rho^2 + \rho_0^2}}
 
-        the unit bearing far from the goal, fading to zero within ``ρ0`` =
-        :data:`BEARING_FADE`; every other column is the zoomed features'.
+    the unit bearing far from the goal, fading to zero within ``ρ0`` =
+    :data:`BEARING_FADE`; every other column is the zoomed features'.
     """
     x = wheeled_nav_goal_zoom_features(obs)
     n0 = np.shape(obs)[-1]
@@ -659,7 +657,7 @@ class ArmObservabilityShaping(gym.Wrapper):
         pool_size: int = 200,
     ):
         super().__init__(env)
-        from realitygap.baselines.arm_policy import PairObservability, identifiable_parameters
+        from realitygap.baselines.arm_policy import PairObservability
 
         if not (weight >= 0.0 and epsilon > 0.0 and pool_size >= 10):
             raise ValueError(
@@ -671,14 +669,12 @@ class ArmObservabilityShaping(gym.Wrapper):
             raise ValueError(
                 f"arm_observability_shaping needs ArmCalib-v0, got {type(base).__name__}"
             )
-        pool = base.candidate_pool(int(pool_size), 7)
-        table = base.nominal_params.mdh
-        names = identifiable_parameters(table, base.tool0, pool[:60], base.estimator.settings)
-        self.model = PairObservability(table, base.tool0, pool, names)
+        self.model = PairObservability.from_env(env, int(pool_size))
         self.weight = float(weight)
         self.epsilon = float(epsilon)
         self._q: list[npt.NDArray[np.float64]] = []
-        self._phi = self.potential(self._q)
+        self._phi0 = self.potential(self._q)
+        self._phi = self._phi0
 
     def potential(self, q: Sequence[npt.ArrayLike]) -> float:
         """``Φ`` of the measured joint readings ``q``."""
@@ -688,13 +684,14 @@ class ArmObservabilityShaping(gym.Wrapper):
     def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
         obs, info = self.env.reset(**kwargs)
         self._q = []
-        self._phi = self.potential(self._q)
+        self._phi = self._phi0
         return obs, info
 
     def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)
-        if info.get("outcome") == "ok":
-            self._q.append(np.asarray(info["q_encoder"], dtype=float))
+        if info.get("outcome") != "ok":
+            return obs, reward, terminated, truncated, info  # no new pose: Φ unchanged
+        self._q.append(np.asarray(info["q_encoder"], dtype=float))
         phi = self.potential(self._q)
         extra = self.weight * (phi - self._phi)
         self._phi = phi
@@ -710,17 +707,25 @@ TRAIN_WRAPPERS: dict[str, Callable[..., gym.Env[Any, Any]]] = {
 """Training-only wrappers by name (hyperparameter ``train_wrappers``)."""
 
 
+def check_train_wrappers(specs: Sequence[Mapping[str, Any]]) -> tuple[dict[str, Any], ...]:
+    """The training wrapper specs ``[{"name": ..., **params}, ...]`` as a tuple of dicts;
+    ``ValueError`` naming the known wrappers for an unknown name."""
+    out = tuple(dict(spec) for spec in specs)
+    for spec in out:
+        if spec.get("name") not in TRAIN_WRAPPERS:
+            raise ValueError(
+                f"unknown training wrapper {spec.get('name')!r}; known: {', '.join(TRAIN_WRAPPERS)}"
+            )
+    return out
+
+
 def apply_train_wrappers(
     env: gym.Env[Any, Any], specs: Sequence[Mapping[str, Any]] | None
 ) -> gym.Env[Any, Any]:
     """Wrap ``env`` in the training wrappers ``[{"name": ..., **params}, ...]``."""
-    for spec in specs or ():
+    for spec in check_train_wrappers(specs or ()):
         params = dict(spec)
-        name = params.pop("name", None)
-        if name not in TRAIN_WRAPPERS:
-            raise ValueError(
-                f"unknown training wrapper {name!r}; known: {', '.join(TRAIN_WRAPPERS)}"
-            )
+        name = params.pop("name")
         env = TRAIN_WRAPPERS[name](env, **params)
     return env
 
@@ -1349,12 +1354,7 @@ def train(cfg: TrainConfig) -> TrainResult:
     curriculum = Curriculum.from_dict(hp["curriculum"]) if hp.get("curriculum") else None
     normalize = dict(hp.get("normalize", {}) or {})
     io = PolicyIO.from_dict(hp)  # unknown feature names fail before any env starts
-    train_wrappers = tuple(dict(w) for w in hp.get("train_wrappers", ()) or ())
-    for w in train_wrappers:
-        if w.get("name") not in TRAIN_WRAPPERS:
-            raise ValueError(
-                f"unknown training wrapper {w.get('name')!r}; known: {', '.join(TRAIN_WRAPPERS)}"
-            )
+    train_wrappers = check_train_wrappers(hp.get("train_wrappers", ()) or ())
     probe = gym.make(env_id, **env_kwargs)
     io = io.for_env(probe)
     raw_obs_space, raw_action_space = probe.observation_space, probe.action_space

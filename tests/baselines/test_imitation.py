@@ -114,7 +114,7 @@ def test_bad_demonstration_settings_are_refused() -> None:
         DemoSettings(expert="oracle")
     with pytest.raises(ValueError, match="beta_decay"):
         DemoSettings(beta_decay=1.5)
-    with pytest.raises(ValueError, match="unknown training wrapper 'nope' in demonstrations"):
+    with pytest.raises(ValueError, match="unknown training wrapper 'nope'"):
         DemoSettings.from_dict({"train_wrappers": [{"name": "nope"}]})
     own = DemoSettings.from_dict(
         {"train_wrappers": [{"name": "wheeled_nav_docking_starts", "probability": 0.5}]}
