@@ -82,6 +82,10 @@ class DemoSettings:
         the stop gate), normalised to mean 1, so the small commands of the last centimetres
         count as much, relatively, as full-speed driving; ``0`` weighs all samples equally.
     workers : rollout processes (1: in this process).
+    mirror : also fit the left–right mirror image of every sample
+        (:meth:`~realitygap.baselines.rl.PolicyIO.mirror`): the task is symmetric, and
+        the fitted network is pushed towards a policy that is too, so it has no bias to
+        turn one way (WheeledNav with egocentric inputs only).
     """
 
     expert: str = "classical"
@@ -95,6 +99,7 @@ class DemoSettings:
     small_action_scale: float = 0.0
     workers: int = 2
     train_wrappers: tuple[Mapping[str, Any], ...] | None = None
+    mirror: bool = False
 
     def __post_init__(self) -> None:
         if self.expert != "classical":
@@ -192,6 +197,22 @@ class Rollouts:
         self.rewards += other.rewards
         self.ends += other.ends
         self.episodes += other.episodes
+
+    def mirrored(
+        self,
+        perm: npt.NDArray[np.intp],
+        sign: npt.NDArray[np.float32],
+        action_sign: npt.NDArray[np.float32],
+    ) -> Rollouts:
+        """The mirror images of these steps (:meth:`~realitygap.baselines.rl.PolicyIO.mirror`):
+        inputs ``x[perm] * sign``, targets ``a * action_sign``, the same rewards and ends;
+        no episodes of their own, so rollout summaries count only what was driven."""
+        return Rollouts(
+            inputs=[(np.asarray(x)[perm] * sign).astype(np.float32) for x in self.inputs],
+            targets=[(np.asarray(a) * action_sign).astype(np.float32) for a in self.targets],
+            rewards=list(self.rewards),
+            ends=list(self.ends),
+        )
 
     def returns(self, gamma: float) -> FloatArray:
         """Discounted return from each step to the end of its episode."""
@@ -436,6 +457,13 @@ def pretrain(
             f"need rounds = 1 (behaviour cloning), got {settings.rounds}"
         )
     activation = _activation_name(model)
+    mirror = None
+    if settings.mirror:
+        probe = gym.make(env_id, **dict(env_kwargs))
+        try:
+            mirror = io.mirror(probe)
+        finally:
+            probe.close()
     data = Rollouts()
     normalizer = None
     rows: list[dict[str, float]] = []
@@ -462,6 +490,8 @@ def pretrain(
             rng_seed=seed * 100 + k,
         )
         data.extend(part)
+        if mirror is not None:
+            data.extend(part.mirrored(*mirror))
         if normalizer is None:
             x = np.asarray(data.inputs, dtype=float)
             normalizer = normalizer_cls(x.mean(axis=0), np.maximum(x.var(axis=0), 1e-3))

@@ -52,9 +52,12 @@ through a 70° camera. PPO from scratch learns to approach the goal but seldom t
 recipe in ``ppo.json`` (about 75 % strict success on the benchmark's episodes, where the
 classical pipeline it imitates reaches 97 %):
 
-1. **Inputs.** The goal in polar form and "zoomed", so centimetre and degree errors are
-   visible after normalisation, with a goal bearing that fades out at the goal instead
-   of spinning round it (:func:`wheeled_nav_goal_smooth_features`); an obstacle memory
+1. **Inputs.** Everything in the estimated robot frame
+   (:func:`wheeled_nav_egocentric_features`): a network that also reads the absolute pose
+   learns a bias that depends on where in the room it is, which next to the goal cancels
+   the last small turn. The goal in polar form and "zoomed", so centimetre and degree
+   errors are visible after normalisation, with a goal bearing that fades out at the goal
+   instead of spinning round it (:func:`wheeled_nav_goal_smooth_features`); an obstacle memory
    all around the robot (``obs_memory``,
    :class:`~realitygap.baselines.episode_features.ObstacleMemory`); and a rest timer
    (``obs_rest_timer``, :class:`~realitygap.baselines.episode_features.RestTimer`), without
@@ -411,6 +414,69 @@ def wheeled_nav_goal_smooth_features(obs: npt.ArrayLike) -> npt.NDArray[np.float
     return x
 
 
+WORLD_FRAME_COLUMNS: int = 8
+"""The leading WheeledNav observation columns given in the world frame: the estimated pose
+``x, y, cos θ, sin θ`` and the goal ``x_g, y_g, cos θ_g, sin θ_g``."""
+
+
+def wheeled_nav_egocentric_features(obs: npt.ArrayLike) -> npt.NDArray[np.float32]:
+    r"""The smooth goal features (:func:`wheeled_nav_goal_smooth_features`) without the
+    world-frame columns: everything the network reads is in the estimated robot frame.
+
+    The task is the same wherever the room puts the robot and whichever way it faces it:
+    the command depends only on where the goal and the obstacles lie relative to the robot.
+    A network that also reads the absolute pose and goal (the first
+    :data:`WORLD_FRAME_COLUMNS` columns) can, and does, learn a bias that depends on where in
+    the room it is. Next to the goal such a bias of a tenth of the turn-rate limit cancels
+    the small turn that is left to do, and the robot stalls a few degrees off the goal
+    heading. Dropping these columns makes the map invariant to any rigid motion of the
+    world by construction; the goal stays visible through the robot-frame columns
+    ``x_g^r, y_g^r`` and the polar and zoomed features.
+    """
+    x = wheeled_nav_goal_smooth_features(obs)
+    return np.ascontiguousarray(x[..., WORLD_FRAME_COLUMNS:])
+
+
+def wheeled_nav_egocentric_mirror(
+    n_beams: int, n_sectors: int = 0, rest_timer: bool = False
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.float32]]:
+    r"""The left–right mirror of a network input of :func:`wheeled_nav_egocentric_features`.
+
+    Reflecting the world about the robot's heading line maps a WheeledNav scene onto
+    another valid scene, and the expert's command ``(v, ω)`` onto ``(v, −ω)``. In the
+    robot frame the reflection is ``y → −y``; each input column goes to a column of the
+    mirrored input (``perm``) with a sign (``sign``): ``mirrored = x[..., perm] * sign``.
+
+    The input is the env observation less its world-frame columns —
+    ``x_g^r, y_g^r, v, ω`` then ``n_beams`` scan beams, whose bearings must be symmetric
+    about the optical axis — followed by ``n_sectors`` obstacle-memory sectors (sector
+    ``k`` centred on bearing ``2πk / n``), a rest-timer column if ``rest_timer``, and the
+    polar and zoomed goal columns
+    ``ρ, b_x, b_y, cos β, sin β, tanh(x/s₁), tanh(y/s₁), tanh(x/s₂), tanh(y/s₂),
+    tanh(β/σ₁), tanh(β/σ₂)``.
+    """
+    if n_beams < 1 or n_sectors < 0:
+        raise ValueError(f"need n_beams >= 1 and n_sectors >= 0, got {n_beams}, {n_sectors}")
+    perm: list[int] = [0, 1, 2, 3]
+    sign: list[float] = [1.0, -1.0, 1.0, -1.0]
+    k0 = 4
+    perm += [k0 + n_beams - 1 - k for k in range(n_beams)]  # beams reversed
+    sign += [1.0] * n_beams
+    k0 += n_beams
+    perm += [k0 + (-k) % n_sectors for k in range(n_sectors)]  # bearing -> -bearing
+    sign += [1.0] * n_sectors
+    k0 += n_sectors
+    if rest_timer:
+        perm.append(k0)
+        sign.append(1.0)
+        k0 += 1
+    goal_signs = [1.0, 1.0, -1.0, 1.0, -1.0]  # ρ, b_x, b_y, cos β, sin β
+    goal_signs += [1.0, -1.0] * len(ZOOM_POS_SCALES) + [-1.0] * len(ZOOM_ANG_SCALES)
+    perm += [k0 + k for k in range(len(goal_signs))]
+    sign += goal_signs
+    return np.asarray(perm, dtype=np.intp), np.asarray(sign, dtype=np.float32)
+
+
 OBS_FEATURES: dict[str, tuple[Callable[[npt.ArrayLike], npt.NDArray[np.float32]], int]] = {
     "wheeled_nav_goal_polar": (wheeled_nav_goal_features, 5),
     "wheeled_nav_goal_zoom": (
@@ -421,8 +487,14 @@ OBS_FEATURES: dict[str, tuple[Callable[[npt.ArrayLike], npt.NDArray[np.float32]]
         wheeled_nav_goal_smooth_features,
         5 + 2 * len(ZOOM_POS_SCALES) + len(ZOOM_ANG_SCALES),
     ),
+    "wheeled_nav_egocentric": (
+        wheeled_nav_egocentric_features,
+        5 + 2 * len(ZOOM_POS_SCALES) + len(ZOOM_ANG_SCALES) - WORLD_FRAME_COLUMNS,
+    ),
 }
-"""Feature maps a learned policy may apply to its observation: name → (function, extra columns)."""
+"""Feature maps a learned policy may apply to its observation: name → (function, change in
+the number of columns). A map either appends columns to the observation or, like
+``wheeled_nav_egocentric``, also drops some of its leading ones."""
 
 
 def obs_feature_fn(name: str | None) -> Callable[[npt.ArrayLike], npt.NDArray[np.float32]] | None:
@@ -446,11 +518,21 @@ class ObsFeatures(gym.ObservationWrapper):
         space = env.observation_space
         assert isinstance(space, gym.spaces.Box)
         big = np.float32(1e3)
-        self.observation_space = gym.spaces.Box(
-            np.concatenate([space.low, np.full(n_extra, -big, np.float32)]),
-            np.concatenate([space.high, np.full(n_extra, big, np.float32)]),
-            dtype=np.float32,
-        )
+        n_out = int(space.shape[-1]) + n_extra
+        width = int(fn(np.zeros((1, space.shape[-1]), np.float32)).shape[-1])
+        if width != n_out:
+            raise ValueError(
+                f"obs_features {name!r} gives {width} columns for a {space.shape[-1]}-column "
+                f"observation, expected {n_out}"
+            )
+        if n_extra >= 0 and np.array_equal(
+            fn(space.low[None])[0, : space.shape[-1]], space.low
+        ):  # a map that appends: the observation's own bounds stay
+            low = np.concatenate([space.low, np.full(n_extra, -big, np.float32)])
+            high = np.concatenate([space.high, np.full(n_extra, big, np.float32)])
+        else:
+            low, high = np.full(n_out, -big, np.float32), np.full(n_out, big, np.float32)
+        self.observation_space = gym.spaces.Box(low, high, dtype=np.float32)
 
     def observation(self, observation: Any) -> Any:
         return self.fn(observation)
@@ -881,6 +963,33 @@ class PolicyIO:
         from realitygap.baselines.episode_features import memory_spec_for_env
 
         return replace(self, obs_memory=memory_spec_for_env(env, self.obs_memory or {}))
+
+    def mirror(
+        self, env: gym.Env[Any, Any]
+    ) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+        """The left–right mirror of this I/O's network inputs and outputs in ``env``:
+        ``(perm, sign, action_sign)`` with mirrored input ``x[..., perm] * sign`` and
+        mirrored network action ``a * action_sign``. Only the WheeledNav egocentric
+        inputs (:func:`wheeled_nav_egocentric_mirror`) have one; ``ValueError`` otherwise."""
+        base: Any = env.unwrapped
+        if self.obs_features != "wheeled_nav_egocentric" or not hasattr(base, "scan_angles"):
+            raise ValueError(
+                "a mirror needs WheeledNav with obs_features 'wheeled_nav_egocentric' (every "
+                f"input in the robot frame), got {type(base).__name__} with "
+                f"obs_features {self.obs_features!r}"
+            )
+        angles = np.asarray(base.scan_angles, dtype=float)
+        if not np.allclose(angles, -angles[::-1], atol=1e-9):
+            raise ValueError(
+                "a mirror needs scan bearings symmetric about the robot's axis; this camera "
+                f"is mounted at yaw {float(np.mean(angles)):.4f} rad"
+            )
+        n_sectors = int((self.for_env(env).obs_memory or {}).get("n_sectors", 0))
+        perm, sign = wheeled_nav_egocentric_mirror(
+            angles.size, n_sectors, rest_timer=bool(self.obs_rest_timer)
+        )
+        action_sign = np.array([1.0, -1.0] + [1.0] * int(self.action_stop_gate), np.float32)
+        return perm, sign, action_sign
 
     def new_episode_features(self) -> Any:
         """Fresh episode features of one env (``None`` without memory and timer)."""

@@ -269,3 +269,37 @@ def test_arm_pose_selection_clones_the_greedy_expert(tmp_path: Path) -> None:
 def test_arm_expert_labels_only_its_own_episodes(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="need rounds = 1"):
         rl.train(_quiet_ppo(ARM_ID, tmp_path, _arm_hyperparams(rounds=2)))
+
+
+def test_mirrored_rollouts_flip_the_turn_and_keep_the_returns() -> None:
+    r = Rollouts(
+        inputs=[np.array([1.0, 2.0, 3.0], np.float32), np.array([4.0, 5.0, 6.0], np.float32)],
+        targets=[np.array([0.5, 0.2, -1.0], np.float32), np.array([0.1, -0.3, 1.0], np.float32)],
+        rewards=[1.0, 2.0],
+        ends=[0, 1],
+        episodes=[{"success": 1.0, "collision": 0.0}],
+    )
+    m = r.mirrored(
+        np.array([0, 2, 1]),
+        np.array([1.0, -1.0, 1.0], np.float32),
+        np.array([1.0, -1.0, 1.0], np.float32),
+    )
+    np.testing.assert_array_equal(m.inputs[1], [4.0, -6.0, 5.0])
+    np.testing.assert_array_equal(m.targets[0], np.array([0.5, -0.2, -1.0], np.float32))
+    np.testing.assert_allclose(m.returns(0.9), r.returns(0.9))
+    assert m.episodes == []  # a mirror image is not an episode that was driven
+
+
+def test_mirrored_demonstrations_double_the_samples(tmp_path: Path) -> None:
+    hp = _hyperparams()
+    hp["obs_features"] = "wheeled_nav_egocentric"
+    hp["demonstrations"] = {"rounds": 1, "episodes": 2, "epochs": 2, "workers": 1, "mirror": True}
+    rl.train(_quiet_ppo(ENV_ID, tmp_path / "ego", hp))
+    rows = (tmp_path / "ego" / "demonstrations.csv").read_text().splitlines()
+    head, first = rows[0].split(","), rows[1].split(",")
+    row = dict(zip(head, first))
+    assert float(row["samples"]) == 2 * float(row["rollout_steps"])
+    # inputs in the world frame have no mirror image: refused before any episode is run
+    hp["obs_features"] = "wheeled_nav_goal_zoom"
+    with pytest.raises(ValueError, match="wheeled_nav_egocentric"):
+        rl.train(_quiet_ppo(ENV_ID, tmp_path / "world", hp))

@@ -248,6 +248,112 @@ def test_smooth_goal_bearing_is_continuous_at_the_goal() -> None:
     )
 
 
+def _rigidly_moved(obs: np.ndarray, dx: float, dy: float, dth: float) -> np.ndarray:
+    """``obs`` of the same scene after moving the world (robot and goal) by a rigid motion:
+    the world-frame columns change, the robot-frame ones do not."""
+    out = obs.copy()
+    c, s = np.cos(dth), np.sin(dth)
+    for i in (0, 4):  # positions
+        x, y = obs[:, i].astype(float), obs[:, i + 1].astype(float)
+        out[:, i], out[:, i + 1] = c * x - s * y + dx, s * x + c * y + dy
+    for i in (2, 6):  # headings as (cos, sin)
+        x, y = obs[:, i].astype(float), obs[:, i + 1].astype(float)
+        out[:, i], out[:, i + 1] = c * x - s * y, s * x + c * y
+    return out
+
+
+def test_egocentric_features_do_not_see_where_the_room_puts_the_robot() -> None:
+    rng = np.random.default_rng(6)
+    obs = rng.uniform(0.0, 1.0, size=(6, 20)).astype(np.float32)
+    theta, theta_g = rng.uniform(-np.pi, np.pi, 6), rng.uniform(-np.pi, np.pi, 6)
+    theta_g[0] = theta[0]  # facing the goal heading
+    obs[:, 0:2], obs[:, 4:6] = rng.uniform(-3, 3, (6, 2)), rng.uniform(-3, 3, (6, 2))
+    obs[:, 2], obs[:, 3], obs[:, 6], obs[:, 7] = (
+        np.cos(theta),
+        np.sin(theta),
+        np.cos(theta_g),
+        np.sin(theta_g),
+    )
+    d = obs[:, 4:6] - obs[:, 0:2]
+    obs[:, 8] = np.cos(theta) * d[:, 0] + np.sin(theta) * d[:, 1]
+    obs[:, 9] = -np.sin(theta) * d[:, 0] + np.cos(theta) * d[:, 1]
+    ego = rl.wheeled_nav_egocentric_features(obs)
+    # the smooth features less the eight world-frame columns
+    assert ego.shape == (6, 20 + rl.OBS_FEATURES["wheeled_nav_egocentric"][1])
+    np.testing.assert_array_equal(ego, rl.wheeled_nav_goal_smooth_features(obs)[:, 8:])
+    moved = _rigidly_moved(obs, 1.7, -2.2, 2.5)
+    # the smooth features change with the room, the egocentric ones do not
+    assert np.max(np.abs(rl.wheeled_nav_goal_smooth_features(moved)[:, :8] - obs[:, :8])) > 1.0
+    np.testing.assert_allclose(rl.wheeled_nav_egocentric_features(moved), ego, atol=1e-5)
+    # 3° off the goal heading is seen (the finest zoomed heading column moves by tanh(0.5))
+    turned = obs.copy()
+    turned[:, 6], turned[:, 7] = np.cos(theta_g + 0.05), np.sin(theta_g + 0.05)
+    change = rl.wheeled_nav_egocentric_features(turned)[0] - ego[0]
+    assert np.max(np.abs(change)) == pytest.approx(np.tanh(0.5), abs=1e-4)
+
+
+def test_mirror_of_egocentric_inputs_is_the_input_of_the_mirrored_scene() -> None:
+    env = gym.make(ENV_ID, n_obstacles=2, sensor_mode="fast")
+    io = rl.PolicyIO(
+        obs_features="wheeled_nav_egocentric",
+        action_stop_gate=True,
+        obs_memory={"n_sectors": 36, "horizon": 2.0},
+        obs_rest_timer={"horizon_steps": 40},
+    ).for_env(env)
+    perm, sign, action_sign = io.mirror(env)
+    obs0, _ = env.reset(seed=0)
+    n_beams = obs0.size - 12
+    rng = np.random.default_rng(8)
+    # the robot drives along the world x axis (the mirror line) past a few obstacle hits
+    states, mirrored_states = [io.new_episode_features()], [io.new_episode_features()]
+    goal = (1.2, 0.4, 0.3)
+    for step in range(3):
+        x_r = 0.1 * step
+        raw = np.zeros(obs0.size, np.float32)
+        raw[:12] = (
+            x_r,
+            0.0,
+            1.0,
+            0.0,
+            goal[0],
+            goal[1],
+            np.cos(goal[2]),
+            np.sin(goal[2]),
+            goal[0] - x_r,
+            goal[1],
+            0.3,
+            0.2,
+        )
+        scan = np.ones(n_beams, np.float32)
+        hits = rng.choice(n_beams, size=4, replace=False)
+        scan[hits] = rng.uniform(0.05, 0.2, 4)
+        raw[12:] = scan
+        m = raw.copy()
+        m[[1, 3, 5, 7, 9, 11]] *= -1.0
+        m[12:] = scan[::-1]
+        x = io.observation(raw[None], states)[0]
+        xm = io.observation(m[None], mirrored_states)[0]
+        assert x.shape == perm.shape == sign.shape
+        np.testing.assert_allclose(x[perm] * sign, xm, atol=1e-5)
+    assert np.any(x[4 + n_beams : 4 + n_beams + 36] < 1.0)  # the memory holds hits
+    # mirroring twice is the identity; the turn command flips, speed and stop gate do not
+    np.testing.assert_array_equal((x[perm] * sign)[perm] * sign, x)
+    np.testing.assert_array_equal(action_sign, [1.0, -1.0, 1.0])
+    # a policy whose inputs are in the world frame has no mirror
+    with pytest.raises(ValueError, match="wheeled_nav_egocentric"):
+        rl.PolicyIO(obs_features="wheeled_nav_goal_smooth").mirror(env)
+
+
+def test_feature_wrapper_space_matches_what_the_map_gives() -> None:
+    env = gym.make(ENV_ID, n_obstacles=2)
+    for name, (_fn, n_extra) in rl.OBS_FEATURES.items():
+        wrapped = rl.ObsFeatures(env, name)
+        obs, _ = wrapped.reset(seed=0)
+        assert obs.shape == wrapped.observation_space.shape
+        assert obs.shape[-1] == env.observation_space.shape[-1] + n_extra
+        assert wrapped.observation_space.contains(obs)
+
+
 def test_shaping_potential_telescopes_and_collisions_cost_more() -> None:
     def run(wrappers: list) -> tuple[list[float], list[dict]]:
         env = rl.apply_train_wrappers(
