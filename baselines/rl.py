@@ -50,7 +50,8 @@ WheeledNav recipe. Success needs the robot *at rest* (``|v| < 0.01`` m/s,
 through a 70° camera. PPO from scratch learns to approach the goal but seldom to dock
 (10 % strict success after 700 k steps with a curriculum on the tolerances). The
 recipe in ``ppo.json`` (about 75 % strict success on the benchmark's episodes, where the
-classical pipeline it imitates reaches 97 %):
+classical pipeline it imitates reaches 97 %; the shipped policy was trained by it and
+continued for another 400 k steps):
 
 1. **Inputs.** Everything in the estimated robot frame
    (:func:`wheeled_nav_egocentric_features`): a network that also reads the absolute pose
@@ -79,7 +80,16 @@ classical pipeline it imitates reaches 97 %):
    and stalls there.
 
 The from-scratch settings of earlier versions (curriculum, dead band, relaxed
-at-rest condition) remain available as hyperparameter keys.
+at-rest condition) remain available as hyperparameter keys, as does
+``demonstrations.mirror`` (fit the left–right mirror image of each sample too), which left
+success where it was and is off.
+
+What is left. The remaining failures (collisions with an obstacle in plain view, and
+standing still near the goal with a large heading error) point to two places where the expert's choice is not a function of what the network
+sees: which side of an obstacle to pass comes from the plan it made at its last re-plan,
+and the turn direction at a heading error near 180° flips sign. A network fitted by least squares averages the two choices — straight ahead, or no
+turn — and a deterministic policy that commands nothing while it is not at rest on the
+goal stays there (the rest timer gives it a way out it does not always learn).
 
 ArmCalib recipe. A campaign is good when its poses are spread so that the
 identification is well conditioned. A Gaussian policy trained by PPO from scratch
