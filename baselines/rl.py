@@ -503,8 +503,11 @@ OBS_FEATURES: dict[str, tuple[Callable[[npt.ArrayLike], npt.NDArray[np.float32]]
     ),
 }
 """Feature maps a learned policy may apply to its observation: name → (function, change in
-the number of columns). A map either appends columns to the observation or, like
-``wheeled_nav_egocentric``, also drops some of its leading ones."""
+the number of columns). A map appends columns to the observation and may first drop some
+of its leading ones (:data:`OBS_FEATURES_DROP`)."""
+
+OBS_FEATURES_DROP: dict[str, int] = {"wheeled_nav_egocentric": WORLD_FRAME_COLUMNS}
+"""Leading observation columns a feature map drops (none where not listed)."""
 
 
 def obs_feature_fn(name: str | None) -> Callable[[npt.ArrayLike], npt.NDArray[np.float32]] | None:
@@ -535,13 +538,11 @@ class ObsFeatures(gym.ObservationWrapper):
                 f"obs_features {name!r} gives {width} columns for a {space.shape[-1]}-column "
                 f"observation, expected {n_out}"
             )
-        if n_extra >= 0 and np.array_equal(
-            fn(space.low[None])[0, : space.shape[-1]], space.low
-        ):  # a map that appends: the observation's own bounds stay
-            low = np.concatenate([space.low, np.full(n_extra, -big, np.float32)])
-            high = np.concatenate([space.high, np.full(n_extra, big, np.float32)])
-        else:
-            low, high = np.full(n_out, -big, np.float32), np.full(n_out, big, np.float32)
+        # the observation's own columns keep their bounds, the map's new ones get wide ones
+        drop = OBS_FEATURES_DROP.get(name, 0)
+        n_new = n_out - (int(space.shape[-1]) - drop)
+        low = np.concatenate([space.low[drop:], np.full(n_new, -big, np.float32)])
+        high = np.concatenate([space.high[drop:], np.full(n_new, big, np.float32)])
         self.observation_space = gym.spaces.Box(low, high, dtype=np.float32)
 
     def observation(self, observation: Any) -> Any:

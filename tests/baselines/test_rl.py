@@ -352,6 +352,12 @@ def test_feature_wrapper_space_matches_what_the_map_gives() -> None:
         assert obs.shape == wrapped.observation_space.shape
         assert obs.shape[-1] == env.observation_space.shape[-1] + n_extra
         assert wrapped.observation_space.contains(obs)
+        # the observation columns a map keeps keep their bounds
+        drop = rl.OBS_FEATURES_DROP.get(name, 0)
+        kept = env.observation_space.shape[-1] - drop
+        np.testing.assert_array_equal(
+            wrapped.observation_space.low[:kept], env.observation_space.low[drop:]
+        )
 
 
 def test_shaping_potential_telescopes_and_collisions_cost_more() -> None:
