@@ -31,6 +31,7 @@ noise; its deterministic action (the mean) barely depends on the state and asks 
 nearly the same pose twenty times, which no identification can use. The greedy
 selector's poses follow from the campaign's state (attempt count, joint readings,
 conditioning), which the network can learn.
+
 Rollouts run in worker processes (the network is evaluated there in numpy), each
 seeded from the run's seed.
 """
@@ -84,8 +85,8 @@ class DemoSettings:
     workers : rollout processes (1: in this process).
     mirror : also fit the left–right mirror image of every sample
         (:meth:`~realitygap.baselines.rl.PolicyIO.mirror`): the task is symmetric, and
-        the fitted network is pushed towards a policy that is too, so it has no bias to
-        turn one way (WheeledNav with egocentric inputs only).
+        the fitted network is pushed towards a policy that is too, without a bias to turn
+        one way (feature maps in :data:`~realitygap.baselines.rl.OBS_MIRRORS` only).
     """
 
     expert: str = "classical"

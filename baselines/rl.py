@@ -84,11 +84,13 @@ at-rest condition) remain available as hyperparameter keys, as does
 success where it was and is off.
 
 What is left. The remaining failures (collisions with an obstacle in plain view, and
-standing still near the goal with a large heading error) point to two places where the expert's choice is not a function of what the network
-sees: which side of an obstacle to pass comes from the plan it made at its last re-plan,
-and the turn direction at a heading error near 180° flips sign. A network fitted by least squares averages the two choices — straight ahead, or no
-turn — and a deterministic policy that commands nothing while it is not at rest on the
-goal stays there (the rest timer gives it a way out it does not always learn).
+standing still near the goal with a large heading error) point to two places where the
+expert's choice is not a function of what the network sees: which side of an obstacle to
+pass comes from the plan it made at its last re-plan, and the turn direction at a heading
+error near 180° flips sign. A network fitted by least squares averages the two choices —
+straight ahead, or no turn — and a deterministic policy that commands nothing while it is
+not at rest on the goal stays there (the rest timer gives it a way out it does not always
+learn).
 
 ArmCalib recipe. A campaign is good when its poses are spread so that the
 identification is well conditioned. A Gaussian policy trained by PPO from scratch
@@ -979,27 +981,15 @@ class PolicyIO:
     ) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.float32], npt.NDArray[np.float32]]:
         """The left–right mirror of this I/O's network inputs and outputs in ``env``:
         ``(perm, sign, action_sign)`` with mirrored input ``x[..., perm] * sign`` and
-        mirrored network action ``a * action_sign``. Only the WheeledNav egocentric
-        inputs (:func:`wheeled_nav_egocentric_mirror`) have one; ``ValueError`` otherwise."""
-        base: Any = env.unwrapped
-        if self.obs_features != "wheeled_nav_egocentric" or not hasattr(base, "scan_angles"):
+        mirrored network action ``a * action_sign``, from the feature map's entry in
+        :data:`OBS_MIRRORS`; ``ValueError`` for a feature map without one."""
+        builder = OBS_MIRRORS.get(self.obs_features or "")
+        if builder is None:
             raise ValueError(
-                "a mirror needs WheeledNav with obs_features 'wheeled_nav_egocentric' (every "
-                f"input in the robot frame), got {type(base).__name__} with "
-                f"obs_features {self.obs_features!r}"
+                f"obs_features {self.obs_features!r} has no mirror; feature maps with one: "
+                f"{', '.join(OBS_MIRRORS)} (every input in the robot frame)"
             )
-        angles = np.asarray(base.scan_angles, dtype=float)
-        if not np.allclose(angles, -angles[::-1], atol=1e-9):
-            raise ValueError(
-                "a mirror needs scan bearings symmetric about the robot's axis; this camera "
-                f"is mounted at yaw {float(np.mean(angles)):.4f} rad"
-            )
-        n_sectors = int((self.for_env(env).obs_memory or {}).get("n_sectors", 0))
-        perm, sign = wheeled_nav_egocentric_mirror(
-            angles.size, n_sectors, rest_timer=bool(self.obs_rest_timer)
-        )
-        action_sign = np.array([1.0, -1.0] + [1.0] * int(self.action_stop_gate), np.float32)
-        return perm, sign, action_sign
+        return builder(self, env)
 
     def new_episode_features(self) -> Any:
         """Fresh episode features of one env (``None`` without memory and timer)."""
@@ -1064,6 +1054,39 @@ class _ActionMap(gym.ActionWrapper):
 
     def action(self, action: Any) -> Any:
         return self.io.action(action)
+
+
+def _wheeled_nav_egocentric_io_mirror(
+    io: PolicyIO, env: gym.Env[Any, Any]
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+    """:meth:`PolicyIO.mirror` of WheeledNav with :func:`wheeled_nav_egocentric_features`:
+    the input map of :func:`wheeled_nav_egocentric_mirror` for ``env``'s scan and ``io``'s
+    episode features; the turn command changes sign, speed and stop gate do not."""
+    base: Any = env.unwrapped
+    if not hasattr(base, "scan_angles"):
+        raise ValueError(f"a WheeledNav mirror needs a WheeledNav env, got {type(base).__name__}")
+    angles = np.asarray(base.scan_angles, dtype=float)
+    if not np.allclose(angles, -angles[::-1], atol=1e-9):
+        raise ValueError(
+            "a mirror needs scan bearings symmetric about the robot's axis; this camera "
+            f"is mounted at yaw {float(np.mean(angles)):.4f} rad"
+        )
+    n_sectors = int((io.for_env(env).obs_memory or {}).get("n_sectors", 0))
+    perm, sign = wheeled_nav_egocentric_mirror(
+        angles.size, n_sectors, rest_timer=bool(io.obs_rest_timer)
+    )
+    action_sign = np.array([1.0, -1.0] + [1.0] * int(io.action_stop_gate), np.float32)
+    return perm, sign, action_sign
+
+
+OBS_MIRRORS: dict[
+    str,
+    Callable[
+        [PolicyIO, gym.Env[Any, Any]],
+        tuple[npt.NDArray[np.intp], npt.NDArray[np.float32], npt.NDArray[np.float32]],
+    ],
+] = {"wheeled_nav_egocentric": _wheeled_nav_egocentric_io_mirror}
+"""Feature maps whose network inputs have a left–right mirror (:meth:`PolicyIO.mirror`)."""
 
 
 def make_env_fn(
