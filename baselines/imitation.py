@@ -10,11 +10,15 @@ observation, so the learned policy can start from it:
    network's otherwise, and every visited state is labelled with what the expert
    would do there. The expert is stateful (plan, obstacle memory) and keeps observing
    while the network drives, so its labels are its answers to the states the network
-   reaches. After each round the network is fitted on all data so far. The expert is
-   the classical pipeline in state-feedback form
+   reaches. After each round the network is fitted on all data so far. The expert
+   ``classical`` is the classical pipeline in state-feedback form
    (:meth:`~realitygap.baselines.classical.ClassicalNavPolicy.expert_config`): as it runs
    for the benchmark, its command depends on its own past commands and on a clock, so
-   its labels for states another driver reaches teach a network to stop.
+   its labels for states another driver reaches teach a network to stop. Even so, the
+   side it passes an obstacle on still comes from its last plan; the expert ``geodesic``
+   (:mod:`realitygap.baselines.privileged`) reads the episode's true map instead and
+   its command is a function of the estimated pose alone, so its labels do not
+   contradict each other.
 2. **Behaviour cloning** fits the Gaussian policy's mean to the expert's actions in the
    network's action space (the inverse of the dead band; the stop gate is +1 where the
    expert stands still, −1 elsewhere), and the value head to the discounted training
@@ -68,7 +72,9 @@ class DemoSettings:
 
     Parameters
     ----------
-    expert : ``"classical"`` (the env's classical baseline).
+    expert : ``"classical"`` (the env's classical baseline) or ``"geodesic"`` (WheeledNav:
+        the privileged shortest-path teacher of :mod:`realitygap.baselines.privileged`, whose
+        command is a function of the state); see :data:`EXPERTS`.
     rounds : DAgger rounds (round 0: the expert drives alone).
     episodes : episodes per round.
     beta_decay : the expert drives a step of round ``k`` with probability ``beta_decay^k``.
@@ -103,8 +109,9 @@ class DemoSettings:
     mirror: bool = False
 
     def __post_init__(self) -> None:
-        if self.expert != "classical":
-            raise ValueError(f"demonstrations expert must be 'classical', got {self.expert!r}")
+        names = sorted({name for experts in EXPERTS.values() for name in experts})
+        if self.expert not in names:
+            raise ValueError(f"demonstrations expert must be one of {names}, got {self.expert!r}")
         if self.rounds < 1 or self.episodes < 1 or self.epochs < 1 or self.workers < 1:
             raise ValueError(
                 "demonstrations rounds, episodes, epochs and workers must be >= 1, got "
@@ -239,6 +246,7 @@ class Rollouts:
 @dataclass(frozen=True)
 class _CollectTask:
     env_id: str
+    expert: str
     env_kwargs: dict[str, Any]
     io: Any
     train_wrappers: tuple[Mapping[str, Any], ...]
@@ -259,7 +267,7 @@ def _collect(task: _CollectTask) -> Rollouts:
 
     env = gym.make(task.env_id, max_episode_steps=task.max_episode_steps, **task.env_kwargs)
     env = apply_train_wrappers(env, task.train_wrappers)
-    expert = EXPERTS[task.env_id](env)
+    expert = EXPERTS[task.env_id][task.expert](env)
     actor = NumpyActor(task.actor_state, task.activation) if task.actor_state else None
     rng = np.random.default_rng(task.rng_seed)
     io = task.io
@@ -310,6 +318,7 @@ def collect(
     max_episode_steps: int | None = None,
     workers: int = 1,
     rng_seed: int = 0,
+    expert: str = "classical",
 ) -> Rollouts:
     """Run one DAgger round on the episodes ``seeds`` (see the module docstring).
 
@@ -340,6 +349,7 @@ def collect(
     tasks = [
         _CollectTask(
             env_id,
+            expert,
             dict(env_kwargs),
             io,
             tuple(dict(w) for w in train_wrappers),
@@ -450,8 +460,11 @@ def pretrain(
     Returns the fitted observation normaliser and one row of figures per round
     (rollout success of the mixed policy, losses, and ``evaluate(normaliser)`` when given).
     """
-    if env_id not in EXPERTS:
-        raise ValueError(f"no demonstration expert for {env_id}; known: {', '.join(EXPERTS)}")
+    if settings.expert not in EXPERTS.get(env_id, {}):
+        known = [f"{e} ({', '.join(names)})" for e, names in EXPERTS.items()]
+        raise ValueError(
+            f"no demonstration expert {settings.expert!r} for {env_id}; known: {'; '.join(known)}"
+        )
     if env_id in EXPERT_DRIVES_ONLY and settings.rounds != 1:
         raise ValueError(
             f"the expert of {env_id} labels only the episodes it drives; demonstrations "
@@ -489,6 +502,7 @@ def pretrain(
             max_episode_steps=max_episode_steps,
             workers=settings.workers,
             rng_seed=seed * 100 + k,
+            expert=settings.expert,
         )
         data.extend(part)
         if mirror is not None:
@@ -528,12 +542,24 @@ def _greedy_arm_calib_expert(env: gym.Env[Any, Any]) -> Any:
     return ObservabilityGreedyPolicy.from_env(env)
 
 
-EXPERTS: dict[str, Callable[[gym.Env[Any, Any]], Any]] = {
-    "realitygap/WheeledNav-v0": _classical_wheeled_nav_expert,
-    "realitygap/ArmCalib-v0": _greedy_arm_calib_expert,
+def _geodesic_wheeled_nav_expert(env: gym.Env[Any, Any]) -> Any:
+    from realitygap.baselines.privileged import GeodesicNavExpert
+
+    return GeodesicNavExpert(env)
+
+
+EXPERTS: dict[str, dict[str, Callable[[gym.Env[Any, Any]], Any]]] = {
+    "realitygap/WheeledNav-v0": {
+        "classical": _classical_wheeled_nav_expert,
+        "geodesic": _geodesic_wheeled_nav_expert,
+    },
+    "realitygap/ArmCalib-v0": {"classical": _greedy_arm_calib_expert},
 }
-"""Expert per env id: for WheeledNav the classical pipeline with
-:meth:`~realitygap.baselines.classical.ClassicalNavPolicy.expert_config`, for ArmCalib the
+"""Experts per env id, by the name ``demonstrations.expert`` gives. WheeledNav:
+``classical``, the classical pipeline with
+:meth:`~realitygap.baselines.classical.ClassicalNavPolicy.expert_config`, and ``geodesic``,
+the privileged shortest-path teacher
+(:class:`~realitygap.baselines.privileged.GeodesicNavExpert`). ArmCalib: ``classical``, the
 observability-greedy pose selector
 (:class:`~realitygap.baselines.arm_policy.ObservabilityGreedyPolicy`)."""
 

@@ -208,6 +208,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._scan: Scan | None = None
         self._estimate: Estimate | None = None
         self._layout: list[Primitive] = []
+        self._obstacles: tuple[Primitive, ...] = ()
         self._command_hooks: list[Any] = []
         self._ticks_hooks: list[Any] = []
         self._prev_dist = 0.0
@@ -219,6 +220,12 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     def dt(self) -> float:
         """Control period in s."""
         return self.world.dt
+
+    @property
+    def obstacles(self) -> tuple[Primitive, ...]:
+        """Ground truth: the footprints of this episode's walls and obstacles (a new tuple
+        per episode). A policy must not read it; privileged experts and analysis may."""
+        return self._obstacles
 
     @property
     def scan_angles(self) -> FloatArray:
@@ -392,6 +399,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         else:
             layout = []
         self._layout = layout
+        self._obstacles = tuple(room_walls(self.room_half_size) + layout)
         w = self.world
         w.reset_simulation()
         w.add_floor()

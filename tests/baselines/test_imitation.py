@@ -110,8 +110,9 @@ def test_discounted_returns_restart_at_each_episode_end() -> None:
 def test_bad_demonstration_settings_are_refused() -> None:
     with pytest.raises(ValueError, match="unknown demonstrations setting"):
         DemoSettings.from_dict({"round": 3})
-    with pytest.raises(ValueError, match="expert must be 'classical'"):
+    with pytest.raises(ValueError, match="expert must be one of \\['classical', 'geodesic'\\]"):
         DemoSettings(expert="oracle")
+    assert DemoSettings(expert="geodesic").expert == "geodesic"
     with pytest.raises(ValueError, match="beta_decay"):
         DemoSettings(beta_decay=1.5)
     with pytest.raises(ValueError, match="unknown training wrapper 'nope'"):
