@@ -20,19 +20,23 @@ the estimated pose and that layout alone:
    the room allows. Dijkstra from the goal cell (:func:`scipy.sparse.csgraph.dijkstra`)
    gives every cell's cost-to-go and its next cell towards the goal.
 2. **Carrot.** From the robot's cell the next-cell chain is followed until a cell lies
-   ``lookahead`` m from the robot (or the goal is reached).
+   ``lookahead`` m from the robot (or the goal is reached); the carrot is the last cell of
+   that chain the robot sees along a free segment, so steering at it from off the path
+   does not cut a corner into an obstacle.
 3. **Command.** With :math:`e` the bearing of the carrot in the robot frame,
 
    .. math::
 
       \omega = \omega_c \tanh(k_e e / \omega_c), \qquad
-      v = v_c \max(0, \cos e)^3 \min(1, d_g / d_s),
+      v = v_c \max(0, \cos e)^3 \min(1, d_g / d_s, \sigma(c)),
 
-   (:math:`d_g`: cost-to-go in metres); within ``stabilise_radius`` of the goal the polar
-   stabiliser (:class:`~realitygap.controllers.PolarStabiliser`, no hysteresis, so its
-   choice of forwards or backwards is a function of the bearing) drives onto the goal
-   pose; within ``align_radius`` the robot turns in place onto the goal heading and stops
-   once within ``stop_angle`` of it.
+   (:math:`d_g`: cost-to-go in metres; :math:`\sigma(c)` falls from 1 to
+   ``min_speed_fraction`` as the robot's clearance :math:`c` nears the blocked band, so
+   there is time to turn); within ``stabilise_radius`` of the goal the polar stabiliser
+   (:class:`~realitygap.controllers.PolarStabiliser`, no hysteresis, so its choice of
+   forwards or backwards is a function of the bearing) drives onto the goal pose; within
+   ``align_radius`` the robot turns in place onto the goal heading, never slower than
+   ``align_min_rate``, and stops once within ``stop_angle`` of it.
 
 Its labels differ only across the cut locus of the cost-to-go (where two routes cost the
 same) and the bearing :math:`e = \pm\pi`, sets of measure zero, instead of over every
@@ -113,7 +117,9 @@ class GeodesicField:
         clear = clearance(primitives, self.xy)
         edge = half_size - np.maximum(np.abs(gx), np.abs(gy))
         clear = np.minimum(clear, edge)
+        self.clearance = clear
         blocked_below = robot_radius + margin
+        self.blocked_below = blocked_below
         free = clear > blocked_below
         goal_cell = self.cell(goal)
         free[goal_cell] = True  # the env keeps the goal clear; never lose it to rounding
@@ -159,9 +165,26 @@ class GeodesicField:
         k = int(self._reachable[int(self._tree.query(np.asarray(xy, dtype=float)[:2])[1])])
         return divmod(k, self.n)
 
+    def clearance_at(self, xy: npt.ArrayLike) -> float:
+        """Clearance (m) of the cell nearest to ``xy`` to the nearest obstacle or wall."""
+        return float(self.clearance[self.cell(xy)])
+
+    def visible(self, a: npt.ArrayLike, b: npt.ArrayLike) -> bool:
+        """Whether the straight segment from ``a`` to ``b`` runs through free cells only."""
+        a, b = np.asarray(a, dtype=float)[:2], np.asarray(b, dtype=float)[:2]
+        n = max(2, int(math.ceil(np.hypot(*(b - a)) / (0.5 * self.resolution))) + 1)
+        pts = a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)
+        ij = np.clip(np.rint((pts + self.half_size) / self.resolution), 0, self.n - 1).astype(int)
+        return bool(np.all(self.clearance[ij[:, 0], ij[:, 1]] > self.blocked_below))
+
     def carrot(self, xy: npt.ArrayLike, lookahead: float) -> tuple[FloatArray, float]:
-        """The first cell on the way to the goal at least ``lookahead`` m from ``xy`` (or the
-        goal), and the cost-to-go of ``xy``'s cell, both in metres."""
+        """The point to steer at, and the cost-to-go of ``xy``'s cell (m).
+
+        The next-cell chain from ``xy`` is followed to the goal or to ``lookahead`` m from
+        ``xy``; the carrot is the last cell of it that ``xy`` sees along a free segment
+        (:meth:`visible`), so steering at it does not cut a corner into an obstacle. From a
+        blocked cell (the robot has come too close) it is the first free cell of the chain.
+        """
         p = np.asarray(xy, dtype=float)[:2]
         i, j = self.nearest_reachable(p)
         togo = float(self.cost_to_go[i, j])
@@ -169,11 +192,17 @@ class GeodesicField:
         goal = self.goal_cell[0] * self.n + self.goal_cell[1]
         flat = self.xy.reshape(-1, 2)
         nxt = self.next_cell.reshape(-1)
+        chain = [k]
         for _ in range(4 * self.n):
             if k == goal or np.hypot(*(flat[k] - p)) >= lookahead:
                 break
             k = int(nxt[k])
-        return flat[k].copy(), togo
+            chain.append(k)
+        best = chain[min(1, len(chain) - 1)]
+        for k in chain[1:]:
+            if self.visible(p, flat[k]):
+                best = k
+        return flat[best].copy(), togo
 
 
 @dataclass(frozen=True)
@@ -190,12 +219,24 @@ class GeodesicNavConfig:
     """:math:`\\omega_c` (rad/s), the yaw rate the turn saturates to."""
     slow_distance: float = 0.5
     """:math:`d_s` (m): the speed falls linearly to the goal from this cost-to-go."""
+    clear_slow: float = 0.25
+    """Beyond the blocked clearance, the speed falls linearly to ``min_speed_fraction`` of
+    :math:`v_c` within this band (m): close to an obstacle there is time to turn."""
+    min_speed_fraction: float = 0.3
     stabilise_radius: float = 0.20
     """Polar stabilisation within this distance of the goal (m)."""
     align_radius: float = 0.02
     """Turn in place onto the goal heading within this distance (m)."""
     stop_angle: float = math.radians(2.5)
     """Stand still within ``align_radius`` once the heading is this close (rad)."""
+    align_gain: float = 6.0
+    """:math:`k_a` (1/s) of the turn in place onto the goal heading,
+    :math:`\\omega = \\max(\\omega_{min}, \\omega_a \\tanh(k_a |e| / \\omega_a)) \\operatorname{sign} e`."""
+    align_rate: float = 1.5
+    """:math:`\\omega_a` (rad/s)."""
+    align_min_rate: float = 0.5
+    """:math:`\\omega_{min}` (rad/s): a final turn a few degrees short is not a crawl that a
+    network fitted by least squares rounds to zero."""
     margin: float = 0.04
     """Clearance (m) beyond the robot's radius that a free cell needs."""
     soft_clearance: float = 0.3
@@ -268,14 +309,20 @@ class GeodesicNavExpert(PerEnvPolicy):
             if abs(err) <= c.stop_angle:
                 v, w = 0.0, 0.0
             else:
-                v, w = self.stabiliser.command(pose, np.array([pose[0], pose[1], goal[2]]))
-                v = 0.0
+                rate = max(
+                    c.align_min_rate,
+                    c.align_rate * math.tanh(c.align_gain * abs(err) / c.align_rate),
+                )
+                v, w = 0.0, math.copysign(rate, err)
         elif dist <= c.stabilise_radius:
             v, w = self.stabiliser.command(pose, goal)
         else:
-            carrot, togo = self.field(env_index, goal[:2]).carrot(pose[:2], c.lookahead)
+            field = self.field(env_index, goal[:2])
+            carrot, togo = field.carrot(pose[:2], c.lookahead)
             e = float(wrap_angle(math.atan2(carrot[1] - pose[1], carrot[0] - pose[0]) - pose[2]))
             w = c.turn_rate * math.tanh(c.turn_gain * e / c.turn_rate)
-            v = c.cruise_speed * max(0.0, math.cos(e)) ** 3 * min(1.0, togo / c.slow_distance)
+            near = (field.clearance_at(pose[:2]) - field.blocked_below) / c.clear_slow
+            slow = c.min_speed_fraction + (1.0 - c.min_speed_fraction) * min(1.0, max(0.0, near))
+            v = c.cruise_speed * max(0.0, math.cos(e)) ** 3 * min(1.0, togo / c.slow_distance, slow)
             v, w = self.limits.saturate(v, w)
         return np.array([v / self.limits.v_max, w / self.limits.w_max])

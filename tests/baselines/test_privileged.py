@@ -100,3 +100,35 @@ def test_geodesic_expert_is_refused_for_an_env_without_one() -> None:
         ValueError, match="no demonstration expert 'geodesic' for realitygap/ArmCalib"
     ):
         pretrain(None, "realitygap/ArmCalib-v0", {}, None, settings, 0, 0.99, None)
+
+
+def test_carrot_is_seen_along_a_free_segment() -> None:
+    # a robot beside a post, off its path: steering at the carrot must not cross the post
+    post = Primitive("post", Shape.CYLINDER, (0.0, 0.0), 0.5, radius=0.3)
+    prims = [*room_walls(3.0), post]
+    field = GeodesicField(prims, 3.0, (1.5, 0.0), robot_radius=0.2)
+    assert not field.visible((-1.0, 0.0), (1.0, 0.0))
+    assert field.visible((-1.0, 0.8), (1.0, 0.8))
+    for xy in ([-0.6, 0.1], [-0.6, -0.1], [-0.2, 0.6], [0.3, -0.6]):
+        carrot, _ = field.carrot(xy, 1.0)
+        assert field.visible(xy, carrot), (xy, carrot)
+
+
+def test_final_turn_has_a_floor_and_stops_inside_the_band() -> None:
+    env = gym.make(ENV_ID, n_obstacles=0)
+    expert = GeodesicNavExpert(env)
+    c = expert.config
+    obs, _ = env.reset(seed=0, options={"start": [0.0, 0.0, 0.0], "goal": [0.005, 0.0, 0.0]})
+    obs = np.array(obs)
+    for heading_deg, turning in ((-4.0, True), (3.0, True), (2.0, False), (-2.0, False)):
+        th = math.radians(heading_deg)
+        obs[2:4] = (math.cos(th), math.sin(th))
+        v, w = expert.predict(obs)[0]
+        assert v == 0.0
+        if turning:
+            # turns towards the goal heading (0), at least align_min_rate
+            assert np.sign(w) == -np.sign(heading_deg)
+            assert abs(w) * env.unwrapped.w_max >= c.align_min_rate - 1e-6
+        else:
+            assert w == 0.0
+    env.close()
