@@ -304,3 +304,49 @@ def test_mirrored_demonstrations_double_the_samples(tmp_path: Path) -> None:
     hp["obs_features"] = "wheeled_nav_goal_zoom"
     with pytest.raises(ValueError, match="wheeled_nav_egocentric"):
         rl.train(_quiet_ppo(ENV_ID, tmp_path / "world", hp))
+
+
+def test_scene_fade_empties_the_scene_at_the_goal_only() -> None:
+    n_beams, n_sectors = 6, 4
+    x = np.full((3, 12 + n_beams + n_sectors + 1), 0.4, dtype=np.float32)
+    x[:, 8:10] = [[0.0, 0.0], [0.06, 0.08], [0.3, 0.0]]  # goal 0, 0.1 and 0.3 m away
+    out = rl.scene_fade(x, x.shape[1] - 1, radius=0.2)
+    scene = slice(12, 12 + n_beams + n_sectors)
+    np.testing.assert_allclose(out[0, scene], 1.0)  # nothing seen at the goal
+    np.testing.assert_allclose(out[1, scene], 1.0 - 0.6 * 0.5, rtol=1e-6)  # half-way
+    np.testing.assert_array_equal(out[2], x[2])  # identity beyond the radius
+    np.testing.assert_array_equal(out[:, :12], x[:, :12])
+    np.testing.assert_array_equal(out[:, -1], x[:, -1])  # the rest timer is not scene
+
+
+def test_scene_fade_is_the_same_in_training_and_use_and_refused_off_wheeled_nav() -> None:
+    io = rl.PolicyIO(
+        obs_features="wheeled_nav_egocentric",
+        obs_memory={"n_sectors": 12},
+        obs_rest_timer={"horizon_steps": 10},
+        obs_scene_fade=0.25,
+    )
+    assert rl.PolicyIO.from_dict(io.to_dict()) == io
+    kwargs = {"n_obstacles": 3, "n_beams": 16, "goal": [0.5, 0.0, 0.0], "start": [0.3, 0.0, 0.0]}
+    env = gym.make(ENV_ID, **kwargs)
+    io = io.for_env(env)
+    wrapped = io.wrap(gym.make(ENV_ID, **kwargs))
+    raw_obs, _ = env.reset(seed=2)
+    w_obs, _ = wrapped.reset(seed=2)
+    feats = io.new_episode_features()
+    unfaded = rl.PolicyIO(**{**io.__dict__, "obs_scene_fade": 0.0})
+    plain_feats = unfaded.new_episode_features()
+    faded_some = False
+    for _ in range(20):
+        x = io.observation(raw_obs[None], [feats])[0]
+        np.testing.assert_allclose(x, w_obs, atol=1e-6)
+        faded_some |= not np.allclose(x, unfaded.observation(raw_obs[None], [plain_feats])[0])
+        raw_obs, *_ = env.step(np.array([0.3, 0.0], np.float32))
+        w_obs, *_ = wrapped.step(np.array([0.3, 0.0], np.float32))
+    assert faded_some  # the start lies 0.2 m from the goal: the scene is faded
+    with pytest.raises(ValueError, match="obs_scene_fade must be a radius"):
+        rl.PolicyIO(obs_scene_fade=0.5)
+    with pytest.raises(ValueError, match="obs_scene_fade fades a WheeledNav scan"):
+        rl.PolicyIO(obs_scene_fade=0.1).wrap(gym.make("CartPole-v1"))
+    env.close()
+    wrapped.close()
