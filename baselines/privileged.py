@@ -243,6 +243,26 @@ class GeodesicNavConfig:
     soft_weight: float = 4.0
     resolution: float = 0.05
 
+    def __post_init__(self) -> None:
+        for name, value in vars(self).items():
+            if name == "soft_weight":
+                ok = math.isfinite(value) and value >= 0.0
+            elif name == "min_speed_fraction":
+                ok = 0.0 < value <= 1.0
+            else:
+                ok = math.isfinite(value) and value > 0.0
+            if not ok:
+                raise ValueError(
+                    f"GeodesicNavConfig.{name} must be "
+                    + {"soft_weight": ">= 0", "min_speed_fraction": "in (0, 1]"}.get(name, "> 0")
+                    + f", got {value!r}"
+                )
+        if self.align_radius >= self.stabilise_radius:
+            raise ValueError(
+                f"align_radius ({self.align_radius} m) must be below stabilise_radius "
+                f"({self.stabilise_radius} m)"
+            )
+
 
 class GeodesicNavExpert(PerEnvPolicy):
     """SB3-style expert for ``realitygap/WheeledNav-v0`` that reads the true layout of

@@ -10,7 +10,7 @@ import pytest
 
 import realitygap  # noqa: F401
 from realitygap.baselines.imitation import DemoSettings, pretrain
-from realitygap.baselines.privileged import GeodesicField, GeodesicNavExpert
+from realitygap.baselines.privileged import GeodesicField, GeodesicNavConfig, GeodesicNavExpert
 from realitygap.envs.layouts import clearance, room_walls
 from realitygap.robots.world import Primitive, Shape
 
@@ -57,6 +57,12 @@ def test_bad_field_input_is_refused() -> None:
         GeodesicField([], 3.0, (0.0, math.nan), 0.2)
     with pytest.raises(ValueError, match="resolution must lie in"):
         GeodesicField([], 3.0, (0.0, 0.0), 0.2, resolution=0.0)
+    with pytest.raises(ValueError, match=r"GeodesicNavConfig\.lookahead must be > 0"):
+        GeodesicNavConfig(lookahead=-0.1)
+    with pytest.raises(ValueError, match="min_speed_fraction must be in \\(0, 1\\]"):
+        GeodesicNavConfig(min_speed_fraction=1.5)
+    with pytest.raises(ValueError, match=r"align_radius .* must be below stabilise_radius"):
+        GeodesicNavConfig(align_radius=0.3)
     with pytest.raises(TypeError, match="needs a WheeledNav env"):
         GeodesicNavExpert(gym.make("CartPole-v1"))
 
