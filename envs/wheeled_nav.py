@@ -207,7 +207,6 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._start_pose = np.zeros(3)
         self._scan: Scan | None = None
         self._estimate: Estimate | None = None
-        self._layout: list[Primitive] = []
         self._obstacles: tuple[Primitive, ...] = ()
         self._command_hooks: list[Any] = []
         self._ticks_hooks: list[Any] = []
@@ -398,14 +397,13 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             )
         else:
             layout = []
-        self._layout = layout
         self._obstacles = tuple(room_walls(self.room_half_size) + layout)
         w = self.world
         w.reset_simulation()
         w.add_floor()
         textured = self.sensor_mode is SensorMode.IMAGE or self.render_mode == "rgb_array"
         tex_rng = np.random.default_rng(int(rng.integers(2**31)))
-        for prim in room_walls(self.room_half_size) + layout:
+        for prim in self._obstacles:
             tex = w.texture(prim.name, tex_rng) if textured else None
             w.add_primitive(prim, texture_id=tex)
         self.robot = DiffDriveRobot(w, self.true_params)

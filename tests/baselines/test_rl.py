@@ -597,9 +597,9 @@ def test_docking_starts_put_some_episodes_next_to_the_goal_and_are_seeded() -> N
         out = []
         for s in range(seed0, seed0 + 30):
             _, info = env.reset(seed=s)
-            # the start is free of obstacles, with the body's clearance
+            # the start is free of obstacles and walls, with the body's clearance
             base = env.unwrapped
-            free = clearance(base._layout, info["true_pose"][:2])
+            free = clearance(list(base.obstacles), info["true_pose"][:2])
             assert np.min(free, initial=np.inf) > base.true_params.body_radius
             out.append((info["pos_error"], info["heading_error"]))
         env.close()
