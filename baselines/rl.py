@@ -1017,15 +1017,25 @@ class PolicyIO:
 
     def for_env(self, env: gym.Env[Any, Any]) -> PolicyIO:
         """This I/O with the memory spec completed from ``env``'s scan geometry."""
-        if self.obs_scene_fade > 0.0 and not hasattr(env.unwrapped, "scan_angles"):
-            raise ValueError(
-                f"obs_scene_fade fades a WheeledNav scan; {type(env.unwrapped).__name__} has none"
-            )
+        self._check_scene_fade(env)
         if self.complete:
             return self
         from realitygap.baselines.episode_features import memory_spec_for_env
 
         return replace(self, obs_memory=memory_spec_for_env(env, self.obs_memory or {}))
+
+    def _check_scene_fade(self, env: gym.Env[Any, Any]) -> None:
+        if self.obs_scene_fade > 0.0 and not hasattr(env.unwrapped, "scan_angles"):
+            raise ValueError(
+                f"obs_scene_fade fades a WheeledNav scan; {type(env.unwrapped).__name__} has none"
+            )
+
+    def fade_scene(self, x: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
+        """:func:`scene_fade` of an observation with this I/O's episode features appended
+        (the rest timer, last, is not scene); ``x`` itself without a fade radius."""
+        if self.obs_scene_fade <= 0.0:
+            return x
+        return scene_fade(x, x.shape[-1] - int(bool(self.obs_rest_timer)), self.obs_scene_fade)
 
     def mirror(
         self, env: gym.Env[Any, Any]
@@ -1066,8 +1076,7 @@ class PolicyIO:
                 raise ValueError(f"{len(rows)} observations but {len(states)} episode states")
             feats = np.stack([st.update(r) for st, r in zip(states, rows)])
             x = np.concatenate([rows, feats], axis=-1).reshape(*x.shape[:-1], -1)
-        if self.obs_scene_fade > 0.0:
-            x = scene_fade(x, x.shape[-1] - int(bool(self.obs_rest_timer)), self.obs_scene_fade)
+        x = self.fade_scene(x)
         fn = obs_feature_fn(self.obs_features)
         return fn(x) if fn is not None else x
 
@@ -1086,7 +1095,7 @@ class PolicyIO:
 
             env = EpisodeFeaturesWrapper(env, self.for_env(env).new_episode_features())
         if self.obs_scene_fade > 0.0:
-            self.for_env(env)  # refuses an env without a scan
+            self._check_scene_fade(env)
             env = _SceneFade(env, self)
         if self.obs_features:
             env = ObsFeatures(env, self.obs_features)
@@ -1094,16 +1103,14 @@ class PolicyIO:
 
 
 class _SceneFade(gym.ObservationWrapper):
-    """Training side of :func:`scene_fade` in :meth:`PolicyIO.observation`."""
+    """Training side of :meth:`PolicyIO.fade_scene` in :meth:`PolicyIO.observation`."""
 
     def __init__(self, env: gym.Env[Any, Any], io: PolicyIO):
         super().__init__(env)
-        self.radius = io.obs_scene_fade
-        self.timer_columns = int(bool(io.obs_rest_timer))
+        self.io = io
 
     def observation(self, observation: Any) -> Any:
-        obs = np.asarray(observation, dtype=np.float32)
-        return scene_fade(obs, obs.shape[-1] - self.timer_columns, self.radius)
+        return self.io.fade_scene(np.asarray(observation, dtype=np.float32))
 
 
 class _ActionMap(gym.ActionWrapper):
