@@ -59,7 +59,7 @@ from scipy.spatial import cKDTree
 
 from realitygap.baselines.common import PerEnvPolicy
 from realitygap.controllers import PolarStabiliser, VelocityLimits
-from realitygap.envs.layouts import clearance
+from realitygap.envs.layouts import clearance, room_grid
 from realitygap.geometry import wrap_angle
 from realitygap.robots.world import Primitive
 
@@ -108,14 +108,11 @@ class GeodesicField:
         if goal.shape != (2,) or not np.all(np.isfinite(goal)):
             raise ValueError(f"goal_xy must be 2 finite numbers (m), got {goal_xy!r}")
         self.half_size = float(half_size)
-        self.resolution = float(resolution)
-        n = int(math.ceil(2.0 * half_size / resolution)) + 1
-        self.n = n
-        axis = -half_size + resolution * np.arange(n)
-        gx, gy = np.meshgrid(axis, axis, indexing="ij")
-        self.xy = np.stack([gx, gy], -1)
+        self.xy = room_grid(half_size, resolution)
+        n = self.n = self.xy.shape[0]
+        self.resolution = 2.0 * self.half_size / (n - 1)  # the grid's own spacing
         clear = clearance(primitives, self.xy)
-        edge = half_size - np.maximum(np.abs(gx), np.abs(gy))
+        edge = half_size - np.max(np.abs(self.xy), axis=-1)
         clear = np.minimum(clear, edge)
         self.clearance = clear
         blocked_below = robot_radius + margin
@@ -151,11 +148,18 @@ class GeodesicField:
         self._reachable = np.flatnonzero(reachable.reshape(-1))
         self._tree = cKDTree(self.xy.reshape(-1, 2)[self._reachable])
 
+    def cells(self, xy: npt.ArrayLike) -> npt.NDArray[np.intp]:
+        """Indices ``(..., 2)`` of the grid cells nearest to points ``xy`` (..., 2), clamped
+        into the room."""
+        p = np.asarray(xy, dtype=float)[..., :2]
+        return np.clip(np.rint((p + self.half_size) / self.resolution), 0, self.n - 1).astype(
+            np.intp
+        )
+
     def cell(self, xy: npt.ArrayLike) -> tuple[int, int]:
         """The grid cell nearest to ``xy`` (clamped into the room)."""
-        p = np.asarray(xy, dtype=float)
-        ij = np.clip(np.rint((p[:2] + self.half_size) / self.resolution), 0, self.n - 1)
-        return int(ij[0]), int(ij[1])
+        i, j = self.cells(xy)
+        return int(i), int(j)
 
     def nearest_reachable(self, xy: npt.ArrayLike) -> tuple[int, int]:
         """The cell nearest to ``xy`` from which the goal can be reached."""
@@ -173,8 +177,7 @@ class GeodesicField:
         """Whether the straight segment from ``a`` to ``b`` runs through free cells only."""
         a, b = np.asarray(a, dtype=float)[:2], np.asarray(b, dtype=float)[:2]
         n = max(2, int(math.ceil(np.hypot(*(b - a)) / (0.5 * self.resolution))) + 1)
-        pts = a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)
-        ij = np.clip(np.rint((pts + self.half_size) / self.resolution), 0, self.n - 1).astype(int)
+        ij = self.cells(a + np.linspace(0.0, 1.0, n)[:, None] * (b - a))
         return bool(np.all(self.clearance[ij[:, 0], ij[:, 1]] > self.blocked_below))
 
     def carrot(self, xy: npt.ArrayLike, lookahead: float) -> tuple[FloatArray, float]:
@@ -198,10 +201,10 @@ class GeodesicField:
                 break
             k = int(nxt[k])
             chain.append(k)
-        best = chain[min(1, len(chain) - 1)]
-        for k in chain[1:]:
-            if self.visible(p, flat[k]):
-                best = k
+        best = next(
+            (k for k in reversed(chain[1:]) if self.visible(p, flat[k])),
+            chain[min(1, len(chain) - 1)],
+        )
         return flat[best].copy(), togo
 
 

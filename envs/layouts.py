@@ -38,6 +38,15 @@ def clearance(primitives: list[Primitive], xy: npt.ArrayLike) -> FloatArray:
     return np.min(np.stack([p.footprint_distance(xy) for p in primitives]), axis=0)
 
 
+def room_grid(half_size: float, resolution: float) -> FloatArray:
+    """Cell centres ``(n, n, 2)`` of a square grid over ``[-half_size, half_size]²``, about
+    ``resolution`` apart, with points on both edges (index ``[i, j]`` is ``(x_i, y_j)``)."""
+    n = int(math.ceil(2 * half_size / resolution)) + 1
+    axis = np.linspace(-half_size, half_size, n)
+    gx, gy = np.meshgrid(axis, axis, indexing="ij")
+    return np.stack([gx, gy], -1)
+
+
 def free_route_exists(
     primitives: list[Primitive],
     start_xy: npt.ArrayLike,
@@ -47,10 +56,10 @@ def free_route_exists(
     resolution: float = 0.05,
 ) -> bool:
     """Whether a disc of ``radius`` can move from start to goal without touching any primitive."""
-    n = int(math.ceil(2 * half_size / resolution)) + 1
-    axis = np.linspace(-half_size, half_size, n)
-    gx, gy = np.meshgrid(axis, axis, indexing="ij")
-    free = clearance(primitives, np.stack([gx, gy], -1)) > radius
+    xy = room_grid(half_size, resolution)
+    n = xy.shape[0]
+    gx, gy = xy[..., 0], xy[..., 1]
+    free = clearance(primitives, xy) > radius
     free &= (np.abs(gx) < half_size - radius) & (np.abs(gy) < half_size - radius)
 
     def cell(xy: npt.ArrayLike) -> tuple[int, int]:
