@@ -48,6 +48,7 @@ robot has no true map.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -247,19 +248,15 @@ class GeodesicNavConfig:
     resolution: float = 0.05
 
     def __post_init__(self) -> None:
+        rules: dict[str, tuple[str, Callable[[float], bool]]] = {
+            "soft_weight": (">= 0", lambda v: math.isfinite(v) and v >= 0.0),
+            "min_speed_fraction": ("in (0, 1]", lambda v: 0.0 < v <= 1.0),
+        }
+        positive = ("> 0", lambda v: math.isfinite(v) and v > 0.0)
         for name, value in vars(self).items():
-            if name == "soft_weight":
-                ok = math.isfinite(value) and value >= 0.0
-            elif name == "min_speed_fraction":
-                ok = 0.0 < value <= 1.0
-            else:
-                ok = math.isfinite(value) and value > 0.0
-            if not ok:
-                raise ValueError(
-                    f"GeodesicNavConfig.{name} must be "
-                    + {"soft_weight": ">= 0", "min_speed_fraction": "in (0, 1]"}.get(name, "> 0")
-                    + f", got {value!r}"
-                )
+            rule, ok = rules.get(name, positive)
+            if not ok(value):
+                raise ValueError(f"GeodesicNavConfig.{name} must be {rule}, got {value!r}")
         if self.align_radius >= self.stabilise_radius:
             raise ValueError(
                 f"align_radius ({self.align_radius} m) must be below stabilise_radius "
