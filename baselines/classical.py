@@ -37,7 +37,7 @@ from realitygap.controllers import (
     shortcut_waypoints,
     smooth_path,
 )
-from realitygap.geometry import wrap_angle
+from realitygap.core.geometry import wrap_angle
 
 FloatArray = npt.NDArray[np.float64]
 

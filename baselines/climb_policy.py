@@ -32,7 +32,7 @@ from realitygap.controllers import (
     VelocityLimits,
     smooth_path,
 )
-from realitygap.geometry import wrap_angle
+from realitygap.core.geometry import wrap_angle
 from realitygap.robots.climber import ClimberParams
 
 FloatArray = npt.NDArray[np.float64]

@@ -60,8 +60,8 @@ from scipy.spatial import cKDTree
 
 from realitygap.baselines.common import PerEnvPolicy
 from realitygap.controllers import PolarStabiliser, VelocityLimits
+from realitygap.core.geometry import wrap_angle
 from realitygap.envs.layouts import clearance, room_grid
-from realitygap.geometry import wrap_angle
 from realitygap.robots.world import Primitive
 
 FloatArray = npt.NDArray[np.float64]

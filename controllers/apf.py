@@ -71,7 +71,7 @@ from scipy import sparse
 from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
-from realitygap.geometry import check_finite
+from realitygap.core.geometry import check_finite
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -58,7 +58,7 @@ import casadi
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.geometry import check_finite, wrap_angle
+from realitygap.core.geometry import check_finite, wrap_angle
 
 FloatArray = npt.NDArray[np.float64]
 

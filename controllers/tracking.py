@@ -18,7 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.controllers.smoothing import SmoothPath
-from realitygap.geometry import check_finite, wrap_angle
+from realitygap.core.geometry import check_finite, wrap_angle
 
 FloatArray = npt.NDArray[np.float64]
 

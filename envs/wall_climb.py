@@ -60,6 +60,7 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
 
+from realitygap.core.geometry import quat_xyzw_from_matrix, so3_exp
 from realitygap.envs.common import check_twist_action
 from realitygap.estimators.climb import (
     ClimbEstimate,
@@ -75,7 +76,6 @@ from realitygap.estimators.climb import (
     VioConfig,
     static_initialise,
 )
-from realitygap.estimators.climb.vio import quat_xyzw_from_matrix, so3_exp
 from realitygap.robots.climber import (
     BodyState,
     CameraMode,

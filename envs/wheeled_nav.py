@@ -46,10 +46,10 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
 
+from realitygap.core.geometry import check_finite
 from realitygap.envs.common import check_twist_action
 from realitygap.envs.layouts import clearance, free_route_exists, random_layout, room_walls
 from realitygap.estimators.base import DiffDriveMeasurement, Estimate, Estimator, Scan
-from realitygap.geometry import check_finite
 from realitygap.robots.diffdrive import DiffDriveParams, DiffDriveRobot, encoder_ticks
 from realitygap.robots.effects import Reality
 from realitygap.robots.sensors import PlanarScanner, RGBDCamera, SensorMode

@@ -47,8 +47,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.geometry import check_finite, wrap_angle
 from realitygap.estimators.base import Estimate, WheelTicks
-from realitygap.geometry import check_finite, wrap_angle
 
 FloatArray = npt.NDArray[np.float64]
 

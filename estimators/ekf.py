@@ -16,7 +16,7 @@ Two filters:
     :func:`calibrate_mounting` runs it over a batch; :func:`calibrate_mounting_lsq`
     solves the same residuals by nonlinear least squares for comparison.
 
-Conventions follow :mod:`realitygap.geometry`: poses ``[x, y, θ]`` (m, m, rad),
+Conventions follow :mod:`realitygap.core.geometry`: poses ``[x, y, θ]`` (m, m, rad),
 ``a ⊕ b`` compounding and ``⊖a`` inversion (Smith–Self–Cheeseman). The base
 frame has x forward, y left; the sensor frame is the planar frame in which the
 sensor's ego-motion is reported (for a camera, its optical axis projected on
@@ -41,6 +41,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import least_squares
 
+from realitygap.core.geometry import check_finite, se2_between, se2_compose, se2_inverse, wrap_angle
 from realitygap.estimators.base import Estimate, WheelTicks
 from realitygap.estimators.diffdrive_model import (
     DiffDriveKinematics,
@@ -49,7 +50,6 @@ from realitygap.estimators.diffdrive_model import (
     arc_increment_jacobian,
     se2_compose_jacobians,
 )
-from realitygap.geometry import check_finite, se2_between, se2_compose, se2_inverse, wrap_angle
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.geometry import check_finite
 from realitygap.estimators.base import Scan
-from realitygap.geometry import check_finite
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]

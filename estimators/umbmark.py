@@ -70,8 +70,8 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.geometry import se2_between, wrap_angle
 from realitygap.estimators.diffdrive_model import DiffDriveKinematics
-from realitygap.geometry import se2_between, wrap_angle
 
 FloatArray = npt.NDArray[np.float64]
 Direction = Literal["cw", "ccw"]

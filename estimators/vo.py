@@ -32,8 +32,8 @@ import numpy.typing as npt
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import pdist, squareform
 
+from realitygap.core.geometry import check_finite, transform_from_rt
 from realitygap.estimators.base import CameraIntrinsics, Estimate, RGBDFrame
-from realitygap.geometry import check_finite, transform_from_rt
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]

@@ -30,6 +30,7 @@ import numpy.typing as npt
 from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation
 
+from realitygap.core.geometry import rot_z, so3_exp, so3_log, wrap_angle
 from realitygap.estimators.climb.constrained import (
     ClimbLocaliser,
     ConstrainedConfig,
@@ -45,10 +46,7 @@ from realitygap.estimators.climb.vio import (
     RelativeMotion,
     TetherReading,
     VioConfig,
-    so3_exp,
-    so3_log,
 )
-from realitygap.geometry import rot_z, wrap_angle
 from realitygap.robots.blade_geometry import BladeParams, BladeSurface, cad_point_cloud, deformed
 
 FloatArray = npt.NDArray[np.float64]

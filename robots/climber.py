@@ -53,6 +53,7 @@ import numpy.typing as npt
 import pybullet as p
 from scipy.spatial import cKDTree
 
+from realitygap.core.geometry import so3_exp, so3_log
 from realitygap.estimators.climb.constrained import ConstrainedConfig
 from realitygap.estimators.climb.vio import (
     CameraFrame,
@@ -60,8 +61,6 @@ from realitygap.estimators.climb.vio import (
     RelativeMotion,
     TetherReading,
     VioConfig,
-    so3_exp,
-    so3_log,
 )
 from realitygap.robots.blade_geometry import (
     BladeParams,

@@ -15,8 +15,8 @@ import numpy as np
 import numpy.typing as npt
 import pybullet as p
 
+from realitygap.core.geometry import check_finite
 from realitygap.estimators.base import CameraIntrinsics, WheelTicks
-from realitygap.geometry import check_finite
 from realitygap.robots.world import World
 
 FloatArray = npt.NDArray[np.float64]

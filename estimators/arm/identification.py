@@ -55,7 +55,7 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from realitygap.geometry import check_finite
+from realitygap.core.geometry import check_finite
 
 from .handeye import solve_ax_xb
 from .mdh import (

@@ -80,6 +80,14 @@ from types import MappingProxyType
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.geometry import (
+    hat,
+    matrix_from_quat_xyzw,
+    quat_xyzw_from_matrix,
+    so3_exp,
+    so3_log,
+    wrap_angle,
+)
 from realitygap.estimators.climb.global_init import (
     GlobalInit,
     PlaneConstraint,
@@ -94,13 +102,7 @@ from realitygap.estimators.climb.vio import (
     SlidingWindowVIO,
     TetherReading,
     VioConfig,
-    hat,
-    matrix_from_quat_xyzw,
-    quat_xyzw_from_matrix,
-    so3_exp,
-    so3_log,
 )
-from realitygap.geometry import wrap_angle
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -51,6 +51,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import least_squares
 
+from realitygap.core.geometry import rot_z, wrap_angle
 from realitygap.estimators.climb.anchor import (
     AnchorSolution,
     fit_plane,
@@ -58,7 +59,6 @@ from realitygap.estimators.climb.anchor import (
     solve_anchor_with_plane,
 )
 from realitygap.estimators.climb.surface import SurfaceModel
-from realitygap.geometry import rot_z, wrap_angle
 
 FloatArray = npt.NDArray[np.float64]
 

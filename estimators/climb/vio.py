@@ -5,7 +5,7 @@ Pieces, usable on their own:
 * measurement dataclasses produced by the robot layer: :class:`ImuSample`,
   :class:`CameraFrame`, :class:`RelativeMotion` (already computed visual motion, the
   fast geometric sensor mode), :class:`TetherReading`; the output :class:`ClimbEstimate`;
-* SO(3) helpers (:func:`so3_exp`, :func:`so3_log`, :func:`right_jacobian`, …);
+* SO(3) helpers re-exported from :mod:`realitygap.core.geometry`;
 * :class:`Preintegration` — IMU pre-integration between keyframes with bias
   Jacobians and covariance (Forster et al., "On-manifold preintegration");
 * :func:`static_initialise` — gyro bias and roll/pitch from a still robot;
@@ -39,6 +39,21 @@ from scipy.linalg import solve_triangular
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from realitygap.core.geometry import (
+    hat,
+    hat_batch,
+    matrix_from_quat_xyzw,
+    quat_xyzw_from_matrix,
+    right_jacobian,
+    right_jacobian_batch,
+    right_jacobian_inv,
+    right_jacobian_inv_batch,
+    so3_exp,
+    so3_exp_batch,
+    so3_log,
+    so3_log_batch,
+)
+
 FloatArray = npt.NDArray[np.float64]
 
 __all__ = [
@@ -51,140 +66,11 @@ __all__ = [
     "StaticInit",
     "TetherReading",
     "VioConfig",
-    "hat",
-    "matrix_from_quat_xyzw",
-    "quat_xyzw_from_matrix",
     "relative_motion_from_images",
-    "right_jacobian",
-    "right_jacobian_inv",
-    "so3_exp",
-    "so3_log",
     "static_initialise",
 ]
 
 _EMPTY: Mapping[str, Any] = MappingProxyType({})
-
-
-# --------------------------------------------------------------------------- SO(3)
-
-
-def hat(v: npt.ArrayLike) -> FloatArray:
-    """Skew-symmetric matrix :math:`[v]_\\times` of a 3-vector, so ``hat(a) @ b = a × b``."""
-    x, y, z = np.asarray(v, dtype=float)
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-
-
-def so3_exp(phi: npt.ArrayLike) -> FloatArray:
-    """Rotation matrix :math:`\\mathrm{Exp}(\\phi)` of a rotation vector (rad), Rodrigues."""
-    phi = np.asarray(phi, dtype=float)
-    angle = math.sqrt(float(phi @ phi))
-    K = hat(phi)
-    if angle < 1e-8:
-        return np.eye(3) + K + 0.5 * K @ K
-    return np.eye(3) + (math.sin(angle) / angle) * K + ((1.0 - math.cos(angle)) / angle**2) * K @ K
-
-
-def so3_log(R: npt.ArrayLike) -> FloatArray:
-    """Rotation vector :math:`\\mathrm{Log}(R)` (rad) of a rotation matrix, robust near π."""
-    R = np.asarray(R, dtype=float)
-    cos_a = min(1.0, max(-1.0, 0.5 * (np.trace(R) - 1.0)))
-    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    if cos_a > 1.0 - 1e-10:
-        return 0.5 * w
-    angle = math.acos(cos_a)
-    if cos_a < -0.99:
-        # near π: axis from the symmetric part
-        M = 0.5 * (R + R.T) - cos_a * np.eye(3)
-        k = int(np.argmax(np.diag(M)))
-        axis = M[:, k] / math.sqrt(max(M[k, k], 1e-300))
-        if axis @ w < 0:
-            axis = -axis
-        return angle * axis / np.linalg.norm(axis)
-    return (angle / (2.0 * math.sin(angle))) * w
-
-
-def right_jacobian(phi: npt.ArrayLike) -> FloatArray:
-    """Right Jacobian :math:`J_r(\\phi)`: :math:`\\mathrm{Exp}(\\phi+\\delta) \\approx
-    \\mathrm{Exp}(\\phi)\\mathrm{Exp}(J_r\\delta)`."""
-    phi = np.asarray(phi, dtype=float)
-    a = math.sqrt(float(phi @ phi))
-    K = hat(phi)
-    if a < 1e-6:
-        return np.eye(3) - 0.5 * K + K @ K / 6.0
-    return np.eye(3) - ((1 - math.cos(a)) / a**2) * K + ((a - math.sin(a)) / a**3) * K @ K
-
-
-def right_jacobian_inv(phi: npt.ArrayLike) -> FloatArray:
-    """Inverse right Jacobian :math:`J_r^{-1}(\\phi)`."""
-    phi = np.asarray(phi, dtype=float)
-    a = math.sqrt(float(phi @ phi))
-    K = hat(phi)
-    if a < 1e-6:
-        return np.eye(3) + 0.5 * K + K @ K / 12.0
-    coef = 1.0 / a**2 - (1 + math.cos(a)) / (2 * a * math.sin(a))
-    return np.eye(3) + 0.5 * K + coef * K @ K
-
-
-def quat_xyzw_from_matrix(R: npt.ArrayLike) -> FloatArray:
-    """Unit quaternion (x, y, z, w), ``w ≥ 0``, of a rotation matrix (Shepperd's method)."""
-    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = np.asarray(R, dtype=float).tolist()
-    tr = m00 + m11 + m22
-    k = max(range(4), key=(tr, m00, m11, m22).__getitem__)
-    if k == 0:
-        w = 0.5 * math.sqrt(max(1.0 + tr, 0.0))
-        f = 0.25 / w
-        q = [(m21 - m12) * f, (m02 - m20) * f, (m10 - m01) * f, w]
-    elif k == 1:
-        x = 0.5 * math.sqrt(max(1.0 + 2 * m00 - tr, 0.0))
-        f = 0.25 / x
-        q = [x, (m01 + m10) * f, (m02 + m20) * f, (m21 - m12) * f]
-    elif k == 2:
-        y = 0.5 * math.sqrt(max(1.0 + 2 * m11 - tr, 0.0))
-        f = 0.25 / y
-        q = [(m01 + m10) * f, y, (m12 + m21) * f, (m02 - m20) * f]
-    else:
-        z = 0.5 * math.sqrt(max(1.0 + 2 * m22 - tr, 0.0))
-        f = 0.25 / z
-        q = [(m02 + m20) * f, (m12 + m21) * f, z, (m10 - m01) * f]
-    scale = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    if q[3] < 0:
-        scale = -scale
-    return np.array(q) * scale
-
-
-def matrix_from_quat_xyzw(quat_xyzw: npt.ArrayLike) -> FloatArray:
-    """Rotation matrix of a quaternion in xyzw order (normalised here)."""
-    q = np.asarray(quat_xyzw, dtype=float)
-    if q.shape != (4,):
-        raise ValueError(f"quat_xyzw must be a finite non-zero (4,) array, got {quat_xyzw!r}")
-    x, y, z, w = q.tolist()
-    n = math.sqrt(x * x + y * y + z * z + w * w)
-    if not (math.isfinite(n) and n >= 1e-12):
-        raise ValueError(f"quat_xyzw must be a finite non-zero (4,) array, got {quat_xyzw!r}")
-    x, y, z, w = x / n, y / n, z / n, w / n
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-def _gamma(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """:math:`\\int_0^1 \\mathrm{Exp}(\\sigma\\theta)d\\sigma` and
-    :math:`\\int_0^1 (1-\\sigma)\\mathrm{Exp}(\\sigma\\theta)d\\sigma`."""
-    a = math.sqrt(float(theta @ theta))
-    K = hat(theta)
-    K2 = K @ K
-    if a < 1e-4:
-        g1 = np.eye(3) + K / 2.0 + K2 / 6.0
-        g2 = 0.5 * np.eye(3) + K / 6.0 + K2 / 24.0
-        return g1, g2
-    s, c = math.sin(a), math.cos(a)
-    g1 = np.eye(3) + ((1 - c) / a**2) * K + ((a - s) / a**3) * K2
-    g2 = 0.5 * np.eye(3) + ((a - s) / a**3) * K + ((a * a / 2 - 1 + c) / a**4) * K2
-    return g1, g2
 
 
 def _vec3(name: str, value: npt.ArrayLike) -> FloatArray:
@@ -199,66 +85,6 @@ def _time(name: str, value: float) -> float:
     if not math.isfinite(t):
         raise ValueError(f"{name} must be a finite time in s, got {value!r}")
     return t
-
-
-# ------------------------------------------------------------- batched SO(3)
-# The same maps over stacks of K vectors / matrices (shapes (K, 3), (K, 3, 3)); the
-# window solver evaluates all its factors at once with them.
-
-
-def _hat_n(v: FloatArray) -> FloatArray:
-    """Skew matrices (K, 3, 3) of vectors (K, 3)."""
-    K = np.zeros((len(v), 3, 3))
-    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
-    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
-    return K
-
-
-def _series_n(
-    phi: FloatArray, small: float
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """``(K, K², mask of angles below small, angle with 1 there)`` of rotation vectors (K, 3)."""
-    a = np.linalg.norm(phi, axis=1)
-    K = _hat_n(phi)
-    K2 = K @ K
-    tiny = a < small
-    return K, K2, tiny, np.where(tiny, 1.0, a)
-
-
-def _exp_n(phi: FloatArray) -> FloatArray:
-    """:func:`so3_exp` of rotation vectors (K, 3) → (K, 3, 3)."""
-    K, K2, tiny, s = _series_n(phi, 1e-8)
-    c1 = np.where(tiny, 1.0, np.sin(s) / s)
-    c2 = np.where(tiny, 0.5, (1.0 - np.cos(s)) / s**2)
-    return np.eye(3) + c1[:, None, None] * K + c2[:, None, None] * K2
-
-
-def _jr_n(phi: FloatArray) -> FloatArray:
-    """:func:`right_jacobian` of rotation vectors (K, 3) → (K, 3, 3)."""
-    K, K2, tiny, s = _series_n(phi, 1e-6)
-    c1 = np.where(tiny, 0.5, (1 - np.cos(s)) / s**2)
-    c2 = np.where(tiny, 1.0 / 6.0, (s - np.sin(s)) / s**3)
-    return np.eye(3) - c1[:, None, None] * K + c2[:, None, None] * K2
-
-
-def _jr_inv_n(phi: FloatArray) -> FloatArray:
-    """:func:`right_jacobian_inv` of rotation vectors (K, 3) → (K, 3, 3)."""
-    K, K2, tiny, s = _series_n(phi, 1e-6)
-    c = np.where(tiny, 1.0 / 12.0, 1.0 / s**2 - (1 + np.cos(s)) / (2 * s * np.sin(s)))
-    return np.eye(3) + 0.5 * K + c[:, None, None] * K2
-
-
-def _log_n(R: FloatArray) -> FloatArray:
-    """:func:`so3_log` of rotation matrices (K, 3, 3) → (K, 3) (near π: the scalar one)."""
-    cos_a = np.clip(0.5 * (np.trace(R, axis1=1, axis2=2) - 1.0), -1.0, 1.0)
-    w = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], 1)
-    a = np.arccos(cos_a)
-    near0 = cos_a > 1.0 - 1e-10
-    f = np.where(near0, 0.5, a / (2.0 * np.sin(np.where(near0, 1.0, a))))
-    out = f[:, None] * w
-    for k in np.flatnonzero(cos_a < -0.99):
-        out[k] = so3_log(R[k])
-    return out
 
 
 # --------------------------------------------------------------------------- measurements
@@ -1145,7 +971,7 @@ class _Stack:
     def retract(self, dx: FloatArray) -> _Stack:
         """Right perturbation by ``dx`` (n, 15) = [δθ, δp, δv, δb_g, δb_a] per state."""
         return _Stack(
-            self.R @ _exp_n(dx[:, 0:3]),
+            self.R @ so3_exp_batch(dx[:, 0:3]),
             self.p + dx[:, 3:6],
             self.v + dx[:, 6:9],
             self.bg + dx[:, 9:12],
@@ -1225,10 +1051,10 @@ class _WindowProblem:
         dbg = X.bg[:-1] - self.bg0
         dba = X.ba[:-1] - self.ba0
         corr = np.einsum("kij,kj->ki", self.J_R_bg, dbg)
-        dRc = self.dR @ _exp_n(corr)
+        dRc = self.dR @ so3_exp_batch(corr)
         RiT_Rj = RiT @ Rj
         E = np.swapaxes(dRc, 1, 2) @ RiT_Rj
-        rR = _log_n(E)
+        rR = so3_log_batch(E)
         dv_w = X.v[1:] - X.v[:-1] - g * T[:, None]
         dp_w = X.p[1:] - X.p[:-1] - X.v[:-1] * T[:, None] - 0.5 * g * (T * T)[:, None]
         bv = np.einsum("kij,kj->ki", RiT, dv_w)
@@ -1243,16 +1069,16 @@ class _WindowProblem:
         K = len(T)
         Ji = np.zeros((K, 9, 15))
         Jj = np.zeros((K, 9, 15))
-        Jrinv = _jr_inv_n(rR)
+        Jrinv = right_jacobian_inv_batch(rR)
         Ji[:, 0:3, 0:3] = -Jrinv @ np.swapaxes(RiT_Rj, 1, 2)
         Jj[:, 0:3, 0:3] = Jrinv
-        Ji[:, 0:3, 9:12] = -Jrinv @ np.swapaxes(E, 1, 2) @ _jr_n(corr) @ self.J_R_bg
-        Ji[:, 3:6, 0:3] = _hat_n(bv)
+        Ji[:, 0:3, 9:12] = -Jrinv @ np.swapaxes(E, 1, 2) @ right_jacobian_batch(corr) @ self.J_R_bg
+        Ji[:, 3:6, 0:3] = hat_batch(bv)
         Ji[:, 3:6, 6:9] = -RiT
         Jj[:, 3:6, 6:9] = RiT
         Ji[:, 3:6, 9:12] = -self.J_v_bg
         Ji[:, 3:6, 12:15] = -self.J_v_ba
-        Ji[:, 6:9, 0:3] = _hat_n(bp)
+        Ji[:, 6:9, 0:3] = hat_batch(bp)
         Ji[:, 6:9, 3:6] = -RiT
         Jj[:, 6:9, 3:6] = RiT
         Ji[:, 6:9, 6:9] = -RiT * T[:, None, None]
@@ -1277,7 +1103,7 @@ class _WindowProblem:
             RiT_v = np.swapaxes(Ri_v, 1, 2)
             RiT_Rj_v = RiT_v @ Rj_v
             Ev = np.swapaxes(self.vis_dR, 1, 2) @ RiT_Rj_v
-            rRv = _log_n(Ev)
+            rRv = so3_log_batch(Ev)
             bd = np.einsum("kij,kj->ki", RiT_v, X.p[idx + 1] - X.p[idx])
             rv6 = mv(self.vis_W, np.concatenate([rRv, bd - self.vis_dp], axis=1))
             nr = np.linalg.norm(rv6, axis=1)
@@ -1291,10 +1117,10 @@ class _WindowProblem:
             M = len(idx)
             Jvi = np.zeros((M, 6, 15))
             Jvj = np.zeros((M, 6, 15))
-            Jr_v = _jr_inv_n(rRv)
+            Jr_v = right_jacobian_inv_batch(rRv)
             Jvi[:, 0:3, 0:3] = -Jr_v @ np.swapaxes(RiT_Rj_v, 1, 2)
             Jvj[:, 0:3, 0:3] = Jr_v
-            Jvi[:, 3:6, 0:3] = _hat_n(bd)
+            Jvi[:, 3:6, 0:3] = hat_batch(bd)
             Jvi[:, 3:6, 3:6] = -RiT_v
             Jvj[:, 3:6, 3:6] = RiT_v
             Jvi = self.vis_W @ Jvi

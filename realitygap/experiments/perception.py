@@ -357,7 +357,7 @@ class SquareDriver:
         alpha: float = 1.5,
         heading_tol: float = 1.5e-3,
     ):
-        from realitygap.geometry import check_finite
+        from realitygap.core.geometry import check_finite
 
         if direction not in ("cw", "ccw"):
             raise ValueError(f"direction must be 'cw' or 'ccw', got {direction!r}")
@@ -379,7 +379,7 @@ class SquareDriver:
         self._rest = 0
 
     def command(self, pose: FloatArray, t: float) -> tuple[float, float, bool]:
-        from realitygap.geometry import se2_between, wrap_angle
+        from realitygap.core.geometry import se2_between, wrap_angle
 
         x, y, th = se2_between(self.start, pose)
         if self._turning:
@@ -454,8 +454,8 @@ def arc_path(
     SmoothPath
     """
     from realitygap.controllers import SmoothPath
+    from realitygap.core.geometry import check_finite
     from realitygap.estimators.diffdrive_model import integrate_arcs
-    from realitygap.geometry import check_finite
 
     p0 = check_finite("start", start, (3,))
     ds_list, kappa_list = [], []
@@ -491,8 +491,8 @@ def _timed(path: Any, v_max: float = 0.3, w_max: float = 1.0) -> Any:
 
 def _T_base_camera_planar(mounting: npt.ArrayLike, height: float = 0.30) -> FloatArray:
     """4×4 optical-frame pose in the base for a level camera at planar mounting ``[x, y, θ]``."""
+    from realitygap.core.geometry import rot_z
     from realitygap.estimators.vo import T_BASE_CAMERA_FORWARD
-    from realitygap.geometry import rot_z
 
     l = np.asarray(mounting, dtype=float)
     T = np.eye(4)
@@ -567,8 +567,8 @@ def end_pose_from_frames(
     -------
     EndPose
     """
+    from realitygap.core.geometry import se2_compose, se2_inverse
     from realitygap.estimators.vo import RGBDVisualOdometry, VOParams
-    from realitygap.geometry import se2_compose, se2_inverse
 
     params = params if params is not None else VOParams()
     if len(frames) < 2:
@@ -838,12 +838,12 @@ def fit_odometry_and_mounting(
     -------
     OdometryMountingFit
     """
+    from realitygap.core.geometry import wrap_angle
     from realitygap.estimators.ekf import (
         MountingCalibrationEKF,
         MountingNoise,
         mounting_observability,
     )
-    from realitygap.geometry import wrap_angle
 
     inc = np.asarray(tick_increments, dtype=float)
     n = len(sensor_motions)
@@ -955,8 +955,8 @@ def _umbmark_iteration(
     seed: int,
     vo_params: Any,
 ) -> tuple[Any, list[dict[str, Any]]]:
+    from realitygap.core.geometry import se2_between, wrap_angle
     from realitygap.estimators.umbmark import umbmark
-    from realitygap.geometry import se2_between, wrap_angle
 
     L = cfg.square_side
     errors: dict[str, list[FloatArray]] = {"cw": [], "ccw": []}
@@ -1058,8 +1058,8 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
     drive) and the same maxima for the VO-fused, UMBmark-only and nominal
     estimates. Tables: per iteration, per UMBmark run, per test drive.
     """
+    from realitygap.core.geometry import wrap_angle
     from realitygap.estimators.vo import VOParams
-    from realitygap.geometry import wrap_angle
     from realitygap.robots.diffdrive import DiffDriveParams
 
     cfg = CalibConfig.quick() if ctx.quick else CalibConfig()
@@ -1311,8 +1311,8 @@ def match_precision(
     >>> match_precision(p, u, np.eye(4), K).tolist()
     [True, False]
     """
+    from realitygap.core.geometry import check_finite
     from realitygap.estimators.vo import check_transform
-    from realitygap.geometry import check_finite
 
     P = check_finite("points_prev", points_prev)
     U = check_finite("pixels_curr", pixels_curr)
@@ -1356,7 +1356,7 @@ def relative_pose_errors(
     rot_err : ndarray, shape (M,)
         Absolute heading error of each segment, rad.
     """
-    from realitygap.geometry import se2_between, wrap_angle
+    from realitygap.core.geometry import se2_between, wrap_angle
 
     g = np.asarray(gt, dtype=float)
     e = np.asarray(estimate, dtype=float)

@@ -10,7 +10,7 @@ import pytest
 
 from realitygap.controllers import SmoothPath, available_qp_solvers, smooth_path
 from realitygap.controllers import smoothing as smoothing_module
-from realitygap.geometry import wrap_angle
+from realitygap.core.geometry import wrap_angle
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -27,7 +27,7 @@ from realitygap.controllers import (
     tracking_error,
     unicycle_step,
 )
-from realitygap.geometry import wrap_angle
+from realitygap.core.geometry import wrap_angle
 
 FloatArray = npt.NDArray[np.float64]
 Reference = Callable[[float], tuple[FloatArray, float, float]]

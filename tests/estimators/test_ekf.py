@@ -8,6 +8,7 @@ import warnings
 import numpy as np
 import pytest
 
+from realitygap.core.geometry import se2_between, se2_compose, se2_inverse, wrap_angle
 from realitygap.estimators.base import Estimator, WheelTicks
 from realitygap.estimators.diffdrive_model import (
     DiffDriveKinematics,
@@ -35,7 +36,6 @@ from realitygap.estimators.ekf import (
     sensor_motion_jacobians,
 )
 from realitygap.estimators.umbmark import umbmark
-from realitygap.geometry import se2_between, se2_compose, se2_inverse, wrap_angle
 
 MOUNT = np.array([0.11, -0.08, 0.3])
 NOMINAL = DiffDriveKinematics.from_diameters(0.084, 0.084, 0.20, 2796.8)

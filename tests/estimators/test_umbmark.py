@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from realitygap.core.geometry import se2_compose
 from realitygap.estimators.base import Estimate, Estimator, WheelTicks
 from realitygap.estimators.diffdrive_model import (
     DiffDriveKinematics,
@@ -23,7 +24,6 @@ from realitygap.estimators.umbmark import (
     umbmark_end_errors,
     umbmark_from_runs,
 )
-from realitygap.geometry import se2_compose
 
 NOMINAL = DiffDriveKinematics.from_diameters(0.084, 0.084, 0.20, 2796.8)
 

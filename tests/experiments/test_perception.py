@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from realitygap.calibrate import SessionCalibration, pool_calibrations
+from realitygap.core.geometry import se2_compose, transform_from_rt, wrap_angle
 from realitygap.estimators.base import CameraIntrinsics
 from realitygap.estimators.diffdrive_model import DiffDriveKinematics
 from realitygap.experiments import EXPERIMENTS
 from realitygap.experiments import perception as P
-from realitygap.geometry import se2_compose, transform_from_rt, wrap_angle
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "optiodom_diffdrive"
 K = CameraIntrinsics(320, 240, 228.0, 208.0, 160.0, 120.0)

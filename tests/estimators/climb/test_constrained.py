@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from realitygap.core.geometry import quat_xyzw_from_matrix, rot_z
 from realitygap.estimators.climb.constrained import (
     ClimbLocaliser,
     ConstrainedConfig,
@@ -15,13 +16,7 @@ from realitygap.estimators.climb.constrained import (
     LocaliserPhase,
 )
 from realitygap.estimators.climb.surface import SurfaceModel
-from realitygap.estimators.climb.vio import (
-    ClimbEstimate,
-    ImuSample,
-    TetherReading,
-    quat_xyzw_from_matrix,
-)
-from realitygap.geometry import rot_z
+from realitygap.estimators.climb.vio import ClimbEstimate, ImuSample, TetherReading
 from realitygap.robots.blade_geometry import BladeSurface, cad_point_cloud
 from realitygap.robots.climb_synthetic import (
     ClimbScenario,

@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from realitygap.core.geometry import so3_log
 from realitygap.estimators.climb.surface import SurfaceModel
 from realitygap.estimators.climb.vio import (
     ImuSample,
@@ -14,7 +15,6 @@ from realitygap.estimators.climb.vio import (
     RelativeMotion,
     TetherReading,
     VioConfig,
-    so3_log,
 )
 from realitygap.robots.blade_geometry import BladeSurface, cad_point_cloud
 from realitygap.robots.climb_synthetic import (

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from realitygap.core.geometry import rot_z, wrap_angle
 from realitygap.estimators.climb.global_init import PlaneConstraint, initialise_global_pose
 from realitygap.estimators.climb.surface import SurfaceModel
-from realitygap.geometry import rot_z, wrap_angle
 from realitygap.robots.blade_geometry import BladeSurface, cad_point_cloud
 from realitygap.robots.climb_synthetic import ClimbScenario, TruthTrajectory
 

@@ -14,9 +14,10 @@ import math
 import numpy as np
 import pytest
 
+from realitygap.core.geometry import quat_xyzw_from_matrix, so3_exp
 from realitygap.estimators.climb.constrained import ConstrainedConfig, ConstrainedEstimator
 from realitygap.estimators.climb.surface import SurfaceModel
-from realitygap.estimators.climb.vio import ClimbEstimate, quat_xyzw_from_matrix, so3_exp
+from realitygap.estimators.climb.vio import ClimbEstimate
 
 RHO, H, TRACK = 0.5, 0.04, 0.14
 PHI0 = 0.25  # where the body sits on the cylinder (rad from the top)
