@@ -84,8 +84,7 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
@@ -93,6 +92,8 @@ from typing import IO, Any
 
 import numpy as np
 import numpy.typing as npt
+
+from realitygap.core.io import atomic_write
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -102,7 +103,6 @@ __all__ = [
     "Log",
     "LogError",
     "Role",
-    "atomic_write",
     "convert_units",
     "fill_gaps",
     "sniff_file_kind",
@@ -310,28 +310,6 @@ def sniff_file_kind(path: str | os.PathLike[str]) -> str:
                 return "binary"
             return "text"
     return "text"
-
-
-def atomic_write(path: str | os.PathLike[str], writer: Callable[[IO[bytes]], None]) -> Path:
-    """Write a file through ``writer(fh)`` into a temporary file, then rename it into place.
-
-    On any error the temporary file is removed and an existing ``path`` is
-    left untouched.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            writer(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
 
 
 def _where(source: str) -> str:

@@ -20,8 +20,8 @@ from typing import IO, Any
 
 import numpy as np
 
+from realitygap.core.io import atomic_write
 from realitygap.diagnosis.diagnose import Diagnosis
-from realitygap.diagnosis.log import atomic_write
 
 __all__ = ["jsonable", "write_json", "write_report"]
 

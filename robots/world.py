@@ -241,18 +241,50 @@ class World:
             raise RuntimeError("this World is closed; create a new one")
         return self.client
 
-    def step(self) -> None:
-        """Advance one control period (``n_substeps`` physics steps).
+    def step(self, n_physics_steps: int | None = None) -> None:
+        """Advance one control period (``n_substeps`` physics steps), or ``n_physics_steps``.
 
         The wall-clock time spent inside ``stepSimulation`` is added to
         :attr:`physics_seconds`, so benchmarks can compare an env step with the
         raw physics it wraps.
         """
+        n = self.n_substeps if n_physics_steps is None else int(n_physics_steps)
+        if n < 0:
+            raise ValueError(f"n_physics_steps must be >= 0, got {n_physics_steps!r}")
         step = self._step_simulation
         t0 = time.perf_counter()
-        for _ in range(self.n_substeps):
+        for _ in range(n):
             step()
         self.physics_seconds += time.perf_counter() - t0
+
+    def remove_body(self, name: str) -> None:
+        """Remove the body registered under ``name`` (see :attr:`bodies`) from the simulation."""
+        if name not in self.bodies:
+            raise KeyError(f"no body named {name!r}; bodies: {sorted(self.bodies)}")
+        self.bullet.removeBody(self.bodies.pop(name))
+
+    def render_rgb(
+        self,
+        eye: npt.ArrayLike,
+        target: npt.ArrayLike,
+        *,
+        fov_deg: float = 60.0,
+        near: float = 0.1,
+        far: float = 30.0,
+        width: int = 320,
+        height: int = 240,
+    ) -> npt.NDArray[np.uint8]:
+        """An RGB picture (height, width, 3) of the scene from ``eye`` looking at ``target``
+        (world frame, m; z up), rendered with the TinyRenderer (works headless)."""
+        c = self.bullet
+        view = c.computeViewMatrix(
+            np.asarray(eye, dtype=float).tolist(),
+            np.asarray(target, dtype=float).tolist(),
+            [0, 0, 1],
+        )
+        proj = c.computeProjectionMatrixFOV(fov_deg, width / height, near, far)
+        _, _, rgba, _, _ = c.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER)
+        return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[..., :3].copy()
 
     # -------------------------------------------------------------- scenery
     def reset_simulation(self) -> None:

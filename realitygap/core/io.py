@@ -1,0 +1,50 @@
+"""Writing files so that a failure never leaves a partial one.
+
+Every file the package writes (logs, reports, models, tables, meshes) goes through
+:func:`atomic_write`: the bytes go to a temporary file in the same folder, are
+flushed to disk, and the temporary file is renamed over the target with
+:func:`os.replace`. An exception, Ctrl-C or a killed process leaves the old file
+(or no file) in place, never half a file.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import IO
+
+__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text"]
+
+
+def atomic_write(path: str | os.PathLike[str], writer: Callable[[IO[bytes]], None]) -> Path:
+    """Write a file through ``writer(fh)`` into a temporary file, then rename it into place.
+
+    On any error the temporary file is removed and an existing ``path`` is
+    left untouched. The parent folder is created if missing. Returns ``path``.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            writer(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
+    """:func:`atomic_write` of a bytes object."""
+    return atomic_write(path, lambda fh: fh.write(data))
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str, encoding: str = "utf-8") -> Path:
+    """:func:`atomic_write` of a string, encoded with ``encoding``."""
+    return atomic_write_bytes(path, text.encode(encoding))
