@@ -48,7 +48,7 @@ from realitygap.diagnosis.surrogate import (
     calibrate,
 )
 from realitygap.robots.diffdrive import DiffDriveParams
-from realitygap.robots.effects import EFFECTS, Reality, make_effect
+from realitygap.robots.effects import EFFECTS, Reality, Stage, library, make_effect
 
 FloatArray = npt.NDArray[np.float64]
 Features = dict[str, FloatArray]
@@ -181,7 +181,7 @@ class AdapterBase:
     unobservable: Mapping[str, str] = {}
 
     def effect_names(self) -> tuple[str, ...]:
-        return tuple(n for n, cls in EFFECTS.items() if cls.robot == self.robot)
+        return library(self.robot)
 
     def check_robot(self, log: Log, drive: Drive, replayed_from: str | None = None) -> None:
         """The log names this robot; ``replayed_from`` (e.g. "its joint readings"): only the
@@ -228,9 +228,6 @@ class DiffDriveAdapter(AdapterBase):
 
     robot = "diffdrive"
     surrogate_effects = tuple(SURROGATE_EFFECTS)
-
-    # effects acting before the wheels cannot be seen when the replay is driven by the wheels
-    _COMMAND_STAGE = ("command_latency", "motor_deadband", "velocity_saturation")
 
     # ------------------------------------------------------------------ checks
     def check(self, log: Log, drive: Drive) -> Log:
@@ -319,7 +316,9 @@ class DiffDriveAdapter(AdapterBase):
     # ------------------------------------------------------------------ observability
     def observable(self, effect: str, prepared: Sequence[PreparedLog], drive: Drive) -> str:
         """``""`` if the logs can show ``effect``, else why not."""
-        if drive is Drive.TICKS and effect in self._COMMAND_STAGE:
+        # effects acting before the wheels cannot be seen when the replay is driven by the wheels
+        cls = EFFECTS.get(effect)
+        if drive is Drive.TICKS and cls is not None and cls.stage is Stage.COMMAND:
             return "acts on the commands, which a tick-driven replay does not use"
         why = super().observable(effect, prepared, drive)
         if why.startswith("shows only in") and drive is Drive.TICKS:

@@ -317,7 +317,7 @@ def simulate(
         robot = DiffDriveRobot(world, true_params)
         start_arr = np.asarray(start, dtype=float)
         robot.reset(start_arr)
-        hooks = reality.command_hooks(dt)
+        hooks = reality.command_hooks(dt, params)
         ticks_hooks = reality.ticks_hooks()
         k_ticks = params.ticks_per_rev / (2.0 * math.pi)
         half_b = params.wheelbase / 2.0

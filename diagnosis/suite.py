@@ -42,7 +42,7 @@ from realitygap.diagnosis.manoeuvres import MANOEUVRES
 from realitygap.diagnosis.record import RecordLog
 from realitygap.diagnosis.replay import MeasurementNoise, simulate
 from realitygap.robots.diffdrive import DiffDriveParams
-from realitygap.robots.effects import EFFECTS, Reality, make_effect
+from realitygap.robots.effects import EFFECTS, BlindRange, Reality, blind_ranges, make_effect
 
 __all__ = [
     "ARM_HIDDEN_EFFECTS",
@@ -57,53 +57,14 @@ __all__ = [
     "summarise",
 ]
 
-# (param, low, high, symmetric): |deviation from nominal| ~ U(low, high), random sign if symmetric
-HIDDEN_EFFECTS: dict[str, tuple[tuple[str, float, float, bool], ...]] = {
-    "wheel_radius_scale": (("scale", 0.01, 0.04, True),),
-    "wheel_diameter_ratio": (("E_d", 0.004, 0.015, True),),
-    "wheelbase_error": (("E_b", 0.015, 0.06, True),),
-    "longitudinal_slip": (("mu", 0.15, 0.5, False),),
-    "command_latency": (("delay", 0.05, 0.2, False),),
-    "motor_deadband": (("threshold", 0.02, 0.06, False),),
-    "velocity_saturation": (("v_limit", 0.35, 0.55, False),),
-    "encoder_scale": (("scale", 0.01, 0.04, True),),
-    "camera_mount_offset": (
-        ("dx", 0.005, 0.025, True),
-        ("dy", 0.005, 0.025, True),
-        ("dyaw", 0.01, 0.05, True),
-    ),
-    "timestamp_offset": (("offset", 0.04, 0.2, True),),
-}
-"""Realistic magnitudes of the hidden effects (absolute values for the non-symmetric ones)."""
+HIDDEN_EFFECTS: dict[str, tuple[BlindRange, ...]] = blind_ranges("diffdrive")
+"""Hidden effects of the differential drive and their magnitudes (:attr:`Effect.blind`)."""
 
-ARM_HIDDEN_EFFECTS: dict[str, tuple[tuple[str, float, float, bool], ...]] = {
-    # joint 1's offset and d1 are invisible to tool-point distances: left at nominal
-    "arm_joint_offset": tuple((f"dtheta{k}", 5e-4, 2.5e-3, True) for k in range(2, 7)),
-    "arm_link_length": tuple((nm, 2e-4, 1e-3, True) for nm in ("da2", "da3", "dd4", "dd5", "dd6")),
-    "arm_parallel_twist": tuple(
-        (nm, 3e-4, 1.5e-3, True) for nm in ("beta2", "beta3", "dalpha2", "dalpha3")
-    ),
-    "arm_tool_offset": tuple((nm, 3e-4, 3e-3, True) for nm in ("dx", "dy", "dz")),
-    "arm_twist_error": tuple((f"dalpha{k}", 3e-4, 1.5e-3, True) for k in (1, 4, 5)),
-    # wrist 1 carries almost no gravity torque: its compliance stays nominal
-    "arm_joint_compliance": (("c2", 1e-5, 4e-5, False), ("c3", 1e-5, 4e-5, False)),
-    "arm_backlash": tuple((f"b{k}", 2e-4, 1e-3, False) for k in range(1, 7)),
-    "arm_encoder_scale": tuple((f"s{k}", 2e-4, 1e-3, True) for k in range(1, 7)),
-}
-"""Realistic magnitudes of the arm's hidden effects (joint offsets ~0.1°, lengths ~0.5 mm,
-twists ~0.05°, sag of 0.3–1.5 mrad at 30 N·m, play ≤ 1 mrad, encoder scale ≤ 0.1 %)."""
+ARM_HIDDEN_EFFECTS: dict[str, tuple[BlindRange, ...]] = blind_ranges("arm")
+"""Hidden effects of the arm and their magnitudes (:attr:`Effect.blind`)."""
 
-CLIMBER_HIDDEN_EFFECTS: dict[str, tuple[tuple[str, float, float, bool], ...]] = {
-    "climber_tether_sag": (("k", 0.001, 0.004, False),),
-    "climber_anchor_error": tuple((nm, 0.01, 0.04, True) for nm in ("dx", "dy", "dz")),
-    "climber_spool_scale": (("s", 0.004, 0.015, True),),
-    "climber_adsorption_gap": (("gap", 0.002, 0.008, False),),
-}
-"""Realistic magnitudes of the climber's hidden effects: sag of 2.5–10 cm at 5 m, an anchor
-surveyed 1–4 cm off, a spool scale off by 0.4–1.5 %, a skirt worn by 2–8 mm. (A tether
-stretch reads exactly like a spool-scale error and is not drawn separately; the other
-climber effects do not show in tether and ride-height logs, see
-:mod:`~realitygap.diagnosis.climb_adapter`.)"""
+CLIMBER_HIDDEN_EFFECTS: dict[str, tuple[BlindRange, ...]] = blind_ranges("climber")
+"""Hidden effects of the climber and their magnitudes (:attr:`Effect.blind`)."""
 
 HIDDEN_BY_ROBOT: dict[str, dict[str, tuple[tuple[str, float, float, bool], ...]]] = {
     "diffdrive": HIDDEN_EFFECTS,

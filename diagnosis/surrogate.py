@@ -28,7 +28,13 @@ Model, per control period ``dt`` with the twist ``u_k = [v_k, ω_k]`` issued at
    scale ``c``); ground truth stamped ``Δ`` late (timestamp offset); the
    camera at the (offset) mount, :math:`T_{world,cam} = T_{world,base} \oplus m`.
 
-Everything is an array over a leading batch axis of parameter sets.
+Everything is an array over a leading batch axis of parameter sets. The
+effects' parts of the model are their own surrogate terms
+(:meth:`~realitygap.robots.effects.Effect.surrogate_term`), applied at the
+:class:`~realitygap.robots.effects.diffdrive.SurrogateSlot` each declares; this
+module composes them with what no effect changes — the firmware's inverse
+kinematics, the rate limits of motors and traction, the integration of the
+body's motion — and calibrates the model against PyBullet.
 """
 
 from __future__ import annotations
@@ -40,12 +46,15 @@ import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.io import atomic_write_text
 from realitygap.robots.diffdrive import DiffDriveParams
-from realitygap.robots.effects import EFFECTS
+from realitygap.robots.effects import EFFECTS, Effect
+from realitygap.robots.effects.diffdrive import SurrogateContext, SurrogateSlot
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -56,19 +65,21 @@ __all__ = [
     "SurrogateInputs",
 ]
 
-SURROGATE_EFFECTS: tuple[str, ...] = (
-    "wheel_radius_scale",
-    "wheel_diameter_ratio",
-    "wheelbase_error",
-    "longitudinal_slip",
-    "command_latency",
-    "motor_deadband",
-    "velocity_saturation",
-    "encoder_scale",
-    "camera_mount_offset",
-    "timestamp_offset",
+SURROGATE_EFFECTS: tuple[str, ...] = tuple(
+    n for n, c in EFFECTS.items() if c.robot == "diffdrive" and c.surrogate_slot is not None
 )
-"""Effects the surrogate expresses analytically."""
+"""Effects with a term in the surrogate (registration order)."""
+
+_TERMS: dict[SurrogateSlot, tuple[type[Effect], ...]] = {
+    slot: tuple(
+        sorted(
+            (EFFECTS[n] for n in SURROGATE_EFFECTS if EFFECTS[n].surrogate_slot is slot),
+            key=lambda c: c.surrogate_order,
+        )
+    )
+    for slot in SurrogateSlot
+}
+"""The effect terms of each slot, in the order the model applies them."""
 
 
 @dataclass(frozen=True)
@@ -129,30 +140,6 @@ class SurrogateInputs:
         arr = self.commands if self.commands is not None else self.ticks
         assert arr is not None
         return int(arr.shape[0])
-
-
-def _shift(u: FloatArray, steps: FloatArray) -> FloatArray:
-    """Delay series ``u`` (N, k) by fractional ``steps`` (B,) → (B, N, k), zeros before the start."""
-    n = u.shape[0]
-    K = np.floor(steps).astype(int)
-    f = (steps - K)[:, None, None]
-    idx = np.arange(n)[None, :] - K[:, None]
-    pad = np.concatenate([np.zeros((1, u.shape[1])), u], axis=0)  # index 0 = "before start"
-    a = pad[np.clip(idx + 1, 0, n)]
-    b = pad[np.clip(idx, 0, n)]
-    return (1.0 - f) * a + f * b
-
-
-def _shift_back(t_idx_shift: FloatArray, series: FloatArray) -> FloatArray:
-    """Evaluate ``series`` (B, N, k) at fractional row ``k − shift`` (B,), clamped at both ends."""
-    B, n, _ = series.shape
-    pos = np.arange(n)[None, :] - t_idx_shift[:, None]
-    pos = np.clip(pos, 0.0, n - 1.0)
-    i0 = np.floor(pos).astype(int)
-    i1 = np.minimum(i0 + 1, n - 1)
-    f = (pos - i0)[..., None]
-    rows = np.arange(B)[:, None]
-    return (1.0 - f) * series[rows, i0] + f * series[rows, i1]
 
 
 class DiffDriveSurrogate:
@@ -242,26 +229,24 @@ class DiffDriveSurrogate:
 
         r0l, r0r, b0 = P.wheel_radius_left, P.wheel_radius_right, P.wheelbase
         hb0 = b0 / 2.0
-        enc = val("encoder_scale.scale")
+        ctx = SurrogateContext(dt=dt, params=P)
+
+        def term(slot: SurrogateSlot, x: Any) -> Any:
+            for cls in _TERMS[slot]:
+                x = cls.surrogate_term(
+                    x, {s.name: val(f"{cls.name}.{s.name}") for s in cls.specs}, ctx
+                )
+            return x
+
+        enc_l, enc_r = term(SurrogateSlot.ENCODER_GAIN, (np.ones(B), np.ones(B)))
 
         # ---------------------------------------------------- wheel-speed targets (B, N)
         if inputs.commands is not None:
             u = np.asarray(inputs.commands, dtype=float)
-            delay = val("command_latency.delay")
-            if np.any(delay > 0):
-                ud = _shift(u, delay / dt)
-            else:
-                ud = np.broadcast_to(u[None], (B, n, 2))
+            ud = np.broadcast_to(term(SurrogateSlot.COMMAND_TWIST, u), (B, n, 2))
             sl = ud[..., 0] - ud[..., 1] * hb0
             sr = ud[..., 0] + ud[..., 1] * hb0
-            thr = val("motor_deadband.threshold")[:, None]
-            if np.any(thr > 0):
-                sl = np.where(np.abs(sl) < thr, 0.0, sl)
-                sr = np.where(np.abs(sr) < thr, 0.0, sr)
-            v_lim = val("velocity_saturation.v_limit")[:, None]
-            if np.any(v_lim < 9.99):
-                sl = np.clip(sl, -v_lim, v_lim)
-                sr = np.clip(sr, -v_lim, v_lim)
+            sl, sr = term(SurrogateSlot.WHEEL_SPEED, (sl, sr))
             wl, wr = sl / r0l, sr / r0r
             wl[:, -1] = 0.0
             wr[:, -1] = 0.0
@@ -270,22 +255,22 @@ class DiffDriveSurrogate:
             ang = np.asarray(inputs.ticks, dtype=float) * (2.0 * math.pi / P.ticks_per_rev)
             rate = np.zeros((n, 2))
             rate[:-1] = np.diff(ang, axis=0) / dt
-            wl = rate[None, :, 0] / enc[:, None]
-            wr = rate[None, :, 1] / enc[:, None]
+            wl = rate[None, :, 0] / enc_l[:, None]
+            wr = rate[None, :, 1] / enc_r[:, None]
         ov = self.calibration.motor_overshoot
         if ov:
             wl = wl + ov * np.sign(wl)
             wr = wr + ov * np.sign(wr)
 
         # ---------------------------------------------------- drive (B, N)
-        scale = val("wheel_radius_scale.scale")
-        e_d = val("wheel_diameter_ratio.E_d")
-        mean_r = (r0l + r0r) / 2.0
-        rl = 2.0 * mean_r / (e_d + 1.0) * (r0l / mean_r) * scale
-        rr = 2.0 * mean_r * e_d / (e_d + 1.0) * (r0r / mean_r) * scale
+        rl, rr = (
+            np.broadcast_to(np.asarray(r, dtype=float), (B,))
+            for r in term(SurrogateSlot.WHEEL_RADII, (r0l, r0r))
+        )
         tgt_l = wl * rl[:, None]
         tgt_r = wr * rr[:, None]
-        lim = self.accel_limits(val("longitudinal_slip.mu"))
+        mu = term(SurrogateSlot.TRACTION, np.full(B, float(P.wheel_friction)))
+        lim = self.accel_limits(mu)
         disp_l, disp_r = self._rate_limited(tgt_l, tgt_r, lim["ground_c"], lim["ground_d"], dt)
         roll_l, roll_r = self._rate_limited(tgt_l, tgt_r, lim["wheel_c"], lim["wheel_d"], dt)
 
@@ -297,10 +282,12 @@ class DiffDriveSurrogate:
         ang_r = np.concatenate(
             [np.zeros((B, 1)), np.cumsum(roll_r[:, :-1], axis=1) / rr[:, None]], axis=1
         )
-        ticks = np.stack([ang_l, ang_r], axis=-1) * (k_ticks * enc)[:, None, None]
+        ticks = np.stack(
+            [ang_l * (k_ticks * enc_l)[:, None], ang_r * (k_ticks * enc_r)[:, None]], axis=-1
+        )
 
         # ---------------------------------------------------- body (B, N, 3)
-        b = b0 * val("wheelbase_error.E_b")
+        b = np.broadcast_to(np.asarray(term(SurrogateSlot.WHEELBASE, b0), dtype=float), (B,))
         ds = 0.5 * (disp_l + disp_r)
         dth = (disp_r - disp_l) / b[:, None]
         start = np.asarray(inputs.start, dtype=float)
@@ -319,9 +306,12 @@ class DiffDriveSurrogate:
 
         # ---------------------------------------------------- camera, stamps
         cam = P.camera
-        mx = cam.mount_xyz[0] + val("camera_mount_offset.dx")
-        my = cam.mount_xyz[1] + val("camera_mount_offset.dy")
-        myaw = cam.mount_yaw + val("camera_mount_offset.dyaw")
+        mx, my, myaw = (
+            np.broadcast_to(np.asarray(m, dtype=float), (B,))
+            for m in term(
+                SurrogateSlot.CAMERA_MOUNT, (cam.mount_xyz[0], cam.mount_xyz[1], cam.mount_yaw)
+            )
+        )
         c, s = np.cos(heading), np.sin(heading)
         pose_cam = np.stack(
             [
@@ -331,8 +321,7 @@ class DiffDriveSurrogate:
             ],
             axis=-1,
         )
-        off = val("timestamp_offset.offset")
-        pose_gt = _shift_back(off / dt, pose) if np.any(off != 0) else pose
+        pose_gt = term(SurrogateSlot.STAMPS, pose)
         return {"pose_gt": pose_gt, "ticks": ticks, "pose_cam": pose_cam, "pose_true": pose}
 
     @staticmethod
@@ -442,7 +431,8 @@ def calibrate(params: DiffDriveParams, solver_iterations: int = 0) -> SurrogateC
     friction, the friction limits (and the load transfer) from the poses at
     low friction. Results are cached per parameter set and solver setting, in
     memory and on disk (``$REALITYGAP_CACHE`` or ``~/.cache/realitygap``, keyed
-    by the body's URDF, the robot code and the solver setting).
+    by :data:`CALIBRATION_VERSION`, the body's URDF and parameters, the solver
+    setting and the PyBullet version).
     """
     from realitygap.diagnosis.replay import SimSettings, simulate  # PyBullet only here
     from realitygap.robots.effects import Reality, make_effect
@@ -526,24 +516,29 @@ def calibrate(params: DiffDriveParams, solver_iterations: int = 0) -> SurrogateC
     return cal
 
 
-CALIBRATION_VERSION = 1
+CALIBRATION_VERSION = 2
+"""Version of the calibration procedure and of the drive model it measures.
+
+Part of the disk-cache key together with the body (its URDF and parameters),
+the solver setting and the PyBullet version. Raise it whenever
+:func:`calibrate` or the simulated drive (motors, contacts) changes in a way the
+URDF does not show, so that stale cached constants are not used.
+"""
 
 
-def _cache_path(params: DiffDriveParams, solver_iterations: int) -> Path | None:
-    """Cache file of a calibration: keyed by the body (URDF), the robot code and the solver."""
+def _cache_path(params: DiffDriveParams, solver_iterations: int) -> Path:
+    """Cache file of a calibration, keyed by :data:`CALIBRATION_VERSION`, the body and the solver."""
     import hashlib
-    import inspect
 
     import pybullet
 
-    from realitygap.robots import diffdrive
+    from realitygap.robots.diffdrive import urdf_from_params
 
     root = os.environ.get("REALITYGAP_CACHE")
     base = Path(root) if root else Path.home() / ".cache" / "realitygap"
     h = hashlib.sha256()
     for part in (
-        diffdrive.urdf_from_params(params),
-        inspect.getsource(diffdrive),
+        urdf_from_params(params),
         repr(params),
         str(solver_iterations),
         str(CALIBRATION_VERSION),
@@ -556,7 +551,7 @@ def _cache_path(params: DiffDriveParams, solver_iterations: int) -> Path | None:
 def _load_cached(params: DiffDriveParams, solver_iterations: int) -> SurrogateCalibration | None:
     try:
         path = _cache_path(params, solver_iterations)
-        if path is None or not path.is_file():
+        if not path.is_file():
             return None
         data = json.loads(path.read_text(encoding="utf-8"))
         return SurrogateCalibration(**{k: float(v) for k, v in data.items()})
@@ -569,11 +564,7 @@ def _store_cached(
 ) -> None:
     try:
         path = _cache_path(params, solver_iterations)
-        if path is None:
-            return
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(json.dumps(dataclasses.asdict(cal)), encoding="utf-8")
-        os.replace(tmp, path)
+        atomic_write_text(path, json.dumps(dataclasses.asdict(cal)))
     except OSError:
         pass

@@ -267,7 +267,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
 
         self._t, self._steps = 0.0, 0
         self._cmd = np.zeros(2)
-        self._command_hooks = self.reality.command_hooks(self.dt)
+        self._command_hooks = self.reality.command_hooks(self.dt, self.params)
         self._ticks_hooks = self.reality.ticks_hooks()
         self._estimate = self.estimator.reset(start.copy())
         measurement = self._measure(rng)

@@ -9,7 +9,16 @@ import pytest
 
 from realitygap.diagnosis.replay import simulate
 from realitygap.robots.diffdrive import DiffDriveParams
-from realitygap.robots.effects import EFFECTS, Reality, make_effect
+from realitygap.robots.effects import (
+    EFFECTS,
+    LIBRARY_VERSION,
+    Channel,
+    Reality,
+    Stage,
+    blind_ranges,
+    library,
+    make_effect,
+)
 
 P = DiffDriveParams()
 DT = 0.05
@@ -56,6 +65,70 @@ def test_library_is_documented() -> None:
         assert cls.description and cls.observed_in and cls.stage
         for s in cls.specs:
             assert s.unit and s.low <= s.nominal <= s.high and s.description
+
+
+def test_every_effect_declares_typed_stage_channels_and_valid_blind_ranges() -> None:
+    for cls in EFFECTS.values():
+        assert isinstance(cls.stage, Stage)
+        assert cls.observed_in and all(isinstance(c, Channel) for c in cls.observed_in)
+        for r in cls.blind:
+            spec = cls.spec(r.param)
+            assert 0.0 <= r.low < r.high
+            assert spec.high - spec.low >= r.high
+
+
+def test_command_stage_effects_are_those_the_tick_drive_cannot_see() -> None:
+    from realitygap.diagnosis.adapters import Drive, get_adapter
+
+    adapter = get_adapter("diffdrive")
+    command = {n for n in adapter.effect_names() if EFFECTS[n].stage is Stage.COMMAND}
+    assert command == {"command_latency", "motor_deadband", "velocity_saturation"}
+    for n in command:
+        assert "acts on the commands" in adapter.observable(n, [], Drive.TICKS)
+    assert adapter.observable("encoder_scale", [], Drive.TICKS).startswith("shows only in")
+
+
+def test_command_hooks_use_the_nominal_geometry_they_are_given() -> None:
+    reality = Reality((make_effect("motor_deadband", threshold=0.05),))
+    narrow, wide = P.replace(wheelbase=0.2), P.replace(wheelbase=0.4)
+    # a turn in place at 0.4 rad/s: wheel speed 0.04 m/s on the narrow robot, 0.08 on the wide
+    (h_narrow,) = reality.command_hooks(DT, narrow)
+    (h_wide,) = reality.command_hooks(DT, wide)
+    assert h_narrow(0.0, 0.4, DT) == (0.0, 0.0)
+    assert h_wide(0.0, 0.4, DT)[1] == pytest.approx(0.4)
+    # the effect objects are not changed by building hooks or bodies
+    before = dict(reality.effects[0].__dict__)
+    reality.apply_params(wide)
+    reality.command_hooks(DT, narrow)
+    assert reality.effects[0].__dict__ == before
+
+
+def test_new_effects_stay_out_of_the_default_library_and_suite() -> None:
+    assert EFFECTS["encoder_ratio"].since > LIBRARY_VERSION
+    assert "encoder_ratio" not in library("diffdrive")
+    assert "encoder_ratio" not in blind_ranges("diffdrive")
+    later = blind_ranges("diffdrive", version=EFFECTS["encoder_ratio"].since)
+    assert list(later)[:-1] == list(blind_ranges("diffdrive"))
+    assert list(later)[-1] == "encoder_ratio"
+
+
+def test_encoder_ratio_changes_counts_only(straight) -> None:
+    log = run([(2.0, 0.3, 0.0)], ("encoder_ratio", {"E_c": 1.04}))
+    np.testing.assert_allclose(log["pose_gt"][-1], straight["pose_gt"][-1], atol=1e-6)
+    ratio = log["ticks"][-1] / straight["ticks"][-1]
+    np.testing.assert_allclose(ratio, [2 / 2.04, 2 * 1.04 / 2.04], rtol=1e-3)
+    assert log["ticks"][-1, 1] / log["ticks"][-1, 0] == pytest.approx(
+        1.04 * straight["ticks"][-1, 1] / straight["ticks"][-1, 0], rel=1e-3
+    )
+
+
+def test_encoder_ratio_can_drive_a_replay_by_ticks(straight) -> None:
+    log = run([(2.0, 0.3, 0.0)], ("encoder_ratio", {"E_c": 1.04}))
+    reality = Reality((make_effect("encoder_ratio", E_c=1.04),))
+    assert len(reality.ticks_inverse_hooks()) == 1
+    again = simulate(log.t, params=P, ticks=log["ticks"], reality=reality)
+    np.testing.assert_allclose(again["pose_gt"][-1, :2], log["pose_gt"][-1, :2], atol=0.01)
+    assert abs(again["pose_gt"][-1, 2]) < 0.01
 
 
 def test_wheel_radius_scale_scales_distance_not_ticks(straight) -> None:

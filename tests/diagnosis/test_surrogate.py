@@ -8,9 +8,15 @@ import pytest
 from realitygap.diagnosis.features import FeatureSettings, features, window_bounds
 from realitygap.diagnosis.manoeuvres import Manoeuvre
 from realitygap.diagnosis.replay import simulate
-from realitygap.diagnosis.surrogate import DiffDriveSurrogate, SurrogateInputs, calibrate
+from realitygap.diagnosis.surrogate import (
+    SURROGATE_EFFECTS,
+    DiffDriveSurrogate,
+    SurrogateInputs,
+    calibrate,
+)
 from realitygap.robots.diffdrive import DiffDriveParams
-from realitygap.robots.effects import Reality, make_effect
+from realitygap.robots.effects import EFFECTS, Reality, make_effect
+from realitygap.robots.effects.diffdrive import SurrogateSlot
 
 P = DiffDriveParams()
 DT = 0.05
@@ -34,19 +40,6 @@ MIXED = Manoeuvre(
 STEPS = Manoeuvre(
     "steps", "hard starts", ((1.0, 0.4, 0.0), (1.0, 0, 0), (1.0, 0.0, 1.5), (1.0, 0, 0)), ramp=False
 )
-# (effect, values, bound on the relative error of the predicted effect on window features)
-CASES = [
-    ("wheel_radius_scale", {"scale": 1.03}, 0.08),
-    ("wheel_diameter_ratio", {"E_d": 1.01}, 0.08),
-    ("wheelbase_error", {"E_b": 1.04}, 0.08),
-    ("longitudinal_slip", {"mu": 0.3}, 0.35),
-    ("command_latency", {"delay": 0.12}, 0.08),
-    ("motor_deadband", {"threshold": 0.05}, 0.08),
-    ("velocity_saturation", {"v_limit": 0.45}, 0.08),
-    ("encoder_scale", {"scale": 0.97}, 0.08),
-    ("camera_mount_offset", {"dx": 0.02, "dy": -0.01, "dyaw": 0.03}, 0.08),
-    ("timestamp_offset", {"offset": 0.08}, 0.08),
-]
 
 
 @pytest.fixture(scope="module")
@@ -74,8 +67,25 @@ def test_nominal_surrogate_matches_pybullet_within_millimetres(base) -> None:
             assert np.sqrt(np.mean(err**2)) < limit, (name, g)
 
 
-@pytest.mark.parametrize(("effect", "values", "bound"), CASES)
-def test_effect_predictions_agree_with_pybullet(base, effect, values, bound) -> None:
+def test_every_wheeled_effect_has_a_checked_surrogate_term() -> None:
+    wheeled = [n for n, cls in EFFECTS.items() if cls.robot == "diffdrive"]
+    assert set(wheeled) == set(SURROGATE_EFFECTS)
+    for name in SURROGATE_EFFECTS:
+        cls = EFFECTS[name]
+        assert isinstance(cls.surrogate_slot, SurrogateSlot)
+        example = dict(cls.surrogate_example)
+        assert example and 0.0 < cls.surrogate_tolerance < 1.0
+        for param, value in example.items():
+            spec = cls.spec(param)
+            assert spec.low <= value <= spec.high and value != spec.nominal
+
+
+@pytest.mark.parametrize("effect", SURROGATE_EFFECTS)
+def test_effect_predictions_agree_with_pybullet(base, effect) -> None:
+    # the effect's typical values and the bound on the relative error of its predicted
+    # change of the window features, both declared by the effect
+    values = dict(EFFECTS[effect].surrogate_example)
+    bound = EFFECTS[effect].surrogate_tolerance
     sur, scales, out = base
     num = den = 0.0
     for t, cmd, b, pb0, s0 in out.values():
@@ -101,3 +111,29 @@ def test_batches_match_single_runs(base) -> None:
     for i, d in enumerate(delays):
         one = sur.simulate(inputs, {"command_latency.delay": d})
         np.testing.assert_allclose(batch["pose_gt"][i], one["pose_gt"][0], atol=1e-12)
+
+
+def test_tick_driven_runs_read_ticks_through_both_encoder_terms(base) -> None:
+    sur, _, out = base
+    _, cmd, *_ = out["mixed"]
+    ticks = sur.simulate(SurrogateInputs(DT, np.zeros(3), commands=cmd), {})["ticks"][0]
+    values = {"encoder_scale.scale": 0.98, "encoder_ratio.E_c": 1.02}
+    read = sur.simulate(SurrogateInputs(DT, np.zeros(3), ticks=ticks), values)
+    # the same ticks, divided by the counts per true wheel angle, with nominal encoders
+    gains = 0.98 * np.array([2.0 / 2.02, 2.0 * 1.02 / 2.02])
+    plain = sur.simulate(SurrogateInputs(DT, np.zeros(3), ticks=ticks / gains), {})
+    np.testing.assert_allclose(read["pose_true"][0], plain["pose_true"][0], atol=1e-9)
+    np.testing.assert_allclose(read["ticks"][0], plain["ticks"][0] * gains, rtol=1e-9, atol=1e-9)
+
+
+def test_calibration_cache_key_holds_no_source_code(tmp_path, monkeypatch) -> None:
+    from realitygap.diagnosis import surrogate
+
+    monkeypatch.setenv("REALITYGAP_CACHE", str(tmp_path))
+    path = surrogate._cache_path(P, 0)
+    assert path.parent == tmp_path
+    assert path == surrogate._cache_path(DiffDriveParams(), 0)
+    assert path != surrogate._cache_path(P.replace(wheelbase=0.24), 0)
+    assert path != surrogate._cache_path(P, 10)
+    monkeypatch.setattr(surrogate, "CALIBRATION_VERSION", surrogate.CALIBRATION_VERSION + 1)
+    assert path != surrogate._cache_path(P, 0)

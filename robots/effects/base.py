@@ -1,0 +1,402 @@
+"""The effect vocabulary: :class:`Effect`, its parameters, stages, channels, and :class:`Reality`.
+
+An :class:`Effect` is a named, parameterised way in which a real robot differs
+from its model. One effect class holds, side by side:
+
+* its parameters (:attr:`Effect.specs`): units, nominal value ("no effect") and
+  physical bounds;
+* its blind-test range (:attr:`Effect.blind`): the magnitudes the blind
+  validation suite hides;
+* where it acts (:attr:`Effect.stage`, a :class:`Stage`) and where it can be
+  seen (:attr:`Effect.observed_in`, :class:`Channel` values);
+* how it is realised in PyBullet — by changing the robot's physical parameters
+  before the body is built (:meth:`Effect.apply_params`), by a runtime hook
+  between the controller and the body (:meth:`Effect.make_command_hook`) or
+  between a sensor and its reader (:meth:`Effect.make_ticks_hook`), or by a
+  clock error of a recorded channel (:meth:`Effect.channel_time_offsets`);
+* optionally its term in its robot's fast surrogate model
+  (:attr:`Effect.surrogate_slot`, :meth:`Effect.surrogate_term`).
+
+A :class:`Reality` is a set of effects with values; ``gym.make(id, reality=...)``
+builds the "real" robot from it and the nominal parameters.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any, ClassVar, NamedTuple
+
+__all__ = [
+    "EFFECTS",
+    "LIBRARY_VERSION",
+    "BlindRange",
+    "Channel",
+    "CommandHook",
+    "Effect",
+    "ParamSpec",
+    "Reality",
+    "Stage",
+    "TicksHook",
+    "make_effect",
+    "register_effect",
+]
+
+LIBRARY_VERSION = 1
+"""Version of the effect library the diagnosis and the blind suite use by default.
+
+Every seeded figure of the diagnosis is stated against one library: an effect
+with :attr:`Effect.since` above this version is fully usable (in a
+:class:`Reality`, in the surrogate, as an explicit diagnosis candidate) but
+joins the default candidate library and the blind suite only when the version
+is raised.
+"""
+
+
+class _ValueEnum(str, Enum):
+    """A string-valued enum that prints, formats and hashes as its value."""
+
+    def __str__(self) -> str:
+        return str(self.value)
+
+    def __format__(self, format_spec: str) -> str:
+        return format(str(self.value), format_spec)
+
+
+class Stage(_ValueEnum):
+    """Where in the robot's pipeline an effect acts."""
+
+    COMMAND = "command"
+    """Between the controller and the motors (queues, dead-bands, limits)."""
+    DRIVE = "drive"
+    """In the drive train or the contact with the ground (traction, gear play)."""
+    BODY = "body"
+    """In the body's geometry or mass (radii, wheelbase, link lengths)."""
+    SENSOR = "sensor"
+    """Between the physical quantity and its reading (encoders, tether, IMU)."""
+    CAMERA = "camera"
+    """In the camera's mounting or image formation."""
+    TOOL = "tool"
+    """In the definition of the measured tool point."""
+    TIMING = "timing"
+    """In the clocks that stamp recorded channels."""
+
+
+class Channel(_ValueEnum):
+    """A recorded log channel in which an effect can show."""
+
+    POSE_GT = "pose_gt"
+    """Ground-truth (motion-capture) pose of the base."""
+    POSE_CAM = "pose_cam"
+    """Pose of the camera."""
+    TICKS = "ticks"
+    """Cumulative wheel-encoder counts."""
+    CAMERA_POSE = "camera_pose"
+    """Arm: pose of the flange camera over the board."""
+    TOOL_DIST = "tool_dist"
+    """Arm: tool-point distances measured by a tracker."""
+    TETHER = "tether"
+    """Climber: paid-out tether length."""
+    IMU = "imu"
+    """Climber: gyroscope and accelerometer."""
+    SURFACE = "surface"
+    """Climber: ride height over the blade surface."""
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter of an effect.
+
+    Attributes
+    ----------
+    name, unit : str
+        Parameter name and SI unit (``"1"`` for ratios).
+    nominal : float
+        The value at which the effect does nothing.
+    low, high : float
+        Physical bounds of the parameter.
+    description : str
+    """
+
+    name: str
+    unit: str
+    nominal: float
+    low: float
+    high: float
+    description: str
+
+
+class BlindRange(NamedTuple):
+    """Magnitude of one parameter in the blind suite.
+
+    The deviation from nominal is drawn as ``|Δ| ~ U(low, high)``, with a random
+    sign when ``symmetric``.
+    """
+
+    param: str
+    low: float
+    high: float
+    symmetric: bool
+
+
+CommandHook = Callable[[float, float, float], tuple[float, float]]
+"""``hook(v, w, dt) -> (v, w)``: transforms the commanded body twist each control step."""
+
+TicksHook = Callable[[float, float], tuple[float, float]]
+"""``hook(angle_left, angle_right) -> (angle_left, angle_right)``: what the encoders see (rad)."""
+
+
+class Effect:
+    """Base class of all effects.
+
+    Subclasses set :attr:`name`, :attr:`robot`, :attr:`description`,
+    :attr:`specs`, :attr:`stage`, :attr:`observed_in`, usually :attr:`blind`,
+    and override the realisations they need.
+
+    Parameters
+    ----------
+    **values : float
+        Parameter values; absent parameters are nominal.
+
+    Raises
+    ------
+    TypeError
+        An unknown parameter name (the message suggests a close one).
+    ValueError
+        A non-finite value.
+    """
+
+    name: ClassVar[str] = ""
+    robot: ClassVar[str] = ""
+    description: ClassVar[str] = ""
+    specs: ClassVar[tuple[ParamSpec, ...]] = ()
+    stage: ClassVar[Stage] = Stage.BODY
+    observed_in: ClassVar[tuple[Channel, ...]] = (Channel.POSE_GT,)
+    blind: ClassVar[tuple[BlindRange, ...]] = ()
+    """Magnitudes the blind suite hides; empty: the suite does not draw this effect."""
+    since: ClassVar[int] = 1
+    """Library version that introduced the effect (see :data:`LIBRARY_VERSION`)."""
+    surrogate_slot: ClassVar[Enum | None] = None
+    """Where the effect enters its robot's surrogate model; ``None``: no surrogate term."""
+    surrogate_order: ClassVar[int] = 0
+    """Order among the terms of one slot (lower first; ties in registration order)."""
+    surrogate_example: ClassVar[tuple[tuple[str, float], ...]] = ()
+    """A typical ``(param, value)`` set at which the surrogate term is checked against PyBullet."""
+    surrogate_tolerance: ClassVar[float] = 0.08
+    """Bound on the surrogate's relative error of the effect's change of the features."""
+
+    def __init__(self, **values: float):
+        known = {s.name: s for s in self.specs}
+        unknown = set(values) - set(known)
+        if unknown:
+            bad = sorted(unknown)[0]
+            close = difflib.get_close_matches(bad, list(known), n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise TypeError(
+                f"effect {self.name!r} has no parameter {bad!r}{hint} (parameters: {', '.join(known)})"
+            )
+        self.values: dict[str, float] = {}
+        for spec in self.specs:
+            value = float(values.get(spec.name, spec.nominal))
+            if not math.isfinite(value):
+                raise ValueError(f"effect {self.name!r}: {spec.name} must be finite, got {value!r}")
+            self.values[spec.name] = value
+
+    # realisations (identity by default) ---------------------------------------
+    def apply_params(self, params: Any) -> Any:
+        """Return the physical parameters of the robot with this effect built in."""
+        return params
+
+    def make_command_hook(self, dt: float, nominal: Any = None) -> CommandHook | None:
+        """A fresh, stateful command hook for one episode, or ``None``.
+
+        Parameters
+        ----------
+        dt : float
+            Control period, s.
+        nominal : robot parameters, optional
+            What the robot's firmware believes (its nominal geometry); hooks
+            acting on the firmware's wheel-speed commands use it whatever other
+            effects change in the body. ``None``: the robot's default parameters.
+        """
+        return None
+
+    def make_ticks_hook(self) -> TicksHook | None:
+        """A fresh encoder hook for one episode, or ``None``."""
+        return None
+
+    def make_ticks_inverse_hook(self) -> TicksHook | None:
+        """The inverse of :meth:`make_ticks_hook` (encoder reading → true wheel angle), or ``None``.
+
+        Needed to drive a simulation by logged encoder ticks; an effect with a
+        ticks hook but no inverse cannot be replayed that way.
+        """
+        return None
+
+    def channel_time_offsets(self) -> dict[str, float]:
+        """Clock errors of recorded channels, s: ``{channel: offset}``.
+
+        A channel with offset ``Δ`` is stamped ``Δ`` late: its logged sample at
+        time ``t`` is the true value at ``t − Δ``.
+        """
+        return {}
+
+    # surrogate -----------------------------------------------------------------
+    @classmethod
+    def surrogate_term(cls, x: Any, p: Mapping[str, Any], ctx: Any) -> Any:
+        """The effect's term in its robot's surrogate model.
+
+        Parameters
+        ----------
+        x
+            The quantity at :attr:`surrogate_slot` (its shape is fixed by the
+            slot), before this term.
+        p : mapping
+            Parameter name → value array over the batch, shape (B,).
+        ctx
+            The surrogate's context (control period, nominal parameters, batch).
+
+        Returns
+        -------
+        The quantity after this term, same layout as ``x``.
+        """
+        raise NotImplementedError(f"effect {cls.name!r} has no surrogate term")
+
+    # helpers ------------------------------------------------------------------
+    def __getitem__(self, key: str) -> float:
+        return self.values[key]
+
+    def __repr__(self) -> str:
+        args = ", ".join(f"{k}={v:.6g}" for k, v in self.values.items())
+        return f"{type(self).__name__}({args})"
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"name": ..., "values": {param: value}}`` (JSON-able)."""
+        return {"name": self.name, "values": dict(self.values)}
+
+    @classmethod
+    def spec(cls, param: str) -> ParamSpec:
+        """The :class:`ParamSpec` of parameter ``param``."""
+        for s in cls.specs:
+            if s.name == param:
+                return s
+        raise KeyError(f"effect {cls.name!r} has no parameter {param!r}")
+
+    def is_nominal(self) -> bool:
+        """True when every parameter sits at its nominal value (the effect does nothing)."""
+        return all(self.values[s.name] == s.nominal for s in self.specs)
+
+
+EFFECTS: dict[str, type[Effect]] = {}
+"""Every registered effect class by name, in registration order."""
+
+
+def register_effect(cls: type[Effect]) -> type[Effect]:
+    """Class decorator adding an effect to the library."""
+    if not cls.name:
+        raise ValueError(f"{cls.__name__} needs a name")
+    if cls.name in EFFECTS and EFFECTS[cls.name] is not cls:
+        raise ValueError(f"effect name {cls.name!r} is taken by {EFFECTS[cls.name].__name__}")
+    for r in cls.blind:
+        cls.spec(r.param)
+    EFFECTS[cls.name] = cls
+    return cls
+
+
+def make_effect(name: str, **values: float) -> Effect:
+    """Instantiate library effect ``name``; suggests close names on a typo."""
+    if name not in EFFECTS:
+        close = difflib.get_close_matches(name, list(EFFECTS), n=3)
+        hint = f" Did you mean {', '.join(map(repr, close))}?" if close else ""
+        raise KeyError(f"unknown effect {name!r}.{hint} Known: {', '.join(sorted(EFFECTS))}")
+    return EFFECTS[name](**values)
+
+
+@dataclass
+class Reality:
+    """Nominal parameters plus effects: the description of a "real" robot.
+
+    ``Reality()`` is the nominal robot. Effects apply in order; hooks that act
+    on the firmware's commands see the *nominal* geometry, handed to
+    :meth:`command_hooks`.
+    """
+
+    effects: tuple[Effect, ...] = ()
+    name: str = "nominal"
+    meta: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.effects = tuple(self.effects)
+        for e in self.effects:
+            if not isinstance(e, Effect):
+                raise TypeError(f"Reality.effects must hold Effect objects, got {type(e).__name__}")
+
+    def apply_params(self, params: Any) -> Any:
+        """The physical parameters of the real robot, built from the nominal ``params``."""
+        for effect in self.effects:
+            params = effect.apply_params(params)
+        return params
+
+    def command_hooks(self, dt: float, nominal: Any) -> list[CommandHook]:
+        """Fresh command hooks for one episode, in effect order.
+
+        Parameters
+        ----------
+        dt : float
+            Control period, s.
+        nominal : robot parameters
+            The nominal parameters the firmware believes (not the real body's).
+        """
+        return [h for e in self.effects if (h := e.make_command_hook(dt, nominal)) is not None]
+
+    def ticks_hooks(self) -> list[TicksHook]:
+        """Fresh encoder hooks for one episode, in effect order."""
+        return [h for e in self.effects if (h := e.make_ticks_hook()) is not None]
+
+    def ticks_inverse_hooks(self) -> list[TicksHook]:
+        """Inverse encoder hooks in reverse effect order (reading → true wheel angle).
+
+        Raises
+        ------
+        ValueError
+            If an effect changes the encoder reading but cannot be inverted.
+        """
+        out: list[TicksHook] = []
+        for e in reversed(self.effects):
+            inv = e.make_ticks_inverse_hook()
+            if inv is None and e.make_ticks_hook() is not None:
+                raise ValueError(
+                    f"effect {e.name!r} changes the encoder reading but has no inverse; "
+                    "a simulation driven by logged ticks cannot include it"
+                )
+            if inv is not None:
+                out.append(inv)
+        return out
+
+    def channel_time_offsets(self) -> dict[str, float]:
+        """Total clock error per recorded channel, s (see :meth:`Effect.channel_time_offsets`)."""
+        out: dict[str, float] = {}
+        for e in self.effects:
+            for channel, offset in e.channel_time_offsets().items():
+                out[channel] = out.get(channel, 0.0) + float(offset)
+        return out
+
+    @property
+    def effect_names(self) -> tuple[str, ...]:
+        """Names of the effects, in order."""
+        return tuple(e.name for e in self.effects)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able description; :meth:`from_dict` rebuilds it."""
+        return {"name": self.name, "effects": [e.to_dict() for e in self.effects]}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Reality:
+        """Rebuild a :class:`Reality` from :meth:`to_dict` output."""
+        effects = tuple(
+            make_effect(e["name"], **e.get("values", {})) for e in data.get("effects", ())
+        )
+        return cls(effects=effects, name=str(data.get("name", "custom")))
