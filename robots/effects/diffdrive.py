@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from enum import Enum
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -143,7 +145,7 @@ class WheelRadiusScale(Effect):
         )
 
     @classmethod
-    def surrogate_term(cls, x, p, ctx):  # type: ignore[no-untyped-def]
+    def surrogate_term(cls, x: Any, p: Mapping[str, FloatArray], ctx: SurrogateContext) -> Any:
         rl, rr = x
         return rl * p["scale"], rr * p["scale"]
 
@@ -174,7 +176,7 @@ class WheelDiameterRatio(Effect):
         )
 
     @classmethod
-    def surrogate_term(cls, x, p, ctx):  # type: ignore[no-untyped-def]
+    def surrogate_term(cls, x: Any, p: Mapping[str, FloatArray], ctx: SurrogateContext) -> Any:
         rl, rr = x
         e_d = p["E_d"]
         mean_r = (rl + rr) / 2.0
@@ -205,7 +207,7 @@ class WheelbaseError(Effect):
         return params.replace(wheelbase=params.wheelbase * self["E_b"])
 
     @classmethod
-    def surrogate_term(cls, x, p, ctx):  # type: ignore[no-untyped-def]
+    def surrogate_term(cls, x: Any, p: Mapping[str, FloatArray], ctx: SurrogateContext) -> Any:
         return x * p["E_b"]
 
 
@@ -252,7 +254,7 @@ class LongitudinalSlip(Effect):
         return params.replace(wheel_friction=self["mu"])
 
     @classmethod
-    def surrogate_term(cls, x, p, ctx):  # type: ignore[no-untyped-def]
+    def surrogate_term(cls, x: Any, p: Mapping[str, FloatArray], ctx: SurrogateContext) -> Any:
         return p["mu"]
 
 
@@ -292,7 +294,7 @@ class CameraMountOffset(Effect):
         return params.replace(camera=new_cam)
 
     @classmethod
-    def surrogate_term(cls, x, p, ctx):  # type: ignore[no-untyped-def]
+    def surrogate_term(cls, x: Any, p: Mapping[str, FloatArray], ctx: SurrogateContext) -> Any:
         mx, my, myaw = x
         return mx + p["dx"], my + p["dy"], myaw + p["dyaw"]
 
@@ -336,7 +338,7 @@ class CommandLatency(Effect):
         return hook
 
     @classmethod
-    def surrogate_term(cls, x, p, ctx):  # type: ignore[no-untyped-def]
+    def surrogate_term(cls, x: Any, p: Mapping[str, FloatArray], ctx: SurrogateContext) -> Any:
         delay = p["delay"]
         return _shift(x, delay / ctx.dt) if np.any(delay > 0) else x
 
@@ -384,7 +386,7 @@ class MotorDeadband(Effect):
         return hook
 
     @classmethod
-    def surrogate_term(cls, x, p, ctx):  # type: ignore[no-untyped-def]
+    def surrogate_term(cls, x: Any, p: Mapping[str, FloatArray], ctx: SurrogateContext) -> Any:
         sl, sr = x
         thr = p["threshold"][:, None]
         if np.any(thr > 0):
@@ -430,7 +432,7 @@ class VelocitySaturation(Effect):
         return hook
 
     @classmethod
-    def surrogate_term(cls, x, p, ctx):  # type: ignore[no-untyped-def]
+    def surrogate_term(cls, x: Any, p: Mapping[str, FloatArray], ctx: SurrogateContext) -> Any:
         sl, sr = x
         v_lim = p["v_limit"][:, None]
         if np.any(v_lim < 9.99):
@@ -469,7 +471,7 @@ class EncoderScale(Effect):
         return lambda left, right: (left / s, right / s)
 
     @classmethod
-    def surrogate_term(cls, x, p, ctx):  # type: ignore[no-untyped-def]
+    def surrogate_term(cls, x: Any, p: Mapping[str, FloatArray], ctx: SurrogateContext) -> Any:
         cl, cr = x
         return cl * p["scale"], cr * p["scale"]
 
@@ -495,7 +497,7 @@ class TimestampOffset(Effect):
         return {Channel.POSE_GT.value: self["offset"]} if self["offset"] != 0.0 else {}
 
     @classmethod
-    def surrogate_term(cls, x, p, ctx):  # type: ignore[no-untyped-def]
+    def surrogate_term(cls, x: Any, p: Mapping[str, FloatArray], ctx: SurrogateContext) -> Any:
         off = p["offset"]
         return _shift_back(off / ctx.dt, x) if np.any(off != 0) else x
 
@@ -550,7 +552,7 @@ class EncoderRatio(Effect):
         return lambda left, right: (left / gl, right / gr)
 
     @classmethod
-    def surrogate_term(cls, x, p, ctx):  # type: ignore[no-untyped-def]
+    def surrogate_term(cls, x: Any, p: Mapping[str, FloatArray], ctx: SurrogateContext) -> Any:
         cl, cr = x
         e = p["E_c"]
         if not np.any(e != 1.0):
