@@ -82,12 +82,14 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
 
+from realitygap.estimators.arm.board_displacement import (
+    cell_under_optical_axis,
+    hierarchical_displacement,
+)
 from realitygap.estimators.arm.board_measurement import (
     BoardMeasurementSettings,
     BoardObservation,
     MeasurementStatus,
-    cell_under_optical_axis,
-    hierarchical_displacement,
     measure_board,
 )
 from realitygap.estimators.arm.calibration import registered_position_errors

@@ -4,8 +4,9 @@ Pure numpy / scipy / OpenCV. The pieces, in the order a calibration uses them:
 
 * :mod:`.mdh` — 5-parameter MDH tables, forward kinematics, parameter Jacobian;
 * :mod:`.coded_board` — absolutely coded checkerboard (unique 8×8 code windows);
-* :mod:`.board_measurement` — camera pose from a partial view of the board and
-  hierarchical displacements;
+* :mod:`.board_detection` — X-corners and their lattice coordinates in an image;
+* :mod:`.board_measurement` — camera pose from a partial view of the board;
+* :mod:`.board_displacement` — hierarchical displacements between two measurements;
 * :mod:`.handeye` — single-axis, two-axis and AX = XB hand–eye calibration;
 * :mod:`.residuals` — observations and distance, displacement or position
   residuals with their analytic Jacobian;
@@ -17,15 +18,25 @@ Pure numpy / scipy / OpenCV. The pieces, in the order a calibration uses them:
 
 from __future__ import annotations
 
+from .board_displacement import (
+    HierarchicalDisplacement,
+    cell_under_optical_axis,
+    hierarchical_displacement,
+    transition_pose,
+)
 from .board_measurement import (
     BoardMeasurementSettings,
     BoardObservation,
-    HierarchicalDisplacement,
     MeasurementStatus,
-    cell_under_optical_axis,
-    hierarchical_displacement,
     measure_board,
-    transition_pose,
+)
+from .calibration import (
+    ArmCalibrationReport,
+    ErrorStats,
+    calibrate_fr3,
+    calibrate_ur10,
+    pair_distance_errors,
+    registered_position_errors,
 )
 from .coded_board import CodedBoard, lfsr_m_sequence, render_board_image, window_statistics
 from .handeye import (
@@ -38,14 +49,6 @@ from .handeye import (
     handeye_single_axis,
     handeye_two_axis,
     solve_ax_xb,
-)
-from .calibration import (
-    ArmCalibrationReport,
-    ErrorStats,
-    calibrate_fr3,
-    calibrate_ur10,
-    pair_distance_errors,
-    registered_position_errors,
 )
 from .identifiability import Identifiability, analyse_identifiability
 from .identification import IdentificationResult, IdentificationSettings, Solver, identify
