@@ -68,7 +68,7 @@ def registered_position_errors(
     """3-D errors (N,) (m) after the rigid registration the model allows.
 
     With ``T_meas_base`` that registration is used; without, it is fitted to these
-    points (:func:`kabsch`).
+    points (:func:`~.least_squares.kabsch`).
     """
     P = np.asarray(model_positions, dtype=float)
     M = np.asarray(measured_positions, dtype=float)
