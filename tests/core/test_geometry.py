@@ -1,4 +1,4 @@
-"""Rigid-body helpers of realitygap.core.geometry against closed forms."""
+"""Rotations and rigid transforms of realitygap.core.geometry against closed forms."""
 
 from __future__ import annotations
 
