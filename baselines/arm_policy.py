@@ -45,13 +45,9 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.baselines.common import as_batch, episode_starts
-from realitygap.estimators.arm.identification import (
-    IdentificationSettings,
-    PairObservations,
-    ResidualMode,
-    identify,
-)
+from realitygap.estimators.arm.identification import IdentificationSettings, identify
 from realitygap.estimators.arm.mdh import MDHTable, jacobian_params, tool_positions
+from realitygap.estimators.arm.residuals import PairObservations, ResidualMode
 
 FloatArray = npt.NDArray[np.float64]
 

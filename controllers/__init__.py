@@ -8,11 +8,8 @@ every command passed through :meth:`VelocityLimits.clip`.
 
 from __future__ import annotations
 
-from realitygap.controllers.apf import (
-    APFOutcome,
-    APFParams,
-    APFResult,
-    ImprovedAPF,
+from realitygap.controllers.apf import APFOutcome, APFParams, APFResult, ImprovedAPF
+from realitygap.controllers.paths import (
     grid_shortest_path_length,
     path_length,
     points_from_occupancy,

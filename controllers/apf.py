@@ -67,11 +67,8 @@ from enum import Enum
 
 import numpy as np
 import numpy.typing as npt
-from scipy import sparse
-from scipy.sparse import csgraph
-from scipy.spatial import cKDTree
 
-from realitygap.core.geometry import check_finite
+from .paths import ObstacleSet, check_xy, check_xy_points
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -80,11 +77,6 @@ __all__ = [
     "APFParams",
     "APFResult",
     "ImprovedAPF",
-    "grid_shortest_path_length",
-    "path_length",
-    "points_from_occupancy",
-    "segment_clearance",
-    "shortcut_waypoints",
 ]
 
 
@@ -229,107 +221,6 @@ class APFResult:
     escapes: int = 0
 
 
-def _check_point(name: str, value: npt.ArrayLike) -> FloatArray:
-    return check_finite(name, value, shape=(2,))
-
-
-def _check_points(name: str, value: npt.ArrayLike | None) -> FloatArray:
-    if value is None:
-        return np.zeros((0, 2))
-    points = check_finite(name, value)
-    if points.size == 0:
-        return np.zeros((0, 2))
-    if points.ndim != 2 or points.shape[1] != 2:
-        raise ValueError(
-            f"{name} must have shape (M, 2) (x, y in m, world frame), got {points.shape}; "
-            "pass np.zeros((0, 2)) when there are no obstacles"
-        )
-    return points
-
-
-def _point_segment_distances(points: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
-    """Distances (m) from ``points`` (M, 2) to the segment ``a``–``b``."""
-    ab = b - a
-    denom = float(ab @ ab)
-    if denom <= 0.0:
-        return np.linalg.norm(points - a, axis=1)
-    t = np.clip((points - a) @ ab / denom, 0.0, 1.0)
-    closest = a + t[:, None] * ab
-    return np.linalg.norm(points - closest, axis=1)
-
-
-class _ObstacleSet:
-    """Obstacle points with a k-d tree for clearance queries."""
-
-    def __init__(self, points: FloatArray, inflation_radius: float) -> None:
-        self.points = points
-        self.inflation_radius = inflation_radius
-        self.tree = cKDTree(points) if len(points) else None
-
-    def nearest(self, q: FloatArray) -> tuple[float, FloatArray | None]:
-        """Distance (m) from ``q`` to the nearest point and that point (None if there is none)."""
-        if self.tree is None:
-            return math.inf, None
-        distance, index = self.tree.query(q)
-        return float(distance), self.points[int(index)]
-
-    def clearance(self, q: FloatArray) -> float:
-        """Distance (m) from ``q`` to the nearest inflated obstacle (negative inside)."""
-        distance, _ = self.nearest(q)
-        return distance - self.inflation_radius
-
-    def segment_is_clear(self, a: FloatArray, b: FloatArray) -> bool:
-        """Whether the whole segment ``a``–``b`` stays outside every inflated obstacle."""
-        if self.tree is None:
-            return True
-        half = 0.5 * float(np.linalg.norm(b - a))
-        index = self.tree.query_ball_point(0.5 * (a + b), self.inflation_radius + half)
-        if not index:
-            return True
-        distances = _point_segment_distances(self.points[index], a, b)
-        return bool(np.min(distances) > self.inflation_radius)
-
-    def within(self, q: FloatArray, radius: float) -> FloatArray:
-        """Points closer than ``radius`` (m) to ``q``, shape (M', 2)."""
-        if self.tree is None:
-            return np.zeros((0, 2))
-        index = self.tree.query_ball_point(q, radius)
-        return self.points[index] if index else np.zeros((0, 2))
-
-
-def segment_clearance(
-    a: npt.ArrayLike, b: npt.ArrayLike, obstacle_points: npt.ArrayLike | None
-) -> float:
-    """Smallest distance in m between the segment ``a``–``b`` and any obstacle point.
-
-    Parameters
-    ----------
-    a, b : array_like, shape (2,)
-        Segment end points in m (world frame).
-    obstacle_points : array_like, shape (M, 2) or None
-        Obstacle points in m (world frame).
-
-    Returns
-    -------
-    float
-        The distance, ``inf`` without obstacle points.
-    """
-    a = _check_point("a", a)
-    b = _check_point("b", b)
-    points = _check_points("obstacle_points", obstacle_points)
-    if len(points) == 0:
-        return math.inf
-    return float(np.min(_point_segment_distances(points, a, b)))
-
-
-def path_length(waypoints: npt.ArrayLike) -> float:
-    """Length in m of the polyline through ``waypoints`` (K, 2)."""
-    xy = _check_points("waypoints", waypoints)
-    if len(xy) < 2:
-        return 0.0
-    return float(np.sum(np.linalg.norm(np.diff(xy, axis=0), axis=1)))
-
-
 class ImprovedAPF:
     """Improved artificial potential field planner (goal-non-reachable fix).
 
@@ -372,14 +263,14 @@ class ImprovedAPF:
             :math:`F_\\mathrm{att}` and :math:`F_\\mathrm{rep}` (summed over the
             nearest point of every sector), in the units of the gains.
         """
-        q = _check_point("q", q)
-        goal = _check_point("goal_xy", goal_xy)
-        points = _check_points("obstacle_points", obstacle_points)
-        obstacles = _ObstacleSet(points, self.params.inflation_radius)
+        q = check_xy("q", q)
+        goal = check_xy("goal_xy", goal_xy)
+        points = check_xy_points("obstacle_points", obstacle_points)
+        obstacles = ObstacleSet(points, self.params.inflation_radius)
         return self._forces(q, goal, obstacles)
 
     def _forces(
-        self, q: FloatArray, goal: FloatArray, obstacles: _ObstacleSet
+        self, q: FloatArray, goal: FloatArray, obstacles: ObstacleSet
     ) -> tuple[FloatArray, FloatArray]:
         p = self.params
         to_goal = goal - q
@@ -455,10 +346,10 @@ class ImprovedAPF:
             a finite (M, 2) array.
         """
         p = self.params
-        start = _check_point("start_xy", start_xy)
-        goal = _check_point("goal_xy", goal_xy)
-        points = _check_points("obstacle_points", obstacle_points)
-        obstacles = _ObstacleSet(points, p.inflation_radius)
+        start = check_xy("start_xy", start_xy)
+        goal = check_xy("goal_xy", goal_xy)
+        points = check_xy_points("obstacle_points", obstacle_points)
+        obstacles = ObstacleSet(points, p.inflation_radius)
 
         path: list[FloatArray] = [start.copy()]
         if obstacles.clearance(goal) <= 0.0:
@@ -567,7 +458,7 @@ class ImprovedAPF:
         force: FloatArray,
         force_norm: float,
         rho_goal: float,
-        obstacles: _ObstacleSet,
+        obstacles: ObstacleSet,
     ) -> FloatArray | None:
         """Next way-point along ``force``, shortened up to twice if blocked; None if blocked."""
         if force_norm <= 1e-12:
@@ -582,7 +473,7 @@ class ImprovedAPF:
         return None
 
     def _leave_inflation(
-        self, q: FloatArray, obstacles: _ObstacleSet, path: list[FloatArray], budget: int
+        self, q: FloatArray, obstacles: ObstacleSet, path: list[FloatArray], budget: int
     ) -> tuple[FloatArray, int]:
         """Step straight away from the nearest point while the start is inside an inflation."""
         p = self.params
@@ -600,7 +491,7 @@ class ImprovedAPF:
         self,
         q: FloatArray,
         goal: FloatArray,
-        obstacles: _ObstacleSet,
+        obstacles: ObstacleSet,
         side_hint: int,
         rng: np.random.Generator | None,
     ) -> int:
@@ -623,7 +514,7 @@ class ImprovedAPF:
         q: FloatArray,
         goal: FloatArray,
         side: int,
-        obstacles: _ObstacleSet,
+        obstacles: ObstacleSet,
         path: list[FloatArray],
         budget: int,
         leave_margin: float,
@@ -677,7 +568,7 @@ class ImprovedAPF:
         return q, budget
 
     def _admissible_turn(
-        self, q: FloatArray, direction: FloatArray, normal: FloatArray, obstacles: _ObstacleSet
+        self, q: FloatArray, direction: FloatArray, normal: FloatArray, obstacles: ObstacleSet
     ) -> FloatArray | None:
         """A clear step along ``direction``, turned towards ``normal`` in 15° increments if needed."""
         length = self.params.step_length
@@ -697,222 +588,3 @@ class ImprovedAPF:
 
 
 # -- post-processing and reference path lengths ---------------------------------------------
-
-
-def shortcut_waypoints(
-    waypoints: npt.ArrayLike,
-    obstacle_points: npt.ArrayLike | None,
-    inflation_radius: float,
-) -> FloatArray:
-    """Greedy line-of-sight shortcutting of a way-point polyline.
-
-    From each kept way-point the straight segment is extended along the
-    following way-points for as long as it stays clear of every inflated
-    obstacle ("string pulling"); the last way-point it reached is kept and
-    becomes the next anchor.  Detours and loops left by local-minimum escapes
-    shrink to straight segments; start and end stay.
-
-    Parameters
-    ----------
-    waypoints : array_like, shape (K, 2)
-        Way-points in m (world frame).
-    obstacle_points : array_like, shape (M, 2) or None
-        Obstacle points in m (world frame).
-    inflation_radius : float
-        Robot radius plus margin in m.
-
-    Returns
-    -------
-    ndarray, shape (K', 2)
-        The kept way-points, ``K' <= K``.
-    """
-    xy = _check_points("waypoints", waypoints)
-    points = _check_points("obstacle_points", obstacle_points)
-    if not (math.isfinite(inflation_radius) and inflation_radius >= 0.0):
-        raise ValueError(f"inflation_radius must be finite and >= 0, got {inflation_radius!r}")
-    if len(xy) <= 2:
-        return xy.copy()
-    obstacles = _ObstacleSet(points, inflation_radius)
-    kept = [0]
-    anchor = 0
-    j = 1
-    while j < len(xy):
-        # Extend the straight segment from the anchor for as long as it stays clear.
-        if j > anchor + 1 and not obstacles.segment_is_clear(xy[anchor], xy[j]):
-            anchor = j - 1
-            kept.append(anchor)
-        j += 1
-    kept.append(len(xy) - 1)
-    return xy[kept].copy()
-
-
-def points_from_occupancy(
-    occupancy: npt.ArrayLike, resolution: float, origin_xy: npt.ArrayLike
-) -> FloatArray:
-    """Centres of the occupied cells of an occupancy grid, as obstacle points.
-
-    Parameters
-    ----------
-    occupancy : array_like of bool, shape (rows, cols)
-        ``occupancy[i, j]`` is the cell whose lower-left corner is
-        ``origin_xy + resolution * (j, i)`` (rows along y, columns along x).
-    resolution : float
-        Cell size in m.
-    origin_xy : array_like, shape (2,)
-        World position in m of the lower-left corner of cell ``[0, 0]``.
-
-    Returns
-    -------
-    ndarray, shape (M, 2)
-        Cell centres in m (world frame).
-    """
-    grid = np.asarray(occupancy)
-    if grid.ndim != 2:
-        raise ValueError(
-            f"occupancy must be a 2-D grid (rows along y, cols along x), got {grid.shape}"
-        )
-    if not (math.isfinite(resolution) and resolution > 0.0):
-        raise ValueError(f"resolution must be finite and > 0, got {resolution!r}")
-    origin = _check_point("origin_xy", origin_xy)
-    rows, cols = np.nonzero(grid.astype(bool))
-    return np.column_stack(
-        [origin[0] + (cols + 0.5) * resolution, origin[1] + (rows + 0.5) * resolution]
-    ).astype(float)
-
-
-def grid_shortest_path_length(
-    start_xy: npt.ArrayLike,
-    goal_xy: npt.ArrayLike,
-    obstacle_points: npt.ArrayLike | None,
-    *,
-    resolution: float = 0.05,
-    inflation_radius: float = 0.22,
-    bounds: tuple[float, float, float, float] | None = None,
-    max_cells: int = 4_000_000,
-) -> float:
-    """Length in m of a shortest collision-free path, for path-length ratios.
-
-    Cells of a grid are free when their centre is farther than
-    ``inflation_radius`` from every obstacle point.  Dijkstra's algorithm on
-    the 8-connected free cells (diagonal moves only where both adjacent
-    orthogonal cells are free) gives a cell path; greedy line-of-sight
-    shortcutting against the obstacle points then removes the 8-direction
-    zig-zag, so the returned length is within a few per cent of the Euclidean
-    shortest path instead of up to 8 % above it.
-
-    Parameters
-    ----------
-    start_xy, goal_xy : array_like, shape (2,)
-        Start and goal in m (world frame).
-    obstacle_points : array_like, shape (M, 2) or None
-        Obstacle points in m (world frame); for an occupancy grid use
-        :func:`points_from_occupancy`.
-    resolution : float, optional
-        Grid cell size in m.
-    inflation_radius : float, optional
-        Robot radius plus margin in m.
-    bounds : (x_min, y_min, x_max, y_max), optional
-        Search region in m; by default the bounding box of start, goal and
-        obstacle points grown by 1 m.
-    max_cells : int, optional
-        Refuse grids with more cells than this (``ValueError``).
-
-    Returns
-    -------
-    float
-        Path length in m, ``inf`` if start or goal is inside an inflated
-        obstacle or no path exists inside ``bounds``.
-    """
-    start = _check_point("start_xy", start_xy)
-    goal = _check_point("goal_xy", goal_xy)
-    points = _check_points("obstacle_points", obstacle_points)
-    if not (math.isfinite(resolution) and resolution > 0.0):
-        raise ValueError(f"resolution must be finite and > 0, got {resolution!r}")
-    if not (math.isfinite(inflation_radius) and inflation_radius >= 0.0):
-        raise ValueError(f"inflation_radius must be finite and >= 0, got {inflation_radius!r}")
-    if bounds is None:
-        everything = np.vstack([start, goal, points])
-        lower = everything.min(axis=0) - 1.0
-        upper = everything.max(axis=0) + 1.0
-    else:
-        box = check_finite("bounds", bounds, shape=(4,))
-        lower, upper = box[:2], box[2:]
-        if np.any(upper <= lower):
-            raise ValueError(
-                f"bounds must be (x_min, y_min, x_max, y_max) with max > min, got {bounds}"
-            )
-        for name, xy in (("start_xy", start), ("goal_xy", goal)):
-            if np.any(xy < lower) or np.any(xy > upper):
-                raise ValueError(f"{name} {xy.tolist()} lies outside bounds {tuple(box.tolist())}")
-
-    obstacles = _ObstacleSet(points, inflation_radius)
-    if obstacles.clearance(start) <= 0.0 or obstacles.clearance(goal) <= 0.0:
-        return math.inf
-    if obstacles.segment_is_clear(start, goal):
-        return float(np.linalg.norm(goal - start))
-
-    shape = np.ceil((upper - lower) / resolution).astype(int) + 1  # (nx, ny)
-    nx, ny = int(shape[0]), int(shape[1])
-    if nx * ny > max_cells:
-        raise ValueError(
-            f"grid of {nx}×{ny} cells exceeds max_cells={max_cells}; use a coarser resolution"
-        )
-    xs = lower[0] + resolution * np.arange(nx)
-    ys = lower[1] + resolution * np.arange(ny)
-    centres = np.stack(np.meshgrid(xs, ys, indexing="ij"), axis=-1).reshape(-1, 2)
-    if obstacles.tree is not None:
-        nearest, _ = obstacles.tree.query(centres, distance_upper_bound=inflation_radius + 1e-9)
-        free = (np.asarray(nearest) > inflation_radius).reshape(nx, ny)
-    else:
-        free = np.ones((nx, ny), dtype=bool)
-
-    index = np.arange(nx * ny).reshape(nx, ny)
-    rows: list[npt.NDArray[np.intp]] = []
-    cols: list[npt.NDArray[np.intp]] = []
-    weights: list[FloatArray] = []
-    for di, dj in ((1, 0), (0, 1), (1, 1), (1, -1)):
-        i0, i1 = max(0, -di), nx - max(0, di)
-        j0, j1 = max(0, -dj), ny - max(0, dj)
-        a = free[i0:i1, j0:j1]
-        b = free[i0 + di : i1 + di, j0 + dj : j1 + dj]
-        ok = a & b
-        if di and dj:
-            ok &= free[i0 + di : i1 + di, j0:j1] & free[i0:i1, j0 + dj : j1 + dj]
-        rows.append(index[i0:i1, j0:j1][ok])
-        cols.append(index[i0 + di : i1 + di, j0 + dj : j1 + dj][ok])
-        weights.append(np.full(int(ok.sum()), resolution * math.hypot(di, dj)))
-    r = np.concatenate(rows)
-    c = np.concatenate(cols)
-    w = np.concatenate(weights)
-    graph = sparse.csr_matrix((w, (r, c)), shape=(nx * ny, nx * ny))
-
-    def entry_cell(xy: FloatArray) -> int | None:
-        """A free cell near ``xy`` that can be reached from it in a straight line."""
-        i = int(round((xy[0] - lower[0]) / resolution))
-        j = int(round((xy[1] - lower[1]) / resolution))
-        candidates = [
-            (i + a, j + b)
-            for a in (0, -1, 1, -2, 2)
-            for b in (0, -1, 1, -2, 2)
-            if 0 <= i + a < nx and 0 <= j + b < ny and free[i + a, j + b]
-        ]
-        candidates.sort(key=lambda ij: float(np.linalg.norm(centres[index[ij]] - xy)))
-        for ij in candidates:
-            if obstacles.segment_is_clear(xy, centres[index[ij]]):
-                return int(index[ij])
-        return None
-
-    source = entry_cell(start)
-    target = entry_cell(goal)
-    if source is None or target is None:
-        return math.inf
-    distances, predecessors = csgraph.dijkstra(
-        graph, directed=False, indices=source, return_predecessors=True
-    )
-    if not math.isfinite(float(distances[target])):
-        return math.inf
-    cells = [target]
-    while cells[-1] != source:
-        cells.append(int(predecessors[cells[-1]]))
-    polyline = np.vstack([start, centres[cells[::-1]], goal])
-    return path_length(shortcut_waypoints(polyline, points, inflation_radius))

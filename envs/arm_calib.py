@@ -82,24 +82,25 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
 
+from realitygap.estimators.arm.board_displacement import (
+    cell_under_optical_axis,
+    hierarchical_displacement,
+)
 from realitygap.estimators.arm.board_measurement import (
     BoardMeasurementSettings,
     BoardObservation,
     MeasurementStatus,
-    cell_under_optical_axis,
-    hierarchical_displacement,
     measure_board,
 )
+from realitygap.estimators.arm.calibration import registered_position_errors
 from realitygap.estimators.arm.coded_board import WINDOW, CodedBoard
 from realitygap.estimators.arm.identification import (
     IdentificationResult,
     IdentificationSettings,
-    PairObservations,
-    ResidualMode,
     identify,
-    registered_position_errors,
 )
 from realitygap.estimators.arm.mdh import TOOL_PARAM_NAMES, MDHTable, joint_frames, tool_positions
+from realitygap.estimators.arm.residuals import PairObservations, ResidualMode
 from realitygap.robots.arm import (
     ArmParams,
     ArmRobot,

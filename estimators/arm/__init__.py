@@ -4,25 +4,39 @@ Pure numpy / scipy / OpenCV. The pieces, in the order a calibration uses them:
 
 * :mod:`.mdh` — 5-parameter MDH tables, forward kinematics, parameter Jacobian;
 * :mod:`.coded_board` — absolutely coded checkerboard (unique 8×8 code windows);
-* :mod:`.board_measurement` — camera pose from a partial view of the board and
-  hierarchical displacements;
+* :mod:`.board_detection` — X-corners and their lattice coordinates in an image;
+* :mod:`.board_measurement` — camera pose from a partial view of the board;
+* :mod:`.board_displacement` — hierarchical displacements between two measurements;
 * :mod:`.handeye` — single-axis, two-axis and AX = XB hand–eye calibration;
-* :mod:`.identification` — Gauss–Newton / Levenberg–Marquardt identification on
-  distance, displacement or position residuals with identifiability analysis,
-  and the end-to-end checks on laser-tracker and eye-in-hand data.
+* :mod:`.residuals` — observations and distance, displacement or position
+  residuals with their analytic Jacobian;
+* :mod:`.identifiability` — which parameters the observations can identify;
+* :mod:`.least_squares` — Kabsch / Wahba alignment and the QR least squares;
+* :mod:`.identification` — Gauss–Newton / Levenberg–Marquardt identification;
+* :mod:`.calibration` — the end-to-end checks on laser-tracker and eye-in-hand data.
 """
 
 from __future__ import annotations
 
+from .board_displacement import (
+    HierarchicalDisplacement,
+    cell_under_optical_axis,
+    hierarchical_displacement,
+    transition_pose,
+)
 from .board_measurement import (
     BoardMeasurementSettings,
     BoardObservation,
-    HierarchicalDisplacement,
     MeasurementStatus,
-    cell_under_optical_axis,
-    hierarchical_displacement,
     measure_board,
-    transition_pose,
+)
+from .calibration import (
+    ArmCalibrationReport,
+    ErrorStats,
+    calibrate_fr3,
+    calibrate_ur10,
+    pair_distance_errors,
+    registered_position_errors,
 )
 from .coded_board import CodedBoard, lfsr_m_sequence, render_board_image, window_statistics
 from .handeye import (
@@ -36,24 +50,9 @@ from .handeye import (
     handeye_two_axis,
     solve_ax_xb,
 )
-from .identification import (
-    ArmCalibrationReport,
-    ErrorStats,
-    Identifiability,
-    IdentificationResult,
-    IdentificationSettings,
-    PairObservations,
-    PositionObservations,
-    ResidualMode,
-    Solver,
-    analyse_identifiability,
-    calibrate_fr3,
-    calibrate_ur10,
-    identify,
-    kabsch,
-    pair_distance_errors,
-    registered_position_errors,
-)
+from .identifiability import Identifiability, analyse_identifiability
+from .identification import IdentificationResult, IdentificationSettings, Solver, identify
+from .least_squares import kabsch
 from .mdh import (
     MDHTable,
     ParamSet,
@@ -62,6 +61,7 @@ from .mdh import (
     joint_frames,
     tool_positions,
 )
+from .residuals import PairObservations, PositionObservations, ResidualMode
 
 __all__ = [
     "AXXBMethod",

@@ -1,44 +1,26 @@
-"""Camera pose from a partial view of the coded board, and hierarchical displacements.
+"""Camera pose from a partial view of the coded board.
 
 Pipeline of :func:`measure_board` (pure OpenCV/numpy):
 
-1. **Corner candidates** — saddle points of the Gaussian-smoothed image,
-   :math:`\\det \\nabla^2 I < 0` (an X-junction is a saddle, a code dot is an
-   extremum), non-maximum suppressed, then a ring test: on a circle around a
-   checkerboard corner the grey level changes sign exactly four times and is
-   point-symmetric.
-2. **Sub-pixel refinement** — ``cv2.cornerSubPix``: at a point :math:`p` near the
-   corner :math:`q` the image gradient is orthogonal to :math:`q - p`; the window
-   is kept inside the cell so that it never reaches a dot.
-3. **Grid** — integer coordinates by growing a lattice from the corner nearest
-   the image centre (local steps predicted from the neighbours), with the board's
-   handedness.
-4. **Layout refinement (RANSAC)** — a homography from the integer grid to the
+1. **Corners and grid** — saddle-point X-corners that pass a ring test, refined
+   to sub-pixel and given integer lattice coordinates (:mod:`.board_detection`).
+2. **Layout refinement (RANSAC)** — a homography from the integer grid to the
    undistorted corners (the printed layout is exact), fitted with RANSAC;
    outliers go, missing corners are searched at their predicted positions and
    the homography is refitted.
-5. **Decoding** — every cell whose four corners were found is sampled at its
+3. **Decoding** — every cell whose four corners were found is sampled at its
    centre and around it; the code bit is "centre has the opposite colour". The
    observed bit array is matched in all four rotations and all shifts against
    the board; the match must be nearly exact and clearly better than the
    runner-up, and the dark/light parity must agree. Otherwise the frame is
    rejected (``ok=False``), never mislabelled.
-6. **Pose** — the cell under the optical axis (the principal point) is the
+4. **Pose** — the cell under the optical axis (the principal point) is the
    *centre cell*; ``cv2.solvePnP`` (IPPE, then Levenberg–Marquardt) gives the
    camera pose with respect to that cell's corner frame from the local corner
    array, :math:`s\\,\\tilde p_k = K [R\\,|\\,t] P_k`.
 
-Hierarchical displacement between two frames ``i`` and ``j``:
-
-.. math::
-
-    \\delta' = t + t', \\qquad
-    t = s_{\\mathrm{cell}} \\begin{bmatrix} c_j - c_i \\\\ r_j - r_i \\\\ 0 \\end{bmatrix},
-    \\qquad t' = {}^{\\mathrm{cell}_j}p_j - {}^{\\mathrm{cell}_i}p_i,
-
-with :math:`(r, c)` the centre cell decoded from the code and :math:`{}^{\\mathrm{cell}}p`
-the optical centre in its centre-cell frame from PnP: the large part comes from
-the printed layout, only the in-cell part from the image.
+The hierarchical displacement between two measured frames is in
+:mod:`.board_displacement`.
 """
 
 from __future__ import annotations
@@ -50,6 +32,17 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.geometry import transform_from_rt, transform_inverse
+
+from .board_detection import (
+    detect_corners,
+    grow_grid,
+    refine_by_scale,
+    ring_test,
+    sample_bilinear,
+    to_gray,
+)
+from .board_displacement import cell_under_optical_axis
 from .coded_board import WINDOW, CodedBoard
 
 FloatArray = npt.NDArray[np.float64]
@@ -57,12 +50,8 @@ FloatArray = npt.NDArray[np.float64]
 __all__ = [
     "BoardMeasurementSettings",
     "BoardObservation",
-    "HierarchicalDisplacement",
     "MeasurementStatus",
-    "cell_under_optical_axis",
-    "hierarchical_displacement",
     "measure_board",
-    "transition_pose",
 ]
 
 
@@ -228,243 +217,11 @@ def _fail(
 
 
 def _invert(T: FloatArray) -> FloatArray:
-    out = np.eye(4)
-    R = T[:3, :3]
-    out[:3, :3] = R.T
-    out[:3, 3] = -R.T @ T[:3, 3]
+    """:func:`~realitygap.core.geometry.transform_inverse`, all NaN when ``T`` is not finite."""
+    out = transform_inverse(T)
     if not np.all(np.isfinite(T)):
         out[:] = np.nan
     return out
-
-
-# =========================================================================== detection
-def _to_gray(image: npt.ArrayLike) -> npt.NDArray[np.float32]:
-    img = np.asarray(image)
-    if img.ndim == 3 and img.shape[2] in (3, 4):
-        img = cv2.cvtColor(img[..., :3].astype(np.float32), cv2.COLOR_RGB2GRAY)
-    if img.ndim != 2:
-        raise ValueError(f"image must have shape (H, W) or (H, W, 3), got {np.shape(image)}")
-    if img.shape[0] < 16 or img.shape[1] < 16:
-        raise ValueError(f"image is too small: {img.shape}")
-    return np.ascontiguousarray(img, dtype=np.float32)
-
-
-def _sample(gray: npt.NDArray[np.float32], pts: FloatArray) -> FloatArray:
-    """Bilinear samples at pixel positions ``pts`` (..., 2); NaN outside the image."""
-    shp = pts.shape[:-1]
-    flat = pts.reshape(-1, 2).astype(np.float32)
-    n = flat.shape[0]
-    if n == 0:
-        return np.zeros(shp)
-    side = int(np.ceil(np.sqrt(n)))
-    buf = np.full((side * side, 2), -10.0, dtype=np.float32)
-    buf[:n] = flat
-    mx = np.ascontiguousarray(buf[:, 0].reshape(side, side))
-    my = np.ascontiguousarray(buf[:, 1].reshape(side, side))
-    vals = cv2.remap(
-        gray, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan
-    )
-    out = vals.reshape(-1)[:n].astype(float)
-    h, w = gray.shape
-    outside = (flat[:, 0] < 0) | (flat[:, 1] < 0) | (flat[:, 0] > w - 1) | (flat[:, 1] > h - 1)
-    out[outside] = np.nan
-    return out.reshape(shp)
-
-
-def _saddle_candidates(gray: npt.NDArray[np.float32], sigma: float) -> FloatArray:
-    G = cv2.GaussianBlur(gray, (0, 0), sigma)
-    Ixx = cv2.Sobel(G, cv2.CV_32F, 2, 0, ksize=3)
-    Iyy = cv2.Sobel(G, cv2.CV_32F, 0, 2, ksize=3)
-    Ixy = cv2.Sobel(G, cv2.CV_32F, 1, 1, ksize=3)
-    S = np.maximum(Ixy * Ixy - Ixx * Iyy, 0.0)
-    if not np.any(S > 0):
-        return np.zeros((0, 2))
-    r = max(2, int(round(2 * sigma)))
-    dil = cv2.dilate(S, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
-    peaks = (S >= dil) & (S > 0.02 * float(S.max()))
-    b = r + 2
-    peaks[:b, :] = False
-    peaks[-b:, :] = False
-    peaks[:, :b] = False
-    peaks[:, -b:] = False
-    v, u = np.nonzero(peaks)
-    return np.column_stack([u, v]).astype(float)
-
-
-def _ring_test(
-    gray: npt.NDArray[np.float32], pts: FloatArray, radius: float | FloatArray, contrast: float
-) -> npt.NDArray[np.bool_]:
-    """True where the grey level on a circle looks like a checkerboard X-junction."""
-    if len(pts) == 0:
-        return np.zeros(0, dtype=bool)
-    n = 32
-    ang = np.arange(n) * 2 * np.pi / n
-    rad = np.broadcast_to(np.asarray(radius, dtype=float), (len(pts),))
-    ring = pts[:, None, :] + rad[:, None, None] * np.stack([np.cos(ang), np.sin(ang)], axis=1)[None]
-    vals = _sample(gray, ring)
-    ok = np.all(np.isfinite(vals), axis=1)
-    vals = np.where(np.isfinite(vals), vals, 0.0)
-    centred = vals - vals.mean(axis=1, keepdims=True)
-    sgn = centred > 0
-    changes = np.sum(sgn != np.roll(sgn, 1, axis=1), axis=1)
-    amp = vals.max(axis=1) - vals.min(axis=1)
-    sym = np.mean(np.abs(vals - np.roll(vals, n // 2, axis=1)), axis=1) / np.maximum(amp, 1e-6)
-    anti = np.mean(np.abs(vals - np.roll(vals, n // 4, axis=1)), axis=1) / np.maximum(amp, 1e-6)
-    return ok & (changes == 4) & (amp > 0.3 * contrast) & (sym < 0.3) & (anti > 0.35)
-
-
-def _refine_subpix(gray: npt.NDArray[np.float32], pts: FloatArray, half_window: int) -> FloatArray:
-    if len(pts) == 0:
-        return pts
-    c = pts.reshape(-1, 1, 2).astype(np.float32).copy()
-    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
-    cv2.cornerSubPix(gray, c, (half_window, half_window), (-1, -1), crit)
-    return c.reshape(-1, 2).astype(float)
-
-
-def _dedupe_mask(pts: FloatArray, min_dist: FloatArray) -> npt.NDArray[np.bool_]:
-    """Keep one of every group of points closer than their ``min_dist`` (px)."""
-    from scipy.spatial import cKDTree
-
-    keep = np.ones(len(pts), dtype=bool)
-    if len(pts) < 2:
-        return keep
-    tree = cKDTree(pts)
-    for i, j in sorted(tree.query_pairs(float(np.max(min_dist)))):
-        if keep[i] and keep[j] and np.linalg.norm(pts[i] - pts[j]) < min(min_dist[i], min_dist[j]):
-            keep[j] = False
-    return keep
-
-
-def _refine_by_scale(
-    gray: npt.NDArray[np.float32], pts: FloatArray, spacing: FloatArray, fraction: float
-) -> FloatArray:
-    """``cornerSubPix`` with a half-window proportional to the local spacing."""
-    half = np.maximum(2, np.round(fraction * spacing)).astype(int)
-    out = pts.copy()
-    for h in np.unique(half):
-        sel = half == h
-        out[sel] = _refine_subpix(gray, pts[sel], int(h))
-    return out
-
-
-def _detect_corners(
-    gray: npt.NDArray[np.float32], settings: BoardMeasurementSettings
-) -> tuple[FloatArray, float, float]:
-    """Sub-pixel X-corners (N, 2) px at one global scale, their typical spacing (px) and
-    the image contrast. Corners far from that scale are added later by the layout."""
-    from scipy.spatial import cKDTree
-
-    lo, hi = np.percentile(gray, [5, 95])
-    contrast = float(hi - lo)
-    if contrast < 10.0:
-        return np.zeros((0, 2)), 0.0, contrast
-    cand = _saddle_candidates(gray, settings.smoothing_sigma_px)
-    first = cand[_ring_test(gray, cand, 3.0, contrast)]
-    if len(first) < 5:
-        return first, 0.0, contrast
-    d, _ = cKDTree(first).query(first, k=2)
-    spacing = float(np.median(d[:, 1]))
-    radius = float(np.clip(0.28 * spacing, 2.5, 15.0))
-    pts = cand[_ring_test(gray, cand, radius, contrast)]
-    pts = _refine_by_scale(gray, pts, np.full(len(pts), spacing), settings.subpix_window_fraction)
-    pts = pts[_dedupe_mask(pts, np.full(len(pts), 0.25 * spacing))]
-    pts = pts[_ring_test(gray, pts, radius, contrast)]
-    return pts, spacing, contrast
-
-
-# =========================================================================== grid
-def _grow_grid(points: FloatArray, centre: FloatArray) -> dict[tuple[int, int], int] | None:
-    """Assign integer lattice coordinates ``(i, j)`` to points (undistorted px).
-
-    ``j`` runs along one lattice direction, ``i`` along the other, oriented so that
-    ``cross(e_j, e_i) > 0`` in image coordinates (the board's handedness). Seeds
-    near ``centre`` with four lattice neighbours are tried; the largest lattice wins.
-    """
-    from scipy.spatial import cKDTree
-
-    n = len(points)
-    if n < 5:
-        return None
-    tree = cKDTree(points)
-    order = np.argsort(np.linalg.norm(points - centre, axis=1))
-    best: dict[tuple[int, int], int] | None = None
-    tried = 0
-    for seed in order[: min(40, n)]:
-        _, idx = tree.query(points[seed], k=min(9, n))
-        vecs = points[idx[1:]] - points[seed]
-        cross = _seed_cross(vecs)
-        if cross is None:
-            continue
-        e1, e2 = cross
-        if e1[0] * e2[1] - e1[1] * e2[0] < 0:
-            e1, e2 = e2, e1
-        coords = _bfs(points, tree, int(seed), e1, e2)
-        if best is None or len(coords) > len(best):
-            best = coords
-        tried += 1
-        if len(best) > 0.5 * n or tried >= 4:
-            break
-    return best
-
-
-def _seed_cross(vecs: FloatArray) -> tuple[FloatArray, FloatArray] | None:
-    """Two lattice steps among neighbour vectors: both with an opposite partner,
-    of similar length and clearly not parallel."""
-    lens = np.linalg.norm(vecs, axis=1)
-    pairs = []
-    for a in range(len(vecs)):
-        for b in range(a + 1, len(vecs)):
-            s = vecs[a] + vecs[b]
-            if np.linalg.norm(s) < 0.25 * min(lens[a], lens[b]):
-                pairs.append(a)
-    for ia, a in enumerate(pairs):
-        for b in pairs[ia + 1 :]:
-            cosang = float(vecs[a] @ vecs[b]) / (lens[a] * lens[b])
-            if abs(cosang) < 0.6 and 0.5 < lens[b] / lens[a] < 2.0:
-                return vecs[a], vecs[b]
-    return None
-
-
-def _bfs(
-    points: FloatArray, tree: object, seed: int, e_j: FloatArray, e_i: FloatArray
-) -> dict[tuple[int, int], int]:
-    """Breadth-first lattice growth; points reached with two different coordinates are
-    dropped (the layout RANSAC removes what remains inconsistent)."""
-    from collections import deque
-
-    assigned: dict[tuple[int, int], int] = {(0, 0): seed}
-    owner = {seed: (0, 0)}
-    basis = {seed: (e_j.copy(), e_i.copy())}
-    queue = deque([seed])
-    bad: set[int] = set()
-    while queue:
-        p = queue.popleft()
-        i, j = owner[p]
-        bj, bi = basis[p]
-        tol = 0.3 * min(np.linalg.norm(bj), np.linalg.norm(bi))
-        for di, dj, step in ((0, 1, bj), (0, -1, -bj), (1, 0, bi), (-1, 0, -bi)):
-            dist, q = tree.query(points[p] + step)  # type: ignore[attr-defined]
-            if not np.isfinite(dist) or dist > tol:
-                continue
-            key = (i + di, j + dj)
-            q = int(q)
-            if q in owner or key in assigned:
-                if owner.get(q) != key:
-                    bad.add(q)
-                    if key in assigned:
-                        bad.add(assigned[key])
-                continue
-            actual = points[q] - points[p]
-            if dj != 0:
-                nbj, nbi = actual * dj, bi
-            else:
-                nbj, nbi = bj, actual * di
-            assigned[key] = q
-            owner[q] = key
-            basis[q] = (nbj, nbi)
-            queue.append(q)
-    return {k: v for k, v in assigned.items() if v not in bad}
 
 
 # =========================================================================== camera helpers
@@ -540,16 +297,16 @@ def measure_board(
     """
     s = settings or BoardMeasurementSettings()
     Km, d = _check_camera(K, dist)
-    gray = _to_gray(image)
+    gray = to_gray(image)
     h_img, w_img = gray.shape
 
-    corners, _, contrast = _detect_corners(gray, s)
+    corners, _, contrast = detect_corners(gray, s.smoothing_sigma_px, s.subpix_window_fraction)
     if contrast < 10.0:
         return _fail(MeasurementStatus.LOW_CONTRAST)
     if len(corners) < s.min_corners:
         return _fail(MeasurementStatus.TOO_FEW_CORNERS, len(corners))
     und = _undistort(corners, Km, d)
-    coords = _grow_grid(und, np.array([Km[0, 2], Km[1, 2]]))
+    coords = grow_grid(und, np.array([Km[0, 2], Km[1, 2]]))
     if coords is None or len(coords) < s.min_corners:
         return _fail(MeasurementStatus.NO_GRID, len(corners))
     keys = np.array(list(coords.keys()), dtype=float)  # (i, j)
@@ -600,8 +357,8 @@ def measure_board(
         if not np.any(inside):
             break
         sp_in = step[inside]
-        ref = _refine_by_scale(gray, pred[inside], sp_in, s.subpix_window_fraction)
-        ring_ok = _ring_test(gray, ref, np.clip(0.28 * sp_in, 2.5, 15.0), contrast)
+        ref = refine_by_scale(gray, pred[inside], sp_in, s.subpix_window_fraction)
+        ring_ok = ring_test(gray, ref, np.clip(0.28 * sp_in, 2.5, 15.0), contrast)
         ref_u = _undistort(ref, Km, d)
         close = np.linalg.norm(ref_u - pred_u[inside], axis=1) < 3 * s.ransac_threshold_px
         for key, p, good in zip(ck[inside], ref, ring_ok & close):
@@ -654,8 +411,8 @@ def measure_board(
     cxy = ca[:, ::-1] + 0.5  # (x = j + .5, y = i + .5)
     c_pts = (cxy[:, None, :] + centre_off[None]).reshape(-1, 2)
     b_pts = (cxy[:, None, :] + bg_off[None]).reshape(-1, 2)
-    c_val = _sample(gray, _distort(_apply_h(H, c_pts), Km, d)).reshape(len(ca), -1)
-    b_val = _sample(gray, _distort(_apply_h(H, b_pts), Km, d)).reshape(len(ca), -1)
+    c_val = sample_bilinear(gray, _distort(_apply_h(H, c_pts), Km, d)).reshape(len(ca), -1)
+    b_val = sample_bilinear(gray, _distort(_apply_h(H, b_pts), Km, d)).reshape(len(ca), -1)
     centre_v = np.nanmean(c_val, axis=1)
     back_v = np.nanmedian(b_val, axis=1)
     parity = (ca[:, 0] + ca[:, 1]) % 2
@@ -763,9 +520,7 @@ def measure_board(
             if np.array_equal(new_keep, keep):
                 break
             keep = new_keep
-        T = np.eye(4)
-        T[:3, :3] = cv2.Rodrigues(rvec)[0]
-        T[:3, 3] = np.asarray(tvec).reshape(3)
+        T = transform_from_rt(cv2.Rodrigues(rvec)[0], np.asarray(tvec).reshape(3))
         rms = float(np.sqrt(np.mean(err[keep] ** 2)))
         full = np.zeros(len(ids), dtype=bool)
         full[np.nonzero(use)[0][keep]] = True
@@ -803,114 +558,3 @@ def measure_board(
         image_points=gp[used].copy(),
         corner_ids=ids[used].copy(),
     )
-
-
-# =========================================================================== displacements
-def cell_under_optical_axis(
-    T_board_camera: npt.ArrayLike, cell_size: float
-) -> tuple[int, int] | None:
-    """Cell ``(row, col)`` hit by the optical axis; ``None`` if the axis misses the plane.
-
-    Parameters
-    ----------
-    T_board_camera : array_like, shape (4, 4)
-        Camera pose in the board frame (m).
-    cell_size : float
-        Cell side (m).
-    """
-    T = np.asarray(T_board_camera, dtype=float)
-    c = T[:3, 3]
-    z = T[:3, 2]
-    if abs(z[2]) < 1e-12:
-        return None
-    lam = -c[2] / z[2]
-    if lam <= 0:
-        return None
-    p = c + lam * z
-    return int(np.floor(p[1] / cell_size)), int(np.floor(p[0] / cell_size))
-
-
-@dataclass(frozen=True)
-class HierarchicalDisplacement:
-    """Displacement of the optical centre between two frames, in the board frame (m).
-
-    Attributes
-    ----------
-    t : ndarray, shape (3,)
-        Coarse part: change of the centre cell times the cell size (exact, from the code).
-    t_prime : ndarray, shape (3,)
-        Fine part: change of the optical centre within its centre-cell frame (PnP).
-    delta : ndarray, shape (3,)
-        :math:`\\delta' = t + t'`.
-    cell_shift : (int, int)
-        Change of the centre cell ``(rows, cols)``.
-    """
-
-    t: FloatArray
-    t_prime: FloatArray
-    delta: FloatArray
-    cell_shift: tuple[int, int]
-
-
-def hierarchical_displacement(
-    obs_from: BoardObservation, obs_to: BoardObservation, cell_size: float
-) -> HierarchicalDisplacement:
-    """Hierarchical displacement :math:`\\delta' = t + t'` between two measured frames.
-
-    Parameters
-    ----------
-    obs_from, obs_to : BoardObservation
-        Successful measurements (``ok``).
-    cell_size : float
-        Cell side of the board (m).
-
-    Returns
-    -------
-    HierarchicalDisplacement
-    """
-    for name, o in (("obs_from", obs_from), ("obs_to", obs_to)):
-        if not o.ok or o.cell_index is None:
-            raise ValueError(f"{name} is not a successful measurement (status {o.status.value!r})")
-    assert obs_from.cell_index is not None and obs_to.cell_index is not None
-    dr = obs_to.cell_index[0] - obs_from.cell_index[0]
-    dc = obs_to.cell_index[1] - obs_from.cell_index[1]
-    t = np.array([dc * cell_size, dr * cell_size, 0.0])
-    tp = obs_to.camera_position_cell - obs_from.camera_position_cell
-    return HierarchicalDisplacement(t, tp, t + tp, (int(dr), int(dc)))
-
-
-def transition_pose(
-    T_board_camera_from: npt.ArrayLike, T_board_camera_to: npt.ArrayLike, cell_size: float
-) -> tuple[FloatArray, tuple[int, int]]:
-    """Transition pose between two camera poses that share no centre cell.
-
-    The transition pose has the orientation of the target pose and is shifted
-    from it by whole cells so that its optical axis meets the board in the start
-    pose's centre cell, at the same place within the cell as the target's axis
-    meets its own. Moving start → transition is then measured inside one cell's
-    corner array (:math:`t'`), transition → target is a pure translation by whole
-    cells (:math:`t`, exact by the printed layout).
-
-    Parameters
-    ----------
-    T_board_camera_from, T_board_camera_to : array_like, shape (4, 4)
-        Start and target camera poses in the board frame (m).
-    cell_size : float
-        Cell side (m).
-
-    Returns
-    -------
-    T_board_camera_transition : ndarray, shape (4, 4)
-    cell_shift : (int, int)
-        ``(rows, cols)`` from the transition to the target centre cell.
-    """
-    A = np.asarray(T_board_camera_from, dtype=float)
-    B = np.asarray(T_board_camera_to, dtype=float)
-    ca = cell_under_optical_axis(A, cell_size)
-    cb = cell_under_optical_axis(B, cell_size)
-    if ca is None or cb is None:
-        raise ValueError("the optical axis of a pose does not meet the board plane")
-    dr, dc = cb[0] - ca[0], cb[1] - ca[1]
-    T = B.copy()
-    T[:3, 3] = B[:3, 3] - np.array([dc * cell_size, dr * cell_size, 0.0])
-    return T, (int(dr), int(dc))

@@ -35,6 +35,8 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from realitygap.core.geometry import rot_z, transform_from_rt
+
 from .mdh import MDHTable
 
 FloatArray = npt.NDArray[np.float64]
@@ -251,18 +253,8 @@ def fit_circle_3d(points: npt.ArrayLike, angles: npt.ArrayLike | None = None) ->
 # --------------------------------------------------------------------------- helpers
 def _axis_rotation(axis: FloatArray, point: FloatArray, angle: float) -> FloatArray:
     """4×4 rotation by ``angle`` about the line through ``point`` along unit ``axis``."""
-    T = np.eye(4)
     R = Rotation.from_rotvec(axis * angle).as_matrix()
-    T[:3, :3] = R
-    T[:3, 3] = point - R @ point
-    return T
-
-
-def _rot_z(angle: float) -> FloatArray:
-    T = np.eye(4)
-    c, s = np.cos(angle), np.sin(angle)
-    T[:2, :2] = [[c, -s], [s, c]]
-    return T
+    return transform_from_rt(R, point - R @ point)
 
 
 def average_transforms(T: npt.ArrayLike) -> FloatArray:
@@ -282,10 +274,7 @@ def average_transforms(T: npt.ArrayLike) -> FloatArray:
     if np.linalg.det(R) < 0:
         U[:, -1] *= -1
         R = U @ Vt
-    out = np.eye(4)
-    out[:3, :3] = R
-    out[:3, 3] = Ts[:, :3, 3].mean(axis=0)
-    return out
+    return transform_from_rt(R, Ts[:, :3, 3].mean(axis=0))
 
 
 def _spread(Ts: FloatArray, mean: FloatArray) -> tuple[float, float]:
@@ -300,14 +289,12 @@ def _last_row_transform(table: MDHTable, q: float) -> FloatArray:
     """Transform of the last MDH row, frame n-1 to frame n, at joint reading ``q``."""
     i = table.n_joints - 1
     th = q + table.theta_offset[i]
-    T = _rot_z(th)
-    T[:3, 3] = [table.a[i] * np.cos(th), table.a[i] * np.sin(th), table.d[i]]
     R = (
         Rotation.from_euler("x", table.alpha[i]).as_matrix()
         @ Rotation.from_euler("y", table.beta[i]).as_matrix()
     )
-    T[:3, :3] = T[:3, :3] @ R
-    return T
+    t = [table.a[i] * np.cos(th), table.a[i] * np.sin(th), table.d[i]]
+    return transform_from_rt(rot_z(th) @ R, t)
 
 
 # --------------------------------------------------------------------------- methods
@@ -354,7 +341,12 @@ def handeye_single_axis(
     x /= np.linalg.norm(x)
     F0 = np.eye(4)
     F0[:3, 0], F0[:3, 1], F0[:3, 2], F0[:3, 3] = x, np.cross(n, x), n, o
-    Xs = np.stack([np.linalg.inv(F0 @ _rot_z(qk)) @ Tk for qk, Tk in zip(q, Tc)])
+    Xs = np.stack(
+        [
+            np.linalg.inv(F0 @ transform_from_rt(rot_z(qk), np.zeros(3))) @ Tk
+            for qk, Tk in zip(q, Tc)
+        ]
+    )
     X = average_transforms(Xs)
     rr, rt = _spread(Xs, X)
     return HandEyeResult(X, F0, None, (fit,), rr, rt, "single_axis")
@@ -459,10 +451,7 @@ def _park_martin(A: FloatArray, B: FloatArray) -> FloatArray:
     lhs = (A[:, :3, :3] - np.eye(3)).reshape(-1, 3)
     rhs = (np.einsum("ij,njk->nik", R, B[:, :3, 3:]).reshape(-1, 3) - A[:, :3, 3]).reshape(-1)
     t = np.linalg.solve(np.einsum("ni,nj->ij", lhs, lhs), np.einsum("ni,n->i", lhs, rhs))
-    X = np.eye(4)
-    X[:3, :3] = R
-    X[:3, 3] = t
-    return X
+    return transform_from_rt(R, t)
 
 
 def solve_ax_xb(
@@ -535,9 +524,7 @@ def solve_ax_xb(
             list(Cinv[:, :3, 3]),
             method=getattr(cv2, flag),
         )
-        X = np.eye(4)
-        X[:3, :3] = R
-        X[:3, 3] = np.asarray(t).reshape(3)
+        X = transform_from_rt(R, np.asarray(t).reshape(3))
     Zs = F @ X[None] @ np.linalg.inv(C)
     Z = average_transforms(Zs)
     rr, rt = _spread(Zs, Z)

@@ -269,3 +269,15 @@ def so3_log_batch(R: FloatArray) -> FloatArray:
     for k in np.flatnonzero(cos_a < -0.99):
         out[k] = so3_log(R[k])
     return out
+
+
+# ------------------------------------------------------------- homogeneous transforms
+
+
+def transform_inverse(T: npt.ArrayLike) -> FloatArray:
+    """Inverse of a rigid 4×4 transform in closed form, :math:`[R^\\top, -R^\\top t]`."""
+    T = np.asarray(T, dtype=float)
+    inv = np.eye(4)
+    inv[:3, :3] = T[:3, :3].T
+    inv[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return inv

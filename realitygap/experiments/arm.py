@@ -170,7 +170,7 @@ def arm002(ctx: RunContext) -> dict[str, Any]:
 def arm_real(ctx: RunContext) -> dict[str, Any]:
     from realitygap.diagnosis.importers.franka import read_franka_npz
     from realitygap.diagnosis.importers.ur10 import read_ur10_dataset
-    from realitygap.estimators.arm.identification import calibrate_fr3, calibrate_ur10
+    from realitygap.estimators.arm.calibration import calibrate_fr3, calibrate_ur10
 
     ur_root = ctx.data_subdir("ipa_ur10_lasertracker")
     fr_root = ctx.data_subdir("franka_fr3_eyeinhand")

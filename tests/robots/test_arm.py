@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from realitygap.estimators.arm.board_measurement import cell_under_optical_axis, measure_board
+from realitygap.estimators.arm.board_displacement import cell_under_optical_axis
+from realitygap.estimators.arm.board_measurement import measure_board
 from realitygap.estimators.arm.coded_board import CodedBoard
 from realitygap.estimators.arm.mdh import MDHTable, joint_frames
 from realitygap.robots.arm import (

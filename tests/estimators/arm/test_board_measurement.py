@@ -6,13 +6,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from realitygap.estimators.arm.board_displacement import (
+    cell_under_optical_axis,
+    hierarchical_displacement,
+    transition_pose,
+)
 from realitygap.estimators.arm.board_measurement import (
     BoardMeasurementSettings,
     MeasurementStatus,
-    cell_under_optical_axis,
-    hierarchical_displacement,
     measure_board,
-    transition_pose,
 )
 from realitygap.estimators.arm.coded_board import CodedBoard, render_board_image
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from realitygap.core.geometry import transform_from_rt
 from realitygap.estimators.arm.handeye import (
     average_transforms,
     fit_circle_3d,
@@ -22,10 +23,7 @@ Q0 = np.array([0.2, -1.2, 1.3, -1.6, -1.5, 0.3])
 
 
 def _transform(rotvec, t) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
-    T[:3, 3] = t
-    return T
+    return transform_from_rt(Rotation.from_rotvec(rotvec).as_matrix(), t)
 
 
 X_TRUE = _transform([0.1, -0.2, 1.5], [0.06, -0.03, 0.05])  # T_flange_camera

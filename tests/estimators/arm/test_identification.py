@@ -1,25 +1,23 @@
-"""Kinematic identification: exact recovery, Jacobians, identifiability, end-to-end checks."""
+"""Kinematic identification: exact recovery, Jacobians, identifiability, errors."""
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from realitygap.estimators.arm import identification as ident
-from realitygap.estimators.arm.identification import (
-    IdentificationSettings,
+from realitygap.estimators.arm.identifiability import analyse_identifiability
+from realitygap.estimators.arm.identification import IdentificationSettings, identify
+from realitygap.estimators.arm.least_squares import kabsch
+from realitygap.estimators.arm.mdh import TOOL_PARAM_NAMES, MDHTable, tool_positions
+from realitygap.estimators.arm.residuals import (
+    FRAME_PARAM_NAMES,
     PairObservations,
+    ParameterLayout,
     PositionObservations,
-    analyse_identifiability,
-    calibrate_fr3,
-    calibrate_ur10,
-    identify,
-    kabsch,
+    ResidualMode,
+    ResidualModel,
 )
-from realitygap.estimators.arm.mdh import MDHTable, forward_kinematics, tool_positions
 
 NOMINAL = MDHTable.ur_like_6dof()
 TOOL0 = np.array([0.0, 0.05, 0.1])
@@ -92,9 +90,9 @@ def test_residual_jacobian_matches_finite_differences(mode: str) -> None:
     q = rng.uniform(-np.pi, np.pi, (8, 6))
     obs = observations(mode, q, measurements(perturbed(rng), TOOL0, q))
     kin = tuple(NOMINAL.param_names())
-    frame = ident.FRAME_PARAM_NAMES if mode == "position" else ident.FRAME_PARAM_NAMES[:3]
-    layout = ident._Layout(kin, ident.TOOL_PARAM_NAMES, frame if mode != "distance" else ())
-    model = ident._Model(NOMINAL, TOOL0, R_MB, T_MB, obs, ident.ResidualMode(mode), layout)
+    frame = FRAME_PARAM_NAMES if mode == "position" else FRAME_PARAM_NAMES[:3]
+    layout = ParameterLayout(kin, TOOL_PARAM_NAMES, frame if mode != "distance" else ())
+    model = ResidualModel(NOMINAL, TOOL0, R_MB, T_MB, obs, ResidualMode(mode), layout)
     u = model.start() + rng.normal(0, 0.05, len(layout.names))  # away from the start
     _, J = model.residual(u)
     h = 1e-7
@@ -179,51 +177,6 @@ def test_prior_pulls_toward_the_start_values() -> None:
     assert sum(abs(tight.deltas[n]) for n in kin) < 0.1 * sum(abs(free.deltas[n]) for n in kin)
 
 
-@dataclass(frozen=True)
-class TrackerSeries:
-    joint_angles: np.ndarray
-    probe_positions: np.ndarray
-    probe_in_flange: np.ndarray
-
-
-@dataclass(frozen=True)
-class EyeInHand:
-    joint_positions: np.ndarray
-    T_board_camera: np.ndarray
-
-
-def test_calibrate_ur10_on_synthetic_tracker_data() -> None:
-    rng = np.random.default_rng(6)
-    nominal = MDHTable.ur10()
-    true = nominal.with_params(nominal.params() + rng.normal(0, 5e-4, 30))
-    probe = np.array([0.0, 0.0, 0.109])
-    q = rng.uniform(-np.pi, np.pi, (200, 6))
-    m = tool_positions(true, q, probe + np.array([1e-3, 0, 0])) @ R_MB.T + T_MB
-    m += rng.normal(0, 2e-5, m.shape)
-    rep = calibrate_ur10(TrackerSeries(q, m, probe), np.arange(0, 200, 2), np.arange(1, 200, 2))
-    assert rep.calibrated.rms < 0.1 * rep.nominal.rms
-    assert rep.calibrated.rms < 1e-4
-    assert rep.n_train == rep.n_test == 100
-    assert "calibrated_train_registration" in rep.secondary
-
-
-def test_calibrate_fr3_on_synthetic_eye_in_hand_data() -> None:
-    rng = np.random.default_rng(7)
-    nominal = MDHTable.franka_fr3()
-    true = nominal.with_params(nominal.params() + rng.normal(0, 5e-4, 35))
-    X = np.eye(4)
-    X[:3, :3] = Rotation.from_euler("z", np.pi / 2).as_matrix()
-    X[:3, 3] = [0.0945, -0.009, 0.04055]
-    T_base_board = np.eye(4)
-    T_base_board[:3, 3] = [0.66, -0.59, -0.01]
-    q = rng.uniform(-1.5, 1.5, (60, 7))
-    C = np.linalg.inv(T_base_board) @ forward_kinematics(true, q) @ X
-    C[:, :3, 3] += rng.normal(0, 2e-5, (60, 3))
-    rep = calibrate_fr3(EyeInHand(q, C), np.arange(0, 60, 2), np.arange(1, 60, 2))
-    assert rep.calibrated.rms < 0.2 * rep.nominal.rms
-    assert rep.identification.T_meas_base is not None
-
-
 def test_kabsch_is_exact() -> None:
     rng = np.random.default_rng(8)
     P = rng.normal(size=(10, 3))
@@ -264,5 +217,3 @@ def test_errors() -> None:
     q2 = rng.uniform(-3, 3, (2, 6))  # one pair: three residuals, three frame angles
     with pytest.raises(ValueError, match="cannot determine"):
         identify(NOMINAL, PairObservations.from_positions(q2, measurements(NOMINAL, TOOL0, q2)))
-    with pytest.raises(ValueError, match="overlap"):
-        calibrate_ur10(TrackerSeries(q, m, TOOL0), np.arange(3), np.arange(2, 5))
