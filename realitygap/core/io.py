@@ -42,7 +42,11 @@ def atomic_write(path: str | os.PathLike[str], writer: Callable[[IO[bytes]], Non
 
 def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
     """:func:`atomic_write` of a bytes object."""
-    return atomic_write(path, lambda fh: fh.write(data))
+
+    def write(fh: IO[bytes]) -> None:
+        fh.write(data)
+
+    return atomic_write(path, write)
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str, encoding: str = "utf-8") -> Path:
