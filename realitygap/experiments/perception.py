@@ -1312,7 +1312,7 @@ def match_precision(
     [True, False]
     """
     from realitygap.core.geometry import check_finite
-    from realitygap.estimators.vo import check_transform
+    from realitygap.estimators.registration import check_transform
 
     P = check_finite("points_prev", points_prev)
     U = check_finite("pixels_curr", pixels_curr)
@@ -1429,7 +1429,7 @@ def _gtm_precision_pair(
     intrinsics: Any,
 ) -> tuple[int, int, int, int]:
     """(ratio-test matches, correct ones, kept by GTM, correct ones) for one frame pair."""
-    from realitygap.estimators.vo import gtm_filter
+    from realitygap.estimators.gtm import gtm_filter
 
     if prev.descriptors is None or curr.descriptors is None or len(prev.pixels) < 2:
         return 0, 0, 0, 0
