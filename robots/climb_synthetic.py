@@ -38,15 +38,15 @@ from realitygap.estimators.climb.constrained import (
     LocaliserConfig,
     LocaliserPhase,
 )
-from realitygap.estimators.climb.surface import SurfaceModel
-from realitygap.estimators.climb.vio import (
+from realitygap.estimators.climb.measurements import (
     CameraFrame,
     ClimbEstimate,
     ImuSample,
     RelativeMotion,
     TetherReading,
-    VioConfig,
 )
+from realitygap.estimators.climb.surface import SurfaceModel
+from realitygap.estimators.climb.vio import VioConfig
 from realitygap.robots.blade_geometry import BladeParams, BladeSurface, cad_point_cloud, deformed
 
 FloatArray = npt.NDArray[np.float64]

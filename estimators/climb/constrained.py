@@ -93,16 +93,15 @@ from realitygap.estimators.climb.global_init import (
     PlaneConstraint,
     initialise_global_pose,
 )
-from realitygap.estimators.climb.surface import SurfaceModel
-from realitygap.estimators.climb.vio import (
+from realitygap.estimators.climb.measurements import (
     CameraFrame,
     ClimbEstimate,
     ImuSample,
     RelativeMotion,
-    SlidingWindowVIO,
     TetherReading,
-    VioConfig,
 )
+from realitygap.estimators.climb.surface import SurfaceModel
+from realitygap.estimators.climb.vio import SlidingWindowVIO, VioConfig
 
 FloatArray = npt.NDArray[np.float64]
 

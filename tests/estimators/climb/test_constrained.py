@@ -15,8 +15,8 @@ from realitygap.estimators.climb.constrained import (
     LocaliserConfig,
     LocaliserPhase,
 )
+from realitygap.estimators.climb.measurements import ClimbEstimate, ImuSample, TetherReading
 from realitygap.estimators.climb.surface import SurfaceModel
-from realitygap.estimators.climb.vio import ClimbEstimate, ImuSample, TetherReading
 from realitygap.robots.blade_geometry import BladeSurface, cad_point_cloud
 from realitygap.robots.climb_synthetic import (
     ClimbScenario,
