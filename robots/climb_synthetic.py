@@ -31,13 +31,8 @@ from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation
 
 from realitygap.core.geometry import rot_z, so3_exp, so3_log, wrap_angle
-from realitygap.estimators.climb.constrained import (
-    ClimbLocaliser,
-    ConstrainedConfig,
-    ConstrainedEstimator,
-    LocaliserConfig,
-    LocaliserPhase,
-)
+from realitygap.estimators.climb.constrained import ConstrainedConfig, ConstrainedEstimator
+from realitygap.estimators.climb.localiser import ClimbLocaliser, LocaliserConfig, LocaliserPhase
 from realitygap.estimators.climb.measurements import (
     CameraFrame,
     ClimbEstimate,

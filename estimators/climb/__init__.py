@@ -21,19 +21,14 @@ from realitygap.estimators.climb.anchor import (
     solve_anchor,
     solve_anchor_with_plane,
 )
-from realitygap.estimators.climb.constrained import (
-    ClimbLocaliser,
-    ConstrainedConfig,
-    ConstrainedEstimator,
-    LocaliserConfig,
-    LocaliserPhase,
-)
+from realitygap.estimators.climb.constrained import ConstrainedConfig, ConstrainedEstimator
 from realitygap.estimators.climb.frontend import relative_motion_from_images
 from realitygap.estimators.climb.global_init import (
     GlobalInit,
     PlaneConstraint,
     initialise_global_pose,
 )
+from realitygap.estimators.climb.localiser import ClimbLocaliser, LocaliserConfig, LocaliserPhase
 from realitygap.estimators.climb.measurements import (
     CameraFrame,
     ClimbEstimate,
