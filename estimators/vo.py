@@ -124,11 +124,11 @@ class VOParams:
         Fewer matches after the ratio test (or after GTM) make the frame
         ``too_few_matches``.
     use_gtm : bool
-        Reject outliers with :func:`gtm_filter` before RANSAC.
+        Reject outliers with :func:`.gtm_filter` before RANSAC.
     gtm_k : int or None
         ``k`` of the GTM graph (``None``: mean-distance radius graph).
     gtm_tolerance : float
-        Dead band of the radius graph (see :func:`gtm_filter`).
+        Dead band of the radius graph (see :func:`.gtm_filter`).
     ransac_threshold_m : float
         RANSAC inlier distance [m].
     ransac_max_iters : int

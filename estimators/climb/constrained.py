@@ -218,7 +218,7 @@ class ConstrainedEstimator:
     Notes
     -----
     :meth:`update` takes the VIO's keyframe estimates (``frame="world"``) in time
-    order, and :class:`TetherReading` s in between. The first VIO estimate after
+    order, and :class:`.TetherReading` s in between. The first VIO estimate after
     :meth:`reset` only sets the reference: ``initial`` must be the CAD-frame pose at
     that instant.
     """

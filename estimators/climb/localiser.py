@@ -99,12 +99,12 @@ class LocaliserConfig:
 class ClimbLocaliser:
     """VIO → global initialisation → adsorption-constrained tracking, online.
 
-    Feed :class:`ImuSample`, :class:`CameraFrame` or :class:`RelativeMotion`, and
-    :class:`TetherReading` in time order through :meth:`update`. Phases
+    Feed :class:`.ImuSample`, :class:`.CameraFrame` or :class:`.RelativeMotion`, and
+    :class:`.TetherReading` in time order through :meth:`update`. Phases
     (:class:`LocaliserPhase`): static VIO initialisation; collecting the excitation
     path (VIO keyframes paired with tether readings) until
     :func:`.initialise_global_pose` succeeds; then tracking with
-    :class:`ConstrainedEstimator` in the CAD frame, updated at every keyframe and
+    :class:`.ConstrainedEstimator` in the CAD frame, updated at every keyframe and
     carried forward between keyframes by the VIO's IMU-rate motion. Before tracking
     the estimate is the VIO's (``frame="world"``, ``ok=False``).
 
@@ -118,7 +118,7 @@ class ClimbLocaliser:
         Height above the surface of the body origin (point contact) or of the wheel
         centres (two-wheel contact, ``ConstrainedConfig.wheel_track > 0``), m.
     vio_config, config, localiser_config
-        :class:`.VioConfig`, :class:`ConstrainedConfig`, :class:`LocaliserConfig`.
+        :class:`.VioConfig`, :class:`.ConstrainedConfig`, :class:`LocaliserConfig`.
     """
 
     def __init__(

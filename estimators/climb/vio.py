@@ -76,7 +76,7 @@ class VioConfig:
     window_size
         Keyframes in the window (≥ 2).
     static_init_duration
-        Seconds of still IMU data used by :func:`static_initialise`.
+        Seconds of still IMU data used by :func:`.static_initialise`.
     R_body_camera
         Rows of :math:`R_{bc}` (camera → body); default looks along body :math:`-z`.
     p_body_camera
@@ -218,9 +218,9 @@ class SlidingWindowVIO:
     p_k) - \\Delta p_m]`. When the window is full the oldest state is marginalised
     (Schur complement of its factors) into a Gaussian prior :math:`r_0` on the next.
 
-    Feed measurements in time order through :meth:`update`: :class:`ImuSample`
-    (≥ 100 Hz), and either :class:`CameraFrame` (images, processed by
-    :func:`relative_motion_from_images`) or :class:`RelativeMotion` (geometric
+    Feed measurements in time order through :meth:`update`: :class:`.ImuSample`
+    (≥ 100 Hz), and either :class:`.CameraFrame` (images, processed by
+    :func:`.relative_motion_from_images`) or :class:`.RelativeMotion` (geometric
     mode). The first ``static_init_duration`` seconds of IMU data must come from a
     still robot. A failed or missing visual motion adds an IMU-only keyframe
     (status ``"imu_only"``); the estimate never becomes NaN.
@@ -635,7 +635,7 @@ class SlidingWindowVIO:
     def _optimise_lm(self) -> tuple[FloatArray, FloatArray]:
         """Levenberg–Marquardt with Huber IRLS weights on the visual factors; returns the
         blocks of :math:`H` at the solution. All factors are evaluated at once
-        (:class:`WindowProblem`); the previous solution warm-starts every state but
+        (:class:`.WindowProblem`); the previous solution warm-starts every state but
         the newest."""
         assert self._prior is not None
         times = [s.t for s in self._states]
