@@ -1,4 +1,4 @@
-"""Online localisation of a climbing robot: VIO, then global initialisation, then constrained tracking.
+"""Online localisation of a climbing robot: VIO, global initialisation, constrained tracking.
 
 :class:`ClimbLocaliser` composes :class:`.SlidingWindowVIO`, the global
 initialisation (:func:`.initialise_global_pose`) and

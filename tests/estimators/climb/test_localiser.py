@@ -1,4 +1,4 @@
-"""Online localiser: VIO, global initialisation and constrained tracking on a synthetic recording."""
+"""Online localiser: VIO, global initialisation and constrained tracking on a synthetic run."""
 
 from __future__ import annotations
 
