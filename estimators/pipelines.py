@@ -21,7 +21,7 @@ import numpy.typing as npt
 
 from realitygap.estimators.base import DiffDriveMeasurement, Estimate
 from realitygap.estimators.diffdrive_model import DiffDriveKinematics
-from realitygap.estimators.ekf import FusionSettings, OdomVOFusionEKF
+from realitygap.estimators.fusion_ekf import FusionSettings, OdomVOFusionEKF
 from realitygap.estimators.occupancy import OccupancyGrid
 from realitygap.estimators.vo import RGBDVisualOdometry, VOParams, planar_motion_from_camera
 

@@ -14,7 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.estimators.base import CameraIntrinsics, Scan
-from realitygap.estimators.vo import check_transform
+from realitygap.estimators.registration import check_transform
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -1,14 +1,17 @@
-"""RGB-D visual odometry: features, graph matching, rigid registration.
+"""Key-frame RGB-D visual odometry.
 
 The front end follows the classical RGB-D pipeline
 
 1. detect and describe keypoints (SIFT, or ORB for speed) on the grey image;
 2. match descriptors against the current key-frame with Lowe's ratio test;
-3. reject outlier matches with Graph Transformation Matching (:func:`gtm_filter`);
+3. reject outlier matches with Graph Transformation Matching
+   (:func:`~realitygap.estimators.gtm.gtm_filter`);
 4. back-project the matched keypoints with the depth image;
-5. estimate the rigid motion with RANSAC over Kabsch fits (:func:`ransac_rigid`,
-   :func:`kabsch_umeyama`), each pair weighted by its inverse depth variance,
-   and refine it with point-to-point ICP (:func:`icp_point_to_point`);
+5. estimate the rigid motion with RANSAC over Kabsch fits
+   (:func:`~realitygap.estimators.registration.ransac_rigid`,
+   :func:`~realitygap.estimators.registration.kabsch_umeyama`), each pair weighted
+   by its inverse depth variance, and refine it with point-to-point ICP
+   (:func:`~realitygap.estimators.registration.icp_point_to_point`);
 6. chain the key-frame-relative motions into the camera trajectory; a frame
    becomes the next key-frame when the camera has moved or turned far enough or
    the inliers thin out.
@@ -29,14 +32,20 @@ from typing import Any
 import cv2
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial import cKDTree
-from scipy.spatial.distance import pdist, squareform
 
-from realitygap.core.geometry import check_finite, transform_from_rt
+from realitygap.core.geometry import transform_from_rt
 from realitygap.estimators.base import CameraIntrinsics, Estimate, RGBDFrame
+from realitygap.estimators.gtm import gtm_filter
+from realitygap.estimators.registration import (
+    RegistrationError,
+    check_transform,
+    icp_point_to_point,
+    inverse_transform,
+    ransac_rigid,
+    rotation_angle,
+)
 
 FloatArray = npt.NDArray[np.float64]
-BoolArray = npt.NDArray[np.bool_]
 IntArray = npt.NDArray[np.intp]
 #: SIFT (N, 128) float32 or ORB (N, 32) uint8 descriptors.
 Descriptors = npt.NDArray[np.integer[Any] | np.floating[Any]]
@@ -45,16 +54,10 @@ __all__ = [
     "T_BASE_CAMERA_FORWARD",
     "Detector",
     "RGBDVisualOdometry",
-    "RegistrationError",
     "VOParams",
     "VOResult",
     "VOStatus",
-    "check_transform",
-    "gtm_filter",
-    "icp_point_to_point",
-    "kabsch_umeyama",
     "planar_motion_from_camera",
-    "ransac_rigid",
 ]
 
 #: Camera at the base origin looking along the base x axis: optical z = base x,
@@ -68,641 +71,6 @@ T_BASE_CAMERA_FORWARD: FloatArray = np.array(
     ]
 )
 T_BASE_CAMERA_FORWARD.setflags(write=False)
-
-
-class RegistrationError(RuntimeError):
-    """A robust registration found no transform supported by enough inliers."""
-
-
-# ----------------------------------------------------------------------------
-# validation helpers
-# ----------------------------------------------------------------------------
-
-
-def _as_points(name: str, value: npt.ArrayLike, dim: int, min_count: int = 0) -> FloatArray:
-    """Convert to a finite float array of shape (N, ``dim``) with N ≥ ``min_count``."""
-    arr = check_finite(name, value)
-    if arr.ndim != 2 or arr.shape[1] != dim:
-        raise ValueError(f"{name} must have shape (N, {dim}), got {arr.shape}")
-    if arr.shape[0] < min_count:
-        raise ValueError(f"{name} needs at least {min_count} points, got {arr.shape[0]}")
-    return arr
-
-
-def _check_rotation(name: str, value: npt.ArrayLike, atol: float = 1e-6) -> FloatArray:
-    rot = check_finite(name, value, shape=(3, 3))
-    if not np.allclose(rot.T @ rot, np.eye(3), atol=atol) or np.linalg.det(rot) < 0.0:
-        raise ValueError(
-            f"{name} must be a proper rotation matrix (RᵀR = I, det R = +1), got {rot!r}"
-        )
-    return rot
-
-
-def check_transform(name: str, value: npt.ArrayLike, atol: float = 1e-6) -> FloatArray:
-    """Validate a 4×4 rigid homogeneous transform and return it as a float array.
-
-    Parameters
-    ----------
-    name : str
-        Name used in the error message.
-    value : array_like, shape (4, 4)
-        Candidate transform ``[[R, t], [0, 0, 0, 1]]``.
-    atol : float
-        Tolerance on ``RᵀR = I`` and on the last row.
-
-    Raises
-    ------
-    ValueError
-        If the shape is not (4, 4), an entry is not finite, the last row is not
-        ``[0, 0, 0, 1]`` or the upper-left block is not a proper rotation.
-    """
-    T = check_finite(name, value, shape=(4, 4))
-    if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0], atol=atol):
-        raise ValueError(f"{name} must have last row [0, 0, 0, 1], got {T[3]!r}")
-    _check_rotation(f"{name}[:3, :3]", T[:3, :3], atol=atol)
-    return T
-
-
-def _inverse_transform(T: FloatArray) -> FloatArray:
-    inv = np.eye(4)
-    inv[:3, :3] = T[:3, :3].T
-    inv[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return inv
-
-
-def _rotation_angle(R: FloatArray) -> float:
-    """Angle in rad of the axis–angle form of a rotation matrix."""
-    return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
-
-
-# ----------------------------------------------------------------------------
-# Graph Transformation Matching
-# ----------------------------------------------------------------------------
-
-
-def gtm_filter(
-    pts_p: npt.ArrayLike,
-    pts_q: npt.ArrayLike,
-    k: int | None = None,
-    *,
-    tolerance: float = 0.0,
-) -> BoolArray:
-    r"""Reject outlier matches with Graph Transformation Matching (GTM).
-
-    Match ``i`` pairs ``pts_p[i]`` in image P with ``pts_q[i]`` in image Q. On
-    each side a graph is built over the matched points, and matches are deleted
-    one at a time until both graphs are identical.
-
-    Without ``k`` (the default), vertices ``i`` and ``j`` are adjacent when
-
-    .. math::
-
-        \|p_i - p_j\| \le \eta_P, \qquad
-        \eta_P = \frac{1}{m(m-1)} \sum_{i \ne j} \|p_i - p_j\|,
-
-    the mean pairwise distance over the ``m`` matches still kept (likewise
-    :math:`\eta_Q` in Q); the graph is invariant to a similarity transform of
-    either image. With ``k``, the graph is the symmetrised k-nearest-neighbour
-    graph: ``i–j`` when either is among the other's ``k`` nearest neighbours.
-
-    With adjacency matrices :math:`A_P, A_Q` the residual is
-    :math:`R = |A_P - A_Q|`; the match ``j* = argmaxⱼ Σᵢ Rᵢⱼ`` is deleted (first
-    index on ties), the graphs are rebuilt on the remaining matches, and the
-    loop stops when :math:`A_P = A_Q`. After an O(N²) set-up (pair distances,
-    time and memory) both graph kinds are updated incrementally rather than
-    rebuilt: a deletion costs about O(N) for the radius graph and O(k N) for the
-    k-NN graph. Neighbours at exactly equal distances (duplicate keypoints)
-    are ordered arbitrarily.
-
-    Parameters
-    ----------
-    pts_p, pts_q : array_like, shape (N, 2)
-        Pixel coordinates of the matched keypoints in images P and Q.
-    k : int or None
-        Neighbours per vertex of a k-NN graph; ``None`` for the mean-distance
-        radius graph.
-    tolerance : float
-        Radius graph only: relative dead band :math:`\tau \in [0, 1)` around
-        the threshold. An edge then counts as a disagreement only when it is
-        clearly present in one image (:math:`d \le \eta (1 - \tau)`) and
-        clearly absent in the other (:math:`d > \eta (1 + \tau)`). ``0`` is
-        exact GTM; the exact radius graph flips edges near :math:`\eta` under
-        keypoint noise, so a few per cent keeps inliers under real noise.
-
-    Returns
-    -------
-    ndarray of bool, shape (N,)
-        ``True`` for the matches kept (all of them when N < 3).
-
-    Raises
-    ------
-    ValueError
-        On mismatched or malformed point arrays, ``k < 1``, or ``tolerance``
-        outside ``[0, 1)``, or ``tolerance`` given together with ``k``.
-
-    Examples
-    --------
-    >>> rng = np.random.default_rng(0)
-    >>> p = rng.uniform(0, 300, (50, 2))
-    >>> q = 1.1 * p + 5.0
-    >>> q[:5] = rng.uniform(0, 300, (5, 2))  # five wrong matches
-    >>> keep = gtm_filter(p, q)
-    >>> bool(keep[5:].all()), int(keep[:5].sum())
-    (True, 0)
-    """
-    p = _as_points("pts_p", pts_p, 2)
-    q = _as_points("pts_q", pts_q, 2)
-    if p.shape != q.shape:
-        raise ValueError(f"pts_p and pts_q must have the same shape, got {p.shape} and {q.shape}")
-    if k is not None:
-        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
-            raise ValueError(f"k must be a positive integer or None, got {k!r}")
-        if tolerance != 0.0:
-            raise ValueError(f"tolerance applies to the radius graph (k=None) only, got k={k}")
-    if not 0.0 <= tolerance < 1.0:
-        raise ValueError(f"tolerance must lie in [0, 1), got {tolerance}")
-    n = p.shape[0]
-    if n < 3:
-        return np.ones(n, dtype=bool)
-    if k is None:
-        return _gtm_radius(p, q, float(tolerance))
-    return _gtm_knn(p, q, int(k))
-
-
-_KEY_MAX = 65535
-
-
-def _gtm_radius(p: FloatArray, q: FloatArray, tol: float) -> BoolArray:
-    """GTM on mean-distance radius graphs, with incremental threshold updates.
-
-    Pairs are kept sorted by distance in each image; when a deletion moves
-    ``η``, only the pairs whose distance lies between the old and the new
-    threshold(s) can change state, and only their residual entries are revised.
-    """
-    n = p.shape[0]
-    dp, dq = pdist(p), pdist(q)  # condensed, pair (ia[c], ib[c]) for ia < ib
-    ia, ib = np.triu_indices(n, 1)
-    DP, DQ = squareform(dp), squareform(dq)
-    sum_p, sum_q = DP.sum(axis=1), DQ.sum(axis=1)
-    factors = (1.0,) if tol == 0.0 else (1.0 - tol, 1.0 + tol)
-
-    def residual(d_p: FloatArray, d_q: FloatArray, eta_p: float, eta_q: float) -> BoolArray:
-        on_p, off_p = d_p <= eta_p * (1.0 - tol), d_p > eta_p * (1.0 + tol)
-        on_q, off_q = d_q <= eta_q * (1.0 - tol), d_q > eta_q * (1.0 + tol)
-        return (on_p & off_q) | (off_p & on_q)
-
-    m = n
-    eta_p = float(sum_p.sum()) / (m * (m - 1))
-    eta_q = float(sum_q.sum()) / (m * (m - 1))
-    R = np.zeros((n, n), dtype=bool)
-    r0 = residual(dp, dq, eta_p, eta_q)
-    R[ia[r0], ib[r0]] = True
-    R |= R.T
-    col = R.sum(axis=0).astype(np.int64)
-    # Pairs sorted by a 16-bit quantised distance (a linear-time radix sort);
-    # a band of keys is a superset of the pairs between two thresholds, and
-    # their residuals are recomputed from the exact distances.
-    d_max_p, d_max_q = float(dp.max()), float(dq.max())
-    scale_p = _KEY_MAX / d_max_p if d_max_p > 0.0 else 0.0  # all points coincide: one key
-    scale_q = _KEY_MAX / d_max_q if d_max_q > 0.0 else 0.0
-    key_p = (dp * scale_p).astype(np.uint16)
-    key_q = (dq * scale_q).astype(np.uint16)
-    order_p, order_q = np.argsort(key_p, kind="stable"), np.argsort(key_q, kind="stable")
-    sorted_p, sorted_q = key_p[order_p], key_q[order_q]
-    active = np.ones(n, dtype=bool)
-
-    while m > 1:
-        j = int(np.argmax(np.where(active, col, -1)))
-        if col[j] <= 0:
-            break
-        active[j] = False
-        col -= R[j]  # R, DP, DQ are symmetric: rows are contiguous
-        R[j, :] = False
-        R[:, j] = False
-        m -= 1
-        if m < 2:
-            break
-        sum_p -= DP[j]
-        sum_q -= DQ[j]
-        new_p = float(sum_p[active].sum()) / (m * (m - 1))
-        new_q = float(sum_q[active].sum()) / (m * (m - 1))
-        bands = []
-        for srt, order, scale, old, new in (
-            (sorted_p, order_p, scale_p, eta_p, new_p),
-            (sorted_q, order_q, scale_q, eta_q, new_q),
-        ):
-            for f in factors:
-                lo, hi = sorted((old * f * scale, new * f * scale))
-                a = np.searchsorted(srt, np.uint16(min(int(lo), _KEY_MAX)), side="left")
-                b = np.searchsorted(srt, np.uint16(min(int(hi), _KEY_MAX)), side="right")
-                bands.append(order[a:b])
-        eta_p, eta_q = new_p, new_q
-        cand = np.unique(np.concatenate(bands))
-        a_i, b_i = ia[cand], ib[cand]
-        live = active[a_i] & active[b_i]
-        cand, a_i, b_i = cand[live], a_i[live], b_i[live]
-        if cand.size == 0:
-            continue
-        r_new = residual(dp[cand], dq[cand], eta_p, eta_q)
-        changed = r_new != R[a_i, b_i]
-        if not np.any(changed):
-            continue
-        a_c, b_c, r_c = a_i[changed], b_i[changed], r_new[changed]
-        R[a_c, b_c] = r_c
-        R[b_c, a_c] = r_c
-        delta = np.where(r_c, 1, -1)
-        col += np.bincount(a_c, weights=delta, minlength=n).astype(np.int64)
-        col += np.bincount(b_c, weights=delta, minlength=n).astype(np.int64)
-    return active
-
-
-def _gtm_knn(p: FloatArray, q: FloatArray, k: int) -> BoolArray:
-    """GTM on symmetrised k-NN graphs, updating only the rows a deletion touches."""
-    n = p.shape[0]
-    if k >= n - 1:
-        return np.ones(n, dtype=bool)
-    rows = np.arange(n)[:, None]
-    graphs = []
-    for pts in (p, q):
-        D = squareform(pdist(pts))
-        np.fill_diagonal(D, np.inf)
-        order = np.argsort(D, axis=1)[:, : n - 1]  # self (inf) last, dropped
-        K = np.zeros((n, n), dtype=bool)
-        K[rows, order[:, :k]] = True
-        graphs.append((order, K, K | K.T))
-    (order_p, K_p, A_p), (order_q, K_q, A_q) = graphs
-    R = A_p != A_q
-    col = R.sum(axis=0).astype(np.int64)
-    active = np.ones(n, dtype=bool)
-    m = n
-
-    while True:
-        j = int(np.argmax(np.where(active, col, -1)))
-        if col[j] <= 0:
-            break
-        active[j] = False
-        col -= R[j]
-        R[j, :] = False
-        R[:, j] = False
-        m -= 1
-        if m - 1 <= k:  # complete graphs on both sides: consistent
-            break
-        touched = []
-        for order, K, A in ((order_p, K_p, A_p), (order_q, K_q, A_q)):
-            aff = np.flatnonzero(K[:, j] & active)
-            K[j, :] = False
-            K[:, j] = False
-            A[j, :] = False
-            A[:, j] = False
-            if aff.size:
-                nb = order[aff]
-                act = active[nb]
-                sel = act & (np.cumsum(act, axis=1) <= k)
-                K[aff, :] = False
-                K[np.broadcast_to(aff[:, None], nb.shape)[sel], nb[sel]] = True
-            touched.append(aff)
-        U = np.union1d(touched[0], touched[1])
-        if U.size == 0:
-            continue
-        for K, A in ((K_p, A_p), (K_q, A_q)):
-            A[U, :] = K[U, :] | K[:, U].T
-            A[:, U] = A[U, :].T
-        r_new = (A_p[U, :] != A_q[U, :]) & active[None, :]
-        diff = r_new.astype(np.int64) - R[U, :]
-        delta = diff.sum(axis=0)
-        outside = np.ones(n, dtype=bool)
-        outside[U] = False
-        delta[U] += diff[:, outside].sum(axis=1)
-        R[U, :] = r_new
-        R[:, U] = r_new.T
-        col += delta
-    return active
-
-
-# ----------------------------------------------------------------------------
-# rigid registration
-# ----------------------------------------------------------------------------
-
-
-def kabsch_umeyama(
-    P: npt.ArrayLike,
-    Q: npt.ArrayLike,
-    weights: npt.ArrayLike | None = None,
-    with_scale: bool = False,
-) -> tuple[FloatArray, FloatArray] | tuple[FloatArray, FloatArray, float]:
-    r"""Least-squares rigid (or similarity) transform between corresponding points.
-
-    Minimises
-
-    .. math::
-
-        \sum_i w_i \, \| s R P_i + t - Q_i \|^2
-
-    over rotations :math:`R \in SO(3)`, translations :math:`t` and (with
-    ``with_scale``) the scale :math:`s > 0`. With weighted centroids
-    :math:`\bar P, \bar Q` and cross-covariance
-    :math:`H = \sum_i w_i (P_i - \bar P)(Q_i - \bar Q)^\top = U \Sigma V^\top`,
-    :math:`R = V \operatorname{diag}(1, 1, d) U^\top` with
-    :math:`d = \operatorname{sign}\det(V U^\top)`,
-    :math:`s = \operatorname{tr}(\Sigma D) / \sum_i w_i \|P_i - \bar P\|^2`
-    and :math:`t = \bar Q - s R \bar P` (Umeyama 1991).
-
-    Parameters
-    ----------
-    P, Q : array_like, shape (N, 3)
-        Corresponding points, N ≥ 3, in the source and target frames [m].
-    weights : array_like, shape (N,), optional
-        Non-negative weights with a positive sum; uniform by default.
-    with_scale : bool
-        Also estimate the scale ``s``.
-
-    Returns
-    -------
-    R : ndarray, shape (3, 3)
-        Rotation, source → target.
-    t : ndarray, shape (3,)
-        Translation [m].
-    s : float
-        Scale; only returned when ``with_scale`` is true.
-
-    Raises
-    ------
-    ValueError
-        On malformed inputs or invalid weights.
-    """
-    P = _as_points("P", P, 3, min_count=3)
-    Q = _as_points("Q", Q, 3, min_count=3)
-    if P.shape != Q.shape:
-        raise ValueError(f"P and Q must have the same shape, got {P.shape} and {Q.shape}")
-    if weights is None:
-        w = np.full(P.shape[0], 1.0 / P.shape[0])
-    else:
-        w = _check_weights(weights, P.shape[0])
-        w = w / w.sum()
-    mu_p, mu_q = w @ P, w @ Q
-    Pc, Qc = P - mu_p, Q - mu_q
-    H = (Pc * w[:, None]).T @ Qc
-    U, S, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(Vt.T @ U.T))
-    D = np.array([1.0, 1.0, 1.0 if d == 0.0 else d])
-    R = (Vt.T * D) @ U.T
-    if not with_scale:
-        return R, mu_q - R @ mu_p
-    var_p = float(w @ np.einsum("ij,ij->i", Pc, Pc))
-    if var_p <= 0.0:
-        raise ValueError("P has no spread; the scale is undefined")
-    s = float(S @ D) / var_p
-    return R, mu_q - s * R @ mu_p, s
-
-
-def _kabsch_batch(P: FloatArray, Q: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Unweighted Kabsch on a stack of samples, P, Q shape (B, n, 3)."""
-    mu_p, mu_q = P.mean(axis=1), Q.mean(axis=1)
-    H = np.einsum("bni,bnj->bij", P - mu_p[:, None], Q - mu_q[:, None])
-    U, _, Vt = np.linalg.svd(H)
-    V = np.swapaxes(Vt, 1, 2)
-    d = np.sign(np.linalg.det(V @ np.swapaxes(U, 1, 2)))
-    V[:, :, 2] *= np.where(d == 0.0, 1.0, d)[:, None]
-    R = V @ np.swapaxes(U, 1, 2)
-    t = mu_q - np.einsum("bij,bj->bi", R, mu_p)
-    return R, t
-
-
-def ransac_rigid(
-    P: npt.ArrayLike,
-    Q: npt.ArrayLike,
-    threshold_m: float,
-    rng: np.random.Generator,
-    max_iters: int = 500,
-    min_inliers: int = 6,
-    *,
-    confidence: float = 0.999,
-    weights: npt.ArrayLike | None = None,
-) -> tuple[FloatArray, FloatArray, BoolArray]:
-    r"""Robust rigid transform ``Q ≈ R P + t`` by RANSAC over 3-point Kabsch fits.
-
-    Hypotheses come from random non-degenerate triples and are scored with the
-    truncated quadratic (MSAC) cost
-    :math:`\sum_i \min(\|R P_i + t - Q_i\|^2, \delta^2)`; the best one is refit on
-    its inliers (:math:`\|R P_i + t - Q_i\| < \delta`) until the inlier set is
-    stable. Sampling stops early once
-    :math:`1 - (1 - w^3)^{n} \ge` ``confidence`` for inlier ratio ``w``.
-
-    Parameters
-    ----------
-    P, Q : array_like, shape (N, 3)
-        Putative correspondences [m].
-    threshold_m : float
-        Inlier distance :math:`\delta` [m], > 0.
-    rng : numpy.random.Generator
-        Source of the random samples.
-    max_iters : int
-        Upper bound on the hypotheses drawn.
-    min_inliers : int
-        Fewest inliers (≥ 3) for a valid result.
-    confidence : float
-        Stopping confidence in (0, 1).
-    weights : array_like, shape (N,), optional
-        Non-negative weights of the inlier refit (e.g. inverse noise variances);
-        hypotheses are scored unweighted.
-
-    Returns
-    -------
-    R : ndarray, shape (3, 3)
-    t : ndarray, shape (3,)
-    inliers : ndarray of bool, shape (N,)
-
-    Raises
-    ------
-    ValueError
-        On malformed inputs or parameters.
-    RegistrationError
-        When no hypothesis has ``min_inliers`` inliers.
-    """
-    P = _as_points("P", P, 3)
-    Q = _as_points("Q", Q, 3)
-    if P.shape != Q.shape:
-        raise ValueError(f"P and Q must have the same shape, got {P.shape} and {Q.shape}")
-    if not (np.isfinite(threshold_m) and threshold_m > 0.0):
-        raise ValueError(f"threshold_m must be a positive finite distance in m, got {threshold_m}")
-    if not isinstance(rng, np.random.Generator):
-        raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
-    if max_iters < 1:
-        raise ValueError(f"max_iters must be ≥ 1, got {max_iters}")
-    if min_inliers < 3:
-        raise ValueError(f"min_inliers must be ≥ 3, got {min_inliers}")
-    if not 0.0 < confidence < 1.0:
-        raise ValueError(f"confidence must lie in (0, 1), got {confidence}")
-    n = P.shape[0]
-    w = None if weights is None else _check_weights(weights, n)
-    if n < min_inliers:
-        raise RegistrationError(f"{n} correspondences, fewer than min_inliers={min_inliers}")
-
-    thr2 = threshold_m * threshold_m
-    best_cost, best_R, best_t = np.inf, np.eye(3), np.zeros(3)
-    best_count, drawn, needed, batch = 0, 0, float(max_iters), 64
-    while drawn < min(max_iters, needed):
-        b = min(batch, max_iters - drawn)
-        drawn += b
-        idx = (
-            np.argsort(rng.random((b, n)), axis=1)[:, :3] if n < 64 else _sample_triples(rng, b, n)
-        )
-        Ps, Qs = P[idx], Q[idx]
-        area = np.linalg.norm(np.cross(Ps[:, 1] - Ps[:, 0], Ps[:, 2] - Ps[:, 0]), axis=1)
-        good = area > thr2
-        if not np.any(good):
-            continue
-        Rb, tb = _kabsch_batch(Ps[good], Qs[good])
-        res = np.einsum("bij,nj->bni", Rb, P) + tb[:, None, :] - Q[None]
-        e2 = np.einsum("bni,bni->bn", res, res)
-        cost = np.minimum(e2, thr2).sum(axis=1)
-        i_best = int(np.argmin(cost))
-        if cost[i_best] < best_cost:
-            best_cost, best_R, best_t = float(cost[i_best]), Rb[i_best], tb[i_best]
-            best_count = int(np.count_nonzero(e2[i_best] < thr2))
-            ratio = best_count / n
-            if ratio >= 1.0:
-                needed = 0.0
-            elif ratio > 0.0:
-                needed = np.log(1.0 - confidence) / np.log1p(-(ratio**3))
-    if best_count < min_inliers:
-        raise RegistrationError(
-            f"best hypothesis has {best_count} inliers within {threshold_m} m, "
-            f"fewer than min_inliers={min_inliers}"
-        )
-    R, t = best_R, best_t
-    mask = np.zeros(n, dtype=bool)
-    for _ in range(5):
-        e2 = np.sum((P @ R.T + t - Q) ** 2, axis=1)
-        new_mask = e2 < thr2
-        if new_mask.sum() < min_inliers or np.array_equal(new_mask, mask):
-            break
-        if w is not None and not np.any(w[new_mask] > 0.0):
-            break
-        mask = new_mask
-        R, t = kabsch_umeyama(P[mask], Q[mask], None if w is None else w[mask])  # type: ignore[misc]
-    mask = np.sum((P @ R.T + t - Q) ** 2, axis=1) < thr2
-    if mask.sum() < min_inliers:
-        raise RegistrationError(f"refit kept {int(mask.sum())} inliers, fewer than {min_inliers}")
-    return R, t, mask
-
-
-def _check_weights(weights: npt.ArrayLike, n: int) -> FloatArray:
-    w = check_finite("weights", weights, shape=(n,))
-    if np.any(w < 0.0) or not w.sum() > 0.0:
-        raise ValueError("weights must be non-negative with a positive sum")
-    return w
-
-
-def _sample_triples(rng: np.random.Generator, b: int, n: int) -> IntArray:
-    """``b`` triples of distinct indices in ``[0, n)`` (rejection of repeats)."""
-    idx = rng.integers(0, n, size=(b, 3))
-    while True:
-        bad = (idx[:, 0] == idx[:, 1]) | (idx[:, 0] == idx[:, 2]) | (idx[:, 1] == idx[:, 2])
-        if not np.any(bad):
-            return idx
-        idx[bad] = rng.integers(0, n, size=(int(bad.sum()), 3))
-
-
-def icp_point_to_point(
-    src: npt.ArrayLike,
-    dst: npt.ArrayLike,
-    R0: npt.ArrayLike | None = None,
-    t0: npt.ArrayLike | None = None,
-    max_iters: int = 30,
-    tol: float = 1e-6,
-    *,
-    max_correspondence_m: float | None = None,
-    weights: npt.ArrayLike | None = None,
-) -> tuple[FloatArray, FloatArray, float, int]:
-    r"""Point-to-point ICP aligning ``src`` to ``dst``: ``dst ≈ R src + t``.
-
-    Each iteration pairs every transformed source point with its nearest
-    destination point (k-d tree), drops pairs farther than
-    ``max_correspondence_m``, and solves for the full transform with
-    :func:`kabsch_umeyama` on the pairs. It stops when the RMS of the pair
-    distances changes by less than ``tol``:
-
-    .. math::
-
-        \mathrm{rms}_k = \sqrt{\tfrac{1}{n_k} \textstyle\sum_i
-        \| R_k\, s_i + t_k - d_{\pi(i)} \|^2 }, \qquad
-        |\mathrm{rms}_{k-1} - \mathrm{rms}_k| < \varepsilon .
-
-    Parameters
-    ----------
-    src : array_like, shape (N, 3)
-        Source cloud [m], N ≥ 3.
-    dst : array_like, shape (M, 3)
-        Destination cloud [m], M ≥ 3.
-    R0, t0 : array_like, shapes (3, 3) and (3,), optional
-        Initial guess; identity and zero by default.
-    max_iters : int
-        Iteration cap, ≥ 1.
-    tol : float
-        RMS change ε [m] that ends the iteration, ≥ 0.
-    max_correspondence_m : float, optional
-        Reject pairs farther apart than this [m]; all pairs by default.
-    weights : array_like, shape (N,), optional
-        Non-negative weights of the source points in the Kabsch step (e.g.
-        inverse noise variances). Zero-weight points are left out; the RMS is
-        the unweighted RMS over the others.
-
-    Returns
-    -------
-    R : ndarray, shape (3, 3)
-    t : ndarray, shape (3,)
-    rms : float
-        RMS pair distance [m] at the returned transform.
-    iterations : int
-        Iterations run.
-
-    Raises
-    ------
-    ValueError
-        On malformed inputs, or when fewer than 3 pairs survive the gating.
-    """
-    src = _as_points("src", src, 3, min_count=3)
-    dst = _as_points("dst", dst, 3, min_count=3)
-    R = np.eye(3) if R0 is None else _check_rotation("R0", R0)
-    t = np.zeros(3) if t0 is None else check_finite("t0", t0, shape=(3,))
-    if max_iters < 1:
-        raise ValueError(f"max_iters must be ≥ 1, got {max_iters}")
-    if not tol >= 0.0:
-        raise ValueError(f"tol must be ≥ 0 m, got {tol}")
-    if max_correspondence_m is not None and not max_correspondence_m > 0.0:
-        raise ValueError(f"max_correspondence_m must be > 0 m or None, got {max_correspondence_m}")
-    w = np.ones(src.shape[0]) if weights is None else _check_weights(weights, src.shape[0])
-    tree = cKDTree(dst)
-    bound = np.inf if max_correspondence_m is None else float(max_correspondence_m)
-
-    def pairs(R: FloatArray, t: FloatArray) -> tuple[FloatArray, IntArray, BoolArray]:
-        d, nn = tree.query(src @ R.T + t, k=1, distance_upper_bound=bound)
-        ok = np.isfinite(d) & (w > 0.0)
-        if np.count_nonzero(ok) < 3:
-            raise ValueError(
-                f"ICP kept {int(np.count_nonzero(ok))} correspondences within "
-                f"{max_correspondence_m} m; need at least 3 (improve the initial guess)"
-            )
-        return d, nn, ok
-
-    d, nn, ok = pairs(R, t)
-    rms = float(np.sqrt(np.mean(d[ok] ** 2)))
-    iterations = 0
-    for iterations in range(1, max_iters + 1):  # noqa: B007 - reported to the caller
-        R_new, t_new = kabsch_umeyama(src[ok], dst[nn[ok]], w[ok])  # type: ignore[misc]
-        d_new, nn_new, ok_new = pairs(R_new, t_new)
-        rms_new = float(np.sqrt(np.mean(d_new[ok_new] ** 2)))
-        converged = abs(rms - rms_new) < tol
-        R, t, d, nn, ok, rms = R_new, t_new, d_new, nn_new, ok_new, rms_new
-        if converged:
-            break
-    return R, t, rms, iterations
-
-
-# ----------------------------------------------------------------------------
-# visual odometry
-# ----------------------------------------------------------------------------
 
 
 class VOStatus(str, Enum):
@@ -756,11 +124,11 @@ class VOParams:
         Fewer matches after the ratio test (or after GTM) make the frame
         ``too_few_matches``.
     use_gtm : bool
-        Reject outliers with :func:`gtm_filter` before RANSAC.
+        Reject outliers with :func:`.gtm_filter` before RANSAC.
     gtm_k : int or None
         ``k`` of the GTM graph (``None``: mean-distance radius graph).
     gtm_tolerance : float
-        Dead band of the radius graph (see :func:`gtm_filter`).
+        Dead band of the radius graph (see :func:`.gtm_filter`).
     ransac_threshold_m : float
         RANSAC inlier distance [m].
     ransac_max_iters : int
@@ -972,7 +340,7 @@ def planar_motion_from_camera(
         if T_base_camera is None
         else check_transform("T_base_camera", T_base_camera)
     )
-    T_bb = T_bc @ T_cc @ _inverse_transform(T_bc)
+    T_bb = T_bc @ T_cc @ inverse_transform(T_bc)
     return float(T_bb[0, 3]), float(T_bb[1, 3]), float(np.arctan2(T_bb[1, 0], T_bb[0, 0]))
 
 
@@ -1015,7 +383,7 @@ class RGBDVisualOdometry:
             if T_base_camera is None
             else check_transform("T_base_camera", T_base_camera)
         )
-        self._T_camera_base = _inverse_transform(self.T_base_camera)
+        self._T_camera_base = inverse_transform(self.T_base_camera)
         p = self.params
         self._detector: cv2.Feature2D
         if p.detector == Detector.SIFT:
@@ -1174,7 +542,7 @@ class RGBDVisualOdometry:
         new_kf = (
             n_inliers < p.keyframe_min_inliers
             or float(np.linalg.norm(t)) > p.keyframe_translation_m
-            or _rotation_angle(R) > p.keyframe_rotation_rad
+            or rotation_angle(R) > p.keyframe_rotation_rad
         )
         result = self._result(VOStatus.OK, ok=True, keyframe=new_kf, **counts)
         if new_kf:

@@ -31,22 +31,17 @@ from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation
 
 from realitygap.core.geometry import rot_z, so3_exp, so3_log, wrap_angle
-from realitygap.estimators.climb.constrained import (
-    ClimbLocaliser,
-    ConstrainedConfig,
-    ConstrainedEstimator,
-    LocaliserConfig,
-    LocaliserPhase,
-)
-from realitygap.estimators.climb.surface import SurfaceModel
-from realitygap.estimators.climb.vio import (
+from realitygap.estimators.climb.constrained import ConstrainedConfig, ConstrainedEstimator
+from realitygap.estimators.climb.localiser import ClimbLocaliser, LocaliserConfig, LocaliserPhase
+from realitygap.estimators.climb.measurements import (
     CameraFrame,
     ClimbEstimate,
     ImuSample,
     RelativeMotion,
     TetherReading,
-    VioConfig,
 )
+from realitygap.estimators.climb.surface import SurfaceModel
+from realitygap.estimators.climb.vio import VioConfig
 from realitygap.robots.blade_geometry import BladeParams, BladeSurface, cad_point_cloud, deformed
 
 FloatArray = npt.NDArray[np.float64]

@@ -55,13 +55,13 @@ from scipy.spatial import cKDTree
 
 from realitygap.core.geometry import so3_exp, so3_log
 from realitygap.estimators.climb.constrained import ConstrainedConfig
-from realitygap.estimators.climb.vio import (
+from realitygap.estimators.climb.measurements import (
     CameraFrame,
     ImuSample,
     RelativeMotion,
     TetherReading,
-    VioConfig,
 )
+from realitygap.estimators.climb.vio import VioConfig
 from realitygap.robots.blade_geometry import (
     BladeParams,
     BladeSurface,

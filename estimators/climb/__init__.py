@@ -21,32 +21,28 @@ from realitygap.estimators.climb.anchor import (
     solve_anchor,
     solve_anchor_with_plane,
 )
-from realitygap.estimators.climb.constrained import (
-    ClimbLocaliser,
-    ConstrainedConfig,
-    ConstrainedEstimator,
-    LocaliserConfig,
-    LocaliserPhase,
-)
+from realitygap.estimators.climb.constrained import ConstrainedConfig, ConstrainedEstimator
+from realitygap.estimators.climb.frontend import relative_motion_from_images
 from realitygap.estimators.climb.global_init import (
     GlobalInit,
     PlaneConstraint,
     initialise_global_pose,
 )
-from realitygap.estimators.climb.surface import Projection, SurfaceModel
-from realitygap.estimators.climb.vio import (
+from realitygap.estimators.climb.localiser import ClimbLocaliser, LocaliserConfig, LocaliserPhase
+from realitygap.estimators.climb.measurements import (
     CameraFrame,
     ClimbEstimate,
     ImuSample,
-    Preintegration,
     RelativeMotion,
-    SlidingWindowVIO,
-    StaticInit,
     TetherReading,
-    VioConfig,
-    relative_motion_from_images,
+)
+from realitygap.estimators.climb.preintegration import (
+    Preintegration,
+    StaticInit,
     static_initialise,
 )
+from realitygap.estimators.climb.surface import Projection, SurfaceModel
+from realitygap.estimators.climb.vio import SlidingWindowVIO, VioConfig
 
 __all__ = [
     "AnchorSolution",

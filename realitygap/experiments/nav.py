@@ -170,7 +170,7 @@ def nav8_vo(ctx: RunContext) -> dict[str, Any]:
     from dataclasses import replace
 
     from realitygap.estimators.diffdrive_model import DiffDriveKinematics, OdometryNoise
-    from realitygap.estimators.ekf import FusionSettings
+    from realitygap.estimators.fusion_ekf import FusionSettings
     from realitygap.estimators.pipelines import FusedOdometryVO, FusedPipelineSettings
     from realitygap.experiments.perception import CalibConfig, calib000, calibration_room
     from realitygap.robots.diffdrive import DiffDriveParams

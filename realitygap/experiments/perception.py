@@ -16,7 +16,7 @@ r"""Perception and odometry-calibration experiments: ``calib000``, ``vo``, ``umb
        the chained visual-odometry trajectory; it is carried to the base with
        the current mounting estimate (:func:`end_pose_from_frames`).
     2. **Online calibration** (Censi et al.): the
-       :class:`~realitygap.estimators.ekf.MountingCalibrationEKF` over the
+       :class:`~realitygap.estimators.mounting_calibration.MountingCalibrationEKF` over the
        sensor pose, the camera mounting and the left/right wheel-radius and
        wheelbase scale factors, seeded by the UMBmark result and by the
        previous iteration's posterior, fed with tick increments and the
@@ -769,7 +769,7 @@ def _predicted_sensor_motions(
 ) -> FloatArray:
     """``⊖l ⊕ δ(n_L, n_R; k) ⊕ l`` for every interval, shape (K, 3)."""
     from realitygap.estimators.diffdrive_model import arc_increment
-    from realitygap.estimators.ekf import sensor_motion
+    from realitygap.estimators.mounting_calibration import sensor_motion
 
     ds, dtheta = nominal.scaled(*scales).increment_from_ticks(inc[:, 0], inc[:, 1])
     return np.asarray(sensor_motion(mounting, arc_increment(ds, dtheta)))
@@ -790,7 +790,7 @@ def fit_odometry_and_mounting(
 ) -> OdometryMountingFit:
     r"""Online calibration of the wheel scale factors and the sensor mounting (Censi et al.).
 
-    Runs :class:`~realitygap.estimators.ekf.MountingCalibrationEKF` with
+    Runs :class:`~realitygap.estimators.mounting_calibration.MountingCalibrationEKF` with
     ``estimate_odometry=True`` over the samples: state ``[s, l, k_L, k_R,
     k_b]``, prediction ``s_k = s_{k-1} ⊕ (⊖l ⊕ δ(n_L, n_R; k) ⊕ l)`` and the
     sensor ego-motion ``z_k = ⊖l ⊕ δ_k ⊕ l`` as observation, with covariance
@@ -839,7 +839,7 @@ def fit_odometry_and_mounting(
     OdometryMountingFit
     """
     from realitygap.core.geometry import wrap_angle
-    from realitygap.estimators.ekf import (
+    from realitygap.estimators.mounting_calibration import (
         MountingCalibrationEKF,
         MountingNoise,
         mounting_observability,
@@ -1011,7 +1011,7 @@ def _fused_poses(log: DriveLog, kin: Any, mounting: FloatArray, vo_params: Any) 
     """Calibrated odometry fused with key-frame VO motions (OdomVOFusionEKF), (N, 3)."""
     from realitygap.estimators.base import WheelTicks
     from realitygap.estimators.diffdrive_model import OdometryNoise
-    from realitygap.estimators.ekf import FusionSettings, OdomVOFusionEKF
+    from realitygap.estimators.fusion_ekf import FusionSettings, OdomVOFusionEKF
     from realitygap.estimators.vo import RGBDVisualOdometry, VOStatus, planar_motion_from_camera
 
     T_bc = _T_base_camera_planar(mounting)
@@ -1312,7 +1312,7 @@ def match_precision(
     [True, False]
     """
     from realitygap.core.geometry import check_finite
-    from realitygap.estimators.vo import check_transform
+    from realitygap.estimators.registration import check_transform
 
     P = check_finite("points_prev", points_prev)
     U = check_finite("pixels_curr", pixels_curr)
@@ -1429,7 +1429,7 @@ def _gtm_precision_pair(
     intrinsics: Any,
 ) -> tuple[int, int, int, int]:
     """(ratio-test matches, correct ones, kept by GTM, correct ones) for one frame pair."""
-    from realitygap.estimators.vo import gtm_filter
+    from realitygap.estimators.gtm import gtm_filter
 
     if prev.descriptors is None or curr.descriptors is None or len(prev.pixels) < 2:
         return 0, 0, 0, 0

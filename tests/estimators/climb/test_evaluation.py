@@ -8,14 +8,10 @@ import numpy as np
 import pytest
 
 from realitygap.core.geometry import so3_log
+from realitygap.estimators.climb.measurements import ImuSample, RelativeMotion, TetherReading
+from realitygap.estimators.climb.preintegration import Preintegration
 from realitygap.estimators.climb.surface import SurfaceModel
-from realitygap.estimators.climb.vio import (
-    ImuSample,
-    Preintegration,
-    RelativeMotion,
-    TetherReading,
-    VioConfig,
-)
+from realitygap.estimators.climb.vio import VioConfig
 from realitygap.robots.blade_geometry import BladeSurface, cad_point_cloud
 from realitygap.robots.climb_synthetic import (
     ClimbScenario,

@@ -16,8 +16,8 @@ import pytest
 
 from realitygap.core.geometry import quat_xyzw_from_matrix, so3_exp
 from realitygap.estimators.climb.constrained import ConstrainedConfig, ConstrainedEstimator
+from realitygap.estimators.climb.measurements import ClimbEstimate
 from realitygap.estimators.climb.surface import SurfaceModel
-from realitygap.estimators.climb.vio import ClimbEstimate
 
 RHO, H, TRACK = 0.5, 0.04, 0.14
 PHI0 = 0.25  # where the body sits on the cylinder (rad from the top)
