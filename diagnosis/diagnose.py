@@ -221,7 +221,7 @@ def _replay_task(
 ) -> tuple[dict[str, FloatArray], Log]:
     i, values = item
     p = problem.logs[i]
-    sim = problem.sim if problem.sim is not None else p.context["sim"]
+    sim = problem.sim if problem.sim is not None else p.context.sim
     return problem.adapter.replay_features(p, values, problem.drive, sim)
 
 
@@ -620,8 +620,7 @@ def diagnose(
 
     # ------------------------------------------------------------------ verdict
     z_nom = problem.nominal_residuals(problem.holdout)
-    noise_fn = getattr(adapter, "noise_levels", None)
-    noise = noise_fn(prepared, s.features) if noise_fn is not None else None
+    noise = adapter.noise_levels(prepared, s.features)
     nominal_desc = describe_residual(z_nom, problem.holdout, st, s.features, noise)
     best = ranking[0]
     # the runner-up: the best model that is neither this one nor a superset rejected for it
