@@ -54,6 +54,7 @@ __all__ = [
     "PreparedLog",
     "RobotAdapter",
     "WheelDrivenAdapter",
+    "adapter_channels",
     "close_adapters",
     "feature_group",
     "get_adapter",
@@ -349,6 +350,15 @@ def close_adapters() -> None:
     while ADAPTERS:
         _, adapter = ADAPTERS.popitem()
         adapter.close()
+
+
+def adapter_channels() -> dict[str, ChannelSpec]:
+    """The channels every adapter declares, by name, in registry order."""
+    out: dict[str, ChannelSpec] = {}
+    for robot in known_robots():
+        for spec in get_adapter(robot).channels:
+            out.setdefault(spec.name, spec)
+    return out
 
 
 def feature_group(name: str) -> FeatureGroup:

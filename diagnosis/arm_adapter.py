@@ -63,7 +63,7 @@ from realitygap.diagnosis.adapters import (
     reality_from_values,
 )
 from realitygap.diagnosis.features import FeatureGroup, FeatureSchema, FeatureSettings
-from realitygap.diagnosis.log import STANDARD_CHANNELS, Log, LogError
+from realitygap.diagnosis.log import ChannelSpec, Log, LogError, Role
 from realitygap.diagnosis.replay import Drive, SimSettings
 from realitygap.estimators.arm.mdh import MDHTable
 
@@ -74,6 +74,7 @@ FloatArray = npt.NDArray[np.float64]
 Features = dict[str, FloatArray]
 
 __all__ = [
+    "ARM_CHANNELS",
     "ARM_PROBE_SETS",
     "ARM_REGIMES",
     "ARM_SCHEMA",
@@ -101,6 +102,24 @@ TOOL_DIST_COLUMNS: tuple[str, ...] = ("d01", "d02", "d03", "d12", "d13", "d23")
 
 ARM_REGIMES: tuple[str, ...] = ("folded", "mid_reach", "outstretched")
 """Arm windows, by how far the wrist reaches out from the base axis."""
+
+ARM_CHANNELS: tuple[ChannelSpec, ...] = (
+    ChannelSpec(
+        "joints",
+        ("q1", "q2", "q3", "q4", "q5", "q6"),
+        ("rad",) * 6,
+        Role.SENSOR,
+        "joint encoder readings of the arm at rest",
+    ),
+    ChannelSpec(
+        "tool_pos",
+        ("x", "y", "z"),
+        ("m", "m", "m"),
+        Role.TRUTH,
+        "tool point measured by an external instrument (laser tracker), in its own frame",
+    ),
+)
+"""Channels of an arm log: one row per measurement pose, the arm at rest."""
 
 ARM_SCHEMA = FeatureSchema(
     groups=(
@@ -478,7 +497,7 @@ class ArmAdapter(AdapterBase):
     """
 
     robot = "arm"
-    channels = (STANDARD_CHANNELS["joints"], STANDARD_CHANNELS["tool_pos"])
+    channels = ARM_CHANNELS
     schema = ARM_SCHEMA
     surrogate_effects = _SURROGATE_EFFECTS
 

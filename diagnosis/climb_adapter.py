@@ -48,7 +48,7 @@ from scipy.spatial.transform import Rotation
 
 from realitygap.diagnosis.adapters import AdapterBase, HiddenTable, LogContext, PreparedLog
 from realitygap.diagnosis.features import FeatureGroup, FeatureSchema, FeatureSettings
-from realitygap.diagnosis.log import STANDARD_CHANNELS, Log, LogError
+from realitygap.diagnosis.log import ChannelSpec, Log, LogError, Role
 from realitygap.diagnosis.replay import Drive, SimSettings
 
 if TYPE_CHECKING:
@@ -58,6 +58,7 @@ FloatArray = npt.NDArray[np.float64]
 Features = dict[str, FloatArray]
 
 __all__ = [
+    "CLIMBER_CHANNELS",
     "CLIMBER_REGIMES",
     "CLIMBER_SCHEMA",
     "CLIMB_PROBES",
@@ -80,6 +81,18 @@ CLIMB_PROBES: dict[str, str] = {
 
 CLIMBER_REGIMES: tuple[str, ...] = ("standing", "climbing", "descending", "traversing")
 """Climber windows, by the true motion on the blade."""
+
+CLIMBER_CHANNELS: tuple[ChannelSpec, ...] = (
+    ChannelSpec(
+        "pose3_gt",
+        ("x", "y", "z", "rx", "ry", "rz"),
+        ("m", "m", "m", "rad", "rad", "rad"),
+        Role.TRUTH,
+        "ground-truth 3-D body pose: position and rotation vector in the world (CAD) frame",
+    ),
+    ChannelSpec("tether", ("length",), ("m",), Role.SENSOR, "tether length reported by the spool"),
+)
+"""Channels of a climber log."""
 
 CLIMBER_SCHEMA = FeatureSchema(
     groups=(
@@ -337,7 +350,7 @@ class ClimberAdapter(AdapterBase):
     """
 
     robot = "climber"
-    channels = (STANDARD_CHANNELS["pose3_gt"], STANDARD_CHANNELS["tether"])
+    channels = CLIMBER_CHANNELS
     schema = CLIMBER_SCHEMA
     surrogate_effects = _SURROGATE_EFFECTS
     unobservable = _WHY_NOT

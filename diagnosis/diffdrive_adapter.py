@@ -55,7 +55,7 @@ from realitygap.diagnosis.features import (
     features,
     window_bounds,
 )
-from realitygap.diagnosis.log import STANDARD_CHANNELS, Log, LogError
+from realitygap.diagnosis.log import ChannelSpec, Log, LogError, Role
 from realitygap.diagnosis.manoeuvres import MANOEUVRES
 from realitygap.diagnosis.record import RecordLog
 from realitygap.diagnosis.replay import (
@@ -84,6 +84,7 @@ FloatArray = npt.NDArray[np.float64]
 Features = dict[str, FloatArray]
 
 __all__ = [
+    "DIFFDRIVE_CHANNELS",
     "DIFFDRIVE_SCHEMA",
     "HOLDOUT_MANOEUVRES",
     "TRAIN_MANOEUVRES",
@@ -91,6 +92,37 @@ __all__ = [
     "DiffDriveContext",
     "record_case_logs",
 ]
+
+_POSE = ("x", "y", "theta")
+_POSE_UNITS = ("m", "m", "rad")
+
+DIFFDRIVE_CHANNELS: tuple[ChannelSpec, ...] = (
+    ChannelSpec(
+        "cmd",
+        ("v", "w"),
+        ("m/s", "rad/s"),
+        Role.COMMAND,
+        "body twist issued at t[k] and held until t[k+1]",
+    ),
+    ChannelSpec(
+        "ticks", ("left", "right"), ("count", "count"), Role.SENSOR, "cumulative encoder counts"
+    ),
+    ChannelSpec(
+        "pose_gt", _POSE, _POSE_UNITS, Role.TRUTH, "ground-truth base pose", angle_columns=(2,)
+    ),
+    ChannelSpec(
+        "pose_est", _POSE, _POSE_UNITS, Role.ESTIMATE, "estimated base pose", angle_columns=(2,)
+    ),
+    ChannelSpec(
+        "pose_cam",
+        _POSE,
+        _POSE_UNITS,
+        Role.SENSOR,
+        "planar camera pose from a camera localisation",
+        angle_columns=(2,),
+    ),
+)
+"""Channels of a differential-drive log."""
 
 DIFFDRIVE_SCHEMA = FeatureSchema(
     groups=(
@@ -151,9 +183,7 @@ class DiffDriveAdapter(WheelDrivenAdapter):
     """Differential drive: effects, PyBullet replay, channels, features and surrogate."""
 
     robot = "diffdrive"
-    channels = tuple(
-        STANDARD_CHANNELS[c] for c in ("cmd", "ticks", "pose_gt", "pose_est", "pose_cam")
-    )
+    channels = DIFFDRIVE_CHANNELS
     schema = DIFFDRIVE_SCHEMA
     surrogate_effects = tuple(SURROGATE_EFFECTS)
     blind_noise = MeasurementNoise(
