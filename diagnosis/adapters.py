@@ -224,6 +224,36 @@ class AdapterBase:
     surrogate_effects: tuple[str, ...] = ()
     unobservable: Mapping[str, str] = {}
 
+    def stage_residuals(self, prepared: PreparedLog) -> dict[str, FloatArray]:
+        """Residuals of the pipeline stages inside the real log, per window (none by default)."""
+        return {}
+
+    def noise_levels(
+        self, prepared: Sequence[PreparedLog], settings: FeatureSettings
+    ) -> dict[str, float] | None:
+        """Measurement noise per group in feature-scale units, or ``None``: then the
+        window-to-window spread of the residual stands for the noise."""
+        return None
+
+    def hidden_effects(self) -> HiddenTable:
+        """Blind-test magnitudes of the effects the validation suite hides in this robot."""
+        raise NotImplementedError(f"the blind suite has no hidden effects for {self.robot!r}")
+
+    def record_blind_logs(
+        self, reality: Reality, rng: np.random.Generator, settings: SuiteSettings
+    ) -> tuple[list[Log], list[Log]]:
+        """Training and held-out logs of the robot ``reality`` for one blind case."""
+        raise NotImplementedError(f"the blind suite cannot record {self.robot!r} logs")
+
+    def close(self) -> None:
+        """Release what the adapter holds open (simulator scenes); it can be used again."""
+
+    def __enter__(self) -> AdapterBase:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
     def effect_names(self) -> tuple[str, ...]:
         return tuple(n for n, cls in EFFECTS.items() if cls.robot == self.robot)
 
@@ -265,36 +295,6 @@ class AdapterBase:
         if effect not in self.surrogate_effects:
             return "no analytic surrogate"
         return ""
-
-    def stage_residuals(self, prepared: PreparedLog) -> dict[str, FloatArray]:
-        """Residuals of the pipeline stages inside the real log, per window (none by default)."""
-        return {}
-
-    def noise_levels(
-        self, prepared: Sequence[PreparedLog], settings: FeatureSettings
-    ) -> dict[str, float] | None:
-        """Measurement noise per group in feature-scale units, or ``None``: then the
-        window-to-window spread of the residual stands for the noise."""
-        return None
-
-    def hidden_effects(self) -> HiddenTable:
-        """Blind-test magnitudes of the effects the validation suite hides in this robot."""
-        raise NotImplementedError(f"the blind suite has no hidden effects for {self.robot!r}")
-
-    def record_blind_logs(
-        self, reality: Reality, rng: np.random.Generator, settings: SuiteSettings
-    ) -> tuple[list[Log], list[Log]]:
-        """Training and held-out logs of the robot ``reality`` for one blind case."""
-        raise NotImplementedError(f"the blind suite cannot record {self.robot!r} logs")
-
-    def close(self) -> None:
-        """Release what the adapter holds open (simulator scenes); it can be used again."""
-
-    def __enter__(self) -> AdapterBase:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 class WheelDrivenAdapter(AdapterBase):

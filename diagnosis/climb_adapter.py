@@ -46,7 +46,13 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
-from realitygap.diagnosis.adapters import AdapterBase, HiddenTable, LogContext, PreparedLog
+from realitygap.diagnosis.adapters import (
+    AdapterBase,
+    HiddenTable,
+    LogContext,
+    PreparedLog,
+    get_adapter,
+)
 from realitygap.diagnosis.features import FeatureGroup, FeatureSchema, FeatureSettings
 from realitygap.diagnosis.log import ChannelSpec, Log, LogError, Role
 from realitygap.diagnosis.replay import Drive, SimSettings
@@ -346,7 +352,8 @@ class ClimberAdapter(AdapterBase):
     """Climber: tether and ride-height features, sensor replay with PyBullet ride height.
 
     The adapter owns the PyBullet blade scenes of its replays (:attr:`scenes`);
-    :meth:`close` releases them.
+    :meth:`close` releases them. A copy unpickled in another process uses the
+    scenes of that process's registered climber adapter.
     """
 
     robot = "climber"
@@ -361,6 +368,18 @@ class ClimberAdapter(AdapterBase):
     def close(self) -> None:
         """Close the blade scenes of the replays."""
         self.scenes.close()
+
+    def __getstate__(self) -> dict[str, Any]:
+        # live simulator scenes do not travel to other processes
+        state = self.__dict__.copy()
+        del state["scenes"]
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        # a copy sent to another process replays in that process's registered adapter's scenes
+        self.__dict__.update(state)
+        registered = get_adapter(self.robot)
+        self.scenes = registered.scenes if isinstance(registered, ClimberAdapter) else BladeScenes()
 
     @staticmethod
     def _context(prepared: PreparedLog) -> ClimberContext:
