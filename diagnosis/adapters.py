@@ -14,9 +14,20 @@ An adapter bundles
 
 The diagnosis (:mod:`realitygap.diagnosis.diagnose`) only talks to this
 interface. :data:`ADAPTER_CLASSES` is the one place that maps robot names to
-adapters: a new robot is one adapter module, one effects module and one line
-there. The differential drive's adapter is
-:class:`~realitygap.diagnosis.diffdrive_adapter.DiffDriveAdapter`.
+adapters. A new robot is
+
+1. one effects module (its :class:`~realitygap.robots.effects.Effect` classes),
+2. one adapter module: a subclass of :class:`AdapterBase` that sets ``robot``,
+   ``channels``, ``schema`` and ``surrogate_effects``, keeps what it needs about
+   a prepared log in a :class:`LogContext` subclass and implements ``check``,
+   ``prepare``, ``replay_features``, ``log_features``, ``surrogate_features``,
+   ``probe_manoeuvres``, ``probe_features``, ``hidden_effects`` and
+   ``record_blind_logs``,
+3. one line in :data:`ADAPTER_CLASSES`.
+
+The adapters are :class:`~realitygap.diagnosis.diffdrive_adapter.DiffDriveAdapter`,
+:class:`~realitygap.diagnosis.arm_adapter.ArmAdapter` and
+:class:`~realitygap.diagnosis.climb_adapter.ClimberAdapter`.
 """
 
 from __future__ import annotations
