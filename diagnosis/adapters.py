@@ -172,6 +172,7 @@ class RobotAdapter(Protocol):
     robot: str
     channels: tuple[ChannelSpec, ...]
     schema: FeatureSchema
+    stage_group: str
 
     def effect_names(self) -> tuple[str, ...]: ...
 
@@ -226,7 +227,9 @@ class AdapterBase:
     Subclasses set :attr:`robot`, :attr:`channels` (the log channels it
     reads), :attr:`schema` (feature groups and regimes), :attr:`surrogate_effects`
     (effects the fast surrogate models) and may give :attr:`unobservable`
-    (effect → why these channels cannot show it, whatever the log).
+    (effect → why these channels cannot show it, whatever the log) and
+    :attr:`stage_group` (the feature group whose columns its
+    :meth:`stage_residuals` use).
     """
 
     robot: str = ""
@@ -234,9 +237,11 @@ class AdapterBase:
     schema: FeatureSchema = FeatureSchema((), ())
     surrogate_effects: tuple[str, ...] = ()
     unobservable: Mapping[str, str] = {}
+    stage_group: str = ""
 
     def stage_residuals(self, prepared: PreparedLog) -> dict[str, FloatArray]:
-        """Residuals of the pipeline stages inside the real log, per window (none by default)."""
+        """Residuals of the pipeline stages inside the real log, per window, in the columns of
+        the feature group :attr:`stage_group` (none by default)."""
         return {}
 
     def noise_levels(

@@ -125,7 +125,19 @@ def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run_diagnose(args: argparse.Namespace) -> int:
-    """Run the ``diagnose`` sub-command; returns the exit status."""
+    """Run the ``diagnose`` sub-command; returns the exit status.
+
+    The robot adapters' simulator scenes are closed when it returns.
+    """
+    from realitygap.diagnosis.adapters import close_adapters
+
+    try:
+        return _diagnose(args)
+    finally:
+        close_adapters()
+
+
+def _diagnose(args: argparse.Namespace) -> int:
     from realitygap.diagnosis.attribute import AttributionSettings
     from realitygap.diagnosis.backends import make_backend
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose

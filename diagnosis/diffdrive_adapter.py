@@ -185,6 +185,7 @@ class DiffDriveAdapter(WheelDrivenAdapter):
     robot = "diffdrive"
     channels = DIFFDRIVE_CHANNELS
     schema = DIFFDRIVE_SCHEMA
+    stage_group = "pose_gt"
     surrogate_effects = tuple(SURROGATE_EFFECTS)
     blind_noise = MeasurementNoise(
         truth_xy=0.0005, truth_theta=0.001, camera_xy=0.001, camera_theta=0.002

@@ -26,9 +26,6 @@ FloatArray = npt.NDArray[np.float64]
 
 __all__ = ["localise"]
 
-_STAGE_COLUMNS = ("dx", "dy", "dtheta")
-_STAGE_UNITS = ("m", "m", "rad")
-
 
 def _rows_for(
     where: str,
@@ -113,10 +110,18 @@ def localise(
             stages[name][0].append(res)
             stages[name][1].append(p.regimes)
     if stages:
-        gt_scale = scales.scale("pose_gt")
+        # stage residuals are in the columns and units of the adapter's stage group
+        sg = schema.group(adapter.stage_group)
         for name, (vals, regs) in stages.items():
             rows += _rows_for(
-                name, "stage", vals, regs, _STAGE_COLUMNS, _STAGE_UNITS, gt_scale, schema.regimes
+                name,
+                "stage",
+                vals,
+                regs,
+                sg.columns,
+                sg.units,
+                scales.scale(sg.name),
+                schema.regimes,
             )
     for kind in ("channel", "stage"):
         total = sum(r["normalised_ss"] for r in rows if r["kind"] == kind and r["regime"] != "all")
