@@ -16,9 +16,13 @@ bags), :mod:`~realitygap.diagnosis.record` (:class:`RecordLog` wrapper),
 :mod:`~realitygap.diagnosis.replay` (PyBullet replay),
 :mod:`~realitygap.diagnosis.surrogate` (the fit's fast model),
 :mod:`~realitygap.diagnosis.features`, :mod:`~realitygap.diagnosis.localise`,
-:mod:`~realitygap.diagnosis.attribute`, :mod:`~realitygap.diagnosis.shrink`,
-:mod:`~realitygap.diagnosis.diagnose` (end to end),
-:mod:`~realitygap.diagnosis.adapters` (robot adapters),
+:mod:`~realitygap.diagnosis.attribute`, :mod:`~realitygap.diagnosis.verify`,
+:mod:`~realitygap.diagnosis.verdict`, :mod:`~realitygap.diagnosis.identifiability`,
+:mod:`~realitygap.diagnosis.shrink`, :mod:`~realitygap.diagnosis.diagnose` (the
+pipeline of those stages), :mod:`~realitygap.diagnosis.adapters` (the robot-adapter
+interface and registry) with one adapter per robot
+(:mod:`~realitygap.diagnosis.diffdrive_adapter`,
+:mod:`~realitygap.diagnosis.arm_adapter`, :mod:`~realitygap.diagnosis.climb_adapter`),
 :mod:`~realitygap.diagnosis.backends` (serial / processes / Ray),
 :mod:`~realitygap.diagnosis.report`, :mod:`~realitygap.diagnosis.suite`
 (blind validation) and :mod:`~realitygap.diagnosis.cli` (``realitygap diagnose``).

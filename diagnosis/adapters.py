@@ -5,65 +5,85 @@ An adapter bundles
 * the **effect library** it may attribute a gap to (effects of
   :mod:`realitygap.robots.effects` registered for the robot),
 * the **replay** of a log in PyBullet with the nominal robot plus effects,
-* the **channels** and window **features** compared between real and
-  simulated episodes, the motion **regimes**, and
-* a fast **surrogate** of the replay for the fit.
+* the **channels** it reads and the window **features** compared between real
+  and simulated episodes (:class:`~realitygap.diagnosis.features.FeatureSchema`:
+  feature groups with columns, units and scales, and the motion **regimes**),
+* the **probe manoeuvres** its identifiability advice may suggest,
+* a fast **surrogate** of the replay for the fit, and
+* the **blind-log recorder** and noise model of the validation suite.
 
-The diagnosis (:mod:`realitygap.diagnosis.attribute`) only talks to this
-interface, so other robots plug in their own adapter and effects.
-:class:`DiffDriveAdapter` is the differential drive's.
+The diagnosis (:mod:`realitygap.diagnosis.diagnose`) only talks to this
+interface. :data:`ADAPTER_CLASSES` is the one place that maps robot names to
+adapters. A new robot is
+
+1. one effects module (its :class:`~realitygap.robots.effects.Effect` classes),
+2. one adapter module: a subclass of :class:`AdapterBase` that sets ``robot``,
+   ``channels``, ``schema`` and ``surrogate_effects``, keeps what it needs about
+   a prepared log in a :class:`LogContext` subclass and implements ``check``,
+   ``prepare``, ``replay_features``, ``log_features``, ``surrogate_features``,
+   ``probe_manoeuvres``, ``probe_features``, ``hidden_effects`` and
+   ``record_blind_logs``,
+3. one line in :data:`ADAPTER_CLASSES`.
+
+The adapters are :class:`~realitygap.diagnosis.diffdrive_adapter.DiffDriveAdapter`,
+:class:`~realitygap.diagnosis.arm_adapter.ArmAdapter` and
+:class:`~realitygap.diagnosis.climb_adapter.ClimberAdapter`.
 """
 
 from __future__ import annotations
 
-import math
+import importlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import numpy.typing as npt
 
 from realitygap.diagnosis.features import (
-    FEATURE_COLUMNS,
+    FeatureGroup,
+    FeatureSchema,
     FeatureSettings,
-    classify_regimes,
-    features,
     window_bounds,
 )
-from realitygap.diagnosis.log import Log, LogError
-from realitygap.diagnosis.manoeuvres import MANOEUVRES
-from realitygap.diagnosis.replay import (
-    Drive,
-    SimSettings,
-    applied_commands,
-    nominal_odometry,
-    params_from_meta,
-    replay,
+from realitygap.diagnosis.log import ChannelSpec, Log, LogError
+from realitygap.diagnosis.replay import Drive, SimSettings
+from realitygap.robots.effects import (
+    EFFECTS,
+    BlindRange,
+    Reality,
+    Stage,
+    blind_ranges,
+    library,
+    make_effect,
 )
-from realitygap.diagnosis.surrogate import (
-    SURROGATE_EFFECTS,
-    DiffDriveSurrogate,
-    SurrogateInputs,
-    calibrate,
-)
-from realitygap.robots.diffdrive import DiffDriveParams
-from realitygap.robots.effects import EFFECTS, Reality, Stage, library, make_effect
+
+if TYPE_CHECKING:
+    from realitygap.diagnosis.suite import SuiteSettings
 
 FloatArray = npt.NDArray[np.float64]
 Features = dict[str, FloatArray]
 
 __all__ = [
     "ADAPTERS",
+    "ADAPTER_CLASSES",
     "AdapterBase",
-    "DiffDriveAdapter",
+    "HiddenTable",
+    "LogContext",
     "PreparedLog",
     "RobotAdapter",
+    "WheelDrivenAdapter",
+    "adapter_channels",
+    "close_adapters",
+    "feature_group",
     "get_adapter",
     "known_robots",
     "reality_from_values",
     "split_key",
 ]
+
+HiddenTable = dict[str, tuple[BlindRange, ...]]
+"""Blind-test magnitudes per effect: ``(param, low, high, symmetric)`` per parameter."""
 
 
 def split_key(key: str) -> tuple[str, str]:
@@ -79,6 +99,27 @@ def reality_from_values(values: Mapping[str, float]) -> Reality:
         effect, param = split_key(key)
         grouped.setdefault(effect, {})[param] = float(v)
     return Reality(tuple(make_effect(name, **vals) for name, vals in grouped.items()))
+
+
+@dataclass
+class LogContext:
+    """What an adapter keeps about one prepared log besides its features.
+
+    Each adapter subclasses this with its own inputs (parameters, surrogate
+    inputs, poses, …).
+
+    Attributes
+    ----------
+    sim : SimSettings
+        Replay fidelity of this log.
+    """
+
+    sim: SimSettings
+
+    def window_motion(self, bounds: npt.NDArray[np.int64]) -> FloatArray | None:
+        """The motion of each window in the six columns of
+        :data:`~realitygap.diagnosis.attribute.MOTION_COLUMNS`, (M, 6), or ``None``."""
+        return None
 
 
 @dataclass
@@ -103,7 +144,9 @@ class PreparedLog:
         The nominal replay itself.
     holdout_windows : ndarray of bool, shape (M,)
         Windows scored as held-out data.
-    context : dict
+    schema : FeatureSchema
+        The adapter's feature groups and regimes.
+    context : LogContext
         Adapter-specific inputs (surrogate inputs, parameters, twist).
     bias : dict of group to ndarray, shape (M, k)
         PyBullet nominal minus surrogate nominal (the surrogate's own error).
@@ -117,7 +160,8 @@ class PreparedLog:
     nominal: Features
     replay_log: Log
     holdout_windows: npt.NDArray[np.bool_]
-    context: dict[str, Any] = field(default_factory=dict)
+    schema: FeatureSchema
+    context: LogContext
     bias: Features = field(default_factory=dict)
 
     @property
@@ -126,14 +170,17 @@ class PreparedLog:
 
     @property
     def groups(self) -> list[str]:
-        """Feature groups present in both the real log and its replay."""
-        return [g for g in FEATURE_COLUMNS if g in self.real and g in self.nominal]
+        """Feature groups present in both the real log and its replay, in schema order."""
+        return [g for g in self.schema.names if g in self.real and g in self.nominal]
 
 
 class RobotAdapter(Protocol):
     """What the diagnosis needs from a robot (see the module docstring)."""
 
     robot: str
+    channels: tuple[ChannelSpec, ...]
+    schema: FeatureSchema
+    stage_group: str
 
     def effect_names(self) -> tuple[str, ...]: ...
 
@@ -167,18 +214,70 @@ class RobotAdapter(Protocol):
         self, manoeuvre: str, params_like: PreparedLog, values: Mapping[str, npt.ArrayLike]
     ) -> tuple[Features, list[str]]: ...
 
+    def stage_residuals(self, prepared: PreparedLog) -> dict[str, FloatArray]: ...
+
+    def noise_levels(
+        self, prepared: Sequence[PreparedLog], settings: FeatureSettings
+    ) -> dict[str, float] | None: ...
+
+    def hidden_effects(self) -> HiddenTable: ...
+
+    def record_blind_logs(
+        self, reality: Reality, rng: np.random.Generator, settings: SuiteSettings
+    ) -> tuple[list[Log], list[Log]]: ...
+
+    def close(self) -> None: ...
+
 
 class AdapterBase:
     """What every adapter shares: its effect library, the robot check, observability.
 
-    Subclasses set :attr:`robot`, :attr:`surrogate_effects` (effects the fast
-    surrogate models) and may give :attr:`unobservable` (effect → why these
-    channels cannot show it, whatever the log).
+    Subclasses set :attr:`robot`, :attr:`channels` (the log channels it
+    reads), :attr:`schema` (feature groups and regimes), :attr:`surrogate_effects`
+    (effects the fast surrogate models) and may give :attr:`unobservable`
+    (effect → why these channels cannot show it, whatever the log) and
+    :attr:`stage_group` (the feature group whose columns its
+    :meth:`stage_residuals` use).
     """
 
     robot: str = ""
+    channels: tuple[ChannelSpec, ...] = ()
+    schema: FeatureSchema = FeatureSchema((), ())
     surrogate_effects: tuple[str, ...] = ()
     unobservable: Mapping[str, str] = {}
+    stage_group: str = ""
+
+    def stage_residuals(self, prepared: PreparedLog) -> dict[str, FloatArray]:
+        """Residuals of the pipeline stages inside the real log, per window, in the columns of
+        the feature group :attr:`stage_group` (none by default)."""
+        return {}
+
+    def noise_levels(
+        self, prepared: Sequence[PreparedLog], settings: FeatureSettings
+    ) -> dict[str, float] | None:
+        """Measurement noise per group in feature-scale units, or ``None``: then the
+        window-to-window spread of the residual stands for the noise."""
+        return None
+
+    def hidden_effects(self) -> HiddenTable:
+        """Blind-test magnitudes of the effects the validation suite hides in this robot
+        (each effect's :attr:`~realitygap.robots.effects.Effect.blind` ranges)."""
+        return blind_ranges(self.robot)
+
+    def record_blind_logs(
+        self, reality: Reality, rng: np.random.Generator, settings: SuiteSettings
+    ) -> tuple[list[Log], list[Log]]:
+        """Training and held-out logs of the robot ``reality`` for one blind case."""
+        raise NotImplementedError(f"the blind suite cannot record {self.robot!r} logs")
+
+    def close(self) -> None:
+        """Release what the adapter holds open (simulator scenes); it can be used again."""
+
+    def __enter__(self) -> AdapterBase:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     def effect_names(self) -> tuple[str, ...]:
         return library(self.robot)
@@ -223,95 +322,9 @@ class AdapterBase:
         return ""
 
 
-class DiffDriveAdapter(AdapterBase):
-    """Differential drive: effects, PyBullet replay, channels, features and surrogate."""
-
-    robot = "diffdrive"
-    surrogate_effects = tuple(SURROGATE_EFFECTS)
-
-    # ------------------------------------------------------------------ checks
-    def check(self, log: Log, drive: Drive) -> Log:
-        """Validate a log for this robot; returns it (raises :class:`LogError` with the fix)."""
-        self.check_robot(log, drive)
-        params_from_meta(log)
-        log.check_uniform()
-        if drive is Drive.COMMANDS:
-            log.require(["cmd", "pose_gt"], "a command-driven diagnosis")
-        else:
-            log.require(["ticks", "pose_gt"], "a tick-driven diagnosis")
-        if log.n < 3:
-            raise LogError(f"{log.source}: the log is too short ({log.n} rows)")
-        return log
-
-    # ------------------------------------------------------------------ preparation
-    def prepare(
-        self,
-        log: Log,
-        *,
-        split: str,
-        drive: Drive,
-        features_settings: FeatureSettings,
-        sim: SimSettings | None,
-    ) -> PreparedLog:
-        """Windows, regimes, real features, the nominal replay and the surrogate's bias."""
-        params = params_from_meta(log)
-        dt = log.dt
-        bounds = self.time_windows(log, features_settings)
-        if drive is Drive.COMMANDS:
-            twist = applied_commands(log)
-        else:
-            twist = self._twist_from_ticks(log["ticks"], params, dt)
-        regimes = classify_regimes(twist, bounds, features_settings)
-        settings = sim if sim is not None else SimSettings.for_log(log)
-        start = np.asarray(log["pose_gt"][0], dtype=float)
-        inputs = SurrogateInputs(
-            dt=dt,
-            start=start,
-            commands=twist if drive is Drive.COMMANDS else None,
-            ticks=np.asarray(log["ticks"], dtype=float) if drive is Drive.TICKS else None,
-        )
-        mpt = self.meters_per_tick(params)
-        real = features(log.channels, bounds, mpt)
-        if drive is Drive.TICKS:
-            real.pop("ticks", None)
-        context = {
-            "params": params,
-            "inputs": inputs,
-            "twist": twist,
-            "sim": settings,
-            "surrogate": DiffDriveSurrogate(params, calibrate(params, settings.solver_iterations)),
-        }
-        prepared = PreparedLog(
-            log=log,
-            split=split,
-            bounds=bounds,
-            regimes=regimes,
-            real=real,
-            nominal={},
-            replay_log=log,
-            holdout_windows=np.full(bounds.shape[0], split == "holdout"),
-            context=context,
-        )
-        nominal, replay_log = self.replay_features(prepared, {}, drive, settings)
-        prepared.nominal = {g: v for g, v in nominal.items() if g in real}
-        prepared.replay_log = replay_log
-        sur = self.surrogate_features(prepared, {}, drive)
-        prepared.bias = {g: prepared.nominal[g] - sur[g][0] for g in prepared.groups}
-        return prepared
-
-    @staticmethod
-    def meters_per_tick(params: DiffDriveParams) -> tuple[float, float]:
-        return (
-            2.0 * math.pi * params.wheel_radius_left / params.ticks_per_rev,
-            2.0 * math.pi * params.wheel_radius_right / params.ticks_per_rev,
-        )
-
-    @staticmethod
-    def _twist_from_ticks(ticks: FloatArray, params: DiffDriveParams, dt: float) -> FloatArray:
-        d = np.diff(ticks, axis=0, append=ticks[-1:]) * (2.0 * math.pi / params.ticks_per_rev)
-        sl = d[:, 0] * params.wheel_radius_left / dt
-        sr = d[:, 1] * params.wheel_radius_right / dt
-        return np.column_stack([(sl + sr) / 2.0, (sr - sl) / params.wheelbase])
+class WheelDrivenAdapter(AdapterBase):
+    """An adapter whose replay can be driven by the logged commands or by the measured wheel
+    rotation (:class:`~realitygap.diagnosis.replay.Drive`)."""
 
     # ------------------------------------------------------------------ observability
     def observable(self, effect: str, prepared: Sequence[PreparedLog], drive: Drive) -> str:
@@ -325,110 +338,57 @@ class DiffDriveAdapter(AdapterBase):
             why += " (ticks drive the replay)"
         return why
 
-    # ------------------------------------------------------------------ models
-    def replay_features(
-        self, prepared: PreparedLog, values: Mapping[str, float], drive: Drive, sim: SimSettings
-    ) -> tuple[Features, Log]:
-        """PyBullet replay with effect values ``{"effect.param": v}``; its features and log."""
-        reality = reality_from_values(values) if values else None
-        rep = replay(
-            prepared.log,
-            reality,
-            drive=drive,
-            settings=sim,
-            params=prepared.context["params"],
-        )
-        feats = features(
-            rep.channels, prepared.bounds, self.meters_per_tick(prepared.context["params"])
-        )
-        if drive is Drive.TICKS:
-            feats.pop("ticks", None)
-        return feats, rep
 
-    def log_features(self, prepared: PreparedLog, log: Log) -> Features:
-        """Window features of another log of the same episode (e.g. a replay)."""
-        mpt = self.meters_per_tick(prepared.context["params"])
-        return features(log.channels, prepared.bounds, mpt)
-
-    def surrogate_features(
-        self, prepared: PreparedLog, values: Mapping[str, npt.ArrayLike], drive: Drive
-    ) -> Features:
-        """Surrogate features for a batch of effect values, (B, M, k) per group."""
-        sur: DiffDriveSurrogate = prepared.context["surrogate"]
-        out = sur.simulate(prepared.context["inputs"], values)
-        feats = features(out, prepared.bounds, self.meters_per_tick(prepared.context["params"]))
-        return {g: v for g, v in feats.items() if g in prepared.real}
-
-    def probe_manoeuvres(self) -> dict[str, str]:
-        """Manoeuvres the identifiability advice may suggest, with descriptions."""
-        from realitygap.diagnosis.manoeuvres import PROBE_MANOEUVRES
-
-        return {name: MANOEUVRES[name].description for name in PROBE_MANOEUVRES}
-
-    def probe_features(
-        self, manoeuvre: str, params_like: PreparedLog, values: Mapping[str, npt.ArrayLike]
-    ) -> tuple[Features, list[str]]:
-        """Surrogate features of a library manoeuvre (for identifiability advice)."""
-        params: DiffDriveParams = params_like.context["params"]
-        man = MANOEUVRES[manoeuvre]
-        dt = params_like.log.dt
-        t, cmd = man.applied(dt, params)
-        sur: DiffDriveSurrogate = params_like.context["surrogate"]
-        out = sur.simulate(SurrogateInputs(dt, np.zeros(3), commands=cmd), values)
-        bounds = window_bounds(t.shape[0], dt, 1.0)
-        feats = features(out, bounds, self.meters_per_tick(params))
-        groups = [g for g in params_like.real if g in feats]
-        return {g: feats[g] for g in groups}, groups
-
-    # ------------------------------------------------------------------ stages
-    def stage_residuals(self, prepared: PreparedLog) -> dict[str, FloatArray]:
-        """Residuals of the pipeline stages inside the real log, per window.
-
-        ``command → motion``: real ground truth minus the nominal replay's;
-        ``motion → sensor``: encoder travel minus the travel the nominal
-        geometry predicts from the ground-truth motion; ``sensor → estimate``:
-        the logged estimate's motion minus nominal odometry of the logged ticks.
-        """
-        params: DiffDriveParams = prepared.context["params"]
-        log = prepared.log
-        out: dict[str, FloatArray] = {}
-        if "pose_gt" in prepared.real and "pose_gt" in prepared.nominal:
-            out["command → motion"] = prepared.real["pose_gt"] - prepared.nominal["pose_gt"]
-        if log.has("ticks") and log.has("pose_gt"):
-            mpt = self.meters_per_tick(params)
-            odo = nominal_odometry(np.asarray(log["ticks"]), params, log["pose_gt"][0])
-            f_odo = features({"pose_gt": odo}, prepared.bounds, mpt)["pose_gt"]
-            out["motion → sensor"] = f_odo - prepared.real["pose_gt"]
-            if log.has("pose_est"):
-                f_est = features({"pose_gt": log["pose_est"]}, prepared.bounds, mpt)["pose_gt"]
-                out["sensor → estimate"] = f_est - f_odo
-        return out
-
-
-ADAPTERS: dict[str, RobotAdapter] = {"diffdrive": DiffDriveAdapter()}
-"""Robot adapters by robot name (the others are loaded on first use, see :data:`LAZY_ADAPTERS`)."""
-
-LAZY_ADAPTERS: dict[str, str] = {
+# --------------------------------------------------------------------------- the registry
+ADAPTER_CLASSES: dict[str, str] = {
+    "diffdrive": "realitygap.diagnosis.diffdrive_adapter:DiffDriveAdapter",
     "arm": "realitygap.diagnosis.arm_adapter:ArmAdapter",
     "climber": "realitygap.diagnosis.climb_adapter:ClimberAdapter",
 }
-"""``robot`` → ``"module:Class"`` of adapters built when first asked for."""
+"""``robot`` → ``"module:Class"`` of its adapter: the one map from robot names to adapters."""
+
+ADAPTERS: dict[str, RobotAdapter] = {}
+"""Adapters of this process by robot name, built on first use (:func:`get_adapter`); an
+entry set here replaces the default one."""
 
 
 def known_robots() -> tuple[str, ...]:
-    """Names of every robot with a diagnosis adapter."""
-    return tuple(sorted(set(ADAPTERS) | set(LAZY_ADAPTERS)))
+    """Names of every robot with a diagnosis adapter, in registry order."""
+    return tuple(dict.fromkeys([*ADAPTER_CLASSES, *ADAPTERS]))
 
 
 def get_adapter(robot: str) -> RobotAdapter:
     """The adapter of ``robot``; a ``ValueError`` listing the known robots otherwise."""
-    if robot not in ADAPTERS and robot in LAZY_ADAPTERS:
-        import importlib
-
-        module, _, cls = LAZY_ADAPTERS[robot].partition(":")
+    if robot not in ADAPTERS and robot in ADAPTER_CLASSES:
+        module, _, cls = ADAPTER_CLASSES[robot].partition(":")
         ADAPTERS[robot] = getattr(importlib.import_module(module), cls)()
     if robot not in ADAPTERS:
         raise ValueError(
-            f"no diagnosis adapter for robot {robot!r}; known: {', '.join(known_robots())}"
+            f"no diagnosis adapter for robot {robot!r}; known: {', '.join(sorted(known_robots()))}"
         )
     return ADAPTERS[robot]
+
+
+def close_adapters() -> None:
+    """Close every adapter of this process (their simulator scenes) and forget them."""
+    while ADAPTERS:
+        _, adapter = ADAPTERS.popitem()
+        adapter.close()
+
+
+def adapter_channels() -> dict[str, ChannelSpec]:
+    """The channels every adapter declares, by name, in registry order."""
+    out: dict[str, ChannelSpec] = {}
+    for robot in known_robots():
+        for spec in get_adapter(robot).channels:
+            out.setdefault(spec.name, spec)
+    return out
+
+
+def feature_group(name: str) -> FeatureGroup:
+    """The feature group ``name`` as the adapter that compares it declares it."""
+    for robot in known_robots():
+        schema = get_adapter(robot).schema
+        if name in schema.names:
+            return schema.group(name)
+    raise KeyError(f"no robot adapter compares a feature group {name!r}")

@@ -49,24 +49,38 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.diagnosis.adapters import AdapterBase, PreparedLog, reality_from_values
-from realitygap.diagnosis.features import TOOL_DIST_COLUMNS, FeatureSettings
-from realitygap.diagnosis.log import Log, LogError
+from realitygap.diagnosis.adapters import (
+    AdapterBase,
+    LogContext,
+    PreparedLog,
+    reality_from_values,
+)
+from realitygap.diagnosis.features import FeatureGroup, FeatureSchema, FeatureSettings
+from realitygap.diagnosis.log import ChannelSpec, Log, LogError, Role
 from realitygap.diagnosis.replay import Drive, SimSettings
 from realitygap.estimators.arm.mdh import MDHTable
+
+if TYPE_CHECKING:
+    from realitygap.diagnosis.suite import SuiteSettings
 
 FloatArray = npt.NDArray[np.float64]
 Features = dict[str, FloatArray]
 
 __all__ = [
+    "ARM_CHANNELS",
     "ARM_PROBE_SETS",
+    "ARM_REGIMES",
+    "ARM_SCHEMA",
     "POSES_PER_WINDOW",
+    "TOOL_DIST_COLUMNS",
     "ArmAdapter",
+    "ArmContext",
     "arm_params_from_meta",
     "arm_params_to_meta",
     "backlash_directions",
@@ -81,6 +95,43 @@ __all__ = [
 
 POSES_PER_WINDOW = 4
 """Consecutive poses per window (their 6 pairwise distances are the features)."""
+
+TOOL_DIST_COLUMNS: tuple[str, ...] = ("d01", "d02", "d03", "d12", "d13", "d23")
+"""Pairs of the four poses of an arm window whose tool-point distance is compared."""
+
+ARM_REGIMES: tuple[str, ...] = ("folded", "mid_reach", "outstretched")
+"""Arm windows, by how far the wrist reaches out from the base axis."""
+
+ARM_CHANNELS: tuple[ChannelSpec, ...] = (
+    ChannelSpec(
+        "joints",
+        ("q1", "q2", "q3", "q4", "q5", "q6"),
+        ("rad",) * 6,
+        Role.SENSOR,
+        "joint encoder readings of the arm at rest",
+    ),
+    ChannelSpec(
+        "tool_pos",
+        ("x", "y", "z"),
+        ("m", "m", "m"),
+        Role.TRUTH,
+        "tool point measured by an external instrument (laser tracker), in its own frame",
+    ),
+)
+"""Channels of an arm log: one row per measurement pose, the arm at rest."""
+
+ARM_SCHEMA = FeatureSchema(
+    groups=(
+        FeatureGroup(
+            "tool_dist",
+            TOOL_DIST_COLUMNS,
+            ("m",) * len(TOOL_DIST_COLUMNS),
+            (1e-4,) * len(TOOL_DIST_COLUMNS),
+        ),
+    ),
+    regimes=ARM_REGIMES,
+)
+"""The arm's window features (tool-point distances, default scale 0.1 mm) and regimes."""
 
 _PAIRS = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
 assert len(_PAIRS) == len(TOOL_DIST_COLUMNS)
@@ -399,6 +450,40 @@ def replay_arm(
 
 
 # --------------------------------------------------------------------------- the adapter
+@dataclass
+class ArmContext(LogContext):
+    """What the arm keeps about a prepared log.
+
+    Attributes
+    ----------
+    params : ArmParams
+        The nominal arm of the log.
+    tool : ndarray, shape (3,)
+        Tool point in the flange frame, m.
+    q : ndarray, shape (N, 6)
+        Joint readings of the kept poses, rad.
+    tau : ndarray, shape (N, 6)
+        Holding torques of the nominal body at those poses, N·m.
+    direction : ndarray, shape (N, 6)
+        Direction of each joint's last move (backlash).
+    rows : ndarray of int, shape (N,)
+        Rows of the log the kept poses come from.
+    motion : ndarray, shape (M, 6)
+        Per window: reach and the shoulder / elbow holding torques (/ 100 N·m), then zeros.
+    """
+
+    params: Any
+    tool: FloatArray
+    q: FloatArray
+    tau: FloatArray
+    direction: FloatArray
+    rows: npt.NDArray[np.int64]
+    motion: FloatArray
+
+    def window_motion(self, bounds: npt.NDArray[np.int64]) -> FloatArray | None:
+        return self.motion
+
+
 class ArmAdapter(AdapterBase):
     """Arm: effects, PyBullet replay, tool-distance features and the analytic surrogate.
 
@@ -411,6 +496,8 @@ class ArmAdapter(AdapterBase):
     """
 
     robot = "arm"
+    channels = ARM_CHANNELS
+    schema = ARM_SCHEMA
     surrogate_effects = _SURROGATE_EFFECTS
 
     def __init__(self, max_windows: int = 600):
@@ -469,16 +556,16 @@ class ArmAdapter(AdapterBase):
         motion = np.zeros((bounds.shape[0], 6))
         for m, (a, b) in enumerate(bounds):
             motion[m, :3] = (reach[a:b].mean(), tau[a:b, 1].mean() / 100, tau[a:b, 2].mean() / 100)
-        context = {
-            "params": params,
-            "tool": tool,
-            "q": q,
-            "tau": tau,
-            "direction": direction,
-            "rows": keep,
-            "motion": motion,
-            "sim": sim if sim is not None else SimSettings(),
-        }
+        context = ArmContext(
+            sim=sim if sim is not None else SimSettings(),
+            params=params,
+            tool=tool,
+            q=q,
+            tau=tau,
+            direction=direction,
+            rows=keep,
+            motion=motion,
+        )
         prepared = PreparedLog(
             log=log,
             split=split,
@@ -488,6 +575,7 @@ class ArmAdapter(AdapterBase):
             nominal={"tool_dist": tool_distance_features(nominal_pts, bounds)},
             replay_log=self._replay_log(log, q, nominal_pts),
             holdout_windows=np.full(bounds.shape[0], split == "holdout"),
+            schema=self.schema,
             context=context,
         )
         sur = self.surrogate_features(prepared, {}, drive)
@@ -513,10 +601,9 @@ class ArmAdapter(AdapterBase):
             )
         return why
 
-    @staticmethod
     def noise_levels(
-        prepared: Sequence[PreparedLog], settings: FeatureSettings
-    ) -> dict[str, float]:
+        self, prepared: Sequence[PreparedLog], settings: FeatureSettings
+    ) -> dict[str, float] | None:
         """Noise of the tool-point distances in feature-scale units.
 
         Windows of random poses are independent, so the window-to-window spread
@@ -533,14 +620,20 @@ class ArmAdapter(AdapterBase):
         return {"tool_dist": math.sqrt(2.0) * sigma / scale}
 
     # ------------------------------------------------------------------ models
+    @staticmethod
+    def _context(prepared: PreparedLog) -> ArmContext:
+        ctx = prepared.context
+        assert isinstance(ctx, ArmContext)
+        return ctx
+
     def replay_features(
         self, prepared: PreparedLog, values: Mapping[str, float], drive: Drive, sim: SimSettings
     ) -> tuple[Features, Log]:
         reality = reality_from_values(values) if values else None
-        ctx = prepared.context
-        pts, _ = replay_arm(ctx["params"], ctx["q"], ctx["tool"], reality, ctx["direction"])
+        ctx = self._context(prepared)
+        pts, _ = replay_arm(ctx.params, ctx.q, ctx.tool, reality, ctx.direction)
         feats = {"tool_dist": tool_distance_features(pts, prepared.bounds)}
-        return feats, self._replay_log(prepared.log, ctx["q"], pts)
+        return feats, self._replay_log(prepared.log, ctx.q, pts)
 
     def log_features(self, prepared: PreparedLog, log: Log) -> Features:
         """Window features of a replay of the prepared poses."""
@@ -549,32 +642,47 @@ class ArmAdapter(AdapterBase):
     def surrogate_features(
         self, prepared: PreparedLog, values: Mapping[str, npt.ArrayLike], drive: Drive
     ) -> Features:
-        ctx = prepared.context
-        pts = surrogate_points(
-            ctx["params"].mdh, ctx["q"], ctx["tau"], ctx["direction"], ctx["tool"], values
-        )
+        ctx = self._context(prepared)
+        pts = surrogate_points(ctx.params.mdh, ctx.q, ctx.tau, ctx.direction, ctx.tool, values)
         return {"tool_dist": tool_distance_features(pts, prepared.bounds)}
 
     def probe_features(
         self, manoeuvre: str, params_like: PreparedLog, values: Mapping[str, npt.ArrayLike]
     ) -> tuple[Features, list[str]]:
-        ctx = params_like.context
-        q = probe_poses(manoeuvre, ctx["params"].mdh)
+        ctx = self._context(params_like)
+        q = probe_poses(manoeuvre, ctx.params.mdh)
         # holding torques of the nominal body at the probe poses
         from realitygap.robots.arm import ArmRobot
         from realitygap.robots.world import World
 
         world = World()
         try:
-            robot = ArmRobot(world, ctx["params"])
+            robot = ArmRobot(world, ctx.params)
             tau = np.array([robot.gravity_torques(x) for x in q])
         finally:
             world.close()
-        pts = surrogate_points(
-            ctx["params"].mdh, q, tau, backlash_directions(q), ctx["tool"], values
-        )
+        pts = surrogate_points(ctx.params.mdh, q, tau, backlash_directions(q), ctx.tool, values)
         bounds = _windows(q.shape[0])
         return {"tool_dist": tool_distance_features(pts, bounds)}, ["tool_dist"]
+
+    # ------------------------------------------------------------------ blind suite
+    def record_blind_logs(
+        self, reality: Any, rng: np.random.Generator, settings: SuiteSettings
+    ) -> tuple[list[Log], list[Log]]:
+        """One training and one held-out set of random poses measured by a laser tracker."""
+        train, holdout = (
+            [
+                record_arm_log(
+                    reality,
+                    rng,
+                    settings.arm_poses,
+                    tracker_noise=settings.arm_tracker_noise,
+                    name=name,
+                )
+            ]
+            for name in ("arm_train", "arm_holdout")
+        )
+        return train, holdout
 
 
 def probe_poses(name: str, table: MDHTable, n: int = 40) -> FloatArray:

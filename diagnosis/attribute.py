@@ -42,7 +42,7 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 
 from realitygap.diagnosis.adapters import PreparedLog, RobotAdapter
-from realitygap.diagnosis.features import FEATURE_COLUMNS, REGIMES, FeatureSettings
+from realitygap.diagnosis.features import FeatureSchema, FeatureSettings
 from realitygap.diagnosis.replay import Drive, SimSettings
 from realitygap.robots.effects import EFFECTS
 
@@ -160,9 +160,10 @@ def _dx_du(key: str, x: float) -> float:
 # --------------------------------------------------------------------------- layout
 MOTION_COLUMNS = ("v_mean", "w_mean", "dv", "dw", "v_range", "w_range")
 """Commanded motion of a window: mean speed and turn rate, their signed change over the
-window (m/s, rad/s) and their ranges. An adapter may describe its windows itself in six
-columns (``context["motion"]``: an arm's reach and holding torques, a climber's speed and
-vertical speed); the trend test regresses the residual on whichever is given."""
+window (m/s, rad/s) and their ranges. Each adapter's log context describes its windows in
+these six columns (:meth:`~realitygap.diagnosis.adapters.LogContext.window_motion`: a
+differential drive's commanded motion, an arm's reach and holding torques, a climber's
+speed and vertical speed); the trend test regresses the residual on it."""
 
 
 @dataclass
@@ -171,7 +172,8 @@ class Layout:
 
     ``blocks`` lists ``(log index, group, window indices)``; the per-entry
     arrays (length n) give group, column, regime, log, window and the
-    commanded motion of the window (:data:`MOTION_COLUMNS`).
+    commanded motion of the window (:data:`MOTION_COLUMNS`); ``schema`` is
+    the robot's feature groups and regimes.
     """
 
     blocks: list[tuple[int, str, npt.NDArray[np.int64]]]
@@ -182,13 +184,14 @@ class Layout:
     log: npt.NDArray[np.int64]
     window: npt.NDArray[np.int64]
     motion: FloatArray
+    schema: FeatureSchema
 
     @property
     def n(self) -> int:
         return int(self.group.shape[0])
 
     @classmethod
-    def build(cls, logs: Sequence[PreparedLog], split: str) -> Layout:
+    def build(cls, logs: Sequence[PreparedLog], split: str, schema: FeatureSchema) -> Layout:
         blocks = []
         g_all, c_all, r_all, l_all, w_all, m_all = [], [], [], [], [], []
         for i, p in enumerate(logs):
@@ -198,25 +201,12 @@ class Layout:
                 wins = np.flatnonzero(p.holdout_windows)
             if wins.size == 0:
                 continue
-            twist = p.context.get("twist")
             motion = np.zeros((p.bounds.shape[0], len(MOTION_COLUMNS)))
-            if p.context.get("motion") is not None:
-                # the adapter's own per-window description (e.g. an arm's reach and load)
-                motion[:] = p.context["motion"]
-            elif twist is not None:
-                for m, (a, b) in enumerate(p.bounds):
-                    seg = twist[a:b]
-                    before = twist[max(a - 1, 0)]
-                    motion[m] = (
-                        seg[:, 0].mean(),
-                        seg[:, 1].mean(),
-                        twist[b - 1, 0] - before[0],
-                        twist[b - 1, 1] - before[1],
-                        np.ptp(twist[max(a - 1, 0) : b, 0]),
-                        np.ptp(twist[max(a - 1, 0) : b, 1]),
-                    )
+            described = p.context.window_motion(p.bounds)
+            if described is not None:
+                motion[:] = described
             for g in p.groups:
-                cols = FEATURE_COLUMNS[g]
+                cols = schema.columns(g)
                 blocks.append((i, g, wins))
                 for w in wins:
                     for c in cols:
@@ -234,6 +224,7 @@ class Layout:
             log=np.asarray(l_all, dtype=np.int64),
             window=np.asarray(w_all, dtype=np.int64),
             motion=np.asarray(m_all, dtype=float).reshape(-1, len(MOTION_COLUMNS)),
+            schema=schema,
         )
 
 
@@ -263,8 +254,8 @@ class Problem:
     holdout: Layout = field(init=False)
 
     def __post_init__(self) -> None:
-        self.train = Layout.build(self.logs, "train")
-        self.holdout = Layout.build(self.logs, "holdout")
+        self.train = Layout.build(self.logs, "train", self.adapter.schema)
+        self.holdout = Layout.build(self.logs, "holdout", self.adapter.schema)
 
     def real_minus(
         self,
@@ -606,7 +597,8 @@ def describe_residual(
         explained by the commanded motion.
     """
     out: dict[str, Any] = {"structured": False, "reasons": [], "groups": {}}
-    for g in FEATURE_COLUMNS:
+    regimes = layout.schema.regimes
+    for g in layout.schema.names:
         sel = layout.group == g
         if sel.sum() < 6:
             continue
@@ -615,7 +607,7 @@ def describe_residual(
         white = noise[g] if noise is not None and g in noise else _white_level(z, layout, sel)
         level = max(white, settings.floor)
         excess = rms / level
-        cols = FEATURE_COLUMNS[g]
+        cols = layout.schema.columns(g)
         scale = scales.scale(g)
         per_col_rms = {}
         for j, c in enumerate(cols):
@@ -640,14 +632,14 @@ def describe_residual(
             # noise reference: the column's white level, or its quietest regime if lower
             quiet = [
                 float(np.sqrt(np.mean(z[mc & (layout.regime == r)] ** 2)))
-                for r in REGIMES
+                for r in regimes
                 if (mc & (layout.regime == r)).sum() >= 10
             ]
             if noise is not None and g in noise:
                 lvl_c = max(noise[g], settings.floor)
             else:
                 lvl_c = max(min([_white_level(z, layout, mc), *quiet]), settings.floor)
-            for r in ("all", *REGIMES):
+            for r in ("all", *regimes):
                 m = mc if r == "all" else mc & (layout.regime == r)
                 if m.sum() < 5:
                     continue
@@ -657,7 +649,7 @@ def describe_residual(
                     worst_ratio_where = c if r == "all" else f"{c} while {r}"
         regime_means: dict[str, dict[str, float]] = {}
         worst_t, worst_where = 0.0, ""
-        for r in REGIMES:
+        for r in regimes:
             for j, c in enumerate(cols):
                 m = sel & (layout.regime == r) & (layout.column == c)
                 if m.sum() < 3:
@@ -703,7 +695,7 @@ def describe_residual(
         info = {
             "rms": rms,
             "rms_units": per_col_rms,
-            "units": dict(zip(cols, _units(g))),
+            "units": dict(zip(cols, layout.schema.units(g))),
             "white_level": white,
             "excess_ratio": excess,
             "lag1_autocorrelation": lag1,
@@ -740,9 +732,3 @@ def describe_residual(
             )
     out["structured"] = bool(out["reasons"])
     return out
-
-
-def _units(group: str) -> tuple[str, ...]:
-    from realitygap.diagnosis.features import FEATURE_UNITS
-
-    return FEATURE_UNITS[group]

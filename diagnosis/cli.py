@@ -2,7 +2,7 @@
 
 ::
 
-    realitygap diagnose LOG... [--holdout LOG...] [--robot diffdrive|arm] [--effects a,b,…]
+    realitygap diagnose LOG... [--holdout LOG...] [--robot diffdrive|arm|climber] [--effects a,b,…]
                         [--drive commands|ticks] --report DIR --json PATH
 
 A LOG is a saved ``.npz`` log, an OptiOdom session folder, a UR10 laser-tracker set,
@@ -77,7 +77,8 @@ def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--holdout", nargs="+", metavar="LOG", default=[], help="held-out logs")
     p.add_argument(
         "--robot",
-        help="robot adapter: diffdrive or arm (default: the robot the logs name, else diffdrive)",
+        help="robot adapter: diffdrive, arm or climber (default: the robot the logs name, "
+        "else diffdrive)",
     )
     p.add_argument(
         "--effects", help="comma-separated candidate effects (default: every effect of the robot)"
@@ -124,7 +125,19 @@ def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run_diagnose(args: argparse.Namespace) -> int:
-    """Run the ``diagnose`` sub-command; returns the exit status."""
+    """Run the ``diagnose`` sub-command; returns the exit status.
+
+    The robot adapters' simulator scenes are closed when it returns.
+    """
+    from realitygap.diagnosis.adapters import close_adapters
+
+    try:
+        return _diagnose(args)
+    finally:
+        close_adapters()
+
+
+def _diagnose(args: argparse.Namespace) -> int:
     from realitygap.diagnosis.attribute import AttributionSettings
     from realitygap.diagnosis.backends import make_backend
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
@@ -162,8 +175,9 @@ def run_diagnose(args: argparse.Namespace) -> int:
         )
         robot = args.robot
         if robot is None:
-            named = {str(lg.meta.get("robot", "diffdrive")) for lg in train + list(holdout or [])}
-            robot = named.pop() if len(named) == 1 else "diffdrive"
+            default = DiagnosisSettings.robot
+            named = {str(lg.meta.get("robot", default)) for lg in train + list(holdout or [])}
+            robot = named.pop() if len(named) == 1 else default
         settings = DiagnosisSettings(
             robot=robot,
             drive=args.drive,

@@ -39,23 +39,37 @@ from __future__ import annotations
 import dataclasses
 import json
 from collections.abc import Mapping
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
-from realitygap.diagnosis.adapters import AdapterBase, PreparedLog
-from realitygap.diagnosis.features import FeatureSettings
-from realitygap.diagnosis.log import Log, LogError
+from realitygap.diagnosis.adapters import (
+    AdapterBase,
+    LogContext,
+    PreparedLog,
+    get_adapter,
+)
+from realitygap.diagnosis.features import FeatureGroup, FeatureSchema, FeatureSettings
+from realitygap.diagnosis.log import ChannelSpec, Log, LogError, Role
 from realitygap.diagnosis.replay import Drive, SimSettings
+
+if TYPE_CHECKING:
+    from realitygap.diagnosis.suite import SuiteSettings
 
 FloatArray = npt.NDArray[np.float64]
 Features = dict[str, FloatArray]
 
 __all__ = [
+    "CLIMBER_CHANNELS",
+    "CLIMBER_REGIMES",
+    "CLIMBER_SCHEMA",
     "CLIMB_PROBES",
+    "BladeScenes",
     "ClimberAdapter",
+    "ClimberContext",
     "climber_params_from_meta",
     "climber_params_to_meta",
     "log_from_climb_recording",
@@ -69,6 +83,31 @@ CLIMB_PROBES: dict[str, str] = {
     "changes most)",
 }
 """Paths suggested to separate confounded climber effects."""
+
+CLIMBER_REGIMES: tuple[str, ...] = ("standing", "climbing", "descending", "traversing")
+"""Climber windows, by the true motion on the blade."""
+
+CLIMBER_CHANNELS: tuple[ChannelSpec, ...] = (
+    ChannelSpec(
+        "pose3_gt",
+        ("x", "y", "z", "rx", "ry", "rz"),
+        ("m", "m", "m", "rad", "rad", "rad"),
+        Role.TRUTH,
+        "ground-truth 3-D body pose: position and rotation vector in the world (CAD) frame",
+    ),
+    ChannelSpec("tether", ("length",), ("m",), Role.SENSOR, "tether length reported by the spool"),
+)
+"""Channels of a climber log."""
+
+CLIMBER_SCHEMA = FeatureSchema(
+    groups=(
+        FeatureGroup("tether", ("length",), ("m",), (1e-3,)),
+        FeatureGroup("surface", ("height",), ("m",), (1e-3,)),
+    ),
+    regimes=CLIMBER_REGIMES,
+)
+"""The climber's window features (tether reading, ride height; default scale 1 mm) and
+regimes."""
 
 _SURROGATE_EFFECTS = (
     "climber_tether_sag",
@@ -156,24 +195,52 @@ def heights_above_cad(params: Any, positions: FloatArray) -> FloatArray:
     return np.asarray(proj.offset, dtype=float).reshape(-1)
 
 
-_SCENES: dict[str, Any] = {}
-"""PyBullet blade scenes of this process, by geometry (building one takes about a second)."""
+class BladeScenes:
+    """PyBullet blade scenes by geometry, built on first use and closed by :meth:`close`.
 
+    Building a scene takes about a second, so a replay keeps one per blade
+    geometry; the owner (a :class:`ClimberAdapter`) closes them. Also a context
+    manager.
+    """
 
-def _scene(params: Any) -> Any:
-    from realitygap.robots.climber import ClimbWorld
+    def __init__(self) -> None:
+        self._scenes: dict[str, Any] = {}
 
-    key = _geometry_key(params)
-    if key not in _SCENES:
-        scene = ClimbWorld(params.replace(gap_offset=0.0))
-        # bodies of other ride heights are loaded from the same file name: no caching
-        scene.world.bullet.setPhysicsEngineParameter(enableFileCaching=0)
-        _SCENES[key] = scene
-    return _SCENES[key]
+    def scene(self, params: Any) -> Any:
+        """The :class:`~realitygap.robots.climber.ClimbWorld` of ``params``' blade and mount."""
+        from realitygap.robots.climber import ClimbWorld
+
+        key = _geometry_key(params)
+        if key not in self._scenes:
+            scene = ClimbWorld(params.replace(gap_offset=0.0))
+            # bodies of other ride heights are loaded from the same file name: no caching
+            scene.world.bullet.setPhysicsEngineParameter(enableFileCaching=0)
+            self._scenes[key] = scene
+        return self._scenes[key]
+
+    def close(self) -> None:
+        """Close every scene (disconnect its physics client)."""
+        while self._scenes:
+            _, scene = self._scenes.popitem()
+            scene.close()
+
+    def __len__(self) -> int:
+        return len(self._scenes)
+
+    def __enter__(self) -> BladeScenes:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 def replay_heights(
-    params: Any, poses: FloatArray, gap: float = 0.0, settle_steps: int = 96
+    params: Any,
+    poses: FloatArray,
+    gap: float = 0.0,
+    settle_steps: int = 96,
+    *,
+    scenes: BladeScenes,
 ) -> FloatArray:
     """Ride height (M,) of the PyBullet climber above the CAD surface at ``poses`` (M, 6).
 
@@ -181,12 +248,13 @@ def replay_heights(
     pose (position, rotation vector; world frame) and settles for ``settle_steps``
     physics steps under gravity and suction on its wheels and casters; then the
     height of its origin above the nominal CAD surface is read. On a curved
-    blade this differs from the wheel radius by the sagitta under the body.
+    blade this differs from the wheel radius by the sagitta under the body. The
+    blade scene comes from ``scenes``.
     """
     from realitygap.robots.climber import ClimberRobot
 
     body = params.replace(gap_offset=float(gap))
-    scene = _scene(params)
+    scene = scenes.scene(params)
     robot = ClimberRobot(scene, body)
     bullet = scene.world.bullet
     try:
@@ -248,12 +316,75 @@ def _window_means(x: FloatArray, bounds: npt.NDArray[np.int64]) -> FloatArray:
 
 
 # --------------------------------------------------------------------------- the adapter
+@dataclass
+class ClimberContext(LogContext):
+    """What the climber keeps about a prepared log.
+
+    Attributes
+    ----------
+    params : ClimberParams
+        The nominal climber of the log.
+    positions : ndarray, shape (N, 3)
+        True body positions, world frame, m.
+    anchor : ndarray, shape (3,)
+        Nominal tether anchor, world frame, m.
+    motion : ndarray, shape (M, 6)
+        Per window: speed and vertical speed (m/s), then zeros.
+    window_poses : ndarray, shape (M, 6)
+        True pose at each window's middle row (position, rotation vector).
+    nominal_heights : ndarray, shape (M,) or None
+        Ride heights of the nominal body, once replayed.
+    """
+
+    params: Any
+    positions: FloatArray
+    anchor: FloatArray
+    motion: FloatArray
+    window_poses: FloatArray
+    nominal_heights: FloatArray | None = None
+
+    def window_motion(self, bounds: npt.NDArray[np.int64]) -> FloatArray | None:
+        return self.motion
+
+
 class ClimberAdapter(AdapterBase):
-    """Climber: tether and ride-height features, sensor replay with PyBullet ride height."""
+    """Climber: tether and ride-height features, sensor replay with PyBullet ride height.
+
+    The adapter owns the PyBullet blade scenes of its replays (:attr:`scenes`);
+    :meth:`close` releases them. A copy unpickled in another process uses the
+    scenes of that process's registered climber adapter.
+    """
 
     robot = "climber"
+    channels = CLIMBER_CHANNELS
+    schema = CLIMBER_SCHEMA
     surrogate_effects = _SURROGATE_EFFECTS
     unobservable = _WHY_NOT
+
+    def __init__(self) -> None:
+        self.scenes = BladeScenes()
+
+    def close(self) -> None:
+        """Close the blade scenes of the replays."""
+        self.scenes.close()
+
+    def __getstate__(self) -> dict[str, Any]:
+        # live simulator scenes do not travel to other processes
+        state = self.__dict__.copy()
+        del state["scenes"]
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        # a copy sent to another process replays in that process's registered adapter's scenes
+        self.__dict__.update(state)
+        registered = get_adapter(self.robot)
+        self.scenes = registered.scenes if isinstance(registered, ClimberAdapter) else BladeScenes()
+
+    @staticmethod
+    def _context(prepared: PreparedLog) -> ClimberContext:
+        ctx = prepared.context
+        assert isinstance(ctx, ClimberContext)
+        return ctx
 
     def probe_manoeuvres(self) -> dict[str, str]:
         return dict(CLIMB_PROBES)
@@ -302,16 +433,16 @@ class ClimberAdapter(AdapterBase):
                 regimes.append("descending")
             else:
                 regimes.append("traversing")
-        context = {
-            "params": params,
-            "positions": pos,
-            "anchor": np.asarray(params.anchor_world, dtype=float),
-            "motion": motion,
-            "sim": sim if sim is not None else SimSettings(),
-            "window_poses": np.asarray(log["pose3_gt"], dtype=float)[
+        context = ClimberContext(
+            sim=sim if sim is not None else SimSettings(),
+            params=params,
+            positions=pos,
+            anchor=np.asarray(params.anchor_world, dtype=float),
+            motion=motion,
+            window_poses=np.asarray(log["pose3_gt"], dtype=float)[
                 (bounds[:, 0] + bounds[:, 1]) // 2
             ],
-        }
+        )
         prepared = PreparedLog(
             log=log,
             split=split,
@@ -321,9 +452,10 @@ class ClimberAdapter(AdapterBase):
             nominal={},
             replay_log=log,
             holdout_windows=np.full(bounds.shape[0], split == "holdout"),
+            schema=self.schema,
             context=context,
         )
-        nominal, replay_log = self.replay_features(prepared, {}, drive, context["sim"])
+        nominal, replay_log = self.replay_features(prepared, {}, drive, context.sim)
         prepared.nominal = nominal
         prepared.replay_log = replay_log
         sur = self.surrogate_features(prepared, {}, drive)
@@ -336,8 +468,8 @@ class ClimberAdapter(AdapterBase):
         self, prepared: PreparedLog, values: Mapping[str, npt.ArrayLike], heights: FloatArray
     ) -> Features:
         """Window features for a batch of values; ``heights`` the ride heights, (B, M) or (M,)."""
-        ctx = prepared.context
-        tether = tether_model(ctx["anchor"], ctx["positions"], values)
+        ctx = self._context(prepared)
+        tether = tether_model(ctx.anchor, ctx.positions, values)
         B, M = tether.shape[0], prepared.bounds.shape[0]
         h = np.broadcast_to(np.asarray(heights, dtype=float).reshape(-1, M), (B, M))
         return {
@@ -349,16 +481,16 @@ class ClimberAdapter(AdapterBase):
         self, prepared: PreparedLog, values: Mapping[str, float], drive: Drive, sim: SimSettings
     ) -> tuple[Features, Log]:
         """Tether model along the true path; ride height measured in PyBullet."""
-        ctx = prepared.context
+        ctx = self._context(prepared)
         gap = float(values.get("climber_adsorption_gap.gap", 0.0))
-        if gap == 0.0 and "nominal_heights" in ctx:  # the nominal body: replayed once
-            h = ctx["nominal_heights"]
+        if gap == 0.0 and ctx.nominal_heights is not None:  # the nominal body: replayed once
+            h = ctx.nominal_heights
         else:
-            h = replay_heights(ctx["params"], ctx["window_poses"], gap)
+            h = replay_heights(ctx.params, ctx.window_poses, gap, scenes=self.scenes)
             if gap == 0.0:
-                ctx["nominal_heights"] = h
+                ctx.nominal_heights = h
         tether = tether_model(
-            ctx["anchor"], ctx["positions"], {k: np.array([v]) for k, v in values.items()}
+            ctx.anchor, ctx.positions, {k: np.array([v]) for k, v in values.items()}
         )[0]
         rep = Log(
             t=prepared.log.t,
@@ -392,7 +524,8 @@ class ClimberAdapter(AdapterBase):
     ) -> tuple[Features, list[str]]:
         from realitygap.robots.climber import chart_pose
 
-        params = params_like.context["params"]
+        ctx = self._context(params_like)
+        params = ctx.params
         surf = params.real_surface()
         if manoeuvre == "span_climb":
             chart = [(x, 0.3) for x in np.linspace(1.0, 6.5, 60)]
@@ -406,12 +539,19 @@ class ClimberAdapter(AdapterBase):
         fake = dataclasses.replace(
             params_like,
             bounds=np.stack([np.arange(len(pos) - 1), np.arange(1, len(pos))], axis=1),
-            context={**params_like.context, "positions": pos},
+            context=dataclasses.replace(ctx, positions=pos),
         )
         B, v = _values(values)
         gap = v.get("climber_adsorption_gap.gap", np.zeros(B))
         heights = gap[:, None] + np.zeros(fake.bounds.shape[0])
         return self._predict(fake, values, heights), ["tether", "surface"]
+
+    # ------------------------------------------------------------------ blind suite
+    def record_blind_logs(
+        self, reality: Any, rng: np.random.Generator, settings: SuiteSettings
+    ) -> tuple[list[Log], list[Log]]:
+        """One training and one held-out run of the climber on the blade."""
+        return record_climber_logs(reality, rng)
 
 
 # --------------------------------------------------------------------------- recording

@@ -1,7 +1,8 @@
 """The sim-to-real gap diagnosis, end to end: localise → attribute → verify → shrink.
 
 :func:`diagnose` takes real logs (training and, optionally, held-out ones) and
-returns a :class:`Diagnosis`:
+returns a :class:`Diagnosis`. It is a pipeline of named stages, each a small
+function of this module or of the module it names:
 
 1. every log is checked and replayed in the nominal PyBullet simulation
    (same commands or wheel rotation, same start);
@@ -17,6 +18,20 @@ returns a :class:`Diagnosis`:
    are flagged with a manoeuvre that would separate them;
 5. :mod:`realitygap.diagnosis.shrink` reports the held-out gap before and
    after, per channel and regime.
+
+================  ==============================================  ==========================
+stage             function                                        result
+================  ==============================================  ==========================
+library           :func:`candidate_library`                       effect names to consider
+prepare           :func:`prepare_logs`                            checked, replayed logs
+localise          :func:`~realitygap.diagnosis.localise.localise`  where the gap lies
+observability     :func:`observable_candidates`                   candidates, and why not
+attribute         :func:`fit_candidates`                          fitted singles and pairs
+verify            :func:`~realitygap.diagnosis.verify.verify_ranking`  verified ranking
+verdict           :func:`~realitygap.diagnosis.verdict.judge`     the verdict
+identifiability   :func:`advise`                                  confounded alternatives
+shrink            :func:`gap_report`                              held-out gap before/after
+================  ==============================================  ==========================
 """
 
 from __future__ import annotations
@@ -36,24 +51,32 @@ from realitygap.diagnosis.attribute import (
     ModelFit,
     Problem,
     Verdict,
-    _finish,
-    _spec,
-    _to_u,
-    describe_residual,
     fit_model,
-    model_keys,
 )
 from realitygap.diagnosis.backends import Backend, SerialBackend
 from realitygap.diagnosis.features import FeatureSettings
+from realitygap.diagnosis.identifiability import identifiability
 from realitygap.diagnosis.localise import localise
 from realitygap.diagnosis.log import Log, LogError
 from realitygap.diagnosis.replay import Drive, SimSettings
 from realitygap.diagnosis.shrink import overall_shrink, shrink_table, trajectory_gap
+from realitygap.diagnosis.verdict import Judgement, judge
+from realitygap.diagnosis.verify import Verification, verify_ranking
 from realitygap.robots.effects import EFFECTS
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["Diagnosis", "DiagnosisSettings", "diagnose"]
+__all__ = [
+    "Diagnosis",
+    "DiagnosisSettings",
+    "advise",
+    "candidate_library",
+    "diagnose",
+    "fit_candidates",
+    "gap_report",
+    "observable_candidates",
+    "prepare_logs",
+]
 
 
 @dataclass(frozen=True)
@@ -216,16 +239,26 @@ def _fit_task(problem: Problem, item: tuple[tuple[str, ...], list[dict[str, floa
     return fit_model(problem, effects, starts=starts)
 
 
-def _replay_task(
-    problem: Problem, item: tuple[int, dict[str, float]]
-) -> tuple[dict[str, FloatArray], Log]:
-    i, values = item
-    p = problem.logs[i]
-    sim = problem.sim if problem.sim is not None else p.context["sim"]
-    return problem.adapter.replay_features(p, values, problem.drive, sim)
+# --------------------------------------------------------------------------- stages
+def candidate_library(adapter: RobotAdapter, settings: DiagnosisSettings) -> tuple[str, ...]:
+    """The effects to consider: ``settings.effects`` (checked against the robot's), else all."""
+    library = adapter.effect_names()
+    if settings.effects is None:
+        return library
+    unknown = [e for e in settings.effects if e not in library]
+    if unknown:
+        import difflib
+
+        hints = [difflib.get_close_matches(u, library, n=1) for u in unknown]
+        hint = "; ".join(
+            f"{u!r} (did you mean {h[0]!r}?)" if h else repr(u) for u, h in zip(unknown, hints)
+        )
+        raise ValueError(
+            f"unknown effect(s) {hint} for robot {settings.robot!r}; known: {', '.join(library)}"
+        )
+    return tuple(settings.effects)
 
 
-# --------------------------------------------------------------------------- helpers
 def _split(
     logs: Sequence[Log], holdout: Sequence[Log] | None, settings: DiagnosisSettings
 ) -> list[tuple[Log, str]]:
@@ -246,185 +279,141 @@ def _window_split(prepared: list[PreparedLog], block: int) -> None:
     p.holdout_windows = (np.arange(m) // block) % 2 == 1
 
 
-def _rescore(problem: Problem, fit: ModelFit, z_tr: FloatArray, z_ho: FloatArray) -> ModelFit:
-    u = np.array([_to_u(k, fit.values[k]) for k in fit.keys])
-    new = _finish(problem, fit.effects, fit.keys, u, z_tr, z_ho, np.zeros((z_tr.size, 0)), True)
-    new.stderr, new.corr = fit.stderr, fit.corr
-    return new
-
-
-def _surrogate_point(values: Mapping[str, float]) -> dict[str, FloatArray]:
-    return {k: np.array([v]) for k, v in values.items()}
-
-
-def _verify(
-    problem: Problem, fit: ModelFit, backend: Backend
-) -> tuple[ModelFit, dict[int, Log], dict[str, Any]]:
-    """Defect-corrected refit and PyBullet scores for one model."""
-    values = dict(fit.values)
-    train_idx = [i for i, p in enumerate(problem.logs) if (~p.holdout_windows).any()]
-    for _ in range(problem.settings.defect_iterations):
-        reps = backend.map(_replay_task, [(i, values) for i in train_idx], problem)
-        bias = {}
-        for i, (feats, _) in zip(train_idx, reps):
-            p = problem.logs[i]
-            sur = problem.adapter.surrogate_features(p, _surrogate_point(values), problem.drive)
-            bias[i] = {g: feats[g] - sur[g][0] for g in p.groups}
-        fit = fit_model(problem, fit.effects, starts=[values], bias=bias, local_only=True)
-        values = dict(fit.values)
-    all_idx = list(range(len(problem.logs)))
-    reps = backend.map(_replay_task, [(i, values) for i in all_idx], problem)
-    pb = {i: feats for i, (feats, _) in zip(all_idx, reps)}
-    logs = {i: lg for i, (_, lg) in zip(all_idx, reps)}
-
-    def predict(p: PreparedLog, i: int) -> dict[str, FloatArray]:
-        return {g: pb[i][g][None] for g in p.groups}
-
-    z_tr = problem.real_minus(problem.train, predict, 1)[0]
-    z_ho = problem.real_minus(problem.holdout, predict, 1)[0] if problem.holdout.n else np.zeros(0)
-    verified = _rescore(problem, fit, z_tr, z_ho)
-    # surrogate agreement: bias-corrected surrogate vs PyBullet at the fitted point
-    num = den = 0.0
-    for i, p in enumerate(problem.logs):
-        sur = problem.adapter.surrogate_features(p, _surrogate_point(values), problem.drive)
-        for g in p.groups:
-            s = problem.features.scale(g)
-            pred = sur[g][0] + p.bias[g]
-            num += float(np.sum(((pred - pb[i][g]) / s) ** 2))
-            den += float(np.sum(((pb[i][g] - p.nominal[g]) / s) ** 2))
-    agreement = {
-        "model": fit.name,
-        "values": values,
-        "relative_error": math.sqrt(num / den) if den > 0 else 0.0,
-        "rms_difference": math.sqrt(num / max(sum(p.bounds.shape[0] for p in problem.logs), 1)),
-    }
-    return verified, logs, agreement
-
-
-def _jacobian(
-    residual: Callable[[dict[str, FloatArray]], FloatArray],
-    keys: Sequence[str],
-    point: Mapping[str, float],
-) -> FloatArray:
-    """Finite-difference Jacobian (n, p) of a batched residual in natural parameter units."""
-    p = len(keys)
-    steps = []
-    for k in keys:
-        effect, _, pname = k.partition(".")
-        spec = EFFECTS[effect]().spec(pname)
-        h = 1e-3 * (spec.high - spec.low)
-        if k == "velocity_saturation.v_limit":
-            h = 1e-3 * max(point[k], 0.2)
-        steps.append(h if point[k] + h <= spec.high else -h)
-    # row 0: the point; row j + 1: the point with key j stepped
-    batch = {
-        k: np.array([point[k]] + [point[k] + (steps[i] if i == j else 0.0) for j in range(p)])
-        for i, k in enumerate(keys)
-    }
-    z = residual(batch)
-    return ((z[1:] - z[0]) / np.asarray(steps)[:, None]).T
-
-
-def _corr(J: FloatArray) -> FloatArray:
-    info = J.T @ J
-    cov = np.linalg.pinv(info)
-    sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
-    return cov / np.outer(sd, sd)
-
-
-def _identifiability(problem: Problem, a: ModelFit, b: ModelFit) -> dict[str, Any]:
-    """Can the logged motions tell model ``a`` from ``b``? Which motion would?"""
-    effects = tuple(dict.fromkeys(a.effects + b.effects))
-    keys = model_keys(effects)
-    point: dict[str, float] = {}
-    for k in keys:
-        effect, _, pname = k.partition(".")
-        point[k] = EFFECTS[effect]().spec(pname).nominal
-    point.update(b.values)
-    point.update(a.values)
-
-    def train_res(batch: dict[str, FloatArray]) -> FloatArray:
-        n = len(next(iter(batch.values())))
-        return problem.surrogate_residuals(problem.train, batch, n)
-
-    J = _jacobian(train_res, keys, point)
-    C = _corr(J)
-    ka = [j for j, k in enumerate(keys) if k.split(".")[0] in a.effects]
-    kb = [j for j, k in enumerate(keys) if k.split(".")[0] not in a.effects]
-    cross = max((abs(C[i, j]) for i in ka for j in kb), default=0.0)
-    out: dict[str, Any] = {
-        "effects": [a.name, b.name],
-        "correlation": float(cross),
-        "separable": bool(cross < problem.settings.confound_corr),
-    }
-    if out["separable"]:
-        return out
-    best = None
-    ref = problem.logs[0]
-    probes = problem.adapter.probe_manoeuvres()
-    for name in probes:
-
-        def probe_res(batch: dict[str, FloatArray], name: str = name) -> FloatArray:
-            feats, groups = problem.adapter.probe_features(name, ref, batch)
-            parts = [
-                (feats[g] / problem.features.scale(g)).reshape(feats[g].shape[0], -1)
-                for g in groups
-            ]
-            return np.concatenate(parts, axis=1)
-
-        Jm = _jacobian(probe_res, keys, point)
-        Cm = _corr(np.vstack([J, Jm]))
-        cross_m = max((abs(Cm[i, j]) for i in ka for j in kb), default=0.0)
-        if best is None or cross_m < best[1]:
-            best = (name, cross_m)
-    assert best is not None
-    out["separating_motion"] = {
-        "name": best[0],
-        "description": probes[best[0]],
-        "correlation_after": float(best[1]),
-    }
-    out["message"] = (
-        f"the logged motions cannot tell {a.name} from {b.name} (parameter correlation "
-        f"{cross:.2f}); recording '{best[0]}' ({probes[best[0]]}) would "
-        f"separate them (correlation {best[1]:.2f})"
+def prepare_logs(
+    adapter: RobotAdapter,
+    logs: Sequence[Log],
+    holdout: Sequence[Log] | None,
+    settings: DiagnosisSettings,
+    backend: Backend,
+    say: Callable[[str], None],
+) -> list[PreparedLog]:
+    """Check every log, split training from held-out data and replay each nominally."""
+    drive = Drive(settings.drive)
+    for lg in list(logs) + list(holdout or []):
+        adapter.check(lg, drive)
+    items = _split(list(logs), list(holdout) if holdout else None, settings)
+    say(f"replaying {len(items)} log(s) in the nominal simulation")
+    prepared: list[PreparedLog] = backend.map(
+        _prepare_task, items, (settings.robot, drive.value, settings.features, settings.sim)
     )
-    return out
+    if not any(p.split == "holdout" for p in prepared):
+        _window_split(prepared, settings.block_windows)
+    return prepared
 
 
-def _pinned(problem: Problem, fit: ModelFit) -> list[str]:
-    """Parameters of ``fit`` that sit at the far edge of their plausible range and matter.
+def observable_candidates(
+    adapter: RobotAdapter, library: Sequence[str], prepared: Sequence[PreparedLog], drive: Drive
+) -> tuple[list[str], dict[str, str]]:
+    """The effects the logs can show, and for the others why not."""
+    not_observable = {}
+    candidates = []
+    for e in library:
+        why = adapter.observable(e, prepared, drive)
+        if why:
+            not_observable[e] = why
+        else:
+            candidates.append(e)
+    return candidates, not_observable
 
-    An effect fitted at the bound of its plausible range (the end away from "no
-    effect") is being stretched to absorb a gap it does not cause. Parameters
-    the logs cannot see (moving them back to nominal changes the training
-    residual by less than the floor) are ignored.
+
+def fit_candidates(
+    problem: Problem,
+    candidates: Sequence[str],
+    backend: Backend,
+    say: Callable[[str], None],
+) -> tuple[list[ModelFit], list[ModelFit], ModelFit]:
+    """Fit every single candidate, then pairs; returns ``(singles, pairs, nominal_fit)``.
+
+    Pairs are the best single with every other candidate (forward selection:
+    a second effect is often masked by a dominant one) and every pair among
+    the best singles.
     """
-    out = []
-    point = {k: np.array([v]) for k, v in fit.values.items()}
-    base: FloatArray | None = None
-    for key, value in fit.values.items():
-        spec = _spec(key)
-        span = spec.high - spec.low
-        at_low = spec.low != spec.nominal and value - spec.low < 0.005 * span
-        at_high = spec.high != spec.nominal and spec.high - value < 0.005 * span
-        if not (at_low or at_high):
-            continue
-        if base is None:
-            base = problem.surrogate_residuals(problem.train, point, 1)[0]
-        alt = problem.surrogate_residuals(
-            problem.train, {**point, key: np.array([spec.nominal])}, 1
-        )[0]
-        if float(np.sqrt(np.mean((alt - base) ** 2))) > problem.settings.floor:
-            out.append(key)
-    return out
+    say(f"fitting {len(candidates)} single effects")
+    singles: list[ModelFit] = backend.map(_fit_task, [((e,), []) for e in candidates], problem)
+    nominal_fit = fit_model(problem, ())
+    singles.sort(key=lambda f: f.rank_score)
+    top = [f for f in singles if f.rank_score < nominal_fit.rank_score][
+        : problem.settings.pair_candidates
+    ]
+    combos: dict[frozenset[str], tuple[ModelFit, ModelFit]] = {}
+    if top:
+        for other in singles:
+            if other.effects != top[0].effects:
+                combos.setdefault(frozenset(top[0].effects + other.effects), (top[0], other))
+    for fa, fb in ((x, y) for i, x in enumerate(top) for y in top[i + 1 :]):
+        combos.setdefault(frozenset(fa.effects + fb.effects), (fa, fb))
+    pairs_items = []
+    for fa, fb in combos.values():
+        nominal_b = {k: EFFECTS[fb.effects[0]]().spec(k.split(".")[1]).nominal for k in fb.keys}
+        starts = [{**fa.values, **fb.values}, {**fa.values, **nominal_b}]
+        pairs_items.append(((fa.effects[0], fb.effects[0]), starts))
+    say(f"fitting {len(pairs_items)} pairs")
+    pairs: list[ModelFit] = backend.map(_fit_task, pairs_items, problem)
+    return singles, pairs, nominal_fit
 
 
-def _confidence(margin: float, settings: AttributionSettings) -> str:
-    if margin >= settings.margin_strong:
-        return "strong"
-    if margin >= 2.0:
-        return "moderate"
-    return "weak"
+def advise(
+    problem: Problem, ranking: Sequence[ModelFit], judgement: Judgement
+) -> list[dict[str, Any]]:
+    """Identifiability of the best model against its close contenders.
+
+    A contender the logged motions cannot tell from the best model is added to
+    the verdict's ``ambiguous_with`` (its confidence becomes "not identifiable").
+    """
+    st = problem.settings
+    best, verdict = judgement.best, judgement.verdict
+    ident: list[dict[str, Any]] = []
+    contenders = [f for f in ranking if f.effects and f.effects != best.effects]
+    close = [f for f in contenders if f.rank_score - best.rank_score < st.margin_strong][:2]
+    if best.effects:
+        for other in close:
+            if set(other.effects) >= set(best.effects) or set(best.effects) >= set(other.effects):
+                continue
+            info = identifiability(problem, best, other)
+            ident.append(info)
+            if not info["separable"] and verdict.kind == "effects":
+                verdict.ambiguous_with.append(other.name)
+        if verdict.ambiguous_with:
+            verdict.confidence = "not identifiable"
+    return ident
+
+
+def gap_report(
+    problem: Problem, judgement: Judgement, replays: Mapping[tuple[str, ...], dict[int, Log]]
+) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """The held-out shrink table of the verdict's model and the gap figures."""
+    best, verdict = judgement.best, judgement.verdict
+    z_nom, gap_mask = judgement.nominal_heldout, judgement.gap_mask
+    prepared = problem.logs
+    scales = problem.features
+    chosen = best if verdict.kind == "effects" else None
+    z_after = chosen.z_heldout if chosen is not None else z_nom
+    rows = shrink_table(z_nom, z_after, problem.holdout, scales)
+    ho_idx = [i for i, p in enumerate(prepared) if p.holdout_windows.any()]
+    real_ho = [prepared[i].log for i in ho_idx]
+    nominal_ho = [prepared[i].replay_log for i in ho_idx]
+    gap = {
+        "heldout_rms_nominal": float(np.sqrt(np.mean(z_nom**2))),
+        "heldout_rms_best": float(best.heldout_rms),
+        "heldout_shrink_pct_best": judgement.shrink_pct_best,
+        "heldout_shrink_pct": overall_shrink(z_nom[gap_mask], z_after[gap_mask]),
+        "heldout_shrink_pct_all_channels": overall_shrink(z_nom, z_after),
+        "heldout_shrink_pct_best_all_channels": overall_shrink(z_nom, best.z_heldout),
+        "gap_channels": sorted({str(g) for g in problem.holdout.group[gap_mask]}),
+        "heldout_trajectory_gap_m_nominal": trajectory_gap(real_ho, nominal_ho),
+    }
+    reps_best = replays.get(best.effects)
+    if reps_best is not None:
+        gap["heldout_trajectory_gap_m_best"] = trajectory_gap(
+            real_ho, [reps_best[i] for i in ho_idx]
+        )
+    gt_sel = problem.holdout.group == "pose_gt"
+    if gt_sel.any():
+        scale = scales.scale("pose_gt")[0]
+        xy = gt_sel & np.isin(problem.holdout.column, ["dx", "dy"])
+        gap["heldout_window_gap_m_nominal"] = float(np.sqrt(np.mean(z_nom[xy] ** 2)) * scale)
+        gap["heldout_window_gap_m_best"] = float(np.sqrt(np.mean(best.z_heldout[xy] ** 2)) * scale)
+    return rows, gap
 
 
 # --------------------------------------------------------------------------- main entry
@@ -474,305 +463,48 @@ def diagnose(
     drive = Drive(s.drive)
     timing: dict[str, float] = {}
     t0 = time.perf_counter()
-    library = adapter.effect_names()
-    if s.effects is not None:
-        unknown = [e for e in s.effects if e not in library]
-        if unknown:
-            import difflib
-
-            hints = [difflib.get_close_matches(u, library, n=1) for u in unknown]
-            hint = "; ".join(
-                f"{u!r} (did you mean {h[0]!r}?)" if h else repr(u) for u, h in zip(unknown, hints)
-            )
-            raise ValueError(
-                f"unknown effect(s) {hint} for robot {s.robot!r}; known: {', '.join(library)}"
-            )
-        library = tuple(s.effects)
-    all_logs = list(logs) + list(holdout or [])
-    for lg in all_logs:
-        adapter.check(lg, drive)
-    items = _split(list(logs), list(holdout) if holdout else None, s)
-
-    say(f"replaying {len(items)} log(s) in the nominal simulation")
-    prepared: list[PreparedLog] = be.map(
-        _prepare_task, items, (s.robot, drive.value, s.features, s.sim)
-    )
-    if not any(p.split == "holdout" for p in prepared):
-        _window_split(prepared, s.block_windows)
+    library = candidate_library(adapter, s)
+    prepared = prepare_logs(adapter, logs, holdout, s, be, say)
     timing["prepare"] = time.perf_counter() - t0
 
     problem = Problem(adapter, prepared, drive, s.features, s.sim, s.attribution)
     if problem.holdout.n == 0 or problem.train.n == 0:
         raise LogError("the logs give no training or no held-out windows; record longer episodes")
     loc = localise(prepared, adapter, s.features)
-
-    not_observable = {}
-    candidates = []
-    for e in library:
-        why = adapter.observable(e, prepared, drive)
-        if why:
-            not_observable[e] = why
-        else:
-            candidates.append(e)
+    candidates, not_observable = observable_candidates(adapter, library, prepared, drive)
 
     t1 = time.perf_counter()
-    say(f"fitting {len(candidates)} single effects")
-    singles: list[ModelFit] = be.map(_fit_task, [((e,), []) for e in candidates], problem)
-    nominal_fit = fit_model(problem, ())
-    singles.sort(key=lambda f: f.rank_score)
-    top = [f for f in singles if f.rank_score < nominal_fit.rank_score][
-        : s.attribution.pair_candidates
-    ]
-    # pairs: the best single with every other candidate (forward selection: a second effect
-    # is often masked by a dominant one), and every pair among the best singles
-    combos: dict[frozenset[str], tuple[ModelFit, ModelFit]] = {}
-    if top:
-        for other in singles:
-            if other.effects != top[0].effects:
-                combos.setdefault(frozenset(top[0].effects + other.effects), (top[0], other))
-    for fa, fb in ((x, y) for i, x in enumerate(top) for y in top[i + 1 :]):
-        combos.setdefault(frozenset(fa.effects + fb.effects), (fa, fb))
-    pairs_items = []
-    for fa, fb in combos.values():
-        nominal_b = {k: EFFECTS[fb.effects[0]]().spec(k.split(".")[1]).nominal for k in fb.keys}
-        starts = [{**fa.values, **fb.values}, {**fa.values, **nominal_b}]
-        pairs_items.append(((fa.effects[0], fb.effects[0]), starts))
-    say(f"fitting {len(pairs_items)} pairs")
-    pairs: list[ModelFit] = be.map(_fit_task, pairs_items, problem)
+    singles, pairs, nominal_fit = fit_candidates(problem, candidates, be, say)
     timing["fit"] = time.perf_counter() - t1
 
     t2 = time.perf_counter()
-    verified_logs: dict[tuple[str, ...], dict[int, Log]] = {}
-    agreement: list[dict[str, Any]] = []
-    st = s.attribution
-    # a model "demoted" in favour of a simpler sub-model ranks right behind that sub-model
-    demoted: dict[tuple[str, ...], tuple[str, ...]] = {}
-
-    def resort(models: list[ModelFit]) -> list[ModelFit]:
-        score = {f.effects: f.rank_score for f in models}
-
-        def key(f: ModelFit) -> tuple[float, int]:
-            if f.effects in demoted:
-                return (score[demoted[f.effects]], 1)
-            return (f.rank_score, 0)
-
-        return sorted(models, key=key)
-
-    ranking = resort([*singles, *pairs, nominal_fit])
-
-    def verified(fit: ModelFit) -> ModelFit:
-        nonlocal ranking
-        if fit.verified or not fit.effects:
-            return fit
-        say(f"verifying {fit.name} in PyBullet")
-        new, reps, agree = _verify(problem, fit, be)
-        verified_logs[new.effects] = reps
-        agreement.append(agree)
-        ranking = resort([new if f is fit else f for f in ranking])
-        return new
-
-    def improves(fit: ModelFit) -> bool:
-        return fit.rank_score < nominal_fit.rank_score - 1.0
-
-    def sub_models(fit: ModelFit) -> list[ModelFit]:
-        return [f for f in ranking if f.effects and set(f.effects) < set(fit.effects)]
-
-    for _ in range(3 * st.verify_top + 6):
-        best = ranking[0]
-        if len(best.effects) > 1:
-            # an effect whose fitted size changes the predictions by less than the floor is
-            # not named: the model without it takes the place (no replay needed to see that)
-            negligible = {e for e, size in best.effect_sizes.items() if size < st.floor}
-            drop = [f for f in sub_models(best) if set(best.effects) - set(f.effects) <= negligible]
-            if drop:
-                demoted[best.effects] = min(drop, key=lambda f: f.rank_score).effects
-                ranking = resort(ranking)
-                continue
-        if best.effects and not best.verified:
-            verified(best)
-            continue
-        # Occam: prefer a verified sub-model within the parsimony margin
-        if len(best.effects) > 1:
-            for sub in sub_models(best):
-                if not sub.verified and improves(sub):
-                    verified(sub)
-            best = ranking[0]
-            simpler = [
-                f
-                for f in sub_models(best)
-                if f.verified and f.rank_score - best.rank_score < st.parsimony_margin
-            ]
-            if simpler and len(best.effects) > 1:
-                demoted[best.effects] = min(simpler, key=lambda f: f.rank_score).effects
-                ranking = resort(ranking)
-                continue
-        n_ver = sum(1 for f in ranking if f.verified)
-        todo = [
-            f
-            for f in ranking[1:]
-            if f.effects and not f.verified and improves(f) and f.effects not in demoted
-        ]
-        if n_ver < st.verify_top and todo:
-            verified(todo[0])
-            continue
-        break
+    verification: Verification = verify_ranking(problem, [*singles, *pairs], nominal_fit, be, say)
     timing["verify"] = time.perf_counter() - t2
 
-    # ------------------------------------------------------------------ verdict
-    z_nom = problem.nominal_residuals(problem.holdout)
-    noise_fn = getattr(adapter, "noise_levels", None)
-    noise = noise_fn(prepared, s.features) if noise_fn is not None else None
-    nominal_desc = describe_residual(z_nom, problem.holdout, st, s.features, noise)
-    best = ranking[0]
-    # the runner-up: the best model that is neither this one nor a superset rejected for it
-    runner = next(
-        (
-            f
-            for f in ranking[1:]
-            if f.effects != best.effects
-            and not (best.effects and set(f.effects) > set(best.effects))
-        ),
-        None,
+    judgement = judge(
+        problem, verification.ranking, nominal_fit, adapter.noise_levels(prepared, s.features)
     )
-    margin = (runner.rank_score - best.rank_score) if runner is not None else math.inf
-    # the gap lives in the channels whose nominal held-out residual exceeds twice the floor;
-    # channels the effects do not touch would only add their noise to both sides of the shrink
-    gap_mask = np.zeros(z_nom.shape, dtype=bool)
-    for g in np.unique(problem.holdout.group):
-        sel = problem.holdout.group == g
-        if float(np.sqrt(np.mean(z_nom[sel] ** 2))) > 2.0 * st.floor:
-            gap_mask |= sel
-    if not gap_mask.any():
-        gap_mask[:] = True
-    shrink_all = overall_shrink(z_nom[gap_mask], best.z_heldout[gap_mask])
-    best_desc = describe_residual(best.z_heldout, problem.holdout, st, s.features, noise)
-    gain = nominal_fit.rank_score - best.rank_score
-    if not nominal_desc["structured"] and gain < st.margin_strong:
-        verdict = Verdict(
-            "none",
-            (),
-            "the held-out residual of the nominal replay already looks like noise",
-            margin,
-            "n/a",
-            nominal_desc,
-        )
-    elif not best.effects:
-        verdict = Verdict(
-            "unexplained",
-            (),
-            "no candidate effect improves on the nominal replay on held-out data",
-            margin,
-            "n/a",
-            best_desc,
-        )
-    elif shrink_all < 100.0 * st.min_shrink:
-        verdict = Verdict(
-            "unexplained",
-            (),
-            f"the best candidate ({best.name}) closes only {shrink_all:.0f} % of the held-out "
-            f"gap (needs {100 * st.min_shrink:.0f} %)",
-            margin,
-            "n/a",
-            best_desc,
-        )
-    elif pinned := _pinned(problem, best):
-        edges = ", ".join(
-            f"{k} = {best.values[k]:.4g} {_spec(k).unit} (range {_spec(k).low:g} … "
-            f"{_spec(k).high:g})"
-            for k in pinned
-        )
-        verdict = Verdict(
-            "unexplained",
-            (),
-            f"the best candidate ({best.name}, {shrink_all:.0f} % of the held-out gap) needs "
-            f"{edges}: at the edge of the plausible range, so the effect is being stretched to "
-            "absorb a gap it does not cause",
-            margin,
-            "n/a",
-            best_desc,
-        )
-    elif best_desc["structured"]:
-        verdict = Verdict(
-            "unexplained",
-            (),
-            f"after the best candidate ({best.name}, {shrink_all:.0f} % of the held-out gap) "
-            "the residual is still structured: " + "; ".join(best_desc["reasons"]),
-            margin,
-            "n/a",
-            best_desc,
-        )
-    else:
-        verdict = Verdict(
-            "effects",
-            best.effects,
-            f"{best.name} closes {shrink_all:.0f} % of the held-out gap and leaves unstructured "
-            "residuals",
-            margin,
-            _confidence(margin, st),
-            best_desc,
-        )
-
-    # ------------------------------------------------------------------ identifiability
-    ident: list[dict[str, Any]] = []
-    contenders = [f for f in ranking if f.effects and f.effects != best.effects]
-    close = [f for f in contenders if f.rank_score - best.rank_score < st.margin_strong][:2]
-    if best.effects:
-        for other in close:
-            if set(other.effects) >= set(best.effects) or set(best.effects) >= set(other.effects):
-                continue
-            info = _identifiability(problem, best, other)
-            ident.append(info)
-            if not info["separable"] and verdict.kind == "effects":
-                verdict.ambiguous_with.append(other.name)
-        if verdict.ambiguous_with:
-            verdict.confidence = "not identifiable"
-
-    # ------------------------------------------------------------------ shrink
-    chosen = best if verdict.kind == "effects" else None
-    z_after = chosen.z_heldout if chosen is not None else z_nom
-    rows = shrink_table(z_nom, z_after, problem.holdout, s.features)
-    ho_idx = [i for i, p in enumerate(prepared) if p.holdout_windows.any()]
-    real_ho = [prepared[i].log for i in ho_idx]
-    nominal_ho = [prepared[i].replay_log for i in ho_idx]
-    gap = {
-        "heldout_rms_nominal": float(np.sqrt(np.mean(z_nom**2))),
-        "heldout_rms_best": float(best.heldout_rms),
-        "heldout_shrink_pct_best": shrink_all,
-        "heldout_shrink_pct": overall_shrink(z_nom[gap_mask], z_after[gap_mask]),
-        "heldout_shrink_pct_all_channels": overall_shrink(z_nom, z_after),
-        "heldout_shrink_pct_best_all_channels": overall_shrink(z_nom, best.z_heldout),
-        "gap_channels": sorted({str(g) for g in problem.holdout.group[gap_mask]}),
-        "heldout_trajectory_gap_m_nominal": trajectory_gap(real_ho, nominal_ho),
-    }
-    reps_best = verified_logs.get(best.effects)
-    if reps_best is not None:
-        gap["heldout_trajectory_gap_m_best"] = trajectory_gap(
-            real_ho, [reps_best[i] for i in ho_idx]
-        )
-    gt_sel = problem.holdout.group == "pose_gt"
-    if gt_sel.any():
-        scale = s.features.scale("pose_gt")[0]
-        xy = gt_sel & np.isin(problem.holdout.column, ["dx", "dy"])
-        gap["heldout_window_gap_m_nominal"] = float(np.sqrt(np.mean(z_nom[xy] ** 2)) * scale)
-        gap["heldout_window_gap_m_best"] = float(np.sqrt(np.mean(best.z_heldout[xy] ** 2)) * scale)
+    ident = advise(problem, verification.ranking, judgement)
+    rows, gap = gap_report(problem, judgement, verification.replays)
     timing["total"] = time.perf_counter() - t0
-    say(f"verdict: {verdict.label}")
+    say(f"verdict: {judgement.verdict.label}")
+    z_nom, best = judgement.nominal_heldout, judgement.best
     return Diagnosis(
         settings=s,
         prepared=prepared,
         candidates=candidates,
         not_observable=not_observable,
         localisation=loc,
-        ranking=ranking,
-        verdict=verdict,
+        ranking=verification.ranking,
+        verdict=judgement.verdict,
         identifiability=ident,
         shrink=rows,
         gap=gap,
-        agreement=agreement,
-        corrected_replays=reps_best or {},
+        agreement=verification.agreement,
+        corrected_replays=verification.replays.get(best.effects) or {},
         timing=timing,
         nominal_heldout=z_nom,
         problem=problem,
-        gap_mask=gap_mask,
+        gap_mask=judgement.gap_mask,
         shrink_best=shrink_table(z_nom, best.z_heldout, problem.holdout, s.features),
     )

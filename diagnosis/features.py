@@ -28,6 +28,10 @@ A climber's windows compare the mean tether reading (``tether``, m) and the
 mean ride height above the CAD surface (``surface``, m); its regimes are
 ``standing``, ``climbing``, ``descending`` and ``traversing``
 (:mod:`realitygap.diagnosis.climb_adapter`).
+
+Each robot adapter declares its groups (columns, units, default scales) and
+its regimes as a :class:`FeatureSchema`; the generic diagnosis iterates over
+that schema.
 """
 
 from __future__ import annotations
@@ -42,10 +46,9 @@ import numpy.typing as npt
 FloatArray = npt.NDArray[np.float64]
 
 __all__ = [
-    "FEATURE_COLUMNS",
-    "FEATURE_UNITS",
-    "REGIMES",
-    "TOOL_DIST_COLUMNS",
+    "DIFFDRIVE_REGIMES",
+    "FeatureGroup",
+    "FeatureSchema",
     "FeatureSettings",
     "classify_regimes",
     "features",
@@ -53,51 +56,74 @@ __all__ = [
     "window_bounds",
 ]
 
-TOOL_DIST_COLUMNS: tuple[str, ...] = ("d01", "d02", "d03", "d12", "d13", "d23")
-"""Pairs of the four poses of an arm window whose tool-point distance is compared."""
-
-FEATURE_COLUMNS: dict[str, tuple[str, ...]] = {
-    "pose_gt": ("dx", "dy", "dtheta"),
-    "ticks": ("left", "right"),
-    "pose_cam": ("ex", "ey", "etheta"),
-    "tool_dist": TOOL_DIST_COLUMNS,
-    "tether": ("length",),
-    "surface": ("height",),
-}
-FEATURE_UNITS: dict[str, tuple[str, ...]] = {
-    "pose_gt": ("m", "m", "rad"),
-    "ticks": ("m", "m"),
-    "pose_cam": ("m", "m", "rad"),
-    "tool_dist": ("m",) * len(TOOL_DIST_COLUMNS),
-    "tether": ("m",),
-    "surface": ("m",),
-}
-REGIMES: tuple[str, ...] = (
+DIFFDRIVE_REGIMES: tuple[str, ...] = (
     "standing",
     "straight",
     "turning_ccw",
     "turning_cw",
     "accelerating",
-    # arm windows, by how far the wrist reaches out from the base axis
-    "folded",
-    "mid_reach",
-    "outstretched",
-    # climber windows, by the true motion on the blade
-    "climbing",
-    "descending",
-    "traversing",
 )
+"""Regimes :func:`classify_regimes` gives a differential drive's windows."""
 
 
-def _default_scales() -> dict[str, tuple[float, ...]]:
-    return {
-        "pose_gt": (0.002, 0.002, 0.002),
-        "ticks": (0.002, 0.002),
-        "pose_cam": (0.002, 0.002, 0.003),
-        "tool_dist": (1e-4,) * len(TOOL_DIST_COLUMNS),
-        "tether": (1e-3,),
-        "surface": (1e-3,),
-    }
+@dataclass(frozen=True)
+class FeatureGroup:
+    """One group of window features: its columns, their SI units and default residual scales.
+
+    Attributes
+    ----------
+    name : str
+        Group name, e.g. ``"pose_gt"``.
+    columns : tuple of str
+    units : tuple of str
+        SI unit of each column.
+    scales : tuple of float
+        Residual size that counts as one unit per column (SI units per window),
+        unless :attr:`FeatureSettings.scales` gives another.
+    """
+
+    name: str
+    columns: tuple[str, ...]
+    units: tuple[str, ...]
+    scales: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        if not (len(self.columns) == len(self.units) == len(self.scales)):
+            raise ValueError(
+                f"feature group {self.name!r}: columns, units and scales must have one length"
+            )
+
+
+@dataclass(frozen=True)
+class FeatureSchema:
+    """What a robot's windows are compared by: its feature groups and its motion regimes.
+
+    Attributes
+    ----------
+    groups : tuple of FeatureGroup
+        In the order of every table of the diagnosis.
+    regimes : tuple of str
+        Regime labels a window can have, in table order.
+    """
+
+    groups: tuple[FeatureGroup, ...]
+    regimes: tuple[str, ...]
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(g.name for g in self.groups)
+
+    def group(self, name: str) -> FeatureGroup:
+        for g in self.groups:
+            if g.name == name:
+                return g
+        raise KeyError(f"no feature group {name!r}; known: {', '.join(self.names)}")
+
+    def columns(self, name: str) -> tuple[str, ...]:
+        return self.group(name).columns
+
+    def units(self, name: str) -> tuple[str, ...]:
+        return self.group(name).units
 
 
 @dataclass(frozen=True)
@@ -110,10 +136,11 @@ class FeatureSettings:
         Window length, s.
     scales : mapping of group to tuple of float
         Residual size that counts as one unit per column (SI units per
-        window): the weights of the fit and of the statistics. Defaults:
-        ground truth 2 mm, 2 mm, 2 mrad; encoder travel 2 mm per wheel;
-        camera 2 mm, 2 mm, 3 mrad; arm tool-point distances 0.1 mm; climber
-        tether and ride height 1 mm.
+        window): the weights of the fit and of the statistics. A group not
+        given here takes the default scales its robot adapter declares
+        (:class:`FeatureGroup`): ground truth 2 mm, 2 mm, 2 mrad; encoder
+        travel 2 mm per wheel; camera 2 mm, 2 mm, 3 mrad; arm tool-point
+        distances 0.1 mm; climber tether and ride height 1 mm.
     standing_speed, standing_rate : float
         Below these commanded speeds (m/s, rad/s) a window is ``standing``.
     turning_rate : float
@@ -125,7 +152,7 @@ class FeatureSettings:
     """
 
     window_s: float = 1.0
-    scales: Mapping[str, tuple[float, ...]] = field(default_factory=_default_scales)
+    scales: Mapping[str, tuple[float, ...]] = field(default_factory=dict)
     standing_speed: float = 0.005
     standing_rate: float = 0.02
     turning_rate: float = 0.05
@@ -135,15 +162,33 @@ class FeatureSettings:
     def __post_init__(self) -> None:
         if not (self.window_s > 0 and math.isfinite(self.window_s)):
             raise ValueError(f"window_s must be a positive number of seconds, got {self.window_s}")
-        for g, cols in FEATURE_COLUMNS.items():
-            sc = tuple(self.scales.get(g, ()))
+        for g, given in self.scales.items():
+            cols = _known_group(g).columns
+            sc = tuple(given)
             if len(sc) != len(cols) or not all(v > 0 for v in sc):
                 raise ValueError(
                     f"scales[{g!r}] must hold {len(cols)} positive numbers ({cols}), got {sc}"
                 )
 
     def scale(self, group: str) -> FloatArray:
-        return np.asarray(self.scales[group], dtype=float)
+        """Residual scale of each column of ``group`` (given, else the group's default)."""
+        given = self.scales.get(group)
+        if given is None:
+            return np.asarray(_known_group(group).scales, dtype=float)
+        return np.asarray(given, dtype=float)
+
+
+_GROUPS: dict[str, FeatureGroup] = {}
+"""Feature groups looked up so far, by name (the adapters' schemas are constants)."""
+
+
+def _known_group(name: str) -> FeatureGroup:
+    """The feature group ``name`` of whichever robot adapter declares it."""
+    if name not in _GROUPS:
+        from realitygap.diagnosis.adapters import feature_group
+
+        _GROUPS[name] = feature_group(name)
+    return _GROUPS[name]
 
 
 def window_bounds(n: int, dt: float, window_s: float) -> npt.NDArray[np.int64]:

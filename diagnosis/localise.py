@@ -20,14 +20,11 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.diagnosis.adapters import PreparedLog, RobotAdapter
-from realitygap.diagnosis.features import FEATURE_COLUMNS, FEATURE_UNITS, REGIMES, FeatureSettings
+from realitygap.diagnosis.features import FeatureSettings
 
 FloatArray = npt.NDArray[np.float64]
 
 __all__ = ["localise"]
-
-_STAGE_COLUMNS = ("dx", "dy", "dtheta")
-_STAGE_UNITS = ("m", "m", "rad")
 
 
 def _rows_for(
@@ -38,11 +35,12 @@ def _rows_for(
     columns: Sequence[str],
     units: Sequence[str],
     scale: FloatArray,
+    regime_names: Sequence[str],
 ) -> list[dict[str, Any]]:
     rows = []
     stacked = np.concatenate(values, axis=0) if values else np.zeros((0, len(columns)))
     labels = np.concatenate([np.asarray(r, dtype=str) for r in regimes]) if regimes else np.zeros(0)
-    for regime in ("all", *REGIMES):
+    for regime in ("all", *regime_names):
         sel = np.ones(stacked.shape[0], bool) if regime == "all" else labels == regime
         if sel.sum() == 0:
             continue
@@ -86,25 +84,45 @@ def localise(
         rows; ``overall`` — the ``regime == "all"`` rows; ``regime_counts``.
     """
     rows: list[dict[str, Any]] = []
-    for g, cols in FEATURE_COLUMNS.items():
+    schema = adapter.schema
+    for group in schema.groups:
+        g = group.name
         vals, regs = [], []
         for p in prepared:
             if g in p.groups:
                 vals.append(p.real[g] - p.nominal[g])
                 regs.append(p.regimes)
         if vals:
-            rows += _rows_for(g, "channel", vals, regs, cols, FEATURE_UNITS[g], scales.scale(g))
-    stage_fn = getattr(adapter, "stage_residuals", None)
-    if stage_fn is not None:
-        stages: dict[str, tuple[list[FloatArray], list[list[str]]]] = {}
-        for p in prepared:
-            for name, res in stage_fn(p).items():
-                stages.setdefault(name, ([], []))
-                stages[name][0].append(res)
-                stages[name][1].append(p.regimes)
-        gt_scale = scales.scale("pose_gt")
+            rows += _rows_for(
+                g,
+                "channel",
+                vals,
+                regs,
+                group.columns,
+                group.units,
+                scales.scale(g),
+                schema.regimes,
+            )
+    stages: dict[str, tuple[list[FloatArray], list[list[str]]]] = {}
+    for p in prepared:
+        for name, res in adapter.stage_residuals(p).items():
+            stages.setdefault(name, ([], []))
+            stages[name][0].append(res)
+            stages[name][1].append(p.regimes)
+    if stages:
+        # stage residuals are in the columns and units of the adapter's stage group
+        sg = schema.group(adapter.stage_group)
         for name, (vals, regs) in stages.items():
-            rows += _rows_for(name, "stage", vals, regs, _STAGE_COLUMNS, _STAGE_UNITS, gt_scale)
+            rows += _rows_for(
+                name,
+                "stage",
+                vals,
+                regs,
+                sg.columns,
+                sg.units,
+                scales.scale(sg.name),
+                schema.regimes,
+            )
     for kind in ("channel", "stage"):
         total = sum(r["normalised_ss"] for r in rows if r["kind"] == kind and r["regime"] != "all")
         for r in rows:

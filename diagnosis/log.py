@@ -98,7 +98,6 @@ from realitygap.core.io import atomic_write
 FloatArray = npt.NDArray[np.float64]
 
 __all__ = [
-    "STANDARD_CHANNELS",
     "ChannelSpec",
     "Log",
     "LogError",
@@ -106,6 +105,7 @@ __all__ = [
     "convert_units",
     "fill_gaps",
     "sniff_file_kind",
+    "standard_channels",
 ]
 
 FORMAT_NAME = "realitygap-log"
@@ -169,61 +169,23 @@ class ChannelSpec:
         )
 
 
-_POSE = ("x", "y", "theta")
-_POSE_UNITS = ("m", "m", "rad")
+_STANDARD: dict[str, ChannelSpec] = {}
+"""The channels the robot adapters declare, by name (filled on first use)."""
 
-STANDARD_CHANNELS: dict[str, ChannelSpec] = {
-    "cmd": ChannelSpec(
-        "cmd",
-        ("v", "w"),
-        ("m/s", "rad/s"),
-        Role.COMMAND,
-        "body twist issued at t[k] and held until t[k+1]",
-    ),
-    "ticks": ChannelSpec(
-        "ticks", ("left", "right"), ("count", "count"), Role.SENSOR, "cumulative encoder counts"
-    ),
-    "pose_gt": ChannelSpec(
-        "pose_gt", _POSE, _POSE_UNITS, Role.TRUTH, "ground-truth base pose", angle_columns=(2,)
-    ),
-    "pose_est": ChannelSpec(
-        "pose_est", _POSE, _POSE_UNITS, Role.ESTIMATE, "estimated base pose", angle_columns=(2,)
-    ),
-    "pose_cam": ChannelSpec(
-        "pose_cam",
-        _POSE,
-        _POSE_UNITS,
-        Role.SENSOR,
-        "planar camera pose from a camera localisation",
-        angle_columns=(2,),
-    ),
-    # arm: one row per measurement pose, the arm at rest
-    "joints": ChannelSpec(
-        "joints",
-        ("q1", "q2", "q3", "q4", "q5", "q6"),
-        ("rad",) * 6,
-        Role.SENSOR,
-        "joint encoder readings of the arm at rest",
-    ),
-    "tool_pos": ChannelSpec(
-        "tool_pos",
-        ("x", "y", "z"),
-        ("m", "m", "m"),
-        Role.TRUTH,
-        "tool point measured by an external instrument (laser tracker), in its own frame",
-    ),
-    # climber
-    "pose3_gt": ChannelSpec(
-        "pose3_gt",
-        ("x", "y", "z", "rx", "ry", "rz"),
-        ("m", "m", "m", "rad", "rad", "rad"),
-        Role.TRUTH,
-        "ground-truth 3-D body pose: position and rotation vector in the world (CAD) frame",
-    ),
-    "tether": ChannelSpec(
-        "tether", ("length",), ("m",), Role.SENSOR, "tether length reported by the spool"
-    ),
-}
+
+def standard_channels() -> Mapping[str, ChannelSpec]:
+    """The standard channels: those the robot adapters read, by name, in registry order.
+
+    A log may hold a standard channel without giving its :class:`ChannelSpec`;
+    each adapter declares its own (e.g.
+    :data:`~realitygap.diagnosis.diffdrive_adapter.DIFFDRIVE_CHANNELS`).
+    """
+    if not _STANDARD:
+        from realitygap.diagnosis.adapters import adapter_channels
+
+        _STANDARD.update(adapter_channels())
+    return _STANDARD
+
 
 # unit → (SI unit, factor to SI)
 _UNITS: dict[str, tuple[str, float]] = {
@@ -380,12 +342,12 @@ class Log:
         given = dict(self.specs)
         for name, values in self.channels.items():
             spec = given.pop(name, None)
-            std = STANDARD_CHANNELS.get(name)
+            std = standard_channels().get(name)
             if spec is None:
                 if std is None:
                     raise LogError(
                         f"{where}channel {name!r} is not a standard channel "
-                        f"({', '.join(STANDARD_CHANNELS)}); give its ChannelSpec (columns, units)"
+                        f"({', '.join(standard_channels())}); give its ChannelSpec (columns, units)"
                     )
                 spec = std
             elif std is not None:

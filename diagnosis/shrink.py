@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.diagnosis.attribute import Layout
-from realitygap.diagnosis.features import FEATURE_COLUMNS, FEATURE_UNITS, REGIMES, FeatureSettings
+from realitygap.diagnosis.features import FeatureSettings
 from realitygap.diagnosis.log import Log
 
 FloatArray = npt.NDArray[np.float64]
@@ -41,12 +41,14 @@ def shrink_table(
     ``column == "all"`` rows each group (normalised RMS, unit ``"1"``).
     """
     rows: list[dict[str, Any]] = []
-    for g, cols in FEATURE_COLUMNS.items():
+    schema = layout.schema
+    for group in schema.groups:
+        g, cols = group.name, group.columns
         gsel = layout.group == g
         if not gsel.any():
             continue
         scale = scales.scale(g)
-        for regime in ("all", *REGIMES):
+        for regime in ("all", *schema.regimes):
             rsel = gsel if regime == "all" else gsel & (layout.regime == regime)
             if not rsel.any():
                 continue
@@ -61,7 +63,7 @@ def shrink_table(
                         "group": g,
                         "column": c,
                         "regime": regime,
-                        "unit": FEATURE_UNITS[g][j],
+                        "unit": group.units[j],
                         "n": int(sel.sum()),
                         "rms_before": rb,
                         "rms_after": ra,

@@ -1,24 +1,16 @@
 """Blind validation of the diagnosis: hidden effects realised in PyBullet, then diagnosed.
 
 Each :class:`BlindCase` draws one hidden effect (sometimes two) with a
-realistic magnitude from a seeded generator, realises it in the PyBullet
-robot, records ordinary manoeuvres — through
-:class:`~realitygap.envs.wheeled_nav.WheeledNavEnv` and
-:class:`~realitygap.diagnosis.record.RecordLog` for the firmware-ramped ones,
-by driving the robot directly for hard starts — with motion-capture and
-camera noise, and runs :func:`~realitygap.diagnosis.diagnose.diagnose`
-without telling it the truth. In a quarter of the cases a true effect is
-removed from the candidate library (open set): the right answer is then
-``"unexplained"``.
-
-For the arm (``SuiteSettings(robot="arm")``) the hidden effects are the
-kinematic, drive and encoder effects of :data:`ARM_HIDDEN_EFFECTS`; each case
-measures one training and one held-out set of random poses of the PyBullet arm
-with a simulated laser tracker
-(:func:`~realitygap.diagnosis.arm_adapter.record_arm_log`). For the climber
-(``robot="climber"``) each case drives the PyBullet climber along a training
-and a held-out path on the blade
-(:func:`~realitygap.diagnosis.climb_adapter.record_climber_logs`).
+realistic magnitude from a seeded generator (the robot adapter's
+:meth:`~realitygap.diagnosis.adapters.AdapterBase.hidden_effects`), realises it
+in the PyBullet robot, records a training and a held-out set of logs with the
+adapter's blind-log recorder
+(:meth:`~realitygap.diagnosis.adapters.AdapterBase.record_blind_logs`: ordinary
+manoeuvres of the differential drive with motion-capture and camera noise,
+random poses of the arm under a simulated laser tracker, paths of the climber
+on the blade) and runs :func:`~realitygap.diagnosis.diagnose.diagnose` without
+telling it the truth. In a quarter of the cases a true effect is removed from
+the candidate library (open set): the right answer is then ``"unexplained"``.
 
 :func:`summarise` turns case outcomes into the suite's figures (top-1 / top-2
 accuracy, parameter error, held-out shrink, open-set and false-attribution
@@ -35,46 +27,19 @@ from typing import Any
 
 import numpy as np
 
+from realitygap.diagnosis.adapters import HiddenTable, get_adapter, known_robots
 from realitygap.diagnosis.backends import Backend, SerialBackend
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-from realitygap.diagnosis.log import Log
-from realitygap.diagnosis.manoeuvres import MANOEUVRES
-from realitygap.diagnosis.record import RecordLog
-from realitygap.diagnosis.replay import MeasurementNoise, simulate
-from realitygap.robots.diffdrive import DiffDriveParams
-from realitygap.robots.effects import EFFECTS, BlindRange, Reality, blind_ranges, make_effect
+from realitygap.diagnosis.replay import MeasurementNoise
+from realitygap.robots.effects import EFFECTS, Reality, make_effect
 
 __all__ = [
-    "ARM_HIDDEN_EFFECTS",
-    "CLIMBER_HIDDEN_EFFECTS",
-    "HIDDEN_BY_ROBOT",
-    "HIDDEN_EFFECTS",
     "BlindCase",
     "SuiteSettings",
     "draw_cases",
-    "record_case_logs",
     "run_case",
     "summarise",
 ]
-
-HIDDEN_EFFECTS: dict[str, tuple[BlindRange, ...]] = blind_ranges("diffdrive")
-"""Hidden effects of the differential drive and their magnitudes (:attr:`Effect.blind`)."""
-
-ARM_HIDDEN_EFFECTS: dict[str, tuple[BlindRange, ...]] = blind_ranges("arm")
-"""Hidden effects of the arm and their magnitudes (:attr:`Effect.blind`)."""
-
-CLIMBER_HIDDEN_EFFECTS: dict[str, tuple[BlindRange, ...]] = blind_ranges("climber")
-"""Hidden effects of the climber and their magnitudes (:attr:`Effect.blind`)."""
-
-HIDDEN_BY_ROBOT: dict[str, dict[str, tuple[tuple[str, float, float, bool], ...]]] = {
-    "diffdrive": HIDDEN_EFFECTS,
-    "arm": ARM_HIDDEN_EFFECTS,
-    "climber": CLIMBER_HIDDEN_EFFECTS,
-}
-"""The hidden-effect table of every robot the suite runs for."""
-
-TRAIN_MANOEUVRES = ("straight_runs", "turns_in_place", "arcs", "accelerations")
-HOLDOUT_MANOEUVRES = ("square_cw", "square_ccw", "tour", "hard_starts")
 
 
 @dataclass(frozen=True)
@@ -83,26 +48,23 @@ class SuiteSettings:
 
     Attributes
     ----------
-    noise : MeasurementNoise
-        Motion-capture and camera noise of the recorded logs.
+    noise : MeasurementNoise or None
+        Motion-capture and camera noise of a differential drive's recorded logs
+        (``None``: the adapter's ``blind_noise``).
     pair_probability : float
         Chance that a case hides two effects.
     open_set_every : int
         Every this-many-th case withholds a true effect from the library.
     diagnosis : DiagnosisSettings
     robot : str
-        ``"diffdrive"``, ``"arm"`` or ``"climber"`` (:data:`HIDDEN_BY_ROBOT`).
+        A robot with a diagnosis adapter (:func:`~realitygap.diagnosis.adapters.known_robots`).
     arm_poses : int
         Arm: measured poses per log (one training and one held-out log).
     arm_tracker_noise : float
         Arm: laser-tracker noise per axis (m).
     """
 
-    noise: MeasurementNoise = field(
-        default_factory=lambda: MeasurementNoise(
-            truth_xy=0.0005, truth_theta=0.001, camera_xy=0.001, camera_theta=0.002
-        )
-    )
+    noise: MeasurementNoise | None = None
     pair_probability: float = 0.25
     open_set_every: int = 4
     diagnosis: DiagnosisSettings = field(default_factory=DiagnosisSettings)
@@ -111,15 +73,15 @@ class SuiteSettings:
     arm_tracker_noise: float = 2e-5
 
     def __post_init__(self) -> None:
-        if self.robot not in HIDDEN_BY_ROBOT:
+        if self.robot not in known_robots():
             raise ValueError(
-                f"the blind suite runs for {', '.join(HIDDEN_BY_ROBOT)}; got robot {self.robot!r}"
+                f"the blind suite runs for {', '.join(known_robots())}; got robot {self.robot!r}"
             )
 
     @property
-    def hidden_effects(self) -> dict[str, tuple[tuple[str, float, float, bool], ...]]:
-        """The hidden-effect table of :attr:`robot`."""
-        return HIDDEN_BY_ROBOT[self.robot]
+    def hidden_effects(self) -> HiddenTable:
+        """The hidden-effect table of :attr:`robot` (its adapter's)."""
+        return get_adapter(self.robot).hidden_effects()
 
 
 @dataclass(frozen=True)
@@ -147,16 +109,14 @@ class BlindCase:
 
 
 def _draw_values(
-    name: str,
-    rng: np.random.Generator,
-    table: dict[str, tuple[tuple[str, float, float, bool], ...]] | None = None,
+    name: str, rng: np.random.Generator, table: HiddenTable
 ) -> tuple[tuple[str, float], ...]:
     out = []
-    for param, low, high, symmetric in (table if table is not None else HIDDEN_EFFECTS)[name]:
+    for param, low, high, symmetric, absolute in table[name]:
         nominal = next(s.nominal for s in EFFECTS[name].specs if s.name == param)
         mag = float(rng.uniform(low, high))
-        if name in ("longitudinal_slip", "velocity_saturation"):
-            value = mag  # drawn directly
+        if absolute:
+            value = mag
         elif symmetric:
             value = nominal + (mag if rng.random() < 0.5 else -mag)
         else:
@@ -196,93 +156,12 @@ def draw_cases(n: int, seed: int, settings: SuiteSettings | None = None) -> list
     return cases
 
 
-def _record_env(
-    manoeuvre: str, reality: Reality, params: DiffDriveParams, noise: MeasurementNoise, rng: Any
-) -> Log:
-    from realitygap.envs.wheeled_nav import WheeledNavEnv
-
-    env = WheeledNavEnv(
-        reality=reality,
-        params=params,
-        n_obstacles=0,
-        room_half_size=20.0,
-        start=(0.0, 0.0, float(rng.uniform(-math.pi, math.pi))),
-        goal=(15.0, 15.0, 0.0),
-        terminate_on_success=False,
-        n_beams=8,
-    )
-    rec = RecordLog(env, noise=noise, rng=rng, meta={"name": manoeuvre})
-    try:
-        rec.reset(seed=int(rng.integers(2**31)))
-        t, req = MANOEUVRES[manoeuvre].requested(env.dt)
-        scale = np.array([params.v_max, params.w_max])
-        for k in range(t.shape[0] - 1):
-            rec.step(req[k] / scale)
-        return rec.log
-    finally:
-        env.close()
-
-
-def record_case_logs(
-    reality: Reality,
-    rng: np.random.Generator,
-    noise: MeasurementNoise,
-    manoeuvres: Sequence[str],
-    params: DiffDriveParams | None = None,
-) -> list[Log]:
-    """Record ``manoeuvres`` with the robot ``reality``: ramped ones through the env, steps directly."""
-    params = params if params is not None else DiffDriveParams()
-    logs = []
-    for m in manoeuvres:
-        man = MANOEUVRES[m]
-        if man.ramp:
-            logs.append(_record_env(m, reality, params, noise, rng))
-        else:
-            t, cmd = man.applied(0.05, params)
-            start = np.array([0.0, 0.0, float(rng.uniform(-math.pi, math.pi))])
-            logs.append(
-                simulate(
-                    t,
-                    params=params,
-                    reality=reality,
-                    commands=cmd,
-                    start=start,
-                    noise=noise,
-                    rng=rng,
-                    meta={"name": m},
-                    source=m,
-                )
-            )
-    return logs
-
-
 def run_case(settings: SuiteSettings, case: BlindCase) -> dict[str, Any]:
     """Record and diagnose one blind case; the outcome as a JSON-able dict."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(case.seed)
     reality = case.reality()
-    if settings.robot == "arm":
-        from realitygap.diagnosis.arm_adapter import record_arm_log
-
-        train, holdout = (
-            [
-                record_arm_log(
-                    reality,
-                    rng,
-                    settings.arm_poses,
-                    tracker_noise=settings.arm_tracker_noise,
-                    name=name,
-                )
-            ]
-            for name in ("arm_train", "arm_holdout")
-        )
-    elif settings.robot == "climber":
-        from realitygap.diagnosis.climb_adapter import record_climber_logs
-
-        train, holdout = record_climber_logs(reality, rng)
-    else:
-        train = record_case_logs(reality, rng, settings.noise, TRAIN_MANOEUVRES)
-        holdout = record_case_logs(reality, rng, settings.noise, HOLDOUT_MANOEUVRES)
+    train, holdout = get_adapter(settings.robot).record_blind_logs(reality, rng, settings)
     t_rec = time.perf_counter() - t0
     library = tuple(n for n in settings.hidden_effects if n not in case.withheld)
     dset = settings.diagnosis

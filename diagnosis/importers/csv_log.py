@@ -32,12 +32,12 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.diagnosis.log import (
-    STANDARD_CHANNELS,
     Log,
     LogError,
     convert_units,
     fill_gaps,
     sniff_file_kind,
+    standard_channels,
 )
 from realitygap.diagnosis.replay import params_to_meta
 from realitygap.robots.diffdrive import DiffDriveParams
@@ -76,11 +76,11 @@ class ColumnMap:
                 )
             if target != "t":
                 chan, col = target.split(".", 1)
-                spec = STANDARD_CHANNELS.get(chan)
+                spec = standard_channels().get(chan)
                 if spec is None:
                     raise LogError(
                         f"column map: unknown channel {chan!r} in {target!r}; channels: "
-                        f"{', '.join(STANDARD_CHANNELS)}"
+                        f"{', '.join(standard_channels())}"
                     )
                 if col not in spec.columns:
                     raise LogError(
@@ -140,12 +140,12 @@ class ColumnMap:
 
 def _known(target: str) -> bool:
     chan, _, col = target.partition(".")
-    return chan in STANDARD_CHANNELS and col in STANDARD_CHANNELS[chan].columns
+    return chan in standard_channels() and col in standard_channels()[chan].columns
 
 
 def _default_unit(target: str) -> str:
     chan, col = target.split(".", 1)
-    spec = STANDARD_CHANNELS[chan]
+    spec = standard_channels()[chan]
     return spec.units[spec.columns.index(col)]
 
 
@@ -329,7 +329,7 @@ def read_csv_log(
         chan, col = target.split(".", 1)
         by_channel.setdefault(chan, {})[col] = v
     for chan, cols in by_channel.items():
-        spec = STANDARD_CHANNELS[chan]
+        spec = standard_channels()[chan]
         missing = [c for c in spec.columns if c not in cols]
         if missing:
             raise LogError(

@@ -133,13 +133,15 @@ class BlindRange(NamedTuple):
     """Magnitude of one parameter in the blind suite.
 
     The deviation from nominal is drawn as ``|Δ| ~ U(low, high)``, with a random
-    sign when ``symmetric``.
+    sign when ``symmetric``. With ``absolute`` the draw is the parameter's value
+    itself, not a deviation (a slip coefficient, a speed limit).
     """
 
     param: str
     low: float
     high: float
     symmetric: bool
+    absolute: bool = False
 
 
 CommandHook = Callable[[float, float, float], tuple[float, float]]

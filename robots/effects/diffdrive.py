@@ -245,7 +245,7 @@ class LongitudinalSlip(Effect):
         "more on a stop. Realised as the wheels' friction coefficient."
     )
     specs = (ParamSpec("mu", "1", 1.2, 0.05, 1.2, "tyre-floor friction coefficient (nominal 1.2)"),)
-    blind = (BlindRange("mu", 0.15, 0.5, False),)
+    blind = (BlindRange("mu", 0.15, 0.5, False, absolute=True),)
     surrogate_slot = SurrogateSlot.TRACTION
     surrogate_example = (("mu", 0.3),)
     surrogate_tolerance = 0.35
@@ -412,7 +412,7 @@ class VelocitySaturation(Effect):
             "v_limit", "m/s", 10.0, 0.2, 10.0, "largest wheel surface speed actually reached"
         ),
     )
-    blind = (BlindRange("v_limit", 0.35, 0.55, False),)
+    blind = (BlindRange("v_limit", 0.35, 0.55, False, absolute=True),)
     surrogate_slot = SurrogateSlot.WHEEL_SPEED
     surrogate_example = (("v_limit", 0.45),)
 

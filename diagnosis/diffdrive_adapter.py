@@ -1,0 +1,426 @@
+"""The differential drive's diagnosis adapter: PyBullet replay, pose / tick / camera features.
+
+A differential-drive log is sampled at the control rate: the commanded body
+twist ``cmd``, the cumulative encoder counts ``ticks``, the ground-truth base
+pose ``pose_gt`` (motion capture), and optionally the estimated pose
+``pose_est`` and a camera pose ``pose_cam``. Its metadata gives the nominal
+robot (:func:`~realitygap.diagnosis.replay.params_from_meta`).
+
+Features, per window (1 s by default)
+    ``pose_gt`` — motion of the ground truth in the frame of its pose at the
+    window start; ``ticks`` — wheel travel counted by the encoders (nominal
+    metres per tick); ``pose_cam`` — mean camera pose seen from the
+    ground-truth base pose (:func:`~realitygap.diagnosis.features.features`).
+
+Regimes
+    From the applied commands (or, when the wheels drive the replay, from the
+    wheel motion): :data:`~realitygap.diagnosis.features.DIFFDRIVE_REGIMES`.
+
+Replay and surrogate
+    The nominal PyBullet robot driven by the same commands or wheel rotation
+    (:func:`~realitygap.diagnosis.replay.replay`); the fit uses the analytic
+    :class:`~realitygap.diagnosis.surrogate.DiffDriveSurrogate`.
+
+Blind logs
+    Ordinary manoeuvres (:data:`TRAIN_MANOEUVRES`, :data:`HOLDOUT_MANOEUVRES`)
+    recorded with motion-capture and camera noise: the firmware-ramped ones
+    through :class:`~realitygap.envs.wheeled_nav.WheeledNavEnv` and
+    :class:`~realitygap.diagnosis.record.RecordLog`, hard starts by driving
+    the robot directly.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import numpy.typing as npt
+
+from realitygap.diagnosis.adapters import (
+    LogContext,
+    PreparedLog,
+    WheelDrivenAdapter,
+    reality_from_values,
+)
+from realitygap.diagnosis.features import (
+    DIFFDRIVE_REGIMES,
+    FeatureGroup,
+    FeatureSchema,
+    FeatureSettings,
+    classify_regimes,
+    features,
+    window_bounds,
+)
+from realitygap.diagnosis.log import ChannelSpec, Log, LogError, Role
+from realitygap.diagnosis.manoeuvres import MANOEUVRES
+from realitygap.diagnosis.record import RecordLog
+from realitygap.diagnosis.replay import (
+    Drive,
+    MeasurementNoise,
+    SimSettings,
+    applied_commands,
+    nominal_odometry,
+    params_from_meta,
+    replay,
+    simulate,
+)
+from realitygap.diagnosis.surrogate import (
+    SURROGATE_EFFECTS,
+    DiffDriveSurrogate,
+    SurrogateInputs,
+    calibrate,
+)
+from realitygap.robots.diffdrive import DiffDriveParams
+from realitygap.robots.effects import Reality
+
+if TYPE_CHECKING:
+    from realitygap.diagnosis.suite import SuiteSettings
+
+FloatArray = npt.NDArray[np.float64]
+Features = dict[str, FloatArray]
+
+__all__ = [
+    "DIFFDRIVE_CHANNELS",
+    "DIFFDRIVE_SCHEMA",
+    "HOLDOUT_MANOEUVRES",
+    "TRAIN_MANOEUVRES",
+    "DiffDriveAdapter",
+    "DiffDriveContext",
+    "record_case_logs",
+]
+
+_POSE = ("x", "y", "theta")
+_POSE_UNITS = ("m", "m", "rad")
+
+DIFFDRIVE_CHANNELS: tuple[ChannelSpec, ...] = (
+    ChannelSpec(
+        "cmd",
+        ("v", "w"),
+        ("m/s", "rad/s"),
+        Role.COMMAND,
+        "body twist issued at t[k] and held until t[k+1]",
+    ),
+    ChannelSpec(
+        "ticks", ("left", "right"), ("count", "count"), Role.SENSOR, "cumulative encoder counts"
+    ),
+    ChannelSpec(
+        "pose_gt", _POSE, _POSE_UNITS, Role.TRUTH, "ground-truth base pose", angle_columns=(2,)
+    ),
+    ChannelSpec(
+        "pose_est", _POSE, _POSE_UNITS, Role.ESTIMATE, "estimated base pose", angle_columns=(2,)
+    ),
+    ChannelSpec(
+        "pose_cam",
+        _POSE,
+        _POSE_UNITS,
+        Role.SENSOR,
+        "planar camera pose from a camera localisation",
+        angle_columns=(2,),
+    ),
+)
+"""Channels of a differential-drive log."""
+
+DIFFDRIVE_SCHEMA = FeatureSchema(
+    groups=(
+        FeatureGroup("pose_gt", ("dx", "dy", "dtheta"), ("m", "m", "rad"), (0.002, 0.002, 0.002)),
+        FeatureGroup("ticks", ("left", "right"), ("m", "m"), (0.002, 0.002)),
+        FeatureGroup("pose_cam", ("ex", "ey", "etheta"), ("m", "m", "rad"), (0.002, 0.002, 0.003)),
+    ),
+    regimes=DIFFDRIVE_REGIMES,
+)
+"""Window features of a differential drive (default scales 2 mm, 2 mm, 2 mrad for the
+ground truth; 2 mm per wheel; 2 mm, 2 mm, 3 mrad for the camera) and its regimes."""
+
+TRAIN_MANOEUVRES = ("straight_runs", "turns_in_place", "arcs", "accelerations")
+"""Manoeuvres of a blind case's training logs."""
+HOLDOUT_MANOEUVRES = ("square_cw", "square_ccw", "tour", "hard_starts")
+"""Manoeuvres of a blind case's held-out logs."""
+
+
+@dataclass
+class DiffDriveContext(LogContext):
+    """What the differential drive keeps about a prepared log.
+
+    Attributes
+    ----------
+    params : DiffDriveParams
+        The nominal robot of the log.
+    inputs : SurrogateInputs
+        Start pose and the commands or ticks that drive the surrogate.
+    twist : ndarray, shape (N, 2)
+        Applied body twist (m/s, rad/s): the commands, or the wheel motion.
+    surrogate : DiffDriveSurrogate
+    """
+
+    params: DiffDriveParams
+    inputs: SurrogateInputs
+    twist: FloatArray
+    surrogate: DiffDriveSurrogate
+
+    def window_motion(self, bounds: npt.NDArray[np.int64]) -> FloatArray | None:
+        """Mean speed and turn rate, their change over the window and ranges, (M, 6)."""
+        twist = self.twist
+        motion = np.zeros((bounds.shape[0], 6))
+        for m, (a, b) in enumerate(bounds):
+            seg = twist[a:b]
+            before = twist[max(a - 1, 0)]
+            motion[m] = (
+                seg[:, 0].mean(),
+                seg[:, 1].mean(),
+                twist[b - 1, 0] - before[0],
+                twist[b - 1, 1] - before[1],
+                np.ptp(twist[max(a - 1, 0) : b, 0]),
+                np.ptp(twist[max(a - 1, 0) : b, 1]),
+            )
+        return motion
+
+
+class DiffDriveAdapter(WheelDrivenAdapter):
+    """Differential drive: effects, PyBullet replay, channels, features and surrogate."""
+
+    robot = "diffdrive"
+    channels = DIFFDRIVE_CHANNELS
+    schema = DIFFDRIVE_SCHEMA
+    stage_group = "pose_gt"
+    surrogate_effects = tuple(SURROGATE_EFFECTS)
+    blind_noise = MeasurementNoise(
+        truth_xy=0.0005, truth_theta=0.001, camera_xy=0.001, camera_theta=0.002
+    )
+    """Motion-capture and camera noise of the blind suite's logs."""
+
+    # ------------------------------------------------------------------ checks
+    def check(self, log: Log, drive: Drive) -> Log:
+        """Validate a log for this robot; returns it (raises :class:`LogError` with the fix)."""
+        self.check_robot(log, drive)
+        params_from_meta(log)
+        log.check_uniform()
+        if drive is Drive.COMMANDS:
+            log.require(["cmd", "pose_gt"], "a command-driven diagnosis")
+        else:
+            log.require(["ticks", "pose_gt"], "a tick-driven diagnosis")
+        if log.n < 3:
+            raise LogError(f"{log.source}: the log is too short ({log.n} rows)")
+        return log
+
+    # ------------------------------------------------------------------ preparation
+    def prepare(
+        self,
+        log: Log,
+        *,
+        split: str,
+        drive: Drive,
+        features_settings: FeatureSettings,
+        sim: SimSettings | None,
+    ) -> PreparedLog:
+        """Windows, regimes, real features, the nominal replay and the surrogate's bias."""
+        params = params_from_meta(log)
+        dt = log.dt
+        bounds = self.time_windows(log, features_settings)
+        if drive is Drive.COMMANDS:
+            twist = applied_commands(log)
+        else:
+            twist = self._twist_from_ticks(log["ticks"], params, dt)
+        regimes = classify_regimes(twist, bounds, features_settings)
+        settings = sim if sim is not None else SimSettings.for_log(log)
+        start = np.asarray(log["pose_gt"][0], dtype=float)
+        inputs = SurrogateInputs(
+            dt=dt,
+            start=start,
+            commands=twist if drive is Drive.COMMANDS else None,
+            ticks=np.asarray(log["ticks"], dtype=float) if drive is Drive.TICKS else None,
+        )
+        mpt = self.meters_per_tick(params)
+        real = features(log.channels, bounds, mpt)
+        if drive is Drive.TICKS:
+            real.pop("ticks", None)
+        context = DiffDriveContext(
+            sim=settings,
+            params=params,
+            inputs=inputs,
+            twist=twist,
+            surrogate=DiffDriveSurrogate(params, calibrate(params, settings.solver_iterations)),
+        )
+        prepared = PreparedLog(
+            log=log,
+            split=split,
+            bounds=bounds,
+            regimes=regimes,
+            real=real,
+            nominal={},
+            replay_log=log,
+            holdout_windows=np.full(bounds.shape[0], split == "holdout"),
+            schema=self.schema,
+            context=context,
+        )
+        nominal, replay_log = self.replay_features(prepared, {}, drive, settings)
+        prepared.nominal = {g: v for g, v in nominal.items() if g in real}
+        prepared.replay_log = replay_log
+        sur = self.surrogate_features(prepared, {}, drive)
+        prepared.bias = {g: prepared.nominal[g] - sur[g][0] for g in prepared.groups}
+        return prepared
+
+    @staticmethod
+    def meters_per_tick(params: DiffDriveParams) -> tuple[float, float]:
+        return (
+            2.0 * math.pi * params.wheel_radius_left / params.ticks_per_rev,
+            2.0 * math.pi * params.wheel_radius_right / params.ticks_per_rev,
+        )
+
+    @staticmethod
+    def _twist_from_ticks(ticks: FloatArray, params: DiffDriveParams, dt: float) -> FloatArray:
+        d = np.diff(ticks, axis=0, append=ticks[-1:]) * (2.0 * math.pi / params.ticks_per_rev)
+        sl = d[:, 0] * params.wheel_radius_left / dt
+        sr = d[:, 1] * params.wheel_radius_right / dt
+        return np.column_stack([(sl + sr) / 2.0, (sr - sl) / params.wheelbase])
+
+    @staticmethod
+    def _context(prepared: PreparedLog) -> DiffDriveContext:
+        ctx = prepared.context
+        assert isinstance(ctx, DiffDriveContext)
+        return ctx
+
+    # ------------------------------------------------------------------ models
+    def replay_features(
+        self, prepared: PreparedLog, values: Mapping[str, float], drive: Drive, sim: SimSettings
+    ) -> tuple[Features, Log]:
+        """PyBullet replay with effect values ``{"effect.param": v}``; its features and log."""
+        params = self._context(prepared).params
+        reality = reality_from_values(values) if values else None
+        rep = replay(prepared.log, reality, drive=drive, settings=sim, params=params)
+        feats = features(rep.channels, prepared.bounds, self.meters_per_tick(params))
+        if drive is Drive.TICKS:
+            feats.pop("ticks", None)
+        return feats, rep
+
+    def log_features(self, prepared: PreparedLog, log: Log) -> Features:
+        """Window features of another log of the same episode (e.g. a replay)."""
+        mpt = self.meters_per_tick(self._context(prepared).params)
+        return features(log.channels, prepared.bounds, mpt)
+
+    def surrogate_features(
+        self, prepared: PreparedLog, values: Mapping[str, npt.ArrayLike], drive: Drive
+    ) -> Features:
+        """Surrogate features for a batch of effect values, (B, M, k) per group."""
+        ctx = self._context(prepared)
+        out = ctx.surrogate.simulate(ctx.inputs, values)
+        feats = features(out, prepared.bounds, self.meters_per_tick(ctx.params))
+        return {g: v for g, v in feats.items() if g in prepared.real}
+
+    def probe_manoeuvres(self) -> dict[str, str]:
+        """Manoeuvres the identifiability advice may suggest, with descriptions."""
+        from realitygap.diagnosis.manoeuvres import PROBE_MANOEUVRES
+
+        return {name: MANOEUVRES[name].description for name in PROBE_MANOEUVRES}
+
+    def probe_features(
+        self, manoeuvre: str, params_like: PreparedLog, values: Mapping[str, npt.ArrayLike]
+    ) -> tuple[Features, list[str]]:
+        """Surrogate features of a library manoeuvre (for identifiability advice)."""
+        ctx = self._context(params_like)
+        params = ctx.params
+        man = MANOEUVRES[manoeuvre]
+        dt = params_like.log.dt
+        t, cmd = man.applied(dt, params)
+        out = ctx.surrogate.simulate(SurrogateInputs(dt, np.zeros(3), commands=cmd), values)
+        bounds = window_bounds(t.shape[0], dt, 1.0)
+        feats = features(out, bounds, self.meters_per_tick(params))
+        groups = [g for g in params_like.real if g in feats]
+        return {g: feats[g] for g in groups}, groups
+
+    # ------------------------------------------------------------------ stages
+    def stage_residuals(self, prepared: PreparedLog) -> dict[str, FloatArray]:
+        """Residuals of the pipeline stages inside the real log, per window.
+
+        ``command → motion``: real ground truth minus the nominal replay's;
+        ``motion → sensor``: encoder travel minus the travel the nominal
+        geometry predicts from the ground-truth motion; ``sensor → estimate``:
+        the logged estimate's motion minus nominal odometry of the logged ticks.
+        """
+        params = self._context(prepared).params
+        log = prepared.log
+        out: dict[str, FloatArray] = {}
+        if "pose_gt" in prepared.real and "pose_gt" in prepared.nominal:
+            out["command → motion"] = prepared.real["pose_gt"] - prepared.nominal["pose_gt"]
+        if log.has("ticks") and log.has("pose_gt"):
+            mpt = self.meters_per_tick(params)
+            odo = nominal_odometry(np.asarray(log["ticks"]), params, log["pose_gt"][0])
+            f_odo = features({"pose_gt": odo}, prepared.bounds, mpt)["pose_gt"]
+            out["motion → sensor"] = f_odo - prepared.real["pose_gt"]
+            if log.has("pose_est"):
+                f_est = features({"pose_gt": log["pose_est"]}, prepared.bounds, mpt)["pose_gt"]
+                out["sensor → estimate"] = f_est - f_odo
+        return out
+
+    # ------------------------------------------------------------------ blind suite
+    def record_blind_logs(
+        self, reality: Reality, rng: np.random.Generator, settings: SuiteSettings
+    ) -> tuple[list[Log], list[Log]]:
+        """The training and held-out manoeuvres of ``reality`` with the suite's noise."""
+        noise = settings.noise if settings.noise is not None else self.blind_noise
+        train = record_case_logs(reality, rng, noise, TRAIN_MANOEUVRES)
+        holdout = record_case_logs(reality, rng, noise, HOLDOUT_MANOEUVRES)
+        return train, holdout
+
+
+# --------------------------------------------------------------------------- recording
+def _record_env(
+    manoeuvre: str, reality: Reality, params: DiffDriveParams, noise: MeasurementNoise, rng: Any
+) -> Log:
+    from realitygap.envs.wheeled_nav import WheeledNavEnv
+
+    env = WheeledNavEnv(
+        reality=reality,
+        params=params,
+        n_obstacles=0,
+        room_half_size=20.0,
+        start=(0.0, 0.0, float(rng.uniform(-math.pi, math.pi))),
+        goal=(15.0, 15.0, 0.0),
+        terminate_on_success=False,
+        n_beams=8,
+    )
+    rec = RecordLog(env, noise=noise, rng=rng, meta={"name": manoeuvre})
+    try:
+        rec.reset(seed=int(rng.integers(2**31)))
+        t, req = MANOEUVRES[manoeuvre].requested(env.dt)
+        scale = np.array([params.v_max, params.w_max])
+        for k in range(t.shape[0] - 1):
+            rec.step(req[k] / scale)
+        return rec.log
+    finally:
+        env.close()
+
+
+def record_case_logs(
+    reality: Reality,
+    rng: np.random.Generator,
+    noise: MeasurementNoise,
+    manoeuvres: Sequence[str],
+    params: DiffDriveParams | None = None,
+) -> list[Log]:
+    """Record ``manoeuvres`` with the robot ``reality``: ramped ones through the env, steps directly."""
+    params = params if params is not None else DiffDriveParams()
+    logs = []
+    for m in manoeuvres:
+        man = MANOEUVRES[m]
+        if man.ramp:
+            logs.append(_record_env(m, reality, params, noise, rng))
+        else:
+            t, cmd = man.applied(0.05, params)
+            start = np.array([0.0, 0.0, float(rng.uniform(-math.pi, math.pi))])
+            logs.append(
+                simulate(
+                    t,
+                    params=params,
+                    reality=reality,
+                    commands=cmd,
+                    start=start,
+                    noise=noise,
+                    rng=rng,
+                    meta={"name": m},
+                    source=m,
+                )
+            )
+    return logs
