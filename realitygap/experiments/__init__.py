@@ -18,16 +18,19 @@ import json
 import math
 import os
 import sys
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from realitygap.core.io import atomic_write_text
+
 _MODULES = (
     "realitygap.experiments.nav",
-    "realitygap.experiments.perception",
+    "realitygap.experiments.calib000",
+    "realitygap.experiments.vo",
+    "realitygap.experiments.umbmark_real",
     "realitygap.experiments.arm",
     "realitygap.experiments.climb",
     "realitygap.experiments.diagnosis",
@@ -127,19 +130,9 @@ def _jsonable(value: Any) -> Any:
 
 
 def write_json_atomic(path: str | os.PathLike[str], payload: Any) -> None:
-    """Write ``payload`` as JSON to ``path`` via a temporary file and an atomic rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(_jsonable(payload), fh, indent=2, sort_keys=False)
-            fh.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Write ``payload`` as indented JSON to ``path`` with :func:`~realitygap.core.io.atomic_write_text`."""
+    text = json.dumps(_jsonable(payload), indent=2, sort_keys=False) + "\n"
+    atomic_write_text(path, text)
 
 
 def format_figures(result: dict[str, Any]) -> str:

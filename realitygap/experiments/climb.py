@@ -18,8 +18,8 @@ import numpy.typing as npt
 
 from realitygap.estimators.climb import SurfaceModel
 from realitygap.experiments import RunContext, experiment
+from realitygap.robots.climb_evaluation import evaluate_recording
 from realitygap.robots.climb_record import record_climb_run
-from realitygap.robots.climb_synthetic import evaluate_recording
 from realitygap.robots.climber import (
     ClimberParams,
     ClimberRobot,

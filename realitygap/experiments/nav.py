@@ -172,7 +172,8 @@ def nav8_vo(ctx: RunContext) -> dict[str, Any]:
     from realitygap.estimators.diffdrive_model import DiffDriveKinematics, OdometryNoise
     from realitygap.estimators.fusion_ekf import FusionSettings
     from realitygap.estimators.pipelines import FusedOdometryVO, FusedPipelineSettings
-    from realitygap.experiments.perception import CalibConfig, calib000, calibration_room
+    from realitygap.experiments.calib000 import CalibConfig, calib000
+    from realitygap.experiments.drive_harness import calibration_room
     from realitygap.robots.diffdrive import DiffDriveParams
 
     ctx.progress("nav8-vo: calibrating the imperfect robot (calib000)")

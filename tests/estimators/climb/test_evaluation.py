@@ -13,12 +13,11 @@ from realitygap.estimators.climb.preintegration import Preintegration
 from realitygap.estimators.climb.surface import SurfaceModel
 from realitygap.estimators.climb.vio import VioConfig
 from realitygap.robots.blade_geometry import BladeSurface, cad_point_cloud
+from realitygap.robots.climb_evaluation import EvaluationReport, evaluate_recording
 from realitygap.robots.climb_synthetic import (
     ClimbScenario,
-    EvaluationReport,
     NoiseModel,
     TruthTrajectory,
-    evaluate_recording,
     render_planar_view,
     synthesise_recording,
 )
