@@ -45,13 +45,14 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import numpy.typing as npt
+
+from realitygap.core.parallel import ProcessBackend
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -305,6 +306,11 @@ def _collect(task: _CollectTask) -> Rollouts:
     return out
 
 
+def _collect_shared(shared: None, task: _CollectTask) -> Rollouts:
+    """:func:`_collect` in the ``fn(shared, item)`` form of :meth:`ProcessBackend.map`."""
+    return _collect(task)
+
+
 def collect(
     env_id: str,
     env_kwargs: Mapping[str, Any],
@@ -366,13 +372,8 @@ def collect(
         for i, chunk in enumerate(chunks)
         if chunk
     ]
-    if len(tasks) > 1:
-        import multiprocessing as mp
-
-        with ProcessPoolExecutor(len(tasks), mp_context=mp.get_context("forkserver")) as pool:
-            parts = list(pool.map(_collect, tasks))
-    else:
-        parts = [_collect(t) for t in tasks]
+    backend = ProcessBackend(max(len(tasks), 1), start_method="forkserver")
+    parts = backend.map(_collect_shared, tasks, None)
     out = Rollouts()
     for part in parts:
         out.extend(part)

@@ -19,7 +19,7 @@ bags), :mod:`~realitygap.diagnosis.record` (:class:`RecordLog` wrapper),
 :mod:`~realitygap.diagnosis.attribute`, :mod:`~realitygap.diagnosis.shrink`,
 :mod:`~realitygap.diagnosis.diagnose` (end to end),
 :mod:`~realitygap.diagnosis.adapters` (robot adapters),
-:mod:`~realitygap.diagnosis.backends` (serial / processes / Ray),
+:mod:`~realitygap.core.parallel` (serial / processes / Ray),
 :mod:`~realitygap.diagnosis.report`, :mod:`~realitygap.diagnosis.suite`
 (blind validation) and :mod:`~realitygap.diagnosis.cli` (``realitygap diagnose``).
 
@@ -50,7 +50,7 @@ _EXPORTS = {
     "FeatureSettings": "realitygap.diagnosis.features",
     "write_report": "realitygap.diagnosis.report",
     "write_json": "realitygap.diagnosis.report",
-    "make_backend": "realitygap.diagnosis.backends",
+    "make_backend": "realitygap.core.parallel",
     "get_adapter": "realitygap.diagnosis.adapters",
 }
 

@@ -10,7 +10,7 @@ returns a :class:`Diagnosis`:
 3. each candidate effect, then pairs of the best, is fitted on the training
    windows and scored on the held-out ones
    (:mod:`realitygap.diagnosis.attribute`), fits running in parallel through a
-   backend (:mod:`realitygap.diagnosis.backends`);
+   backend (:mod:`realitygap.core.parallel`);
 4. the best models are verified in PyBullet, and the verdict is drawn — an
    effect (or pair) only if it closes enough of the held-out gap and leaves
    unstructured residuals, else ``"unexplained"``; confounded explanations
@@ -43,7 +43,7 @@ from realitygap.diagnosis.attribute import (
     fit_model,
     model_keys,
 )
-from realitygap.diagnosis.backends import Backend, SerialBackend
+from realitygap.core.parallel import Backend, SerialBackend
 from realitygap.diagnosis.features import FeatureSettings
 from realitygap.diagnosis.localise import localise
 from realitygap.diagnosis.log import Log, LogError

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from realitygap.diagnosis.backends import Backend, SerialBackend
+from realitygap.core.parallel import Backend, SerialBackend
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.log import Log
 from realitygap.diagnosis.manoeuvres import MANOEUVRES
