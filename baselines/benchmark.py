@@ -66,9 +66,8 @@ from realitygap.baselines.rl import (
     load_policy,
     shipped_policy,
     write_csv_atomic,
-    write_text_atomic,
-    write_via_temp,
 )
+from realitygap.core.io import atomic_write, atomic_write_text
 
 INSTALL_RAY = "pip install 'realitygap[ray]'"
 POLICY_KINDS: tuple[str, ...] = ("classical", "ppo", "sac", "random")
@@ -1081,7 +1080,7 @@ def plot_success(summary: Sequence[Mapping[str, Any]], out: str | os.PathLike[st
             ax.legend(fontsize=7)
     fig.tight_layout()
     try:
-        return write_via_temp(out, lambda tmp: fig.savefig(tmp, dpi=110), ".png")
+        return atomic_write(out, lambda fh: fig.savefig(fh, dpi=110, format="png"))
     finally:
         plt.close(fig)
 
@@ -1139,7 +1138,7 @@ def run_benchmark(
         "episode_seeds": "1000 * seed + k",
         "backend": backend,
     }
-    write_text_atomic(out / "config.json", json.dumps(config_json, indent=2, default=str) + "\n")
+    atomic_write_text(out / "config.json", json.dumps(config_json, indent=2, default=str) + "\n")
     done = {record_key(r) for r in store.load()}
     tasks = plan_tasks(cfg, done)
     n_total = sum(len(t.seeds) for t in tasks)
@@ -1178,7 +1177,7 @@ def run_benchmark(
     for name in cfg.realities:
         if name in REALITY_PROFILES:
             all_notes.append(f"reality `{name}`: {REALITY_PROFILES[name]['description']}")
-    write_text_atomic(files["markdown"], markdown_report(summary, transfer, all_notes))
+    atomic_write_text(files["markdown"], markdown_report(summary, transfer, all_notes))
     png = plot_success(summary, out / "success.png")
     if png is not None:
         files["success_png"] = png

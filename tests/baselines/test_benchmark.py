@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from realitygap.baselines import benchmark as bm
-from realitygap.baselines.rl import write_text_atomic
+from realitygap.core.io import atomic_write_text
 
 ENV_ID = "realitygap/WheeledNav-v0"
 T_975 = {3: 3.182446305284263, 9: 2.262157162798205}
@@ -158,14 +158,14 @@ def test_tables_and_plots_are_written(bench_dir: Path) -> None:
 
 def test_files_are_written_atomically(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     target = tmp_path / "table.csv"
-    write_text_atomic(target, "old\n")
+    atomic_write_text(target, "old\n")
 
     def fail(*args: Any, **kwargs: Any) -> None:
         raise OSError("disk full")
 
     monkeypatch.setattr(os, "replace", fail)
     with pytest.raises(OSError, match="disk full"):
-        write_text_atomic(target, "new\n")
+        atomic_write_text(target, "new\n")
     assert target.read_text() == "old\n"
     assert [p.name for p in tmp_path.iterdir()] == ["table.csv"]
 
