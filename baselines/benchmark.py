@@ -51,7 +51,7 @@ import math
 import os
 import sys
 import time
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -67,6 +67,7 @@ from realitygap.baselines.rl import (
     shipped_policy,
     write_csv_atomic,
 )
+from realitygap.cards import ENV_CARDS, load_object
 from realitygap.core.io import atomic_write, atomic_write_text
 
 INSTALL_RAY = "pip install 'realitygap[ray]'"
@@ -74,13 +75,6 @@ POLICY_KINDS: tuple[str, ...] = ("classical", "ppo", "sac", "random")
 """Policy names the benchmark knows; ``name=path/to/model.zip`` adds a trained file."""
 
 SENSOR_MODES: tuple[str, ...] = ("fast", "image")
-
-ENV_ROBOTS: dict[str, str] = {
-    "realitygap/WheeledNav-v0": "diffdrive",
-    "realitygap/ArmCalib-v0": "arm",
-    "realitygap/WallClimb-v0": "climber",
-}
-"""Which robot (see :attr:`Effect.robot`) each environment drives; reality profiles are per robot."""
 
 REALITY_PROFILES: dict[str, dict[str, Any]] = {
     "kobuki-worn": {
@@ -140,26 +134,7 @@ REALITY_PROFILES: dict[str, dict[str, Any]] = {
 }
 """Named reality profiles (effects with values), by robot. A profile with
 ``"extends": "env-default"`` adds its effects to the env's own default reality (see
-:data:`ENV_DEFAULT_REALITY`)."""
-
-ENV_DEFAULT_REALITY: dict[str, str] = {
-    "realitygap/ArmCalib-v0": "realitygap.envs.arm_calib:default_arm_reality",
-}
-"""Envs whose default cell is already "real" (the arm to calibrate differs from its nominal
-model by design): ``"nominal"`` in the benchmark means the env's default, and profiles that
-extend it add effects on top."""
-
-ENV_SENSOR_MODES: dict[str, dict[str, str]] = {
-    "realitygap/ArmCalib-v0": {"fast": "geometric", "image": "image"},
-}
-"""The env's own ``sensor_mode`` value for the benchmark's ``fast`` / ``image`` modes
-(identity when not listed)."""
-
-ENV_EXTRA_METRICS: dict[str, tuple[str, ...]] = {
-    "realitygap/ArmCalib-v0": ("validation_rms_mm", "poses_used"),
-    "realitygap/WallClimb-v0": ("goal_distance", "position_error"),
-}
-"""Scalar ``info`` entries at the end of an episode that the table reports per env."""
+:attr:`~realitygap.cards.EnvCard.default_reality`)."""
 
 METRICS: tuple[str, ...] = (
     "success",
@@ -265,20 +240,20 @@ def reality_for(env_id: str, name: str) -> Any:
         return None
     reality = reality_from_profile(name)
     prof = REALITY_PROFILES.get(name, {})
-    if prof.get("extends") == "env-default" and env_id in ENV_DEFAULT_REALITY:
-        import importlib
-
+    card = ENV_CARDS.get(env_id)
+    default = card.default_reality if card is not None else None
+    if prof.get("extends") == "env-default" and default is not None:
         from realitygap.robots.effects import Reality
 
-        module, func = ENV_DEFAULT_REALITY[env_id].split(":")
-        base = getattr(importlib.import_module(module), func)()
+        base = load_object(default)()
         reality = Reality(effects=(*base.effects, *reality.effects), name=name)
     return reality
 
 
 def env_sensor_mode(env_id: str, mode: str) -> str:
     """The env's ``sensor_mode`` value for the benchmark's ``mode`` (``fast``/``image``)."""
-    return ENV_SENSOR_MODES.get(env_id, {}).get(mode, mode)
+    card = ENV_CARDS.get(env_id)
+    return card.sensor_modes.get(mode, mode) if card is not None else mode
 
 
 def profile_robot(name: str) -> str | None:
@@ -319,32 +294,6 @@ class RandomPolicy:
         batch = obs.shape[0] if obs.ndim > 1 else None
         size = (batch, *self.shape) if batch is not None else self.shape
         return self.rng.uniform(self.low, self.high, size=size).astype(self.dtype), state
-
-
-def _classical_wheeled_nav(env: gym.Env[Any, Any]) -> Any:
-    from realitygap.baselines.classical import ClassicalNavPolicy
-
-    return ClassicalNavPolicy.from_env(env)
-
-
-def _classical_arm_calib(env: gym.Env[Any, Any]) -> Any:
-    from realitygap.baselines.arm_policy import ObservabilityGreedyPolicy
-
-    return ObservabilityGreedyPolicy.from_env(env)
-
-
-def _classical_wall_climb(env: gym.Env[Any, Any]) -> Any:
-    from realitygap.baselines.climb_policy import ClimbChartPolicy
-
-    return ClimbChartPolicy.from_env(env)
-
-
-CLASSICAL_POLICIES: dict[str, Callable[[gym.Env[Any, Any]], Any]] = {
-    "realitygap/WheeledNav-v0": _classical_wheeled_nav,
-    "realitygap/ArmCalib-v0": _classical_arm_calib,
-    "realitygap/WallClimb-v0": _classical_wall_climb,
-}
-"""Classical baseline factory per env id (built from the env's nominal parameters)."""
 
 
 @dataclass(frozen=True)
@@ -395,9 +344,9 @@ def parse_policies(text: str | Sequence[str]) -> list[PolicySpec]:
 def build_policy(spec: PolicySpec, env: gym.Env[Any, Any], env_id: str, seed: int = 0) -> Any:
     """The policy object of ``spec`` for ``env`` (a ``predict``-able object)."""
     if spec.kind == "classical":
-        if env_id not in CLASSICAL_POLICIES:
+        if env_id not in ENV_CARDS:
             raise ValueError(f"no classical baseline registered for {env_id}")
-        return CLASSICAL_POLICIES[env_id](env)
+        return load_object(ENV_CARDS[env_id].classical_policy)(env)
     if spec.kind == "random":
         if not isinstance(env.action_space, gym.spaces.Box):
             raise ValueError(
@@ -450,14 +399,24 @@ def resolve_learned_paths(
 
 # --------------------------------------------------------------------------- the episode loop
 def run_episode(
-    env: gym.Env[Any, Any], policy: Any, seed: int, deterministic: bool = True
+    env: gym.Env[Any, Any],
+    policy: Any,
+    seed: int,
+    deterministic: bool = True,
+    pose_shape: tuple[int, ...] | None = None,
 ) -> dict[str, Any]:
     """Run one seeded episode of ``policy`` through SB3's ``predict``; return its metrics.
 
     The policy is told the episode start (``episode_start``), and re-seeded with
     ``seed`` when it has a ``seed`` method (random policy), so an episode depends on
-    ``seed`` only.
+    ``seed`` only. The path length follows ``info["true_pose"]``, whose shape
+    ``pose_shape`` is (default: the env card's ``info`` schema, see
+    :class:`~realitygap.cards.EnvCard`): ``(3,)`` planar ``[x, y, θ]``, ``(7,)`` position
+    and quaternion, ``(4, 4)`` a homogeneous transform. Without a known shape the path
+    length is NaN.
     """
+    if pose_shape is None:
+        pose_shape = _pose_shape(env)
     if hasattr(policy, "seed") and callable(policy.seed):
         policy.seed(seed)
     obs, info = env.reset(seed=seed)
@@ -470,7 +429,7 @@ def run_episode(
     compute = 0.0
     actions: list[npt.NDArray[np.float64]] = []
     path = 0.0
-    prev_xy = _xy(info)
+    prev_xy = _xy(info, pose_shape)
     best_before_collision = _float(info.get("pos_error"))
     collided = False
     success = False
@@ -487,7 +446,7 @@ def run_episode(
         done = bool(terminated or truncated)
         total_reward += float(reward)
         actions.append(np.asarray(action, dtype=np.float64).reshape(-1))
-        xy = _xy(info)
+        xy = _xy(info, pose_shape)
         if xy is not None and prev_xy is not None:
             path += float(np.linalg.norm(xy - prev_xy))
         prev_xy = xy
@@ -531,20 +490,37 @@ def run_episode(
     }
 
 
-def _xy(info: Mapping[str, Any]) -> npt.NDArray[np.float64] | None:
-    """Position from ``info["true_pose"]``: ``[x, y, θ]`` → ``(x, y)``; ``[x, y, z,
-    quaternion]`` → ``(x, y, z)``; a 4×4 transform → its translation."""
-    pose = info.get("true_pose")
-    if pose is None:
+def _pose_shape(env: gym.Env[Any, Any]) -> tuple[int, ...] | None:
+    """Shape of ``info["true_pose"]`` declared by the env's card (``None`` without one)."""
+    spec = getattr(env, "spec", None)
+    card = ENV_CARDS.get(spec.id) if spec is not None else None
+    if card is None or "true_pose" not in card.info:
         return None
-    arr = np.asarray(pose, dtype=float)
-    if arr.ndim == 1 and arr.size == 3:
+    return card.info["true_pose"].shape
+
+
+def _xy(
+    info: Mapping[str, Any], pose_shape: tuple[int, ...] | None
+) -> npt.NDArray[np.float64] | None:
+    """Position from ``info["true_pose"]`` of the declared shape: ``[x, y, θ]`` → ``(x, y)``;
+    ``[x, y, z, quaternion]`` → ``(x, y, z)``; a 4×4 transform → its translation."""
+    pose = info.get("true_pose")
+    if pose is None or pose_shape is None:
+        return None
+    arr = np.asarray(pose, dtype=float).reshape(pose_shape)
+    if pose_shape == (3,):
         return arr[:2].copy()
-    if arr.ndim == 1 and arr.size == 7:
+    if pose_shape == (7,):
         return arr[:3].copy()
-    if arr.shape == (4, 4):
+    if pose_shape == (4, 4):
         return arr[:3, 3].copy()
     return None
+
+
+def _extra_metrics(env_id: str) -> tuple[str, ...]:
+    """The env's own metrics (:attr:`~realitygap.cards.EnvCard.metrics`); none for an unknown id."""
+    card = ENV_CARDS.get(env_id)
+    return card.metrics if card is not None else ()
 
 
 def _float(value: Any) -> float:
@@ -621,7 +597,7 @@ def plan_tasks(
     done = done or set()
     tasks = []
     for env_id in cfg.env_ids:
-        robot = ENV_ROBOTS.get(env_id)
+        robot = ENV_CARDS[env_id].robot if env_id in ENV_CARDS else None
         kwargs = tuple(sorted(dict(cfg.env_kwargs.get(env_id, {})).items()))
         realities = ["nominal"] + [
             r for r in cfg.realities if r != "nominal" and profile_robot(r) in (None, robot)
@@ -633,7 +609,7 @@ def plan_tasks(
                 for pol in cfg.policies:
                     if allowed is not None and pol.name not in allowed:
                         continue
-                    if pol.kind == "classical" and env_id not in CLASSICAL_POLICIES:
+                    if pol.kind == "classical" and env_id not in ENV_CARDS:
                         continue
                     if pol.kind in ("ppo", "sac") and pol.path_for(env_id) is None:
                         continue  # no trained policy for this env (reported by the caller)
@@ -688,7 +664,7 @@ def iter_chunk(task: ChunkTask) -> Iterator[dict[str, Any]]:
     env = gym.make(
         task.env_id, sensor_mode=env_sensor_mode(task.env_id, task.sensor_mode), **kwargs
     )
-    extra = ENV_EXTRA_METRICS.get(task.env_id, ())
+    extra = _extra_metrics(task.env_id)
     try:
         policy = build_policy(
             task.policy, env, task.env_id, seed=task.seeds[0] if task.seeds else 0
@@ -905,7 +881,7 @@ def summarise(
             "n": len(recs),
             "errors": sum(1 for r in recs if r.get("error")),
         }
-        extra = ENV_EXTRA_METRICS.get(env_id, ())
+        extra = _extra_metrics(env_id)
         for m in (*METRICS, *extra):
             if m == "time_to_goal_s":
                 vals = [float(r[m]) for r in recs if r.get("success")]
@@ -1022,7 +998,7 @@ def markdown_report(
                 f"{_fmt(t['final_pos_error_cm_reality'], 1)} |"
             )
     extra_rows = [
-        (r, ENV_EXTRA_METRICS[r["env_id"]]) for r in summary if r.get("env_id") in ENV_EXTRA_METRICS
+        (r, _extra_metrics(r["env_id"])) for r in summary if _extra_metrics(r.get("env_id", ""))
     ]
     if extra_rows:
         lines += ["", "## Env-specific metrics (final info, mean ± std)", ""]

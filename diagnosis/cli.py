@@ -125,8 +125,8 @@ def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 def run_diagnose(args: argparse.Namespace) -> int:
     """Run the ``diagnose`` sub-command; returns the exit status."""
-    from realitygap.diagnosis.attribute import AttributionSettings
     from realitygap.core.parallel import make_backend
+    from realitygap.diagnosis.attribute import AttributionSettings
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
     from realitygap.diagnosis.features import FeatureSettings
     from realitygap.diagnosis.io import ReadOptions, read_many

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.parallel import Backend, SerialBackend
 from realitygap.diagnosis.adapters import PreparedLog, RobotAdapter, get_adapter
 from realitygap.diagnosis.attribute import (
     AttributionSettings,
@@ -43,7 +44,6 @@ from realitygap.diagnosis.attribute import (
     fit_model,
     model_keys,
 )
-from realitygap.core.parallel import Backend, SerialBackend
 from realitygap.diagnosis.features import FeatureSettings
 from realitygap.diagnosis.localise import localise
 from realitygap.diagnosis.log import Log, LogError

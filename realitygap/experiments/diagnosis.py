@@ -228,9 +228,9 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
     first direction (train on the first series, hold out the last) gives the headline
     figures ``ur10_top_effects`` and ``ur10_shrink_pct``.
     """
+    from realitygap.core.parallel import ProcessBackend
     from realitygap.diagnosis.adapters import ADAPTERS
     from realitygap.diagnosis.arm_adapter import ArmAdapter
-    from realitygap.core.parallel import ProcessBackend
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
     from realitygap.diagnosis.io import logs_from_ur10
 

@@ -358,6 +358,8 @@ class _Line3D(gym.Env):  # type: ignore[type-arg]
 
 
 def test_path_length_counts_all_three_axes_of_a_3d_pose() -> None:
-    rec = bm.run_episode(_Line3D(), bm.RandomPolicy(_Line3D.action_space, 0), seed=0)
+    rec = bm.run_episode(
+        _Line3D(), bm.RandomPolicy(_Line3D.action_space, 0), seed=0, pose_shape=(7,)
+    )
     assert rec["path_length_m"] == pytest.approx(0.3)
     assert rec["reached_10cm"] is True
