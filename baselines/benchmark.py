@@ -47,9 +47,9 @@ with ``pip install 'realitygap[ray]'``).
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
-import sys
 import time
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
@@ -68,7 +68,10 @@ from realitygap.baselines.rl import (
     write_csv_atomic,
 )
 from realitygap.cards import ENV_CARDS, load_object
+from realitygap.core import parallel
 from realitygap.core.io import atomic_write, atomic_write_text
+
+logger = logging.getLogger(__name__)
 
 INSTALL_RAY = "pip install 'realitygap[ray]'"
 POLICY_KINDS: tuple[str, ...] = ("classical", "ppo", "sac", "random")
@@ -692,16 +695,14 @@ def iter_chunk(task: ChunkTask) -> Iterator[dict[str, Any]]:
 
 
 # --------------------------------------------------------------------------- backends
+RAY_MISSING = (
+    f"--backend ray needs Ray, which is not installed: {INSTALL_RAY} (or use --backend local)"
+)
+
+
 def require_ray() -> Any:
     """Import Ray, or raise an ``ImportError`` with the install command."""
-    try:
-        import ray
-    except ImportError as exc:
-        raise ImportError(
-            f"--backend ray needs Ray, which is not installed: {INSTALL_RAY} "
-            "(or use --backend local)"
-        ) from exc
-    return ray
+    return parallel.require_ray(RAY_MISSING)
 
 
 class ResultStore:
@@ -745,11 +746,10 @@ def record_key(rec: Mapping[str, Any]) -> tuple[str, str, str, str, int]:
 
 
 class Progress:
-    """Progress lines on stderr: episodes done, rate, ETA."""
+    """Progress lines (episodes done, rate, ETA) through :mod:`logging` at ``INFO``."""
 
-    def __init__(self, total: int, stream: Any = None, every_s: float = 10.0, enabled: bool = True):
+    def __init__(self, total: int, every_s: float = 10.0, enabled: bool = True):
         self.total, self.done = total, 0
-        self.stream = stream if stream is not None else sys.stderr
         self.every_s, self.enabled = every_s, enabled
         self.t0 = self.last = time.perf_counter()
 
@@ -764,11 +764,9 @@ class Progress:
         rate = self.done / max(now - self.t0, 1e-9)
         eta = (self.total - self.done) / max(rate, 1e-9)
         pct = 100.0 * self.done / max(self.total, 1)
-        print(
+        logger.info(
             f"[{time.strftime('%H:%M:%S')}] benchmark {self.done}/{self.total} episodes ({pct:.0f} %), "
-            f"ETA {eta / 60:.1f} min {label}",
-            file=self.stream,
-            flush=True,
+            f"ETA {eta / 60:.1f} min {label}"
         )
 
 
@@ -783,13 +781,16 @@ def execute(
     """Run ``tasks``, streaming each finished episode to ``store``. Returns error messages of
     tasks that failed (their finished episodes are kept)."""
     progress = progress or Progress(sum(len(t.seeds) for t in tasks), enabled=False)
+    runner: parallel.Backend
     if backend == "local":
         if workers <= 1:
             return _execute_inline(tasks, store, progress)
-        return _execute_pool(tasks, store, workers, progress)
-    if backend == "ray":
-        return _execute_ray(tasks, store, address, progress)
-    raise ValueError(f"backend must be 'local' or 'ray', got {backend!r}")
+        runner = parallel.ProcessBackend(workers, start_method="forkserver")
+    elif backend == "ray":
+        runner = parallel.RayBackend(address, missing=RAY_MISSING)
+    else:
+        raise ValueError(f"backend must be 'local' or 'ray', got {backend!r}")
+    return _execute_streaming(runner, tasks, store, progress)
 
 
 def _label(task: ChunkTask) -> str:
@@ -812,50 +813,21 @@ def _execute_inline(
     return errors
 
 
-def _execute_pool(
-    tasks: Sequence[ChunkTask], store: ResultStore, workers: int, progress: Progress
+def _execute_streaming(
+    runner: parallel.Backend, tasks: Sequence[ChunkTask], store: ResultStore, progress: Progress
 ) -> list[str]:
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    """Run whole tasks on ``runner``; store each task's episodes as soon as it finishes."""
     from concurrent.futures.process import BrokenProcessPool
 
     errors: list[str] = []
-    ctx = mp.get_context("forkserver")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-        futures = {pool.submit(run_chunk, t): t for t in tasks}
-        for fut in as_completed(futures):
-            task = futures[fut]
-            try:
-                records = fut.result()
-            except BrokenProcessPool as exc:
-                errors.append(f"{_label(task)} seeds {task.seeds}: worker crashed ({exc})")
-                continue
-            except Exception as exc:
-                errors.append(f"{_label(task)} seeds {task.seeds}: {type(exc).__name__}: {exc}")
-                continue
-            store.append(records)
-            progress.update(len(records), _label(task))
-    return errors
-
-
-def _execute_ray(
-    tasks: Sequence[ChunkTask], store: ResultStore, address: str | None, progress: Progress
-) -> list[str]:
-    ray = require_ray()
-    if not ray.is_initialized():
-        ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
-    remote = ray.remote(num_cpus=1, max_retries=1)(run_chunk)
-    pending = {remote.remote(t): t for t in tasks}
-    errors = []
-    while pending:
-        ready, _ = ray.wait(list(pending), num_returns=1)
-        for ref in ready:
-            task = pending.pop(ref)
-            try:
-                records = ray.get(ref)
-            except Exception as exc:  # RayTaskError, WorkerCrashedError, …
-                errors.append(f"{_label(task)} seeds {task.seeds}: {type(exc).__name__}: {exc}")
-                continue
+    for outcome in runner.imap_unordered(run_chunk, tasks):
+        task, exc = outcome.item, outcome.error
+        if isinstance(exc, BrokenProcessPool):
+            errors.append(f"{_label(task)} seeds {task.seeds}: worker crashed ({exc})")
+        elif exc is not None:
+            errors.append(f"{_label(task)} seeds {task.seeds}: {type(exc).__name__}: {exc}")
+        else:
+            records = outcome.value or []
             store.append(records)
             progress.update(len(records), _label(task))
     return errors
@@ -1120,11 +1092,9 @@ def run_benchmark(
     n_total = sum(len(t.seeds) for t in tasks)
     progress = Progress(n_total, enabled=verbose)
     if verbose:
-        print(
+        logger.info(
             f"[{time.strftime('%H:%M:%S')}] benchmark: {n_total} episodes in {len(tasks)} tasks "
-            f"({len(done)} already done) on backend {backend} -> {out}",
-            file=sys.stderr,
-            flush=True,
+            f"({len(done)} already done) on backend {backend} -> {out}"
         )
     errors = execute(tasks, store, backend, workers, address, progress)
     wanted = {(t.cell) for t in plan_tasks(cfg)}
