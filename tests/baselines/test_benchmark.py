@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from realitygap.baselines import benchmark as bm
+from realitygap.baselines.benchmark import runner
 from realitygap.core.io import atomic_write_text
 
 ENV_ID = "realitygap/WheeledNav-v0"
@@ -180,7 +181,7 @@ def test_finished_episodes_survive_a_failing_task_and_are_resumed(
             raise RuntimeError("worker died")
         return real_build(spec, env, env_id, seed)
 
-    monkeypatch.setattr(bm, "build_policy", build)
+    monkeypatch.setattr(runner, "build_policy", build)
     cfg = _cfg(realities=(), episodes=1)
     store = bm.ResultStore(tmp_path / "episodes.jsonl")
     errors = bm.execute(bm.plan_tasks(cfg), store)
@@ -207,7 +208,7 @@ def test_a_policy_that_raises_fails_its_episode_only(
     def build(spec: bm.PolicySpec, env: Any, env_id: str, seed: int = 0) -> Any:
         return Boom() if spec.name == "classical" else real_build(spec, env, env_id, seed)
 
-    monkeypatch.setattr(bm, "build_policy", build)
+    monkeypatch.setattr(runner, "build_policy", build)
     result = bm.run_benchmark(_cfg(realities=(), episodes=2), tmp_path, verbose=False)
     assert result.errors == []
     crashed = [r for r in bm.ResultStore(result.files["episodes"]).load() if r.get("error")]
