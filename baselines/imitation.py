@@ -42,6 +42,7 @@ seeded from the run's seed.
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -56,6 +57,8 @@ from realitygap.cards import ENV_CARDS, load_object
 from realitygap.core.parallel import ProcessBackend
 
 FloatArray = npt.NDArray[np.float64]
+
+logger = logging.getLogger(__name__)
 
 __all__ = [
     "DemoSettings",
@@ -455,13 +458,16 @@ def pretrain(
     train_wrappers: Sequence[Mapping[str, Any]] = (),
     max_episode_steps: int | None = None,
     evaluate: Callable[[Any], Mapping[str, float]] | None = None,
-    log: Callable[[str], None] = print,
+    log: Callable[[str], None] | None = None,
 ) -> tuple[Any, list[dict[str, float]]]:
     """DAgger + behaviour cloning of ``model`` (see the module docstring).
 
     Returns the fitted observation normaliser and one row of figures per round
     (rollout success of the mixed policy, losses, and ``evaluate(normaliser)`` when given).
+    ``log`` receives one progress line per round (default: this module's logger at ``INFO``).
     """
+    if log is None:
+        log = logger.info
     experts = ENV_CARDS[env_id].experts if env_id in ENV_CARDS else {}
     if settings.expert not in experts:
         known = [f"{e} ({', '.join(c.experts)})" for e, c in ENV_CARDS.items() if c.experts]
