@@ -343,24 +343,25 @@ def run_training_jobs(
     if backend != "ray":
         show_progress("realitygap.baselines.rl", sys.stdout)
         return [rl.train(cfg) for cfg in jobs]
-    from realitygap.baselines.benchmark import require_ray
+    from realitygap.baselines.benchmark import RAY_MISSING
+    from realitygap.core.parallel import RayBackend
 
-    ray = require_ray()  # Ray's own task options (two CPUs per run), results in job order
-    if not ray.is_initialized():
-        ray.init(address=address, ignore_reinit_error=True)
-    remote = ray.remote(num_cpus=2)(rl.train)
+    # each run asks for two CPUs (its vectorised env); Ray's default retries; worker output shown
+    runner = RayBackend(
+        address, missing=RAY_MISSING, task_options={"num_cpus": 2}, log_to_driver=True
+    )
     t0 = time.perf_counter()
-    refs = [remote.remote(cfg) for cfg in jobs]
+    outcomes = sorted(runner.imap_unordered(rl.train, jobs), key=lambda o: o.index)
     results: list[Any] = []
-    for cfg, ref in zip(jobs, refs):
-        try:
-            results.append(ray.get(ref))
-        except Exception as exc:  # RayTaskError, WorkerCrashedError, …
+    for outcome in outcomes:
+        cfg = outcome.item
+        if outcome.error is not None:  # RayTaskError, WorkerCrashedError, …
             print(
-                f"error: training {cfg.algo} on {cfg.env_id} seed {cfg.seed} failed: {exc}",
+                f"error: training {cfg.algo} on {cfg.env_id} seed {cfg.seed} failed: "
+                f"{outcome.error}",
                 file=sys.stderr,
             )
-            results.append(None)
+        results.append(outcome.value)
     print(
         f"trained {sum(r is not None for r in results)}/{len(jobs)} policies on Ray in "
         f"{(time.perf_counter() - t0) / 60:.1f} min",

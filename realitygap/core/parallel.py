@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar
@@ -186,6 +186,10 @@ class RayBackend:
         Ray cluster address; ``None`` starts (or joins) a local cluster.
     missing : str, optional
         Message of the ``ImportError`` when Ray is not installed.
+    task_options : mapping, optional
+        Ray task options of :meth:`imap_unordered` (default one CPU, one retry).
+    log_to_driver : bool
+        Whether the workers' output reaches this process (default ``False``).
 
     Raises
     ------
@@ -195,14 +199,26 @@ class RayBackend:
 
     name = "ray"
 
-    def __init__(self, address: str | None = None, missing: str = RAY_MISSING):
+    def __init__(
+        self,
+        address: str | None = None,
+        missing: str = RAY_MISSING,
+        task_options: Mapping[str, Any] | None = None,
+        log_to_driver: bool = False,
+    ):
         self._ray = require_ray(missing)
         self.address = address
+        self.task_options = dict(
+            {"num_cpus": 1, "max_retries": 1} if task_options is None else task_options
+        )
+        self.log_to_driver = log_to_driver
 
     def _init(self) -> Any:
         ray = self._ray
         if not ray.is_initialized():
-            ray.init(address=self.address, ignore_reinit_error=True, log_to_driver=False)
+            ray.init(
+                address=self.address, ignore_reinit_error=True, log_to_driver=self.log_to_driver
+            )
         return ray
 
     def map(self, fn: Callable[[Any, T], R], items: Sequence[T], shared: Any) -> list[R]:
@@ -212,10 +228,10 @@ class RayBackend:
         return list(ray.get([remote.remote(fn, ref, item) for item in items]))
 
     def imap_unordered(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[Outcome[T, R]]:
-        """One Ray task per item (one CPU, one retry); yield each as it finishes."""
+        """One Ray task per item (with :attr:`task_options`); yield each as it finishes."""
         ray = self._init()
         items = list(items)
-        remote = ray.remote(num_cpus=1, max_retries=1)(fn)
+        remote = ray.remote(**self.task_options)(fn)
         pending = {remote.remote(item): i for i, item in enumerate(items)}
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)
