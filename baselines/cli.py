@@ -13,10 +13,23 @@ Each sets ``func`` on its sub-parser to a command returning an exit code.
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 import time
 from pathlib import Path
 from typing import Any
+
+
+def show_progress(logger_name: str, stream: Any) -> None:
+    """Print the ``INFO`` lines of logger ``logger_name`` (training or benchmark progress)
+    on ``stream`` as bare messages; calling it again adds no second handler."""
+    log = logging.getLogger(logger_name)
+    if not any(getattr(h, "realitygap_progress", False) for h in log.handlers):
+        handler = logging.StreamHandler(stream)
+        handler.setFormatter(logging.Formatter("%(message)s"))
+        handler.realitygap_progress = True  # type: ignore[attr-defined]
+        log.addHandler(handler)
+    log.setLevel(logging.INFO)
 
 
 def _csv_list(text: str) -> list[str]:
@@ -149,6 +162,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         eval_episodes=args.eval_episodes,
         init_model=Path(args.init_model) if args.init_model else None,
     )
+    show_progress("realitygap.baselines.rl", sys.stdout)
     try:
         result = rl.train(cfg)
     except (ValueError, FileNotFoundError) as exc:
@@ -208,6 +222,8 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
             seed=args.seed,
             episode_counts=counts,
         )
+        if not args.silent:
+            show_progress("realitygap.baselines.benchmark", sys.stderr)
         result = bm.run_benchmark(
             cfg,
             args.out,
@@ -325,25 +341,27 @@ def run_training_jobs(
     from realitygap.baselines import rl
 
     if backend != "ray":
+        show_progress("realitygap.baselines.rl", sys.stdout)
         return [rl.train(cfg) for cfg in jobs]
-    from realitygap.baselines.benchmark import require_ray
+    from realitygap.baselines.benchmark import RAY_MISSING
+    from realitygap.core.parallel import RayBackend
 
-    ray = require_ray()
-    if not ray.is_initialized():
-        ray.init(address=address, ignore_reinit_error=True)
-    remote = ray.remote(num_cpus=2)(rl.train)
+    # each run asks for two CPUs (its vectorised env); Ray's default retries; worker output shown
+    runner = RayBackend(
+        address, missing=RAY_MISSING, task_options={"num_cpus": 2}, log_to_driver=True
+    )
     t0 = time.perf_counter()
-    refs = [remote.remote(cfg) for cfg in jobs]
+    outcomes = sorted(runner.imap_unordered(rl.train, jobs), key=lambda o: o.index)
     results: list[Any] = []
-    for cfg, ref in zip(jobs, refs):
-        try:
-            results.append(ray.get(ref))
-        except Exception as exc:  # RayTaskError, WorkerCrashedError, …
+    for outcome in outcomes:
+        cfg = outcome.item
+        if outcome.error is not None:  # RayTaskError, WorkerCrashedError, …
             print(
-                f"error: training {cfg.algo} on {cfg.env_id} seed {cfg.seed} failed: {exc}",
+                f"error: training {cfg.algo} on {cfg.env_id} seed {cfg.seed} failed: "
+                f"{outcome.error}",
                 file=sys.stderr,
             )
-            results.append(None)
+        results.append(outcome.value)
     print(
         f"trained {sum(r is not None for r in results)}/{len(jobs)} policies on Ray in "
         f"{(time.perf_counter() - t0) / 60:.1f} min",

@@ -42,10 +42,10 @@ seeded from the run's seed.
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -53,7 +53,12 @@ import gymnasium as gym
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.cards import ENV_CARDS, load_object
+from realitygap.core.parallel import ProcessBackend
+
 FloatArray = npt.NDArray[np.float64]
+
+logger = logging.getLogger(__name__)
 
 __all__ = [
     "DemoSettings",
@@ -74,7 +79,7 @@ class DemoSettings:
     ----------
     expert : ``"classical"`` (the env's classical baseline) or ``"geodesic"`` (WheeledNav:
         the privileged shortest-path teacher of :mod:`realitygap.baselines.privileged`, whose
-        command is a function of the state); see :data:`EXPERTS`.
+        command is a function of the state); see :attr:`~realitygap.cards.EnvCard.experts`.
     rounds : DAgger rounds (round 0: the expert drives alone).
     episodes : episodes per round.
     beta_decay : the expert drives a step of round ``k`` with probability ``beta_decay^k``.
@@ -109,7 +114,7 @@ class DemoSettings:
     mirror: bool = False
 
     def __post_init__(self) -> None:
-        names = sorted({name for experts in EXPERTS.values() for name in experts})
+        names = sorted({name for card in ENV_CARDS.values() for name in card.experts})
         if self.expert not in names:
             raise ValueError(f"demonstrations expert must be one of {names}, got {self.expert!r}")
         if self.rounds < 1 or self.episodes < 1 or self.epochs < 1 or self.workers < 1:
@@ -267,7 +272,7 @@ def _collect(task: _CollectTask) -> Rollouts:
 
     env = gym.make(task.env_id, max_episode_steps=task.max_episode_steps, **task.env_kwargs)
     env = apply_train_wrappers(env, task.train_wrappers)
-    expert = EXPERTS[task.env_id][task.expert](env)
+    expert = load_object(ENV_CARDS[task.env_id].experts[task.expert])(env)
     actor = NumpyActor(task.actor_state, task.activation) if task.actor_state else None
     rng = np.random.default_rng(task.rng_seed)
     io = task.io
@@ -303,6 +308,11 @@ def _collect(task: _CollectTask) -> Rollouts:
         )
     env.close()
     return out
+
+
+def _collect_shared(shared: None, task: _CollectTask) -> Rollouts:
+    """:func:`_collect` in the ``fn(shared, item)`` form of :meth:`ProcessBackend.map`."""
+    return _collect(task)
 
 
 def collect(
@@ -366,13 +376,8 @@ def collect(
         for i, chunk in enumerate(chunks)
         if chunk
     ]
-    if len(tasks) > 1:
-        import multiprocessing as mp
-
-        with ProcessPoolExecutor(len(tasks), mp_context=mp.get_context("forkserver")) as pool:
-            parts = list(pool.map(_collect, tasks))
-    else:
-        parts = [_collect(t) for t in tasks]
+    backend = ProcessBackend(max(len(tasks), 1), start_method="forkserver")
+    parts = backend.map(_collect_shared, tasks, None)
     out = Rollouts()
     for part in parts:
         out.extend(part)
@@ -453,15 +458,19 @@ def pretrain(
     train_wrappers: Sequence[Mapping[str, Any]] = (),
     max_episode_steps: int | None = None,
     evaluate: Callable[[Any], Mapping[str, float]] | None = None,
-    log: Callable[[str], None] = print,
+    log: Callable[[str], None] | None = None,
 ) -> tuple[Any, list[dict[str, float]]]:
     """DAgger + behaviour cloning of ``model`` (see the module docstring).
 
     Returns the fitted observation normaliser and one row of figures per round
     (rollout success of the mixed policy, losses, and ``evaluate(normaliser)`` when given).
+    ``log`` receives one progress line per round (default: this module's logger at ``INFO``).
     """
-    if settings.expert not in EXPERTS.get(env_id, {}):
-        known = [f"{e} ({', '.join(names)})" for e, names in EXPERTS.items()]
+    if log is None:
+        log = logger.info
+    experts = ENV_CARDS[env_id].experts if env_id in ENV_CARDS else {}
+    if settings.expert not in experts:
+        known = [f"{e} ({', '.join(c.experts)})" for e, c in ENV_CARDS.items() if c.experts]
         raise ValueError(
             f"no demonstration expert {settings.expert!r} for {env_id}; known: {'; '.join(known)}"
         )
@@ -530,38 +539,29 @@ def pretrain(
     return normalizer, rows
 
 
-def _classical_wheeled_nav_expert(env: gym.Env[Any, Any]) -> Any:
+def classical_wheeled_nav_expert(env: gym.Env[Any, Any]) -> Any:
+    """WheeledNav's classical pipeline with
+    :meth:`~realitygap.baselines.classical.ClassicalNavPolicy.expert_config`."""
     from realitygap.baselines.classical import ClassicalNavPolicy
 
     return ClassicalNavPolicy.from_env(env, ClassicalNavPolicy.expert_config())
 
 
-def _greedy_arm_calib_expert(env: gym.Env[Any, Any]) -> Any:
+def greedy_arm_calib_expert(env: gym.Env[Any, Any]) -> Any:
+    """ArmCalib's observability-greedy pose selector
+    (:class:`~realitygap.baselines.arm_policy.ObservabilityGreedyPolicy`)."""
     from realitygap.baselines.arm_policy import ObservabilityGreedyPolicy
 
     return ObservabilityGreedyPolicy.from_env(env)
 
 
-def _geodesic_wheeled_nav_expert(env: gym.Env[Any, Any]) -> Any:
+def geodesic_wheeled_nav_expert(env: gym.Env[Any, Any]) -> Any:
+    """WheeledNav's privileged shortest-path teacher, which plans on the episode's true map
+    (:class:`~realitygap.baselines.privileged.GeodesicNavExpert`)."""
     from realitygap.baselines.privileged import GeodesicNavExpert
 
     return GeodesicNavExpert(env)
 
-
-EXPERTS: dict[str, dict[str, Callable[[gym.Env[Any, Any]], Any]]] = {
-    "realitygap/WheeledNav-v0": {
-        "classical": _classical_wheeled_nav_expert,
-        "geodesic": _geodesic_wheeled_nav_expert,
-    },
-    "realitygap/ArmCalib-v0": {"classical": _greedy_arm_calib_expert},
-}
-"""Experts per env id, by the name ``demonstrations.expert`` gives. WheeledNav:
-``classical``, the classical pipeline with
-:meth:`~realitygap.baselines.classical.ClassicalNavPolicy.expert_config`, and ``geodesic``,
-the privileged shortest-path teacher
-(:class:`~realitygap.baselines.privileged.GeodesicNavExpert`). ArmCalib: ``classical``, the
-observability-greedy pose selector
-(:class:`~realitygap.baselines.arm_policy.ObservabilityGreedyPolicy`)."""
 
 EXPERT_DRIVES_ONLY: frozenset[str] = frozenset({"realitygap/ArmCalib-v0"})
 """Envs whose expert can label only the episodes it drives itself (``rounds`` must be 1):

@@ -23,7 +23,7 @@ pipeline of those stages), :mod:`~realitygap.diagnosis.adapters` (the robot-adap
 interface and registry) with one adapter per robot
 (:mod:`~realitygap.diagnosis.diffdrive_adapter`,
 :mod:`~realitygap.diagnosis.arm_adapter`, :mod:`~realitygap.diagnosis.climb_adapter`),
-:mod:`~realitygap.diagnosis.backends` (serial / processes / Ray),
+:mod:`~realitygap.core.parallel` (serial / processes / Ray),
 :mod:`~realitygap.diagnosis.report`, :mod:`~realitygap.diagnosis.suite`
 (blind validation) and :mod:`~realitygap.diagnosis.cli` (``realitygap diagnose``).
 
@@ -54,7 +54,7 @@ _EXPORTS = {
     "FeatureSettings": "realitygap.diagnosis.features",
     "write_report": "realitygap.diagnosis.report",
     "write_json": "realitygap.diagnosis.report",
-    "make_backend": "realitygap.diagnosis.backends",
+    "make_backend": "realitygap.core.parallel",
     "get_adapter": "realitygap.diagnosis.adapters",
 }
 

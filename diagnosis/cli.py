@@ -138,8 +138,8 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
 
 def _diagnose(args: argparse.Namespace) -> int:
+    from realitygap.core.parallel import make_backend
     from realitygap.diagnosis.attribute import AttributionSettings
-    from realitygap.diagnosis.backends import make_backend
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
     from realitygap.diagnosis.features import FeatureSettings
     from realitygap.diagnosis.io import ReadOptions, read_many

@@ -11,7 +11,7 @@ function of this module or of the module it names:
 3. each candidate effect, then pairs of the best, is fitted on the training
    windows and scored on the held-out ones
    (:mod:`realitygap.diagnosis.attribute`), fits running in parallel through a
-   backend (:mod:`realitygap.diagnosis.backends`);
+   backend (:mod:`realitygap.core.parallel`);
 4. the best models are verified in PyBullet, and the verdict is drawn — an
    effect (or pair) only if it closes enough of the held-out gap and leaves
    unstructured residuals, else ``"unexplained"``; confounded explanations
@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.parallel import Backend, SerialBackend
 from realitygap.diagnosis.adapters import PreparedLog, RobotAdapter, get_adapter
 from realitygap.diagnosis.attribute import (
     AttributionSettings,
@@ -53,7 +54,6 @@ from realitygap.diagnosis.attribute import (
     Verdict,
     fit_model,
 )
-from realitygap.diagnosis.backends import Backend, SerialBackend
 from realitygap.diagnosis.features import FeatureSettings
 from realitygap.diagnosis.identifiability import identifiability
 from realitygap.diagnosis.localise import localise

@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
+from realitygap.core.parallel import Backend, SerialBackend
 from realitygap.diagnosis.adapters import HiddenTable, get_adapter, known_robots
-from realitygap.diagnosis.backends import Backend, SerialBackend
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.replay import MeasurementNoise
 from realitygap.robots.effects import EFFECTS, Reality, make_effect

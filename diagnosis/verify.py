@@ -18,9 +18,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.parallel import Backend
 from realitygap.diagnosis.adapters import PreparedLog
 from realitygap.diagnosis.attribute import ModelFit, Problem, _finish, _to_u, fit_model
-from realitygap.diagnosis.backends import Backend
 from realitygap.diagnosis.log import Log
 
 FloatArray = npt.NDArray[np.float64]

@@ -12,23 +12,19 @@ from __future__ import annotations
 
 from gymnasium.envs.registration import register, registry
 
+from realitygap.cards import ENV_CARDS, EnvCard, card_for
+
 __version__ = "0.1.0"
 
-ENV_IDS: tuple[str, ...] = (
-    "realitygap/WheeledNav-v0",
-    "realitygap/ArmCalib-v0",
-    "realitygap/WallClimb-v0",
-)
+ENV_IDS: tuple[str, ...] = tuple(ENV_CARDS)
 """Every environment id this package registers."""
 
-_ENTRY_POINTS = {
-    "realitygap/WheeledNav-v0": ("realitygap.envs.wheeled_nav:WheeledNavEnv", 1200),
-    "realitygap/ArmCalib-v0": ("realitygap.envs.arm_calib:ArmCalibEnv", 200),
-    "realitygap/WallClimb-v0": ("realitygap.envs.wall_climb:WallClimbEnv", 1200),
-}
+for _card in ENV_CARDS.values():
+    if _card.env_id not in registry:
+        register(
+            id=_card.env_id,
+            entry_point=_card.entry_point,
+            max_episode_steps=_card.max_episode_steps,
+        )
 
-for _env_id, (_entry, _steps) in _ENTRY_POINTS.items():
-    if _env_id not in registry:
-        register(id=_env_id, entry_point=_entry, max_episode_steps=_steps)
-
-__all__ = ["ENV_IDS", "__version__"]
+__all__ = ["ENV_CARDS", "ENV_IDS", "EnvCard", "__version__", "card_for"]

@@ -25,6 +25,7 @@ note. Tables, plots and the streamed episodes go to ``runs/benchmark[-quick]`` (
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +39,7 @@ from realitygap.experiments import RunContext, experiment
 def benchmark(ctx: RunContext) -> dict[str, Any]:
     import realitygap
     from realitygap.baselines import benchmark as bm
-    from realitygap.baselines.cli import shipped_curves
+    from realitygap.baselines.cli import shipped_curves, show_progress
 
     env_ids = list(realitygap.ENV_IDS)
     notes: list[str] = []
@@ -84,6 +85,8 @@ def benchmark(ctx: RunContext) -> dict[str, Any]:
         f"benchmark: policies {', '.join(names)}; {cfg.episodes} fast / "
         f"{cfg.episode_counts['image']} image episodes per WheeledNav cell -> {out_dir}"
     )
+    if ctx.verbose:
+        show_progress("realitygap.baselines.benchmark", sys.stderr)
     result = bm.run_benchmark(
         cfg,
         out_dir,

@@ -26,7 +26,7 @@ GOALS = {
     robots=("diffdrive", "arm", "climber"),
 )
 def diagnose_suite(ctx: RunContext) -> dict[str, Any]:
-    from realitygap.diagnosis.backends import ProcessBackend
+    from realitygap.core.parallel import ProcessBackend
     from realitygap.diagnosis.suite import SuiteSettings, draw_cases, run_suite, summarise
 
     n = int(ctx.options.get("cases", 12 if ctx.quick else 48))
@@ -123,7 +123,7 @@ def _ranking_table(js: dict[str, Any], n: int) -> list[dict[str, Any]]:
     data_subdir="optiodom_diffdrive",
 )
 def diagnose_real(ctx: RunContext) -> dict[str, Any]:
-    from realitygap.diagnosis.backends import ProcessBackend
+    from realitygap.core.parallel import ProcessBackend
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 
     groups = _optiodom_groups(ctx)
@@ -228,9 +228,9 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
     first direction (train on the first series, hold out the last) gives the headline
     figures ``ur10_top_effects`` and ``ur10_shrink_pct``.
     """
+    from realitygap.core.parallel import ProcessBackend
     from realitygap.diagnosis.adapters import ADAPTERS
     from realitygap.diagnosis.arm_adapter import ArmAdapter
-    from realitygap.diagnosis.backends import ProcessBackend
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
     from realitygap.diagnosis.io import logs_from_ur10
 
@@ -303,7 +303,7 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
     "time to diagnose one 90 s log against the full effect library (process pool)",
 )
 def diagnose_bench(ctx: RunContext) -> dict[str, Any]:
-    from realitygap.diagnosis.backends import ProcessBackend, SerialBackend
+    from realitygap.core.parallel import ProcessBackend, SerialBackend
     from realitygap.diagnosis.diagnose import diagnose
     from realitygap.diagnosis.manoeuvres import MANOEUVRES
     from realitygap.diagnosis.replay import MeasurementNoise, simulate

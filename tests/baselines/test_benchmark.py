@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from realitygap.baselines import benchmark as bm
-from realitygap.baselines.rl import write_text_atomic
+from realitygap.baselines.benchmark import runner
+from realitygap.core.io import atomic_write_text
 
 ENV_ID = "realitygap/WheeledNav-v0"
 T_975 = {3: 3.182446305284263, 9: 2.262157162798205}
@@ -158,14 +159,14 @@ def test_tables_and_plots_are_written(bench_dir: Path) -> None:
 
 def test_files_are_written_atomically(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     target = tmp_path / "table.csv"
-    write_text_atomic(target, "old\n")
+    atomic_write_text(target, "old\n")
 
     def fail(*args: Any, **kwargs: Any) -> None:
         raise OSError("disk full")
 
     monkeypatch.setattr(os, "replace", fail)
     with pytest.raises(OSError, match="disk full"):
-        write_text_atomic(target, "new\n")
+        atomic_write_text(target, "new\n")
     assert target.read_text() == "old\n"
     assert [p.name for p in tmp_path.iterdir()] == ["table.csv"]
 
@@ -180,7 +181,7 @@ def test_finished_episodes_survive_a_failing_task_and_are_resumed(
             raise RuntimeError("worker died")
         return real_build(spec, env, env_id, seed)
 
-    monkeypatch.setattr(bm, "build_policy", build)
+    monkeypatch.setattr(runner, "build_policy", build)
     cfg = _cfg(realities=(), episodes=1)
     store = bm.ResultStore(tmp_path / "episodes.jsonl")
     errors = bm.execute(bm.plan_tasks(cfg), store)
@@ -207,7 +208,7 @@ def test_a_policy_that_raises_fails_its_episode_only(
     def build(spec: bm.PolicySpec, env: Any, env_id: str, seed: int = 0) -> Any:
         return Boom() if spec.name == "classical" else real_build(spec, env, env_id, seed)
 
-    monkeypatch.setattr(bm, "build_policy", build)
+    monkeypatch.setattr(runner, "build_policy", build)
     result = bm.run_benchmark(_cfg(realities=(), episodes=2), tmp_path, verbose=False)
     assert result.errors == []
     crashed = [r for r in bm.ResultStore(result.files["episodes"]).load() if r.get("error")]
@@ -358,6 +359,8 @@ class _Line3D(gym.Env):  # type: ignore[type-arg]
 
 
 def test_path_length_counts_all_three_axes_of_a_3d_pose() -> None:
-    rec = bm.run_episode(_Line3D(), bm.RandomPolicy(_Line3D.action_space, 0), seed=0)
+    rec = bm.run_episode(
+        _Line3D(), bm.RandomPolicy(_Line3D.action_space, 0), seed=0, pose_shape=(7,)
+    )
     assert rec["path_length_m"] == pytest.approx(0.3)
     assert rec["reached_10cm"] is True

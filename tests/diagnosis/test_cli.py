@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.backends import ProcessBackend, RayBackend
+from realitygap.core.parallel import ProcessBackend, RayBackend
 from realitygap.diagnosis.cli import main
 from realitygap.diagnosis.manoeuvres import Manoeuvre
 from realitygap.diagnosis.replay import MeasurementNoise, simulate

@@ -98,3 +98,37 @@ def test_unknown_kwarg_is_a_clear_error() -> None:
 def test_mistyped_id_suggests_the_close_one() -> None:
     with pytest.raises(gym.error.Error, match="WheeledNav"):
         gym.make("realitygap/WheeledNaw-v0")
+
+
+def _check_info_against_card(env_id: str, info: dict) -> None:
+    schema = realitygap.card_for(env_id).info
+    assert set(info) >= set(schema), f"missing info keys: {sorted(set(schema) - set(info))}"
+    undeclared = sorted(set(info) - set(schema))
+    assert not undeclared, f"info keys not in the card's schema: {undeclared}"
+    for key, entry in schema.items():
+        if entry.shape is not None:
+            assert np.shape(info[key]) == entry.shape, (key, np.shape(info[key]), entry.shape)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_info_follows_the_cards_schema(env_id: str) -> None:
+    env = gym.make(env_id)
+    _, info = env.reset(seed=0)
+    _check_info_against_card(env_id, info)
+    env.action_space.seed(0)
+    for _ in range(3):
+        _, _, terminated, truncated, info = env.step(env.action_space.sample())
+        _check_info_against_card(env_id, info)
+        if terminated or truncated:
+            break
+    env.close()
+
+
+def test_every_registered_id_has_a_card() -> None:
+    assert set(ENV_IDS) == set(realitygap.ENV_CARDS)
+    for env_id, card in realitygap.ENV_CARDS.items():
+        assert gym.spec(env_id).max_episode_steps == card.max_episode_steps
+        assert gym.spec(env_id).entry_point == card.entry_point
+        assert "true_pose" in card.info
+    with pytest.raises(KeyError, match="Did you mean"):
+        realitygap.card_for("realitygap/WheeledNav-v1")

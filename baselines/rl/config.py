@@ -1,0 +1,325 @@
+"""Training settings: algorithms, hyperparameter files, the curriculum, run configuration.
+
+Hyperparameters live in files, one per algorithm, keyed by environment id as in
+rl-baselines3-zoo (``baselines/hyperparams/ppo.json``, ``sac.json``)::
+
+    {"realitygap/WheeledNav-v0": {"n_timesteps": 1500000, "n_envs": 8, "vec_env": "subproc",
+                                  "env_kwargs": {...}, "policy": "MlpPolicy", ...}}
+
+An env without an entry has no learned baseline yet; :func:`load_hyperparams` says so.
+Keys that are not arguments of the algorithm are read by :func:`~realitygap.baselines.rl.training.train`:
+
+=============================  ==============================================================
+key                            meaning
+=============================  ==============================================================
+``n_timesteps``                training budget (env steps over all workers); the curriculum
+                               and ``log_std_max`` schedules refer to it
+``n_envs``                     parallel envs of the vectorised env
+``vec_env``                    ``"subproc"`` (one process per env) or ``"dummy"`` (in-process)
+``env_kwargs``                 ``gym.make`` keyword arguments (fast sensor mode); also used
+                               by the evaluations
+``policy``                     SB3 policy name (``"MlpPolicy"``)
+``curriculum``                 optional curriculum on env / wrapper attributes
+                               (:class:`Curriculum`)
+``normalize``                  optional ``{"obs": bool, "reward": bool}`` running
+                               normalisation; the observation statistics are saved as JSON
+``obs_features``               optional feature map (:data:`OBS_FEATURES`) appended to the
+                               observation — part of the policy (:class:`PolicyIO`)
+``action_deadband``            optional dead band width on each action component — part of
+                               the policy (:func:`deadband`)
+``action_stop_gate``           optional extra network output that stops the robot — part of
+                               the policy (:func:`stop_gate`)
+``train_wrappers``             optional training-only wrappers ``[{"name": ..., **params}]``
+                               (:data:`TRAIN_WRAPPERS`)
+``train_max_episode_steps``    optional shorter time limit of training episodes
+``log_std_max``                optional ``[start, end]`` upper bound of a Gaussian policy's
+                               log standard deviation, linear over ``n_timesteps`` (PPO)
+``obs_memory``                 optional obstacle memory (``{"n_sectors", "horizon", "cell"}``,
+                               :mod:`realitygap.baselines.episode_features`) — part of the policy
+``obs_rest_timer``             optional column for how long the robot has stood still
+                               (``{"horizon_steps"}``, same module) — part of the policy
+``obs_scene_fade``             optional radius (m) within which WheeledNav's scan and obstacle
+                               memory fade to "nothing seen" as the goal nears
+                               (:func:`scene_fade`) — part of the policy
+``demonstrations``             optional DAgger warm start from an expert before PPO
+                               (:class:`~realitygap.baselines.imitation.DemoSettings`)
+=============================  ==============================================================
+
+Whatever the training used, evaluations and the benchmark score the policy on the
+env as registered, with its default success criterion.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+ALGOS: tuple[str, ...] = ("ppo", "sac")
+"""Learning algorithms with hyperparameter files."""
+
+HYPERPARAMS_DIR = Path(__file__).resolve().parent.parent / "hyperparams"
+"""Folder of the per-algorithm hyperparameter files."""
+
+POLICIES_DIR = Path(__file__).resolve().parent.parent / "policies"
+"""Folder of the policies this package ships (trained by :func:`train`)."""
+
+EVAL_SEED_OFFSET = 50_000
+"""Evaluation during training uses seeds from here on, apart from the benchmark's."""
+
+TRAIN_KEYS = frozenset(
+    {
+        "n_timesteps",
+        "n_envs",
+        "vec_env",
+        "env_kwargs",
+        "policy",
+        "curriculum",
+        "normalize",
+        "action_deadband",
+        "train_max_episode_steps",
+        "obs_features",
+        "action_stop_gate",
+        "log_std_max",
+        "train_wrappers",
+        "obs_memory",
+        "obs_rest_timer",
+        "obs_scene_fade",
+        "demonstrations",
+    }
+)
+_INSTALL_RL = "pip install 'realitygap[rl]'  (stable-baselines3 and torch)"
+
+
+# --------------------------------------------------------------------------- optional deps
+def require_sb3() -> Any:
+    """Import stable-baselines3, or raise an ``ImportError`` saying what to install."""
+    try:
+        import stable_baselines3
+    except ImportError as exc:
+        raise ImportError(
+            f"learned baselines need stable-baselines3, which is not installed: {_INSTALL_RL}"
+        ) from exc
+    return stable_baselines3
+
+
+def algo_class(algo: str) -> Any:
+    """The SB3 class of ``algo`` (``"ppo"`` or ``"sac"``)."""
+    algo = check_algo(algo)
+    sb3 = require_sb3()
+    return {"ppo": sb3.PPO, "sac": sb3.SAC}[algo]
+
+
+def check_algo(algo: str) -> str:
+    """``algo`` in lower case, or a ``ValueError`` naming the known algorithms."""
+    name = str(algo).lower()
+    if name not in ALGOS:
+        raise ValueError(f"unknown algorithm {algo!r}; expected one of {', '.join(ALGOS)}")
+    return name
+
+
+def check_env_id(env_id: str) -> str:
+    """``env_id`` if registered by this package, else a ``ValueError`` suggesting close ids."""
+    import difflib
+
+    import realitygap
+
+    if env_id in realitygap.ENV_IDS:
+        return env_id
+    if f"realitygap/{env_id}" in realitygap.ENV_IDS:
+        return f"realitygap/{env_id}"
+    close = difflib.get_close_matches(env_id, realitygap.ENV_IDS, n=2)
+    hint = f" Did you mean {', '.join(map(repr, close))}?" if close else ""
+    raise ValueError(
+        f"unknown environment {env_id!r}.{hint} Known: {', '.join(realitygap.ENV_IDS)}"
+    )
+
+
+def env_slug(env_id: str) -> str:
+    """A file-name-safe short name of an env id: ``realitygap/WheeledNav-v0`` → ``WheeledNav-v0``."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", env_id.split("/")[-1])
+
+
+# --------------------------------------------------------------------------- hyperparameters
+def load_hyperparams(
+    algo: str, env_id: str, path: str | os.PathLike[str] | None = None
+) -> dict[str, Any]:
+    """The hyperparameters of ``algo`` on ``env_id`` from its file (``hyperparams/<algo>.json``).
+
+    Raises
+    ------
+    FileNotFoundError
+        If the file does not exist.
+    KeyError
+        If the file has no entry for ``env_id``.
+    """
+    algo = check_algo(algo)
+    file = Path(path) if path is not None else HYPERPARAMS_DIR / f"{algo}.json"
+    if not file.is_file():
+        raise FileNotFoundError(f"no hyperparameter file {file}")
+    table = json.loads(file.read_text(encoding="utf-8"))
+    if env_id not in table:
+        raise KeyError(
+            f"{file.name} has no hyperparameters for {env_id!r}; it has: "
+            f"{', '.join(sorted(k for k in table if not k.startswith('_')))}. Add an entry "
+            "(rl-zoo style) to train this env."
+        )
+    return dict(table[env_id])
+
+
+# --------------------------------------------------------------------------- curriculum
+@dataclass(frozen=True)
+class Curriculum:
+    """Success-gated curriculum on env attributes, e.g. the success tolerances.
+
+    Each attribute starts at ``start[name]``; on each promotion every attribute
+    moves one of ``n_stages`` steps (geometrically) towards ``end[name]``; after
+    ``n_stages`` promotions it sits at ``end``. A promotion happens when the gate
+    passes — ``gate="train"``: the success rate of the last ``window`` training
+    episodes reaches ``promote_at``; ``gate="eval"``: at an evaluation, the
+    deterministic policy succeeds on ``promote_at`` of its episodes under the
+    current stage's values (a stochastic policy can rarely be "at rest") — or when
+    a stage has lasted ``max_stage_steps`` env steps (0: no limit). At ``final_fraction`` of
+    the training budget the attributes are set to ``end`` whatever the success
+    rate, so the last part of training always sees the target task. Attributes whose
+    ``start`` and ``end`` are both integers (e.g. ``n_obstacles``) step linearly and are
+    rounded.
+    """
+
+    start: Mapping[str, float]
+    end: Mapping[str, float]
+    n_stages: int = 6
+    window: int = 100
+    promote_at: float = 0.6
+    final_fraction: float = 0.8
+    gate: str = "train"
+    max_stage_steps: int = 0
+    integer: frozenset[str] = frozenset()
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Curriculum:
+        """Build from a hyperparameter entry ``{"start": {...}, "end": {...}, ...}``."""
+        known = {
+            "start",
+            "end",
+            "n_stages",
+            "window",
+            "promote_at",
+            "final_fraction",
+            "gate",
+            "max_stage_steps",
+        }
+        unknown = set(data) - known
+        if unknown:
+            raise ValueError(f"unknown curriculum key(s) {sorted(unknown)}; known: {sorted(known)}")
+        if set(data["start"]) != set(data["end"]):
+            raise ValueError("curriculum 'start' and 'end' must name the same attributes")
+        integer = frozenset(
+            k
+            for k in data["start"]
+            if isinstance(data["start"][k], int) and isinstance(data["end"][k], int)
+        )
+        return cls(
+            integer=integer,
+            start={k: float(v) for k, v in data["start"].items()},
+            end={k: float(v) for k, v in data["end"].items()},
+            n_stages=int(data.get("n_stages", 6)),
+            window=int(data.get("window", 100)),
+            promote_at=float(data.get("promote_at", 0.6)),
+            final_fraction=float(data.get("final_fraction", 0.8)),
+            gate=check_gate(str(data.get("gate", "train"))),
+            max_stage_steps=int(data.get("max_stage_steps", 0)),
+        )
+
+    def values(self, stage: int) -> dict[str, Any]:
+        """Attribute values at ``stage`` (0 … ``n_stages``): geometric between start and end
+        (linear and rounded for integer attributes)."""
+        f = min(max(stage, 0), self.n_stages) / max(self.n_stages, 1)
+        out: dict[str, Any] = {}
+        for k in self.start:
+            a, b = self.start[k], self.end[k]
+            if k in self.integer:
+                out[k] = int(round(a + f * (b - a)))
+            elif a > 0 and b > 0:
+                out[k] = float(a * (b / a) ** f)
+            else:
+                out[k] = float(a + f * (b - a))
+        return out
+
+
+def check_gate(gate: str) -> str:
+    if gate not in ("train", "eval"):
+        raise ValueError(f"curriculum gate must be 'train' or 'eval', got {gate!r}")
+    return gate
+
+
+# --------------------------------------------------------------------------- settings
+@dataclass(frozen=True)
+class TrainConfig:
+    """One training run.
+
+    Parameters
+    ----------
+    env_id : registered environment id.
+    algo : ``"ppo"`` or ``"sac"``.
+    out_dir : folder for the model, metadata, learning curves and checkpoints.
+    seed : seed of the algorithm, the env workers and the curriculum.
+    total_timesteps : budget; ``None`` takes ``n_timesteps`` of the hyperparameter file.
+    n_envs, vec_env : override the file's ``n_envs`` / ``vec_env`` (``"subproc"``, ``"dummy"``).
+    hyperparams : override the whole hyperparameter entry (else read from the file).
+    checkpoint_every : env steps between checkpoints (0: none).
+    eval_every : env steps between deterministic evaluations (0: none).
+    eval_episodes : episodes per evaluation (held-out seeds, the env's default criterion).
+    progress_every_s : seconds between progress lines.
+    init_model : continue training this saved model (same env and algorithm), a
+        ``model.zip`` or, for PPO, exported weights (``.pth``; the optimiser starts anew); the
+        curriculum schedule keeps referring to the file's ``n_timesteps``, and the file's
+        learning rate, clip range, KL target, epochs, batch size and entropy coefficient
+        replace the saved ones.
+    """
+
+    env_id: str
+    algo: str
+    out_dir: Path
+    seed: int = 0
+    total_timesteps: int | None = None
+    n_envs: int | None = None
+    vec_env: str | None = None
+    hyperparams: Mapping[str, Any] | None = None
+    checkpoint_every: int = 100_000
+    eval_every: int = 50_000
+    eval_episodes: int = 20
+    progress_every_s: float = 30.0
+    init_model: Path | None = None
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """What a training run produced."""
+
+    model_path: Path
+    meta_path: Path
+    wall_seconds: float
+    timesteps: int
+    final_eval: dict[str, float] = field(default_factory=dict)
+
+
+def resolve_policy_kwargs(kwargs: dict[str, Any]) -> dict[str, Any]:
+    """Turn JSON-friendly policy kwargs (``"activation_fn": "tanh"``) into objects."""
+    out = dict(kwargs)
+    pk = dict(out.get("policy_kwargs", {}) or {})
+    if "activation_fn" in pk and isinstance(pk["activation_fn"], str):
+        import torch.nn as nn
+
+        table = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU}
+        name = pk["activation_fn"].lower()
+        if name not in table:
+            raise ValueError(f"activation_fn must be one of {sorted(table)}, got {name!r}")
+        pk["activation_fn"] = table[name]
+    if pk:
+        out["policy_kwargs"] = pk
+    return out

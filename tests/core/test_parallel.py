@@ -1,0 +1,42 @@
+"""The execution backends: results in item order, failures yielded per item."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+
+from realitygap.core.parallel import ProcessBackend, SerialBackend, make_backend
+
+
+def _square(shared: Any, x: int) -> int:
+    return x * x + (shared or 0)
+
+
+def _fails_on_two(x: int) -> int:
+    if x == 2:
+        raise RuntimeError("two")
+    return 10 * x
+
+
+@pytest.mark.parametrize("backend", [SerialBackend(), ProcessBackend(2)])
+def test_map_keeps_item_order_and_sends_the_shared_object(backend: Any) -> None:
+    assert backend.map(_square, [3, 1, 2], 1) == [10, 2, 5]
+
+
+@pytest.mark.parametrize("backend", [SerialBackend(), ProcessBackend(2, start_method="forkserver")])
+def test_imap_unordered_yields_each_item_and_its_failure(backend: Any) -> None:
+    outcomes = sorted(backend.imap_unordered(_fails_on_two, [1, 2, 3]), key=lambda o: o.index)
+    assert [(o.item, o.value) for o in outcomes] == [(1, 10), (2, None), (3, 30)]
+    assert [type(o.error).__name__ if o.error else None for o in outcomes] == [
+        None,
+        "RuntimeError",
+        None,
+    ]
+
+
+def test_bad_backend_names_and_worker_counts_are_refused() -> None:
+    with pytest.raises(ValueError, match="unknown backend 'slurm'"):
+        make_backend("slurm")
+    with pytest.raises(ValueError, match="workers must be >= 1"):
+        ProcessBackend(0)
