@@ -54,7 +54,6 @@ Nothing here unpickles or executes data; malformed files raise
 
 from __future__ import annotations
 
-import io
 import math
 import re
 from dataclasses import dataclass, field
@@ -65,6 +64,13 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.diagnosis.importers.numeric_text import (
+    make_readonly,
+    numeric_file,
+    numeric_rows,
+    read_text_lines,
+    whole_ticks,
+)
 from realitygap.estimators.diffdrive_model import DiffDriveKinematics
 
 FloatArray = npt.NDArray[np.float64]
@@ -313,109 +319,12 @@ class OptiOdomSession:
 
 
 # ---------------------------------------------------------------------------
-# low-level parsing
-# ---------------------------------------------------------------------------
-
-
-def _read_lines(path: Path) -> list[str]:
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot read file ({exc})") from exc
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: expected UTF-8 text, {exc}") from exc
-    return text.splitlines()
-
-
-def _locate_bad_row(
-    path: Path, numbered: list[tuple[int, str]], columns: tuple[str, ...]
-) -> ValueError:
-    """Build the error for the first malformed row (slow path)."""
-    n = len(columns)
-    for line_no, line in numbered:
-        fields = line.split(",")
-        if len(fields) != n:
-            return ValueError(
-                f"{path}, line {line_no}: expected {n} comma-separated fields "
-                f"({', '.join(columns)}), got {len(fields)}: {line.strip()!r}"
-            )
-        for col, text in enumerate(fields):
-            try:
-                value = float(text)
-            except ValueError:
-                return ValueError(
-                    f"{path}, line {line_no}, column {col + 1} ({columns[col]}): expected a "
-                    f"number, got {text.strip()!r}"
-                )
-            if not math.isfinite(value):
-                return ValueError(
-                    f"{path}, line {line_no}, column {col + 1} ({columns[col]}): expected a "
-                    f"finite number, got {text.strip()!r}"
-                )
-    return ValueError(f"{path}: could not parse the numeric rows ({', '.join(columns)})")
-
-
-def _numeric_rows(
-    path: Path, numbered: list[tuple[int, str]], columns: tuple[str, ...]
-) -> FloatArray:
-    """Parse ``(line_no, text)`` rows of ``len(columns)`` numbers each."""
-    n = len(columns)
-    if not numbered:
-        return np.zeros((0, n))
-    try:
-        data = np.loadtxt(
-            io.StringIO("\n".join(line for _, line in numbered)),
-            delimiter=",",
-            ndmin=2,
-            dtype=float,
-        )
-    except ValueError:
-        raise _locate_bad_row(path, numbered, columns) from None
-    if data.shape != (len(numbered), n) or not np.all(np.isfinite(data)):
-        raise _locate_bad_row(path, numbered, columns)
-    return data
-
-
-def _numeric_file(path: Path, columns: tuple[str, ...]) -> FloatArray:
-    lines = _read_lines(path)
-    numbered = [(i + 1, ln) for i, ln in enumerate(lines) if ln.strip()]
-    if not numbered:
-        raise ValueError(
-            f"{path}: empty file, expected rows of {len(columns)} comma-separated numbers "
-            f"({', '.join(columns)})"
-        )
-    return _numeric_rows(path, numbered, columns)
-
-
-def _as_ticks(path: Path, values: FloatArray, column: str, first_line: int = 1) -> IntArray:
-    rounded = np.rint(values)
-    bad = np.flatnonzero(np.abs(values - rounded) > 1e-9)
-    if bad.size:
-        i = int(bad[0])
-        raise ValueError(
-            f"{path}, line {first_line + i}: column {column} must hold whole tick counts, "
-            f"got {values[i]!r}"
-        )
-    return rounded.astype(np.int64)
-
-
-def _readonly(*arrays: np.ndarray | None) -> None:
-    for a in arrays:
-        if a is not None:
-            a.flags.writeable = False
-
-
-# ---------------------------------------------------------------------------
 # metadata
 # ---------------------------------------------------------------------------
 
 
 def _read_metadata(path: Path) -> OptiOdomMetadata:
-    lines = _read_lines(path)
+    lines = read_text_lines(path)
     values: dict[str, tuple[str, ...]] = {}
     where: dict[str, int] = {}
     for i, line in enumerate(lines, start=1):
@@ -577,7 +486,7 @@ def infer_quadrature_factor(
 def _read_robot_log(
     path: Path,
 ) -> tuple[dict[str, tuple[str, ...]], dict[int, OptiOdomRobotLog]]:
-    lines = _read_lines(path)
+    lines = read_text_lines(path)
     header: dict[str, tuple[str, ...]] = {}
     blocks: dict[int, list[tuple[int, str]]] = {}
     current: int | None = None
@@ -632,19 +541,19 @@ def _read_robot_log(
                 first_line=0,
             )
             continue
-        data = _numeric_rows(path, numbered, LOG_COLUMNS)
+        data = numeric_rows(path, numbered, LOG_COLUMNS)
         first_line = numbered[0][0]
         log = OptiOdomRobotLog(
             time=data[:, 0].copy(),
-            ticks_left=_as_ticks(path, data[:, 1], "odoL", first_line),
-            ticks_right=_as_ticks(path, data[:, 2], "odoR", first_line),
+            ticks_left=whole_ticks(path, data[:, 1], "odoL", first_line),
+            ticks_right=whole_ticks(path, data[:, 2], "odoR", first_line),
             odo_pose=data[:, 3:6].copy(),
             cmd_linear=data[:, 6].copy(),
             cmd_angular=data[:, 7].copy(),
             flag=np.rint(data[:, 8]).astype(np.int64),
             first_line=first_line,
         )
-        _readonly(
+        make_readonly(
             log.time,
             log.ticks_left,
             log.ticks_right,
@@ -725,7 +634,7 @@ def _read_run(
     odo_path: Path,
     odo_t_start: float,
 ) -> OptiOdomRun:
-    data = _numeric_file(path, RUN_COLUMNS)
+    data = numeric_file(path, RUN_COLUMNS)
     time = data[:, 0].copy()
     if time.shape[0] > 1 and not np.all(np.diff(time) > 0):
         i = int(np.flatnonzero(np.diff(time) <= 0)[0]) + 2
@@ -735,13 +644,13 @@ def _read_run(
     c, s = math.cos(gt[0, 2]), math.sin(gt[0, 2])
     dx, dy = gt[:, 0] - gt[0, 0], gt[:, 1] - gt[0, 1]
     gt = np.column_stack([c * dx + s * dy, -s * dx + c * dy, gt[:, 2] - gt[0, 2]])
-    t_right = _as_ticks(path, data[:, 4], "ticks_R")
-    t_left = _as_ticks(path, data[:, 5], "ticks_L")
+    t_right = whole_ticks(path, data[:, 4], "ticks_R")
+    t_left = whole_ticks(path, data[:, 5], "ticks_L")
     direction, net = _run_direction(gt[:, 2])
 
     odo_start = None
     if odo_path.is_file():
-        odo = _numeric_file(odo_path, ODO_COLUMNS)
+        odo = numeric_file(odo_path, ODO_COLUMNS)
         odo_start = float(odo[0, 0]) + odo_t_start
     alignment, offset = _align(log, time, t_left, t_right, odo_start)
     cmd_lin = cmd_ang = None
@@ -751,7 +660,7 @@ def _read_run(
         cmd_lin = log.cmd_linear[offset : offset + n].copy()
         cmd_ang = log.cmd_angular[offset : offset + n].copy()
         time_offset = float(log.time[offset] - time[0])
-    _readonly(time, gt, t_right, t_left, cmd_lin, cmd_ang)
+    make_readonly(time, gt, t_right, t_left, cmd_lin, cmd_ang)
     return OptiOdomRun(
         index=index,
         path=path,

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.geometry import yaw_from_quat_xyzw
 from realitygap.diagnosis.log import Log, LogError, sniff_file_kind
 from realitygap.diagnosis.replay import params_to_meta
 from realitygap.robots.diffdrive import DiffDriveParams
@@ -70,8 +71,9 @@ class BagTopics:
     wheel_joints: tuple[str, str] = ("wheel_left_joint", "wheel_right_joint")
 
 
-def _yaw(q: Any) -> float:
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+def _xyzw(q: Any) -> tuple[float, float, float, float]:
+    """A ROS quaternion message as (x, y, z, w)."""
+    return q.x, q.y, q.z, q.w
 
 
 def _stamp(msg: Any, t_bag: int, use_header: bool) -> float:
@@ -88,18 +90,38 @@ def _pose_of(msg: Any, msgtype: str) -> tuple[float, float, float] | None:
     name = msgtype.split("/")[-1]
     if name == "Odometry":
         p = msg.pose.pose
-        return p.position.x, p.position.y, _yaw(p.orientation)
+        return (
+            p.position.x,
+            p.position.y,
+            yaw_from_quat_xyzw(_xyzw(p.orientation)),
+        )
     if name == "PoseStamped":
         p = msg.pose
-        return p.position.x, p.position.y, _yaw(p.orientation)
+        return (
+            p.position.x,
+            p.position.y,
+            yaw_from_quat_xyzw(_xyzw(p.orientation)),
+        )
     if name == "PoseWithCovarianceStamped":
         p = msg.pose.pose
-        return p.position.x, p.position.y, _yaw(p.orientation)
+        return (
+            p.position.x,
+            p.position.y,
+            yaw_from_quat_xyzw(_xyzw(p.orientation)),
+        )
     if name == "TransformStamped":
         tr = msg.transform
-        return tr.translation.x, tr.translation.y, _yaw(tr.rotation)
+        return (
+            tr.translation.x,
+            tr.translation.y,
+            yaw_from_quat_xyzw(_xyzw(tr.rotation)),
+        )
     if name == "Pose":
-        return msg.position.x, msg.position.y, _yaw(msg.orientation)
+        return (
+            msg.position.x,
+            msg.position.y,
+            yaw_from_quat_xyzw(_xyzw(msg.orientation)),
+        )
     return None
 
 
