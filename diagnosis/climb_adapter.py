@@ -188,21 +188,19 @@ def replay_heights(
     body = params.replace(gap_offset=float(gap))
     scene = _scene(params)
     robot = ClimberRobot(scene, body)
-    bullet = scene.world.bullet
+    world = scene.world
     try:
         out = np.empty(poses.shape[0])
         for m, pose in enumerate(np.array(poses, dtype=float)):
             R = Rotation.from_rotvec(pose[3:6]).as_matrix()
             # start with the wheels touching: a larger ride height lifts the body along its z
             robot.reset(pose[:3] + (body.h_true - params.h_true) * R[:, 2], R)
-            for _ in range(settle_steps):
-                robot.apply_adsorption()
-                bullet.stepSimulation()
+            world.step(settle_steps, before_each=robot.apply_adsorption)
             pos = robot.state(0.0).position
             out[m] = float(heights_above_cad(params, pos[None])[0])
         return out
     finally:
-        bullet.removeBody(robot.body)
+        robot.remove()
 
 
 # --------------------------------------------------------------------------- sensor models

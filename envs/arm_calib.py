@@ -892,13 +892,9 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     def render(self) -> npt.NDArray[np.uint8] | None:
         if self.render_mode != "rgb_array":
             return None
-        import pybullet as p
-
-        c = self.world.bullet
-        view = c.computeViewMatrix([0.6, 1.2, 1.1], [-0.45, 0.0, 0.1], [0, 0, 1])
-        proj = c.computeProjectionMatrixFOV(55, 4 / 3, 0.05, 6)
-        _, _, rgba, _, _ = c.getCameraImage(320, 240, view, proj, renderer=p.ER_TINY_RENDERER)
-        return np.asarray(rgba, dtype=np.uint8).reshape(240, 320, 4)[..., :3].copy()
+        return self.world.render_rgb(
+            [0.6, 1.2, 1.1], [-0.45, 0.0, 0.1], fov_deg=55.0, near=0.05, far=6.0
+        )
 
     def close(self) -> None:
         self.world.close()
@@ -907,9 +903,7 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     def _rebuild(self, reality: Reality) -> None:
         self.reality = reality
         self.true_params = reality.apply_params(self.params)
-        c = self.world.bullet
-        c.removeBody(self.robot.body)
-        self.world.bodies.pop("arm", None)
+        self.robot.remove()
         self.robot = ArmRobot(self.world, self.true_params)
         self.camera = FlangeCamera(self.robot, self.board, self.placement)
         self._truth_cache = None

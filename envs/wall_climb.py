@@ -420,7 +420,7 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._goal = chart_pose(surf, tp, float(goal[0]), float(goal[1]), 0.0, 0.0)[0]
         # a fresh body each episode: no contact manifolds or solver warm starts carried
         # over from the previous episode, so a seeded episode is exactly repeatable
-        self.scene.world.bullet.removeBody(self.robot.body)
+        self.robot.remove()
         self.robot = ClimberRobot(self.scene, tp)
         self.robot.reset(pos, R)
         self.robot.adsorption_scale = 1.0
@@ -493,19 +493,19 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     def _simulate(self) -> list[Any]:
         """One control period of physics; returns the measurements in time order."""
         w = self.scene.world
-        c = w.bullet
         out: list[Any] = []
         dtp = w.physics_dt
         t0 = time_start = self._t
-        step_simulation, apply_adsorption = c.stepSimulation, self.robot.apply_adsorption
-        for k in range(w.n_substeps):
-            apply_adsorption()
-            step_simulation()
-            if (k + 1) % self._imu_every == 0:
-                t = time_start + (k + 1) * dtp
-                s = self.robot.state(t)
-                out.append(self._imu.sample(self._state_prev_imu, s))
-                self._state_prev_imu = s
+        apply_adsorption = self.robot.apply_adsorption
+        done = 0
+        for k in range(self._imu_every - 1, w.n_substeps, self._imu_every):
+            w.step(k + 1 - done, before_each=apply_adsorption)
+            done = k + 1
+            t = time_start + (k + 1) * dtp
+            s = self.robot.state(t)
+            out.append(self._imu.sample(self._state_prev_imu, s))
+            self._state_prev_imu = s
+        w.step(w.n_substeps - done, before_each=apply_adsorption)
         self._t = t0 + w.n_substeps * dtp
         self._state = self._state_prev_imu
         if (self._steps + 1) % self._cam_every == 0:
@@ -524,16 +524,10 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     def render(self) -> npt.NDArray[np.uint8] | None:
         if self.render_mode != "rgb_array" or self._state is None:
             return None
-        import pybullet as p
-
-        c = self.scene.world.bullet
         pos = self._state.position
         n = self._state.R[:, 2]
         eye = pos + 1.2 * n + np.array([0.0, 0.0, 0.4])
-        view = c.computeViewMatrix(eye.tolist(), pos.tolist(), [0, 0, 1])
-        proj = c.computeProjectionMatrixFOV(60, 4 / 3, 0.05, 20)
-        _, _, rgba, _, _ = c.getCameraImage(320, 240, view, proj, renderer=p.ER_TINY_RENDERER)
-        return np.asarray(rgba, dtype=np.uint8).reshape(240, 320, 4)[..., :3].copy()
+        return self.scene.world.render_rgb(eye, pos, fov_deg=60.0, near=0.05, far=20.0)
 
     def close(self) -> None:
         self.scene.close()

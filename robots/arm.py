@@ -610,6 +610,10 @@ class ArmRobot:
         self._hold(target)
         return target
 
+    def remove(self) -> None:
+        """Take the arm body out of the world (a new :class:`ArmRobot` may then be built)."""
+        self.world.remove_body("arm")
+
     def set_link_angles(self, q_link: npt.ArrayLike) -> None:
         """Teleport the joints to link angles ``q_link`` (6,) (rad) at rest (no servo change)."""
         c = self.world.bullet

@@ -676,6 +676,10 @@ class ClimberRobot:
         self.last_force = 0.0
         self.last_height = params.h_true
 
+    def remove(self) -> None:
+        """Take the body out of the world (a new :class:`ClimberRobot` may then be built)."""
+        self.scene.world.remove_body("climber")
+
     def reset(self, position: npt.ArrayLike, R_world_body: npt.ArrayLike) -> None:
         """Place the body at rest."""
         c = self._c
