@@ -104,12 +104,12 @@ from realitygap.robots.arm import (
     ArmParams,
     ArmRobot,
     BoardPlacement,
-    CaptureMode,
     FlangeCamera,
     MoveOutcome,
     build_arm_scene,
 )
 from realitygap.robots.effects import Reality
+from realitygap.robots.sensors import SensorMode, check_sensor_mode
 from realitygap.robots.world import World
 
 FloatArray = npt.NDArray[np.float64]
@@ -663,11 +663,13 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}  # noqa: RUF012 (gymnasium's name)
+    sensor_modes: tuple[SensorMode, ...] = (SensorMode.GEOMETRIC, SensorMode.FAST, SensorMode.IMAGE)
+    """Accepted ``sensor_mode`` values, fastest first."""
 
     def __init__(
         self,
         render_mode: str | None = None,
-        sensor_mode: str | CaptureMode = CaptureMode.GEOMETRIC,
+        sensor_mode: str | SensorMode = SensorMode.GEOMETRIC,
         params: ArmParams | None = None,
         reality: Reality | None = None,
         randomize_reality: bool = False,
@@ -688,12 +690,7 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     ):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        try:
-            self.sensor_mode = CaptureMode(sensor_mode)
-        except ValueError:
-            raise ValueError(
-                f"sensor_mode must be one of {[m.value for m in CaptureMode]}, got {sensor_mode!r}"
-            ) from None
+        self.sensor_mode = check_sensor_mode(sensor_mode, self.sensor_modes)
         if int(budget) != budget or budget < 1:
             raise ValueError(f"budget must be a positive whole number of poses, got {budget!r}")
         if int(n_validation) < 4:
@@ -724,7 +721,7 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         )
 
         self.world = World()
-        textured = self.sensor_mode is CaptureMode.IMAGE or render_mode == "rgb_array"
+        textured = self.sensor_mode is SensorMode.IMAGE or render_mode == "rgb_array"
         self.robot: ArmRobot
         self.camera: FlangeCamera
         self.robot, self.camera = build_arm_scene(
@@ -927,7 +924,7 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             )
         t0 = time.perf_counter()
         cp = self.params.camera  # the pipeline measures with the nominal intrinsics
-        if self.sensor_mode is CaptureMode.GEOMETRIC:
+        if self.sensor_mode is SensorMode.GEOMETRIC:
             uv, ids = self.camera.visible_corners(rng)
             t1 = time.perf_counter()
             obs = observation_from_corners(

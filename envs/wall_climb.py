@@ -78,7 +78,6 @@ from realitygap.estimators.climb import (
 )
 from realitygap.robots.climber import (
     BodyState,
-    CameraMode,
     CameraModel,
     ClimberParams,
     ClimberRobot,
@@ -89,6 +88,7 @@ from realitygap.robots.climber import (
     chart_pose,
 )
 from realitygap.robots.effects import Reality
+from realitygap.robots.sensors import SensorMode, check_sensor_mode
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -238,11 +238,13 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}  # noqa: RUF012 (gymnasium's name)
+    sensor_modes: tuple[SensorMode, ...] = (SensorMode.FAST, SensorMode.IMAGE)
+    """Accepted ``sensor_mode`` values, fastest first."""
 
     def __init__(
         self,
         render_mode: str | None = None,
-        sensor_mode: str | CameraMode = CameraMode.FAST,
+        sensor_mode: str | SensorMode = SensorMode.FAST,
         estimator: str | Any = "docked",
         params: ClimberParams | None = None,
         reality: Reality | None = None,
@@ -257,12 +259,7 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        try:
-            self.sensor_mode = CameraMode(sensor_mode)
-        except ValueError:
-            raise ValueError(
-                f"sensor_mode must be 'fast' or 'image', got {sensor_mode!r}"
-            ) from None
+        self.sensor_mode = check_sensor_mode(sensor_mode, self.sensor_modes)
         ratio = physics_hz / control_hz
         if control_hz <= 0 or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
             raise ValueError(
@@ -293,7 +290,7 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             )
         self._cam_every = int(round(cam_every))
 
-        textured = self.sensor_mode is CameraMode.IMAGE or render_mode == "rgb_array"
+        textured = self.sensor_mode is SensorMode.IMAGE or render_mode == "rgb_array"
         self.scene = ClimbWorld(
             self.true_params,
             physics_hz=physics_hz,

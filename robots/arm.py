@@ -65,6 +65,7 @@ from scipy.spatial.transform import Rotation
 
 from realitygap.estimators.arm.coded_board import CodedBoard, render_board_image
 from realitygap.estimators.arm.mdh import MDHTable
+from realitygap.robots.sensors import SensorMode
 from realitygap.robots.world import Primitive, Shape, World
 
 FloatArray = npt.NDArray[np.float64]
@@ -74,7 +75,6 @@ __all__ = [
     "ArmParams",
     "ArmRobot",
     "BoardPlacement",
-    "CaptureMode",
     "FlangeCamera",
     "FlangeCameraParams",
     "MoveOutcome",
@@ -779,19 +779,6 @@ class ArmRobot:
 
 
 # =========================================================================== camera
-class CaptureMode(str, Enum):
-    """How the flange camera forms its output.
-
-    ``IMAGE`` and ``FAST`` give images for :func:`measure_board`; ``GEOMETRIC``
-    gives the corners a detector would report (pixel positions with noise and
-    their board ids), for reinforcement learning at thousands of poses a minute.
-    """
-
-    IMAGE = "image"  #: PyBullet TinyRenderer view of the world
-    FAST = "fast"  #: board-only renderer from the true camera pose (no PyBullet rendering)
-    GEOMETRIC = "geometric"  #: projected board corners with pixel noise, no image
-
-
 class FlangeCamera:
     """The camera on the flange, rendering what it sees of the coded board.
 
@@ -865,7 +852,7 @@ class FlangeCamera:
             uv = uv + rng.normal(0.0, cp.corner_noise_px, uv.shape)
         return uv, ids
 
-    def capture(self, mode: CaptureMode | str, rng: np.random.Generator) -> UInt8Array:
+    def capture(self, mode: SensorMode | str, rng: np.random.Generator) -> UInt8Array:
         """One grey image (height, width) uint8 of the current view.
 
         ``"fast"``: :func:`render_board_image` from the true camera pose with the
@@ -873,11 +860,11 @@ class FlangeCamera:
         ``supersample`` times the resolution, lens distortion applied by remapping,
         area-averaged to the sensor. Both then get blur and noise.
         """
-        mode = CaptureMode(mode)
+        mode = SensorMode(mode)
         cp = self.params
-        if mode is CaptureMode.GEOMETRIC:
+        if mode is SensorMode.GEOMETRIC:
             raise ValueError("geometric capture gives corners, not an image: use visible_corners()")
-        if mode is CaptureMode.FAST:
+        if mode is SensorMode.FAST:
             return render_board_image(
                 self.board,
                 cp.K,

@@ -20,7 +20,6 @@ import numpy.typing as npt
 
 from realitygap.robots.climb_synthetic import ClimbRecording
 from realitygap.robots.climber import (
-    CameraMode,
     CameraModel,
     ClimberParams,
     ClimberRobot,
@@ -30,6 +29,7 @@ from realitygap.robots.climber import (
     TetherModel,
     chart_pose,
 )
+from realitygap.robots.sensors import SensorMode
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -114,7 +114,7 @@ def record_climb_run(
         fl = faults or ClimbFaults()
         imu = ImuModel(params, rng)
         tether = TetherModel(params, rng, fl)
-        cam = CameraModel(robot, params, CameraMode.FAST, rng, fl)
+        cam = CameraModel(robot, params, SensorMode.FAST, rng, fl)
         world = sc.world
         c = world.bullet
         dtp = world.physics_dt

@@ -44,7 +44,6 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass, field, fields, replace
-from enum import Enum
 from typing import Any
 
 import cv2
@@ -71,13 +70,13 @@ from realitygap.robots.blade_geometry import (
     deformed,
     write_obj,
 )
+from realitygap.robots.sensors import SensorMode, check_sensor_mode
 from realitygap.robots.world import World
 
 FloatArray = npt.NDArray[np.float64]
 
 __all__ = [
     "BodyState",
-    "CameraMode",
     "CameraModel",
     "ClimbFaults",
     "ClimbWorld",
@@ -100,15 +99,6 @@ def _quat_xyzw_from_matrix(R: FloatArray) -> list[float]:
     from scipy.spatial.transform import Rotation
 
     return [float(v) for v in Rotation.from_matrix(R).as_quat()]
-
-
-class CameraMode(str, Enum):
-    """Fidelity of the down-looking camera."""
-
-    FAST = "fast"
-    """Relative motion from the true motion plus noise (no rendering)."""
-    IMAGE = "image"
-    """Frames rendered with TinyRenderer; the VIO's front-end computes the motion."""
 
 
 @dataclass(frozen=True)
@@ -867,13 +857,13 @@ class CameraModel:
         self,
         robot: ClimberRobot,
         params: ClimberParams,
-        mode: CameraMode,
+        mode: SensorMode | str,
         rng: np.random.Generator,
         faults: ClimbFaults,
     ) -> None:
         self.robot = robot
         self.params = params
-        self.mode = CameraMode(mode)
+        self.mode = check_sensor_mode(mode, (SensorMode.FAST, SensorMode.IMAGE))
         self.rng = rng
         self.faults = faults
         self.R_bc = VioConfig().R_bc
@@ -893,7 +883,7 @@ class CameraModel:
     def capture(self, s: BodyState, height: float) -> RelativeMotion | CameraFrame | None:
         """A measurement at ``s.t`` (``None`` for the first fast-mode frame)."""
         R_c, p_c = self.camera_pose(s)
-        if self.mode is CameraMode.IMAGE:
+        if self.mode is SensorMode.IMAGE:
             return CameraFrame(s.t, self.render(R_c, p_c), self.K)
         prev, self._prev = self._prev, (s.t, R_c, p_c)
         if prev is None:
