@@ -45,7 +45,9 @@ non-finite estimate (replaced by the last finite one, ``info["estimate_ok"] = Fa
 
 Reward — named sum (``info["reward_terms"]``): progress towards the goal (true
 distance), a time cost, an effort cost, a detachment penalty and a success bonus
-(within ``success_tol`` m).
+(within ``success_tol`` m), weighted by :class:`.WallClimbRewardWeights`. Start and goal
+sampling, reward, success and termination live in :class:`.WallClimbTask`; the env
+composes the robot, the task and the observation pipeline.
 """
 
 from __future__ import annotations
@@ -62,6 +64,7 @@ from gymnasium import spaces
 
 from realitygap.core.geometry import quat_xyzw_from_matrix, so3_exp
 from realitygap.envs.common import check_twist_action
+from realitygap.envs.tasks.wall_climb import WallClimbRewardWeights, WallClimbTask
 from realitygap.estimators.climb import (
     ClimbEstimate,
     ClimbLocaliser,
@@ -231,6 +234,8 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         Hz; the ratio must be even (IMU at half the physics rate by default).
     detach_margin
         Height above the rolling height beyond which the robot counts as detached, m.
+    reward_weights
+        Weights of the reward terms (:class:`.WallClimbRewardWeights` defaults when ``None``).
     vio_config
         VIO settings; default: the robot's noise and camera mount with a 5-keyframe
         window and 3 solver iterations (the cost of RL rollouts is dominated by the
@@ -256,6 +261,7 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         control_hz: float = 20.0,
         detach_margin: float = 0.03,
         vio_config: VioConfig | None = None,
+        reward_weights: WallClimbRewardWeights | None = None,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
@@ -272,10 +278,14 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self.reality = reality if reality is not None else Reality()
         self.true_params: ClimberParams = self.reality.apply_params(self.params)
         self.faults = faults if faults is not None else ClimbFaults()
-        self.fixed_start = None if start is None else np.asarray(start, dtype=float)
-        self.fixed_goal = None if goal is None else np.asarray(goal, dtype=float)
-        self.success_tol = float(success_tol)
-        self.detach_margin = float(detach_margin)
+        self.task = WallClimbTask(
+            blade_length=self.params.blade.length,
+            start=start,
+            goal=goal,
+            success_tol=success_tol,
+            detach_margin=detach_margin,
+            weights=reward_weights if reward_weights is not None else WallClimbRewardWeights(),
+        )
         imu_every = physics_hz / self.params.imu_rate
         if abs(imu_every - round(imu_every)) > 1e-9:
             raise ValueError(
@@ -328,7 +338,6 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._state: BodyState | None = None
         self._tether_len = 0.0
         self._visual_ok = True
-        self._prev_dist = 0.0
         self._flags: dict[str, int] = {}
         self._closed = False
 
@@ -397,19 +406,7 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         if unknown:
             raise ValueError(f"unknown reset option(s) {sorted(unknown)}; expected 'start', 'goal'")
         rng = self.np_random
-        start = options.get("start", self.fixed_start)
-        goal = options.get("goal", self.fixed_goal)
-        if start is None:
-            start = np.array(
-                [rng.uniform(1.5, 6.0), rng.uniform(0.2, 0.55), rng.uniform(-np.pi, np.pi)]
-            )
-        start = self._check_chart("start", start, allow_heading=True)
-        if goal is None:
-            for _ in range(50):
-                goal = np.array([rng.uniform(1.0, 7.0), rng.uniform(0.15, 0.6)])
-                if 0.5 < abs(goal[0] - start[0]) + abs(goal[1] - start[1]) < 2.5:
-                    break
-        goal = self._check_chart("goal", goal, allow_heading=False)
+        start, goal = self.task.sample_start_goal(rng, options)
         tp = self.true_params
         surf = self.scene.surface
         heading = float(start[2]) if len(start) == 3 else 0.0
@@ -459,7 +456,7 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
                 est = self.estimator.update(m)
         self._camera.capture(self._state, tp.h_true)
         self._set_estimate(est)
-        self._prev_dist = self._true_distance()
+        self.task.reset(self._true_distance())
         info = self._info({}, detached=False, success=False)
         return self._observation(), info
 
@@ -479,13 +476,14 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         for m in measurements:
             self._set_estimate(self.estimator.update(m))
         self._steps += 1
-        height = self.robot.last_height
-        detached = not (-0.02 < height < self.true_params.h_true + self.detach_margin)
+        task = self.task
+        detached = task.is_detached(self.robot.last_height, self.true_params.h_true)
         dist = self._true_distance()
-        success = dist < self.success_tol and not detached
-        reward, terms = self._get_rew(dist, (a0, a1), detached, success)
+        success = task.is_success(dist, detached)
+        reward, terms = task.get_reward(dist, (a0, a1), detached, success)
         obs = self._observation()
-        return obs, reward, bool(detached or success), False, self._info(terms, detached, success)
+        terminated = bool(task.is_terminated(detached, success))
+        return obs, reward, terminated, False, self._info(terms, detached, success)
 
     def _simulate(self) -> list[Any]:
         """One control period of physics; returns the measurements in time order."""
@@ -532,22 +530,6 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._closed = True
 
     # ------------------------------------------------------------------ internals
-    def _check_chart(self, name: str, value: Any, *, allow_heading: bool) -> FloatArray:
-        arr = np.asarray(value, dtype=float).reshape(-1)
-        sizes = (2, 3) if allow_heading else (2,)
-        if arr.shape[0] not in sizes or not np.all(np.isfinite(arr)):
-            raise ValueError(
-                f"{name} must be {' or '.join(str(s) for s in sizes)} finite numbers (x [m], ξ"
-                f"{', heading [rad]' if allow_heading else ''}), got {value!r}"
-            )
-        L = self.params.blade.length
-        if not (0.3 < arr[0] < L - 0.3 and 0.05 <= arr[1] <= 0.9):
-            raise ValueError(
-                f"{name} ({arr[0]:.3g}, {arr[1]:.3g}) must lie on the suction side: "
-                f"0.3 < x < {L - 0.3} m, 0.05 ≤ ξ ≤ 0.9"
-            )
-        return arr
-
     def _set_estimate(self, est: ClimbEstimate) -> None:
         # a sum of finite numbers is finite (positions in m, unit quaternion)
         finite = math.isfinite(float(np.sum(est.position) + np.sum(est.quat_xyzw)))
@@ -586,19 +568,6 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         out = obs.astype(np.float32)
         np.clip(out, self._obs_low, self._obs_high, out=out)
         return out
-
-    def _get_rew(
-        self, dist: float, action: tuple[float, float], detached: bool, success: bool
-    ) -> tuple[float, dict[str, float]]:
-        terms = {
-            "progress": 5.0 * (self._prev_dist - dist),
-            "time": -0.01,
-            "effort": -0.002 * (action[0] ** 2 + action[1] ** 2),
-            "detach": -5.0 if detached else 0.0,
-            "success": 5.0 if success else 0.0,
-        }
-        self._prev_dist = dist
-        return float(sum(terms.values())), terms
 
     def _info(self, terms: dict[str, float], detached: bool, success: bool) -> dict[str, Any]:
         est, s = self._estimate, self._state
