@@ -99,14 +99,8 @@ from realitygap.estimators.arm.board_measurement import BoardMeasurementSettings
 from realitygap.estimators.arm.coded_board import CodedBoard
 from realitygap.estimators.arm.identification import IdentificationSettings
 from realitygap.estimators.arm.mdh import MDHTable, tool_positions
-from realitygap.robots.arm import (
-    ArmParams,
-    ArmRobot,
-    BoardPlacement,
-    FlangeCamera,
-    MoveOutcome,
-    build_arm_scene,
-)
+from realitygap.robots.arm import ArmParams, ArmRobot, MoveOutcome
+from realitygap.robots.arm_cell import BoardPlacement, FlangeCamera, build_arm_scene
 from realitygap.robots.effects import Reality
 from realitygap.robots.sensors import SensorMode, check_sensor_mode
 from realitygap.robots.world import World

@@ -21,7 +21,8 @@ import numpy.typing as npt
 from realitygap.estimators.arm.coded_board import CodedBoard
 from realitygap.estimators.arm.identification import registered_position_errors
 from realitygap.estimators.arm.mdh import MDHTable, joint_frames, tool_positions
-from realitygap.robots.arm import ArmParams, BoardPlacement
+from realitygap.robots.arm import ArmParams
+from realitygap.robots.arm_cell import BoardPlacement
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -10,12 +10,11 @@ from realitygap.estimators.arm.coded_board import CodedBoard
 from realitygap.estimators.arm.mdh import MDHTable, joint_frames
 from realitygap.robots.arm import (
     ArmParams,
-    BoardPlacement,
     FlangeCameraParams,
     MoveOutcome,
-    build_arm_scene,
     urdf_from_arm_params,
 )
+from realitygap.robots.arm_cell import BoardPlacement, build_arm_scene
 from realitygap.robots.effects import EFFECTS, Reality, make_effect
 from realitygap.robots.sensors import SensorMode
 from realitygap.robots.world import World
