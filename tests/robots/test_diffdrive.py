@@ -27,9 +27,7 @@ def world():
     w.close()
 
 
-def drive(
-    world: World, robot: DiffDriveRobot, w_left: float, w_right: float, seconds: float
-) -> None:
+def drive(world: World, robot: DiffDriveRobot, w_left: float, w_right: float, seconds: float) -> None:
     robot.set_wheel_speeds(w_left, w_right)
     for _ in range(int(round(seconds / world.dt))):
         world.step()
@@ -121,9 +119,7 @@ def test_effect_library_validates_parameters() -> None:
 
 
 def test_reality_builds_a_different_body() -> None:
-    reality = Reality(
-        (make_effect("wheel_diameter_ratio", E_d=1.04), make_effect("wheelbase_error", E_b=1.05))
-    )
+    reality = Reality((make_effect("wheel_diameter_ratio", E_d=1.04), make_effect("wheelbase_error", E_b=1.05)))
     true = reality.apply_params(DiffDriveParams())
     assert true.wheel_radius_right / true.wheel_radius_left == pytest.approx(1.04)
     assert (true.wheel_radius_right + true.wheel_radius_left) / 2 == pytest.approx(0.035)
