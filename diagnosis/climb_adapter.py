@@ -18,7 +18,7 @@ Regimes
 
 Replay
     The sensors are replayed along the logged true path: the tether model of
-    :class:`~realitygap.robots.climber.TetherModel` (spool scale, sag, stretch,
+    :class:`~realitygap.robots.climber_sensors.TetherModel` (spool scale, sag, stretch,
     anchor) in closed form, and the ride height of the body as PyBullet
     measures it — the nominal (or effect-changed) robot is set at the logged
     pose and settles under gravity and adsorption, and its height above the CAD surface
@@ -223,7 +223,7 @@ def tether_model(
     """Tether readings (B, N) along ``positions`` (N, 3) for a batch of effect values.
 
     :math:`l = s\\,(d + k d^2 + \\epsilon d)`, :math:`d = \\lVert p - (a + \\delta a)\\rVert`
-    (as :class:`~realitygap.robots.climber.TetherModel`, without noise).
+    (as :class:`~realitygap.robots.climber_sensors.TetherModel`, without noise).
     """
     B, v = _values(values)
 

@@ -81,15 +81,13 @@ from realitygap.estimators.climb import (
 )
 from realitygap.robots.climber import (
     BodyState,
-    CameraModel,
     ClimberParams,
     ClimberRobot,
     ClimbFaults,
     ClimbWorld,
-    ImuModel,
-    TetherModel,
     chart_pose,
 )
+from realitygap.robots.climber_sensors import CameraModel, ImuModel, TetherModel
 from realitygap.robots.effects import Reality
 from realitygap.robots.sensors import SensorMode, check_sensor_mode
 

@@ -20,15 +20,13 @@ import numpy.typing as npt
 
 from realitygap.robots.climb_synthetic import ClimbRecording
 from realitygap.robots.climber import (
-    CameraModel,
     ClimberParams,
     ClimberRobot,
     ClimbFaults,
     ClimbWorld,
-    ImuModel,
-    TetherModel,
     chart_pose,
 )
+from realitygap.robots.climber_sensors import CameraModel, ImuModel, TetherModel
 from realitygap.robots.sensors import SensorMode
 
 FloatArray = npt.NDArray[np.float64]
