@@ -47,13 +47,10 @@ class SensorMode(str, Enum):
 
 def check_sensor_mode(value: str | SensorMode, accepted: tuple[SensorMode, ...]) -> SensorMode:
     """``value`` as a :class:`SensorMode`, or a ``ValueError`` naming the ``accepted`` modes."""
-    try:
-        mode = SensorMode(value)
-    except ValueError:
-        mode = None
-    if mode not in accepted:
-        raise ValueError(f"sensor_mode must be one of {[m.value for m in accepted]}, got {value!r}")
-    return mode
+    for mode in accepted:
+        if mode == value:
+            return mode
+    raise ValueError(f"sensor_mode must be one of {[m.value for m in accepted]}, got {value!r}")
 
 
 def depth_sigma(z: npt.ArrayLike, params: RGBDCameraParams) -> FloatArray:
