@@ -268,6 +268,13 @@ class World:
                 step()
         self.physics_seconds += time.perf_counter() - t0
 
+    def set_file_caching(self, enabled: bool) -> None:
+        """Whether PyBullet reuses a mesh loaded earlier from the same file name (default on).
+
+        Turn it off when bodies of different shapes are written to one file name in turn.
+        """
+        self.bullet.setPhysicsEngineParameter(enableFileCaching=int(bool(enabled)))
+
     def remove_body(self, name: str) -> None:
         """Remove the body registered under ``name`` (see :attr:`bodies`) from the simulation."""
         if name not in self.bodies:

@@ -31,3 +31,12 @@ def test_remove_body_forgets_the_name_and_render_gives_an_rgb_picture() -> None:
     with pytest.raises(KeyError, match="no body named 'floor'"):
         w.remove_body("floor")
     w.close()
+
+
+def test_file_caching_can_be_switched_off() -> None:
+    w = World()
+    w.set_file_caching(False)
+    w.set_file_caching(True)
+    w.close()
+    with pytest.raises(RuntimeError, match="closed"):
+        w.set_file_caching(False)
