@@ -18,7 +18,7 @@ Regimes
 
 Replay
     The sensors are replayed along the logged true path: the tether model of
-    :class:`~realitygap.robots.climber.TetherModel` (spool scale, sag, stretch,
+    :class:`~realitygap.robots.climber_sensors.TetherModel` (spool scale, sag, stretch,
     anchor) in closed form, and the ride height of the body as PyBullet
     measures it — the nominal (or effect-changed) robot is set at the logged
     pose and settles under gravity and adsorption, and its height above the CAD surface
@@ -214,7 +214,7 @@ class BladeScenes:
         if key not in self._scenes:
             scene = ClimbWorld(params.replace(gap_offset=0.0))
             # bodies of other ride heights are loaded from the same file name: no caching
-            scene.world.bullet.setPhysicsEngineParameter(enableFileCaching=0)
+            scene.world.set_file_caching(False)
             self._scenes[key] = scene
         return self._scenes[key]
 
@@ -256,21 +256,19 @@ def replay_heights(
     body = params.replace(gap_offset=float(gap))
     scene = scenes.scene(params)
     robot = ClimberRobot(scene, body)
-    bullet = scene.world.bullet
+    world = scene.world
     try:
         out = np.empty(poses.shape[0])
         for m, pose in enumerate(np.array(poses, dtype=float)):
             R = Rotation.from_rotvec(pose[3:6]).as_matrix()
             # start with the wheels touching: a larger ride height lifts the body along its z
             robot.reset(pose[:3] + (body.h_true - params.h_true) * R[:, 2], R)
-            for _ in range(settle_steps):
-                robot.apply_adsorption()
-                bullet.stepSimulation()
+            world.step(settle_steps, before_each=robot.apply_adsorption)
             pos = robot.state(0.0).position
             out[m] = float(heights_above_cad(params, pos[None])[0])
         return out
     finally:
-        bullet.removeBody(robot.body)
+        robot.remove()
 
 
 # --------------------------------------------------------------------------- sensor models
@@ -293,7 +291,7 @@ def tether_model(
     """Tether readings (B, N) along ``positions`` (N, 3) for a batch of effect values.
 
     :math:`l = s\\,(d + k d^2 + \\epsilon d)`, :math:`d = \\lVert p - (a + \\delta a)\\rVert`
-    (as :class:`~realitygap.robots.climber.TetherModel`, without noise).
+    (as :class:`~realitygap.robots.climber_sensors.TetherModel`, without noise).
     """
     B, v = _values(values)
 

@@ -530,9 +530,8 @@ def _cache_path(params: DiffDriveParams, solver_iterations: int) -> Path:
     """Cache file of a calibration, keyed by :data:`CALIBRATION_VERSION`, the body and the solver."""
     import hashlib
 
-    import pybullet
-
     from realitygap.robots.diffdrive import urdf_from_params
+    from realitygap.robots.world import physics_engine_version
 
     root = os.environ.get("REALITYGAP_CACHE")
     base = Path(root) if root else Path.home() / ".cache" / "realitygap"
@@ -542,7 +541,7 @@ def _cache_path(params: DiffDriveParams, solver_iterations: int) -> Path:
         repr(params),
         str(solver_iterations),
         str(CALIBRATION_VERSION),
-        str(getattr(pybullet, "__version__", "")),
+        physics_engine_version(),
     ):
         h.update(part.encode("utf-8"))
     return base / f"surrogate-calibration-{h.hexdigest()[:24]}.json"

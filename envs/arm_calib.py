@@ -61,7 +61,10 @@ idx     meaning
 
 Reward — a named sum (``info["reward_terms"]``): ``error_drop`` = drop of the
 validation RMS positioning error (mm) since the last step; ``invalid_pose`` =
-``-invalid_penalty`` when the attempt gave no usable measurement.
+``-invalid_penalty`` when the attempt gave no usable measurement
+(:class:`.ArmCalibRewardWeights`). Pose sampling, the budget, reward, success and
+termination live in :class:`.ArmCalibTask`; the measurement and identification
+pipeline in :mod:`realitygap.envs.arm_calib_pipeline`.
 
 Positioning error: the camera point (the identified tool point) predicted by the
 model at each validation pose's joint readings, compared with the true point
@@ -73,8 +76,6 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
-from enum import Enum
 from typing import Any
 
 import gymnasium as gym
@@ -82,35 +83,26 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
 
-from realitygap.estimators.arm.board_displacement import (
-    cell_under_optical_axis,
-    hierarchical_displacement,
+from realitygap.envs.arm_calib_pipeline import (
+    ArmPoseMeasurement,
+    CalibrationEstimate,
+    MDHCalibrationEstimator,
+    observation_from_corners,
 )
-from realitygap.estimators.arm.board_measurement import (
-    BoardMeasurementSettings,
-    BoardObservation,
-    MeasurementStatus,
-    measure_board,
+from realitygap.envs.tasks.arm_calib import (
+    ArmCalibRewardWeights,
+    ArmCalibTask,
+    AttemptOutcome,
+    ViewConstraints,
 )
-from realitygap.estimators.arm.calibration import registered_position_errors
-from realitygap.estimators.arm.coded_board import WINDOW, CodedBoard
-from realitygap.estimators.arm.identification import (
-    IdentificationResult,
-    IdentificationSettings,
-    identify,
-)
-from realitygap.estimators.arm.mdh import TOOL_PARAM_NAMES, MDHTable, joint_frames, tool_positions
-from realitygap.estimators.arm.residuals import PairObservations, ResidualMode
-from realitygap.robots.arm import (
-    ArmParams,
-    ArmRobot,
-    BoardPlacement,
-    CaptureMode,
-    FlangeCamera,
-    MoveOutcome,
-    build_arm_scene,
-)
+from realitygap.estimators.arm.board_measurement import BoardMeasurementSettings, measure_board
+from realitygap.estimators.arm.coded_board import CodedBoard
+from realitygap.estimators.arm.identification import IdentificationSettings
+from realitygap.estimators.arm.mdh import MDHTable, tool_positions
+from realitygap.robots.arm import ArmParams, ArmRobot, MoveOutcome
+from realitygap.robots.arm_cell import BoardPlacement, FlangeCamera, build_arm_scene
 from realitygap.robots.effects import Reality
+from realitygap.robots.sensors import SensorMode, check_sensor_mode
 from realitygap.robots.world import World
 
 FloatArray = npt.NDArray[np.float64]
@@ -120,14 +112,7 @@ __all__ = [
     "DEFAULT_JOINT_HALF_RANGE",
     "N_OBS",
     "ArmCalibEnv",
-    "ArmPoseMeasurement",
-    "AttemptOutcome",
-    "CalibrationEstimate",
-    "MDHCalibrationEstimator",
-    "ViewConstraints",
     "default_arm_reality",
-    "nominal_view_ok",
-    "observation_from_corners",
     "random_arm_reality",
 ]
 
@@ -140,192 +125,6 @@ N_PARAMS = 33  # 30 MDH + 3 tool
 N_OBS = 83
 _OUTCOMES = ("ok", "out_of_reach", "collision", "board_not_visible", "measurement_failed")
 _SV_FLOOR = -12.0
-
-
-class AttemptOutcome(str, Enum):
-    """What became of one attempted measurement pose."""
-
-    OK = "ok"
-    OUT_OF_REACH = "out_of_reach"
-    COLLISION = "collision"
-    BOARD_NOT_VISIBLE = "board_not_visible"
-    MEASUREMENT_FAILED = "measurement_failed"
-
-
-@dataclass(frozen=True)
-class ViewConstraints:
-    """When the nominal model expects the camera to see the board well.
-
-    Attributes
-    ----------
-    max_tilt_deg : float
-        Largest angle between the optical axis and the board normal (deg).
-    min_distance, max_distance : float
-        Range along the optical axis to the board plane (m).
-    board_margin : float
-        The optical axis must meet the board at least this far inside its edge (m).
-    """
-
-    max_tilt_deg: float = 35.0
-    min_distance: float = 0.22
-    max_distance: float = 0.42
-    board_margin: float = 0.12
-
-    def __post_init__(self) -> None:
-        if not 0.0 < self.max_tilt_deg < 90.0:
-            raise ValueError(f"max_tilt_deg must be in (0, 90), got {self.max_tilt_deg}")
-        if not 0.0 < self.min_distance < self.max_distance:
-            raise ValueError("need 0 < min_distance < max_distance (m)")
-        if self.board_margin < 0:
-            raise ValueError("board_margin must be >= 0 (m)")
-
-
-def nominal_view_ok(
-    params: ArmParams,
-    board: CodedBoard,
-    placement: BoardPlacement,
-    q: npt.ArrayLike,
-    view: ViewConstraints | None = None,
-) -> npt.NDArray[np.bool_]:
-    """Whether the board is expected in good view at joint readings ``q`` (N, 6) (nominal model).
-
-    Returns
-    -------
-    ndarray of bool, shape (N,)
-    """
-    v = view or ViewConstraints()
-    qa = np.atleast_2d(np.asarray(q, dtype=float))
-    F = joint_frames(params.mdh, qa, params.T_world_base)[:, -1] @ params.camera.T_flange_camera()
-    C = np.linalg.inv(placement.T_world_board()) @ F  # camera in board
-    z = C[:, :3, 2]
-    c = C[:, :3, 3]
-    facing = z[:, 2] > math.cos(math.radians(v.max_tilt_deg))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lam = np.where(facing, -c[:, 2] / z[:, 2], np.nan)
-    hit = c + lam[:, None] * z
-    m, s = v.board_margin, board.side
-    inside = (hit[:, 0] > m) & (hit[:, 0] < s - m) & (hit[:, 1] > m) & (hit[:, 1] < s - m)
-    return facing & inside & (lam > v.min_distance) & (lam < v.max_distance)
-
-
-# =========================================================================== geometric measurement
-def _failed(status: MeasurementStatus, n: int) -> BoardObservation:
-    return BoardObservation(
-        ok=False,
-        status=status,
-        cell_index=None,
-        T_camera_board=np.full((4, 4), np.nan),
-        n_corners=int(n),
-        reprojection_rms_px=float("nan"),
-    )
-
-
-def observation_from_corners(
-    image_points: npt.ArrayLike,
-    corner_ids: npt.ArrayLike,
-    K: npt.ArrayLike,
-    dist: npt.ArrayLike | None,
-    board: CodedBoard,
-    settings: BoardMeasurementSettings | None = None,
-    min_spacing_px: float = 6.0,
-) -> BoardObservation:
-    """The camera-pose stage of :func:`measure_board` on identified corners.
-
-    For the ``"geometric"`` sensor mode, which reports the corners a detector
-    would find (pixel positions and board ids) instead of an image. The frame is
-    rejected like an image would be: fewer than ``settings.min_corners`` corners
-    or corners closer than ``min_spacing_px`` (too far or too oblique to resolve)
-    → ``TOO_FEW_CORNERS``; fewer than 8 × 8 cells with all four corners, or their
-    extent less than 8 cells either way → ``CODE_WINDOW_INCOMPLETE``;
-    optical axis off the board → ``OPTICAL_AXIS_OFF_BOARD``; PnP failure or
-    reprojection RMS above ``settings.max_reprojection_rms_px`` → ``PNP_FAILED``.
-
-    Parameters
-    ----------
-    image_points : array_like, shape (k, 2)
-        Corner pixel positions (px).
-    corner_ids : array_like of int, shape (k, 2)
-        Their board corner indices ``(row, col)``.
-    K : array_like, shape (3, 3)
-    dist : array_like or None
-        Intrinsics and distortion the measurement assumes.
-    board : CodedBoard
-    settings : BoardMeasurementSettings, optional
-
-    Returns
-    -------
-    BoardObservation
-    """
-    import cv2
-    from scipy.spatial import cKDTree
-
-    s = settings or BoardMeasurementSettings()
-    uv = np.asarray(image_points, dtype=float).reshape(-1, 2)
-    ids = np.asarray(corner_ids).astype(np.int64).reshape(-1, 2)
-    if len(ids) != len(uv):
-        raise ValueError(f"got {len(uv)} image points but {len(ids)} corner ids")
-    n = len(uv)
-    if n < s.min_corners:
-        return _failed(MeasurementStatus.TOO_FEW_CORNERS, n)
-    spacing = float(np.median(cKDTree(uv).query(uv, k=2)[0][:, 1]))
-    if spacing < min_spacing_px:
-        return _failed(MeasurementStatus.TOO_FEW_CORNERS, n)
-    nc = board.cells + 1
-    occ = np.zeros((nc, nc), dtype=bool)
-    occ[ids[:, 0], ids[:, 1]] = True
-    full = occ[:-1, :-1] & occ[1:, :-1] & occ[:-1, 1:] & occ[1:, 1:]
-    rows, cols = np.nonzero(full)
-    if rows.size < WINDOW * WINDOW or np.ptp(rows) + 1 < WINDOW or np.ptp(cols) + 1 < WINDOW:
-        return _failed(MeasurementStatus.CODE_WINDOW_INCOMPLETE, n)
-    Km = np.asarray(K, dtype=float)
-    d = np.zeros(5) if dist is None else np.asarray(dist, dtype=float)
-    cs = board.cell_size
-    obj = np.column_stack([ids[:, 1] * cs, ids[:, 0] * cs, np.zeros(n)])
-    img = uv.reshape(-1, 1, 2)
-    ok, rvec, tvec = cv2.solvePnP(obj, img, Km, d, flags=cv2.SOLVEPNP_IPPE)
-    if not ok:
-        return _failed(MeasurementStatus.PNP_FAILED, n)
-    T_cb = np.eye(4)
-    T_cb[:3, :3] = cv2.Rodrigues(rvec)[0]
-    T_cb[:3, 3] = np.asarray(tvec).reshape(3)
-    cell = cell_under_optical_axis(np.linalg.inv(T_cb), cs)
-    if cell is None or not (0 <= cell[0] < board.cells and 0 <= cell[1] < board.cells):
-        return _failed(MeasurementStatus.OPTICAL_AXIS_OFF_BOARD, n)
-    # refine in the centre-cell frame, as measure_board does
-    offset = np.array([cell[1] * cs, cell[0] * cs, 0.0])
-    obj_c = obj - offset
-    tvec_c = T_cb[:3, :3] @ offset + T_cb[:3, 3]
-    rvec, tvec_c = cv2.solvePnPRefineLM(
-        obj_c,
-        img,
-        Km,
-        d,
-        rvec,
-        tvec_c.reshape(3, 1).copy(),
-        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-12),
-    )
-    proj, _ = cv2.projectPoints(obj_c, rvec, tvec_c, Km, d)
-    rms = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - uv) ** 2, axis=1))))
-    if not rms <= s.max_reprojection_rms_px:
-        return _failed(MeasurementStatus.PNP_FAILED, n)
-    T_cc = np.eye(4)
-    T_cc[:3, :3] = cv2.Rodrigues(rvec)[0]
-    T_cc[:3, 3] = np.asarray(tvec_c).reshape(3)
-    T_cell_board = np.eye(4)
-    T_cell_board[:3, 3] = -offset
-    return BoardObservation(
-        ok=True,
-        status=MeasurementStatus.OK,
-        cell_index=(int(cell[0]), int(cell[1])),
-        T_camera_board=T_cc @ T_cell_board,
-        n_corners=n,
-        reprojection_rms_px=rms,
-        T_camera_cell=T_cc,
-        code_mismatches=0,
-        n_code_bits=0,
-        image_points=uv.copy(),
-        corner_ids=ids.copy(),
-    )
 
 
 # =========================================================================== realities
@@ -406,223 +205,6 @@ def random_arm_reality(
     )
 
 
-# =========================================================================== pipeline
-@dataclass(frozen=True)
-class ArmPoseMeasurement:
-    """One usable calibration pose: encoder readings and the board measurement.
-
-    Attributes
-    ----------
-    q : ndarray, shape (6,)
-        Joint encoder readings (rad).
-    board : BoardObservation
-        Successful measurement of the camera pose against the board.
-    """
-
-    q: FloatArray
-    board: BoardObservation
-
-
-@dataclass(frozen=True)
-class CalibrationEstimate:
-    """The calibration pipeline's current model.
-
-    Attributes
-    ----------
-    table : MDHTable
-        Estimated geometry (the nominal one until the first accepted identification).
-    tool : ndarray, shape (3,)
-        Estimated camera point in the flange frame (m).
-    n_poses : int
-        Poses measured so far.
-    identified : bool
-        Whether ``table`` comes from an identification.
-    ok : bool
-        False when the last identification attempt failed or was rejected.
-    status : str
-        What happened at the last update.
-    result : IdentificationResult or None
-        The adopted identification.
-    """
-
-    table: MDHTable
-    tool: FloatArray
-    n_poses: int
-    identified: bool
-    ok: bool
-    status: str
-    result: IdentificationResult | None = None
-    extras: dict[str, Any] = field(default_factory=dict)
-
-
-class MDHCalibrationEstimator:
-    """Pose measurements → pair displacements → MDH identification (distance accuracy).
-
-    Follows the estimator protocol: :meth:`reset`, then :meth:`update` with an
-    :class:`ArmPoseMeasurement` (or ``None``: nothing new).
-
-    Parameters
-    ----------
-    nominal : MDHTable
-        Start geometry.
-    tool0 : array_like, shape (3,)
-        Start camera point in the flange frame (m), from the nominal mount.
-    cell_size : float
-        Cell side of the board (m).
-    settings : IdentificationSettings, optional
-        Default: distance residuals, Gauss–Newton, 5-parameter MDH, camera point estimated.
-    min_poses : int
-        Identify only from this many poses on.
-    identify_every : int
-        Then identify after every ``identify_every`` new poses (see :meth:`update`).
-    max_fit_rms : float
-        Reject an identification whose RMS distance residual exceeds this (m).
-    max_length_change, max_angle_change : float
-        Reject one that moves a length (m) or an angle (rad) further than this from nominal.
-    max_condition : float
-        Reject one whose scaled Jacobian is worse conditioned than this.
-    """
-
-    def __init__(
-        self,
-        nominal: MDHTable,
-        tool0: npt.ArrayLike,
-        cell_size: float,
-        settings: IdentificationSettings | None = None,
-        min_poses: int = 8,
-        identify_every: int = 1,
-        max_fit_rms: float = 0.5e-3,
-        max_length_change: float = 0.02,
-        max_angle_change: float = 0.05,
-        max_condition: float = 1e6,
-    ):
-        self.nominal = nominal
-        self.tool0 = np.asarray(tool0, dtype=float).reshape(3).copy()
-        self.cell_size = float(cell_size)
-        self.settings = settings or IdentificationSettings(mode=ResidualMode.DISTANCE)
-        if self.settings.mode is ResidualMode.POSITION:
-            raise ValueError(
-                "the board gives displacements, not positions in a fixed frame: settings.mode "
-                "must be 'distance' or 'displacement'"
-            )
-        if int(min_poses) < 3:
-            raise ValueError(f"min_poses must be >= 3, got {min_poses}")
-        if int(identify_every) < 1:
-            raise ValueError(f"identify_every must be >= 1, got {identify_every}")
-        self.min_poses = int(min_poses)
-        self.identify_every = int(identify_every)
-        self.max_fit_rms = float(max_fit_rms)
-        self.max_length_change = float(max_length_change)
-        self.max_angle_change = float(max_angle_change)
-        self.max_condition = float(max_condition)
-        self.measurements: list[ArmPoseMeasurement] = []
-        self._last_identified_at = 0
-        self._estimate = self._start_estimate("no poses yet")
-        self.identify_seconds = 0.0
-
-    def _start_estimate(self, status: str) -> CalibrationEstimate:
-        return CalibrationEstimate(self.nominal, self.tool0.copy(), 0, False, True, status)
-
-    def reset(self, initial: Any | None = None) -> CalibrationEstimate:
-        """Forget every measurement; the estimate is the nominal model."""
-        self.measurements = []
-        self._last_identified_at = 0
-        self.identify_seconds = 0.0
-        self._estimate = self._start_estimate("no poses yet")
-        return self._estimate
-
-    @property
-    def estimate(self) -> CalibrationEstimate:
-        return self._estimate
-
-    def pair_observations(self) -> PairObservations:
-        """Hierarchical displacements between every pair of measured poses (board frame)."""
-        ms = self.measurements
-        if len(ms) < 2:
-            raise ValueError(f"pairs need at least 2 poses, have {len(ms)}")
-        i, j = np.triu_indices(len(ms), k=1)
-        disp = np.array(
-            [
-                hierarchical_displacement(ms[a].board, ms[b].board, self.cell_size).delta
-                for a, b in zip(i, j)
-            ]
-        )
-        q = np.array([m.q for m in ms])
-        return PairObservations(q[i], q[j], disp)
-
-    def update(
-        self, measurement: ArmPoseMeasurement | None, force: bool = False
-    ) -> CalibrationEstimate:
-        """Add a pose (``None``: none) and re-identify when due (or when ``force``)."""
-        if measurement is not None:
-            if not measurement.board.ok:
-                raise ValueError(
-                    "only successful board measurements can be added, got status "
-                    f"{measurement.board.status.value!r}"
-                )
-            self.measurements.append(measurement)
-        n = len(self.measurements)
-        prev = self._estimate
-        due = n >= self.min_poses and (
-            n - self._last_identified_at >= self.identify_every
-            or (force and n > self._last_identified_at)
-        )
-        if not due:
-            status = (
-                f"waiting: {n} of {self.min_poses} poses needed"
-                if n < self.min_poses
-                else prev.status
-            )
-            self._estimate = CalibrationEstimate(
-                prev.table, prev.tool, n, prev.identified, prev.ok, status, prev.result
-            )
-            return self._estimate
-        self._last_identified_at = n
-        t0 = time.perf_counter()
-        try:
-            res = identify(
-                self.nominal, self.pair_observations(), tool=self.tool0, settings=self.settings
-            )
-            reason = self._reject_reason(res)
-        except (ValueError, np.linalg.LinAlgError) as exc:
-            res, reason = None, f"identification failed: {exc}"
-        self.identify_seconds += time.perf_counter() - t0
-        if res is None or reason:
-            self._estimate = CalibrationEstimate(
-                prev.table, prev.tool, n, prev.identified, False, reason, prev.result
-            )
-        else:
-            self._estimate = CalibrationEstimate(
-                res.table, res.tool.copy(), n, True, True, f"identified from {n} poses", res
-            )
-        return self._estimate
-
-    def _reject_reason(self, res: IdentificationResult) -> str:
-        if not res.converged:
-            return "identification rejected: did not converge"
-        if not (np.isfinite(res.rms_after) and np.all(np.isfinite(res.table.params()))):
-            return "identification rejected: non-finite result"
-        if res.rms_after > self.max_fit_rms:
-            return (
-                f"identification rejected: RMS residual {res.rms_after * 1e3:.3f} mm exceeds "
-                f"{self.max_fit_rms * 1e3:.3f} mm (outlier measurement or unmodelled effect)"
-            )
-        if not res.condition_number <= self.max_condition:
-            return (
-                f"identification rejected: condition number {res.condition_number:.3g} above "
-                f"{self.max_condition:.3g} (poses too similar)"
-            )
-        for nm, dv in res.deltas.items():
-            is_length = nm.rstrip("0123456789") in ("d", "a") or nm in TOOL_PARAM_NAMES
-            lim = self.max_length_change if is_length else self.max_angle_change
-            if abs(dv) > lim:
-                return (
-                    f"identification rejected: {nm} moved {dv:+.4g} {'m' if is_length else 'rad'} "
-                    f"from nominal (limit {lim:g})"
-                )
-        return ""
-
-
 # =========================================================================== env
 class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     """Kinematic calibration campaign; see the module docstring for spaces and reward.
@@ -664,11 +246,13 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}  # noqa: RUF012 (gymnasium's name)
+    sensor_modes: tuple[SensorMode, ...] = (SensorMode.GEOMETRIC, SensorMode.FAST, SensorMode.IMAGE)
+    """Accepted ``sensor_mode`` values, fastest first."""
 
     def __init__(
         self,
         render_mode: str | None = None,
-        sensor_mode: str | CaptureMode = CaptureMode.GEOMETRIC,
+        sensor_mode: str | SensorMode = SensorMode.GEOMETRIC,
         params: ArmParams | None = None,
         reality: Reality | None = None,
         randomize_reality: bool = False,
@@ -689,14 +273,7 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     ):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        try:
-            self.sensor_mode = CaptureMode(sensor_mode)
-        except ValueError:
-            raise ValueError(
-                f"sensor_mode must be one of {[m.value for m in CaptureMode]}, got {sensor_mode!r}"
-            ) from None
-        if int(budget) != budget or budget < 1:
-            raise ValueError(f"budget must be a positive whole number of poses, got {budget!r}")
+        self.sensor_mode = check_sensor_mode(sensor_mode, self.sensor_modes)
         if int(n_validation) < 4:
             raise ValueError(f"n_validation must be >= 4, got {n_validation}")
         self.render_mode = render_mode
@@ -704,16 +281,23 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self.randomize_reality = bool(randomize_reality)
         self.reality = reality if reality is not None else default_arm_reality()
         self.true_params: ArmParams = self.reality.apply_params(self.params)
-        self.budget = int(budget)
         self.joint_center = _check_vec("joint_center", joint_center)
         self.joint_half_range = _check_vec("joint_half_range", joint_half_range)
         if np.any(self.joint_half_range <= 0):
             raise ValueError("joint_half_range must be positive (rad)")
         self.board = board or CodedBoard()
         self.placement = placement or BoardPlacement()
-        self.view = view or ViewConstraints()
         self.measurement_settings = measurement or BoardMeasurementSettings()
-        self.invalid_penalty = float(invalid_penalty)
+        self.task = ArmCalibTask(
+            params=self.params,
+            board=self.board,
+            placement=self.placement,
+            view=view or ViewConstraints(),
+            joint_center=self.joint_center,
+            joint_half_range=self.joint_half_range,
+            budget=budget,
+            weights=ArmCalibRewardWeights(invalid_pose=float(invalid_penalty)),
+        )
         self.tool0 = self.params.camera.T_flange_camera()[:3, 3].copy()
         self.estimator = estimator or MDHCalibrationEstimator(
             self.params.mdh,
@@ -725,7 +309,7 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         )
 
         self.world = World()
-        textured = self.sensor_mode is CaptureMode.IMAGE or render_mode == "rgb_array"
+        textured = self.sensor_mode is SensorMode.IMAGE or render_mode == "rgb_array"
         self.robot: ArmRobot
         self.camera: FlangeCamera
         self.robot, self.camera = build_arm_scene(
@@ -745,16 +329,11 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
         self._obs_low, self._obs_high = low, high
 
-        self.validation_q = self._draw_validation(int(n_validation), int(validation_seed))
+        self.task.validation_q = self.candidate_pool(int(n_validation), int(validation_seed))
         self._truth_cache: FloatArray | None = None
         self._nominal_param_vec = self.params.mdh.params()
         # episode state
-        self._attempts = 0
-        self._wasted = 0
-        self._last_outcome: AttemptOutcome | None = None
         self._q_enc = self.home.copy()
-        self._err = 0.0
-        self._err_nominal = 0.0
         self._capture_seconds = 0.0
         self._measure_seconds = 0.0
 
@@ -785,37 +364,24 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             np.float32
         )
 
+    @property
+    def budget(self) -> int:
+        """Attempts per campaign ``K``."""
+        return self.task.budget
+
+    @property
+    def validation_q(self) -> FloatArray:
+        """Joint commands (n_val, 6) of the validation poses (rad)."""
+        return self.task.validation_q
+
     def candidate_pool(self, n: int, seed: int, max_draws: int = 200_000) -> FloatArray:
         """``n`` joint commands (n, 6) inside the action box that the nominal model
-        expects to see the board well (:class:`ViewConstraints`) and that do not collide.
+        expects to see the board well (:class:`.ViewConstraints`) and that do not collide.
 
-        Drawn uniformly with ``numpy.random.default_rng(seed)``.
+        Drawn uniformly with ``numpy.random.default_rng(seed)``
+        (:meth:`.ArmCalibTask.candidate_pool`).
         """
-        rng = np.random.default_rng(seed)
-        out: list[FloatArray] = []
-        drawn = 0
-        while len(out) < n and drawn < max_draws:
-            k = max(64, 4 * (n - len(out)))
-            q = self.joint_center + self.joint_half_range * rng.uniform(-1.0, 1.0, (k, 6))
-            drawn += k
-            ok = nominal_view_ok(self.params, self.board, self.placement, q, self.view)
-            ok &= np.all(q >= self.params.joint_lower, axis=1) & np.all(
-                q <= self.params.joint_upper, axis=1
-            )
-            for qq in q[ok]:
-                if not self.robot.collides_at(qq):
-                    out.append(qq)
-                    if len(out) == n:
-                        break
-        if len(out) < n:
-            raise ValueError(
-                f"found only {len(out)} of {n} feasible poses in {drawn} draws; widen the action "
-                "box or relax the view constraints"
-            )
-        return np.array(out)
-
-    def _draw_validation(self, n: int, seed: int) -> FloatArray:
-        return self.candidate_pool(n, seed)
+        return self.task.candidate_pool(n, seed, self.robot.collides_at, max_draws)
 
     def _true_validation_points(self) -> FloatArray:
         """True camera points (n_val, 3) in the world at the validation readings (cached)."""
@@ -830,8 +396,7 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     def validation_errors(self, table: MDHTable, tool: npt.ArrayLike) -> FloatArray:
         """Positioning errors (n_val,) (m) of a model on the validation poses (after the best
         rigid registration)."""
-        p_model = tool_positions(table, self.validation_q, np.asarray(tool, dtype=float))
-        return registered_position_errors(p_model, self._true_validation_points())
+        return self.task.validation_errors(table, tool, self._true_validation_points())
 
     # ------------------------------------------------------------------ gym API
     def reset(
@@ -847,15 +412,11 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self.robot.reset(self.home)
         self._q_enc = self.robot.read_encoders(rng)
         self.estimator.reset()
-        self._attempts = 0
-        self._wasted = 0
-        self._last_outcome = None
         self._capture_seconds = 0.0
         self._measure_seconds = 0.0
         est = self.estimator.estimate
         errs = self.validation_errors(est.table, est.tool)
-        self._err = float(np.sqrt(np.mean(errs**2)))
-        self._err_nominal = self._err
+        self.task.reset(errs)
         info = self._info(est, errs, {}, "", None)
         return self._observation(est), info
 
@@ -867,39 +428,23 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             raise ValueError(f"action must be finite, got {a.tolist()}")
         if a.shape != (6,):
             raise ValueError(f"action must have shape (6,), got {np.shape(action)}")
-        if self._attempts >= self.budget:
-            raise RuntimeError("the campaign's budget is spent; call reset()")
         rng = self.np_random
         q_cmd = self.q_from_action(a)
-        self._attempts += 1
+        last = self.task.begin_attempt()
         outcome, message, board_status, measurement = self._attempt(q_cmd, rng)
-        last = self._attempts >= self.budget
         est = self.estimator.update(measurement, force=last)
-        self._last_outcome = outcome
-        if outcome is not AttemptOutcome.OK:
-            self._wasted += 1
         errs = self.validation_errors(est.table, est.tool)
-        err = float(np.sqrt(np.mean(errs**2)))
-        terms = {
-            "error_drop": 1e3 * (self._err - err),
-            "invalid_pose": -self.invalid_penalty if outcome is not AttemptOutcome.OK else 0.0,
-        }
-        self._err = err
-        reward = float(sum(terms.values()))
+        reward, terms = self.task.end_attempt(outcome, errs)
         info = self._info(est, errs, terms, message, board_status)
         info["outcome"] = outcome.value
-        return self._observation(est), reward, last, False, info
+        return self._observation(est), reward, self.task.is_terminated(), False, info
 
     def render(self) -> npt.NDArray[np.uint8] | None:
         if self.render_mode != "rgb_array":
             return None
-        import pybullet as p
-
-        c = self.world.bullet
-        view = c.computeViewMatrix([0.6, 1.2, 1.1], [-0.45, 0.0, 0.1], [0, 0, 1])
-        proj = c.computeProjectionMatrixFOV(55, 4 / 3, 0.05, 6)
-        _, _, rgba, _, _ = c.getCameraImage(320, 240, view, proj, renderer=p.ER_TINY_RENDERER)
-        return np.asarray(rgba, dtype=np.uint8).reshape(240, 320, 4)[..., :3].copy()
+        return self.world.render_rgb(
+            [0.6, 1.2, 1.1], [-0.45, 0.0, 0.1], fov_deg=55.0, near=0.05, far=6.0
+        )
 
     def close(self) -> None:
         self.world.close()
@@ -908,9 +453,7 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     def _rebuild(self, reality: Reality) -> None:
         self.reality = reality
         self.true_params = reality.apply_params(self.params)
-        c = self.world.bullet
-        c.removeBody(self.robot.body)
-        self.world.bodies.pop("arm", None)
+        self.robot.remove()
         self.robot = ArmRobot(self.world, self.true_params)
         self.camera = FlangeCamera(self.robot, self.board, self.placement)
         self._truth_cache = None
@@ -934,7 +477,7 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             )
         t0 = time.perf_counter()
         cp = self.params.camera  # the pipeline measures with the nominal intrinsics
-        if self.sensor_mode is CaptureMode.GEOMETRIC:
+        if self.sensor_mode is SensorMode.GEOMETRIC:
             uv, ids = self.camera.visible_corners(rng)
             t1 = time.perf_counter()
             obs = observation_from_corners(
@@ -969,11 +512,12 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             obs[67] = len(est.result.free_params) / N_PARAMS
             obs[71] = 1e3 * est.result.rms_after
         obs[68] = est.n_poses / self.budget
-        obs[69] = (self.budget - self._attempts) / self.budget
-        obs[70] = self._wasted / self.budget
+        obs[69] = (self.budget - self.task.attempts) / self.budget
+        obs[70] = self.task.wasted / self.budget
         obs[72:78] = (self._q_enc - self.joint_center) / self.joint_half_range
-        if self._last_outcome is not None:
-            obs[78 + _OUTCOMES.index(self._last_outcome.value)] = 1.0
+        last = self.task.last_outcome
+        if last is not None:
+            obs[78 + _OUTCOMES.index(last.value)] = 1.0
         out = obs.astype(np.float32)
         np.clip(out, self._obs_low, self._obs_high, out=out)
         return out
@@ -997,15 +541,15 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             "estimate_ok": est.ok,
             "estimate_status": est.status,
             "poses_used": est.n_poses,
-            "attempts": self._attempts,
+            "attempts": self.task.attempts,
             "validation_rms_mm": 1e3 * float(np.sqrt(np.mean(errs**2))),
             "validation_max_mm": 1e3 * float(np.max(errs)),
-            "nominal_validation_rms_mm": 1e3 * self._err_nominal,
+            "nominal_validation_rms_mm": 1e3 * self.task.error_nominal,
             "free_params": res.free_params if res is not None else (),
             "condition_number": res.condition_number if res is not None else None,
             "fit_rms_mm": 1e3 * res.rms_after if res is not None else None,
             "reward_terms": dict(terms),
-            "is_success": bool(errs.size and 1e3 * np.sqrt(np.mean(errs**2)) <= 0.1),
+            "is_success": self.task.is_success(errs),
         }
 
 

@@ -45,7 +45,9 @@ non-finite estimate (replaced by the last finite one, ``info["estimate_ok"] = Fa
 
 Reward — named sum (``info["reward_terms"]``): progress towards the goal (true
 distance), a time cost, an effort cost, a detachment penalty and a success bonus
-(within ``success_tol`` m).
+(within ``success_tol`` m), weighted by :class:`.WallClimbRewardWeights`. Start and goal
+sampling, reward, success and termination live in :class:`.WallClimbTask`; the env
+composes the robot, the task and the observation pipeline.
 """
 
 from __future__ import annotations
@@ -62,6 +64,7 @@ from gymnasium import spaces
 
 from realitygap.core.geometry import quat_xyzw_from_matrix, so3_exp
 from realitygap.envs.common import check_twist_action
+from realitygap.envs.tasks.wall_climb import WallClimbRewardWeights, WallClimbTask
 from realitygap.estimators.climb import (
     ClimbEstimate,
     ClimbLocaliser,
@@ -78,17 +81,15 @@ from realitygap.estimators.climb import (
 )
 from realitygap.robots.climber import (
     BodyState,
-    CameraMode,
-    CameraModel,
     ClimberParams,
     ClimberRobot,
     ClimbFaults,
     ClimbWorld,
-    ImuModel,
-    TetherModel,
     chart_pose,
 )
+from realitygap.robots.climber_sensors import CameraModel, ImuModel, TetherModel
 from realitygap.robots.effects import Reality
+from realitygap.robots.sensors import SensorMode, check_sensor_mode
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -231,6 +232,8 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         Hz; the ratio must be even (IMU at half the physics rate by default).
     detach_margin
         Height above the rolling height beyond which the robot counts as detached, m.
+    reward_weights
+        Weights of the reward terms (:class:`.WallClimbRewardWeights` defaults when ``None``).
     vio_config
         VIO settings; default: the robot's noise and camera mount with a 5-keyframe
         window and 3 solver iterations (the cost of RL rollouts is dominated by the
@@ -238,11 +241,13 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}  # noqa: RUF012 (gymnasium's name)
+    sensor_modes: tuple[SensorMode, ...] = (SensorMode.FAST, SensorMode.IMAGE)
+    """Accepted ``sensor_mode`` values, fastest first."""
 
     def __init__(
         self,
         render_mode: str | None = None,
-        sensor_mode: str | CameraMode = CameraMode.FAST,
+        sensor_mode: str | SensorMode = SensorMode.FAST,
         estimator: str | Any = "docked",
         params: ClimberParams | None = None,
         reality: Reality | None = None,
@@ -254,15 +259,11 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         control_hz: float = 20.0,
         detach_margin: float = 0.03,
         vio_config: VioConfig | None = None,
+        reward_weights: WallClimbRewardWeights | None = None,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        try:
-            self.sensor_mode = CameraMode(sensor_mode)
-        except ValueError:
-            raise ValueError(
-                f"sensor_mode must be 'fast' or 'image', got {sensor_mode!r}"
-            ) from None
+        self.sensor_mode = check_sensor_mode(sensor_mode, self.sensor_modes)
         ratio = physics_hz / control_hz
         if control_hz <= 0 or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
             raise ValueError(
@@ -275,10 +276,14 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self.reality = reality if reality is not None else Reality()
         self.true_params: ClimberParams = self.reality.apply_params(self.params)
         self.faults = faults if faults is not None else ClimbFaults()
-        self.fixed_start = None if start is None else np.asarray(start, dtype=float)
-        self.fixed_goal = None if goal is None else np.asarray(goal, dtype=float)
-        self.success_tol = float(success_tol)
-        self.detach_margin = float(detach_margin)
+        self.task = WallClimbTask(
+            blade_length=self.params.blade.length,
+            start=start,
+            goal=goal,
+            success_tol=success_tol,
+            detach_margin=detach_margin,
+            weights=reward_weights if reward_weights is not None else WallClimbRewardWeights(),
+        )
         imu_every = physics_hz / self.params.imu_rate
         if abs(imu_every - round(imu_every)) > 1e-9:
             raise ValueError(
@@ -293,7 +298,7 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             )
         self._cam_every = int(round(cam_every))
 
-        textured = self.sensor_mode is CameraMode.IMAGE or render_mode == "rgb_array"
+        textured = self.sensor_mode is SensorMode.IMAGE or render_mode == "rgb_array"
         self.scene = ClimbWorld(
             self.true_params,
             physics_hz=physics_hz,
@@ -331,7 +336,6 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._state: BodyState | None = None
         self._tether_len = 0.0
         self._visual_ok = True
-        self._prev_dist = 0.0
         self._flags: dict[str, int] = {}
         self._closed = False
 
@@ -400,19 +404,7 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         if unknown:
             raise ValueError(f"unknown reset option(s) {sorted(unknown)}; expected 'start', 'goal'")
         rng = self.np_random
-        start = options.get("start", self.fixed_start)
-        goal = options.get("goal", self.fixed_goal)
-        if start is None:
-            start = np.array(
-                [rng.uniform(1.5, 6.0), rng.uniform(0.2, 0.55), rng.uniform(-np.pi, np.pi)]
-            )
-        start = self._check_chart("start", start, allow_heading=True)
-        if goal is None:
-            for _ in range(50):
-                goal = np.array([rng.uniform(1.0, 7.0), rng.uniform(0.15, 0.6)])
-                if 0.5 < abs(goal[0] - start[0]) + abs(goal[1] - start[1]) < 2.5:
-                    break
-        goal = self._check_chart("goal", goal, allow_heading=False)
+        start, goal = self.task.sample_start_goal(rng, options)
         tp = self.true_params
         surf = self.scene.surface
         heading = float(start[2]) if len(start) == 3 else 0.0
@@ -420,7 +412,7 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._goal = chart_pose(surf, tp, float(goal[0]), float(goal[1]), 0.0, 0.0)[0]
         # a fresh body each episode: no contact manifolds or solver warm starts carried
         # over from the previous episode, so a seeded episode is exactly repeatable
-        self.scene.world.bullet.removeBody(self.robot.body)
+        self.robot.remove()
         self.robot = ClimberRobot(self.scene, tp)
         self.robot.reset(pos, R)
         self.robot.adsorption_scale = 1.0
@@ -462,7 +454,7 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
                 est = self.estimator.update(m)
         self._camera.capture(self._state, tp.h_true)
         self._set_estimate(est)
-        self._prev_dist = self._true_distance()
+        self.task.reset(self._true_distance())
         info = self._info({}, detached=False, success=False)
         return self._observation(), info
 
@@ -482,30 +474,31 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         for m in measurements:
             self._set_estimate(self.estimator.update(m))
         self._steps += 1
-        height = self.robot.last_height
-        detached = not (-0.02 < height < self.true_params.h_true + self.detach_margin)
+        task = self.task
+        detached = task.is_detached(self.robot.last_height, self.true_params.h_true)
         dist = self._true_distance()
-        success = dist < self.success_tol and not detached
-        reward, terms = self._get_rew(dist, (a0, a1), detached, success)
+        success = task.is_success(dist, detached)
+        reward, terms = task.get_reward(dist, (a0, a1), detached, success)
         obs = self._observation()
-        return obs, reward, bool(detached or success), False, self._info(terms, detached, success)
+        terminated = bool(task.is_terminated(detached, success))
+        return obs, reward, terminated, False, self._info(terms, detached, success)
 
     def _simulate(self) -> list[Any]:
         """One control period of physics; returns the measurements in time order."""
         w = self.scene.world
-        c = w.bullet
         out: list[Any] = []
         dtp = w.physics_dt
         t0 = time_start = self._t
-        step_simulation, apply_adsorption = c.stepSimulation, self.robot.apply_adsorption
-        for k in range(w.n_substeps):
-            apply_adsorption()
-            step_simulation()
-            if (k + 1) % self._imu_every == 0:
-                t = time_start + (k + 1) * dtp
-                s = self.robot.state(t)
-                out.append(self._imu.sample(self._state_prev_imu, s))
-                self._state_prev_imu = s
+        apply_adsorption = self.robot.apply_adsorption
+        done = 0
+        for k in range(self._imu_every - 1, w.n_substeps, self._imu_every):
+            w.step(k + 1 - done, before_each=apply_adsorption)
+            done = k + 1
+            t = time_start + (k + 1) * dtp
+            s = self.robot.state(t)
+            out.append(self._imu.sample(self._state_prev_imu, s))
+            self._state_prev_imu = s
+        w.step(w.n_substeps - done, before_each=apply_adsorption)
         self._t = t0 + w.n_substeps * dtp
         self._state = self._state_prev_imu
         if (self._steps + 1) % self._cam_every == 0:
@@ -524,16 +517,10 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     def render(self) -> npt.NDArray[np.uint8] | None:
         if self.render_mode != "rgb_array" or self._state is None:
             return None
-        import pybullet as p
-
-        c = self.scene.world.bullet
         pos = self._state.position
         n = self._state.R[:, 2]
         eye = pos + 1.2 * n + np.array([0.0, 0.0, 0.4])
-        view = c.computeViewMatrix(eye.tolist(), pos.tolist(), [0, 0, 1])
-        proj = c.computeProjectionMatrixFOV(60, 4 / 3, 0.05, 20)
-        _, _, rgba, _, _ = c.getCameraImage(320, 240, view, proj, renderer=p.ER_TINY_RENDERER)
-        return np.asarray(rgba, dtype=np.uint8).reshape(240, 320, 4)[..., :3].copy()
+        return self.scene.world.render_rgb(eye, pos, fov_deg=60.0, near=0.05, far=20.0)
 
     def close(self) -> None:
         self.scene.close()
@@ -541,22 +528,6 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._closed = True
 
     # ------------------------------------------------------------------ internals
-    def _check_chart(self, name: str, value: Any, *, allow_heading: bool) -> FloatArray:
-        arr = np.asarray(value, dtype=float).reshape(-1)
-        sizes = (2, 3) if allow_heading else (2,)
-        if arr.shape[0] not in sizes or not np.all(np.isfinite(arr)):
-            raise ValueError(
-                f"{name} must be {' or '.join(str(s) for s in sizes)} finite numbers (x [m], ξ"
-                f"{', heading [rad]' if allow_heading else ''}), got {value!r}"
-            )
-        L = self.params.blade.length
-        if not (0.3 < arr[0] < L - 0.3 and 0.05 <= arr[1] <= 0.9):
-            raise ValueError(
-                f"{name} ({arr[0]:.3g}, {arr[1]:.3g}) must lie on the suction side: "
-                f"0.3 < x < {L - 0.3} m, 0.05 ≤ ξ ≤ 0.9"
-            )
-        return arr
-
     def _set_estimate(self, est: ClimbEstimate) -> None:
         # a sum of finite numbers is finite (positions in m, unit quaternion)
         finite = math.isfinite(float(np.sum(est.position) + np.sum(est.quat_xyzw)))
@@ -595,19 +566,6 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         out = obs.astype(np.float32)
         np.clip(out, self._obs_low, self._obs_high, out=out)
         return out
-
-    def _get_rew(
-        self, dist: float, action: tuple[float, float], detached: bool, success: bool
-    ) -> tuple[float, dict[str, float]]:
-        terms = {
-            "progress": 5.0 * (self._prev_dist - dist),
-            "time": -0.01,
-            "effort": -0.002 * (action[0] ** 2 + action[1] ** 2),
-            "detach": -5.0 if detached else 0.0,
-            "success": 5.0 if success else 0.0,
-        }
-        self._prev_dist = dist
-        return float(sum(terms.values())), terms
 
     def _info(self, terms: dict[str, float], detached: bool, success: bool) -> dict[str, Any]:
         est, s = self._estimate, self._state

@@ -29,12 +29,13 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
+
+from realitygap.core.io import atomic_write_text
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -612,18 +613,6 @@ def write_obj(
             lines.append("usemtl blade")
         lines.extend(f"f {a} {b} {c}" for a, b, c in fc + 1)
     if mtl_text is not None:
-        _atomic_write(path.with_suffix(".mtl"), mtl_text)
-    _atomic_write(path, "\n".join(lines) + "\n")
+        atomic_write_text(path.with_suffix(".mtl"), mtl_text, encoding="ascii")
+    atomic_write_text(path, "\n".join(lines) + "\n", encoding="ascii")
     return path
-
-
-def _atomic_write(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="ascii") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise

@@ -20,16 +20,14 @@ import numpy.typing as npt
 
 from realitygap.robots.climb_synthetic import ClimbRecording
 from realitygap.robots.climber import (
-    CameraMode,
-    CameraModel,
     ClimberParams,
     ClimberRobot,
     ClimbFaults,
     ClimbWorld,
-    ImuModel,
-    TetherModel,
     chart_pose,
 )
+from realitygap.robots.climber_sensors import CameraModel, ImuModel, TetherModel
+from realitygap.robots.sensors import SensorMode
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -114,7 +112,7 @@ def record_climb_run(
         fl = faults or ClimbFaults()
         imu = ImuModel(params, rng)
         tether = TetherModel(params, rng, fl)
-        cam = CameraModel(robot, params, CameraMode.FAST, rng, fl)
+        cam = CameraModel(robot, params, SensorMode.FAST, rng, fl)
         world = sc.world
         c = world.bullet
         dtp = world.physics_dt

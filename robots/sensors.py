@@ -28,10 +28,29 @@ FloatArray = npt.NDArray[np.float64]
 
 
 class SensorMode(str, Enum):
-    """Sensor fidelity: rendered images or fast geometry."""
+    """Sensor fidelity of every robot: rendered images or fast geometry.
+
+    The same estimators run downstream of every mode; the modes differ in how the
+    sensors form their output.
+    """
 
     IMAGE = "image"
+    """PyBullet TinyRenderer frames, processed as a real camera's would be."""
     FAST = "fast"
+    """No PyBullet rendering: the wheeled robot's scan is ray-cast in numpy, the
+    climber's camera reports its motion from the true motion with noise, the arm's
+    flange camera draws the board alone from the true camera pose."""
+    GEOMETRIC = "geometric"
+    """No image at all: the arm's flange camera reports the board corners a detector
+    would find (pixel positions with noise and their board ids)."""
+
+
+def check_sensor_mode(value: str | SensorMode, accepted: tuple[SensorMode, ...]) -> SensorMode:
+    """``value`` as a :class:`SensorMode`, or a ``ValueError`` naming the ``accepted`` modes."""
+    for mode in accepted:
+        if mode == value:
+            return mode
+    raise ValueError(f"sensor_mode must be one of {[m.value for m in accepted]}, got {value!r}")
 
 
 def depth_sigma(z: npt.ArrayLike, params: RGBDCameraParams) -> FloatArray:

@@ -16,7 +16,7 @@ import shutil
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from enum import Enum
 
@@ -189,6 +189,11 @@ def _quiet_c_stdout() -> Iterator[None]:
         os.close(devnull)
 
 
+def physics_engine_version() -> str:
+    """The PyBullet API version, for cache keys of results computed with the physics."""
+    return str(p.getAPIVersion())
+
+
 class World:
     """One PyBullet simulation with static scenery.
 
@@ -241,10 +246,16 @@ class World:
             raise RuntimeError("this World is closed; create a new one")
         return self.client
 
-    def step(self, n_physics_steps: int | None = None) -> None:
+    def step(
+        self,
+        n_physics_steps: int | None = None,
+        before_each: Callable[[], object] | None = None,
+    ) -> None:
         """Advance one control period (``n_substeps`` physics steps), or ``n_physics_steps``.
 
-        The wall-clock time spent inside ``stepSimulation`` is added to
+        ``before_each``, when given, is called before every physics step (forces that
+        the engine does not keep from one step to the next, such as adsorption).
+        The wall-clock time spent inside the loop is added to
         :attr:`physics_seconds`, so benchmarks can compare an env step with the
         raw physics it wraps.
         """
@@ -253,9 +264,21 @@ class World:
             raise ValueError(f"n_physics_steps must be >= 0, got {n_physics_steps!r}")
         step = self._step_simulation
         t0 = time.perf_counter()
-        for _ in range(n):
-            step()
+        if before_each is None:
+            for _ in range(n):
+                step()
+        else:
+            for _ in range(n):
+                before_each()
+                step()
         self.physics_seconds += time.perf_counter() - t0
+
+    def set_file_caching(self, enabled: bool) -> None:
+        """Whether PyBullet reuses a mesh loaded earlier from the same file name (default on).
+
+        Turn it off when bodies of different shapes are written to one file name in turn.
+        """
+        self.bullet.setPhysicsEngineParameter(enableFileCaching=int(bool(enabled)))
 
     def remove_body(self, name: str) -> None:
         """Remove the body registered under ``name`` (see :attr:`bodies`) from the simulation."""

@@ -14,7 +14,8 @@ from realitygap.diagnosis.climb_adapter import (
 )
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.log import Log, LogError
-from realitygap.robots.climber import ClimberParams, ClimbFaults, TetherModel
+from realitygap.robots.climber import ClimberParams, ClimbFaults
+from realitygap.robots.climber_sensors import TetherModel
 from realitygap.robots.effects import Reality, make_effect
 
 

@@ -10,9 +10,8 @@ import numpy as np
 import pytest
 
 import realitygap  # noqa: F401  (registers the ids)
-from realitygap.envs.arm_calib import (
-    N_OBS,
-    ArmCalibEnv,
+from realitygap.envs.arm_calib import N_OBS, ArmCalibEnv
+from realitygap.envs.arm_calib_pipeline import (
     ArmPoseMeasurement,
     MDHCalibrationEstimator,
     observation_from_corners,

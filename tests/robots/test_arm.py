@@ -11,14 +11,13 @@ from realitygap.estimators.arm.coded_board import CodedBoard
 from realitygap.estimators.arm.mdh import MDHTable, joint_frames
 from realitygap.robots.arm import (
     ArmParams,
-    BoardPlacement,
-    CaptureMode,
     FlangeCameraParams,
     MoveOutcome,
-    build_arm_scene,
     urdf_from_arm_params,
 )
+from realitygap.robots.arm_cell import BoardPlacement, build_arm_scene
 from realitygap.robots.effects import EFFECTS, Reality, make_effect
+from realitygap.robots.sensors import SensorMode
 from realitygap.robots.world import World
 
 HOME = np.array([0.0, -1.3, 1.6, -1.87, -1.57, 0.0])
@@ -119,7 +118,7 @@ def test_geometric_capture_reports_the_projected_corners() -> None:
         K = cam.params.K
         np.testing.assert_allclose(Xc[:, :2] / Xc[:, 2:] @ K[:2, :2].T + K[:2, 2], uv, atol=1e-6)
         with pytest.raises(ValueError, match="visible_corners"):
-            cam.capture(CaptureMode.GEOMETRIC, np.random.default_rng(0))
+            cam.capture(SensorMode.GEOMETRIC, np.random.default_rng(0))
     finally:
         w.close()
 

@@ -11,10 +11,9 @@ from realitygap.robots.climber import (
     ClimberRobot,
     ClimbFaults,
     ClimbWorld,
-    ImuModel,
-    TetherModel,
     chart_pose,
 )
+from realitygap.robots.climber_sensors import ImuModel, TetherModel
 from realitygap.robots.effects import Reality, make_effect
 
 
