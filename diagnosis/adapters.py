@@ -21,8 +21,8 @@ adapters. A new robot is
    ``channels``, ``schema`` and ``surrogate_effects``, keeps what it needs about
    a prepared log in a :class:`LogContext` subclass and implements ``check``,
    ``prepare``, ``replay_features``, ``log_features``, ``surrogate_features``,
-   ``probe_manoeuvres``, ``probe_features``, ``hidden_effects`` and
-   ``record_blind_logs``,
+   ``probe_manoeuvres``, ``probe_features`` and ``record_blind_logs`` (the
+   blind-test ranges come from the effect classes themselves),
 3. one line in :data:`ADAPTER_CLASSES`.
 
 The adapters are :class:`~realitygap.diagnosis.diffdrive_adapter.DiffDriveAdapter`,
