@@ -8,7 +8,6 @@ generator, :math:`\\frac{d}{d\\theta} R(\\theta) = S R(\\theta)`.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -16,13 +15,7 @@ import numpy.typing as npt
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["SKEW_2D", "all_finite", "joseph_update", "rotation_2d"]
-
-
-def rotation_2d(theta: float) -> FloatArray:
-    """2×2 rotation matrix of the angle ``theta`` (rad)."""
-    c, s = math.cos(theta), math.sin(theta)
-    return np.array([[c, -s], [s, c]])
+__all__ = ["SKEW_2D", "all_finite", "joseph_update"]
 
 
 #: Generator of planar rotations: d R(θ)/dθ = S R(θ).

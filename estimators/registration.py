@@ -27,7 +27,6 @@ __all__ = [
     "check_points",
     "check_transform",
     "icp_point_to_point",
-    "inverse_transform",
     "kabsch_umeyama",
     "ransac_rigid",
     "rotation_angle",
@@ -91,14 +90,6 @@ def check_transform(name: str, value: npt.ArrayLike, atol: float = 1e-6) -> Floa
         raise ValueError(f"{name} must have last row [0, 0, 0, 1], got {T[3]!r}")
     _check_rotation(f"{name}[:3, :3]", T[:3, :3], atol=atol)
     return T
-
-
-def inverse_transform(T: FloatArray) -> FloatArray:
-    """Inverse of a 4×4 rigid transform, ``[[Rᵀ, −Rᵀt], [0, 1]]``."""
-    inv = np.eye(4)
-    inv[:3, :3] = T[:3, :3].T
-    inv[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return inv
 
 
 def rotation_angle(R: FloatArray) -> float:

@@ -33,14 +33,13 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.core.geometry import transform_from_rt
+from realitygap.core.geometry import transform_from_rt, transform_inverse
 from realitygap.estimators.base import CameraIntrinsics, Estimate, RGBDFrame
 from realitygap.estimators.gtm import gtm_filter
 from realitygap.estimators.registration import (
     RegistrationError,
     check_transform,
     icp_point_to_point,
-    inverse_transform,
     ransac_rigid,
     rotation_angle,
 )
@@ -340,7 +339,7 @@ def planar_motion_from_camera(
         if T_base_camera is None
         else check_transform("T_base_camera", T_base_camera)
     )
-    T_bb = T_bc @ T_cc @ inverse_transform(T_bc)
+    T_bb = T_bc @ T_cc @ transform_inverse(T_bc)
     return float(T_bb[0, 3]), float(T_bb[1, 3]), float(np.arctan2(T_bb[1, 0], T_bb[0, 0]))
 
 
@@ -383,7 +382,7 @@ class RGBDVisualOdometry:
             if T_base_camera is None
             else check_transform("T_base_camera", T_base_camera)
         )
-        self._T_camera_base = inverse_transform(self.T_base_camera)
+        self._T_camera_base = transform_inverse(self.T_base_camera)
         p = self.params
         self._detector: cv2.Feature2D
         if p.detector == Detector.SIFT:

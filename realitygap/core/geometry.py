@@ -59,6 +59,12 @@ def yaw_from_quat_xyzw(quat_xyzw: npt.ArrayLike) -> float:
     return float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
 
 
+def rotation_2d(theta: float) -> FloatArray:
+    """2×2 rotation matrix of the angle ``theta`` (rad)."""
+    c, s = math.cos(theta), math.sin(theta)
+    return np.array([[c, -s], [s, c]])
+
+
 def rot_z(angle: float) -> FloatArray:
     """3×3 rotation about z by ``angle`` rad."""
     c, s = np.cos(angle), np.sin(angle)

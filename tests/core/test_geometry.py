@@ -4,12 +4,20 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
+from realitygap.core import geometry
 from realitygap.core.geometry import (
     hat,
     hat_batch,
+    matrix_from_quat_xyzw,
+    quat_xyzw_from_matrix,
+    right_jacobian,
+    right_jacobian_inv,
     rot_z,
+    rotation_2d,
     so3_exp,
+    so3_log,
     transform_from_rt,
     transform_inverse,
 )
@@ -68,3 +76,55 @@ def test_hat_is_the_cross_product_and_hat_batch_stacks_it(seed: int) -> None:
         np.testing.assert_allclose(hat(v[k]) @ b, np.cross(v[k], b), atol=1e-15)
         np.testing.assert_array_equal(hat(v[k]), -hat(v[k]).T)
     np.testing.assert_array_equal(hat_batch(v), np.stack([hat(x) for x in v]))
+
+
+# ------------------------------------------------------------------ SO(3)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_so3_exp_log_and_jacobians(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    for phi in [
+        rng.normal(size=3),
+        1e-9 * rng.normal(size=3),
+        (np.pi - 1e-4) * np.array([0.6, 0.0, 0.8]),
+    ]:
+        R = so3_exp(phi)
+        np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+        np.testing.assert_allclose(R, Rotation.from_rotvec(phi).as_matrix(), atol=1e-12)
+        np.testing.assert_allclose(so3_log(R), phi, atol=1e-8)
+        np.testing.assert_allclose(
+            right_jacobian_inv(phi) @ right_jacobian(phi), np.eye(3), atol=1e-9
+        )
+    phi = rng.normal(size=3)
+    delta = 1e-6 * rng.normal(size=3)
+    lhs = so3_exp(phi + delta)
+    rhs = so3_exp(phi) @ so3_exp(right_jacobian(phi) @ delta)
+    np.testing.assert_allclose(lhs, rhs, atol=1e-11)
+    a, b = rng.normal(size=3), rng.normal(size=3)
+    np.testing.assert_allclose(hat(a) @ b, np.cross(a, b))
+    q = quat_xyzw_from_matrix(so3_exp(phi))
+    assert q[3] >= 0
+    np.testing.assert_allclose(matrix_from_quat_xyzw(q), so3_exp(phi), atol=1e-12)
+
+
+def test_batched_so3_maps_match_the_scalar_ones() -> None:
+    rng = np.random.default_rng(5)
+    phi = np.vstack([rng.normal(0, s, (4, 3)) for s in (1e-9, 1e-5, 1e-2, 1.0)])
+    phi = np.vstack([phi, [[0.0, 0.0, 3.1]]])  # near π: the scalar log's branch
+    R = geometry.so3_exp_batch(phi)
+    for k, v in enumerate(phi):
+        np.testing.assert_allclose(R[k], so3_exp(v), atol=1e-14)
+        np.testing.assert_allclose(geometry.so3_log_batch(R)[k], so3_log(so3_exp(v)), atol=1e-10)
+        np.testing.assert_allclose(
+            geometry.right_jacobian_batch(phi)[k], right_jacobian(v), atol=1e-12
+        )
+        np.testing.assert_allclose(
+            geometry.right_jacobian_inv_batch(phi)[k], right_jacobian_inv(v), atol=1e-9
+        )
+
+
+@pytest.mark.parametrize("theta", [0.0, 0.3, -2.0, np.pi])
+def test_rotation_2d_is_the_upper_block_of_rot_z(theta: float) -> None:
+    np.testing.assert_allclose(rotation_2d(theta), rot_z(theta)[:2, :2], atol=1e-15)
+    np.testing.assert_allclose(rotation_2d(theta) @ rotation_2d(-theta), np.eye(2), atol=1e-15)
