@@ -25,8 +25,6 @@ if TYPE_CHECKING:
     from realitygap.robots.effects import Reality
 
 FloatArray = npt.NDArray[np.float64]
-CommandHook = Callable[[float, float, float], tuple[float, float]]
-TicksHook = Callable[[float, float], tuple[float, float]]
 
 
 @dataclass(frozen=True)
@@ -263,8 +261,8 @@ class DiffDriveRobot:
         self.control_dt = world.dt
         self.command = np.zeros(2)
         self._reality: Reality | None = None
-        self._command_hooks: list[CommandHook] = []
-        self._ticks_hooks: list[TicksHook] = []
+        self._command_hooks: list[Callable[[float, float, float], tuple[float, float]]] = []
+        self._ticks_hooks: list[Callable[[float, float], tuple[float, float]]] = []
         self._body_z = (
             max(params.wheel_radius_left, params.wheel_radius_right) + 0.01 + params.body_height / 2
         )
