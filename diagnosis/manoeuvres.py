@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.robots.diffdrive import DiffDriveParams
+from realitygap.robots.diffdrive import DiffDriveParams, FirmwareLimits
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -65,10 +65,9 @@ class Manoeuvre:
             return t, cmd
         out = np.empty_like(cmd)
         v = w = 0.0
-        dv, dw = params.a_max * dt, params.alpha_max * dt
+        firmware = FirmwareLimits(a_max=params.a_max, alpha_max=params.alpha_max)
         for k in range(cmd.shape[0]):
-            v += min(dv, max(-dv, cmd[k, 0] - v))
-            w += min(dw, max(-dw, cmd[k, 1] - w))
+            v, w = firmware.limit(float(cmd[k, 0]), float(cmd[k, 1]), v, w, dt)
             out[k] = v, w
         return t, out
 

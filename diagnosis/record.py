@@ -127,7 +127,7 @@ class RecordLog(gym.Wrapper):
     def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)
         base = self.env.unwrapped
-        applied = np.array(getattr(base, "_cmd", np.zeros(2)), dtype=float)
+        applied = np.array(base.robot.command, dtype=float)
         self._append(info, command=applied)
         return obs, reward, terminated, truncated, info
 

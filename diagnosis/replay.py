@@ -1,9 +1,10 @@
 r"""Replay a differential-drive log in PyBullet: the nominal (or nominal + effects) robot.
 
-:func:`simulate` drives the simulated body exactly as
-:class:`~realitygap.envs.wheeled_nav.WheeledNavEnv` does — command hooks of the
-effects, then the firmware's inverse kinematics with the *nominal* geometry,
-then the wheel velocity motors — from a given start pose, and records the
+:func:`simulate` drives the simulated body through the same firmware as
+:class:`~realitygap.envs.wheeled_nav.WheeledNavEnv`
+(:meth:`~realitygap.robots.diffdrive.DiffDriveRobot.command_twist`: command
+hooks of the effects, then the inverse kinematics with the *nominal* geometry,
+then the wheel velocity motors) from a given start pose, and records the
 standard channels (see :mod:`realitygap.diagnosis.log`). :func:`replay` does
 it for a logged episode: the logged commands (or, with ``drive="ticks"``, the
 logged wheel rotation) from the logged initial pose, producing the same
@@ -29,7 +30,12 @@ import numpy.typing as npt
 
 from realitygap.diagnosis.log import Log, LogError
 from realitygap.estimators.diffdrive_model import DiffDriveKinematics
-from realitygap.robots.diffdrive import DiffDriveParams, DiffDriveRobot, RGBDCameraParams
+from realitygap.robots.diffdrive import (
+    DiffDriveParams,
+    DiffDriveRobot,
+    FirmwareLimits,
+    RGBDCameraParams,
+)
 from realitygap.robots.effects import Reality
 from realitygap.robots.world import World
 
@@ -177,9 +183,11 @@ def applied_commands(log: Log) -> FloatArray:
     """The body twist the drive actually received at each row, (N, 2) [m/s, rad/s].
 
     Without ``meta["firmware"]`` this is the ``cmd`` channel. With it, the
-    firmware's rate limits (``a_max`` m/s², ``alpha_max`` rad/s²) and speed
-    limits (``v_max``, ``w_max``, optional) are applied from rest, as
-    :class:`~realitygap.envs.wheeled_nav.WheeledNavEnv` does.
+    firmware's :class:`~realitygap.robots.diffdrive.FirmwareLimits` (rate limits
+    ``a_max`` m/s², ``alpha_max`` rad/s²; speed limits ``v_max``, ``w_max``,
+    optional) are applied from rest, as
+    :meth:`~realitygap.robots.diffdrive.DiffDriveRobot.command_twist` does in
+    :class:`~realitygap.envs.wheeled_nav.WheeledNavEnv`.
     """
     log.require(["cmd"], "a command-driven replay")
     cmd = np.array(log["cmd"], dtype=float)
@@ -187,16 +195,16 @@ def applied_commands(log: Log) -> FloatArray:
     if not isinstance(fw, Mapping) or not fw:
         return cmd
     dt = log.dt
-    v_max = float(fw.get("v_max", math.inf))
-    w_max = float(fw.get("w_max", math.inf))
-    req = np.column_stack([np.clip(cmd[:, 0], -v_max, v_max), np.clip(cmd[:, 1], -w_max, w_max)])
-    dv = float(fw.get("a_max", math.inf)) * dt
-    dw = float(fw.get("alpha_max", math.inf)) * dt
-    out = np.empty_like(req)
+    limits = FirmwareLimits(
+        v_max=float(fw.get("v_max", math.inf)),
+        w_max=float(fw.get("w_max", math.inf)),
+        a_max=float(fw.get("a_max", math.inf)),
+        alpha_max=float(fw.get("alpha_max", math.inf)),
+    )
+    out = np.empty_like(cmd)
     v = w = 0.0
-    for k in range(req.shape[0]):
-        v += min(dv, max(-dv, req[k, 0] - v))
-        w += min(dw, max(-dw, req[k, 1] - w))
+    for k in range(cmd.shape[0]):
+        v, w = limits.limit(float(cmd[k, 0]), float(cmd[k, 1]), v, w, dt)
         out[k, 0], out[k, 1] = v, w
     return out
 
@@ -317,23 +325,12 @@ def simulate(
         robot = DiffDriveRobot(world, true_params)
         start_arr = np.asarray(start, dtype=float)
         robot.reset(start_arr)
-        hooks = reality.command_hooks(dt, params)
-        ticks_hooks = reality.ticks_hooks()
+        robot.attach_firmware(dt, nominal=params, reality=reality)
         k_ticks = params.ticks_per_rev / (2.0 * math.pi)
-        half_b = params.wheelbase / 2.0
-        r_l, r_r = params.wheel_radius_left, params.wheel_radius_right
 
         wheel_target = None
         if tk is not None:
-            inv = reality.ticks_inverse_hooks()
-            ang = tk / k_ticks
-            if inv:
-                al, ar = ang[:, 0].copy(), ang[:, 1].copy()
-                for h in inv:
-                    res = [h(a, b) for a, b in zip(al, ar)]
-                    al = np.array([r[0] for r in res])
-                    ar = np.array([r[1] for r in res])
-                ang = np.column_stack([al, ar])
+            ang = robot.wheel_angles_from_encoder(tk / k_ticks)
             wheel_target = np.diff(ang, axis=0) / dt
 
         poses = np.empty((n, 3))
@@ -342,23 +339,16 @@ def simulate(
 
         def record(k: int) -> None:
             poses[k] = robot.pose2d()
-            a = robot.wheel_angles()
-            for h in ticks_hooks:
-                a = h(*a)
-            angles[k] = a
+            angles[k] = robot.encoder_angles()
             cams[k] = camera_planar_pose(robot)
 
         record(0)
         for k in range(n - 1):
             if wheel_target is not None:
-                wl, wr = wheel_target[k]
+                robot.set_wheel_speeds(float(wheel_target[k, 0]), float(wheel_target[k, 1]))
             else:
                 assert cmd is not None
-                v, w = float(cmd[k, 0]), float(cmd[k, 1])
-                for h in hooks:
-                    v, w = h(v, w, dt)
-                wl, wr = (v - w * half_b) / r_l, (v + w * half_b) / r_r
-            robot.set_wheel_speeds(float(wl), float(wr))
+                robot.command_twist(float(cmd[k, 0]), float(cmd[k, 1]))
             world.step()
             record(k + 1)
     finally:

@@ -13,8 +13,9 @@ idx   meaning                          maps to
 1     turn-rate command                ``ω = a1 · ω_max`` (rad/s)
 ====  ===============================  =======================
 
-The base's firmware limits acceleration (``a_max``, ``alpha_max``) and converts
-the twist to wheel speeds with the *nominal* geometry, as a real robot does.
+The base's firmware (:meth:`~realitygap.robots.diffdrive.DiffDriveRobot.command_twist`)
+limits acceleration (``a_max``, ``alpha_max``) and converts the twist to wheel
+speeds with the *nominal* geometry, as a real robot does.
 
 Observation space — ``Box(float32, (12 + n_beams,))``
 
@@ -33,7 +34,9 @@ idx        meaning (estimated quantities come from the estimator)
 Reward — a named sum (see ``info["reward_terms"]``): progress towards the goal
 position, heading alignment near the goal, a time cost, an effort cost, a
 collision penalty and a success bonus. Success: within ``success_pos_tol`` (m)
-and ``success_ang_tol`` (rad) of the goal pose and at rest.
+and ``success_ang_tol`` (rad) of the goal pose and at rest. The task
+(:class:`~realitygap.envs.tasks.nav.NavTask`) holds goal sampling, reward,
+success and termination.
 """
 
 from __future__ import annotations
@@ -46,13 +49,17 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
 
-from realitygap.core.geometry import check_finite
 from realitygap.envs.common import check_twist_action
-from realitygap.envs.layouts import clearance, free_route_exists, random_layout, room_walls
+from realitygap.envs.tasks.nav import NavRewardWeights, NavTask
 from realitygap.estimators.base import DiffDriveMeasurement, Estimate, Estimator, Scan
-from realitygap.robots.diffdrive import DiffDriveParams, DiffDriveRobot, encoder_ticks
+from realitygap.robots.diffdrive import (
+    DiffDriveParams,
+    DiffDriveRobot,
+    FirmwareLimits,
+    encoder_ticks,
+)
 from realitygap.robots.effects import Reality
-from realitygap.robots.sensors import PlanarScanner, RGBDCamera, SensorMode
+from realitygap.robots.sensors import PlanarScanner, RGBDCamera, SensorMode, check_sensor_mode
 from realitygap.robots.world import Primitive, World
 
 FloatArray = npt.NDArray[np.float64]
@@ -119,9 +126,12 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     camera_hz : rate of rendered RGB-D frames in image mode (Hz).
     terminate_on_success : end the episode on success (otherwise ``info["is_success"]`` is
         reported and the episode runs on, e.g. to measure where a controller settles).
+    reward_weights : weights of the reward terms.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}  # noqa: RUF012 (gymnasium's name)
+    sensor_modes: tuple[SensorMode, ...] = (SensorMode.FAST, SensorMode.IMAGE)
+    """The sensor fidelities this env accepts, fastest first."""
 
     def __init__(
         self,
@@ -143,22 +153,27 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         scan_hz: float = 10.0,
         camera_hz: float = 20.0,
         terminate_on_success: bool = True,
+        reward_weights: NavRewardWeights = NavRewardWeights(),  # noqa: B008 (frozen)
     ):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        try:
-            self.sensor_mode = SensorMode(sensor_mode)
-        except ValueError:
-            raise ValueError(
-                f"sensor_mode must be 'fast' or 'image', got {sensor_mode!r}"
-            ) from None
+        self.sensor_mode = check_sensor_mode(sensor_mode, self.sensor_modes)
         ratio = physics_hz / control_hz
         if control_hz <= 0 or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
             raise ValueError(
                 f"physics_hz / control_hz must be a positive whole number, got {physics_hz} / {control_hz}"
             )
-        if n_obstacles < 0:
-            raise ValueError(f"n_obstacles must be >= 0, got {n_obstacles}")
+        self.task = NavTask(
+            room_half_size=room_half_size,
+            n_obstacles=n_obstacles,
+            obstacles=obstacles,
+            start=start,
+            goal=goal,
+            success_pos_tol=success_pos_tol,
+            success_ang_tol=success_ang_tol,
+            terminate_on_success=terminate_on_success,
+            weights=reward_weights,
+        )
         if estimator is not None and not isinstance(estimator, Estimator):
             raise TypeError(
                 "estimator must have reset(initial=None) and update(measurement) methods, "
@@ -168,15 +183,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self.params = params if params is not None else DiffDriveParams()
         self.reality = reality if reality is not None else Reality()
         self.true_params = self.reality.apply_params(self.params)
-        self.n_obstacles = int(n_obstacles)
-        self.fixed_obstacles = list(obstacles) if obstacles is not None else None
-        self.room_half_size = float(room_half_size)
-        self.fixed_start = None if start is None else check_finite("start", start, (3,))
-        self.fixed_goal = None if goal is None else check_finite("goal", goal, (3,))
-        self.success_pos_tol = float(success_pos_tol)
-        self.success_ang_tol = float(success_ang_tol)
         self.n_beams = int(n_beams)
-        self.terminate_on_success = bool(terminate_on_success)
         self._scan_every = self._divisor("scan_hz", scan_hz, control_hz)
         self._camera_every = self._divisor("camera_hz", camera_hz, control_hz)
         self.estimator: Estimator = (
@@ -202,16 +209,10 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         # episode state
         self._t = 0.0
         self._steps = 0
-        self._cmd = np.zeros(2)
-        self._goal = np.zeros(3)
         self._start_pose = np.zeros(3)
         self._scan: Scan | None = None
         self._estimate: Estimate | None = None
         self._obstacles: tuple[Primitive, ...] = ()
-        self._command_hooks: list[Any] = []
-        self._ticks_hooks: list[Any] = []
-        self._prev_dist = 0.0
-        self._prev_ang = 0.0
         self._obs_buf = np.zeros(12 + self.n_beams, dtype=np.float64)
 
     # ------------------------------------------------------------------ properties
@@ -219,6 +220,29 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     def dt(self) -> float:
         """Control period in s."""
         return self.world.dt
+
+    @property
+    def room_half_size(self) -> float:
+        """Half the side of the square room (m)."""
+        return self.task.room_half_size
+
+    @property
+    def success_pos_tol(self) -> float:
+        """Success tolerance on the distance to the goal position (m); settable."""
+        return self.task.success_pos_tol
+
+    @success_pos_tol.setter
+    def success_pos_tol(self, value: float) -> None:
+        self.task.success_pos_tol = float(value)
+
+    @property
+    def success_ang_tol(self) -> float:
+        """Success tolerance on the heading error (rad); settable."""
+        return self.task.success_ang_tol
+
+    @success_ang_tol.setter
+    def success_ang_tol(self, value: float) -> None:
+        self.task.success_ang_tol = float(value)
 
     @property
     def obstacles(self) -> tuple[Primitive, ...]:
@@ -260,21 +284,25 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
                 f"unknown reset option(s) {sorted(unknown)}; expected 'start' and/or 'goal'"
             )
         rng = self.np_random
-        start, goal = self._draw_start_goal(rng, options)
-        self._goal = goal
+        radius = self.true_params.body_radius
+        start, goal = self.task.sample_start_goal(rng, options, radius)
         self._start_pose = start.copy()
-        self._build_world(rng, start, goal)
+        self._obstacles = self.task.sample_arena(rng, start, goal, radius)
+        robot = self._build_world(rng, start)
+        robot.attach_firmware(
+            self.dt,
+            nominal=self.params,
+            limits=FirmwareLimits.from_params(self.params),
+            reality=self.reality,
+        )
 
         self._t, self._steps = 0.0, 0
-        self._cmd = np.zeros(2)
-        self._command_hooks = self.reality.command_hooks(self.dt, self.params)
-        self._ticks_hooks = self.reality.ticks_hooks()
         self._estimate = self.estimator.reset(start.copy())
         measurement = self._measure(rng)
         self._estimate = self.estimator.update(measurement)
-        pose = self.robot.pose2d()  # type: ignore[union-attr]
-        self._prev_dist, self._prev_ang = self._pose_error(pose)
-        info = self._info(pose, self._prev_dist, self._prev_ang, {}, collision=False, success=False)
+        pose = robot.pose2d()
+        dist, ang = self.task.reset(goal, pose)
+        info = self._info(pose, dist, ang, {}, collision=False, success=False)
         return self._observation(), info
 
     def step(
@@ -283,16 +311,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         if self.robot is None:
             raise RuntimeError("call reset() before step()")
         a0, a1 = check_twist_action(action)
-        v, w = self._limit_acceleration(a0 * self.v_max, a1 * self.w_max)
-        self._cmd[0], self._cmd[1] = v, w
-        for hook in self._command_hooks:
-            v, w = hook(v, w, self.dt)
-        # firmware inverse kinematics with the nominal geometry
-        half_b = self.params.wheelbase / 2.0
-        self.robot.set_wheel_speeds(
-            (v - w * half_b) / self.params.wheel_radius_left,
-            (v + w * half_b) / self.params.wheel_radius_right,
-        )
+        self.robot.command_twist(a0 * self.v_max, a1 * self.w_max)
         self.world.step()
         self._steps += 1
         self._t = self._steps * self.dt
@@ -302,11 +321,11 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._estimate = self.estimator.update(measurement)
 
         pose = self.robot.pose2d()
-        dist, ang = self._pose_error(pose)
+        dist, ang = self.task.pose_error(pose)
         collision = self.robot.in_contact_with_scenery()
-        success = self._is_success(dist, ang)
-        reward, terms = self._get_rew(dist, ang, (a0, a1), collision, success)
-        terminated = collision or (success and self.terminate_on_success)
+        success = self.task.is_success(dist, ang, self.robot)
+        reward, terms = self.task.get_reward(dist, ang, (a0, a1), collision, success)
+        terminated = self.task.is_terminated(collision, success)
         return (
             self._observation(),
             reward,
@@ -318,14 +337,10 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     def render(self) -> npt.NDArray[np.uint8] | None:
         if self.render_mode != "rgb_array" or self.robot is None:
             return None
-        import pybullet as p
-
-        c = self.world.bullet
         x, y, _ = self.robot.pose2d()
-        view = c.computeViewMatrix([x - 2.5, y - 2.5, 4.0], [x, y, 0.0], [0, 0, 1])
-        proj = c.computeProjectionMatrixFOV(60, 4 / 3, 0.1, 30)
-        _, _, rgba, _, _ = c.getCameraImage(320, 240, view, proj, renderer=p.ER_TINY_RENDERER)
-        return np.asarray(rgba, dtype=np.uint8).reshape(240, 320, 4)[..., :3].copy()
+        return self.world.render_rgb(
+            [x - 2.5, y - 2.5, 4.0], [x, y, 0.0], fov_deg=60, near=0.1, far=30
+        )
 
     def close(self) -> None:
         self.world.close()
@@ -344,60 +359,8 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             )
         return int(round(k))
 
-    def _draw_start_goal(
-        self, rng: np.random.Generator, options: dict[str, Any]
-    ) -> tuple[FloatArray, FloatArray]:
-        lim = self.room_half_size - 0.6
-        start: Any = options.get("start", self.fixed_start)
-        goal: Any = options.get("goal", self.fixed_goal)
-        if start is None:
-            start = np.array([*rng.uniform(-lim, lim, 2), rng.uniform(-math.pi, math.pi)])
-        if goal is None:
-            for _ in range(100):
-                goal = np.array([*rng.uniform(-lim, lim, 2), rng.uniform(-math.pi, math.pi)])
-                if np.hypot(*(goal[:2] - np.asarray(start)[:2])) > 1.0:
-                    break
-        start = check_finite("start", start, (3,))
-        goal = check_finite("goal", goal, (3,))
-        for name, pose in (("start", start), ("goal", goal)):
-            if np.any(np.abs(pose[:2]) > self.room_half_size - self.true_params.body_radius):
-                raise ValueError(
-                    f"{name} {pose[:2].tolist()} lies outside the room (|x|, |y| must be < "
-                    f"{self.room_half_size - self.true_params.body_radius:.3f} m)"
-                )
-        return start, goal
-
-    def _build_world(self, rng: np.random.Generator, start: FloatArray, goal: FloatArray) -> None:
-        radius = self.true_params.body_radius
-        if self.fixed_obstacles is not None:
-            layout = list(self.fixed_obstacles)
-            if np.min(clearance(layout, start[:2]), initial=np.inf) <= radius:
-                raise ValueError(
-                    f"the start pose {start.tolist()} overlaps an obstacle of the given layout"
-                )
-            if not free_route_exists(
-                layout + room_walls(self.room_half_size),
-                start[:2],
-                goal[:2],
-                radius,
-                self.room_half_size,
-            ):
-                raise ValueError(
-                    f"the given obstacle layout leaves no collision-free route from start {start[:2].tolist()} "
-                    f"to goal {goal[:2].tolist()} for a robot of radius {radius:.3f} m"
-                )
-        elif self.n_obstacles > 0:
-            layout = random_layout(
-                rng,
-                self.n_obstacles,
-                self.room_half_size,
-                keep_clear=[tuple(start[:2]), tuple(goal[:2])],
-                clear_radius=radius + 0.25,
-                robot_radius=radius,
-            )
-        else:
-            layout = []
-        self._obstacles = tuple(room_walls(self.room_half_size) + layout)
+    def _build_world(self, rng: np.random.Generator, start: FloatArray) -> DiffDriveRobot:
+        """A fresh world: floor, the episode's walls and obstacles, the robot at ``start``."""
         w = self.world
         w.reset_simulation()
         w.add_floor()
@@ -406,27 +369,20 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         for prim in self._obstacles:
             tex = w.texture(prim.name, tex_rng) if textured else None
             w.add_primitive(prim, texture_id=tex)
-        self.robot = DiffDriveRobot(w, self.true_params)
-        self.robot.reset(start)
-        self.scanner = PlanarScanner(self.robot, self.true_params.camera, n_beams=self.n_beams)
+        robot = DiffDriveRobot(w, self.true_params)
+        robot.reset(start)
+        self.robot = robot
+        self.scanner = PlanarScanner(robot, self.true_params.camera, n_beams=self.n_beams)
         self.camera = (
-            RGBDCamera(self.robot, self.true_params.camera)
+            RGBDCamera(robot, self.true_params.camera)
             if self.sensor_mode is SensorMode.IMAGE
             else None
         )
-
-    def _limit_acceleration(self, v: float, w: float) -> tuple[float, float]:
-        dv_max = self.params.a_max * self.dt
-        dw_max = self.params.alpha_max * self.dt
-        v = self._cmd[0] + min(dv_max, max(-dv_max, v - self._cmd[0]))
-        w = self._cmd[1] + min(dw_max, max(-dw_max, w - self._cmd[1]))
-        return float(v), float(w)
+        return robot
 
     def _measure(self, rng: np.random.Generator) -> DiffDriveMeasurement:
         assert self.robot is not None and self.scanner is not None
-        angles = self.robot.wheel_angles()
-        for hook in self._ticks_hooks:
-            angles = hook(*angles)
+        angles = self.robot.encoder_angles()
         ticks = encoder_ticks(self._t, angles, self.params.ticks_per_rev)
         frame = None
         scan = None
@@ -445,7 +401,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     def _observation(self) -> npt.NDArray[np.float32]:
         assert self._estimate is not None and self._scan is not None
         x, y, th = (float(v) for v in self._estimate.pose)
-        gx, gy, gth = (float(v) for v in self._goal)
+        gx, gy, gth = (float(v) for v in self.task.goal)
         c, s = math.cos(th), math.sin(th)
         dx, dy = gx - x, gy - y
         obs = self._obs_buf
@@ -460,42 +416,14 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             math.sin(gth),
             c * dx + s * dy,
             -s * dx + c * dy,
-            self._cmd[0] / self.v_max,
-            self._cmd[1] / self.w_max,
+            self.robot.command[0] / self.v_max,
+            self.robot.command[1] / self.w_max,
         )
         np.divide(self._scan.ranges, self._scan.range_max, out=obs[12:])
         np.minimum(obs[12:], 1.0, out=obs[12:])  # inf (nothing seen) -> 1
         out = obs.astype(np.float32)
         np.clip(out, self._obs_low, self._obs_high, out=out)
         return out
-
-    def _pose_error(self, pose: FloatArray) -> tuple[float, float]:
-        """True distance (m) and absolute heading error (rad) to the goal pose."""
-        gx, gy, gth = self._goal
-        d_th = (float(pose[2]) - gth + math.pi) % (2.0 * math.pi) - math.pi
-        return math.hypot(float(pose[0]) - gx, float(pose[1]) - gy), abs(d_th)
-
-    def _is_success(self, d: float, a: float) -> bool:
-        assert self.robot is not None
-        if d > self.success_pos_tol or a > self.success_ang_tol:
-            return False
-        v, w = self.robot.twist()
-        return abs(v) < 0.01 and abs(w) < 0.05
-
-    def _get_rew(
-        self, dist: float, ang: float, action: tuple[float, float], collision: bool, success: bool
-    ) -> tuple[float, dict[str, float]]:
-        near = math.exp(-dist / 0.3)
-        terms = {
-            "progress": 2.0 * (self._prev_dist - dist),
-            "heading": 0.5 * near * (self._prev_ang - ang),
-            "time": -0.01,
-            "effort": -0.002 * (action[0] ** 2 + action[1] ** 2),
-            "collision": -5.0 if collision else 0.0,
-            "success": 5.0 if success else 0.0,
-        }
-        self._prev_dist, self._prev_ang = dist, ang
-        return float(sum(terms.values())), terms
 
     def _info(
         self,
@@ -512,7 +440,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             "estimated_pose": np.array(self._estimate.pose, dtype=float),
             "estimate_ok": bool(self._estimate.ok),
             "estimate_status": self._estimate.status,
-            "goal": self._goal.copy(),
+            "goal": self.task.goal.copy(),
             "pos_error": dist,
             "heading_error": ang,
             "collision": collision,

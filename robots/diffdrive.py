@@ -9,7 +9,9 @@ y left, z up; the camera's optical frame is x right, y down, z forward.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
@@ -18,6 +20,9 @@ import pybullet as p
 from realitygap.core.geometry import check_finite
 from realitygap.estimators.base import CameraIntrinsics, WheelTicks
 from realitygap.robots.world import World
+
+if TYPE_CHECKING:
+    from realitygap.robots.effects import Reality
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -119,6 +124,59 @@ class DiffDriveParams:
         return (self.v_max + self.w_max * self.wheelbase / 2.0) / r
 
 
+@dataclass(frozen=True)
+class FirmwareLimits:
+    """Speed and acceleration limits the base's firmware applies to a commanded twist.
+
+    Each control period the twist request ``(v, ω)`` is clipped to
+    ``|v| ≤ v_max``, ``|ω| ≤ w_max`` and then moved from the previously applied
+    twist by at most ``a_max·dt`` and ``alpha_max·dt``. An infinite limit is
+    no limit.
+
+    Parameters
+    ----------
+    v_max : float
+        Largest forward speed, m/s.
+    w_max : float
+        Largest turn rate, rad/s.
+    a_max : float
+        Largest forward acceleration, m/s².
+    alpha_max : float
+        Largest angular acceleration, rad/s².
+    """
+
+    v_max: float = math.inf
+    w_max: float = math.inf
+    a_max: float = math.inf
+    alpha_max: float = math.inf
+
+    @classmethod
+    def from_params(cls, params: DiffDriveParams) -> FirmwareLimits:
+        """The limits stated in ``params`` (``v_max``, ``w_max``, ``a_max``, ``alpha_max``)."""
+        return cls(params.v_max, params.w_max, params.a_max, params.alpha_max)
+
+    def limit(
+        self, v: float, w: float, v_prev: float, w_prev: float, dt: float
+    ) -> tuple[float, float]:
+        r"""The twist (m/s, rad/s) applied for request ``(v, w)`` after ``(v_prev, w_prev)``.
+
+        .. math::
+
+            v_k = v_{k-1} + \operatorname{clip}(\operatorname{clip}(v, \pm v_{max})
+                  - v_{k-1}, \pm a_{max}\,\Delta t)
+
+        and likewise for ω with ``w_max`` and ``alpha_max``; ``dt`` is the
+        control period in s.
+        """
+        v = min(self.v_max, max(-self.v_max, v))
+        w = min(self.w_max, max(-self.w_max, w))
+        dv = self.a_max * dt
+        dw = self.alpha_max * dt
+        v = v_prev + min(dv, max(-dv, v - v_prev))
+        w = w_prev + min(dw, max(-dw, w - w_prev))
+        return float(v), float(w)
+
+
 def _inertia_cylinder(m: float, r: float, h: float) -> tuple[float, float, float]:
     ixx = m * (3 * r * r + h * h) / 12.0
     return ixx, ixx, m * r * r / 2.0
@@ -179,7 +237,13 @@ def urdf_from_params(params: DiffDriveParams) -> str:
 
 
 class DiffDriveRobot:
-    """The simulated body: wheel motors, ground-truth state, encoder angles.
+    """The simulated body and its firmware: wheel motors, ground-truth state, encoders.
+
+    The firmware (see :meth:`attach_firmware`) turns a commanded body twist into
+    wheel speeds: its :class:`FirmwareLimits`, then the command-stage effects of
+    a :class:`~realitygap.robots.effects.Reality`, then the inverse kinematics
+    with the geometry the firmware believes (the nominal parameters). The
+    encoders report the wheel angles through the effects' encoder hooks.
 
     Parameters
     ----------
@@ -192,6 +256,13 @@ class DiffDriveRobot:
     def __init__(self, world: World, params: DiffDriveParams):
         self.world = world
         self.params = params
+        self.nominal = params
+        self.firmware_limits: FirmwareLimits | None = None
+        self.control_dt = world.dt
+        self.command = np.zeros(2)
+        self._reality: Reality | None = None
+        self._command_hooks: list[Callable[[float, float, float], tuple[float, float]]] = []
+        self._ticks_hooks: list[Callable[[float, float], tuple[float, float]]] = []
         self._body_z = (
             max(params.wheel_radius_left, params.wheel_radius_right) + 0.01 + params.body_height / 2
         )
@@ -247,15 +318,98 @@ class DiffDriveRobot:
             forces=[tau, tau],
         )
 
-    def wheel_speeds_from_twist(self, v: float, w: float) -> tuple[float, float]:
-        """Nominal inverse kinematics: body twist (m/s, rad/s) → wheel speeds (rad/s).
+    def attach_firmware(
+        self,
+        dt: float,
+        *,
+        nominal: DiffDriveParams | None = None,
+        limits: FirmwareLimits | None = None,
+        reality: Reality | None = None,
+    ) -> None:
+        """Start the firmware for an episode: applied twist at rest, fresh effect hooks.
 
-        Uses the robot's own (possibly non-nominal) geometry; a controller that
-        believes other geometry must convert itself.
+        Parameters
+        ----------
+        dt : float
+            Control period, s (the rate limits and the effect hooks use it).
+        nominal : DiffDriveParams, optional
+            The geometry the firmware believes (default: the body's own).
+        limits : FirmwareLimits, optional
+            Limits applied by :meth:`command_twist` (default: none, the twist
+            is applied as given).
+        reality : Reality, optional
+            Effects whose command and encoder hooks act on this robot.
         """
-        P = self.params
+        self.control_dt = float(dt)
+        self.nominal = nominal if nominal is not None else self.params
+        self.firmware_limits = limits
+        self.command = np.zeros(2)
+        self._reality = reality
+        self._command_hooks = reality.command_hooks(dt, self.nominal) if reality is not None else []
+        self._ticks_hooks = reality.ticks_hooks() if reality is not None else []
+
+    def wheel_speeds_from_twist(self, v: float, w: float) -> tuple[float, float]:
+        r"""Firmware inverse kinematics: body twist (m/s, rad/s) → wheel speeds (rad/s).
+
+        .. math::
+
+            \omega_{l} = (v - \omega\,b/2) / r_l, \qquad \omega_{r} = (v + \omega\,b/2) / r_r
+
+        with the wheelbase ``b`` and radii ``r_l``, ``r_r`` the firmware believes
+        (:attr:`nominal`), as a real robot converts with its nominal geometry.
+        """
+        P = self.nominal
         half_b = P.wheelbase / 2.0
         return (v - w * half_b) / P.wheel_radius_left, (v + w * half_b) / P.wheel_radius_right
+
+    def command_twist(self, v: float, omega: float) -> tuple[float, float]:
+        """Command a body twist ``(v, ω)`` (m/s, rad/s) for the next control period.
+
+        The firmware limits (if any) give the applied twist, stored in
+        :attr:`command` and returned; the command-stage effect hooks then act on
+        it, the inverse kinematics gives the wheel speeds and the wheel motors
+        take them. The world is not stepped.
+        """
+        if self.firmware_limits is not None:
+            v, omega = self.firmware_limits.limit(
+                v, omega, self.command[0], self.command[1], self.control_dt
+            )
+        self.command[0], self.command[1] = v, omega
+        applied = (v, omega)
+        for hook in self._command_hooks:
+            v, omega = hook(v, omega, self.control_dt)
+        w_left, w_right = self.wheel_speeds_from_twist(v, omega)
+        self.set_wheel_speeds(float(w_left), float(w_right))
+        return applied
+
+    def encoder_angles(self) -> tuple[float, float]:
+        """Wheel angles (rad) as the encoders report them: :meth:`wheel_angles` through the
+        effects' encoder hooks."""
+        angles = self.wheel_angles()
+        for hook in self._ticks_hooks:
+            angles = hook(*angles)
+        return angles
+
+    def wheel_angles_from_encoder(self, angles: npt.ArrayLike) -> FloatArray:
+        """True wheel angles (N, 2) (rad) for encoder readings ``angles`` (N, 2) (rad).
+
+        Inverts the effects' encoder hooks, in reverse effect order.
+
+        Raises
+        ------
+        ValueError
+            If an attached effect changes the encoder reading but cannot be inverted.
+        """
+        ang = np.asarray(angles, dtype=float)
+        inverse = self._reality.ticks_inverse_hooks() if self._reality is not None else []
+        if inverse:
+            al, ar = ang[:, 0].copy(), ang[:, 1].copy()
+            for h in inverse:
+                res = [h(a, b) for a, b in zip(al, ar, strict=True)]
+                al = np.array([r[0] for r in res])
+                ar = np.array([r[1] for r in res])
+            ang = np.column_stack([al, ar])
+        return ang
 
     # --------------------------------------------------------------- state
     def reset(self, pose: npt.ArrayLike) -> None:

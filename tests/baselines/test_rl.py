@@ -182,7 +182,7 @@ def test_stop_gate_closed_form() -> None:
     assert env.action_space.shape == (3,)
     env.reset(seed=0)
     env.step(np.array([1.0, 0.0, 1.0], dtype=np.float32))  # gate open: the robot stays
-    assert env.unwrapped._cmd.tolist() == [0.0, 0.0]
+    assert env.unwrapped.robot.command.tolist() == [0.0, 0.0]
     env.close()
 
 
