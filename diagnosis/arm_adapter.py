@@ -684,6 +684,32 @@ class ArmAdapter(AdapterBase):
         )
         return train, holdout
 
+    def discovery_terms(self, prepared: PreparedLog) -> dict[str, tuple[FloatArray, str]]:
+        """Candidate terms of an unexplained residual, one value per window, with SI units.
+
+        Window means of ``sin q_j``, ``cos q_j``, ``sin 2q_j``, ``cos 2q_j`` and the
+        nominal gravity torque ``τ_j`` (N·m) of each joint, the reach ratio and the
+        time of the window (s; the log's row index where time is not logged).
+        """
+        ctx = self._context(prepared)
+        b = prepared.bounds
+        t_rows = np.asarray(prepared.log.t, dtype=float)[ctx.rows]
+
+        def wmean(x: FloatArray) -> FloatArray:
+            return np.array([x[i:j].mean() for i, j in b])
+
+        out: dict[str, tuple[FloatArray, str]] = {}
+        for j in range(ctx.q.shape[1]):
+            q = ctx.q[:, j]
+            out[f"sin q{j + 1}"] = (wmean(np.sin(q)), "")
+            out[f"cos q{j + 1}"] = (wmean(np.cos(q)), "")
+            out[f"sin 2q{j + 1}"] = (wmean(np.sin(2 * q)), "")
+            out[f"cos 2q{j + 1}"] = (wmean(np.cos(2 * q)), "")
+            out[f"τ{j + 1} (gravity)"] = (wmean(ctx.tau[:, j]), "N·m")
+        out["reach"] = (wmean(reach_ratio(ctx.params.mdh, ctx.q)), "")
+        out["time"] = (wmean(t_rows), "s")
+        return out
+
 
 def probe_poses(name: str, table: MDHTable, n: int = 40) -> FloatArray:
     """The joint readings (n, 6) of a pose set of :data:`ARM_PROBE_SETS` (deterministic)."""

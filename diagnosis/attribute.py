@@ -541,6 +541,7 @@ class Verdict:
     confidence: str
     residual: dict[str, Any]
     ambiguous_with: list[str] = field(default_factory=list)
+    notes: dict[str, Any] = field(default_factory=dict)
 
     @property
     def label(self) -> str | list[str]:

@@ -145,6 +145,7 @@ def _diagnose(args: argparse.Namespace) -> int:
     from realitygap.diagnosis.io import ReadOptions, read_many
     from realitygap.diagnosis.log import LogError
     from realitygap.diagnosis.report import write_json, write_report
+    from realitygap.diagnosis.verdict import explain
 
     def say(msg: str) -> None:
         if not args.quiet:
@@ -199,10 +200,16 @@ def _diagnose(args: argparse.Namespace) -> int:
         path = write_report(result, args.report)
         say(f"wrote {path}")
     v = result.verdict
-    print(f"verdict: {', '.join(v.effects) if v.kind == 'effects' else v.kind}")
-    print(f"reason: {v.reason}")
-    for row in result.ranking_rows()[:5]:
-        vals = ", ".join(f"{k}={p['value']:.4g}" for k, p in row["params"].items())
+    rows = result.ranking_rows()[:5]
+    for line in explain(v, [r["name"] for r in rows]):
+        print(line)
+    status = v.notes.get("parameter_status", {})
+    for row in rows:
+        marks = status.get(row["name"], {})
+        vals = ", ".join(
+            f"{k}={p['value']:.4g}" + (f" ({marks[k]})" if k in marks else "")
+            for k, p in row["params"].items()
+        )
         print(
             f"  {row['rank']}. {row['name']:<40} held-out shrink {row['heldout_shrink_pct']:6.1f} %"
             f"  {vals}"

@@ -551,6 +551,26 @@ class ClimberAdapter(AdapterBase):
         """One training and one held-out run of the climber on the blade."""
         return record_climber_logs(reality, rng)
 
+    def discovery_terms(self, prepared: PreparedLog) -> dict[str, tuple[FloatArray, str]]:
+        """Candidate terms of an unexplained residual, one value per window, with SI units.
+
+        Height of the body (m), the angle between its normal and the vertical
+        (rad), the nominal tether length from the anchor (m) and the time (s), each
+        at the window's middle row.
+        """
+        from scipy.spatial.transform import Rotation
+
+        ctx = self._context(prepared)
+        poses = ctx.window_poses
+        normal = Rotation.from_rotvec(poses[:, 3:6]).apply(np.array([0.0, 0.0, 1.0]))
+        mid = (prepared.bounds[:, 0] + prepared.bounds[:, 1]) // 2
+        return {
+            "height": (poses[:, 2].copy(), "m"),
+            "surface normal angle": (np.arccos(np.clip(normal[:, 2], -1.0, 1.0)), "rad"),
+            "tether length": (np.linalg.norm(poses[:, :3] - ctx.anchor, axis=1), "m"),
+            "time": (np.asarray(prepared.log.t, dtype=float)[mid], "s"),
+        }
+
 
 # --------------------------------------------------------------------------- recording
 def log_from_climb_recording(rec: Any, params: Any, *, name: str = "climb") -> Log:

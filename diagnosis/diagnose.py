@@ -60,7 +60,7 @@ from realitygap.diagnosis.localise import localise
 from realitygap.diagnosis.log import Log, LogError
 from realitygap.diagnosis.replay import Drive, SimSettings
 from realitygap.diagnosis.shrink import overall_shrink, shrink_table, trajectory_gap
-from realitygap.diagnosis.verdict import Judgement, judge
+from realitygap.diagnosis.verdict import Judgement, conclude, judge
 from realitygap.diagnosis.verify import Verification, verify_ranking
 from realitygap.robots.effects import EFFECTS
 
@@ -203,6 +203,7 @@ class Diagnosis:
                 ),
             },
             "verdict": v.label,
+            **v.notes,
             "verdict_detail": {
                 "kind": v.kind,
                 "effects": list(v.effects),
@@ -485,6 +486,7 @@ def diagnose(
         problem, verification.ranking, nominal_fit, adapter.noise_levels(prepared, s.features)
     )
     ident = advise(problem, verification.ranking, judgement)
+    conclude(problem, verification.ranking, judgement, ident)
     rows, gap = gap_report(problem, judgement, verification.replays)
     timing["total"] = time.perf_counter() - t0
     say(f"verdict: {judgement.verdict.label}")

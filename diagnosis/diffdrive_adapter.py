@@ -364,6 +364,37 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         holdout = record_case_logs(reality, rng, noise, HOLDOUT_MANOEUVRES)
         return train, holdout
 
+    def discovery_terms(self, prepared: PreparedLog) -> dict[str, tuple[FloatArray, str]]:
+        """Candidate terms of an unexplained residual, one value per window, with SI units.
+
+        Window means of the applied twist ``v`` (m/s), ``ω`` (rad/s), their rates
+        ``v̇``, ``ω̇`` (change over the window / its duration), sign and magnitude
+        terms, ``v·ω``, the wheel speeds ``v ∓ ω b / 2`` and the time of the window.
+        """
+        ctx = self._context(prepared)
+        tw, b = ctx.twist, prepared.bounds
+        t = np.asarray(prepared.log.t, dtype=float)
+        v = np.array([tw[i:j, 0].mean() for i, j in b])
+        w = np.array([tw[i:j, 1].mean() for i, j in b])
+        span = np.maximum(t[b[:, 1] - 1] - t[np.maximum(b[:, 0] - 1, 0)], 1e-9)
+        dv = (tw[b[:, 1] - 1, 0] - tw[np.maximum(b[:, 0] - 1, 0), 0]) / span
+        dw = (tw[b[:, 1] - 1, 1] - tw[np.maximum(b[:, 0] - 1, 0), 1]) / span
+        half = 0.5 * ctx.params.wheelbase
+        return {
+            "v": (v, "m/s"),
+            "ω": (w, "rad/s"),
+            "v̇": (dv, "m/s²"),
+            "ω̇": (dw, "rad/s²"),
+            "sign v": (np.sign(v), ""),
+            "|v|": (np.abs(v), "m/s"),
+            "sign ω": (np.sign(w), ""),
+            "|ω|": (np.abs(w), "rad/s"),
+            "v·ω": (v * w, "m·rad/s²"),
+            "left wheel speed": (v - half * w, "m/s"),
+            "right wheel speed": (v + half * w, "m/s"),
+            "time": (0.5 * (t[b[:, 0]] + t[b[:, 1] - 1]), "s"),
+        }
+
 
 # --------------------------------------------------------------------------- recording
 def _record_env(

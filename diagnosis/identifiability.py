@@ -19,7 +19,24 @@ from realitygap.robots.effects import EFFECTS
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["identifiability", "jacobian"]
+__all__ = ["identifiability", "jacobian", "probe_description"]
+
+
+def probe_description(ref: Any, name: str, description: str) -> str:
+    """The description of probe manoeuvre ``name`` within the limits of the log's robot.
+
+    A wheeled log whose robot parameters state ``v_max`` and ``w_max`` gets the
+    library manoeuvre scaled into them
+    (:meth:`~realitygap.diagnosis.manoeuvres.Manoeuvre.within`), as its probe
+    features are; any other description is returned unchanged.
+    """
+    from realitygap.diagnosis.manoeuvres import MANOEUVRES
+
+    params = getattr(getattr(ref, "context", None), "params", None)
+    v_max, w_max = getattr(params, "v_max", None), getattr(params, "w_max", None)
+    if name in MANOEUVRES and v_max and w_max:
+        return MANOEUVRES[name].within(float(v_max), float(w_max)).description
+    return description
 
 
 def jacobian(
@@ -99,14 +116,15 @@ def identifiability(problem: Problem, a: ModelFit, b: ModelFit) -> dict[str, Any
         if best is None or cross_m < best[1]:
             best = (name, cross_m)
     assert best is not None
+    description = probe_description(ref, best[0], probes[best[0]])
     out["separating_motion"] = {
         "name": best[0],
-        "description": probes[best[0]],
+        "description": description,
         "correlation_after": float(best[1]),
     }
     out["message"] = (
         f"the logged motions cannot tell {a.name} from {b.name} (parameter correlation "
-        f"{cross:.2f}); recording '{best[0]}' ({probes[best[0]]}) would "
+        f"{cross:.2f}); recording '{best[0]}' ({description}) would "
         f"separate them (correlation {best[1]:.2f})"
     )
     return out

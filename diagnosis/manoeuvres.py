@@ -13,7 +13,8 @@ identifiability advice ("drive X to tell A from B").
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import re
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -22,7 +23,7 @@ from realitygap.robots.diffdrive import DiffDriveParams, FirmwareLimits
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["MANOEUVRES", "Manoeuvre", "square"]
+__all__ = ["MANOEUVRES", "Manoeuvre", "scale_speeds_in_text", "square"]
 
 
 @dataclass(frozen=True)
@@ -48,6 +49,43 @@ class Manoeuvre:
     def duration(self) -> float:
         return float(sum(s[0] for s in self.segments))
 
+    def within(self, v_max: float, w_max: float) -> Manoeuvre:
+        """This manoeuvre scaled into a robot's speed limits.
+
+        Every speed is multiplied by ``k_v = min(1, v_max / max|v|)`` and every
+        turn rate by ``k_ω = min(1, w_max / max|ω|)``, so the ratios between the
+        legs (what makes the manoeuvre informative) are kept; durations are
+        unchanged. The description's speeds (numbers followed by ``m/s`` or
+        ``rad/s``) are rescaled the same way.
+
+        Parameters
+        ----------
+        v_max : float
+            The robot's speed limit, m/s (> 0).
+        w_max : float
+            Its turn-rate limit, rad/s (> 0).
+
+        Returns
+        -------
+        Manoeuvre
+            ``self`` when it already fits.
+        """
+        if not (v_max > 0 and w_max > 0):
+            raise ValueError(
+                f"within: v_max and w_max must be positive limits (m/s, rad/s); got "
+                f"v_max={v_max!r}, w_max={w_max!r}; pass the robot's DiffDriveParams limits"
+            )
+        peak_v = max(abs(s[1]) for s in self.segments)
+        peak_w = max(abs(s[2]) for s in self.segments)
+        kv = min(1.0, v_max / peak_v) if peak_v > 0 else 1.0
+        kw = min(1.0, w_max / peak_w) if peak_w > 0 else 1.0
+        if kv == 1.0 and kw == 1.0:
+            return self
+        segments = tuple((d, v * kv, w * kw) for d, v, w in self.segments)
+        return replace(
+            self, segments=segments, description=scale_speeds_in_text(self.description, kv, kw)
+        )
+
     def requested(self, dt: float) -> tuple[FloatArray, FloatArray]:
         """Time stamps (N,) and requested twists (N, 2), with one rest row at each end."""
         rows = [np.zeros((1, 2))]
@@ -59,8 +97,11 @@ class Manoeuvre:
         return (dt * np.arange(cmd.shape[0])).astype(np.float64), cmd
 
     def applied(self, dt: float, params: DiffDriveParams) -> tuple[FloatArray, FloatArray]:
-        """Time stamps and the twists the drive receives (ramped if ``ramp``), (N,), (N, 2)."""
-        t, cmd = self.requested(dt)
+        """Time stamps and the twists the drive receives (ramped if ``ramp``), (N,), (N, 2).
+
+        The manoeuvre is first scaled into the robot's ``v_max`` and ``w_max``
+        (:meth:`within`): a robot is never asked for more than it can do."""
+        t, cmd = self.within(params.v_max, params.w_max).requested(dt)
         if not self.ramp:
             return t, cmd
         out = np.empty_like(cmd)
@@ -70,6 +111,21 @@ class Manoeuvre:
             v, w = firmware.limit(float(cmd[k, 0]), float(cmd[k, 1]), v, w, dt)
             out[k] = v, w
         return t, out
+
+
+_SPEEDS = re.compile(r"((?:\d+(?:\.\d+)?(?:, | and | or ))*\d+(?:\.\d+)?) ?(m/s|rad/s)")
+
+
+def scale_speeds_in_text(text: str, kv: float, kw: float) -> str:
+    """Rescale the speeds a description states: numbers (or lists of them) before
+    ``m/s`` by ``kv`` and before ``rad/s`` by ``kw``."""
+
+    def one(m: re.Match[str]) -> str:
+        k = kv if m.group(2) == "m/s" else kw
+        nums = re.sub(r"\d+(?:\.\d+)?", lambda n: f"{float(n.group(0)) * k:.2g}", m.group(1))
+        return m.group(0).replace(m.group(1), nums, 1)
+
+    return _SPEEDS.sub(one, text)
 
 
 def square(name: str, side: float, v: float, w: float, clockwise: bool) -> Manoeuvre:
@@ -204,7 +260,7 @@ MANOEUVRES: dict[str, Manoeuvre] = {
         ),
         Manoeuvre(
             "hard_starts",
-            "hard starts and stops at 0.3 and 0.6 m/s (step commands)",
+            "hard starts and stops at 0.3 m/s and 0.6 m/s (step commands)",
             ((1.0, 0.3, 0.0), (1.0, 0.0, 0.0), (1.0, 0.6, 0.0), (1.0, 0.0, 0.0)),
             ramp=False,
         ),

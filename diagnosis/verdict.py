@@ -10,8 +10,9 @@ nominal replay's residual already looks like noise).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -28,7 +29,16 @@ from realitygap.diagnosis.shrink import overall_shrink
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["Judgement", "judge"]
+__all__ = [
+    "Judgement",
+    "alias_notes",
+    "conclude",
+    "explain",
+    "judge",
+    "parameter_status",
+    "regime_consistency",
+    "run_discovery",
+]
 
 
 @dataclass
@@ -211,3 +221,322 @@ def _confidence(margin: float, settings: AttributionSettings) -> str:
     if margin >= 2.0:
         return "moderate"
     return "weak"
+
+
+# --------------------------------------------------------------------------- after the verdict
+def regime_consistency(
+    problem: Problem,
+    fit: ModelFit,
+    z_nom: FloatArray,
+    mask: npt.NDArray[np.bool_] | None = None,
+    *,
+    t_worse: float = 3.0,
+    ratio_worse: float = 1.1,
+    min_entries: int = 10,
+) -> dict[str, Any]:
+    r"""Does ``fit`` improve every regime it touches on held-out data?
+
+    Per regime ``r`` (held-out entries of the gap channels), the paired
+    difference of squared residuals :math:`d_i = z_{fit,i}^2 - z_{nom,i}^2`
+    decides: the regime is worsened when :math:`\bar d / (s_d / \sqrt{n}) >`
+    ``t_worse`` and the RMS grows by more than ``ratio_worse``; improved when
+    the same statistic is below ``-t_worse``. A model that improves one regime
+    and worsens another is a likely compensator: it trades one error for
+    another rather than removing a cause.
+
+    Returns
+    -------
+    dict
+        ``regimes`` (per regime: entries, RMS before / after, shrink %, t and
+        ``"improved"`` / ``"worsened"`` / ``"unchanged"``), ``improved``,
+        ``worsened`` and ``compensator``.
+    """
+    lay = problem.holdout
+    if z_nom.shape != (lay.n,) or fit.z_heldout.shape != (lay.n,):
+        raise ValueError(
+            f"regime_consistency: residuals must have the held-out layout's length {lay.n}; got "
+            f"{z_nom.shape} and {fit.z_heldout.shape}"
+        )
+    sel = np.ones(lay.n, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+    rows: dict[str, dict[str, Any]] = {}
+    improved, worsened = [], []
+    for r in sorted(set(lay.regime[sel].tolist())):
+        m = sel & (lay.regime == r)
+        n = int(m.sum())
+        if n < min_entries:
+            continue
+        a, b = z_nom[m], fit.z_heldout[m]
+        d = b**2 - a**2
+        sd = float(np.std(d, ddof=1))
+        t = float(np.mean(d) / (sd / math.sqrt(n))) if sd > 0 else 0.0
+        rms_a, rms_b = float(np.sqrt(np.mean(a**2))), float(np.sqrt(np.mean(b**2)))
+        if t > t_worse and rms_b > ratio_worse * rms_a:
+            state = "worsened"
+            worsened.append(r)
+        elif t < -t_worse:
+            state = "improved"
+            improved.append(r)
+        else:
+            state = "unchanged"
+        rows[r] = {
+            "entries": n,
+            "rms_nominal": rms_a,
+            "rms_model": rms_b,
+            "shrink_pct": overall_shrink(a, b),
+            "t": t,
+            "state": state,
+        }
+    return {
+        "model": fit.name,
+        "regimes": rows,
+        "improved": improved,
+        "worsened": worsened,
+        "compensator": bool(improved and worsened),
+    }
+
+
+def parameter_status(problem: Problem, fit: ModelFit) -> dict[str, str]:
+    """Which fitted parameters are not findings: ``"at bound"`` or ``"untestable"``.
+
+    A parameter sits *at a bound* when it lies within 0.5 % of its span from
+    either end of its physical range; it is *untestable* when moving it across
+    its whole range (to either end) changes the training residual by less than
+    the noise floor: the logged motions do not exercise it (a speed limit above
+    anything commanded). Neither kind gets an error bar.
+    """
+    if not fit.keys:
+        return {}
+    keys = list(fit.keys)
+    pts: list[dict[str, float]] = [dict(fit.values)]
+    for k in keys:
+        spec = _spec(k)
+        for end in (spec.low, spec.high):
+            pts.append({**fit.values, k: float(end) if math.isfinite(end) else fit.values[k]})
+    batch = {k: np.array([pt[k] for pt in pts]) for k in keys}
+    z = problem.surrogate_residuals(problem.train, batch, len(pts))
+    out: dict[str, str] = {}
+    for j, k in enumerate(keys):
+        spec = _spec(k)
+        span = spec.high - spec.low
+        v = fit.values[k]
+        moved = max(float(np.sqrt(np.mean((z[1 + 2 * j + e] - z[0]) ** 2))) for e in (0, 1))
+        if moved < problem.settings.floor:
+            out[k] = "untestable"
+        elif math.isfinite(span) and min(v - spec.low, spec.high - v) < 0.005 * span:
+            out[k] = "at bound"
+    return out
+
+
+def _known_alias_groups(adapter: Any) -> list[set[str]]:
+    """The adapter's own alias groups (``alias_groups()``, optional): sets of effect names."""
+    method = getattr(adapter, "alias_groups", None)
+    if method is None:
+        return []
+    groups = method() if callable(method) else method
+    out = []
+    for g in groups or ():
+        members = g.get("effects", ()) if isinstance(g, Mapping) else g
+        if isinstance(members, str):
+            continue
+        out.append({str(e) for e in members})
+    return out
+
+
+def alias_notes(
+    problem: Problem,
+    ranking: Sequence[ModelFit],
+    judgement: Judgement,
+    ident: Sequence[Mapping[str, Any]],
+    *,
+    t_equal: float = 2.0,
+    identify: Any = None,
+) -> list[dict[str, Any]]:
+    """Models the data cannot tell from the verdict's model.
+
+    Another model (neither a sub- nor a super-model) is an alias when it closes
+    the held-out gap as well within noise (paired squared residuals differ by
+    less than ``t_equal`` standard errors and it passes the shrink test too),
+    when the identifiability check found their parameters correlated beyond
+    ``confound_corr``, or when the adapter lists the two in one alias group
+    and the other fits nearly as well. Each alias carries the manoeuvre that
+    would separate them, where one exists.
+    """
+    best, st = judgement.best, problem.settings
+    if judgement.verdict.kind != "effects" or not best.effects:
+        return []
+    mask = judgement.gap_mask
+    z_nom = judgement.nominal_heldout
+    groups = _known_alias_groups(problem.adapter)
+    by_name = {str(i.get("effects", ["", ""])[1]): i for i in ident if i.get("effects")}
+    out: list[dict[str, Any]] = []
+    for other in ranking:
+        if not other.effects or other.effects == best.effects:
+            continue
+        if set(other.effects) <= set(best.effects) or set(other.effects) >= set(best.effects):
+            continue
+        if other.z_heldout.shape != best.z_heldout.shape:
+            continue
+        why: list[str] = []
+        d = other.z_heldout[mask] ** 2 - best.z_heldout[mask] ** 2
+        sd = float(np.std(d, ddof=1)) if d.size > 1 else 0.0
+        t = float(np.mean(d) / (sd / math.sqrt(d.size))) if sd > 0 else math.inf
+        shrink = overall_shrink(z_nom[mask], other.z_heldout[mask])
+        if abs(t) < t_equal and shrink >= 100.0 * st.min_shrink:
+            why.append(
+                f"closes the held-out gap as well within noise ({shrink:.0f} %, t = {t:.1f})"
+            )
+        info = by_name.get(other.name)
+        if info is not None and not info.get("separable", True):
+            why.append(f"parameter correlation {info['correlation']:.2f}")
+        known = any(
+            (set(best.effects) & g) and (set(other.effects) & g) - set(best.effects) for g in groups
+        )
+        if known and shrink >= 100.0 * st.min_shrink:
+            why.append("a known alias of this robot")
+        if not why:
+            continue
+        if info is None and identify is not None:
+            info = identify(problem, best, other)
+        entry: dict[str, Any] = {"model": other.name, "why": why, "heldout_shrink_pct": shrink}
+        if info is not None and "separating_motion" in info:
+            entry["separating_motion"] = info["separating_motion"]
+        out.append(entry)
+        if len(out) >= 3:
+            break
+    return out
+
+
+def run_discovery(problem: Problem, judgement: Judgement) -> Any:
+    """Discovery on the residual the verdict leaves, only when it is unexplained.
+
+    The residual is that of the best model on the bias-corrected surrogate
+    (training and held-out alike), or of the nominal replay when no model
+    improves on it. A named verdict is never touched: ``None`` is returned.
+    """
+    from realitygap.diagnosis.discovery import discover
+
+    if judgement.verdict.kind != "unexplained":
+        return None
+    best = judgement.best
+    if best.effects:
+        point = {k: np.array([v]) for k, v in best.values.items()}
+        z_tr = problem.surrogate_residuals(problem.train, point, 1)[0]
+        z_ho = problem.surrogate_residuals(problem.holdout, point, 1)[0]
+    else:
+        z_tr = problem.nominal_residuals(problem.train)
+        z_ho = judgement.nominal_heldout
+    return discover(problem, z_tr, z_ho, judgement.gap_mask)
+
+
+def conclude(
+    problem: Problem,
+    ranking: Sequence[ModelFit],
+    judgement: Judgement,
+    ident: Sequence[Mapping[str, Any]],
+) -> dict[str, Any]:
+    """What the verdict adds after identifiability: aliases, compensators, honest
+    parameters and, for an unexplained gap, what the residual looks like.
+
+    A verdict whose model worsens a regime it touches becomes ``"unexplained"``
+    (a likely compensator, not a cause). Parameters at a bound or untestable
+    lose their error bars (``stderr`` set to NaN). The notes are stored in
+    ``judgement.verdict.notes`` and returned.
+    """
+    from realitygap.diagnosis.identifiability import identifiability
+
+    verdict, best = judgement.verdict, judgement.best
+    z_nom, mask = judgement.nominal_heldout, judgement.gap_mask
+    consistency = [
+        regime_consistency(problem, f, z_nom, mask)
+        for f in ranking[:8]
+        if f.effects and f.z_heldout.shape == z_nom.shape
+    ]
+    by_model = {c["model"]: c for c in consistency}
+    status: dict[str, dict[str, str]] = {}
+    for f in ranking[:8]:
+        st_f = parameter_status(problem, f)
+        for k in st_f:
+            f.stderr[k] = math.nan
+        if st_f:
+            status[f.name] = st_f
+    comp = by_model.get(best.name)
+    if verdict.kind == "effects" and comp is not None and comp["compensator"]:
+        verdict.kind, verdict.effects, verdict.confidence = "unexplained", (), "n/a"
+        verdict.reason = (
+            f"the best candidate ({best.name}) improves the {', '.join(comp['improved'])} "
+            f"windows but worsens the {', '.join(comp['worsened'])} ones: a likely compensator "
+            "for an effect outside the library, not a cause"
+        )
+    aliases = alias_notes(problem, ranking, judgement, ident, identify=identifiability)
+    for a in aliases:
+        if a["model"] not in verdict.ambiguous_with:
+            verdict.ambiguous_with.append(a["model"])
+    if aliases:
+        verdict.confidence = "not identifiable"
+    if verdict.kind == "effects":
+        text = " or ".join([best.name, *(a["model"] for a in aliases)])
+        text += " (aliases on this data)" if aliases else ""
+    else:
+        text = verdict.kind
+    disc = run_discovery(problem, judgement)
+    consistency.sort(key=lambda c: (bool(c["worsened"]), -_shrink_of(c)))
+    notes: dict[str, Any] = {
+        "verdict_text": text,
+        "aliases": aliases,
+        "compensators": [c["model"] for c in consistency if c["compensator"]],
+        "regime_consistency": consistency,
+        "parameter_status": status,
+        "discovery": disc.to_json() if disc is not None else None,
+    }
+    verdict.notes.update(notes)
+    return notes
+
+
+def _shrink_of(c: Mapping[str, Any]) -> float:
+    rows = c["regimes"].values()
+    num = sum(r["entries"] * r["rms_model"] ** 2 for r in rows)
+    den = sum(r["entries"] * r["rms_nominal"] ** 2 for r in rows)
+    return 100.0 * (1.0 - math.sqrt(num / den)) if den > 0 else 0.0
+
+
+def explain(verdict: Verdict, top_models: Sequence[str] = ()) -> list[str]:
+    """The verdict in words, then numbers: one line each for the verdict with its
+    aliases, every alias and the manoeuvre that would separate it, compensators,
+    parameters that are not findings (of ``top_models``, default all) and what
+    discovery found in an unexplained residual."""
+    notes = verdict.notes
+    label = notes.get("verdict_text") or (
+        " + ".join(verdict.effects) if verdict.kind == "effects" else verdict.kind
+    )
+    lines = [f"verdict: {label}", f"reason: {verdict.reason}"]
+    for a in notes.get("aliases", []):
+        line = f"alias: {a['model']} fits as well ({'; '.join(a['why'])})"
+        motion = a.get("separating_motion")
+        if motion:
+            line += (
+                f"; recording '{motion['name']}' ({motion['description']}) would tell them apart"
+            )
+        else:
+            line += "; no probe manoeuvre of this robot separates them"
+        lines.append(line)
+    for c in notes.get("regime_consistency", []):
+        if c["compensator"]:
+            lines.append(
+                f"compensator: {c['model']} improves the {', '.join(c['improved'])} windows "
+                f"and worsens the {', '.join(c['worsened'])} ones: it makes up for something "
+                "else rather than causing the gap"
+            )
+    for model, status in notes.get("parameter_status", {}).items():
+        if top_models and model not in top_models:
+            continue
+        for key, why in status.items():
+            what = (
+                "sits at a bound of its physical range"
+                if why == "at bound"
+                else "is not exercised by the logged motions"
+            )
+            lines.append(f"not a finding: {key} of {model} {what} (no error bar)")
+    disc = notes.get("discovery")
+    if disc is not None:
+        lines.append(f"discovery: {disc['message']}")
+    return lines

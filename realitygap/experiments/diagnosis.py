@@ -125,6 +125,7 @@ def _ranking_table(js: dict[str, Any], n: int) -> list[dict[str, Any]]:
 def diagnose_real(ctx: RunContext) -> dict[str, Any]:
     from realitygap.core.parallel import ProcessBackend
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
+    from realitygap.diagnosis.verdict import explain
 
     groups = _optiodom_groups(ctx)
     if "square" not in groups:
@@ -197,7 +198,8 @@ def diagnose_real(ctx: RunContext) -> dict[str, Any]:
         tables[f"{drive}_shrink_best_candidate"] = [
             r for r in js["shrink_best_candidate"] if r["regime"] == "all"
         ]
-        notes.append(f"{drive}: verdict {figures[prefix + 'verdict']} — {d.verdict.reason}")
+        top = [f.name for f in d.ranking[:5]]
+        notes += [f"{drive}: {line}" for line in explain(d.verdict, top)]
         for info in d.identifiability:
             if not info.get("separable"):
                 notes.append(f"{drive}: {info['message']}")
@@ -233,6 +235,7 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
     from realitygap.diagnosis.arm_adapter import ArmAdapter
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
     from realitygap.diagnosis.io import logs_from_ur10
+    from realitygap.diagnosis.verdict import explain
 
     logs = logs_from_ur10(ctx.data_subdir("ipa_ur10_lasertracker"))
     if len(logs) < 2:
@@ -278,9 +281,8 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
                 {k: r[k] for k in ("where", "column", "regime", "n_windows", "rms", "share")}
                 for r in js["localisation"]["table"][:8]
             ]
-            notes.append(
-                f"{names}: verdict {figures[f'ur10_{prefix}verdict']} — {d.verdict.reason}"
-            )
+            top = [f.name for f in d.ranking[:5]]
+            notes += [f"{names}: {line}" for line in explain(d.verdict, top)]
             for e, why in d.not_observable.items():
                 if prefix == "":
                     notes.append(f"not observable: {e}: {why}")
