@@ -69,7 +69,7 @@ class DiscoverySettings:
     folds: int = 5
     max_terms: int = 3
     min_shrink: float = 0.2
-    min_windows: int = 20
+    min_windows: int = 12
 
     def __post_init__(self) -> None:
         if not self.thresholds or any(t <= 0 for t in self.thresholds):
@@ -179,6 +179,25 @@ def _stlsq(X: FloatArray, y: FloatArray, threshold: float, ridge: float) -> Floa
     return np.asarray(opt.coef_, dtype=float).reshape(-1)
 
 
+def _independent(X: FloatArray, rms: FloatArray, tol: float = 0.02) -> npt.NDArray[np.bool_]:
+    """Columns kept in library order: each must not be (nearly) a combination of those
+    kept before it (Gram–Schmidt residual RMS above ``tol`` of its own RMS), so that a
+    wheel speed does not compete with the ``v``, ``ω`` it is made of."""
+    keep = np.zeros(X.shape[1], dtype=bool)
+    basis: list[FloatArray] = []
+    for j in range(X.shape[1]):
+        if rms[j] <= 1e-12:
+            continue
+        r = X[:, j] / rms[j]
+        for q in basis:
+            r = r - (q @ r) * q
+        norm = float(np.sqrt(np.mean(r**2)))
+        if norm > tol:
+            keep[j] = True
+            basis.append(r / np.linalg.norm(r))
+    return keep
+
+
 def _folds(groups: npt.NDArray[Any], n_folds: int) -> npt.NDArray[np.int64]:
     """Fold of each entry: by group (log) when there are enough, else contiguous blocks."""
     uniq = np.unique(groups)
@@ -242,7 +261,7 @@ def fit_terms(
     g = np.zeros(y.size, dtype=np.int64) if groups is None else np.asarray(groups)
     # unit-RMS columns; columns that do not vary in the training data are dropped
     rms = np.sqrt(np.mean(X**2, axis=0)) if y.size else np.zeros(p)
-    keep = rms > 1e-12
+    keep = _independent(X, rms)
     Xs, Xhs = X[:, keep] / rms[keep], X_ho[:, keep] / rms[keep]
     y_rms = float(np.sqrt(np.mean(y**2))) if y.size else 0.0
     empty = TermFit(target, unit, [], 0.0, 0.0, math.nan, False)
@@ -270,9 +289,11 @@ def fit_terms(
         return TermFit(target, unit, [], 0.0, cv_shrink, math.inf, False)
     lam = st.thresholds[chosen]
     xi = _stlsq(Xs, y, lam * y_rms, st.ridge)
-    while np.count_nonzero(xi) > st.max_terms:
-        lam *= 1.5
-        xi = _stlsq(Xs, y, lam * y_rms, st.ridge)
+    if np.count_nonzero(xi) > st.max_terms:
+        # keep the largest terms and refit them alone
+        top = np.argsort(-np.abs(xi))[: st.max_terms]
+        xi = np.zeros_like(xi)
+        xi[top] = np.linalg.lstsq(Xs[:, top], y, rcond=None)[0]
     if not np.any(xi):
         return TermFit(target, unit, [], 0.0, cv_shrink, lam, False)
     ho_rms = float(np.sqrt(np.mean(y_ho**2))) if y_ho.size else 0.0

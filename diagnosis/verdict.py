@@ -379,7 +379,10 @@ def alias_notes(
         why: list[str] = []
         d = other.z_heldout[mask] ** 2 - best.z_heldout[mask] ** 2
         sd = float(np.std(d, ddof=1)) if d.size > 1 else 0.0
-        t = float(np.mean(d) / (sd / math.sqrt(d.size))) if sd > 0 else math.inf
+        if sd > 0:
+            t = float(np.mean(d) / (sd / math.sqrt(d.size)))
+        else:  # identical residuals are equal; a constant difference is not
+            t = 0.0 if float(np.mean(d)) == 0.0 else math.inf
         shrink = overall_shrink(z_nom[mask], other.z_heldout[mask])
         if abs(t) < t_equal and shrink >= 100.0 * st.min_shrink:
             why.append(

@@ -1,0 +1,329 @@
+"""The verdict's notes: aliases, compensators, honest parameters, discovery on a layout,
+and probe manoeuvres that stay within the robot's limits."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from realitygap.diagnosis.attribute import AttributionSettings, ModelFit, Verdict
+from realitygap.diagnosis.discovery import discover
+from realitygap.diagnosis.features import FeatureGroup, FeatureSchema
+from realitygap.diagnosis.identifiability import probe_description
+from realitygap.diagnosis.manoeuvres import MANOEUVRES, PROBE_MANOEUVRES
+from realitygap.diagnosis.verdict import (
+    Judgement,
+    alias_notes,
+    explain,
+    parameter_status,
+    regime_consistency,
+    run_discovery,
+)
+from realitygap.robots.diffdrive import DiffDriveParams
+
+SCHEMA = FeatureSchema(
+    (FeatureGroup("pose_gt", ("dtheta",), ("rad",), (0.01,)),), ("straight", "turning")
+)
+
+
+def _layout(n: int, logs: int, regimes: list[str] | None = None) -> SimpleNamespace:
+    per = n // logs
+    return SimpleNamespace(
+        n=n,
+        group=np.full(n, "pose_gt"),
+        column=np.full(n, "dtheta"),
+        regime=np.array(regimes if regimes is not None else ["straight"] * n),
+        log=np.repeat(np.arange(logs), per),
+        window=np.tile(np.arange(per), logs),
+    )
+
+
+def _fit(effects: tuple[str, ...], z: np.ndarray, values: dict[str, float] | None = None):
+    values = values or {}
+    return ModelFit(
+        effects,
+        tuple(values),
+        values,
+        {k: 0.01 for k in values},
+        np.eye(len(values)),
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        float(np.sqrt(np.mean(z**2))),
+        z,
+    )
+
+
+# --------------------------------------------------------------------------- discovery
+class _Terms:
+    schema = SCHEMA
+
+    def __init__(self, terms: dict[int, np.ndarray]) -> None:
+        self.terms = terms
+
+    def discovery_terms(self, prepared):
+        X = self.terms[prepared.index]
+        return {"ω": (X[:, 0], "rad/s"), "ω̇": (X[:, 1], "rad/s²"), "time": (X[:, 2], "s")}
+
+
+def _discovery_problem(rng: np.random.Generator, n_logs: int = 6, m: int = 40):
+    terms = {
+        i: np.column_stack([rng.uniform(-1, 1, m), rng.normal(0, 2, m), np.arange(m, dtype=float)])
+        for i in range(n_logs)
+    }
+    logs = [SimpleNamespace(index=i, bounds=np.zeros((m, 2), dtype=int)) for i in range(n_logs)]
+    train, hold = _layout(4 * m, 4), _layout(2 * m, 2)
+    hold.log = hold.log + 4
+    problem = SimpleNamespace(
+        adapter=_Terms(terms),
+        logs=logs,
+        train=train,
+        holdout=hold,
+        features=SimpleNamespace(scale=lambda g: np.array([0.01])),
+    )
+    return problem, terms
+
+
+def _residual(problem, terms, layout, coef: float, rng) -> np.ndarray:
+    dw = np.array([terms[i][w, 1] for i, w in zip(layout.log, layout.window)])
+    return (coef * dw + rng.normal(0, 0.004, layout.n)) / 0.01
+
+
+def test_discovery_recovers_planted_term_through_the_layout() -> None:
+    rng = np.random.default_rng(11)
+    problem, terms = _discovery_problem(rng)
+    z_tr = _residual(problem, terms, problem.train, 0.012, rng)
+    z_ho = _residual(problem, terms, problem.holdout, 0.012, rng)
+    d = discover(problem, z_tr, z_ho)
+    assert d is not None and d.found
+    fit = d.fits[0]
+    assert [t["term"] for t in fit.terms] == ["ω̇"]
+    assert fit.terms[0]["coef"] == pytest.approx(0.012, rel=0.05)
+    assert "ω̇" in d.message and "held-out shrink" in d.message
+    assert d.message.startswith("not in the library")
+
+
+def test_discovery_on_pure_noise_says_it_found_nothing() -> None:
+    rng = np.random.default_rng(12)
+    problem, terms = _discovery_problem(rng)
+    z_tr = _residual(problem, terms, problem.train, 0.0, rng)
+    z_ho = _residual(problem, terms, problem.holdout, 0.0, rng)
+    d = discover(problem, z_tr, z_ho)
+    assert d is not None and not d.found
+    assert d.message.startswith("no term of the 3-term library")
+
+
+def test_discovery_rejects_misaligned_residuals() -> None:
+    problem, _ = _discovery_problem(np.random.default_rng(0))
+    with pytest.raises(ValueError, match="must follow the layouts"):
+        discover(problem, np.zeros(3), np.zeros(problem.holdout.n))
+
+
+def test_discovery_never_runs_on_a_named_verdict() -> None:
+    verdict = Verdict("effects", ("wheelbase_error",), "ok", 20.0, "strong", {})
+    best = _fit(("wheelbase_error",), np.zeros(4))
+    j = Judgement(verdict, best, np.zeros(4), np.ones(4, dtype=bool), 90.0)
+    # the problem is never consulted: a named verdict is left as it is
+    assert run_discovery(None, j) is None  # type: ignore[arg-type]
+    assert verdict.kind == "effects" and verdict.effects == ("wheelbase_error",)
+
+
+# --------------------------------------------------------------------------- aliases
+def _alias_problem(n: int, adapter: object | None = None) -> SimpleNamespace:
+    return SimpleNamespace(
+        holdout=_layout(n, 1),
+        settings=AttributionSettings(),
+        adapter=adapter if adapter is not None else SimpleNamespace(),
+    )
+
+
+def test_two_perfectly_correlated_candidates_are_aliases() -> None:
+    rng = np.random.default_rng(3)
+    n = 200
+    z_nom = rng.normal(0, 1, n) + 4.0
+    z = rng.normal(0, 1, n)
+    a, b = _fit(("scale_a",), z), _fit(("scale_b",), z.copy())
+    other = _fit(("other",), z_nom * 0.9)
+    verdict = Verdict("effects", a.effects, "", 20.0, "strong", {})
+    j = Judgement(verdict, a, z_nom, np.ones(n, dtype=bool), 80.0)
+    notes = alias_notes(_alias_problem(n), [a, b, other], j, [])
+    assert [x["model"] for x in notes] == ["scale_b"]
+    assert "as well within noise" in notes[0]["why"][0]
+    # a clearly worse candidate is not an alias
+    assert "other" not in [x["model"] for x in notes]
+
+
+def test_alias_from_parameter_correlation_and_known_groups() -> None:
+    rng = np.random.default_rng(4)
+    n = 200
+    z_nom = rng.normal(0, 1, n) + 4.0
+    a = _fit(("tool_offset",), rng.normal(0, 1, n))
+    b = _fit(("link_lengths",), rng.normal(0, 1, n) * 1.3)  # worse on held-out data
+    verdict = Verdict("effects", a.effects, "", 20.0, "strong", {})
+    j = Judgement(verdict, a, z_nom, np.ones(n, dtype=bool), 80.0)
+    assert alias_notes(_alias_problem(n), [a, b], j, []) == []
+    ident = [{"effects": ["tool_offset", "link_lengths"], "separable": False, "correlation": 0.99}]
+    notes = alias_notes(_alias_problem(n), [a, b], j, ident)
+    assert notes and "parameter correlation 0.99" in notes[0]["why"]
+    adapter = SimpleNamespace(alias_groups=lambda: [("tool_offset", "link_lengths")])
+    notes = alias_notes(_alias_problem(n, adapter), [a, b], j, [])
+    assert notes and "a known alias of this robot" in notes[0]["why"]
+    verdict.notes = {
+        "verdict_text": "tool_offset or link_lengths (aliases on this data)",
+        "aliases": notes,
+    }
+    text = "\n".join(explain(verdict))
+    assert "verdict: tool_offset or link_lengths (aliases on this data)" in text
+    assert "alias: link_lengths fits as well" in text
+
+
+# --------------------------------------------------------------------------- compensators
+def test_candidate_that_helps_one_regime_and_hurts_another_is_a_compensator() -> None:
+    rng = np.random.default_rng(5)
+    n = 400
+    regimes = ["turning"] * 200 + ["straight"] * 200
+    problem = SimpleNamespace(holdout=_layout(n, 1, regimes))
+    z_nom = np.concatenate([rng.normal(3, 1, 200), rng.normal(0, 1, 200)])
+    comp = _fit(
+        ("wheel_radius_scale",), np.concatenate([rng.normal(0, 1, 200), rng.normal(2, 1, 200)])
+    )
+    good = _fit(("dead_zone",), rng.normal(0, 1, n))
+    c = regime_consistency(problem, comp, z_nom)
+    assert c["compensator"] and c["improved"] == ["turning"] and c["worsened"] == ["straight"]
+    g = regime_consistency(problem, good, z_nom)
+    assert not g["compensator"] and g["worsened"] == []
+    with pytest.raises(ValueError, match="held-out layout's length"):
+        regime_consistency(problem, good, z_nom[:10])
+
+
+def test_parameters_at_a_bound_or_untested_get_no_error_bar() -> None:
+    n = 50
+
+    def surrogate_residuals(layout, batch, B):
+        # only E_b moves the residual: the speed limit is never reached by these motions
+        return np.repeat(((batch["wheelbase_error.E_b"] - 1.0) * 100.0)[:, None], n, axis=1)
+
+    problem = SimpleNamespace(
+        train=_layout(n, 1),
+        settings=AttributionSettings(),
+        surrogate_residuals=surrogate_residuals,
+    )
+    fit = _fit(
+        ("wheelbase_error", "velocity_saturation"),
+        np.zeros(n),
+        {"wheelbase_error.E_b": 1.0999, "velocity_saturation.v_limit": 5.0},
+    )
+    status = parameter_status(problem, fit)  # type: ignore[arg-type]
+    assert status == {
+        "wheelbase_error.E_b": "at bound",
+        "velocity_saturation.v_limit": "untestable",
+    }
+    inner = _fit(("wheelbase_error",), np.zeros(n), {"wheelbase_error.E_b": 1.03})
+    assert parameter_status(problem, inner) == {}  # type: ignore[arg-type]
+
+
+# --------------------------------------------------------------------------- manoeuvres
+@pytest.mark.parametrize("name", PROBE_MANOEUVRES)
+def test_probe_manoeuvres_respect_the_robots_speed_limits(name: str) -> None:
+    params = DiffDriveParams(v_max=0.5, w_max=0.8)
+    _, cmd = MANOEUVRES[name].applied(0.05, params)
+    assert np.abs(cmd[:, 0]).max() <= 0.5 + 1e-12
+    assert np.abs(cmd[:, 1]).max() <= 0.8 + 1e-12
+    ref = SimpleNamespace(context=SimpleNamespace(params=params))
+    text = probe_description(ref, name, MANOEUVRES[name].description)
+    import re
+
+    for num, unit in re.findall(r"(\d+(?:\.\d+)?) (m/s|rad/s)", text):
+        assert float(num) <= (0.5 if unit == "m/s" else 0.8) + 1e-9, text
+
+
+def test_hard_starts_for_a_half_metre_per_second_robot() -> None:
+    m = MANOEUVRES["hard_starts"].within(0.5, math.pi)
+    assert "0.6 m/s" not in m.description and "0.5 m/s" in m.description
+    assert max(abs(s[1]) for s in m.segments) == pytest.approx(0.5)
+    # ratios between the legs are kept
+    assert m.segments[0][1] / m.segments[2][1] == pytest.approx(0.5)
+    assert MANOEUVRES["hard_starts"].within(0.7, math.pi) is MANOEUVRES["hard_starts"]
+    with pytest.raises(ValueError, match="v_max and w_max must be positive"):
+        MANOEUVRES["hard_starts"].within(0.0, 1.0)
+
+
+# --------------------------------------------------------------------------- end to end
+def _diagnose(reality_effect, train, holdout, effects, seed):
+    from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
+    from realitygap.diagnosis.manoeuvres import Manoeuvre
+    from realitygap.diagnosis.replay import MeasurementNoise, simulate
+    from realitygap.robots.effects import Reality
+
+    p = DiffDriveParams()
+    noise = MeasurementNoise(0.0005, 0.001, 0.001, 0.002)
+    rng = np.random.default_rng(seed)
+
+    def record(segments):
+        t, cmd = Manoeuvre("m", "m", segments).applied(0.05, p)
+        return simulate(
+            t,
+            params=p,
+            reality=Reality((reality_effect,)),
+            commands=cmd,
+            noise=noise,
+            rng=rng,
+            meta={"name": "m"},
+        )
+
+    fast = AttributionSettings(pair_candidates=2, verify_top=1)
+    return diagnose(
+        [record(s) for s in train],
+        [record(s) for s in holdout],
+        settings=DiagnosisSettings(effects=effects, attribution=fast),
+    )
+
+
+TURNS = ((2.0, 0.0, 1.2), (0.5, 0, 0), (2.0, 0.0, -1.2), (0.5, 0, 0), (2.5, 0.3, 0.0), (0.5, 0, 0))
+ARCS = ((2.5, 0.3, 0.7), (0.5, 0, 0), (2.5, 0.3, -0.7), (0.5, 0, 0))
+LOOP = (
+    (3.0, 0.3, 0.0),
+    (1.5, 0.0, 1.0),
+    (3.0, 0.25, 0.0),
+    (1.5, 0.0, -1.0),
+    (3.0, 0.4, 0.0),
+    (1.0, 0.3, 0.6),
+    (3.0, 0.3, 0.0),
+    (0.5, 0, 0),
+)
+
+
+def test_in_library_verdict_is_kept_and_open_set_residual_is_described() -> None:
+    from realitygap.robots.effects import make_effect
+
+    d = _diagnose(
+        make_effect("wheelbase_error", E_b=1.04),
+        [TURNS, ARCS],
+        [LOOP],
+        ("wheelbase_error", "wheel_radius_scale"),
+        seed=0,
+    )
+    assert d.verdict.label == ["wheelbase_error"]
+    js = d.to_json()
+    assert js["discovery"] is None and js["verdict_text"] == "wheelbase_error"
+    assert js["compensators"] == []
+    # a wheel radius 3.5 % large, outside the library: the straight-line residual is ∝ v
+    d = _diagnose(
+        make_effect("wheel_radius_scale", scale=1.035),
+        [TURNS, ARCS, LOOP],
+        [LOOP, TURNS],
+        ("wheelbase_error", "wheel_diameter_ratio"),
+        seed=1,
+    )
+    assert d.verdict.label == "unexplained"
+    disc = d.to_json()["discovery"]
+    assert disc["found"]
+    dx = next(f for f in disc["fits"] if f["target"] == "pose_gt.dx")
+    assert dx["found"] and dx["terms"][0]["term"] == "v"
+    # 1-s windows: dx residual = (scale - 1) · v · 1 s
+    assert dx["terms"][0]["coef"] == pytest.approx(0.035, rel=0.15)
+    assert any(line.startswith("discovery: not in the library") for line in explain(d.verdict))
