@@ -327,3 +327,54 @@ def test_in_library_verdict_is_kept_and_open_set_residual_is_described() -> None
     # 1-s windows: dx residual = (scale - 1) · v · 1 s
     assert dx["terms"][0]["coef"] == pytest.approx(0.035, rel=0.15)
     assert any(line.startswith("discovery: not in the library") for line in explain(d.verdict))
+
+
+def test_wheeled_term_library_follows_the_commands() -> None:
+    from realitygap.diagnosis.adapters import get_adapter
+    from realitygap.diagnosis.features import FeatureSettings
+    from realitygap.diagnosis.manoeuvres import Manoeuvre
+    from realitygap.diagnosis.replay import Drive, MeasurementNoise, simulate
+
+    p = DiffDriveParams()
+    t, cmd = Manoeuvre("m", "m", ARCS, ramp=False).applied(0.05, p)
+    log = simulate(
+        t,
+        params=p,
+        commands=cmd,
+        noise=MeasurementNoise(0, 0, 0, 0),
+        rng=np.random.default_rng(0),
+        meta={"name": "m"},
+    )
+    adapter = get_adapter("diffdrive")
+    prep = adapter.prepare(
+        log, split="train", drive=Drive.COMMANDS, features_settings=FeatureSettings(), sim=None
+    )
+    terms = adapter.discovery_terms(prep)
+    v, w = terms["v"][0], terms["ω"][0]
+    a, b = prep.bounds[2]
+    assert v[2] == pytest.approx(prep.context.twist[a:b, 0].mean())
+    np.testing.assert_allclose(terms["left wheel speed"][0], v - 0.5 * p.wheelbase * w)
+    np.testing.assert_allclose(terms["v·ω"][0], v * w)
+    assert terms["ω̇"][1] == "rad/s²" and terms["time"][1] == "s"
+    assert all(x[0].shape == (prep.bounds.shape[0],) for x in terms.values())
+
+
+def test_arm_term_library_has_every_joint() -> None:
+    from realitygap.diagnosis.adapters import get_adapter
+    from realitygap.diagnosis.arm_adapter import record_arm_log
+    from realitygap.diagnosis.features import FeatureSettings
+    from realitygap.diagnosis.replay import Drive
+
+    lg = record_arm_log(None, np.random.default_rng(0), 16)
+    adapter = get_adapter("arm")
+    prep = adapter.prepare(
+        lg, split="train", drive=Drive.COMMANDS, features_settings=FeatureSettings(), sim=None
+    )
+    terms = adapter.discovery_terms(prep)
+    for j in range(1, 7):
+        assert {f"sin q{j}", f"cos q{j}", f"sin 2q{j}", f"cos 2q{j}", f"τ{j} (gravity)"} <= set(
+            terms
+        )
+    a, b = prep.bounds[0]
+    assert terms["cos 2q2"][0][0] == pytest.approx(np.cos(2 * prep.context.q[a:b, 1]).mean())
+    assert terms["τ2 (gravity)"][1] == "N·m" and "reach" in terms
