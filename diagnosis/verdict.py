@@ -295,14 +295,15 @@ def regime_consistency(
     }
 
 
-def parameter_status(problem: Problem, fit: ModelFit) -> dict[str, str]:
+def parameter_status(problem: Problem, fit: ModelFit, step: float = 0.25) -> dict[str, str]:
     """Which fitted parameters are not findings: ``"at bound"`` or ``"untestable"``.
 
     A parameter sits *at a bound* when it lies within 0.5 % of its span from
-    either end of its physical range; it is *untestable* when moving it across
-    its whole range (to either end) changes the training residual by less than
-    the noise floor: the logged motions do not exercise it (a speed limit above
-    anything commanded). Neither kind gets an error bar.
+    either end of its physical range. It is *untestable* when the training data
+    are flat around it: moving it towards either bound by ``step`` of the
+    distance to that bound changes no training window by more than the noise
+    floor (a speed limit above anything the robot was commanded, a dead zone
+    below every command). Neither kind gets an error bar.
     """
     if not fit.keys:
         return {}
@@ -310,8 +311,10 @@ def parameter_status(problem: Problem, fit: ModelFit) -> dict[str, str]:
     pts: list[dict[str, float]] = [dict(fit.values)]
     for k in keys:
         spec = _spec(k)
+        v = fit.values[k]
         for end in (spec.low, spec.high):
-            pts.append({**fit.values, k: float(end) if math.isfinite(end) else fit.values[k]})
+            moved = v + step * (end - v) if math.isfinite(end) else v
+            pts.append({**fit.values, k: float(moved)})
     batch = {k: np.array([pt[k] for pt in pts]) for k in keys}
     z = problem.surrogate_residuals(problem.train, batch, len(pts))
     out: dict[str, str] = {}
@@ -319,11 +322,11 @@ def parameter_status(problem: Problem, fit: ModelFit) -> dict[str, str]:
         spec = _spec(k)
         span = spec.high - spec.low
         v = fit.values[k]
-        moved = max(float(np.sqrt(np.mean((z[1 + 2 * j + e] - z[0]) ** 2))) for e in (0, 1))
-        if moved < problem.settings.floor:
-            out[k] = "untestable"
-        elif math.isfinite(span) and min(v - spec.low, spec.high - v) < 0.005 * span:
+        change = max(float(np.max(np.abs(z[1 + 2 * j + e] - z[0]))) for e in (0, 1))
+        if math.isfinite(span) and min(v - spec.low, spec.high - v) < 0.005 * span:
             out[k] = "at bound"
+        elif change < problem.settings.floor:
+            out[k] = "untestable"
     return out
 
 

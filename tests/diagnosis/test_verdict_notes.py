@@ -204,8 +204,10 @@ def test_parameters_at_a_bound_or_untested_get_no_error_bar() -> None:
     n = 50
 
     def surrogate_residuals(layout, batch, B):
-        # only E_b moves the residual: the speed limit is never reached by these motions
-        return np.repeat(((batch["wheelbase_error.E_b"] - 1.0) * 100.0)[:, None], n, axis=1)
+        # a speed limit matters only below the 0.5 m/s these motions command
+        e_b, v_lim = batch["wheelbase_error.E_b"], batch["velocity_saturation.v_limit"]
+        z = (e_b - 1.0) * 100.0 + 10.0 * np.maximum(0.5 - v_lim, 0.0)
+        return np.repeat(z[:, None], n, axis=1)
 
     problem = SimpleNamespace(
         train=_layout(n, 1),
@@ -215,14 +217,18 @@ def test_parameters_at_a_bound_or_untested_get_no_error_bar() -> None:
     fit = _fit(
         ("wheelbase_error", "velocity_saturation"),
         np.zeros(n),
-        {"wheelbase_error.E_b": 1.0999, "velocity_saturation.v_limit": 5.0},
+        {"wheelbase_error.E_b": 1.0999, "velocity_saturation.v_limit": 0.65},
     )
     status = parameter_status(problem, fit)  # type: ignore[arg-type]
     assert status == {
         "wheelbase_error.E_b": "at bound",
         "velocity_saturation.v_limit": "untestable",
     }
-    inner = _fit(("wheelbase_error",), np.zeros(n), {"wheelbase_error.E_b": 1.03})
+    inner = _fit(
+        ("wheelbase_error", "velocity_saturation"),
+        np.zeros(n),
+        {"wheelbase_error.E_b": 1.03, "velocity_saturation.v_limit": 0.45},
+    )
     assert parameter_status(problem, inner) == {}  # type: ignore[arg-type]
 
 
