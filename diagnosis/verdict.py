@@ -302,8 +302,10 @@ def parameter_status(problem: Problem, fit: ModelFit, step: float = 0.25) -> dic
     either end of its physical range. It is *untestable* when the training data
     are flat around it: moving it towards either bound by ``step`` of the
     distance to that bound changes no training window by more than the noise
-    floor (a speed limit above anything the robot was commanded, a dead zone
-    below every command). Neither kind gets an error bar.
+    floor (a speed limit far above anything the robot was commanded, a dead
+    zone below every command); *one-sided* when only one of the two moves
+    changes anything (the logs bound it on one side only: a speed limit just
+    above the fastest command). None of these gets an error bar.
     """
     if not fit.keys:
         return {}
@@ -322,11 +324,13 @@ def parameter_status(problem: Problem, fit: ModelFit, step: float = 0.25) -> dic
         spec = _spec(k)
         span = spec.high - spec.low
         v = fit.values[k]
-        change = max(float(np.max(np.abs(z[1 + 2 * j + e] - z[0]))) for e in (0, 1))
+        change = [float(np.max(np.abs(z[1 + 2 * j + e] - z[0]))) for e in (0, 1)]
         if math.isfinite(span) and min(v - spec.low, spec.high - v) < 0.005 * span:
             out[k] = "at bound"
-        elif change < problem.settings.floor:
+        elif max(change) < problem.settings.floor:
             out[k] = "untestable"
+        elif min(change) < problem.settings.floor:
+            out[k] = "one-sided"
     return out
 
 
@@ -536,11 +540,11 @@ def explain(verdict: Verdict, top_models: Sequence[str] = ()) -> list[str]:
         if top_models and model not in top_models:
             continue
         for key, why in status.items():
-            what = (
-                "sits at a bound of its physical range"
-                if why == "at bound"
-                else "is not exercised by the logged motions"
-            )
+            what = {
+                "at bound": "sits at a bound of its physical range",
+                "untestable": "is not exercised by the logged motions",
+                "one-sided": "is bounded on one side only by the logged motions",
+            }.get(why, why)
             lines.append(f"not a finding: {key} of {model} {what} (no error bar)")
     disc = notes.get("discovery")
     if disc is not None:

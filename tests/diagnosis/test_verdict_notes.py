@@ -230,6 +230,15 @@ def test_parameters_at_a_bound_or_untested_get_no_error_bar() -> None:
         {"wheelbase_error.E_b": 1.03, "velocity_saturation.v_limit": 0.45},
     )
     assert parameter_status(problem, inner) == {}  # type: ignore[arg-type]
+    # just above the fastest command: the logs say only "above 0.5 m/s"
+    near = _fit(
+        ("wheelbase_error", "velocity_saturation"),
+        np.zeros(n),
+        {"wheelbase_error.E_b": 1.03, "velocity_saturation.v_limit": 0.52},
+    )
+    assert parameter_status(problem, near) == {  # type: ignore[arg-type]
+        "velocity_saturation.v_limit": "one-sided"
+    }
 
 
 # --------------------------------------------------------------------------- manoeuvres
