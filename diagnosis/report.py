@@ -22,6 +22,7 @@ import numpy as np
 
 from realitygap.core.io import atomic_write
 from realitygap.diagnosis.diagnose import Diagnosis
+from realitygap.diagnosis.verdict import explain_markdown
 
 __all__ = ["jsonable", "write_json", "write_report"]
 
@@ -211,6 +212,7 @@ def _markdown(d: Diagnosis, figures: list[tuple[str, str]], note: str) -> str:
     lines += ["", "## Verdict", ""]
     label = ", ".join(v.effects) if v.kind == "effects" else v.kind.upper()
     lines.append(f"**{label}** — {v.reason}.  ")
+    lines += explain_markdown(v, [f.name for f in d.ranking[:5]])
     if v.kind == "effects":
         lines.append(
             f"Confidence: {v.confidence} (score margin to the runner-up {_fmt(v.margin)})."

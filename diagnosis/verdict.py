@@ -34,6 +34,7 @@ __all__ = [
     "alias_notes",
     "conclude",
     "explain",
+    "explain_markdown",
     "judge",
     "parameter_status",
     "regime_consistency",
@@ -550,3 +551,13 @@ def explain(verdict: Verdict, top_models: Sequence[str] = ()) -> list[str]:
     if disc is not None:
         lines.append(f"discovery: {disc['message']}")
     return lines
+
+
+def explain_markdown(verdict: Verdict, top_models: Sequence[str] = ()) -> list[str]:
+    """:func:`explain` as Markdown bullet lines for a report, without the verdict and
+    reason lines a report states itself, except when aliases change the verdict's words."""
+    lines = explain(verdict, top_models)
+    extra = lines[2:]
+    if verdict.notes.get("aliases"):
+        extra = [lines[0], *extra]
+    return [""] + [f"- {line}" for line in extra] if extra else []

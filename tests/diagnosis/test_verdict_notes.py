@@ -18,6 +18,7 @@ from realitygap.diagnosis.verdict import (
     Judgement,
     alias_notes,
     explain,
+    explain_markdown,
     parameter_status,
     regime_consistency,
     run_discovery,
@@ -179,6 +180,8 @@ def test_alias_from_parameter_correlation_and_known_groups() -> None:
     text = "\n".join(explain(verdict))
     assert "verdict: tool_offset or link_lengths (aliases on this data)" in text
     assert "alias: link_lengths fits as well" in text
+    md = explain_markdown(verdict)
+    assert md[1] == "- verdict: tool_offset or link_lengths (aliases on this data)"
 
 
 # --------------------------------------------------------------------------- compensators
