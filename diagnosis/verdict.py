@@ -232,6 +232,7 @@ def regime_consistency(
     mask: npt.NDArray[np.bool_] | None = None,
     *,
     t_worse: float = 3.0,
+    t_better: float = 2.0,
     ratio_worse: float = 1.1,
     min_entries: int = 10,
 ) -> dict[str, Any]:
@@ -241,9 +242,9 @@ def regime_consistency(
     difference of squared residuals :math:`d_i = z_{fit,i}^2 - z_{nom,i}^2`
     decides: the regime is worsened when :math:`\bar d / (s_d / \sqrt{n}) >`
     ``t_worse`` and the RMS grows by more than ``ratio_worse``; improved when
-    the same statistic is below ``-t_worse``. A model that improves one regime
-    and worsens another is a likely compensator: it trades one error for
-    another rather than removing a cause.
+    the same statistic is below ``-t_better``. A model that worsens a regime
+    while improving another, or the held-out gap as a whole, is a likely
+    compensator: it trades one error for another rather than removing a cause.
 
     Returns
     -------
@@ -260,7 +261,8 @@ def regime_consistency(
         )
     sel = np.ones(lay.n, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
     rows: dict[str, dict[str, Any]] = {}
-    improved, worsened = [], []
+    improved: list[str] = []
+    worsened: list[str] = []
     for r in sorted(set(lay.regime[sel].tolist())):
         m = sel & (lay.regime == r)
         n = int(m.sum())
@@ -274,7 +276,7 @@ def regime_consistency(
         if t > t_worse and rms_b > ratio_worse * rms_a:
             state = "worsened"
             worsened.append(r)
-        elif t < -t_worse:
+        elif t < -t_better:
             state = "improved"
             improved.append(r)
         else:
@@ -292,7 +294,10 @@ def regime_consistency(
         "regimes": rows,
         "improved": improved,
         "worsened": worsened,
-        "compensator": bool(improved and worsened),
+        "shrink_pct": overall_shrink(z_nom[sel], fit.z_heldout[sel]),
+        "compensator": bool(
+            worsened and (improved or overall_shrink(z_nom[sel], fit.z_heldout[sel]) > 0)
+        ),
     }
 
 
@@ -474,9 +479,9 @@ def conclude(
     if verdict.kind == "effects" and comp is not None and comp["compensator"]:
         verdict.kind, verdict.effects, verdict.confidence = "unexplained", (), "n/a"
         verdict.reason = (
-            f"the best candidate ({best.name}) improves the {', '.join(comp['improved'])} "
-            f"windows but worsens the {', '.join(comp['worsened'])} ones: a likely compensator "
-            "for an effect outside the library, not a cause"
+            f"the best candidate ({best.name}) improves "
+            f"{_improved_words(comp)} but worsens the {', '.join(comp['worsened'])} windows: "
+            "a likely compensator for an effect outside the library, not a cause"
         )
     aliases = alias_notes(problem, ranking, judgement, ident, identify=identifiability)
     for a in aliases:
@@ -490,7 +495,7 @@ def conclude(
     else:
         text = verdict.kind
     disc = run_discovery(problem, judgement)
-    consistency.sort(key=lambda c: (bool(c["worsened"]), -_shrink_of(c)))
+    consistency.sort(key=lambda c: (bool(c["worsened"]), -c["shrink_pct"]))
     notes: dict[str, Any] = {
         "verdict_text": text,
         "aliases": aliases,
@@ -503,11 +508,10 @@ def conclude(
     return notes
 
 
-def _shrink_of(c: Mapping[str, Any]) -> float:
-    rows = c["regimes"].values()
-    num = sum(r["entries"] * r["rms_model"] ** 2 for r in rows)
-    den = sum(r["entries"] * r["rms_nominal"] ** 2 for r in rows)
-    return 100.0 * (1.0 - math.sqrt(num / den)) if den > 0 else 0.0
+def _improved_words(c: Mapping[str, Any]) -> str:
+    if c["improved"]:
+        return f"the {', '.join(c['improved'])} windows"
+    return f"the held-out gap as a whole ({c['shrink_pct']:.0f} %)"
 
 
 def explain(verdict: Verdict, top_models: Sequence[str] = ()) -> list[str]:
@@ -533,9 +537,9 @@ def explain(verdict: Verdict, top_models: Sequence[str] = ()) -> list[str]:
     for c in notes.get("regime_consistency", []):
         if c["compensator"]:
             lines.append(
-                f"compensator: {c['model']} improves the {', '.join(c['improved'])} windows "
-                f"and worsens the {', '.join(c['worsened'])} ones: it makes up for something "
-                "else rather than causing the gap"
+                f"compensator: {c['model']} improves {_improved_words(c)} and worsens the "
+                f"{', '.join(c['worsened'])} windows: it makes up for something else rather "
+                "than causing the gap"
             )
     for model, status in notes.get("parameter_status", {}).items():
         if top_models and model not in top_models:
