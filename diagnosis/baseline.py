@@ -46,7 +46,7 @@ import numpy.typing as npt
 
 from realitygap.core.parallel import Backend
 from realitygap.diagnosis.adapters import PreparedLog
-from realitygap.diagnosis.attribute import Problem, _spec, fit_model
+from realitygap.diagnosis.attribute import Problem, _rho, _spec, fit_model
 from realitygap.diagnosis.log import Log
 from realitygap.diagnosis.shrink import overall_shrink
 
@@ -71,6 +71,8 @@ class Baseline:
     units : dict of str to str
     train_shrink_pct : float
         How much of the nominal replay's training residual the baseline removes, %.
+        A baseline whose PyBullet replay does not lower the robust training cost
+        is not applied (``values`` empty).
     replays : dict of int to Log
         PyBullet replays of each log at the baseline.
     """
@@ -188,11 +190,23 @@ def calibrate_baseline(
         p: PreparedLog = problem.logs[i]
         features[i] = {g: feats[g] for g in p.groups}
         replays[i] = rep
+    old_bias = {i: p.bias for i, p in enumerate(problem.logs)}
+    for i, p in enumerate(problem.logs):
         sur = problem.adapter.surrogate_features(p, point, problem.drive)
-        p.bias = {g: feats[g] - sur[g][0] for g in p.groups}
+        p.bias = {g: features[i][g] - sur[g][0] for g in p.groups}
     problem.baseline_values = values
     problem.baseline_features = features
     z_after = problem.nominal_residuals(problem.train)
+    st = problem.settings
+    cost_before = float(np.sum(_rho(z_before**2, st.loss, problem.f_scale)))
+    cost_after = float(np.sum(_rho(z_after**2, st.loss, problem.f_scale)))
+    if not cost_after < cost_before:
+        # the PyBullet replay at the surrogate's optimum is no better: keep the nominal robot
+        for i, p in enumerate(problem.logs):
+            p.bias = old_bias[i]
+        problem.baseline_values, problem.baseline_features = {}, {}
+        say("baseline calibration: the nuisances do not improve the nominal replay; none applied")
+        return Baseline(ranges=ranges, units={k: _spec(k).unit for k in ranges})
     problem.f_scale = problem.noise_scale()
     return Baseline(
         values=values,
