@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
 from realitygap.diagnosis.attribute import AttributionSettings, _rho
-from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
+from realitygap.diagnosis.diagnose import Diagnosis, DiagnosisSettings, diagnose
 from realitygap.diagnosis.log import Log, LogError
 from realitygap.diagnosis.manoeuvres import Manoeuvre
 from realitygap.diagnosis.replay import MeasurementNoise, simulate
+from realitygap.diagnosis.report import write_report
 from realitygap.diagnosis.transients import TransientSettings
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import EFFECTS, Reality, make_effect
@@ -96,13 +99,18 @@ def test_rho_is_scipys_loss(loss: str) -> None:
 
 
 # --------------------------------------------------------------------------- transients
-def test_stall_is_set_aside_and_the_planted_wheelbase_recovered() -> None:
+@pytest.fixture(scope="module")
+def stalled() -> Diagnosis:
     rng = np.random.default_rng(3)
     reality = Reality((make_effect("wheelbase_error", E_b=1.04),))
     arcs = record(ARCS, reality, rng).without("pose_cam", "pose_est")
     train = [stall(record(LOOP, reality, rng), 7.2, 8.4), arcs]
     hold = [stall(record(LOOP, reality, rng), 3.1, 4.0)]
-    d = diagnose(train, hold, settings=DiagnosisSettings(effects=LIBRARY, attribution=FAST))
+    return diagnose(train, hold, settings=DiagnosisSettings(effects=LIBRARY, attribution=FAST))
+
+
+def test_stall_is_set_aside_and_the_planted_wheelbase_recovered(stalled: Diagnosis) -> None:
+    d = stalled
     tr = d.transients
     kinds = {e.kind for e in tr.events if e.excluded}
     assert kinds == {"ground truth frozen"} or kinds <= {"ground truth frozen", "stall or slip"}
@@ -116,6 +124,27 @@ def test_stall_is_set_aside_and_the_planted_wheelbase_recovered() -> None:
     assert d.verdict.label == ["wheelbase_error"]
     top = d.ranking_rows()[0]
     assert top["params"]["wheelbase_error.E_b"]["value"] == pytest.approx(1.04, abs=0.004)
+
+
+def test_report_states_baseline_and_transients(
+    stalled: Diagnosis, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_matplotlib(name: str, *args: object, **kwargs: object) -> object:
+        if name.startswith("matplotlib"):
+            raise ImportError("no matplotlib here")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_matplotlib)
+    text = write_report(stalled, tmp_path).read_text()
+    assert "## Baseline calibration" in text and "## Transient events" in text
+    n, m = stalled.transients.n_excluded, stalled.transients.n_windows
+    assert f"{n} of {m} windows" in text
+    assert "| loop | 7.0–" in text and "ground truth frozen" in text
+    assert "matplotlib is not installed" in text
 
 
 def test_transient_detector_is_off_without_settings() -> None:
