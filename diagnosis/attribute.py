@@ -291,6 +291,11 @@ class Problem:
     baseline_features : dict of int to features
         PyBullet features of each log at the calibrated baseline (the reference
         every effect is scored against); empty before calibration.
+    baseline_ranges : dict of str to (float, float)
+        The nuisance range of each baseline parameter: a model re-fits the
+        nuisances inside these ranges together with its own parameters (so that
+        a nuisance value biased by an effect missing from the baseline does not
+        stay biased), without naming them as findings.
     f_scale : float
         Scale of the robust loss, feature-scale units (:meth:`noise_scale`).
     """
@@ -306,6 +311,7 @@ class Problem:
     excluded: dict[int, npt.NDArray[np.bool_]] = field(default_factory=dict)
     baseline_values: dict[str, float] = field(default_factory=dict)
     baseline_features: dict[int, dict[str, FloatArray]] = field(default_factory=dict)
+    baseline_ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
     f_scale: float = 1.0
 
     def __post_init__(self) -> None:
@@ -527,8 +533,24 @@ def fit_model(
                     f"physical bounds ({_spec(k).low:g} … {_spec(k).high:g})"
                 )
     loss, c = settings.loss, problem.f_scale
+    # baseline nuisances the model does not fit itself: refined with it inside their ranges
+    nuis = tuple(
+        k for k in problem.baseline_ranges if k not in keys and k in problem.baseline_values
+    )
+    q = len(nuis)
+    all_keys = keys + nuis
+    lo_n = np.array([_to_u(k, problem.baseline_ranges[k][0]) for k in nuis])
+    hi_n = np.array([_to_u(k, problem.baseline_ranges[k][1]) for k in nuis])
+    lo_n, hi_n = np.minimum(lo_n, hi_n), np.maximum(lo_n, hi_n)
+    u_base = np.array([_to_u(k, problem.baseline_values[k]) for k in nuis])
+    for st in starts:
+        if all(k in st for k in nuis):
+            u_base = np.array([_to_u(k, float(st[k])) for k in nuis])
+    u_base = np.clip(u_base, lo_n, hi_n)
 
     def residual_batch(U: FloatArray, layout: Any) -> FloatArray:
+        if U.shape[1] == p + q:
+            return problem.surrogate_residuals(layout, _values(all_keys, U), U.shape[0], bias)
         return problem.surrogate_residuals(layout, _values(keys, U), U.shape[0], bias)
 
     seed = settings.seed + sum(ord(c_) for c_ in "".join(effects))
@@ -558,6 +580,10 @@ def fit_model(
 
     h = 1e-3
     cache: dict[bytes, FloatArray] = {}
+    # the local refinement runs over the model's parameters and the baseline nuisances
+    lo_u, hi_u = np.concatenate([lo_u, lo_n]), np.concatenate([hi_u, hi_n])
+    cand = [np.concatenate([u, u_base]) for u in cand]
+    n_all = p + q
 
     def fun(u: FloatArray) -> FloatArray:
         key = u.tobytes()
@@ -567,7 +593,7 @@ def fit_model(
 
     def jac(u: FloatArray) -> FloatArray:
         steps = np.where(u + h <= hi_u, h, -h)
-        U = np.vstack([u] + [u + np.eye(p)[j] * steps[j] for j in range(p)])
+        U = np.vstack([u] + [u + np.eye(n_all)[j] * steps[j] for j in range(n_all)])
         z = residual_batch(U, tr)
         cache[u.tobytes()] = z[0]
         return ((z[1:] - z[0]) / steps[:, None]).T
@@ -584,7 +610,7 @@ def fit_model(
                 jac=jac,
                 bounds=(lo_u, hi_u),
                 x_scale=0.1 * span,
-                max_nfev=30 * p,
+                max_nfev=30 * n_all,
                 method="trf",
                 loss=loss,
                 f_scale=c,
@@ -594,11 +620,12 @@ def fit_model(
         if best is None or res.cost < best.cost:
             best = res
     assert best is not None
-    u_hat = best.x
-    z_tr = fun(u_hat)
-    J = jac(u_hat)
-    z_ho = residual_batch(u_hat[None], ho)[0] if ho.n else np.zeros(0)
-    return _finish(problem, tuple(effects), keys, u_hat, z_tr, z_ho, J)
+    u_all = best.x
+    z_tr = fun(u_all)
+    J = jac(u_all)[:, :p]
+    z_ho = residual_batch(u_all[None], ho)[0] if ho.n else np.zeros(0)
+    nuisance = {k: float(_to_x(k, np.array([u_all[p + j]]))[0]) for j, k in enumerate(nuis)}
+    return _finish(problem, tuple(effects), keys, u_all[:p], z_tr, z_ho, J, nuisance=nuisance)
 
 
 def _finish(
@@ -610,6 +637,7 @@ def _finish(
     z_ho: FloatArray,
     J_u: FloatArray,
     verified: bool = False,
+    nuisance: Mapping[str, float] | None = None,
 ) -> ModelFit:
     settings = problem.settings
     p = len(keys)
@@ -633,7 +661,8 @@ def _finish(
             stderr = {k: math.inf for k in keys}
     effect_sizes = _effect_sizes(problem, effects, values) if p else {}
     # the calibrated baseline travels with every model (PyBullet replays use it)
-    values = {**{k: v for k, v in problem.baseline_values.items() if k not in values}, **values}
+    base = {**problem.baseline_values, **(nuisance or {})}
+    values = {**{k: v for k, v in base.items() if k not in values}, **values}
     floor = settings.score_floor
     train_score = float(profile_score(z_tr, problem.train, floor))
     bic = train_score + p * math.log(n)

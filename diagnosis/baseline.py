@@ -196,6 +196,7 @@ def calibrate_baseline(
         p.bias = {g: features[i][g] - sur[g][0] for g in p.groups}
     problem.baseline_values = values
     problem.baseline_features = features
+    problem.baseline_ranges = {k: (r[0], r[1]) for k, r in ranges.items()}
     z_after = problem.nominal_residuals(problem.train)
     st = problem.settings
     cost_before = float(np.sum(_rho(z_before**2, st.loss, problem.f_scale)))
@@ -205,6 +206,7 @@ def calibrate_baseline(
         for i, p in enumerate(problem.logs):
             p.bias = old_bias[i]
         problem.baseline_values, problem.baseline_features = {}, {}
+        problem.baseline_ranges = {}
         say("baseline calibration: the nuisances do not improve the nominal replay; none applied")
         return Baseline(ranges=ranges, units={k: _spec(k).unit for k in ranges})
     problem.f_scale = problem.noise_scale()
