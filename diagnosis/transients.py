@@ -274,6 +274,7 @@ def _signals(
         wheel_angle = travel / np.array([params.wheel_radius_left, params.wheel_radius_right])
         min_motion = settings.min_command_motion_m
         source = "commands"
+    cmd = np.asarray(log["cmd"], dtype=float) if log.has("cmd") else None
     n_sub = max(2, int(round(settings.sub_interval_s / dt)))
     for w, (a, e) in enumerate(p.bounds):
         e = min(int(e), gt.shape[0] - 1)
@@ -303,8 +304,13 @@ def _signals(
         v_body = float(np.hypot(*(gt[e, :2] - gt[a, :2]))) / dur
         w_body = float(_wrap(gt[e, 2] - gt[a, 2])) / dur
         w_wheels = float((d_wheels[1] - d_wheels[0]) / b) / dur
+        commanded = ""
+        if cmd is not None:
+            c = cmd[a:e].mean(axis=0) if e > a else cmd[a]
+            commanded = f"commanded {c[0]:.3f} m/s, {c[1]:+.2f} rad/s; "
         texts[w] = (
-            f"{source}: left {wheel_rate[0]:+.2f} rad/s, right {wheel_rate[1]:+.2f} rad/s "
+            commanded
+            + f"{source}: left {wheel_rate[0]:+.2f} rad/s, right {wheel_rate[1]:+.2f} rad/s "
             f"(turn {w_wheels:+.2f} rad/s); body {v_body:.3f} m/s, {w_body:+.2f} rad/s"
             + (f": {found}" if found else "")
         )
