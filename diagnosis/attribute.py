@@ -1,14 +1,22 @@
 r"""Attribute a sim-to-real gap to effects: fit, score on held-out data, decide or refuse.
 
 For every candidate effect (and pairs of the best ones) the parameters are
-fitted on the training windows by least squares on the normalised window
+fitted on the training windows by robust least squares on the normalised window
 residuals
 
-.. math::  z(θ) = \big(f_{real} - f_{sim}(θ)\big) / s ,
+.. math::  z(θ) = \big(f_{real} - f_{sim}(θ)\big) / s , \qquad
+           \min_θ \sum_i ρ\big(z_i(θ)^2\big), \quad
+           ρ(q) = 2 c^2 \big(\sqrt{1 + q / c^2} - 1\big)
 
-where :math:`f_{sim}(θ)` is the fast surrogate plus its own error at the
-nominal point (``bias``: nominal PyBullet replay minus nominal surrogate) and
-``s`` the feature scales. A model is scored by the Gaussian profile likelihood
+(scipy's ``soft_l1`` loss: quadratic for residuals within ``c``, linear beyond,
+so that a few disturbed windows cannot carry the fit), where
+:math:`f_{sim}(θ)` is the fast surrogate plus its own error at the reference
+point (``bias``: PyBullet replay minus surrogate at the calibrated baseline,
+:mod:`realitygap.diagnosis.baseline`), ``s`` the feature scales and ``c``
+(``f_scale``) :attr:`AttributionSettings.robust_scale` times the noise level
+of the baseline residual (:meth:`Problem.noise_scale`). Parameters are bounded
+by the physical bounds of each effect's :class:`~realitygap.robots.effects.base.ParamSpec`,
+never by ranges read from the logs. A model is scored by the Gaussian profile likelihood
 per feature group ``g`` with a BIC penalty,
 
 .. math::  S = \sum_g n_g \log\big(\overline{z_g^2} + ε^2\big) + p \log n ,
@@ -44,6 +52,7 @@ from scipy.optimize import least_squares
 from realitygap.diagnosis.adapters import PreparedLog, RobotAdapter
 from realitygap.diagnosis.features import FeatureSchema, FeatureSettings
 from realitygap.diagnosis.replay import Drive, SimSettings
+from realitygap.diagnosis.residual import _white_level, describe_residual
 from realitygap.robots.effects import EFFECTS
 
 FloatArray = npt.NDArray[np.float64]
@@ -99,6 +108,10 @@ class AttributionSettings:
         model's is preferred (Occam's razor on held-out scores).
     grid_points : int
         Grid points per parameter of single-parameter fits.
+    loss : {"soft_l1", "cauchy", "huber", "linear"}
+        Loss of :func:`scipy.optimize.least_squares` (``"linear"``: plain least squares).
+    robust_scale : float
+        ``f_scale`` of the robust loss in noise levels of the baseline residual.
     seed : int
         Seed of the random starts of models with more than two parameters.
     """
@@ -116,7 +129,22 @@ class AttributionSettings:
     margin_strong: float = 10.0
     parsimony_margin: float = 6.0
     grid_points: int = 41
+    loss: str = "soft_l1"
+    robust_scale: float = 3.0
     seed: int = 0
+
+    def __post_init__(self) -> None:
+        allowed = ("soft_l1", "cauchy", "huber", "linear", "arctan")
+        if self.loss not in allowed:
+            raise ValueError(
+                f"AttributionSettings.loss: expected one of {', '.join(allowed)}, got "
+                f"{self.loss!r}; fix: pass e.g. loss='soft_l1'"
+            )
+        if not (self.robust_scale > 0 and math.isfinite(self.robust_scale)):
+            raise ValueError(
+                "AttributionSettings.robust_scale: expected a positive finite number of noise "
+                f"levels, got {self.robust_scale!r}"
+            )
 
 
 # --------------------------------------------------------------------------- parameters
@@ -191,14 +219,22 @@ class Layout:
         return int(self.group.shape[0])
 
     @classmethod
-    def build(cls, logs: Sequence[PreparedLog], split: str, schema: FeatureSchema) -> Layout:
+    def build(
+        cls,
+        logs: Sequence[PreparedLog],
+        split: str,
+        schema: FeatureSchema,
+        excluded: Mapping[int, npt.NDArray[np.bool_]] | None = None,
+    ) -> Layout:
+        """The layout of the ``split`` windows of ``logs``, without the ``excluded`` ones
+        (per log index, a boolean mask over its windows: transient events)."""
         blocks = []
         g_all, c_all, r_all, l_all, w_all, m_all = [], [], [], [], [], []
         for i, p in enumerate(logs):
-            if split == "train":
-                wins = np.flatnonzero(~p.holdout_windows)
-            else:
-                wins = np.flatnonzero(p.holdout_windows)
+            use = ~p.holdout_windows if split == "train" else p.holdout_windows.copy()
+            if excluded is not None and i in excluded:
+                use = use & ~excluded[i]
+            wins = np.flatnonzero(use)
             if wins.size == 0:
                 continue
             motion = np.zeros((p.bounds.shape[0], len(MOTION_COLUMNS)))
@@ -242,7 +278,28 @@ def profile_score(z: FloatArray, layout: Layout, floor: float) -> FloatArray:
 # --------------------------------------------------------------------------- problem
 @dataclass
 class Problem:
-    """Everything a fit needs: adapter, prepared logs, drive, settings (picklable)."""
+    """Everything a fit needs: adapter, prepared logs, drive, settings (picklable).
+
+    Attributes
+    ----------
+    excluded : dict of int to ndarray of bool
+        Windows set aside as transient events, per log index
+        (:mod:`realitygap.diagnosis.transients`); :meth:`exclude` sets them.
+    baseline_values : dict of str to float
+        The calibrated baseline (``{"effect.param": value}``,
+        :mod:`realitygap.diagnosis.baseline`): added to every model unless the
+        model fits that parameter itself.
+    baseline_features : dict of int to features
+        PyBullet features of each log at the calibrated baseline (the reference
+        every effect is scored against); empty before calibration.
+    baseline_ranges : dict of str to (float, float)
+        The nuisance range of each baseline parameter: a model re-fits the
+        nuisances inside these ranges together with its own parameters (so that
+        a nuisance value biased by an effect missing from the baseline does not
+        stay biased), without naming them as findings.
+    f_scale : float
+        Scale of the robust loss, feature-scale units (:meth:`noise_scale`).
+    """
 
     adapter: RobotAdapter
     logs: list[PreparedLog]
@@ -252,10 +309,58 @@ class Problem:
     settings: AttributionSettings
     train: Layout = field(init=False)
     holdout: Layout = field(init=False)
+    excluded: dict[int, npt.NDArray[np.bool_]] = field(default_factory=dict)
+    baseline_values: dict[str, float] = field(default_factory=dict)
+    baseline_features: dict[int, dict[str, FloatArray]] = field(default_factory=dict)
+    baseline_ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
+    f_scale: float = 1.0
 
     def __post_init__(self) -> None:
-        self.train = Layout.build(self.logs, "train", self.adapter.schema)
-        self.holdout = Layout.build(self.logs, "holdout", self.adapter.schema)
+        self._build()
+
+    def _build(self) -> None:
+        schema = self.adapter.schema
+        self.train = Layout.build(self.logs, "train", schema, self.excluded)
+        self.holdout = Layout.build(self.logs, "holdout", schema, self.excluded)
+        self.f_scale = self.noise_scale()
+
+    def exclude(self, windows: Mapping[int, npt.NDArray[np.bool_]]) -> None:
+        """Set aside windows (per log index, boolean mask over its windows) and rebuild."""
+        for i, mask in windows.items():
+            m = np.asarray(mask, dtype=bool)
+            if m.shape != (self.logs[i].bounds.shape[0],):
+                raise ValueError(
+                    f"Problem.exclude: log {i} has {self.logs[i].bounds.shape[0]} windows, the "
+                    f"mask has shape {m.shape}"
+                )
+            self.excluded[i] = m
+        self._build()
+
+    def noise_scale(self) -> float:
+        """``f_scale`` of the robust loss: :attr:`AttributionSettings.robust_scale` times the
+        noise level of the reference residual on the training windows.
+
+        The noise level of each group is its robust white (window-to-window,
+        MAD-based) level (:func:`_white_level`); the median over groups is
+        used, never less than the structure floor.
+        """
+        st = self.settings
+        if self.train.n == 0:
+            return st.robust_scale * st.floor
+        z = self.nominal_residuals(self.train)
+        levels = [
+            _white_level(z, self.train, self.train.group == g) for g in np.unique(self.train.group)
+        ]
+        level = max(float(np.median(levels)) if levels else 0.0, st.floor)
+        return st.robust_scale * level
+
+    def with_baseline(self, values: Mapping[str, FloatArray], batch: int) -> dict[str, FloatArray]:
+        """``values`` plus the calibrated baseline for every parameter they do not set."""
+        out = dict(values)
+        for k, v in self.baseline_values.items():
+            if k not in out:
+                out[k] = np.full(batch, v)
+        return out
 
     def real_minus(
         self,
@@ -287,16 +392,24 @@ class Problem:
     ) -> FloatArray:
         """Residuals (B, n) of a batch of effect values on the bias-corrected surrogate."""
 
+        full = self.with_baseline(values, batch)
+
         def predict(p: PreparedLog, i: int) -> dict[str, FloatArray]:
-            sur = self.adapter.surrogate_features(p, values, self.drive)
+            sur = self.adapter.surrogate_features(p, full, self.drive)
             b = bias[i] if bias is not None and i in bias else p.bias
             return {g: sur[g] + b[g][None] for g in p.groups}
 
         return self.real_minus(layout, predict, batch)
 
     def nominal_residuals(self, layout: Layout) -> FloatArray:
-        """Residual (n,) of the nominal PyBullet replays."""
-        return self.real_minus(layout, lambda p, i: {g: p.nominal[g][None] for g in p.groups}, 1)[0]
+        """Residual (n,) of the reference PyBullet replays: the calibrated baseline once
+        :mod:`~realitygap.diagnosis.baseline` has set it, else the nominal robot."""
+
+        def predict(p: PreparedLog, i: int) -> dict[str, FloatArray]:
+            feats = self.baseline_features.get(i, p.nominal)
+            return {g: feats[g][None] for g in p.groups}
+
+        return self.real_minus(layout, predict, 1)[0]
 
 
 # --------------------------------------------------------------------------- fits
@@ -355,6 +468,22 @@ def _values(keys: Sequence[str], U: FloatArray) -> dict[str, FloatArray]:
     return {k: _to_x(k, U[:, j]) for j, k in enumerate(keys)}
 
 
+def _rho(q: FloatArray, loss: str, c: float) -> FloatArray:
+    """The robust loss of :func:`scipy.optimize.least_squares` at ``q = z²`` (same scaling)."""
+    x = q / c**2
+    if loss == "soft_l1":
+        r = 2.0 * (np.sqrt(1.0 + x) - 1.0)
+    elif loss == "cauchy":
+        r = np.log1p(x)
+    elif loss == "huber":
+        r = np.where(x <= 1.0, x, 2.0 * np.sqrt(x) - 1.0)
+    elif loss == "arctan":
+        r = np.arctan(x)
+    else:
+        return q
+    return c**2 * r
+
+
 def fit_model(
     problem: Problem,
     effects: Sequence[str],
@@ -362,20 +491,29 @@ def fit_model(
     starts: Sequence[Mapping[str, float]] = (),
     bias: Mapping[int, dict[str, FloatArray]] | None = None,
     local_only: bool = False,
+    box: Mapping[str, tuple[float, float]] | None = None,
 ) -> ModelFit:
     """Fit one model's parameters on the training windows and score it on the held-out ones.
+
+    The fit is :func:`scipy.optimize.least_squares` with the robust loss
+    :attr:`AttributionSettings.loss` and ``f_scale`` = :attr:`Problem.f_scale`,
+    inside each parameter's physical bounds (its ``ParamSpec``).
 
     Parameters
     ----------
     problem : Problem
     effects : sequence of str
-        Effect names of the model (empty: the nominal model).
+        Effect names of the model (empty: the reference model, i.e. the
+        calibrated baseline when there is one).
     starts : sequence of mappings
         Extra start points ``{"effect.param": value}`` (e.g. single-effect optima).
     bias : mapping, optional
         Per-log surrogate bias replacing the nominal one (PyBullet defect correction).
     local_only : bool
         Skip the grid; refine from ``starts`` only.
+    box : mapping of key to (low, high), optional
+        Narrower bounds (natural units) for some parameters, inside their
+        physical bounds (the baseline's nuisance ranges).
     """
     settings = problem.settings
     keys = model_keys(effects)
@@ -385,36 +523,68 @@ def fit_model(
         z_tr = problem.surrogate_residuals(tr, {}, 1, bias)[0]
         z_ho = problem.surrogate_residuals(ho, {}, 1, bias)[0] if ho.n else np.zeros(0)
         return _finish(problem, tuple(effects), keys, np.zeros(0), z_tr, z_ho, np.zeros((0, 0)))
+    lo_u, hi_u = np.zeros(p), np.ones(p)
+    for j, k in enumerate(keys):
+        if box and k in box:
+            a, b = sorted((_to_u(k, box[k][0]), _to_u(k, box[k][1])))
+            lo_u[j], hi_u[j] = max(a, 0.0), min(b, 1.0)
+            if hi_u[j] <= lo_u[j]:
+                raise ValueError(
+                    f"fit_model: box for {k!r} ({box[k][0]:g} … {box[k][1]:g}) lies outside its "
+                    f"physical bounds ({_spec(k).low:g} … {_spec(k).high:g})"
+                )
+    loss, c = settings.loss, problem.f_scale
+    # baseline nuisances the model does not fit itself: refined with it inside their ranges
+    nuis = tuple(
+        k for k in problem.baseline_ranges if k not in keys and k in problem.baseline_values
+    )
+    q = len(nuis)
+    all_keys = keys + nuis
+    lo_n = np.array([_to_u(k, problem.baseline_ranges[k][0]) for k in nuis])
+    hi_n = np.array([_to_u(k, problem.baseline_ranges[k][1]) for k in nuis])
+    lo_n, hi_n = np.minimum(lo_n, hi_n), np.maximum(lo_n, hi_n)
+    u_base = np.array([_to_u(k, problem.baseline_values[k]) for k in nuis])
+    for st in starts:
+        if all(k in st for k in nuis):
+            u_base = np.array([_to_u(k, float(st[k])) for k in nuis])
+    u_base = np.clip(u_base, lo_n, hi_n)
 
     def residual_batch(U: FloatArray, layout: Any) -> FloatArray:
+        if U.shape[1] == p + q:
+            return problem.surrogate_residuals(layout, _values(all_keys, U), U.shape[0], bias)
         return problem.surrogate_residuals(layout, _values(keys, U), U.shape[0], bias)
 
-    seed = settings.seed + sum(ord(c) for c in "".join(effects))
+    seed = settings.seed + sum(ord(c_) for c_ in "".join(effects))
     rng = np.random.default_rng(seed)
     cand: list[FloatArray] = []
     for st in starts:
         u = np.array([_to_u(k, float(st.get(k, _spec(k).nominal))) for k in keys])
-        cand.append(np.clip(u, 0.0, 1.0))
+        cand.append(np.clip(u, lo_u, hi_u))
+    u_nom = np.clip(np.array([_to_u(k, _spec(k).nominal) for k in keys]), lo_u, hi_u)
     if not local_only:
-        U = _grid(keys, settings, rng)
-        U = np.vstack([U, np.array([[_to_u(k, _spec(k).nominal) for k in keys]]), *cand])
+        U = lo_u + _grid(keys, settings, rng) * (hi_u - lo_u)
+        U = np.vstack([U, u_nom[None], *cand])
         costs = np.empty(U.shape[0])
         for a in range(0, U.shape[0], 128):
             z = residual_batch(U[a : a + 128], tr)
-            costs[a : a + 128] = np.sum(z**2, axis=1)
+            costs[a : a + 128] = np.sum(_rho(z**2, loss, c), axis=1)
         order = np.argsort(costs)
         picks: list[FloatArray] = []
         for idx in order:
-            if all(np.max(np.abs(U[idx] - q)) > 0.08 for q in picks):
+            if all(np.max(np.abs(U[idx] - q)) > 0.08 * np.max(hi_u - lo_u) for q in picks):
                 picks.append(U[idx])
             if len(picks) >= 3:
                 break
         cand = picks
     if not cand:
-        cand = [np.array([_to_u(k, _spec(k).nominal) for k in keys])]
+        cand = [u_nom]
 
     h = 1e-3
     cache: dict[bytes, FloatArray] = {}
+    # the local refinement runs over the model's parameters and the baseline nuisances
+    lo_u, hi_u = np.concatenate([lo_u, lo_n]), np.concatenate([hi_u, hi_n])
+    cand = [np.concatenate([u, u_base]) for u in cand]
+    n_all = p + q
 
     def fun(u: FloatArray) -> FloatArray:
         key = u.tobytes()
@@ -423,28 +593,40 @@ def fit_model(
         return cache[key]
 
     def jac(u: FloatArray) -> FloatArray:
-        steps = np.where(u + h <= 1.0, h, -h)
-        U = np.vstack([u] + [u + np.eye(p)[j] * steps[j] for j in range(p)])
+        steps = np.where(u + h <= hi_u, h, -h)
+        U = np.vstack([u] + [u + np.eye(n_all)[j] * steps[j] for j in range(n_all)])
         z = residual_batch(U, tr)
         cache[u.tobytes()] = z[0]
         return ((z[1:] - z[0]) / steps[:, None]).T
 
+    # least_squares needs strictly feasible starts and lower < upper
+    span = np.maximum(hi_u - lo_u, 1e-12)
     best = None
     for u0 in cand:
+        u0 = np.clip(u0, lo_u + 1e-9 * span, hi_u - 1e-9 * span)
         try:
             res = least_squares(
-                fun, u0, jac=jac, bounds=(0.0, 1.0), x_scale=0.1, max_nfev=30 * p, method="trf"
+                fun,
+                u0,
+                jac=jac,
+                bounds=(lo_u, hi_u),
+                x_scale=0.1 * span,
+                max_nfev=30 * n_all,
+                method="trf",
+                loss=loss,
+                f_scale=c,
             )
         except (ValueError, np.linalg.LinAlgError):  # pragma: no cover - defensive
             continue
         if best is None or res.cost < best.cost:
             best = res
     assert best is not None
-    u_hat = best.x
-    z_tr = fun(u_hat)
-    J = jac(u_hat)
-    z_ho = residual_batch(u_hat[None], ho)[0] if ho.n else np.zeros(0)
-    return _finish(problem, tuple(effects), keys, u_hat, z_tr, z_ho, J)
+    u_all = best.x
+    z_tr = fun(u_all)
+    J = jac(u_all)[:, :p]
+    z_ho = residual_batch(u_all[None], ho)[0] if ho.n else np.zeros(0)
+    nuisance = {k: float(_to_x(k, np.array([u_all[p + j]]))[0]) for j, k in enumerate(nuis)}
+    return _finish(problem, tuple(effects), keys, u_all[:p], z_tr, z_ho, J, nuisance=nuisance)
 
 
 def _finish(
@@ -456,6 +638,7 @@ def _finish(
     z_ho: FloatArray,
     J_u: FloatArray,
     verified: bool = False,
+    nuisance: Mapping[str, float] | None = None,
 ) -> ModelFit:
     settings = problem.settings
     p = len(keys)
@@ -478,6 +661,9 @@ def _finish(
         except np.linalg.LinAlgError:  # pragma: no cover - pinv does not raise in practice
             stderr = {k: math.inf for k in keys}
     effect_sizes = _effect_sizes(problem, effects, values) if p else {}
+    # the calibrated baseline travels with every model (PyBullet replays use it)
+    base = {**problem.baseline_values, **(nuisance or {})}
+    values = {**{k: v for k, v in base.items() if k not in values}, **values}
     floor = settings.score_floor
     train_score = float(profile_score(z_tr, problem.train, floor))
     bic = train_score + p * math.log(n)
@@ -549,187 +735,3 @@ class Verdict:
         if self.kind == "effects":
             return list(self.effects)
         return self.kind
-
-
-def _white_level(z: FloatArray, layout: Layout, sel: npt.NDArray[np.bool_]) -> float:
-    """Noise level of a residual group: robust spread of its window-to-window differences.
-
-    ``1.4826 · MAD(Δz) / √2`` over consecutive windows of each log and column,
-    so that a few large structured windows (starts, stops, slow legs) do not
-    pass for noise.
-    """
-    diffs = []
-    for col in np.unique(layout.column[sel]):
-        for lg in np.unique(layout.log[sel]):
-            m = sel & (layout.column == col) & (layout.log == lg)
-            v = z[m]
-            if v.size >= 2:
-                diffs.append(np.diff(v))
-    if not diffs:
-        return 0.0
-    d = np.concatenate(diffs)
-    mad = float(np.median(np.abs(d - np.median(d))))
-    return 1.4826 * mad / math.sqrt(2.0)
-
-
-def describe_residual(
-    z: FloatArray,
-    layout: Layout,
-    settings: AttributionSettings,
-    scales: FeatureSettings,
-    noise: Mapping[str, float] | None = None,
-) -> dict[str, Any]:
-    """Whether a held-out residual (n,) still has structure, and what it looks like.
-
-    The noise level a group's residual is compared with is, by default, its
-    white, window-to-window level (:func:`_white_level`: right for time series,
-    where an effect drifts slowly from window to window). Where windows are
-    independent — an arm measured at random poses, so any effect looks
-    different in every window — the adapter states the measurement noise
-    instead: ``noise[group]`` in feature-scale units.
-
-    Returns
-    -------
-    dict
-        ``structured`` (bool), ``reasons`` (list of str) and per group
-        ``groups[g]``: RMS (scale units and SI units per column), white level,
-        excess ratio, lag-1 autocorrelation, mean per regime (SI units per
-        column), the regime t statistics and the fraction of variance
-        explained by the commanded motion.
-    """
-    out: dict[str, Any] = {"structured": False, "reasons": [], "groups": {}}
-    regimes = layout.schema.regimes
-    for g in layout.schema.names:
-        sel = layout.group == g
-        if sel.sum() < 6:
-            continue
-        zg = z[sel]
-        rms = float(np.sqrt(np.mean(zg**2)))
-        white = noise[g] if noise is not None and g in noise else _white_level(z, layout, sel)
-        level = max(white, settings.floor)
-        excess = rms / level
-        cols = layout.schema.columns(g)
-        scale = scales.scale(g)
-        per_col_rms = {}
-        for j, c in enumerate(cols):
-            m = sel & (layout.column == c)
-            per_col_rms[c] = float(np.sqrt(np.mean(z[m] ** 2)) * scale[j]) if m.any() else 0.0
-        # lag-1 autocorrelation within logs and columns
-        num = den = 0.0
-        for c in cols:
-            for lg in np.unique(layout.log[sel]):
-                m = sel & (layout.column == c) & (layout.log == lg)
-                v = z[m]
-                if v.size >= 3:
-                    num += float(np.sum(v[1:] * v[:-1]))
-                    den += float(np.sum(v * v))
-        lag1 = num / den if den > 0 else 0.0
-        # residual concentrated in one column or one regime (heteroscedastic structure)
-        worst_ratio, worst_ratio_where = 0.0, ""
-        for c in cols:
-            mc = sel & (layout.column == c)
-            if mc.sum() < 6:
-                continue
-            # noise reference: the column's white level, or its quietest regime if lower
-            quiet = [
-                float(np.sqrt(np.mean(z[mc & (layout.regime == r)] ** 2)))
-                for r in regimes
-                if (mc & (layout.regime == r)).sum() >= 10
-            ]
-            if noise is not None and g in noise:
-                lvl_c = max(noise[g], settings.floor)
-            else:
-                lvl_c = max(min([_white_level(z, layout, mc), *quiet]), settings.floor)
-            for r in ("all", *regimes):
-                m = mc if r == "all" else mc & (layout.regime == r)
-                if m.sum() < 5:
-                    continue
-                r_rms = float(np.sqrt(np.mean(z[m] ** 2)))
-                if r_rms > settings.floor and r_rms / lvl_c > worst_ratio:
-                    worst_ratio = r_rms / lvl_c
-                    worst_ratio_where = c if r == "all" else f"{c} while {r}"
-        regime_means: dict[str, dict[str, float]] = {}
-        worst_t, worst_where = 0.0, ""
-        for r in regimes:
-            for j, c in enumerate(cols):
-                m = sel & (layout.regime == r) & (layout.column == c)
-                if m.sum() < 3:
-                    continue
-                mean = float(np.mean(z[m]))
-                regime_means.setdefault(r, {})[c] = mean * float(scale[j])
-                t = abs(mean) / (level / math.sqrt(m.sum()))
-                if t > worst_t and abs(mean) > settings.floor:
-                    worst_t, worst_where = t, f"{c} while {r}"
-        # dependence on the commanded motion (per column, least squares)
-        r2_best, r2_where = 0.0, ""
-        for c in cols:
-            m = sel & (layout.column == c)
-            if m.sum() < 8:
-                continue
-            y = z[m]
-            mot = layout.motion[m]
-            X = np.column_stack(
-                [
-                    np.ones(m.sum()),
-                    mot[:, 0],
-                    mot[:, 1],
-                    np.abs(mot[:, 0]),
-                    np.abs(mot[:, 1]),
-                    mot[:, 2],
-                    mot[:, 3],
-                    mot[:, 4],
-                    mot[:, 5],
-                ]
-            )
-            n_m = int(m.sum())
-            if n_m < 3 * X.shape[1]:
-                continue
-            beta, *_ = np.linalg.lstsq(X, y, rcond=None)
-            fit = X @ beta
-            ss_tot = float(np.sum(y**2))
-            ss_res = float(np.sum((y - fit) ** 2))
-            explained_rms = math.sqrt(max(ss_tot - ss_res, 0.0) / n_m)
-            # share of the (uncentred) residual energy explained, adjusted for the regressors
-            r2 = 1.0 - (ss_res / ss_tot) * n_m / (n_m - X.shape[1]) if ss_tot > 0 else 0.0
-            if r2 > r2_best and explained_rms > settings.floor:
-                r2_best, r2_where = r2, c
-        info = {
-            "rms": rms,
-            "rms_units": per_col_rms,
-            "units": dict(zip(cols, layout.schema.units(g))),
-            "white_level": white,
-            "excess_ratio": excess,
-            "lag1_autocorrelation": lag1,
-            "regime_means": regime_means,
-            "worst_regime_t": worst_t,
-            "worst_regime": worst_where,
-            "motion_r2": r2_best,
-            "motion_r2_column": r2_where,
-            "worst_concentration": worst_ratio,
-            "worst_concentration_where": worst_ratio_where,
-        }
-        out["groups"][g] = info
-        if rms <= settings.floor:
-            continue
-        if excess > settings.excess_ratio:
-            out["reasons"].append(
-                f"{g}: residual RMS is {excess:.1f}× its noise level ("
-                f"{'stated by the logs' if noise is not None and g in noise else 'window to window'}"
-                f"; lag-1 autocorrelation {lag1:.2f})"
-            )
-        if worst_ratio > settings.excess_ratio:
-            out["reasons"].append(
-                f"{g}: the residual of {worst_ratio_where} is {worst_ratio:.1f}× the noise level"
-            )
-        if worst_t > settings.regime_t:
-            out["reasons"].append(
-                f"{g}: mean residual of {worst_where} is {worst_t:.1f} standard errors from zero"
-            )
-        if r2_best > settings.trend_r2:
-            out["reasons"].append(
-                f"{g}: the commanded motion (speed, turn rate, acceleration; an arm's reach "
-                "and load) explains "
-                f"{100 * r2_best:.0f} % of the {r2_where} residual"
-            )
-    out["structured"] = bool(out["reasons"])
-    return out

@@ -6,17 +6,22 @@ function of this module or of the module it names:
 
 1. every log is checked and replayed in the nominal PyBullet simulation
    (same commands or wheel rotation, same start);
-2. :func:`~realitygap.diagnosis.localise.localise` tabulates where replay and
+2. windows disturbed by stalls, bumps or lost markers are listed and set aside
+   (:mod:`realitygap.diagnosis.transients`), and the nuisances of every real log
+   (time alignment, response of the replayed commands) are fitted first as the
+   calibrated baseline every effect is scored against
+   (:mod:`realitygap.diagnosis.baseline`);
+3. :func:`~realitygap.diagnosis.localise.localise` tabulates where replay and
    reality part (per channel, regime, pipeline stage);
-3. each candidate effect, then pairs of the best, is fitted on the training
+4. each candidate effect, then pairs of the best, is fitted on the training
    windows and scored on the held-out ones
    (:mod:`realitygap.diagnosis.attribute`), fits running in parallel through a
    backend (:mod:`realitygap.core.parallel`);
-4. the best models are verified in PyBullet, and the verdict is drawn — an
+5. the best models are verified in PyBullet, and the verdict is drawn — an
    effect (or pair) only if it closes enough of the held-out gap and leaves
    unstructured residuals, else ``"unexplained"``; confounded explanations
    are flagged with a manoeuvre that would separate them;
-5. :mod:`realitygap.diagnosis.shrink` reports the held-out gap before and
+6. :mod:`realitygap.diagnosis.shrink` reports the held-out gap before and
    after, per channel and regime.
 
 ================  ==============================================  ==========================
@@ -24,8 +29,10 @@ stage             function                                        result
 ================  ==============================================  ==========================
 library           :func:`candidate_library`                       effect names to consider
 prepare           :func:`prepare_logs`                            checked, replayed logs
-localise          :func:`~realitygap.diagnosis.localise.localise`  where the gap lies
+transients        :func:`~realitygap.diagnosis.transients.detect_transients`  windows set aside
 observability     :func:`observable_candidates`                   candidates, and why not
+baseline          :func:`~realitygap.diagnosis.baseline.calibrate_baseline`  calibrated reference
+localise          :func:`~realitygap.diagnosis.localise.localise`  where the gap lies
 attribute         :func:`fit_candidates`                          fitted singles and pairs
 verify            :func:`~realitygap.diagnosis.verify.verify_ranking`  verified ranking
 verdict           :func:`~realitygap.diagnosis.verdict.judge`     the verdict
@@ -54,12 +61,14 @@ from realitygap.diagnosis.attribute import (
     Verdict,
     fit_model,
 )
+from realitygap.diagnosis.baseline import Baseline, calibrate_baseline
 from realitygap.diagnosis.features import FeatureSettings
 from realitygap.diagnosis.identifiability import identifiability
 from realitygap.diagnosis.localise import localise
 from realitygap.diagnosis.log import Log, LogError
 from realitygap.diagnosis.replay import Drive, SimSettings
 from realitygap.diagnosis.shrink import overall_shrink, shrink_table, trajectory_gap
+from realitygap.diagnosis.transients import TransientReport, TransientSettings, detect_transients
 from realitygap.diagnosis.verdict import Judgement, conclude, judge
 from realitygap.diagnosis.verify import Verification, verify_ranking
 from realitygap.robots.effects import EFFECTS
@@ -102,6 +111,10 @@ class DiagnosisSettings:
         ``ceil(fraction · n)`` logs are held out.
     block_windows : int
         With a single log, alternate blocks of this many windows are held out.
+    transients : TransientSettings or None
+        Thresholds of the transient-event detector; ``None`` switches it off.
+    calibrate : bool
+        Fit the adapter's baseline nuisances first (the calibrated baseline).
     """
 
     robot: str = "diffdrive"
@@ -112,6 +125,8 @@ class DiagnosisSettings:
     sim: SimSettings | None = None
     holdout_fraction: float = 1.0 / 3.0
     block_windows: int = 10
+    transients: TransientSettings | None = field(default_factory=TransientSettings)
+    calibrate: bool = True
 
 
 @dataclass
@@ -135,6 +150,8 @@ class Diagnosis:
     problem: Problem
     gap_mask: npt.NDArray[np.bool_] | None = None
     shrink_best: list[dict[str, Any]] = field(default_factory=list)
+    baseline: Baseline = field(default_factory=Baseline)
+    transients: TransientReport = field(default_factory=TransientReport)
 
     @property
     def chosen(self) -> ModelFit | None:
@@ -202,6 +219,8 @@ class Diagnosis:
                     p.split == "train" and p.holdout_windows.any() for p in self.prepared
                 ),
             },
+            "baseline_calibration": self.baseline.to_json(),
+            "transients": self.transients.to_json(),
             "verdict": v.label,
             **v.notes,
             "verdict_detail": {
@@ -244,6 +263,22 @@ def _fit_task(problem: Problem, item: tuple[tuple[str, ...], list[dict[str, floa
 def candidate_library(adapter: RobotAdapter, settings: DiagnosisSettings) -> tuple[str, ...]:
     """The effects to consider: ``settings.effects`` (checked against the robot's), else all."""
     library = adapter.effect_names()
+    _refuse_duplicates(library, f"the {settings.robot!r} effect library")
+    if settings.effects is not None:
+        _refuse_duplicates(settings.effects, "DiagnosisSettings.effects")
+    for name in settings.effects if settings.effects is not None else library:
+        cls = EFFECTS.get(name)
+        for spec in getattr(cls, "specs", ()):
+            if not spec.low < spec.high:
+                raise ValueError(
+                    f"effect {name!r}: parameter {spec.name!r} has bounds low={spec.low:g} ≥ "
+                    f"high={spec.high:g}; fix: give the ParamSpec physical bounds with low < high"
+                )
+            if not spec.low <= spec.nominal <= spec.high:
+                raise ValueError(
+                    f"effect {name!r}: parameter {spec.name!r} has its nominal value "
+                    f"{spec.nominal:g} outside its bounds {spec.low:g} … {spec.high:g}"
+                )
     if settings.effects is None:
         return library
     unknown = [e for e in settings.effects if e not in library]
@@ -258,6 +293,16 @@ def candidate_library(adapter: RobotAdapter, settings: DiagnosisSettings) -> tup
             f"unknown effect(s) {hint} for robot {settings.robot!r}; known: {', '.join(library)}"
         )
     return tuple(settings.effects)
+
+
+def _refuse_duplicates(names: Sequence[str], what: str) -> None:
+    seen: set[str] = set()
+    dup = [n for n in names if n in seen or seen.add(n)]  # type: ignore[func-returns-value]
+    if dup:
+        raise ValueError(
+            f"{what} names effect(s) {', '.join(repr(d) for d in dict.fromkeys(dup))} more than "
+            "once; fix: list each effect once"
+        )
 
 
 def _split(
@@ -380,9 +425,17 @@ def advise(
 
 
 def gap_report(
-    problem: Problem, judgement: Judgement, replays: Mapping[tuple[str, ...], dict[int, Log]]
+    problem: Problem,
+    judgement: Judgement,
+    replays: Mapping[tuple[str, ...], dict[int, Log]],
+    baseline: Baseline | None = None,
 ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    """The held-out shrink table of the verdict's model and the gap figures."""
+    """The held-out shrink table of the verdict's model and the gap figures.
+
+    Window figures are measured against the reference (the calibrated baseline
+    when there is one) on the windows left after transient events are set
+    aside; trajectory gaps are whole replays (nominal, baseline, best model).
+    """
     best, verdict = judgement.best, judgement.verdict
     z_nom, gap_mask = judgement.nominal_heldout, judgement.gap_mask
     prepared = problem.logs
@@ -402,7 +455,14 @@ def gap_report(
         "heldout_shrink_pct_best_all_channels": overall_shrink(z_nom, best.z_heldout),
         "gap_channels": sorted({str(g) for g in problem.holdout.group[gap_mask]}),
         "heldout_trajectory_gap_m_nominal": trajectory_gap(real_ho, nominal_ho),
+        "reference": "calibrated baseline"
+        if baseline is not None and baseline.values
+        else "nominal replay",
     }
+    if baseline is not None and baseline.replays:
+        gap["heldout_trajectory_gap_m_baseline"] = trajectory_gap(
+            real_ho, [baseline.replays[i] for i in ho_idx]
+        )
     reps_best = replays.get(best.effects)
     if reps_best is not None:
         gap["heldout_trajectory_gap_m_best"] = trajectory_gap(
@@ -469,10 +529,32 @@ def diagnose(
     timing["prepare"] = time.perf_counter() - t0
 
     problem = Problem(adapter, prepared, drive, s.features, s.sim, s.attribution)
+    transients = TransientReport()
+    if s.transients is not None and getattr(adapter, "transient_detection", False):
+        transients = detect_transients(problem, s.transients)
+        problem.exclude(transients.masks)
+        say(transients.summary())
+        for ev in transients.events[:8]:
+            say(
+                f"  {ev.run} {ev.start_s:.1f}–{ev.end_s:.1f} s {ev.kind} "
+                f"({'excluded' if ev.excluded else 'kept'}): {ev.channel} {ev.size:.3g} {ev.unit}; "
+                f"{ev.signals}"
+            )
     if problem.holdout.n == 0 or problem.train.n == 0:
-        raise LogError("the logs give no training or no held-out windows; record longer episodes")
-    loc = localise(prepared, adapter, s.features)
+        raise LogError(
+            "the logs give no training or no held-out windows"
+            + (" once transient events are set aside" if transients.n_excluded else "")
+            + "; record longer episodes"
+        )
     candidates, not_observable = observable_candidates(adapter, library, prepared, drive)
+    baseline = Baseline()
+    if s.calibrate:
+        t_b = time.perf_counter()
+        baseline = calibrate_baseline(problem, candidates, be, say)
+        timing["baseline"] = time.perf_counter() - t_b
+        if baseline.values:
+            say(baseline.summary())
+    loc = localise(prepared, adapter, s.features)
 
     t1 = time.perf_counter()
     singles, pairs, nominal_fit = fit_candidates(problem, candidates, be, say)
@@ -487,7 +569,7 @@ def diagnose(
     )
     ident = advise(problem, verification.ranking, judgement)
     conclude(problem, verification.ranking, judgement, ident)
-    rows, gap = gap_report(problem, judgement, verification.replays)
+    rows, gap = gap_report(problem, judgement, verification.replays, baseline)
     timing["total"] = time.perf_counter() - t0
     say(f"verdict: {judgement.verdict.label}")
     z_nom, best = judgement.nominal_heldout, judgement.best
@@ -509,4 +591,6 @@ def diagnose(
         problem=problem,
         gap_mask=judgement.gap_mask,
         shrink_best=shrink_table(z_nom, best.z_heldout, problem.holdout, s.features),
+        baseline=baseline,
+        transients=transients,
     )

@@ -191,6 +191,30 @@ class DiffDriveAdapter(WheelDrivenAdapter):
     )
     """Motion-capture and camera noise of the blind suite's logs."""
 
+    transient_detection = True
+    """Time series: windows disturbed by stalls, bumps or lost markers are set aside
+    (:mod:`~realitygap.diagnosis.transients`)."""
+
+    # ------------------------------------------------------------------ baseline
+    def baseline_nuisances(
+        self, prepared: Sequence[PreparedLog], drive: Drive
+    ) -> dict[str, tuple[float, float, str]]:
+        """Nuisances of the calibrated baseline (:mod:`~realitygap.diagnosis.baseline`).
+
+        The ground truth's time alignment (``timestamp_offset.offset``) and, with
+        a command-driven replay, the response time of the replayed commands
+        (``command_latency.delay``), each within half the shortest sample period
+        of the logs: stamps are quantised to the sample period, so offsets that
+        small are a sampling convention, not a finding.
+        """
+        if not prepared:
+            return {}
+        half = 0.5 * min(p.log.dt for p in prepared)
+        out = {"timestamp_offset.offset": (-half, half, "ground-truth time alignment")}
+        if drive is Drive.COMMANDS:
+            out["command_latency.delay"] = (0.0, half, "response time of the replayed commands")
+        return out
+
     # ------------------------------------------------------------------ checks
     def check(self, log: Log, drive: Drive) -> Log:
         """Validate a log for this robot; returns it (raises :class:`LogError` with the fix)."""

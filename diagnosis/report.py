@@ -196,10 +196,100 @@ def _figures(d: Diagnosis, out: Path) -> list[tuple[str, str]]:
             made.append(
                 ("surrogate_agreement.png", "Surrogate against PyBullet at the fitted values")
             )
+    timeline = _transient_timeline(d, out, plt)
+    if timeline:
+        made.append(timeline)
     return made
 
 
+def _transient_timeline(d: Diagnosis, out: Path, plt: Any) -> tuple[str, str] | None:
+    """One row per run: its windows (train grey, held out blue) and transient events on top."""
+    events = d.transients.events
+    if not events:
+        return None
+    runs = sorted({e.log_index for e in events})[:12]
+    fig, ax = plt.subplots(figsize=(8.0, 0.45 * len(runs) + 1.2))
+    colours = {"stall or slip": "tab:red", "ground truth frozen": "tab:purple"}
+    for row, i in enumerate(runs):
+        p = d.prepared[i]
+        t0 = float(p.log.t[0])
+        ax.broken_barh(
+            [(0.0, float(p.log.t[-1]) - t0)],
+            (row - 0.3, 0.6),
+            color="tab:blue" if p.holdout_windows.any() else "0.8",
+            alpha=0.3,
+        )
+        for e in (e for e in events if e.log_index == i):
+            ax.broken_barh(
+                [(e.start_s, e.end_s - e.start_s)],
+                (row - 0.3, 0.6),
+                color=colours.get(e.kind, "tab:orange"),
+                alpha=0.9 if e.excluded else 0.5,
+            )
+    ax.set_yticks(range(len(runs)))
+    ax.set_yticklabels([d.prepared[i].name[:28] for i in runs], fontsize=7)
+    ax.set_xlabel("time [s]")
+    ax.set_title(
+        "transient events (red: stall or slip, purple: ground truth frozen — set aside; "
+        "orange: residual outlier, kept)",
+        fontsize=8,
+    )
+    fig.tight_layout()
+    fig.savefig(out / "transients.png", dpi=110)
+    plt.close(fig)
+    return ("transients.png", "Transient events on each run's timeline")
+
+
 # --------------------------------------------------------------------------- markdown
+def _baseline_and_transients(d: Diagnosis) -> list[str]:
+    """The "Baseline calibration" and "Transient events" sections."""
+    lines = ["", "## Baseline calibration", ""]
+    b = d.baseline
+    if b.values:
+        lines.append(
+            "Fitted before any effect and kept in every model; effects are scored against it "
+            "(a nuisance is a sampling convention, not a finding):"
+        )
+        lines += ["", "| nuisance | value | allowed range | what |", "|---|---|---|---|"]
+        for row in b.to_json()["nuisances"]:
+            lo, hi = row["range"]
+            lines.append(
+                f"| {row['parameter']} | {_si(row['value'], row['unit'])} | "
+                f"{_si(lo, row['unit'])} … {_si(hi, row['unit'])} | {row['what']} |"
+            )
+        lines.append("")
+        lines.append(
+            f"The baseline removes {b.train_shrink_pct:.1f} % of the nominal replay's training "
+            "residual."
+        )
+    else:
+        lines.append("None applied (no nuisances stated, or they did not improve the replay).")
+    tr = d.transients
+    lines += ["", "## Transient events", ""]
+    lines.append(
+        f"{tr.n_excluded} of {tr.n_windows} windows ({100 * tr.share_excluded:.1f} %) set aside "
+        "from attribution and shrink: the signals show a stall or slip, or a frozen ground truth. "
+        f"Residual outliers (robust score above {tr.settings.outlier_threshold:g} MAD standard "
+        "deviations) whose signals look normal are listed and kept."
+    )
+    if tr.events:
+        lines += [
+            "",
+            "| run | start–end | kind | channel | size | score | signals | set aside |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        shown = sorted(tr.events, key=lambda e: (not e.excluded, -e.score))[:30]
+        for e in shown:
+            lines.append(
+                f"| {e.run} | {e.start_s:.1f}–{e.end_s:.1f} s | {e.kind} | {e.channel} | "
+                f"{_si(e.size, e.unit)} | {e.score:.0f} | {e.signals} | "
+                f"{'yes' if e.excluded else 'no'} |"
+            )
+        if len(tr.events) > len(shown):
+            lines.append(f"\n({len(tr.events) - len(shown)} more in the JSON.)")
+    return lines
+
+
 def _markdown(d: Diagnosis, figures: list[tuple[str, str]], note: str) -> str:
     js = d.to_json()
     v = d.verdict
@@ -235,9 +325,16 @@ def _markdown(d: Diagnosis, figures: list[tuple[str, str]], note: str) -> str:
             f"{100 * g['heldout_trajectory_gap_m_nominal']:.2f} cm nominal → "
             f"{100 * g['heldout_trajectory_gap_m_best']:.2f} cm."
         )
+    if "heldout_trajectory_gap_m_baseline" in g:
+        lines.append(
+            "Against the calibrated baseline the held-out trajectory gap is "
+            f"{100 * g['heldout_trajectory_gap_m_baseline']:.2f} cm; window figures above are "
+            f"measured against the {g.get('reference', 'nominal replay')}."
+        )
     if v.kind != "effects" and v.residual.get("reasons"):
         lines += ["", "What remains unexplained:", ""]
         lines += [f"- {r}" for r in v.residual["reasons"]]
+    lines += _baseline_and_transients(d)
 
     lines += ["", "## Where the gap is", ""]
     lines.append("Nominal replay against the real logs, per channel and motion regime (top rows):")

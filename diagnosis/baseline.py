@@ -1,0 +1,225 @@
+r"""The calibrated baseline: nuisances present in every real log, fitted before any effect.
+
+A real log and its nominal replay never agree on everything that is a matter of
+convention rather than of physics: when within a sample period a command takes
+effect (the zero-order hold of the replayed commands and the response of the
+nominal's actuators to them), and when within a sample period a channel was
+stamped (time alignment between the commands, the encoders and the ground
+truth). Left alone, these small differences are picked up by whichever effect
+can absorb them — a time offset of some ten milliseconds came out beside the
+true effect on every robot the diagnosis did not simulate itself.
+
+Each adapter states its nuisances (:meth:`baseline_nuisances` of the adapter):
+``{"effect.param": (low, high, what)}`` — an existing effect's parameter with a
+*narrow* range around its nominal value that is a convention, not a finding.
+For the differential drive these are the ground truth's time alignment
+(``timestamp_offset.offset``) and the response time of the replayed commands
+(``command_latency.delay``, with a command-driven replay), each within half a
+sample period:
+
+.. math::  |δ_{align}| \le \tfrac{1}{2} Δt, \qquad 0 \le τ_{resp} \le \tfrac{1}{2} Δt ,
+
+because stamps are quantised to the sample period :math:`Δt`, so an offset
+within half a sample cannot be told from the sampling convention. Larger
+values are findings and remain candidates of the effect library.
+
+:func:`calibrate_baseline` fits the nuisances together on the training windows
+(robust loss, :func:`~realitygap.diagnosis.attribute.fit_model`), replays every
+log in PyBullet at the fitted values and makes that replay the reference of the
+whole diagnosis: the surrogate's bias is re-anchored there
+(PyBullet − surrogate at the baseline), :meth:`Problem.nominal_residuals`
+returns the baseline's residual, and every model carries the baseline values
+for the parameters it does not fit itself. Ranking, shrink, the open-set
+verdict and the structured-residual test are therefore all scored against the
+calibrated baseline, and an effect that duplicates a nuisance (a time offset
+within the nuisance range) gains nothing over it and cannot be a finding.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from realitygap.core.parallel import Backend
+from realitygap.diagnosis.adapters import PreparedLog
+from realitygap.diagnosis.attribute import Problem, _rho, _spec, fit_model
+from realitygap.diagnosis.log import Log
+from realitygap.diagnosis.shrink import overall_shrink
+
+FloatArray = npt.NDArray[np.float64]
+
+__all__ = ["Baseline", "NuisanceRange", "calibrate_baseline", "check_nuisances"]
+
+NuisanceRange = tuple[float, float, str]
+"""``(low, high, what)``: a nuisance parameter's range (natural units) and what it stands for."""
+
+
+@dataclass
+class Baseline:
+    """The calibrated baseline of a diagnosis.
+
+    Attributes
+    ----------
+    values : dict of str to float
+        Fitted nuisance values ``{"effect.param": value}`` (natural units).
+    ranges : dict of str to NuisanceRange
+        The range each nuisance was allowed.
+    units : dict of str to str
+    train_shrink_pct : float
+        How much of the nominal replay's training residual the baseline removes, %.
+        A baseline whose PyBullet replay does not lower the robust training cost
+        is not applied (``values`` empty).
+    replays : dict of int to Log
+        PyBullet replays of each log at the baseline.
+    """
+
+    values: dict[str, float] = field(default_factory=dict)
+    ranges: dict[str, NuisanceRange] = field(default_factory=dict)
+    units: dict[str, str] = field(default_factory=dict)
+    train_shrink_pct: float = 0.0
+    replays: dict[int, Log] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON form: one row per nuisance and the training shrink of the baseline."""
+        return {
+            "nuisances": [
+                {
+                    "parameter": k,
+                    "value": v,
+                    "unit": self.units.get(k, ""),
+                    "range": [self.ranges[k][0], self.ranges[k][1]],
+                    "what": self.ranges[k][2],
+                }
+                for k, v in self.values.items()
+            ],
+            "train_shrink_pct": self.train_shrink_pct,
+        }
+
+    def summary(self) -> str:
+        """One line for the terminal and the report."""
+        if not self.values:
+            return "baseline calibration: none (the adapter states no nuisances)"
+        parts = []
+        for k, v in self.values.items():
+            unit = self.units.get(k, "")
+            scale, shown = (1e3, "ms") if unit == "s" else (1.0, unit)
+            parts.append(f"{self.ranges[k][2]} {scale * v:+.1f} {shown}".rstrip())
+        return (
+            "baseline calibration: "
+            + "; ".join(parts)
+            + f" (removes {self.train_shrink_pct:.1f} % of the nominal training residual)"
+        )
+
+
+def check_nuisances(ranges: Mapping[str, NuisanceRange]) -> None:
+    """Refuse a nuisance range that is empty or outside its parameter's physical bounds."""
+    for key, (low, high, _) in ranges.items():
+        spec = _spec(key)
+        if not low < high:
+            raise ValueError(
+                f"baseline nuisance {key!r}: low ({low:g}) must be below high ({high:g})"
+            )
+        if low < spec.low or high > spec.high:
+            raise ValueError(
+                f"baseline nuisance {key!r}: range {low:g} … {high:g} leaves the physical bounds "
+                f"{spec.low:g} … {spec.high:g} of the parameter"
+            )
+
+
+def _replay_task(problem: Problem, item: tuple[int, dict[str, float]]) -> tuple[Any, Log]:
+    i, values = item
+    p = problem.logs[i]
+    sim = problem.sim if problem.sim is not None else p.context.sim
+    return problem.adapter.replay_features(p, values, problem.drive, sim)
+
+
+def calibrate_baseline(
+    problem: Problem,
+    candidates: Sequence[str],
+    backend: Backend,
+    say: Callable[[str], None] = lambda msg: None,
+) -> Baseline:
+    """Fit the adapter's nuisances and make the baseline the reference of ``problem``.
+
+    Parameters
+    ----------
+    problem : Problem
+        Modified in place: ``baseline_values``, ``baseline_features`` and every
+        log's surrogate ``bias`` are set to the baseline.
+    candidates : sequence of str
+        Observable effects; a nuisance whose effect is not among them is skipped.
+    backend : Backend
+        Where the PyBullet replays run.
+    say : callable
+
+    Returns
+    -------
+    Baseline
+    """
+    declare = getattr(problem.adapter, "baseline_nuisances", None)
+    ranges: dict[str, NuisanceRange] = (
+        dict(declare(problem.logs, problem.drive)) if declare is not None else {}
+    )
+    ranges = {k: r for k, r in ranges.items() if k.partition(".")[0] in candidates}
+    check_nuisances(ranges)
+    if not ranges or problem.train.n == 0:
+        return Baseline()
+    effects = tuple(dict.fromkeys(k.partition(".")[0] for k in ranges))
+    box = {k: (r[0], r[1]) for k, r in ranges.items()}
+    # parameters of a nuisance effect that are not nuisances stay at nominal
+    for e in effects:
+        for k in (f"{e}.{s.name}" for s in _effect_specs(e)):
+            if k not in box:
+                nom = _spec(k).nominal
+                span = 1e-9 * (_spec(k).high - _spec(k).low)
+                box[k] = (max(nom - span, _spec(k).low), min(nom + span, _spec(k).high))
+    say(f"calibrating the baseline: {', '.join(ranges)}")
+    fit = fit_model(problem, effects, box=box)
+    values = {k: fit.values[k] for k in ranges}
+    idx = list(range(len(problem.logs)))
+    reps = backend.map(_replay_task, [(i, values) for i in idx], problem)
+    z_before = problem.nominal_residuals(problem.train)
+    features: dict[int, dict[str, FloatArray]] = {}
+    replays: dict[int, Log] = {}
+    point = {k: np.array([v]) for k, v in values.items()}
+    for i, (feats, rep) in zip(idx, reps):
+        p: PreparedLog = problem.logs[i]
+        features[i] = {g: feats[g] for g in p.groups}
+        replays[i] = rep
+    old_bias = {i: p.bias for i, p in enumerate(problem.logs)}
+    for i, p in enumerate(problem.logs):
+        sur = problem.adapter.surrogate_features(p, point, problem.drive)
+        p.bias = {g: features[i][g] - sur[g][0] for g in p.groups}
+    problem.baseline_values = values
+    problem.baseline_features = features
+    problem.baseline_ranges = {k: (r[0], r[1]) for k, r in ranges.items()}
+    z_after = problem.nominal_residuals(problem.train)
+    st = problem.settings
+    cost_before = float(np.sum(_rho(z_before**2, st.loss, problem.f_scale)))
+    cost_after = float(np.sum(_rho(z_after**2, st.loss, problem.f_scale)))
+    if not cost_after < cost_before:
+        # the PyBullet replay at the surrogate's optimum is no better: keep the nominal robot
+        for i, p in enumerate(problem.logs):
+            p.bias = old_bias[i]
+        problem.baseline_values, problem.baseline_features = {}, {}
+        problem.baseline_ranges = {}
+        say("baseline calibration: the nuisances do not improve the nominal replay; none applied")
+        return Baseline(ranges=ranges, units={k: _spec(k).unit for k in ranges})
+    problem.f_scale = problem.noise_scale()
+    return Baseline(
+        values=values,
+        ranges=ranges,
+        units={k: _spec(k).unit for k in ranges},
+        train_shrink_pct=overall_shrink(z_before, z_after),
+        replays=replays,
+    )
+
+
+def _effect_specs(effect: str) -> Sequence[Any]:
+    from realitygap.robots.effects import EFFECTS
+
+    return EFFECTS[effect].specs

@@ -1,0 +1,210 @@
+"""Does a residual still have structure, and what does it look like?
+
+:func:`describe_residual` is the structured-residual test of the verdict: a
+group's residual is structured when it is much larger than its noise level,
+concentrates in one column or motion regime, or follows the commanded motion
+(:data:`~realitygap.diagnosis.attribute.MOTION_COLUMNS`). The noise level is
+the robust (MAD-based) window-to-window level :func:`_white_level`, or the
+measurement noise an adapter states.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import numpy.typing as npt
+
+if TYPE_CHECKING:
+    from realitygap.diagnosis.attribute import AttributionSettings, Layout
+    from realitygap.diagnosis.features import FeatureSettings
+
+FloatArray = npt.NDArray[np.float64]
+
+__all__ = ["describe_residual"]
+
+
+def _white_level(z: FloatArray, layout: Layout, sel: npt.NDArray[np.bool_]) -> float:
+    """Noise level of a residual group: robust spread of its window-to-window differences.
+
+    ``1.4826 · MAD(Δz) / √2`` over consecutive windows of each log and column,
+    so that a few large structured windows (starts, stops, slow legs) do not
+    pass for noise.
+    """
+    diffs = []
+    for col in np.unique(layout.column[sel]):
+        for lg in np.unique(layout.log[sel]):
+            m = sel & (layout.column == col) & (layout.log == lg)
+            v = z[m]
+            if v.size >= 2:
+                diffs.append(np.diff(v))
+    if not diffs:
+        return 0.0
+    d = np.concatenate(diffs)
+    mad = float(np.median(np.abs(d - np.median(d))))
+    return 1.4826 * mad / math.sqrt(2.0)
+
+
+def describe_residual(
+    z: FloatArray,
+    layout: Layout,
+    settings: AttributionSettings,
+    scales: FeatureSettings,
+    noise: Mapping[str, float] | None = None,
+) -> dict[str, Any]:
+    """Whether a held-out residual (n,) still has structure, and what it looks like.
+
+    The noise level a group's residual is compared with is, by default, its
+    white, window-to-window level (:func:`_white_level`: right for time series,
+    where an effect drifts slowly from window to window). Where windows are
+    independent — an arm measured at random poses, so any effect looks
+    different in every window — the adapter states the measurement noise
+    instead: ``noise[group]`` in feature-scale units.
+
+    Returns
+    -------
+    dict
+        ``structured`` (bool), ``reasons`` (list of str) and per group
+        ``groups[g]``: RMS (scale units and SI units per column), white level,
+        excess ratio, lag-1 autocorrelation, mean per regime (SI units per
+        column), the regime t statistics and the fraction of variance
+        explained by the commanded motion.
+    """
+    out: dict[str, Any] = {"structured": False, "reasons": [], "groups": {}}
+    regimes = layout.schema.regimes
+    for g in layout.schema.names:
+        sel = layout.group == g
+        if sel.sum() < 6:
+            continue
+        zg = z[sel]
+        rms = float(np.sqrt(np.mean(zg**2)))
+        white = noise[g] if noise is not None and g in noise else _white_level(z, layout, sel)
+        level = max(white, settings.floor)
+        excess = rms / level
+        cols = layout.schema.columns(g)
+        scale = scales.scale(g)
+        per_col_rms = {}
+        for j, c in enumerate(cols):
+            m = sel & (layout.column == c)
+            per_col_rms[c] = float(np.sqrt(np.mean(z[m] ** 2)) * scale[j]) if m.any() else 0.0
+        # lag-1 autocorrelation within logs and columns
+        num = den = 0.0
+        for c in cols:
+            for lg in np.unique(layout.log[sel]):
+                m = sel & (layout.column == c) & (layout.log == lg)
+                v = z[m]
+                if v.size >= 3:
+                    num += float(np.sum(v[1:] * v[:-1]))
+                    den += float(np.sum(v * v))
+        lag1 = num / den if den > 0 else 0.0
+        # residual concentrated in one column or one regime (heteroscedastic structure)
+        worst_ratio, worst_ratio_where = 0.0, ""
+        for c in cols:
+            mc = sel & (layout.column == c)
+            if mc.sum() < 6:
+                continue
+            # noise reference: the column's white level, or its quietest regime if lower
+            quiet = [
+                float(np.sqrt(np.mean(z[mc & (layout.regime == r)] ** 2)))
+                for r in regimes
+                if (mc & (layout.regime == r)).sum() >= 10
+            ]
+            if noise is not None and g in noise:
+                lvl_c = max(noise[g], settings.floor)
+            else:
+                lvl_c = max(min([_white_level(z, layout, mc), *quiet]), settings.floor)
+            for r in ("all", *regimes):
+                m = mc if r == "all" else mc & (layout.regime == r)
+                if m.sum() < 5:
+                    continue
+                r_rms = float(np.sqrt(np.mean(z[m] ** 2)))
+                if r_rms > settings.floor and r_rms / lvl_c > worst_ratio:
+                    worst_ratio = r_rms / lvl_c
+                    worst_ratio_where = c if r == "all" else f"{c} while {r}"
+        regime_means: dict[str, dict[str, float]] = {}
+        worst_t, worst_where = 0.0, ""
+        for r in regimes:
+            for j, c in enumerate(cols):
+                m = sel & (layout.regime == r) & (layout.column == c)
+                if m.sum() < 3:
+                    continue
+                mean = float(np.mean(z[m]))
+                regime_means.setdefault(r, {})[c] = mean * float(scale[j])
+                t = abs(mean) / (level / math.sqrt(m.sum()))
+                if t > worst_t and abs(mean) > settings.floor:
+                    worst_t, worst_where = t, f"{c} while {r}"
+        # dependence on the commanded motion (per column, least squares)
+        r2_best, r2_where = 0.0, ""
+        for c in cols:
+            m = sel & (layout.column == c)
+            if m.sum() < 8:
+                continue
+            y = z[m]
+            mot = layout.motion[m]
+            X = np.column_stack(
+                [
+                    np.ones(m.sum()),
+                    mot[:, 0],
+                    mot[:, 1],
+                    np.abs(mot[:, 0]),
+                    np.abs(mot[:, 1]),
+                    mot[:, 2],
+                    mot[:, 3],
+                    mot[:, 4],
+                    mot[:, 5],
+                ]
+            )
+            n_m = int(m.sum())
+            if n_m < 3 * X.shape[1]:
+                continue
+            beta, *_ = np.linalg.lstsq(X, y, rcond=None)
+            fit = X @ beta
+            ss_tot = float(np.sum(y**2))
+            ss_res = float(np.sum((y - fit) ** 2))
+            explained_rms = math.sqrt(max(ss_tot - ss_res, 0.0) / n_m)
+            # share of the (uncentred) residual energy explained, adjusted for the regressors
+            r2 = 1.0 - (ss_res / ss_tot) * n_m / (n_m - X.shape[1]) if ss_tot > 0 else 0.0
+            if r2 > r2_best and explained_rms > settings.floor:
+                r2_best, r2_where = r2, c
+        info = {
+            "rms": rms,
+            "rms_units": per_col_rms,
+            "units": dict(zip(cols, layout.schema.units(g))),
+            "white_level": white,
+            "excess_ratio": excess,
+            "lag1_autocorrelation": lag1,
+            "regime_means": regime_means,
+            "worst_regime_t": worst_t,
+            "worst_regime": worst_where,
+            "motion_r2": r2_best,
+            "motion_r2_column": r2_where,
+            "worst_concentration": worst_ratio,
+            "worst_concentration_where": worst_ratio_where,
+        }
+        out["groups"][g] = info
+        if rms <= settings.floor:
+            continue
+        if excess > settings.excess_ratio:
+            out["reasons"].append(
+                f"{g}: residual RMS is {excess:.1f}× its noise level ("
+                f"{'stated by the logs' if noise is not None and g in noise else 'window to window'}"
+                f"; lag-1 autocorrelation {lag1:.2f})"
+            )
+        if worst_ratio > settings.excess_ratio:
+            out["reasons"].append(
+                f"{g}: the residual of {worst_ratio_where} is {worst_ratio:.1f}× the noise level"
+            )
+        if worst_t > settings.regime_t:
+            out["reasons"].append(
+                f"{g}: mean residual of {worst_where} is {worst_t:.1f} standard errors from zero"
+            )
+        if r2_best > settings.trend_r2:
+            out["reasons"].append(
+                f"{g}: the commanded motion (speed, turn rate, acceleration; an arm's reach "
+                "and load) explains "
+                f"{100 * r2_best:.0f} % of the {r2_where} residual"
+            )
+    out["structured"] = bool(out["reasons"])
+    return out
