@@ -52,7 +52,7 @@ from scipy.optimize import least_squares
 from realitygap.diagnosis.adapters import PreparedLog, RobotAdapter
 from realitygap.diagnosis.features import FeatureSchema, FeatureSettings
 from realitygap.diagnosis.replay import Drive, SimSettings
-from realitygap.diagnosis.residual import _white_level, describe_residual
+from realitygap.diagnosis.residual import white_level
 from realitygap.robots.effects import EFFECTS
 
 FloatArray = npt.NDArray[np.float64]
@@ -63,7 +63,6 @@ __all__ = [
     "ModelFit",
     "Problem",
     "Verdict",
-    "describe_residual",
     "fit_model",
     "model_keys",
     "profile_score",
@@ -341,7 +340,7 @@ class Problem:
         noise level of the reference residual on the training windows.
 
         The noise level of each group is its robust white (window-to-window,
-        MAD-based) level (:func:`_white_level`); the median over groups is
+        MAD-based) level (:func:`white_level`); the median over groups is
         used, never less than the structure floor.
         """
         st = self.settings
@@ -349,7 +348,7 @@ class Problem:
             return st.robust_scale * st.floor
         z = self.nominal_residuals(self.train)
         levels = [
-            _white_level(z, self.train, self.train.group == g) for g in np.unique(self.train.group)
+            white_level(z, self.train, self.train.group == g) for g in np.unique(self.train.group)
         ]
         level = max(float(np.median(levels)) if levels else 0.0, st.floor)
         return st.robust_scale * level

@@ -4,7 +4,7 @@
 group's residual is structured when it is much larger than its noise level,
 concentrates in one column or motion regime, or follows the commanded motion
 (:data:`~realitygap.diagnosis.attribute.MOTION_COLUMNS`). The noise level is
-the robust (MAD-based) window-to-window level :func:`_white_level`, or the
+the robust (MAD-based) window-to-window level :func:`white_level`, or the
 measurement noise an adapter states.
 """
 
@@ -23,10 +23,10 @@ if TYPE_CHECKING:
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["describe_residual"]
+__all__ = ["describe_residual", "white_level"]
 
 
-def _white_level(z: FloatArray, layout: Layout, sel: npt.NDArray[np.bool_]) -> float:
+def white_level(z: FloatArray, layout: Layout, sel: npt.NDArray[np.bool_]) -> float:
     """Noise level of a residual group: robust spread of its window-to-window differences.
 
     ``1.4826 · MAD(Δz) / √2`` over consecutive windows of each log and column,
@@ -57,7 +57,7 @@ def describe_residual(
     """Whether a held-out residual (n,) still has structure, and what it looks like.
 
     The noise level a group's residual is compared with is, by default, its
-    white, window-to-window level (:func:`_white_level`: right for time series,
+    white, window-to-window level (:func:`white_level`: right for time series,
     where an effect drifts slowly from window to window). Where windows are
     independent — an arm measured at random poses, so any effect looks
     different in every window — the adapter states the measurement noise
@@ -80,7 +80,7 @@ def describe_residual(
             continue
         zg = z[sel]
         rms = float(np.sqrt(np.mean(zg**2)))
-        white = noise[g] if noise is not None and g in noise else _white_level(z, layout, sel)
+        white = noise[g] if noise is not None and g in noise else white_level(z, layout, sel)
         level = max(white, settings.floor)
         excess = rms / level
         cols = layout.schema.columns(g)
@@ -114,7 +114,7 @@ def describe_residual(
             if noise is not None and g in noise:
                 lvl_c = max(noise[g], settings.floor)
             else:
-                lvl_c = max(min([_white_level(z, layout, mc), *quiet]), settings.floor)
+                lvl_c = max(min([white_level(z, layout, mc), *quiet]), settings.floor)
             for r in ("all", *regimes):
                 m = mc if r == "all" else mc & (layout.regime == r)
                 if m.sum() < 5:

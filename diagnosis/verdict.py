@@ -23,8 +23,8 @@ from realitygap.diagnosis.attribute import (
     Problem,
     Verdict,
     _spec,
-    describe_residual,
 )
+from realitygap.diagnosis.residual import describe_residual
 from realitygap.diagnosis.shrink import overall_shrink
 
 FloatArray = npt.NDArray[np.float64]
