@@ -19,6 +19,16 @@ open set (out-of-library cases)
     or effects named with ``"weak"`` confidence (the tool does not vouch for them).
 held-out shrink
     ``gap["heldout_shrink_pct_best"]`` of the diagnosis, median over in-library cases.
+
+A differential-drive case is diagnosed once per replay drive in which its effect
+shows (:attr:`~realitygap.independent.cases.Case.drives`): ``commands`` (the logged
+requests drive the nominal robot, so the independent firmware ramp and motor
+response are part of what the diagnosis sees) and ``ticks`` (the logged wheel
+rotation drives it). Figures are given overall (every scored diagnosis counts
+once) and per group: ``diffdrive_commands_``, ``diffdrive_ticks_``, ``arm_``.
+
+Training data: two UMBmark squares (cw, ccw) for the drive, 90 random poses for
+the arm; held out: a circle and a free path, and a 90-pose grid series.
 """
 
 from __future__ import annotations
@@ -78,25 +88,36 @@ def generate_case(case: Any, folder: Path, seed: int) -> tuple[list[Path], list[
     raise ValueError(f"case {case.name}: robot must be 'diffdrive' or 'arm', got {case.robot!r}")
 
 
-def diagnose_case(case: Any, seed: int, backend: Any, progress: Any = None) -> dict[str, Any]:
-    """Generate, read back, diagnose and score one case."""
+def diagnose_case(
+    case: Any, seed: int, backend: Any, progress: Any = None, drives: tuple[str, ...] | None = None
+) -> list[dict[str, Any]]:
+    """Generate, read back, diagnose and score one case: one row per replay drive.
+
+    ``drives`` defaults to the case's own (:attr:`~realitygap.independent.cases.Case.drives`).
+    """
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
     from realitygap.diagnosis.io import read_logs
 
+    drives = case.drives if drives is None else drives
+    rows = []
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="rg-indep-") as tmp:
         train_p, hold_p = generate_case(case, Path(tmp), seed)
         t_gen = time.perf_counter() - t0
         train = [lg for p in train_p for lg in read_logs(p)]
         hold = [lg for p in hold_p for lg in read_logs(p)]
-        d = diagnose(
-            train,
-            hold,
-            settings=DiagnosisSettings(robot=case.robot),
-            backend=backend,
-            progress=progress,
-        )
-    return score(case, d, seconds=time.perf_counter() - t0, seconds_generate=t_gen)
+        for drive in drives:
+            t1 = time.perf_counter()
+            d = diagnose(
+                train,
+                hold,
+                settings=DiagnosisSettings(robot=case.robot, drive=drive),
+                backend=backend,
+                progress=progress,
+            )
+            row = score(case, d, seconds=time.perf_counter() - t1, seconds_generate=t_gen)
+            rows.append({"drive": drive if case.robot == "diffdrive" else "joints", **row})
+    return rows
 
 
 def score(case: Any, d: Any, **extra: float) -> dict[str, Any]:
@@ -158,26 +179,32 @@ def diagnose_independent(ctx: RunContext) -> dict[str, Any]:
     t0 = time.perf_counter()
     try:
         for i, case in enumerate(cases):
-            row = diagnose_case(case, ctx.seed + 1000 * i, backend)
-            rows.append(row)
-            mark = (
-                ("right" if row["correct"] else "WRONG")
-                if case.in_library
-                else ("unexplained" if row["open_set_strict"] else "named")
-            )
-            ctx.progress(
-                f"{i + 1}/{len(cases)} {case.name}: verdict {row['verdict']} "
-                f"({row['confidence']}), top {row['top_model']}, shrink "
-                f"{row['heldout_shrink_pct']:.1f} % → {mark} [{time.perf_counter() - t0:.0f} s]"
-            )
+            for row in diagnose_case(case, ctx.seed + 1000 * i, backend):
+                rows.append(row)
+                mark = (
+                    ("right" if row["correct"] else "WRONG")
+                    if case.in_library
+                    else ("unexplained" if row["open_set_strict"] else "named")
+                )
+                ctx.progress(
+                    f"{i + 1}/{len(cases)} {case.name} ({row['drive']}): verdict "
+                    f"{row['verdict']} ({row['confidence']}), top {row['top_model']}, shrink "
+                    f"{row['heldout_shrink_pct']:.1f} % → {mark} [{time.perf_counter() - t0:.0f} s]"
+                )
     finally:
         close_adapters()
     figures: dict[str, Any] = {"n_cases": float(len(rows))}
-    for robot in ("all", "diffdrive", "arm"):
-        sel = [r for r in rows if robot == "all" or r["robot"] == robot]
+    groups = {
+        "": rows,
+        "diffdrive_commands_": [r for r in rows if r["drive"] == "commands"],
+        "diffdrive_ticks_": [r for r in rows if r["drive"] == "ticks"],
+        "arm_": [r for r in rows if r["robot"] == "arm"],
+    }
+    for p, sel in groups.items():
+        if not sel:
+            continue
         closed = [r for r in sel if r["in_library"]]
         opened = [r for r in sel if not r["in_library"]]
-        p = "" if robot == "all" else f"{robot}_"
         figures[f"{p}top1_correct"] = f"{sum(r['correct'] for r in closed)}/{len(closed)}"
         figures[f"{p}top1_accuracy"] = (
             float(np.mean([r["correct"] for r in closed])) if closed else math.nan
@@ -193,7 +220,7 @@ def diagnose_independent(ctx: RunContext) -> dict[str, Any]:
         )
     figures["seconds_per_case_median"] = _median([r["seconds"] for r in rows])
     notes = [
-        "top-1: verdict names only accepted effects and the top-ranked model is accepted; "
+        "each scored diagnosis is one (case, drive) pair; top-1: verdict names only accepted effects and the top-ranked model is accepted; "
         "open set strict: verdict 'unexplained'; lenient: 'unexplained' or weak confidence; "
         "shrink: median held-out shrink of the best model over in-library cases"
     ]
@@ -201,7 +228,9 @@ def diagnose_independent(ctx: RunContext) -> dict[str, Any]:
         if (r["in_library"] and not r["correct"]) or (
             not r["in_library"] and not r["open_set_strict"]
         ):
-            notes.append(f"{r['case']}: verdict {r['verdict']} ({r['confidence']}) — {r['reason']}")
+            notes.append(
+                f"{r['case']} ({r['drive']}): verdict {r['verdict']} ({r['confidence']}) — {r['reason']}"
+            )
     return {
         "figures": figures,
         "tables": {"cases": rows},

@@ -36,6 +36,11 @@ class Case:
         Library effects that count as the right answer; empty: out of library.
     note : str
         What the effect is physically.
+    drives : tuple of str
+        Differential drive: the replays in which the effect shows, ``"commands"``
+        (the logged requests drive the replay) and/or ``"ticks"`` (the logged wheel
+        rotation does); an actuator effect upstream of the encoders shows only in
+        the first. Arm: ``("commands",)`` (the joint readings drive the replay).
     """
 
     name: str
@@ -43,11 +48,27 @@ class Case:
     values: dict[str, Any]
     accepted: tuple[str, ...]
     note: str
+    drives: tuple[str, ...] = ("commands", "ticks")
+
+    def __post_init__(self) -> None:
+        if self.robot not in ("diffdrive", "arm"):
+            raise ValueError(
+                f"case {self.name}: robot must be 'diffdrive' or 'arm', got {self.robot!r}"
+            )
+        bad = set(self.drives) - {"commands", "ticks"}
+        if bad or not self.drives or (self.robot == "arm" and self.drives != ("commands",)):
+            raise ValueError(
+                f"case {self.name}: drives must be a non-empty subset of ('commands', 'ticks') "
+                f"(arm: ('commands',)), got {self.drives!r}"
+            )
 
     @property
     def in_library(self) -> bool:
         """True when some library effect models the planted one."""
         return bool(self.accepted)
+
+
+_ARM = ("commands",)
 
 
 def _j(k: int, v: float) -> tuple[float, ...]:
@@ -88,6 +109,7 @@ DRIVE_CASES: tuple[Case, ...] = (
         {"delay": 0.12},
         ("command_latency",),
         "set-points reach the drivers 120 ms late",
+        drives=("commands",),
     ),
     Case(
         "speed_cap",
@@ -95,6 +117,7 @@ DRIVE_CASES: tuple[Case, ...] = (
         {"speed_cap": 0.085},
         ("velocity_saturation",),
         "wheels top out at 0.085 m/s, below the 0.113 m/s cruise",
+        drives=("commands",),
     ),
     Case(
         "stiction",
@@ -102,6 +125,7 @@ DRIVE_CASES: tuple[Case, ...] = (
         {"stiction": 0.03},
         ("motor_deadband",),
         "wheel set-points below 0.03 m/s do not turn the wheel",
+        drives=("commands",),
     ),
     Case(
         "encoder_counts_high",
@@ -159,6 +183,7 @@ DRIVE_CASES: tuple[Case, ...] = (
         {"battery_sag": 0.25},
         (),
         "motor speed falls linearly to 75 % over the session",
+        drives=("commands",),
     ),
     Case(
         "marker_offset",
@@ -190,6 +215,7 @@ ARM_CASES: tuple[Case, ...] = (
         {"zero_err": _j(2, 8e-4)},
         ("arm_joint_offset",),
         "joint 2 zero 0.8 mrad off",
+        drives=_ARM,
     ),
     Case(
         "zero_j3",
@@ -197,6 +223,7 @@ ARM_CASES: tuple[Case, ...] = (
         {"zero_err": _j(3, -6e-4)},
         ("arm_joint_offset",),
         "joint 3 zero −0.6 mrad off",
+        drives=_ARM,
     ),
     Case(
         "upper_arm_long",
@@ -204,6 +231,7 @@ ARM_CASES: tuple[Case, ...] = (
         {"da": _j(2, -1.5e-3)},
         ("arm_link_length",),
         "upper arm (a2) 1.5 mm longer",
+        drives=_ARM,
     ),
     Case(
         "forearm_short",
@@ -211,6 +239,7 @@ ARM_CASES: tuple[Case, ...] = (
         {"da": _j(3, 1.2e-3)},
         ("arm_link_length",),
         "forearm (a3) 1.2 mm shorter",
+        drives=_ARM,
     ),
     Case(
         "probe_long",
@@ -218,6 +247,7 @@ ARM_CASES: tuple[Case, ...] = (
         {"probe_err": (0.0, 0.0, 3e-3)},
         ("arm_tool_offset",),
         "probe 3 mm longer than declared",
+        drives=_ARM,
     ),
     Case(
         "shoulder_flex",
@@ -225,6 +255,7 @@ ARM_CASES: tuple[Case, ...] = (
         {"flex": _j(2, 2.5e-5)},
         ("arm_joint_compliance",),
         "joint 2 yields 2.5e-5 rad per N·m",
+        drives=_ARM,
     ),
     Case(
         "elbow_play",
@@ -232,6 +263,7 @@ ARM_CASES: tuple[Case, ...] = (
         {"play": _j(3, 1.2e-3)},
         ("arm_backlash",),
         "joint 3 has 1.2 mrad of play",
+        drives=_ARM,
     ),
     Case(
         "gear_ratio_j1",
@@ -239,6 +271,7 @@ ARM_CASES: tuple[Case, ...] = (
         {"ratio_err": _j(1, 1.5e-3)},
         ("arm_encoder_scale",),
         "joint 1 turns 0.15 % more than read",
+        drives=_ARM,
     ),
     Case(
         "twist_j4",
@@ -246,6 +279,7 @@ ARM_CASES: tuple[Case, ...] = (
         {"dalpha": _j(4, 2e-3)},
         ("arm_twist_error", "arm_parallel_twist"),
         "twist of DH row 4 off by 2 mrad",
+        drives=_ARM,
     ),
     # out of the library
     Case(
@@ -254,6 +288,7 @@ ARM_CASES: tuple[Case, ...] = (
         {"eccentric": _j(2, 6e-4)},
         (),
         "joint 2 gear eccentricity: 0.6 mrad twice per turn",
+        drives=_ARM,
     ),
     Case(
         "thermal_growth",
@@ -261,6 +296,7 @@ ARM_CASES: tuple[Case, ...] = (
         {"thermal": 4e-5},
         (),
         "every length grows 40 ppm/K while the cell warms by 3 K",
+        drives=_ARM,
     ),
     Case(
         "tracker_cyclic",
@@ -268,6 +304,7 @@ ARM_CASES: tuple[Case, ...] = (
         {"tracker_cyclic": 1.5e-4},
         (),
         "tracker range error 0.15 mm with a 0.4 m period",
+        drives=_ARM,
     ),
 )
 

@@ -211,8 +211,12 @@ class _Planner:
     start: tuple[float, float, float] = (0.0, 0.0, 0.0)
     wait_left: int = 0
     pending: bool = True
+    still: int = 0
 
-    def request(self, odo: FloatArray, robot: DriveRobot) -> tuple[float, float] | None:
+    def request(
+        self, odo: FloatArray, robot: DriveRobot, moving: bool = False
+    ) -> tuple[float, float] | None:
+        """The request of this cycle; ``moving``: the encoders counted in the last cycle."""
         if self.index >= len(self.segments):
             return None
         kind, target, v, w = self.segments[self.index]
@@ -221,7 +225,12 @@ class _Planner:
             self.pending = False
             self.wait_left = int(round(target / robot.cycle)) if kind == "wait" else 0
         done = False
-        if kind == "wait":
+        if kind == "stop":
+            # hold zero until the encoders have been still for ``target`` s
+            self.still = 0 if moving else self.still + 1
+            done = self.still * robot.cycle >= target
+            v = w = 0.0
+        elif kind == "wait":
             self.wait_left -= 1
             done = self.wait_left <= 0
             v = w = 0.0
@@ -248,14 +257,17 @@ class _Planner:
 def square_path(
     robot: DriveRobot, side: float, direction: str
 ) -> list[tuple[str, float, float, float]]:
-    """UMBmark square of ``side`` m, ``"cw"`` or ``"ccw"``: drive, stop, turn 90°, four times."""
+    """UMBmark square of ``side`` m, ``"cw"`` or ``"ccw"``: drive, stop, turn 90°, stop, four times.
+
+    Each stop holds a zero request until the robot's own encoders have been still for 0.4 s.
+    """
     if direction not in ("cw", "ccw"):
         raise ValueError(f"direction must be 'cw' or 'ccw', got {direction!r}")
     sign = 1.0 if direction == "ccw" else -1.0
     segs: list[tuple[str, float, float, float]] = [("wait", 0.5, 0.0, 0.0)]
     for _ in range(4):
-        segs += [("dist", side, robot.v_nom, 0.0), ("wait", 0.8, 0.0, 0.0)]
-        segs += [("turn", math.pi / 2, 0.0, sign * robot.w_nom), ("wait", 0.8, 0.0, 0.0)]
+        segs += [("dist", side, robot.v_nom, 0.0), ("stop", 0.4, 0.0, 0.0)]
+        segs += [("turn", math.pi / 2, 0.0, sign * robot.w_nom), ("stop", 0.4, 0.0, 0.0)]
     return segs
 
 
@@ -267,7 +279,7 @@ def circle_path(
     v = robot.v_nom
     w = sign * v * robot.m_per_tick / radius
     seconds = 2 * math.pi / abs(w / robot.cycle)
-    return [("wait", 0.5, 0.0, 0.0), ("time", seconds, v, w), ("wait", 1.5, 0.0, 0.0)]
+    return [("wait", 0.5, 0.0, 0.0), ("time", seconds, v, w), ("stop", 0.4, 0.0, 0.0)]
 
 
 def free_path(
@@ -376,9 +388,10 @@ def simulate_run(
     rows_t, rows_req, rows_tl, rows_tr, rows_odo, rows_truth = [], [], [], [], [], []
     k = 0
     idle_after = 0
+    inc = np.zeros(2, dtype=np.int64)
     while True:
         t = k * dt
-        req = planner.request(odo, robot)
+        req = planner.request(odo, robot, bool(np.any(inc != 0)))
         if req is None:
             idle_after += 1
             req = (0.0, 0.0)
@@ -390,7 +403,7 @@ def simulate_run(
         history.append(setpoint.copy())
         for j in range(n_sub):
             ts = t + j * h
-            # set-point reaching the drivers now: delay line, linear between cycles
+            # set-point reaching the drivers now: the one issued `delay` s earlier
             lag = (ts - hidden.delay) / dt
             if lag < 0:
                 sp = np.zeros(2)

@@ -129,12 +129,19 @@ def test_bad_input_is_refused_with_the_argument_named(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_end_to_end_names_a_strong_in_library_effect() -> None:
+    """Files written here, read by the importers and diagnosed: a 3 % wider axle (tick
+    replay) and a 3 mm longer probe are named, with their values."""
     from realitygap.core.parallel import ProcessBackend
     from realitygap.diagnosis.adapters import close_adapters
     from realitygap.experiments.independent import diagnose_case
 
     try:
-        row = diagnose_case(case_by_name("probe_long"), 0, ProcessBackend(2))
+        backend = ProcessBackend(2)
+        (drive,) = diagnose_case(case_by_name("wheelbase_plus3"), 0, backend, drives=("ticks",))
+        (arm,) = diagnose_case(case_by_name("probe_long"), 0, backend)
     finally:
         close_adapters()
-    assert row["correct"], row
+    assert drive["correct"], drive
+    assert drive["top_params"]["wheelbase_error.E_b"] == pytest.approx(1.03, abs=0.004)
+    assert arm["correct"], arm
+    assert arm["top_params"]["arm_tool_offset.dz"] == pytest.approx(3e-3, abs=3e-4)
