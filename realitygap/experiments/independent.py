@@ -193,7 +193,7 @@ def diagnose_independent(ctx: RunContext) -> dict[str, Any]:
                 )
     finally:
         close_adapters()
-    figures: dict[str, Any] = {"n_cases": float(len(rows))}
+    figures: dict[str, Any] = {"n_cases": float(len(cases)), "n_diagnoses": float(len(rows))}
     groups = {
         "": rows,
         "diffdrive_commands_": [r for r in rows if r["drive"] == "commands"],
@@ -218,7 +218,7 @@ def diagnose_independent(ctx: RunContext) -> dict[str, Any]:
         figures[f"{p}heldout_shrink_pct_median"] = _median(
             [r["heldout_shrink_pct"] for r in closed]
         )
-    figures["seconds_per_case_median"] = _median([r["seconds"] for r in rows])
+    figures["seconds_per_diagnosis_median"] = _median([r["seconds"] for r in rows])
     notes = [
         "each scored diagnosis is one (case, drive) pair; top-1: verdict names only accepted effects and the top-ranked model is accepted; "
         "open set strict: verdict 'unexplained'; lenient: 'unexplained' or weak confidence; "

@@ -466,7 +466,7 @@ def simulate_run(
         rows_truth.append(pose.copy())
         k += 1
     n = len(rows_t)
-    time = dt * np.arange(n)
+    time = dt * np.arange(n, dtype=np.float64)
     # shift ticks so that row k holds the cycle ending at time[k] (row 0: nothing counted)
     tl = np.concatenate([[0], np.asarray(rows_tl[:-1], dtype=np.int64)])
     tr = np.concatenate([[0], np.asarray(rows_tr[:-1], dtype=np.int64)])

@@ -162,7 +162,10 @@ class Tracker:
         T = np.eye(4)
         T[:3, :3] = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         T[:3, 3] = self.position
-        return np.linalg.inv(T)
+        inv = np.eye(4)
+        inv[:3, :3] = T[:3, :3].T
+        inv[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+        return inv
 
 
 def random_poses(n: int, rng: np.random.Generator) -> FloatArray:
