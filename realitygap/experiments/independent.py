@@ -17,8 +17,16 @@ top-1 (in-library cases)
 open set (out-of-library cases)
     *strict*: the verdict is ``"unexplained"``; *lenient*: ``"unexplained"``,
     or effects named with ``"weak"`` confidence (the tool does not vouch for them).
+false attribution
+    The verdict names an effect the case does not accept (out-of-library cases:
+    any named effect), over every scored diagnosis.
 held-out shrink
     ``gap["heldout_shrink_pct_best"]`` of the diagnosis, median over in-library cases.
+
+In a tick-driven replay the accepted set adds the case's exact equivalents
+(:attr:`~realitygap.independent.cases.Case.ticks_aliases`). A verdict ``"none"``
+(no significant gap) is neither correct for an in-library case nor an
+"unexplained" for an out-of-library one.
 
 A differential-drive case is diagnosed once per replay drive in which its effect
 shows (:attr:`~realitygap.independent.cases.Case.drives`): ``commands`` (the logged
@@ -115,17 +123,19 @@ def diagnose_case(
                 backend=backend,
                 progress=progress,
             )
-            row = score(case, d, seconds=time.perf_counter() - t1, seconds_generate=t_gen)
+            row = score(
+                case, d, drive=drive, seconds=time.perf_counter() - t1, seconds_generate=t_gen
+            )
             rows.append({"drive": drive if case.robot == "diffdrive" else "joints", **row})
     return rows
 
 
-def score(case: Any, d: Any, **extra: float) -> dict[str, Any]:
-    """Score a diagnosis ``d`` of ``case`` (see the module notes)."""
+def score(case: Any, d: Any, drive: str = "commands", **extra: float) -> dict[str, Any]:
+    """Score a diagnosis ``d`` of ``case`` replayed with ``drive`` (see the module notes)."""
     v = d.verdict
     named = list(v.effects) if v.kind == "effects" else []
     top = list(d.ranking[0].effects) if d.ranking else []
-    accepted = set(case.accepted)
+    accepted = set(case.accepted_for(drive))
     if case.in_library:
         correct = bool(named) and set(named) <= accepted and bool(set(top) & accepted)
         strict = lenient = math.nan
@@ -138,7 +148,7 @@ def score(case: Any, d: Any, **extra: float) -> dict[str, Any]:
         "case": case.name,
         "robot": case.robot,
         "in_library": case.in_library,
-        "accepted": list(case.accepted),
+        "accepted": sorted(accepted),
         "verdict": v.label,
         "confidence": v.confidence,
         "top_model": "+".join(top),
@@ -146,6 +156,7 @@ def score(case: Any, d: Any, **extra: float) -> dict[str, Any]:
         "correct": correct,
         "open_set_strict": strict,
         "open_set_lenient": lenient,
+        "false_attribution": bool(named) and not set(named) <= accepted,
         "heldout_shrink_pct": float(d.gap.get("heldout_shrink_pct_best", math.nan)),
         "reason": v.reason,
         **extra,
@@ -184,7 +195,7 @@ def diagnose_independent(ctx: RunContext) -> dict[str, Any]:
                 mark = (
                     ("right" if row["correct"] else "WRONG")
                     if case.in_library
-                    else ("unexplained" if row["open_set_strict"] else "named")
+                    else ("named effects" if row["false_attribution"] else str(row["verdict"]))
                 )
                 ctx.progress(
                     f"{i + 1}/{len(cases)} {case.name} ({row['drive']}): verdict "
@@ -214,6 +225,9 @@ def diagnose_independent(ctx: RunContext) -> dict[str, Any]:
         )
         figures[f"{p}open_set_lenient_rate"] = (
             float(np.mean([r["open_set_lenient"] for r in opened])) if opened else math.nan
+        )
+        figures[f"{p}false_attribution_rate"] = (
+            float(np.mean([r["false_attribution"] for r in sel])) if sel else math.nan
         )
         figures[f"{p}heldout_shrink_pct_median"] = _median(
             [r["heldout_shrink_pct"] for r in closed]

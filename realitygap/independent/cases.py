@@ -41,6 +41,11 @@ class Case:
         (the logged requests drive the replay) and/or ``"ticks"`` (the logged wheel
         rotation does); an actuator effect upstream of the encoders shows only in
         the first. Arm: ``("commands",)`` (the joint readings drive the replay).
+    ticks_aliases : tuple of str
+        Effects that are exact equivalents of the planted one when the wheel
+        rotation drives the replay: there the data fix only the distance per tick,
+        so counts per revolution and wheel size are one parameter (an encoder
+        counting 4 % more is a wheel 4 % smaller).
     """
 
     name: str
@@ -49,6 +54,11 @@ class Case:
     accepted: tuple[str, ...]
     note: str
     drives: tuple[str, ...] = ("commands", "ticks")
+    ticks_aliases: tuple[str, ...] = ()
+
+    def accepted_for(self, drive: str) -> tuple[str, ...]:
+        """Accepted effects when ``drive`` drives the replay (adds :attr:`ticks_aliases`)."""
+        return self.accepted + (self.ticks_aliases if drive == "ticks" else ())
 
     def __post_init__(self) -> None:
         if self.robot not in ("diffdrive", "arm"):
@@ -133,6 +143,7 @@ DRIVE_CASES: tuple[Case, ...] = (
         {"cpr_left": 1.04, "cpr_right": 1.04},
         ("encoder_scale",),
         "both encoders count 4 % more edges than declared",
+        ticks_aliases=("wheel_radius_scale",),
     ),
     Case(
         "right_encoder_high",
@@ -140,6 +151,7 @@ DRIVE_CASES: tuple[Case, ...] = (
         {"cpr_right": 1.03},
         ("encoder_ratio",),
         "right encoder counts 3 % more edges",
+        ticks_aliases=("wheel_diameter_ratio", "wheel_radius_scale"),
     ),
     Case(
         "mocap_stamp_late",

@@ -27,6 +27,10 @@ term; the body moves as a unicycle,
 
 .. math:: v = \\tfrac12 (u_R + u_L),\\quad \\omega = (u_R - u_L)/b .
 
+The planner follows its path on the robot's own odometry (as UMBmark is driven):
+a square's side ends when the odometry has covered it (less the braking
+distance), and each corner waits until the encoders have been still for 0.4 s.
+
 Encoders count ``floor(φ · cpr / 2π)`` edges (quantised); the run files hold the
 per-cycle increments. Motion capture samples the pose of its marker body at
 100 Hz with Gaussian noise and a fixed latency; each 20 Hz row holds the most
@@ -263,6 +267,8 @@ def square_path(
     """
     if direction not in ("cw", "ccw"):
         raise ValueError(f"direction must be 'cw' or 'ccw', got {direction!r}")
+    if not side > 0:
+        raise ValueError(f"side must be > 0 m, got {side!r}")
     sign = 1.0 if direction == "ccw" else -1.0
     segs: list[tuple[str, float, float, float]] = [("wait", 0.5, 0.0, 0.0)]
     for _ in range(4):
@@ -275,6 +281,10 @@ def circle_path(
     robot: DriveRobot, radius: float, direction: str
 ) -> list[tuple[str, float, float, float]]:
     """One full circle of ``radius`` m at cruise speed (timed on the planned rate)."""
+    if direction not in ("cw", "ccw"):
+        raise ValueError(f"direction must be 'cw' or 'ccw', got {direction!r}")
+    if not radius > 0:
+        raise ValueError(f"radius must be > 0 m, got {radius!r}")
     sign = 1.0 if direction == "ccw" else -1.0
     v = robot.v_nom
     w = sign * v * robot.m_per_tick / radius
@@ -286,6 +296,8 @@ def free_path(
     robot: DriveRobot, rng: np.random.Generator, n_segments: int = 8
 ) -> list[tuple[str, float, float, float]]:
     """Random arcs, straights and turns in place (durations 2–5 s), drawn from ``rng``."""
+    if n_segments < 1:
+        raise ValueError(f"n_segments must be >= 1, got {n_segments!r}")
     segs: list[tuple[str, float, float, float]] = [("wait", 0.5, 0.0, 0.0)]
     for _ in range(n_segments):
         kind = rng.choice(3)

@@ -70,6 +70,11 @@ def test_straight_line_gives_the_known_ticks_through_the_importer(tmp_path: Path
     )
 
 
+def _one_run() -> dd.RunRecord:
+    robot = dd.DriveRobot()
+    return dd.simulate_run(_straight(robot, 1.0), robot, dd.Hidden(), np.random.default_rng(0))
+
+
 def test_planted_wheelbase_turns_the_square_by_the_closed_form() -> None:
     robot = dd.DriveRobot(mocap_pos_sigma=0.0, mocap_yaw_sigma=0.0)
     rng = np.random.default_rng(0)
@@ -121,6 +126,10 @@ def test_bad_input_is_refused_with_the_argument_named(tmp_path: Path) -> None:
         dd.Hidden(b_true=3.0)
     with pytest.raises(ValueError, match="direction must be 'cw' or 'ccw'"):
         dd.square_path(dd.DriveRobot(), 1.0, "left")
+    with pytest.raises(ValueError, match="side must be > 0 m"):
+        dd.square_path(dd.DriveRobot(), 0.0, "cw")
+    with pytest.raises(ValueError, match="session_id must be 12 digits"):
+        dd.write_session(tmp_path, "abc", [_one_run()], dd.DriveRobot(), "square")
     with pytest.raises(ValueError, match=r"ArmHidden\.zero_err needs 6 values"):
         ur10.ArmHidden(zero_err=(0.0,))
     with pytest.raises(TypeError, match=r"rng must be a numpy\.random\.Generator"):
@@ -145,3 +154,37 @@ def test_end_to_end_names_a_strong_in_library_effect() -> None:
     assert drive["top_params"]["wheelbase_error.E_b"] == pytest.approx(1.03, abs=0.004)
     assert arm["correct"], arm
     assert arm["top_params"]["arm_tool_offset.dz"] == pytest.approx(3e-3, abs=3e-4)
+
+
+def _fake(kind: str, effects: tuple[str, ...], confidence: str = "strong") -> object:
+    from types import SimpleNamespace
+
+    verdict = SimpleNamespace(
+        kind=kind,
+        effects=effects,
+        confidence=confidence,
+        reason="r",
+        label=list(effects) if kind == "effects" else kind,
+    )
+    ranking = [SimpleNamespace(effects=effects or ("x",), values={"x.p": 1.0})]
+    return SimpleNamespace(verdict=verdict, ranking=ranking, gap={"heldout_shrink_pct_best": 50.0})
+
+
+def test_scoring_rules() -> None:
+    from realitygap.experiments.independent import score
+
+    enc = case_by_name("encoder_counts_high")
+    # an encoder that counts more is a smaller wheel when the ticks drive the replay, not otherwise
+    assert score(enc, _fake("effects", ("wheel_radius_scale",)), drive="ticks")["correct"]
+    assert not score(enc, _fake("effects", ("wheel_radius_scale",)), drive="commands")["correct"]
+    # an extra effect beside the right one is wrong and a false attribution
+    wb = case_by_name("wheelbase_plus3")
+    row = score(wb, _fake("effects", ("wheelbase_error", "timestamp_offset")))
+    assert not row["correct"] and row["false_attribution"]
+    # out of the library: unexplained counts, weak names count only as lenient
+    drag = case_by_name("caster_drag")
+    assert score(drag, _fake("unexplained", ()))["open_set_strict"] == 1.0
+    weak = score(drag, _fake("effects", ("wheelbase_error",), "weak"))
+    assert weak["open_set_strict"] == 0.0 and weak["open_set_lenient"] == 1.0
+    assert weak["false_attribution"]
+    assert score(drag, _fake("none", ()))["open_set_strict"] == 0.0
