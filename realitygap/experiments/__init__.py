@@ -34,6 +34,7 @@ _MODULES = (
     "realitygap.experiments.arm",
     "realitygap.experiments.climb",
     "realitygap.experiments.diagnosis",
+    "realitygap.experiments.independent",
     "realitygap.experiments.benchmark",
 )
 

@@ -1,0 +1,190 @@
+"""The independent generator: no shared code, files the importers read, closed forms, determinism."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from realitygap.independent import diffdrive as dd
+from realitygap.independent import ur10
+from realitygap.independent.cases import CASES, case_by_name
+
+
+def test_generator_imports_nothing_from_the_simulator_or_the_diagnosis() -> None:
+    code = (
+        "import sys\n"
+        "import realitygap.independent.diffdrive, realitygap.independent.ur10, "
+        "realitygap.independent.cases\n"
+        "bad = [m for m in sys.modules if m.split('.')[:2] in (['realitygap', 'robots'], "
+        "['realitygap', 'envs'], ['realitygap', 'diagnosis'], ['realitygap', 'estimators'], "
+        "['realitygap', 'controllers']) or m == 'pybullet']\n"
+        "print(','.join(bad))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == ""
+
+
+def test_case_list_is_large_enough_and_mixed() -> None:
+    assert len(CASES) >= 30
+    assert sum(not c.in_library for c in CASES) >= 8
+    from realitygap.robots.effects import EFFECTS
+
+    for c in CASES:
+        unknown = set(c.accepted) - set(EFFECTS)
+        assert not unknown, f"case {c.name} accepts unknown effects {unknown}"
+    with pytest.raises(KeyError, match="no independent case 'nope'"):
+        case_by_name("nope")
+
+
+def _straight(robot: dd.DriveRobot, seconds: float) -> list[tuple[str, float, float, float]]:
+    return [("time", seconds, robot.v_nom, 0.0), ("wait", 1.0, 0.0, 0.0)]
+
+
+def test_straight_line_gives_the_known_ticks_through_the_importer(tmp_path: Path) -> None:
+    robot = dd.DriveRobot(mocap_pos_sigma=0.0, mocap_yaw_sigma=0.0)
+    rng = np.random.default_rng(3)
+    run = dd.simulate_run(_straight(robot, 6.0), robot, dd.Hidden(), rng)
+    folder = dd.write_session(tmp_path, "010320240900", [run], robot, "free", rng=rng)
+    from realitygap.diagnosis.importers.optiodom import read_session
+    from realitygap.diagnosis.io import read_logs
+
+    s = read_session(folder)
+    r = s.runs[0]
+    assert s.metadata.wheelbase == robot.wheelbase and r.alignment == "exact"
+    # cruise: v_nom ticks per cycle on both wheels once the ramp and the motor have settled
+    steady = r.ticks_left[60:110]
+    assert np.all(np.abs(steady - robot.v_nom) <= 1) and np.array_equal(r.ticks_left, r.ticks_right)
+    # distance: ticks × metres per tick equals the motion-capture distance (no effect planted)
+    dist = r.ticks_left.sum() * robot.m_per_tick
+    assert r.gt_pose[-1, 0] == pytest.approx(dist, abs=2e-3)
+    assert abs(r.gt_pose[-1, 1]) < 1e-6
+    (log,) = read_logs(folder)
+    assert log.channels["cmd"][10, 0] == pytest.approx(robot.v_nom * robot.m_per_tick / robot.cycle)
+    assert log.meta["firmware"]["a_max"] == pytest.approx(
+        robot.dv_max * robot.m_per_tick / robot.cycle**2
+    )
+
+
+def _one_run() -> dd.RunRecord:
+    robot = dd.DriveRobot()
+    return dd.simulate_run(_straight(robot, 1.0), robot, dd.Hidden(), np.random.default_rng(0))
+
+
+def test_planted_wheelbase_turns_the_square_by_the_closed_form() -> None:
+    robot = dd.DriveRobot(mocap_pos_sigma=0.0, mocap_yaw_sigma=0.0)
+    rng = np.random.default_rng(0)
+    run = dd.simulate_run(dd.square_path(robot, 0.5, "ccw"), robot, dd.Hidden(b_true=1.05), rng)
+    odo_turn = run.odo[-1, 2]
+    # odometry with the nominal wheelbase over-counts the true rotation by the wheelbase ratio
+    assert run.truth[-1, 2] == pytest.approx(odo_turn / 1.05, rel=2e-3)
+
+
+def test_known_dh_pose_gives_the_known_tool_point(tmp_path: Path) -> None:
+    tracker = ur10.Tracker(position=(0.0, 0.0, 0.0), yaw=0.0, sigma=0.0)
+    q = np.zeros((2, 6))
+    q[1, 1] = -math.pi / 2
+    s = ur10.measure_series(q, ur10.ArmHidden(), tracker, np.random.default_rng(0))
+    folder = ur10.write_series(tmp_path, "A", s)
+    from realitygap.diagnosis.io import read_logs
+
+    (log,) = read_logs(folder)
+    d, a = ur10.UR10_DH["d"], ur10.UR10_DH["a"]
+    # zero pose: arm stretched along −x, tool axis along −y
+    expected0 = [a[1] + a[2], -(d[3] + d[5] + ur10.PROBE[2]), d[0] - d[4]]
+    # shoulder lifted by −π/2: the arm points straight up, the wrist-2 offset d5 along −x
+    expected1 = [-d[4], -(d[3] + d[5] + ur10.PROBE[2]), d[0] - a[1] - a[2]]
+    np.testing.assert_allclose(log.channels["tool_pos"], [expected0, expected1], atol=1e-9)
+    np.testing.assert_allclose(log.channels["joints"], q, atol=1e-12)
+    np.testing.assert_allclose(log.meta["tool"], ur10.PROBE, atol=1e-9)
+
+
+def test_determinism_per_seed(tmp_path: Path) -> None:
+    robot = dd.DriveRobot()
+    h = dd.Hidden(stiction=0.01)
+
+    def one(seed: int) -> dd.RunRecord:
+        rng = np.random.default_rng(seed)
+        return dd.simulate_run(dd.free_path(robot, rng, 3), robot, h, rng)
+
+    a, b, c = one(5), one(5), one(6)
+    np.testing.assert_array_equal(a.gt, b.gt)
+    np.testing.assert_array_equal(a.ticks_left, b.ticks_left)
+    assert a.gt.shape != c.gt.shape or not np.array_equal(a.gt, c.gt)
+    q = ur10.random_poses(5, np.random.default_rng(1))
+    s1 = ur10.measure_series(q, ur10.ArmHidden(), ur10.Tracker(), np.random.default_rng(2))
+    s2 = ur10.measure_series(q, ur10.ArmHidden(), ur10.Tracker(), np.random.default_rng(2))
+    np.testing.assert_array_equal(s1.probe_tracker, s2.probe_tracker)
+
+
+def test_bad_input_is_refused_with_the_argument_named(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match=r"Hidden.b_true is a ratio near 1"):
+        dd.Hidden(b_true=3.0)
+    with pytest.raises(ValueError, match="direction must be 'cw' or 'ccw'"):
+        dd.square_path(dd.DriveRobot(), 1.0, "left")
+    with pytest.raises(ValueError, match="side must be > 0 m"):
+        dd.square_path(dd.DriveRobot(), 0.0, "cw")
+    with pytest.raises(ValueError, match="session_id must be 12 digits"):
+        dd.write_session(tmp_path, "abc", [_one_run()], dd.DriveRobot(), "square")
+    with pytest.raises(ValueError, match=r"ArmHidden\.zero_err needs 6 values"):
+        ur10.ArmHidden(zero_err=(0.0,))
+    with pytest.raises(TypeError, match=r"rng must be a numpy\.random\.Generator"):
+        dd.simulate_run([], dd.DriveRobot(), dd.Hidden(), 0)  # type: ignore[arg-type]
+
+
+@pytest.mark.slow
+def test_end_to_end_names_a_strong_in_library_effect() -> None:
+    """Files written here, read by the importers and diagnosed: a 3 % wider axle (tick
+    replay) and a 3 mm longer probe are named, with their values."""
+    from realitygap.core.parallel import ProcessBackend
+    from realitygap.diagnosis.adapters import close_adapters
+    from realitygap.experiments.independent import diagnose_case
+
+    try:
+        backend = ProcessBackend(2)
+        (drive,) = diagnose_case(case_by_name("wheelbase_plus3"), 0, backend, drives=("ticks",))
+        (arm,) = diagnose_case(case_by_name("probe_long"), 0, backend)
+    finally:
+        close_adapters()
+    assert drive["correct"], drive
+    assert drive["top_params"]["wheelbase_error.E_b"] == pytest.approx(1.03, abs=0.004)
+    assert arm["correct"], arm
+    assert arm["top_params"]["arm_tool_offset.dz"] == pytest.approx(3e-3, abs=3e-4)
+
+
+def _fake(kind: str, effects: tuple[str, ...], confidence: str = "strong") -> object:
+    from types import SimpleNamespace
+
+    verdict = SimpleNamespace(
+        kind=kind,
+        effects=effects,
+        confidence=confidence,
+        reason="r",
+        label=list(effects) if kind == "effects" else kind,
+    )
+    ranking = [SimpleNamespace(effects=effects or ("x",), values={"x.p": 1.0})]
+    return SimpleNamespace(verdict=verdict, ranking=ranking, gap={"heldout_shrink_pct_best": 50.0})
+
+
+def test_scoring_rules() -> None:
+    from realitygap.experiments.independent import score
+
+    enc = case_by_name("encoder_counts_high")
+    # an encoder that counts more is a smaller wheel when the ticks drive the replay, not otherwise
+    assert score(enc, _fake("effects", ("wheel_radius_scale",)), drive="ticks")["correct"]
+    assert not score(enc, _fake("effects", ("wheel_radius_scale",)), drive="commands")["correct"]
+    # an extra effect beside the right one is wrong and a false attribution
+    wb = case_by_name("wheelbase_plus3")
+    row = score(wb, _fake("effects", ("wheelbase_error", "timestamp_offset")))
+    assert not row["correct"] and row["false_attribution"]
+    # out of the library: unexplained counts, weak names count only as lenient
+    drag = case_by_name("caster_drag")
+    assert score(drag, _fake("unexplained", ()))["open_set_strict"] == 1.0
+    weak = score(drag, _fake("effects", ("wheelbase_error",), "weak"))
+    assert weak["open_set_strict"] == 0.0 and weak["open_set_lenient"] == 1.0
+    assert weak["false_attribution"]
+    assert score(drag, _fake("none", ()))["open_set_strict"] == 0.0
