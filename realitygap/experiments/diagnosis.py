@@ -284,6 +284,15 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
             for e, why in d.not_observable.items():
                 if prefix == "":
                     notes.append(f"not observable: {e}: {why}")
+            aliases = ADAPTERS["arm"].alias_groups(d.prepared)
+            tables[f"{prefix or 'forward_'}aliases"] = [
+                {"effects": " / ".join(p["effects"]), "correlation": p["correlation"]}
+                for g in aliases
+                for p in g["pairs"]
+            ]
+            for g in aliases:
+                for a, b in g["aliases"]:
+                    notes.append(f"{names}: {a} or {b} (aliases on this data): {g['why']}")
     finally:
         ADAPTERS.pop("arm", None)
     notes.append(

@@ -11,6 +11,7 @@ import pytest
 from realitygap.diagnosis.adapters import get_adapter, reality_from_values
 from realitygap.diagnosis.arm_adapter import (
     backlash_directions,
+    known_direction_poses,
     probe_positions,
     record_arm_log,
     replay_arm,
@@ -72,8 +73,18 @@ def test_backlash_directions_follow_the_last_move() -> None:
     q = np.zeros((4, 6))
     q[1, 0], q[2, 0], q[3, 0] = 0.1, 0.05, 0.05  # up, down, stay
     d = backlash_directions(q)
-    assert d[:, 0].tolist() == [1.0, 1.0, -1.0, -1.0]
-    assert np.all(d[:, 1:] == 1.0)
+    # the first pose's approach is unknown (0), not assumed
+    assert d[:, 0].tolist() == [0.0, 1.0, -1.0, -1.0]
+    assert np.all(d[:, 1:] == 0.0)  # joints that never move have no direction
+
+
+def test_poses_of_unknown_direction_are_left_out_of_the_fit() -> None:
+    q = np.zeros((5, 3))
+    q[1:, 0] = 0.1  # joint 1 moves into pose 1
+    q[3:, 1] = -0.2  # joint 2 moves first into pose 3
+    known = known_direction_poses(backlash_directions(q))
+    # joint 3 never moves: it excludes nothing; joint 2 is unknown before pose 3
+    assert known.tolist() == [False, False, False, True, True]
 
 
 def test_surrogate_agrees_with_the_pybullet_replay() -> None:
@@ -90,10 +101,15 @@ def test_surrogate_agrees_with_the_pybullet_replay() -> None:
         "arm_twist_error.dalpha4": 0.002,
         "arm_joint_offset.dtheta5": 0.002,
         "arm_tool_offset.dz": -0.004,
+        "arm_measurement_scale.s": 4e-4,
+        "arm_base_compliance.k": 2e-5,
+        "arm_geometric_tolerances.dtheta3": 1e-3,
+        "arm_geometric_tolerances.da3": -1e-3,
+        "arm_geometric_tolerances.dtool_x": 2e-3,
     }
     nominal, tau = replay_arm(params, q, TOOL)
     effect, _ = replay_arm(params, q, TOOL, reality_from_values(values))
-    batch = {k: np.array([0.0 if "scale" not in k else 1.0, v]) for k, v in values.items()}
+    batch = {k: np.array([1.0 if "encoder_scale" in k else 0.0, v]) for k, v in values.items()}
     sur = surrogate_points(params.mdh, q, tau, backlash_directions(q), TOOL, batch)
     assert np.max(np.abs(effect - nominal)) > 2e-3  # the effects are large …
     np.testing.assert_allclose(sur[0], nominal, atol=1e-7)
