@@ -142,7 +142,9 @@ def test_a_withheld_effect_is_left_unexplained() -> None:
     train, holdout = _record(
         "arm_link_length", {"da2": 8e-4, "da3": -6e-4, "dd4": 5e-4, "dd5": -7e-4}, seed=1
     )
-    library = tuple(e for e in get_adapter("arm").effect_names() if e not in ("arm_link_length",))
+    # the geometric-tolerances model contains the link lengths: it is withheld with them
+    withheld = ("arm_link_length", "arm_geometric_tolerances")
+    library = tuple(e for e in get_adapter("arm").effect_names() if e not in withheld)
     d = diagnose(train, holdout, settings=DiagnosisSettings(robot="arm", effects=library))
     assert d.verdict.kind == "unexplained", d.verdict.reason
 
@@ -232,3 +234,82 @@ def test_too_few_poses_and_tick_drive_are_refused() -> None:
         diagnose([short], settings=DiagnosisSettings(robot="arm"))
     with pytest.raises(LogError, match="joint readings"):
         diagnose([lg], settings=DiagnosisSettings(robot="arm", drive="ticks"))
+
+
+# --------------------------------------------------------------------------- scale, tolerances, aliases
+def _prepared(reality: Reality | None, seed: int, n: int = 48) -> list:
+    rng = np.random.default_rng(seed)
+    adapter = get_adapter("arm")
+    logs = [record_arm_log(reality, rng, n, name=nm) for nm in ("train", "holdout")]
+    return [
+        adapter.prepare(
+            lg, split=sp, drive=Drive.COMMANDS, features_settings=FeatureSettings(), sim=None
+        )
+        for lg, sp in zip(logs, ("train", "holdout"))
+    ]
+
+
+def test_a_measurement_scale_multiplies_every_recorded_distance() -> None:
+    s = 8e-4
+    real = Reality((make_effect("arm_measurement_scale", s=s),))
+    plain = record_arm_log(None, np.random.default_rng(5), 12, tracker_noise=0.0)
+    scaled = record_arm_log(real, np.random.default_rng(5), 12, tracker_noise=0.0)
+    bounds = np.array([[0, 4], [4, 8], [8, 12]])
+    d0 = tool_distance_features(np.asarray(plain["tool_pos"]), bounds)
+    d1 = tool_distance_features(np.asarray(scaled["tool_pos"]), bounds)
+    np.testing.assert_allclose(d1, (1.0 + s) * d0, rtol=1e-9)
+
+
+def test_the_tolerance_set_is_what_distances_identify() -> None:
+    from realitygap.robots.effects import EFFECTS
+    from realitygap.robots.effects.arm import (
+        GEOMETRIC_TOLERANCE_PARAMS,
+        identifiable_distance_parameters,
+    )
+
+    for table in (MDHTable.ur10(), MDHTable.ur_like_6dof()):
+        assert identifiable_distance_parameters(table) == GEOMETRIC_TOLERANCE_PARAMS
+    names = [p.name for p in EFFECTS["arm_geometric_tolerances"].specs]
+    assert names == [f"d{n}" for n in GEOMETRIC_TOLERANCE_PARAMS]
+    with pytest.raises(ValueError, match="n_poses must be at least 8"):
+        identifiable_distance_parameters(MDHTable.ur10(), n_poses=3)
+
+
+def test_many_small_geometric_errors_are_identified_on_the_windows() -> None:
+    from realitygap.diagnosis.arm_aliases import identify_window_geometry
+    from realitygap.robots.effects.arm import GEOMETRIC_TOLERANCE_PARAMS
+
+    rng = np.random.default_rng(11)
+    # 1 mm / 1 mrad tolerances on every identifiable parameter
+    values = {f"d{n}": float(rng.uniform(-1e-3, 1e-3)) for n in GEOMETRIC_TOLERANCE_PARAMS}
+    prepared = _prepared(Reality((make_effect("arm_geometric_tolerances", **values),)), seed=2)
+    res = identify_window_geometry(prepared)
+    assert res["heldout_rms_m_nominal"] > 10 * res["heldout_rms_m_identified"]
+    assert res["heldout_shrink_pct"] > 85.0
+    # a planted tool-length error comes back to well within a tenth of a millimetre
+    assert res["deltas"]["tool_z"] == pytest.approx(values["dtool_z"], abs=1e-4)
+
+
+def test_aliases_are_stated_with_the_measured_correlation() -> None:
+    from realitygap.diagnosis.arm_aliases import AliasGroup, measure_aliases
+
+    prepared = _prepared(None, seed=4, n=40)
+    adapter = get_adapter("arm")
+    groups = {tuple(g["effects"]): g for g in adapter.alias_groups(prepared)}
+    length = groups[("arm_tool_offset", "arm_link_length", "arm_measurement_scale")]
+    # a uniform scale is link lengths and tool length together
+    assert length["member_vs_rest"]["arm_measurement_scale"] > 0.99
+    tilt = groups[("arm_base_compliance", "arm_joint_compliance")]
+    assert tilt["pairs"][0]["correlation"] > 0.95
+    assert tilt["aliases"] == [["arm_base_compliance", "arm_joint_compliance"]]
+    # play in the wrist does not look like a length scale: the measure can say "no"
+    other = measure_aliases(
+        adapter, prepared, [AliasGroup(("arm_backlash", "arm_measurement_scale"), "", "")]
+    )
+    assert other[0]["pairs"][0]["correlation"] < 0.9
+    assert other[0]["aliases"] == []
+    # only the groups of the named effects
+    only = adapter.alias_groups(prepared, effects=["arm_joint_compliance"])
+    assert [g["effects"][0] for g in only] == ["arm_base_compliance"]
+    with pytest.raises(ValueError, match="threshold must be in"):
+        adapter.alias_groups(prepared, threshold=1.5)
