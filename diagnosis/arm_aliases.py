@@ -194,15 +194,25 @@ def measure_aliases(
     return out
 
 
-def identify_window_geometry(prepared: Sequence[PreparedLog]) -> dict[str, Any]:
-    """Identify the geometry on the training windows' pose pairs; score the held-out ones.
+def identify_window_geometry(
+    prepared: Sequence[PreparedLog], pairs: str = "windows", max_poses: int = 800
+) -> dict[str, Any]:
+    """Identify the geometry on the training poses; score the held-out windows.
 
     Distance-mode :func:`~realitygap.estimators.arm.identification.identify`
-    (tool point estimated, the identifiable set chosen by its own analysis) on
-    the six pairs of every training window, from the logs' nominal table and
-    tool. Returns the free parameters, their deltas and standard deviations,
-    and the RMS distance error (m) of the held-out windows before and after.
+    (tool point estimated, the identifiable set chosen by its own analysis), from
+    the logs' nominal table and tool, on the six pairs of every training window
+    (``pairs="windows"``: the diagnosis' own features) or on every pair of the
+    training poses of each log (``pairs="all"``: the classical distance
+    calibration, with long distances across the workspace; at most ``max_poses``
+    poses per log, evenly spread, to bound memory). Returns the free
+    parameters, their deltas and standard deviations, and the RMS distance
+    error (m) of the held-out windows' pairs before and after.
     """
+    if pairs not in ("windows", "all"):
+        raise ValueError(f"pairs must be 'windows' or 'all', got {pairs!r}")
+    if max_poses < 8:
+        raise ValueError(f"max_poses must be at least 8, got {max_poses}")
     from realitygap.diagnosis.arm_adapter import TOOL_DIST_PAIRS
     from realitygap.estimators.arm.identification import IdentificationSettings, identify
     from realitygap.estimators.arm.mdh import tool_positions
@@ -216,19 +226,26 @@ def identify_window_geometry(prepared: Sequence[PreparedLog]) -> dict[str, Any]:
         if not c.params.mdh.isclose(base.params.mdh) or not np.allclose(c.tool, base.tool):
             raise ValueError("the logs describe different nominal arms or tools")
 
-    def pairs(p: PreparedLog, held: bool) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def select(p: PreparedLog, held: bool, every: bool) -> tuple[FloatArray, ...]:
         wins = np.flatnonzero(p.holdout_windows == held)
         pts = np.asarray(p.log["tool_pos"], dtype=float)[p.context.rows]
-        idx = [(a + i, a + j) for a in p.bounds[wins, 0] for i, j in TOOL_DIST_PAIRS]
-        ij = np.asarray(idx, dtype=np.int64).reshape(-1, 2)
+        if every:
+            poses = np.concatenate([np.arange(a, b) for a, b in p.bounds[wins]] or [[]])
+            if poses.size > max_poses:
+                poses = poses[np.linspace(0, poses.size - 1, max_poses).round().astype(int)]
+            i, j = np.triu_indices(poses.size, k=1)
+            ij = np.stack([poses[i], poses[j]], axis=1).astype(np.int64)
+        else:
+            idx = [(a + i, a + j) for a in p.bounds[wins, 0] for i, j in TOOL_DIST_PAIRS]
+            ij = np.asarray(idx, dtype=np.int64).reshape(-1, 2)
         q = p.context.q
         return q[ij[:, 0]], q[ij[:, 1]], pts[ij[:, 1]] - pts[ij[:, 0]]
 
-    def stack(held: bool) -> PairObservations:
-        parts = [pairs(p, held) for p in prepared]
+    def stack(held: bool, every: bool) -> PairObservations:
+        parts = [select(p, held, every) for p in prepared]
         return PairObservations(*(np.concatenate([x[k] for x in parts]) for k in range(3)))
 
-    train, test = stack(False), stack(True)
+    train, test = stack(False, pairs == "all"), stack(True, False)
     res = identify(
         base.params.mdh,
         train,

@@ -288,6 +288,11 @@ def test_many_small_geometric_errors_are_identified_on_the_windows() -> None:
     assert res["heldout_shrink_pct"] > 85.0
     # a planted tool-length error comes back to well within a tenth of a millimetre
     assert res["deltas"]["tool_z"] == pytest.approx(values["dtool_z"], abs=1e-4)
+    every = identify_window_geometry(prepared, pairs="all", max_poses=40)
+    assert every["n_train_pairs"] == 40 * 39 // 2
+    assert every["heldout_shrink_pct"] > 85.0
+    with pytest.raises(ValueError, match="pairs must be 'windows' or 'all'"):
+        identify_window_geometry(prepared, pairs="every")
 
 
 def test_aliases_are_stated_with_the_measured_correlation() -> None:
