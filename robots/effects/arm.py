@@ -260,7 +260,10 @@ class ArmMeasurementScale(Effect):
     )
     # 1e-3 is ~1 K of steel's growth ten times over, or a gross wavelength error
     specs = (ParamSpec("s", "1", 0.0, -1e-3, 1e-3, "relative length scale (measured/true - 1)"),)
-    blind = (BlindRange("s", 1e-4, 5e-4, True),)
+    # No blind range: on tool-point distances the scale is the link-length effect (plus a
+    # tool length) of the same library, so a blind case could neither be named uniquely nor,
+    # withheld, be left unexplained. Its realistic magnitude is |s| = 1e-4 .. 5e-4.
+    blind = ()
 
     def length_scale(self) -> float:
         """The factor ``1 + s`` every measured length carries."""
