@@ -40,9 +40,23 @@ Surrogate (for the fit)
 
     with :math:`\tau^g` precomputed once per pose from the nominal body, then
     vectorised 5-parameter MDH forward kinematics with the geometric effects
-    added to the table. It matches the replay to well below the noise (the only
-    approximation is :math:`\tau^g` at the reading instead of the sagged
-    angle: a second-order term).
+    added to the table, the measured point moved by the tool errors, the base
+    tilt and the instrument's length scale applied
+    (:mod:`~realitygap.diagnosis.arm_kinematics`). It matches the replay to well
+    below the noise (the only approximation is :math:`\tau^g` at the reading
+    instead of the sagged angle: a second-order term).
+
+Unknown directions
+    The first pose of a series has no known approach direction, nor has any
+    joint before its first move; windows with such a pose are left out
+    (:func:`~realitygap.diagnosis.arm_kinematics.known_direction_poses`), so a
+    direction-dependent fit (backlash) never assumes one.
+
+Aliases
+    :meth:`ArmAdapter.alias_groups` states which effects tool-point distances
+    cannot separate (tool offset / link lengths / measurement scale; base tilt /
+    joint-2 compliance) with the correlation measured on the logs
+    (:mod:`~realitygap.diagnosis.arm_aliases`).
 """
 
 from __future__ import annotations
@@ -60,6 +74,13 @@ from realitygap.diagnosis.adapters import (
     LogContext,
     PreparedLog,
     reality_from_values,
+)
+from realitygap.diagnosis.arm_kinematics import (
+    backlash_directions,
+    base_tilt,
+    known_direction_poses,
+    probe_positions,
+    surrogate_points,
 )
 from realitygap.diagnosis.features import FeatureGroup, FeatureSchema, FeatureSettings
 from realitygap.diagnosis.log import ChannelSpec, Log, LogError, Role
@@ -79,11 +100,14 @@ __all__ = [
     "ARM_SCHEMA",
     "POSES_PER_WINDOW",
     "TOOL_DIST_COLUMNS",
+    "TOOL_DIST_PAIRS",
     "ArmAdapter",
     "ArmContext",
     "arm_params_from_meta",
     "arm_params_to_meta",
     "backlash_directions",
+    "base_tilt",
+    "known_direction_poses",
     "probe_poses",
     "probe_positions",
     "reach_ratio",
@@ -133,16 +157,15 @@ ARM_SCHEMA = FeatureSchema(
 )
 """The arm's window features (tool-point distances, default scale 0.1 mm) and regimes."""
 
-_PAIRS = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
-assert len(_PAIRS) == len(TOOL_DIST_COLUMNS)
+TOOL_DIST_PAIRS: tuple[tuple[int, int], ...] = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
+"""The pose pairs of a window behind :data:`TOOL_DIST_COLUMNS`, in their order."""
+assert len(TOOL_DIST_PAIRS) == len(TOOL_DIST_COLUMNS)
 
 _FOLDED, _OUTSTRETCHED = 0.45, 0.8
 
 DEFAULT_TOOL_NOISE = 2.5e-5
 """Per-axis noise of a tool-point measurement (m) when a log does not state it
 (``meta["tool_noise_m"]``): a laser tracker at a few metres."""
-_DIR_THRESHOLD = 1e-5
-"""A reading change below this (rad) keeps the joint's last direction of motion."""
 
 ARM_PROBE_SETS: dict[str, str] = {
     "outstretched_poses": "poses with the upper arm and forearm stretched out near the "
@@ -228,74 +251,12 @@ def _tool(log: Log) -> FloatArray:
 
 
 # --------------------------------------------------------------------------- kinematics
-def backlash_directions(q: FloatArray, threshold: float = _DIR_THRESHOLD) -> FloatArray:
-    """Direction of the last move of every joint at every pose, ±1 (N, 6).
-
-    The first pose counts as approached from below (+1), as the arm's
-    :meth:`~realitygap.robots.arm.ArmRobot.reset` assumes; a joint that moves
-    less than ``threshold`` keeps its previous direction.
-    """
-    q = np.asarray(q, dtype=float)
-    out = np.ones_like(q)
-    for k in range(1, q.shape[0]):
-        step = q[k] - q[k - 1]
-        out[k] = np.where(step > threshold, 1.0, np.where(step < -threshold, -1.0, out[k - 1]))
-    return out
-
-
-def probe_positions(
-    theta: FloatArray,
-    d: FloatArray,
-    a: FloatArray,
-    alpha: FloatArray,
-    beta: FloatArray,
-    q_link: FloatArray,
-    tool: FloatArray,
-) -> FloatArray:
-    """Tool points (B, N, 3) in the base frame for B tables (B, 6) and link angles (B, N, 6).
-
-    ``tool`` is the point in the flange frame, (3,) or one per table (B, 3).
-
-    The MDH transform of row i is :math:`R_z(q_i+θ_i) T_z(d_i) T_x(a_i) R_x(α_i) R_y(β_i)`
-    (as :func:`realitygap.estimators.arm.mdh.forward_kinematics`).
-    """
-    th = q_link + theta[:, None, :]
-    ct, st = np.cos(th), np.sin(th)
-    ca, sa = np.cos(alpha)[:, None, :], np.sin(alpha)[:, None, :]
-    cb, sb = np.cos(beta)[:, None, :], np.sin(beta)[:, None, :]
-    B, N, n = th.shape
-    # R = Rz(th) Rx(alpha) Ry(beta), written out
-    r00 = ct * cb - st * sa * sb
-    r01 = -st * ca
-    r02 = ct * sb + st * sa * cb
-    r10 = st * cb + ct * sa * sb
-    r11 = ct * ca
-    r12 = st * sb - ct * sa * cb
-    r20 = -ca * sb
-    r21 = sa * np.ones_like(ct)
-    r22 = ca * cb
-    R = np.stack(
-        [
-            np.stack([r00, r01, r02], axis=-1),
-            np.stack([r10, r11, r12], axis=-1),
-            np.stack([r20 * np.ones_like(ct), r21, r22 * np.ones_like(ct)], axis=-1),
-        ],
-        axis=-2,
-    )  # (B, N, n, 3, 3)
-    t = np.stack([a[:, None, :] * ct, a[:, None, :] * st, d[:, None, :] * np.ones_like(ct)], -1)
-    # tool point backwards through the chain: p_{i-1} = R_i p_i + t_i
-    tool = np.asarray(tool, dtype=float)
-    p = np.broadcast_to(tool.reshape(-1, 1, 3) if tool.ndim == 2 else tool, (B, N, 3)).copy()
-    for i in range(n - 1, -1, -1):
-        p = np.einsum("bnij,bnj->bni", R[:, :, i], p) + t[:, :, i]
-    return p
-
-
 def tool_distance_features(points: FloatArray, bounds: npt.NDArray[np.int64]) -> FloatArray:
     """Pairwise distances (…, M, 6) of the tool points (…, N, 3) of every window."""
     a = bounds[:, 0]
     cols = [
-        np.linalg.norm(points[..., a + i, :] - points[..., a + j, :], axis=-1) for i, j in _PAIRS
+        np.linalg.norm(points[..., a + i, :] - points[..., a + j, :], axis=-1)
+        for i, j in TOOL_DIST_PAIRS
     ]
     return np.stack(cols, axis=-1)
 
@@ -317,19 +278,6 @@ def _windows(n: int) -> npt.NDArray[np.int64]:
 
 
 # --------------------------------------------------------------------------- surrogate
-_GEOMETRY: dict[str, tuple[str, int]] = {}
-"""``"effect.param"`` → (MDH column, joint index) for the geometric effects."""
-for _k in range(6):
-    _GEOMETRY[f"arm_joint_offset.dtheta{_k + 1}"] = ("theta", _k)
-for _nm in ("d1", "a2", "a3", "d4", "d5", "d6"):
-    _GEOMETRY[f"arm_link_length.d{_nm}"] = (_nm[0], int(_nm[1]) - 1)
-_GEOMETRY["arm_parallel_twist.beta2"] = ("beta", 1)
-_GEOMETRY["arm_parallel_twist.beta3"] = ("beta", 2)
-_GEOMETRY["arm_parallel_twist.dalpha2"] = ("alpha", 1)
-_GEOMETRY["arm_parallel_twist.dalpha3"] = ("alpha", 2)
-for _k in (1, 4, 5):
-    _GEOMETRY[f"arm_twist_error.dalpha{_k}"] = ("alpha", _k - 1)
-
 _SURROGATE_EFFECTS = (
     "arm_tool_offset",
     "arm_joint_offset",
@@ -339,74 +287,10 @@ _SURROGATE_EFFECTS = (
     "arm_joint_compliance",
     "arm_backlash",
     "arm_encoder_scale",
+    "arm_measurement_scale",
+    "arm_geometric_tolerances",
+    "arm_base_compliance",
 )
-
-
-def _batch_size(values: Mapping[str, npt.ArrayLike]) -> int:
-    sizes = {np.size(v) for v in values.values()}
-    if len(sizes) > 1:
-        raise ValueError(f"effect values of one batch must have one length, got {sorted(sizes)}")
-    return sizes.pop() if sizes else 1
-
-
-def surrogate_points(
-    table: MDHTable,
-    q_enc: FloatArray,
-    tau_g: FloatArray,
-    direction: FloatArray,
-    tool: FloatArray,
-    values: Mapping[str, npt.ArrayLike],
-    max_elements: int = 400_000,
-) -> FloatArray:
-    """Tool points (B, N, 3) predicted for a batch of effect values ``{"effect.param": (B,)}``."""
-    B = _batch_size(values)
-    cols = {
-        "theta": np.tile(table.theta_offset, (B, 1)),
-        "d": np.tile(table.d, (B, 1)),
-        "a": np.tile(table.a, (B, 1)),
-        "alpha": np.tile(table.alpha, (B, 1)),
-        "beta": np.tile(table.beta, (B, 1)),
-    }
-    scale = np.ones((B, 6))
-    comp = np.zeros((B, 6))
-    play = np.zeros((B, 6))
-    tools = np.tile(np.asarray(tool, dtype=float).reshape(1, 3), (B, 1))
-    axes = {"dx": 0, "dy": 1, "dz": 2}
-    for key, v in values.items():
-        arr = np.asarray(v, dtype=float).reshape(-1)
-        if key in _GEOMETRY:
-            kind, j = _GEOMETRY[key]
-            cols[kind][:, j] += arr
-        elif key.startswith("arm_tool_offset."):
-            tools[:, axes[key.partition(".")[2]]] += arr
-        elif key.startswith("arm_encoder_scale.s"):
-            scale[:, int(key[-1]) - 1] = arr
-        elif key.startswith("arm_joint_compliance.c"):
-            comp[:, int(key[-1]) - 1] = arr
-        elif key.startswith("arm_backlash.b"):
-            play[:, int(key[-1]) - 1] = arr
-        else:
-            raise KeyError(f"the arm surrogate has no parameter {key!r}")
-    N = q_enc.shape[0]
-    out = np.empty((B, N, 3))
-    step = max(1, max_elements // max(N, 1))
-    for lo in range(0, B, step):
-        sl = slice(lo, min(B, lo + step))
-        q_link = (
-            q_enc[None] / scale[sl, None, :]
-            - comp[sl, None, :] * tau_g[None]
-            - 0.5 * play[sl, None, :] * direction[None]
-        )
-        out[sl] = probe_positions(
-            cols["theta"][sl],
-            cols["d"][sl],
-            cols["a"][sl],
-            cols["alpha"][sl],
-            cols["beta"][sl],
-            q_link,
-            tools[sl],
-        )
-    return out
 
 
 # --------------------------------------------------------------------------- replay
@@ -424,7 +308,11 @@ def replay_arm(
     holding torques (N, 6) (N·m) at the link angles.
     """
     from realitygap.robots.arm import ArmRobot, constant_transform
-    from realitygap.robots.effects import arm_tool_offset
+    from realitygap.robots.effects import (
+        arm_base_compliance,
+        arm_measurement_scale,
+        arm_tool_offset,
+    )
     from realitygap.robots.world import World
 
     body_params = reality.apply_params(params) if reality is not None else params
@@ -444,7 +332,10 @@ def replay_arm(
             F = T_base_inv @ robot.link_pose("link6") @ last
             pts[k] = F[:3, :3] @ tool + F[:3, 3]
             taus[k] = robot.gravity_torques(q_link)
-        return pts, taus
+        k_tilt = arm_base_compliance(reality)
+        if k_tilt != 0.0:
+            pts = base_tilt(pts[None], params.mdh, q_enc, taus[:, 1], [k_tilt])[0]
+        return pts * arm_measurement_scale(reality), taus
     finally:
         world.close()
 
@@ -509,6 +400,29 @@ class ArmAdapter(AdapterBase):
         """Pose sets the identifiability advice may suggest, with descriptions."""
         return dict(ARM_PROBE_SETS)
 
+    def alias_groups(
+        self,
+        prepared: Sequence[PreparedLog],
+        threshold: float = 0.95,
+        effects: Sequence[str] | None = None,
+    ) -> list[dict[str, Any]]:
+        """The alias groups this adapter knows, with the correlation measured on these logs.
+
+        Groups (:data:`~realitygap.diagnosis.arm_aliases.ARM_ALIAS_GROUPS`): tool
+        offset / link lengths / measurement scale (on tool-to-tool distances a
+        uniform length scale is a set of link-length and tool-length errors), and
+        base compliance / joint compliance (a base tilting with the shoulder's
+        load turns the arm like joint-2 compliance). For every pair the first
+        canonical correlation of their feature Jacobians on the training windows
+        is measured; above ``threshold`` the two are "aliases on this data".
+        ``effects`` keeps only the groups that contain one of them (e.g. the
+        verdict's). See :func:`~realitygap.diagnosis.arm_aliases.measure_aliases`
+        for the returned dicts.
+        """
+        from realitygap.diagnosis.arm_aliases import measure_aliases
+
+        return measure_aliases(self, prepared, threshold=threshold, effects=effects)
+
     # ------------------------------------------------------------------ checks
     def check(self, log: Log, drive: Drive) -> Log:
         self.check_robot(log, drive, replayed_from="its joint readings")
@@ -537,6 +451,11 @@ class ArmAdapter(AdapterBase):
         q_all = np.asarray(log["joints"], dtype=float)
         dir_all = backlash_directions(q_all)  # from the full sequence of moves
         windows = _windows(log.n)
+        # windows with a pose of unknown approach direction are left out, not assumed
+        known = known_direction_poses(dir_all)
+        ok = np.array([known[a:b].all() for a, b in windows], dtype=bool)
+        if ok.sum() >= 2:
+            windows = windows[ok]
         if windows.shape[0] > self.max_windows:
             # evenly spread windows; every pose keeps the direction of its real last move
             pick = np.unique(np.linspace(0, windows.shape[0] - 1, self.max_windows).round())
@@ -774,11 +693,16 @@ def record_arm_log(
     the world with isotropic Gaussian noise of ``tracker_noise`` (m) per axis.
     """
     from realitygap.robots.arm import ArmParams, ArmRobot, constant_transform
-    from realitygap.robots.effects import arm_tool_offset
+    from realitygap.robots.effects import (
+        arm_base_compliance,
+        arm_measurement_scale,
+        arm_tool_offset,
+    )
     from realitygap.robots.world import World
 
     nominal = params if params is not None else ArmParams()
     body = reality.apply_params(nominal) if reality is not None else nominal
+    length, k_tilt = arm_measurement_scale(reality), arm_base_compliance(reality)
     tool = np.asarray(tool, dtype=float).reshape(3)
     measured = tool + np.asarray(arm_tool_offset(reality))
     world = World()
@@ -795,7 +719,11 @@ def record_arm_log(
                 raise RuntimeError(f"pose {k} could not be reached: {res.message}")
             q_enc[k] = robot.read_encoders(rng)
             F = robot.link_pose("link6") @ last
-            pts[k] = F[:3, :3] @ measured + F[:3, 3] + rng.normal(0.0, tracker_noise, 3)
+            p = F[:3, :3] @ measured + F[:3, 3]
+            if k_tilt != 0.0:
+                tau2 = robot.gravity_torques(robot.link_target(q))[1]
+                p = base_tilt(p[None, None], nominal.mdh, q[None], np.array([tau2]), [k_tilt])[0, 0]
+            pts[k] = length * p + rng.normal(0.0, tracker_noise, 3)
     finally:
         world.close()
     return Log(

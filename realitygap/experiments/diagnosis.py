@@ -233,6 +233,7 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
     from realitygap.core.parallel import ProcessBackend
     from realitygap.diagnosis.adapters import ADAPTERS
     from realitygap.diagnosis.arm_adapter import ArmAdapter
+    from realitygap.diagnosis.arm_aliases import identify_window_geometry
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
     from realitygap.diagnosis.io import logs_from_ur10
     from realitygap.diagnosis.verdict import explain
@@ -286,11 +287,29 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
             for e, why in d.not_observable.items():
                 if prefix == "":
                     notes.append(f"not observable: {e}: {why}")
+            # the project's kinematic identification on the same training poses
+            for pairs in ("windows", "all"):
+                ident = identify_window_geometry(d.prepared, pairs=pairs)
+                figures[f"ur10_{prefix}identified_{pairs}_shrink_pct"] = ident["heldout_shrink_pct"]
+            aliases = ADAPTERS["arm"].alias_groups(d.prepared)
+            tables[f"{prefix or 'forward_'}aliases"] = [
+                {"effects": " / ".join(p["effects"]), "correlation": p["correlation"]}
+                for g in aliases
+                for p in g["pairs"]
+            ]
+            for g in aliases:
+                for a, b in g["aliases"]:
+                    notes.append(f"{names}: {a} or {b} (aliases on this data): {g['why']}")
     finally:
         ADAPTERS.pop("arm", None)
     notes.append(
         "distance error: RMS over held-out windows of the six tool-point distances between four "
         "consecutive poses (registration-free); shrink = 1 - best/nominal"
+    )
+    notes.append(
+        "identified_*: distance-mode MDH identification (estimators.arm.identify) on the training "
+        "windows' pairs (windows) or on all pairs of the training poses (all), scored on the "
+        "same held-out windows"
     )
     return {
         "figures": figures,

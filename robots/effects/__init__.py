@@ -17,7 +17,11 @@ from __future__ import annotations
 from realitygap.robots.effects import arm as _arm  # noqa: F401  (registers the arm's effects)
 from realitygap.robots.effects import climber as _climber  # noqa: F401
 from realitygap.robots.effects import diffdrive as _diffdrive  # noqa: F401
-from realitygap.robots.effects.arm import arm_tool_offset
+from realitygap.robots.effects.arm import (
+    arm_base_compliance,
+    arm_measurement_scale,
+    arm_tool_offset,
+)
 from realitygap.robots.effects.base import (
     EFFECTS,
     LIBRARY_VERSION,
@@ -44,6 +48,8 @@ __all__ = [
     "Reality",
     "Stage",
     "TicksHook",
+    "arm_base_compliance",
+    "arm_measurement_scale",
     "arm_tool_offset",
     "blind_ranges",
     "library",

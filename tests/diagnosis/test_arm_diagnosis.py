@@ -11,6 +11,7 @@ import pytest
 from realitygap.diagnosis.adapters import get_adapter, reality_from_values
 from realitygap.diagnosis.arm_adapter import (
     backlash_directions,
+    known_direction_poses,
     probe_positions,
     record_arm_log,
     replay_arm,
@@ -72,8 +73,18 @@ def test_backlash_directions_follow_the_last_move() -> None:
     q = np.zeros((4, 6))
     q[1, 0], q[2, 0], q[3, 0] = 0.1, 0.05, 0.05  # up, down, stay
     d = backlash_directions(q)
-    assert d[:, 0].tolist() == [1.0, 1.0, -1.0, -1.0]
-    assert np.all(d[:, 1:] == 1.0)
+    # the first pose's approach is unknown (0), not assumed
+    assert d[:, 0].tolist() == [0.0, 1.0, -1.0, -1.0]
+    assert np.all(d[:, 1:] == 0.0)  # joints that never move have no direction
+
+
+def test_poses_of_unknown_direction_are_left_out_of_the_fit() -> None:
+    q = np.zeros((5, 3))
+    q[1:, 0] = 0.1  # joint 1 moves into pose 1
+    q[3:, 1] = -0.2  # joint 2 moves first into pose 3
+    known = known_direction_poses(backlash_directions(q))
+    # joint 3 never moves: it excludes nothing; joint 2 is unknown before pose 3
+    assert known.tolist() == [False, False, False, True, True]
 
 
 def test_surrogate_agrees_with_the_pybullet_replay() -> None:
@@ -90,10 +101,15 @@ def test_surrogate_agrees_with_the_pybullet_replay() -> None:
         "arm_twist_error.dalpha4": 0.002,
         "arm_joint_offset.dtheta5": 0.002,
         "arm_tool_offset.dz": -0.004,
+        "arm_measurement_scale.s": 4e-4,
+        "arm_base_compliance.k": 2e-5,
+        "arm_geometric_tolerances.dtheta3": 1e-3,
+        "arm_geometric_tolerances.da3": -1e-3,
+        "arm_geometric_tolerances.dtool_x": 2e-3,
     }
     nominal, tau = replay_arm(params, q, TOOL)
     effect, _ = replay_arm(params, q, TOOL, reality_from_values(values))
-    batch = {k: np.array([0.0 if "scale" not in k else 1.0, v]) for k, v in values.items()}
+    batch = {k: np.array([1.0 if "encoder_scale" in k else 0.0, v]) for k, v in values.items()}
     sur = surrogate_points(params.mdh, q, tau, backlash_directions(q), TOOL, batch)
     assert np.max(np.abs(effect - nominal)) > 2e-3  # the effects are large …
     np.testing.assert_allclose(sur[0], nominal, atol=1e-7)
@@ -126,7 +142,9 @@ def test_a_withheld_effect_is_left_unexplained() -> None:
     train, holdout = _record(
         "arm_link_length", {"da2": 8e-4, "da3": -6e-4, "dd4": 5e-4, "dd5": -7e-4}, seed=1
     )
-    library = tuple(e for e in get_adapter("arm").effect_names() if e not in ("arm_link_length",))
+    # the geometric-tolerances model contains the link lengths: it is withheld with them
+    withheld = ("arm_link_length", "arm_geometric_tolerances")
+    library = tuple(e for e in get_adapter("arm").effect_names() if e not in withheld)
     d = diagnose(train, holdout, settings=DiagnosisSettings(robot="arm", effects=library))
     assert d.verdict.kind == "unexplained", d.verdict.reason
 
@@ -216,3 +234,87 @@ def test_too_few_poses_and_tick_drive_are_refused() -> None:
         diagnose([short], settings=DiagnosisSettings(robot="arm"))
     with pytest.raises(LogError, match="joint readings"):
         diagnose([lg], settings=DiagnosisSettings(robot="arm", drive="ticks"))
+
+
+# --------------------------------------------------------------------------- scale, tolerances, aliases
+def _prepared(reality: Reality | None, seed: int, n: int = 48) -> list:
+    rng = np.random.default_rng(seed)
+    adapter = get_adapter("arm")
+    logs = [record_arm_log(reality, rng, n, name=nm) for nm in ("train", "holdout")]
+    return [
+        adapter.prepare(
+            lg, split=sp, drive=Drive.COMMANDS, features_settings=FeatureSettings(), sim=None
+        )
+        for lg, sp in zip(logs, ("train", "holdout"))
+    ]
+
+
+def test_a_measurement_scale_multiplies_every_recorded_distance() -> None:
+    s = 8e-4
+    real = Reality((make_effect("arm_measurement_scale", s=s),))
+    plain = record_arm_log(None, np.random.default_rng(5), 12, tracker_noise=0.0)
+    scaled = record_arm_log(real, np.random.default_rng(5), 12, tracker_noise=0.0)
+    bounds = np.array([[0, 4], [4, 8], [8, 12]])
+    d0 = tool_distance_features(np.asarray(plain["tool_pos"]), bounds)
+    d1 = tool_distance_features(np.asarray(scaled["tool_pos"]), bounds)
+    np.testing.assert_allclose(d1, (1.0 + s) * d0, rtol=1e-9)
+
+
+def test_the_tolerance_set_is_what_distances_identify() -> None:
+    from realitygap.robots.effects import EFFECTS
+    from realitygap.robots.effects.arm import (
+        GEOMETRIC_TOLERANCE_PARAMS,
+        identifiable_distance_parameters,
+    )
+
+    for table in (MDHTable.ur10(), MDHTable.ur_like_6dof()):
+        assert identifiable_distance_parameters(table) == GEOMETRIC_TOLERANCE_PARAMS
+    names = [p.name for p in EFFECTS["arm_geometric_tolerances"].specs]
+    assert names == [f"d{n}" for n in GEOMETRIC_TOLERANCE_PARAMS]
+    with pytest.raises(ValueError, match="n_poses must be at least 8"):
+        identifiable_distance_parameters(MDHTable.ur10(), n_poses=3)
+
+
+def test_many_small_geometric_errors_are_identified_on_the_windows() -> None:
+    from realitygap.diagnosis.arm_aliases import identify_window_geometry
+    from realitygap.robots.effects.arm import GEOMETRIC_TOLERANCE_PARAMS
+
+    rng = np.random.default_rng(11)
+    # 1 mm / 1 mrad tolerances on every identifiable parameter
+    values = {f"d{n}": float(rng.uniform(-1e-3, 1e-3)) for n in GEOMETRIC_TOLERANCE_PARAMS}
+    prepared = _prepared(Reality((make_effect("arm_geometric_tolerances", **values),)), seed=2)
+    res = identify_window_geometry(prepared)
+    assert res["heldout_rms_m_nominal"] > 10 * res["heldout_rms_m_identified"]
+    assert res["heldout_shrink_pct"] > 85.0
+    # a planted tool-length error comes back to well within a tenth of a millimetre
+    assert res["deltas"]["tool_z"] == pytest.approx(values["dtool_z"], abs=1e-4)
+    every = identify_window_geometry(prepared, pairs="all", max_poses=40)
+    assert every["n_train_pairs"] == 40 * 39 // 2
+    assert every["heldout_shrink_pct"] > 85.0
+    with pytest.raises(ValueError, match="pairs must be 'windows' or 'all'"):
+        identify_window_geometry(prepared, pairs="every")
+
+
+def test_aliases_are_stated_with_the_measured_correlation() -> None:
+    from realitygap.diagnosis.arm_aliases import AliasGroup, measure_aliases
+
+    prepared = _prepared(None, seed=4, n=40)
+    adapter = get_adapter("arm")
+    groups = {tuple(g["effects"]): g for g in adapter.alias_groups(prepared)}
+    length = groups[("arm_tool_offset", "arm_link_length", "arm_measurement_scale")]
+    # a uniform scale is link lengths and tool length together
+    assert length["member_vs_rest"]["arm_measurement_scale"] > 0.99
+    tilt = groups[("arm_base_compliance", "arm_joint_compliance")]
+    assert tilt["pairs"][0]["correlation"] > 0.95
+    assert tilt["aliases"] == [["arm_base_compliance", "arm_joint_compliance"]]
+    # play in the wrist does not look like a length scale: the measure can say "no"
+    other = measure_aliases(
+        adapter, prepared, [AliasGroup(("arm_backlash", "arm_measurement_scale"), "", "")]
+    )
+    assert other[0]["pairs"][0]["correlation"] < 0.9
+    assert other[0]["aliases"] == []
+    # only the groups of the named effects
+    only = adapter.alias_groups(prepared, effects=["arm_joint_compliance"])
+    assert [g["effects"][0] for g in only] == ["arm_base_compliance"]
+    with pytest.raises(ValueError, match="threshold must be in"):
+        adapter.alias_groups(prepared, threshold=1.5)
