@@ -35,7 +35,7 @@ from __future__ import annotations
 import importlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -269,6 +269,17 @@ class AdapterBase:
     ) -> tuple[list[Log], list[Log]]:
         """Training and held-out logs of the robot ``reality`` for one blind case."""
         raise NotImplementedError(f"the blind suite cannot record {self.robot!r} logs")
+
+    def alias_groups(
+        self,
+        prepared: Sequence[PreparedLog],
+        threshold: float = 0.95,
+        effects: Sequence[str] | None = None,
+    ) -> list[dict[str, Any]]:
+        """Groups of effects this robot's physics makes alike, each with the pairs that are
+        aliases on ``prepared`` (``{"effects", "why", "separate_by", "pairs", "aliases"}``);
+        none by default. ``effects`` keeps only the groups containing one of them."""
+        return []
 
     def close(self) -> None:
         """Release what the adapter holds open (simulator scenes); it can be used again."""

@@ -340,18 +340,14 @@ def parameter_status(problem: Problem, fit: ModelFit, step: float = 0.25) -> dic
     return out
 
 
-def _known_alias_groups(adapter: Any) -> list[set[str]]:
-    """The adapter's own alias groups (``alias_groups()``, optional): sets of effect names."""
-    method = getattr(adapter, "alias_groups", None)
-    if method is None:
-        return []
-    groups = method() if callable(method) else method
+def _known_alias_groups(problem: Problem, effects: Sequence[str]) -> list[set[str]]:
+    """Pairs of effects that the adapter's own alias groups measure as aliases on the
+    training logs (:meth:`~realitygap.diagnosis.adapters.AdapterBase.alias_groups`)."""
+    train = [p for p in problem.logs if p.split == "train"]
     out = []
-    for g in groups or ():
-        members = g.get("effects", ()) if isinstance(g, Mapping) else g
-        if isinstance(members, str):
-            continue
-        out.append({str(e) for e in members})
+    for g in problem.adapter.alias_groups(train, effects=list(effects)):
+        for pair in g.get("aliases", ()):
+            out.append({str(e) for e in pair})
     return out
 
 
@@ -379,7 +375,7 @@ def alias_notes(
         return []
     mask = judgement.gap_mask
     z_nom = judgement.nominal_heldout
-    groups = _known_alias_groups(problem.adapter)
+    groups = _known_alias_groups(problem, best.effects)
     by_name = {str(i.get("effects", ["", ""])[1]): i for i in ident if i.get("effects")}
     out: list[dict[str, Any]] = []
     for other in ranking:

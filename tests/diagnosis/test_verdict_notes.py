@@ -138,7 +138,24 @@ def _alias_problem(n: int, adapter: object | None = None) -> SimpleNamespace:
     return SimpleNamespace(
         holdout=_layout(n, 1),
         settings=AttributionSettings(),
-        adapter=adapter if adapter is not None else SimpleNamespace(),
+        adapter=adapter if adapter is not None else _adapter_knowing(),
+        logs=[],
+    )
+
+
+def _adapter_knowing(*pairs: tuple[str, str]) -> SimpleNamespace:
+    """An adapter whose alias groups measure ``pairs`` as aliases."""
+    return SimpleNamespace(
+        alias_groups=lambda prepared, threshold=0.95, effects=None: (
+            [
+                {
+                    "effects": sorted({e for p in pairs for e in p}),
+                    "aliases": [list(p) for p in pairs],
+                }
+            ]
+            if pairs
+            else []
+        )
     )
 
 
@@ -170,7 +187,7 @@ def test_alias_from_parameter_correlation_and_known_groups() -> None:
     ident = [{"effects": ["tool_offset", "link_lengths"], "separable": False, "correlation": 0.99}]
     notes = alias_notes(_alias_problem(n), [a, b], j, ident)
     assert notes and "parameter correlation 0.99" in notes[0]["why"]
-    adapter = SimpleNamespace(alias_groups=lambda: [("tool_offset", "link_lengths")])
+    adapter = _adapter_knowing(("tool_offset", "link_lengths"))
     notes = alias_notes(_alias_problem(n, adapter), [a, b], j, [])
     assert notes and "a known alias of this robot" in notes[0]["why"]
     verdict.notes = {
