@@ -45,7 +45,7 @@ __all__ = [
     "register_effect",
 ]
 
-LIBRARY_VERSION = 1
+LIBRARY_VERSION = 2
 """Version of the effect library the diagnosis and the blind suite use by default.
 
 Every seeded figure of the diagnosis is stated against one library: an effect
@@ -286,6 +286,16 @@ class Effect:
             if s.name == param:
                 return s
         raise KeyError(f"effect {cls.name!r} has no parameter {param!r}")
+
+    @classmethod
+    def physical_bounds(cls) -> dict[str, tuple[float, float]]:
+        """Physical bounds ``{param: (low, high)}`` in the parameters' units.
+
+        These, not ranges derived from a log, are where a fit may look: a
+        value the logged commands never reach (a top speed below the largest
+        commanded speed) is still a physical value.
+        """
+        return {s.name: (s.low, s.high) for s in cls.specs}
 
     def is_nominal(self) -> bool:
         """True when every parameter sits at its nominal value (the effect does nothing)."""
