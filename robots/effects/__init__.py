@@ -29,6 +29,7 @@ from realitygap.robots.effects.base import (
     Reality,
     Stage,
     TicksHook,
+    WheelHook,
     make_effect,
     register_effect,
 )
@@ -44,6 +45,7 @@ __all__ = [
     "Reality",
     "Stage",
     "TicksHook",
+    "WheelHook",
     "arm_tool_offset",
     "blind_ranges",
     "library",

@@ -28,6 +28,7 @@ from realitygap.robots.effects.base import (
     ParamSpec,
     Stage,
     TicksHook,
+    WheelHook,
     register_effect,
 )
 
@@ -45,6 +46,7 @@ __all__ = [
     "SurrogateSlot",
     "TimestampOffset",
     "TorqueSpeedSaturation",
+    "TractionSlip",
     "VelocitySaturation",
     "WheelDeadZone",
     "WheelDiameterRatio",
@@ -68,6 +70,8 @@ class SurrogateSlot(str, Enum):
     """Firmware wheel-surface-speed commands ``(s_L, s_R)``, each (B, N), m/s."""
     ENCODER_GAIN = "encoder_gain"
     """Counted / true wheel angle ``(c_L, c_R)``, each (B,)."""
+    GROUND_SPEED = "ground_speed"
+    """Ground speeds of the wheels' contact points ``(g_L, g_R)`` from their surface speeds, each (B, N), m/s."""
     WHEEL_RADII = "wheel_radii"
     """True wheel radii ``(r_L, r_R)``, each (B,) or scalar, m."""
     TRACTION = "traction"
@@ -969,3 +973,89 @@ class TorqueSpeedSaturation(Effect):
             s = np.broadcast_to(s, (k.shape[0], np.shape(s)[-1]))
             out.append(_recurse(s, lambda y0, xk: torque_speed_step(y0, xk, v_top, k)))
         return out[0], out[1]
+
+
+class _SlipHook:
+    """Per-wheel hook of :class:`TractionSlip`: the motors roll at the ground speed, the
+    encoders count the turned wheel."""
+
+    def __init__(self, k: float, dt: float):
+        self.k, self.dt = k, dt
+        self.ground = np.zeros(2)
+        self.slip = np.zeros(2)
+
+    def command(self, w_left: float, w_right: float) -> tuple[float, float]:
+        turned = np.array([w_left, w_right], dtype=float)
+        self.ground = self.ground + self.k * (turned - self.ground)
+        self.slip = self.slip + (turned - self.ground) * self.dt
+        return float(self.ground[0]), float(self.ground[1])
+
+    def encoder(self, a_left: float, a_right: float) -> tuple[float, float]:
+        return a_left + float(self.slip[0]), a_right + float(self.slip[1])
+
+    def rolling_from_encoder(self, angles: Any) -> FloatArray:
+        ang = np.asarray(angles, dtype=float)
+        rate = np.diff(ang, axis=0) / self.dt
+        ground = _recurse(rate.T, lambda y0, xk: y0 + self.k * (xk - y0)).T
+        return np.concatenate([ang[:1], ang[:1] + np.cumsum(ground * self.dt, axis=0)])
+
+
+@register_effect
+class TractionSlip(Effect):
+    r"""Traction slip: the wheels spin up faster than the body accelerates.
+
+    A tyre passes force to the floor through slip: the traction force grows
+    with the slip speed, :math:`F = c\,(s - g)` per wheel (wheel surface speed
+    ``s``, ground speed ``g``). The body's inertia ``m`` then makes the ground
+    speed a first-order lag of the wheel speed,
+
+    .. math::
+
+        \dot g = \frac{s - g}{t_{slip}}, \qquad t_{slip} = \frac{m}{2c}, \qquad
+        s - g = t_{slip}\,\dot g,
+
+    so the slip grows with the acceleration and vanishes at constant speed:
+    the encoders count the wheels' turning while the body lags behind on a
+    start and runs on after a stop. Unlike ``longitudinal_slip`` (no slip
+    until the friction limit) it slips at every acceleration; unlike a
+    velocity-loop lag the encoders see the wheels turn at once. Realised by a
+    per-wheel hook: the motors roll at the ground speed, the encoders add the
+    slipped angle (and a replay driven by encoder ticks recovers the rolling
+    angles by the same lag); the surrogate lags the ground speeds.
+    """
+
+    name = "traction_slip"
+    robot = "diffdrive"
+    stage = Stage.DRIVE
+    observed_in = (Channel.POSE_GT, Channel.POSE_CAM)
+    description = (
+        "Tyre slip proportional to the traction force: the ground speed lags the wheel speed "
+        "with time constant t_slip (s), so the wheels spin up faster than the body accelerates "
+        "and the slip vanishes at constant speed. Realised between the wheel motors and encoders."
+    )
+    specs = (ParamSpec("t_slip", "s", 0.0, 0.0, 0.5, "tyre slip time constant m / (2 c)"),)
+    blind = (BlindRange("t_slip", 0.05, 0.2, False),)
+    since = 2
+    surrogate_slot = SurrogateSlot.GROUND_SPEED
+    surrogate_example = (("t_slip", 0.12),)
+
+    def make_wheel_hook(
+        self, dt: float, nominal: DiffDriveParams | None = None
+    ) -> WheelHook | None:
+        if self.is_nominal():
+            return None
+        return _SlipHook(float(_lag_gain(self["t_slip"], dt)), float(dt))
+
+    @classmethod
+    def surrogate_term(cls, x: Any, p: Mapping[str, FloatArray], ctx: SurrogateContext) -> Any:
+        gl, gr = x
+        t = p["t_slip"]
+        if not np.any(t > 0):
+            return gl, gr
+        k = _lag_gain(t, ctx.dt)
+        return tuple(
+            _recurse(
+                np.broadcast_to(g, (k.shape[0], np.shape(g)[-1])), lambda y0, xk: y0 + k * (xk - y0)
+            )
+            for g in (gl, gr)
+        )

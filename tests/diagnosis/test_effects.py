@@ -120,6 +120,7 @@ def test_library_versions_keep_earlier_suites_reproducible() -> None:
         "acceleration_limits",
         "wheel_dead_zone",
         "torque_speed_saturation",
+        "traction_slip",
     }
     assert LIBRARY_VERSION == 2
     assert not added & set(library("diffdrive", version=1))
@@ -346,8 +347,10 @@ def test_drive_train_effects_do_nothing_at_nominal(straight) -> None:
         "acceleration_limits",
         "wheel_dead_zone",
         "torque_speed_saturation",
+        "traction_slip",
     ):
         assert make_effect(name).make_command_hook(DT, P) is None
+        assert make_effect(name).make_wheel_hook(DT, P) is None
         log = run([(2.0, 0.3, 0.0)], (name, {}))
         np.testing.assert_allclose(log["pose_gt"], straight["pose_gt"], atol=1e-9)
 
@@ -358,3 +361,31 @@ def test_effects_expose_their_physical_bounds() -> None:
     for cls in EFFECTS.values():
         for param, (lo, hi) in cls.physical_bounds().items():
             assert lo < hi and lo <= cls.spec(param).nominal <= hi
+
+
+def test_traction_slip_lags_the_body_not_the_wheels(straight) -> None:
+    from realitygap.robots.effects.diffdrive import _lag_gain
+
+    log = run([(2.0, 0.3, 0.0), (1.5, 0.0, 0.0)], ("traction_slip", {"t_slip": 0.15}))
+    nominal = run([(2.0, 0.3, 0.0), (1.5, 0.0, 0.0)])
+    # the encoders count the wheels turning as commanded (after the first periods of the
+    # start, in which the nominal motors spin the wheels up: about 2 mm of wheel travel)
+    np.testing.assert_allclose(log["ticks"][10:41], nominal["ticks"][10:41], atol=40)
+    # at constant speed the body runs v·dt·(1 − k)/k behind the wheels, and catches up after the stop
+    k = _lag_gain(0.15, DT)
+    behind = nominal["pose_gt"][38, 0] - log["pose_gt"][38, 0]
+    assert behind == pytest.approx(0.3 * DT * (1 - k) / k, rel=0.1)
+    assert _speed(log, 30, 40) == pytest.approx(0.3, rel=0.02)
+    assert log["pose_gt"][-1, 0] == pytest.approx(nominal["pose_gt"][-1, 0], abs=2e-3)
+    np.testing.assert_allclose(log["ticks"][-1], nominal["ticks"][-1], rtol=5e-3)
+
+
+def test_traction_slip_shows_in_and_replays_from_the_ticks() -> None:
+    log = run([(2.0, 0.3, 0.0), (1.5, 0.0, 1.0)], ("traction_slip", {"t_slip": 0.15}))
+    reality = Reality((make_effect("traction_slip", t_slip=0.15),))
+    again = simulate(log.t, params=P, ticks=log["ticks"], reality=reality)
+    plain = simulate(log.t, params=P, ticks=log["ticks"])
+    err_slip = np.abs(again["pose_gt"][:, 0] - log["pose_gt"][:, 0]).max()
+    err_plain = np.abs(plain["pose_gt"][:, 0] - log["pose_gt"][:, 0]).max()
+    # a tick-driven replay sees the effect, and with it reproduces the run
+    assert err_plain > 0.03 and err_slip < 0.2 * err_plain

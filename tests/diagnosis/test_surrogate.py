@@ -144,6 +144,7 @@ DRIVE_TRAIN = (
     "acceleration_limits",
     "wheel_dead_zone",
     "torque_speed_saturation",
+    "traction_slip",
 )
 
 
