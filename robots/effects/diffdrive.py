@@ -407,7 +407,12 @@ class MotorDeadband(Effect):
 
 @register_effect
 class VelocitySaturation(Effect):
-    r"""The drive tops out below its rating; surrogate: :math:`s \in [-s_{max}, s_{max}]`."""
+    r"""The drive tops out below its rating; surrogate: :math:`s \in [-s_{max}, s_{max}]`.
+
+    The physical range reaches down to a crawl (0.05 m/s): a top speed far below
+    anything the logs command (a tired battery, a firmware cap) is a value the fit
+    can reach, not one outside its range.
+    """
 
     name = "velocity_saturation"
     robot = "diffdrive"
@@ -419,7 +424,7 @@ class VelocitySaturation(Effect):
     )
     specs = (
         ParamSpec(
-            "v_limit", "m/s", 10.0, 0.2, 10.0, "largest wheel surface speed actually reached"
+            "v_limit", "m/s", 10.0, 0.05, 10.0, "largest wheel surface speed actually reached"
         ),
     )
     blind = (BlindRange("v_limit", 0.35, 0.55, False, absolute=True),)
