@@ -636,9 +636,12 @@ def speed_limiter_step(y0: Any, x: Any, up: Any, down: Any) -> Any:
     and ``max_deceleration``. Arrays broadcast; infinite limits do not limit.
     """
     y0 = np.asarray(y0, dtype=float)
+    x = np.asarray(x, dtype=float)
     lo = np.where(y0 > 0.0, -down, -up)
     hi = np.where(y0 < 0.0, down, up)
-    return y0 + np.clip(np.asarray(x, dtype=float) - y0, lo, hi)
+    d = x - y0
+    # a request within the limits passes exactly (the recursion skips such stretches)
+    return np.where((d >= lo) & (d <= hi), x, y0 + np.clip(d, lo, hi))
 
 
 def torque_speed_step(s0: Any, target: Any, v_top: Any, k: Any) -> Any:
@@ -664,7 +667,7 @@ def torque_speed_step(s0: Any, target: Any, v_top: Any, k: Any) -> Any:
     new_mag = np.where(
         reverse,
         np.minimum(mag, np.minimum(v_top, 1e300) * k),
-        np.where(speeding_up, mag0 + np.minimum(mag - mag0, room), mag),
+        np.where(speeding_up & (mag - mag0 > room), mag0 + room, mag),
     )
     return np.sign(target) * new_mag
 
@@ -675,12 +678,48 @@ def _wheel_gains(ratio: Any) -> tuple[Any, Any]:
 
 
 def _recurse(x: FloatArray, step: Any) -> FloatArray:
-    """Run ``y_k = step(y_{k-1}, x_k, k)`` along axis 1 of ``x`` (B, N), ``y_{-1} = 0``."""
+    """Run ``y_k = step(y_{k-1}, x_k)`` along axis 1 of ``x`` (B, N), ``y_{-1} = 0``.
+
+    ``step`` acts elementwise on (B, m) arrays (its parameters shaped (B, 1)) and
+    returns ``x_k`` itself, exactly, where it does not act (a limit not reached).
+    Where the output follows the input the recursion is not stepped: the
+    periods in which ``step(x_{k-1}, x_k) != x_k`` for some row are found at
+    once, and only from there on is the recursion run, until every row has
+    caught up with its input again.
+    """
+    x = np.asarray(x, dtype=float)
+    B, n = x.shape
+    prev = np.concatenate([np.zeros((B, 1)), x[:, :-1]], axis=1)
+    starts = np.flatnonzero(np.any(step(prev, x) != x, axis=0))
+    y = x.copy()
+    if starts.size == 0:
+        return y
+    k = int(starts[0])
+    y0 = prev[:, k : k + 1]
+    while k < n:
+        yk = step(y0, x[:, k : k + 1])
+        y[:, k : k + 1] = yk
+        if np.all(yk == x[:, k : k + 1]):
+            later = starts[starts > k]
+            if later.size == 0:
+                break
+            k = int(later[0])
+            y0 = y[:, k - 1 : k]
+            continue
+        y0 = yk
+        k += 1
+    return y
+
+
+def _lag(x: FloatArray, k: FloatArray) -> FloatArray:
+    r"""First-order lag :math:`y_k = y_{k-1} + k\,(x_k - y_{k-1})`, ``y_{-1} = 0``, per row of (B, N)."""
+    from scipy.signal import lfilter
+
+    x = np.asarray(x, dtype=float)
+    kk = np.broadcast_to(np.asarray(k, dtype=float), (x.shape[0],))
     y = np.empty_like(x)
-    prev = np.zeros(x.shape[0])
-    for k in range(x.shape[1]):
-        prev = step(prev, x[:, k])
-        y[:, k] = prev
+    for row, gain in enumerate(kk):
+        y[row] = x[row] if gain >= 1.0 else lfilter([gain], [1.0, gain - 1.0], x[row])
     return y
 
 
@@ -747,8 +786,7 @@ class WheelVelocityLag(Effect):
         out = []
         for s, tau in ((sl, tl), (sr, tr)):
             kk = _lag_gain(tau, ctx.dt)
-            s = np.broadcast_to(s, (kk.shape[0], np.shape(s)[-1]))
-            out.append(_recurse(s, lambda y0, xk, kk=kk: y0 + kk * (xk - y0)))
+            out.append(_lag(np.broadcast_to(s, (kk.shape[0], np.shape(s)[-1])), kk))
         return out[0], out[1]
 
 
@@ -831,7 +869,8 @@ class AccelerationLimits(Effect):
         u = np.broadcast_to(np.asarray(x, dtype=float), (B, *np.shape(x)[-2:]))
         out = np.empty_like(u)
         for col, (ka, kd) in enumerate((("t_acc", "t_dec"), ("t_alpha_acc", "t_alpha_dec"))):
-            up, down = _inverse_rate(p[ka]) * ctx.dt, _inverse_rate(p[kd]) * ctx.dt
+            up = _inverse_rate(p[ka])[:, None] * ctx.dt
+            down = _inverse_rate(p[kd])[:, None] * ctx.dt
             out[..., col] = _recurse(
                 u[..., col], lambda y0, xk, up=up, down=down: speed_limiter_step(y0, xk, up, down)
             )
@@ -972,11 +1011,12 @@ class TorqueSpeedSaturation(Effect):
         v_top, t_m = p["v_top"], p["t_m"]
         if not (np.any(v_top < cls.spec("v_top").nominal) or np.any(t_m > 0)):
             return sl, sr
-        k = _lag_gain(t_m, ctx.dt)
+        k = _lag_gain(t_m, ctx.dt)[:, None]
+        vt = v_top[:, None]
         out = []
         for s in (sl, sr):
             s = np.broadcast_to(s, (k.shape[0], np.shape(s)[-1]))
-            out.append(_recurse(s, lambda y0, xk: torque_speed_step(y0, xk, v_top, k)))
+            out.append(_recurse(s, lambda y0, xk: torque_speed_step(y0, xk, vt, k)))
         return out[0], out[1]
 
 
@@ -1001,7 +1041,7 @@ class _SlipHook:
     def rolling_from_encoder(self, angles: Any) -> FloatArray:
         ang = np.asarray(angles, dtype=float)
         rate = np.diff(ang, axis=0) / self.dt
-        ground = _recurse(rate.T, lambda y0, xk: y0 + self.k * (xk - y0)).T
+        ground = _lag(rate.T, np.full(2, self.k)).T
         return np.concatenate([ang[:1], ang[:1] + np.cumsum(ground * self.dt, axis=0)])
 
 
@@ -1058,9 +1098,4 @@ class TractionSlip(Effect):
         if not np.any(t > 0):
             return gl, gr
         k = _lag_gain(t, ctx.dt)
-        return tuple(
-            _recurse(
-                np.broadcast_to(g, (k.shape[0], np.shape(g)[-1])), lambda y0, xk: y0 + k * (xk - y0)
-            )
-            for g in (gl, gr)
-        )
+        return tuple(_lag(np.broadcast_to(g, (k.shape[0], np.shape(g)[-1])), k) for g in (gl, gr))

@@ -389,3 +389,38 @@ def test_traction_slip_shows_in_and_replays_from_the_ticks() -> None:
     err_plain = np.abs(plain["pose_gt"][:, 0] - log["pose_gt"][:, 0]).max()
     # a tick-driven replay sees the effect, and with it reproduces the run
     assert err_plain > 0.03 and err_slip < 0.2 * err_plain
+
+
+def test_skipping_recursion_equals_the_step_by_step_one() -> None:
+    from realitygap.robots.effects.diffdrive import (
+        _lag,
+        _recurse,
+        speed_limiter_step,
+        torque_speed_step,
+    )
+
+    rng = np.random.default_rng(1)
+    x = np.repeat(rng.uniform(-0.6, 0.6, (7, 20)), 25, axis=1)
+    up, down = rng.uniform(0.005, 0.05, (7, 1)), rng.uniform(0.005, 0.05, (7, 1))
+    up[0] = down[0] = np.inf
+    v_top, k = rng.uniform(0.1, 1.2, (7, 1)), rng.uniform(0.1, 1.0, (7, 1))
+
+    def naive(step):
+        y, prev = np.empty_like(x), np.zeros((7, 1))
+        for i in range(x.shape[1]):
+            prev = step(prev, x[:, i : i + 1])
+            y[:, i : i + 1] = prev
+        return y
+
+    for step in (
+        lambda y0, xk: speed_limiter_step(y0, xk, up, down),
+        lambda y0, xk: torque_speed_step(y0, xk, v_top, k),
+    ):
+        np.testing.assert_array_equal(_recurse(x, step), naive(step))
+    np.testing.assert_allclose(
+        _lag(x, k[:, 0]), naive(lambda y0, xk: y0 + k * (xk - y0)), rtol=0, atol=1e-12
+    )
+    # the unlimited row follows its input exactly
+    np.testing.assert_array_equal(
+        _recurse(x, lambda y0, xk: speed_limiter_step(y0, xk, up, down))[0], x[0]
+    )
