@@ -894,7 +894,10 @@ class WheelDeadZone(Effect):
     Unlike ``motor_deadband`` (one threshold for both wheels) the wheels
     differ: a slow turn pivots on the wheel whose threshold is not reached,
     and the gain asymmetry turns the encoder rates as well as the body (a
-    wheel-diameter ratio leaves the rates alone). Realised on the firmware's
+    wheel-diameter ratio leaves the rates alone). The gain ratio alone is an
+    alias of ``wheel_diameter_ratio`` with ``E_d = G`` together with
+    ``encoder_ratio`` with ``E_c = G`` (the same ground and count ratios); only
+    the dead zones tell this effect from that pair. Realised on the firmware's
     wheel-speed commands.
     """
 
