@@ -545,7 +545,7 @@ class EncoderRatio(Effect):
         "Realised between the wheel joints and the encoder reading."
     )
     specs = (ParamSpec("E_c", "1", 1.0, 0.9, 1.1, "right / left counts per wheel revolution"),)
-    blind = (BlindRange("E_c", 0.005, 0.02, True),)
+    blind = (BlindRange("E_c", 0.01, 0.04, True),)
     since = 2
     surrogate_slot = SurrogateSlot.ENCODER_GAIN
     surrogate_example = (("E_c", 1.03),)
