@@ -17,6 +17,7 @@ from __future__ import annotations
 from realitygap.robots.effects import arm as _arm  # noqa: F401  (registers the arm's effects)
 from realitygap.robots.effects import climber as _climber  # noqa: F401
 from realitygap.robots.effects import diffdrive as _diffdrive  # noqa: F401
+from realitygap.robots.effects import diffdrive_drivetrain as _drivetrain  # noqa: F401
 from realitygap.robots.effects.arm import arm_tool_offset
 from realitygap.robots.effects.base import (
     EFFECTS,

@@ -256,7 +256,7 @@ def _speed(log, a: int, b: int) -> float:
 
 
 def test_speed_limiter_step_follows_the_diff_drive_controller_semantics() -> None:
-    from realitygap.robots.effects.diffdrive import speed_limiter_step as step
+    from realitygap.robots.effects.diffdrive_drivetrain import speed_limiter_step as step
 
     up, down = 0.1, 0.05
     # from standstill: the acceleration limit both ways
@@ -291,7 +291,7 @@ def test_acceleration_limits_ramp_starts_and_stops_at_their_own_rates(straight) 
 
 
 def test_unequal_wheel_lags_yaw_the_robot_on_a_start_and_back_on_the_stop() -> None:
-    from realitygap.robots.effects.diffdrive import _lag_gain
+    from realitygap.robots.effects.diffdrive_drivetrain import _lag_gain
 
     log = run(
         [(2.0, 0.3, 0.0), (2.0, 0.0, 0.0)],
@@ -364,7 +364,7 @@ def test_effects_expose_their_physical_bounds() -> None:
 
 
 def test_traction_slip_lags_the_body_not_the_wheels(straight) -> None:
-    from realitygap.robots.effects.diffdrive import _lag_gain
+    from realitygap.robots.effects.diffdrive_drivetrain import _lag_gain
 
     log = run([(2.0, 0.3, 0.0), (1.5, 0.0, 0.0)], ("traction_slip", {"t_slip": 0.15}))
     nominal = run([(2.0, 0.3, 0.0), (1.5, 0.0, 0.0)])
@@ -392,7 +392,7 @@ def test_traction_slip_shows_in_and_replays_from_the_ticks() -> None:
 
 
 def test_skipping_recursion_equals_the_step_by_step_one() -> None:
-    from realitygap.robots.effects.diffdrive import (
+    from realitygap.robots.effects.diffdrive_drivetrain import (
         _lag,
         _recurse,
         speed_limiter_step,
