@@ -271,7 +271,14 @@ class DiffDriveSurrogate:
         tgt_r = wr * rr[:, None]
         mu = term(SurrogateSlot.TRACTION, np.full(B, float(P.wheel_friction)))
         lim = self.accel_limits(mu)
-        disp_l, disp_r = self._rate_limited(tgt_l, tgt_r, lim["ground_c"], lim["ground_d"], dt)
+        gnd_l, gnd_r = term(SurrogateSlot.GROUND_SPEED, (tgt_l, tgt_r))
+        disp_l, disp_r = self._rate_limited(
+            np.asarray(gnd_l, dtype=float),
+            np.asarray(gnd_r, dtype=float),
+            lim["ground_c"],
+            lim["ground_d"],
+            dt,
+        )
         roll_l, roll_r = self._rate_limited(tgt_l, tgt_r, lim["wheel_c"], lim["wheel_d"], dt)
 
         # ---------------------------------------------------- encoders (B, N, 2)

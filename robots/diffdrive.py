@@ -22,7 +22,7 @@ from realitygap.estimators.base import CameraIntrinsics, WheelTicks
 from realitygap.robots.world import World
 
 if TYPE_CHECKING:
-    from realitygap.robots.effects import Reality
+    from realitygap.robots.effects import Reality, WheelHook
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -263,6 +263,7 @@ class DiffDriveRobot:
         self._reality: Reality | None = None
         self._command_hooks: list[Callable[[float, float, float], tuple[float, float]]] = []
         self._ticks_hooks: list[Callable[[float, float], tuple[float, float]]] = []
+        self._wheel_hooks: list[WheelHook] = []
         self._body_z = (
             max(params.wheel_radius_left, params.wheel_radius_right) + 0.01 + params.body_height / 2
         )
@@ -338,7 +339,7 @@ class DiffDriveRobot:
             Limits applied by :meth:`command_twist` (default: none, the twist
             is applied as given).
         reality : Reality, optional
-            Effects whose command and encoder hooks act on this robot.
+            Effects whose command, per-wheel and encoder hooks act on this robot.
         """
         self.control_dt = float(dt)
         self.nominal = nominal if nominal is not None else self.params
@@ -347,6 +348,7 @@ class DiffDriveRobot:
         self._reality = reality
         self._command_hooks = reality.command_hooks(dt, self.nominal) if reality is not None else []
         self._ticks_hooks = reality.ticks_hooks() if reality is not None else []
+        self._wheel_hooks = reality.wheel_hooks(dt, self.nominal) if reality is not None else []
 
     def wheel_speeds_from_twist(self, v: float, w: float) -> tuple[float, float]:
         r"""Firmware inverse kinematics: body twist (m/s, rad/s) → wheel speeds (rad/s).
@@ -367,8 +369,8 @@ class DiffDriveRobot:
 
         The firmware limits (if any) give the applied twist, stored in
         :attr:`command` and returned; the command-stage effect hooks then act on
-        it, the inverse kinematics gives the wheel speeds and the wheel motors
-        take them. The world is not stepped.
+        it, the inverse kinematics gives the wheel speeds, the per-wheel hooks
+        act on those and the wheel motors take them. The world is not stepped.
         """
         if self.firmware_limits is not None:
             v, omega = self.firmware_limits.limit(
@@ -379,21 +381,27 @@ class DiffDriveRobot:
         for hook in self._command_hooks:
             v, omega = hook(v, omega, self.control_dt)
         w_left, w_right = self.wheel_speeds_from_twist(v, omega)
+        for wheel_hook in self._wheel_hooks:
+            w_left, w_right = wheel_hook.command(w_left, w_right)
         self.set_wheel_speeds(float(w_left), float(w_right))
         return applied
 
     def encoder_angles(self) -> tuple[float, float]:
-        """Wheel angles (rad) as the encoders report them: :meth:`wheel_angles` through the
-        effects' encoder hooks."""
+        """Wheel angles (rad) as the encoders report them: :meth:`wheel_angles` (the rolling
+        angles) through the effects' per-wheel hooks (wheels that turned more than they
+        rolled) and encoder hooks."""
         angles = self.wheel_angles()
+        for wheel_hook in self._wheel_hooks:
+            angles = wheel_hook.encoder(*angles)
         for hook in self._ticks_hooks:
             angles = hook(*angles)
         return angles
 
     def wheel_angles_from_encoder(self, angles: npt.ArrayLike) -> FloatArray:
-        """True wheel angles (N, 2) (rad) for encoder readings ``angles`` (N, 2) (rad).
+        """Rolling wheel angles (N, 2) (rad) for encoder readings ``angles`` (N, 2) (rad).
 
-        Inverts the effects' encoder hooks, in reverse effect order.
+        Inverts the effects' encoder hooks, in reverse effect order, then their
+        per-wheel hooks (the readings one control period apart).
 
         Raises
         ------
@@ -409,6 +417,9 @@ class DiffDriveRobot:
                 al = np.array([r[0] for r in res])
                 ar = np.array([r[1] for r in res])
             ang = np.column_stack([al, ar])
+        if self._reality is not None:
+            for wheel_hook in reversed(self._reality.wheel_hooks(self.control_dt, self.nominal)):
+                ang = np.asarray(wheel_hook.rolling_from_encoder(ang), dtype=float)
         return ang
 
     # --------------------------------------------------------------- state

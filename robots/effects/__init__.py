@@ -17,6 +17,7 @@ from __future__ import annotations
 from realitygap.robots.effects import arm as _arm  # noqa: F401  (registers the arm's effects)
 from realitygap.robots.effects import climber as _climber  # noqa: F401
 from realitygap.robots.effects import diffdrive as _diffdrive  # noqa: F401
+from realitygap.robots.effects import diffdrive_drivetrain as _drivetrain  # noqa: F401
 from realitygap.robots.effects.arm import (
     arm_base_compliance,
     arm_measurement_scale,
@@ -33,6 +34,7 @@ from realitygap.robots.effects.base import (
     Reality,
     Stage,
     TicksHook,
+    WheelHook,
     make_effect,
     register_effect,
 )
@@ -48,6 +50,7 @@ __all__ = [
     "Reality",
     "Stage",
     "TicksHook",
+    "WheelHook",
     "arm_base_compliance",
     "arm_measurement_scale",
     "arm_tool_offset",

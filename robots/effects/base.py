@@ -28,7 +28,7 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import Any, ClassVar, NamedTuple
+from typing import Any, ClassVar, NamedTuple, Protocol
 
 __all__ = [
     "EFFECTS",
@@ -41,11 +41,12 @@ __all__ = [
     "Reality",
     "Stage",
     "TicksHook",
+    "WheelHook",
     "make_effect",
     "register_effect",
 ]
 
-LIBRARY_VERSION = 1
+LIBRARY_VERSION = 2
 """Version of the effect library the diagnosis and the blind suite use by default.
 
 Every seeded figure of the diagnosis is stated against one library: an effect
@@ -151,6 +152,27 @@ TicksHook = Callable[[float, float], tuple[float, float]]
 """``hook(angle_left, angle_right) -> (angle_left, angle_right)``: what the encoders see (rad)."""
 
 
+class WheelHook(Protocol):
+    """Per-wheel hook between the firmware's wheel-speed commands, the wheels and the encoders.
+
+    For effects a body-twist hook cannot express: the wheels turn one way and
+    the ground moves another (traction slip). One fresh, stateful hook per
+    episode.
+    """
+
+    def command(self, w_left: float, w_right: float) -> tuple[float, float]:
+        """Wheel speeds (rad/s) the firmware commands → the rolling speeds the motors get."""
+        ...
+
+    def encoder(self, a_left: float, a_right: float) -> tuple[float, float]:
+        """Rolling angles (rad) of the wheels on the floor → the angles the wheels turned."""
+        ...
+
+    def rolling_from_encoder(self, angles: Any) -> Any:
+        """Turned wheel angles (N, 2) (rad, one row per control period) → rolling angles (N, 2)."""
+        ...
+
+
 class Effect:
     """Base class of all effects.
 
@@ -230,6 +252,18 @@ class Effect:
         """A fresh encoder hook for one episode, or ``None``."""
         return None
 
+    def make_wheel_hook(self, dt: float, nominal: Any = None) -> WheelHook | None:
+        """A fresh per-wheel hook for one episode (see :class:`WheelHook`), or ``None``.
+
+        Parameters
+        ----------
+        dt : float
+            Control period, s.
+        nominal : robot parameters, optional
+            What the robot's firmware believes.
+        """
+        return None
+
     def make_ticks_inverse_hook(self) -> TicksHook | None:
         """The inverse of :meth:`make_ticks_hook` (encoder reading → true wheel angle), or ``None``.
 
@@ -286,6 +320,16 @@ class Effect:
             if s.name == param:
                 return s
         raise KeyError(f"effect {cls.name!r} has no parameter {param!r}")
+
+    @classmethod
+    def physical_bounds(cls) -> dict[str, tuple[float, float]]:
+        """Physical bounds ``{param: (low, high)}`` in the parameters' units.
+
+        These, not ranges derived from a log, are where a fit may look: a
+        value the logged commands never reach (a top speed below the largest
+        commanded speed) is still a physical value.
+        """
+        return {s.name: (s.low, s.high) for s in cls.specs}
 
     def is_nominal(self) -> bool:
         """True when every parameter sits at its nominal value (the effect does nothing)."""
@@ -353,6 +397,10 @@ class Reality:
             The nominal parameters the firmware believes (not the real body's).
         """
         return [h for e in self.effects if (h := e.make_command_hook(dt, nominal)) is not None]
+
+    def wheel_hooks(self, dt: float, nominal: Any) -> list[WheelHook]:
+        """Fresh per-wheel hooks for one episode, in effect order."""
+        return [h for e in self.effects if (h := e.make_wheel_hook(dt, nominal)) is not None]
 
     def ticks_hooks(self) -> list[TicksHook]:
         """Fresh encoder hooks for one episode, in effect order."""

@@ -4,7 +4,10 @@ Each effect is realised on :class:`~realitygap.robots.diffdrive.DiffDriveParams`
 (a body with other radii, wheelbase, friction or camera mount), by a command or
 encoder hook, or by a clock error; and each has a term in the fast kinematic
 surrogate (:class:`~realitygap.diagnosis.surrogate.DiffDriveSurrogate`), which
-composes the terms at the :class:`SurrogateSlot` they declare.
+composes the terms at the :class:`SurrogateSlot` they declare. The drive-train
+family (wheel lags, acceleration limits, per-wheel dead zones, torque–speed
+saturation, traction slip) lives in
+:mod:`~realitygap.robots.effects.diffdrive_drivetrain`.
 """
 
 from __future__ import annotations
@@ -62,6 +65,8 @@ class SurrogateSlot(str, Enum):
     """Firmware wheel-surface-speed commands ``(s_L, s_R)``, each (B, N), m/s."""
     ENCODER_GAIN = "encoder_gain"
     """Counted / true wheel angle ``(c_L, c_R)``, each (B,)."""
+    GROUND_SPEED = "ground_speed"
+    """Ground speeds of the wheels' contact points ``(g_L, g_R)`` from their surface speeds, each (B, N), m/s."""
     WHEEL_RADII = "wheel_radii"
     """True wheel radii ``(r_L, r_R)``, each (B,) or scalar, m."""
     TRACTION = "traction"
@@ -397,7 +402,12 @@ class MotorDeadband(Effect):
 
 @register_effect
 class VelocitySaturation(Effect):
-    r"""The drive tops out below its rating; surrogate: :math:`s \in [-s_{max}, s_{max}]`."""
+    r"""The drive tops out below its rating; surrogate: :math:`s \in [-s_{max}, s_{max}]`.
+
+    The physical range reaches down to a crawl (0.05 m/s): a top speed far below
+    anything the logs command (a tired battery, a firmware cap) is a value the fit
+    can reach, not one outside its range.
+    """
 
     name = "velocity_saturation"
     robot = "diffdrive"
@@ -409,7 +419,7 @@ class VelocitySaturation(Effect):
     )
     specs = (
         ParamSpec(
-            "v_limit", "m/s", 10.0, 0.2, 10.0, "largest wheel surface speed actually reached"
+            "v_limit", "m/s", 10.0, 0.05, 10.0, "largest wheel surface speed actually reached"
         ),
     )
     blind = (BlindRange("v_limit", 0.35, 0.55, False, absolute=True),)
@@ -530,7 +540,7 @@ class EncoderRatio(Effect):
         "Realised between the wheel joints and the encoder reading."
     )
     specs = (ParamSpec("E_c", "1", 1.0, 0.9, 1.1, "right / left counts per wheel revolution"),)
-    blind = (BlindRange("E_c", 0.005, 0.02, True),)
+    blind = (BlindRange("E_c", 0.01, 0.04, True),)
     since = 2
     surrogate_slot = SurrogateSlot.ENCODER_GAIN
     surrogate_example = (("E_c", 1.03),)

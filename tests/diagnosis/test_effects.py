@@ -82,7 +82,15 @@ def test_command_stage_effects_are_those_the_tick_drive_cannot_see() -> None:
 
     adapter = get_adapter("diffdrive")
     command = {n for n in adapter.effect_names() if EFFECTS[n].stage is Stage.COMMAND}
-    assert command == {"command_latency", "motor_deadband", "velocity_saturation"}
+    assert command == {
+        "command_latency",
+        "motor_deadband",
+        "velocity_saturation",
+        "wheel_velocity_lag",
+        "acceleration_limits",
+        "wheel_dead_zone",
+        "torque_speed_saturation",
+    }
     for n in command:
         assert "acts on the commands" in adapter.observable(n, [], Drive.TICKS)
     assert adapter.observable("encoder_scale", [], Drive.TICKS).startswith("shows only in")
@@ -103,13 +111,23 @@ def test_command_hooks_use_the_nominal_geometry_they_are_given() -> None:
     assert reality.effects[0].__dict__ == before
 
 
-def test_new_effects_stay_out_of_the_default_library_and_suite() -> None:
-    assert EFFECTS["encoder_ratio"].since > LIBRARY_VERSION
-    assert "encoder_ratio" not in library("diffdrive")
-    assert "encoder_ratio" not in blind_ranges("diffdrive")
-    later = blind_ranges("diffdrive", version=EFFECTS["encoder_ratio"].since)
-    assert list(later)[:-1] == list(blind_ranges("diffdrive"))
-    assert list(later)[-1] == "encoder_ratio"
+def test_library_versions_keep_earlier_suites_reproducible() -> None:
+    # version 2 adds the encoder ratio and the drive-train family; version 1 stays as it was
+    added = {n for n in library("diffdrive") if EFFECTS[n].since == 2}
+    assert added == {
+        "encoder_ratio",
+        "wheel_velocity_lag",
+        "acceleration_limits",
+        "wheel_dead_zone",
+        "torque_speed_saturation",
+        "traction_slip",
+    }
+    assert LIBRARY_VERSION == 2
+    assert not added & set(library("diffdrive", version=1))
+    old, new = list(blind_ranges("diffdrive", version=1)), list(blind_ranges("diffdrive"))
+    assert new[: len(old)] == old and set(new[len(old) :]) == added
+    later = [n for n, c in EFFECTS.items() if c.robot == "diffdrive" and c.since > LIBRARY_VERSION]
+    assert not set(later) & set(new)
 
 
 def test_encoder_ratio_changes_counts_only(straight) -> None:
@@ -229,3 +247,180 @@ def test_effects_reach_the_env() -> None:
         logs.append(rec.log)
         env.close()
     assert logs[1]["pose_gt"][-1, 0] / logs[0]["pose_gt"][-3, 0] == pytest.approx(1.1, rel=0.02)
+
+
+# --------------------------------------------------------------------------- drive train
+def _speed(log, a: int, b: int) -> float:
+    """Mean forward speed (m/s) of a straight run between samples a and b."""
+    return float((log["pose_gt"][b, 0] - log["pose_gt"][a, 0]) / ((b - a) * DT))
+
+
+def test_speed_limiter_step_follows_the_diff_drive_controller_semantics() -> None:
+    from realitygap.robots.effects.diffdrive_drivetrain import speed_limiter_step as step
+
+    up, down = 0.1, 0.05
+    # from standstill: the acceleration limit both ways
+    assert step(0.0, 1.0, up, down) == pytest.approx(0.1)
+    assert step(0.0, -1.0, up, down) == pytest.approx(-0.1)
+    # moving forward: speeding up by the acceleration, slowing down by the deceleration limit
+    assert step(0.5, 1.0, up, down) == pytest.approx(0.6)
+    assert step(0.5, 0.0, up, down) == pytest.approx(0.45)
+    # moving backward: the mirror image
+    assert step(-0.5, -1.0, up, down) == pytest.approx(-0.6)
+    assert step(-0.5, 0.0, up, down) == pytest.approx(-0.45)
+    # a reversal is braked by the deceleration limit (judged by the previous sign)
+    assert step(0.02, -1.0, up, down) == pytest.approx(-0.03)
+    # within the limits the request is met; infinite limits never limit
+    assert step(0.5, 0.52, up, down) == pytest.approx(0.52)
+    assert step(0.0, 3.0, np.inf, np.inf) == pytest.approx(3.0)
+
+
+def test_acceleration_limits_ramp_starts_and_stops_at_their_own_rates(straight) -> None:
+    # 0.25 m/s² speeding up, 1 m/s² slowing down
+    log = run(
+        [(2.0, 0.3, 0.0), (1.0, 0.0, 0.0)], ("acceleration_limits", {"t_acc": 4.0, "t_dec": 1.0})
+    )
+    # the start takes 1.2 s: after 0.6 s the ramp is half way (speed 0.15 m/s)
+    assert _speed(log, 10, 14) == pytest.approx(0.25 * 0.6, rel=0.12)
+    assert _speed(log, 30, 40) == pytest.approx(0.3, rel=0.03)
+    # the stop takes 0.3 s: distance run on after the stop command v²/(2 a_dec) = 4.5 cm
+    stop = 41  # first period commanded zero
+    run_on = log["pose_gt"][-1, 0] - log["pose_gt"][stop, 0]
+    nominal_run_on = straight["pose_gt"][-1, 0] - straight["pose_gt"][stop, 0]
+    assert run_on - nominal_run_on == pytest.approx(0.3**2 / 2.0, rel=0.25)
+
+
+def test_unequal_wheel_lags_yaw_the_robot_on_a_start_and_back_on_the_stop() -> None:
+    from realitygap.robots.effects.diffdrive_drivetrain import _lag_gain
+
+    log = run(
+        [(2.0, 0.3, 0.0), (2.0, 0.0, 0.0)],
+        ("wheel_velocity_lag", {"tau_left": 0.3, "tau_right": 0.05}),
+    )
+    # each wheel falls behind its command by v·dt·(1 − k)/k once it settles
+    lag = [DT * (1.0 - _lag_gain(t, DT)) / _lag_gain(t, DT) for t in (0.3, 0.05)]
+    expected = 0.3 * (lag[0] - lag[1]) / P.wheelbase
+    assert log["pose_gt"][38, 2] == pytest.approx(expected, rel=0.1)
+    # the lagging wheel catches up after the stop: the heading returns
+    assert abs(log["pose_gt"][-1, 2]) < 0.1 * expected
+
+
+def test_wheel_dead_zone_pivots_slow_turns_on_the_stuck_wheel() -> None:
+    # 0.26 rad/s in place: both wheels commanded 0.03 m/s; the left one's threshold is 0.05
+    nominal = run([(2.0, 0.0, 0.26)])
+    stuck = run([(2.0, 0.0, 0.26)], ("wheel_dead_zone", {"dz_left": 0.05}))
+    assert stuck["pose_gt"][-1, 2] / nominal["pose_gt"][-1, 2] == pytest.approx(0.5, rel=0.05)
+    assert abs(stuck["ticks"][-1, 0]) < 5  # the left wheel never turned
+    # the pivot moves the axle midpoint on a circle of radius b/2
+    moved = np.hypot(*stuck["pose_gt"][-1, :2])
+    assert moved == pytest.approx(
+        2 * P.wheelbase / 2 * math.sin(stuck["pose_gt"][-1, 2] / 2), rel=0.1
+    )
+    assert np.hypot(*nominal["pose_gt"][-1, :2]) < 2e-3
+
+
+def test_wheel_gain_ratio_turns_the_encoders_unlike_a_diameter_ratio(straight) -> None:
+    gain = run([(2.0, 0.3, 0.0)], ("wheel_dead_zone", {"gain_ratio": 1.04}))
+    diam = run([(2.0, 0.3, 0.0)], ("wheel_diameter_ratio", {"E_d": 1.04}))
+    # both curve left by about the same heading
+    assert gain["pose_gt"][-1, 2] == pytest.approx(diam["pose_gt"][-1, 2], rel=0.1)
+    assert gain["pose_gt"][-1, 2] > 0.05
+    # only the gain ratio changes the wheel rotation the encoders count
+    assert gain["ticks"][-1, 1] / gain["ticks"][-1, 0] == pytest.approx(1.04, rel=5e-3)
+    assert diam["ticks"][-1, 1] / diam["ticks"][-1, 0] == pytest.approx(1.0, abs=5e-3)
+
+
+def test_torque_speed_saturation_tops_out_below_the_commanded_speed() -> None:
+    log = run([(3.0, 0.6, 0.0)], ("torque_speed_saturation", {"v_top": 0.35, "t_m": 0.1}))
+    assert _speed(log, 30, 55) == pytest.approx(0.35, rel=0.03)
+    # the approach to the top speed is the motors' first-order response, v_top (1 − e^{−t/t_m})
+    nominal = run([(3.0, 0.6, 0.0)])
+    assert log["pose_gt"][3, 0] < 0.8 * min(nominal["pose_gt"][3, 0], 0.35 * 3 * DT)
+    # the bound reaches down to a crawl: saturation far below any commanded speed is representable
+    spec = EFFECTS["torque_speed_saturation"].spec("v_top")
+    assert spec.low <= 0.05 and spec.high >= P.v_max
+
+
+def test_drive_train_effects_do_nothing_at_nominal(straight) -> None:
+    for name in (
+        "wheel_velocity_lag",
+        "acceleration_limits",
+        "wheel_dead_zone",
+        "torque_speed_saturation",
+        "traction_slip",
+    ):
+        assert make_effect(name).make_command_hook(DT, P) is None
+        assert make_effect(name).make_wheel_hook(DT, P) is None
+        log = run([(2.0, 0.3, 0.0)], (name, {}))
+        np.testing.assert_allclose(log["pose_gt"], straight["pose_gt"], atol=1e-9)
+
+
+def test_effects_expose_their_physical_bounds() -> None:
+    bounds = EFFECTS["torque_speed_saturation"].physical_bounds()
+    assert bounds == {"v_top": (0.05, 1.2), "t_m": (0.0, 0.5)}
+    for cls in EFFECTS.values():
+        for param, (lo, hi) in cls.physical_bounds().items():
+            assert lo < hi and lo <= cls.spec(param).nominal <= hi
+
+
+def test_traction_slip_lags_the_body_not_the_wheels(straight) -> None:
+    from realitygap.robots.effects.diffdrive_drivetrain import _lag_gain
+
+    log = run([(2.0, 0.3, 0.0), (1.5, 0.0, 0.0)], ("traction_slip", {"t_slip": 0.15}))
+    nominal = run([(2.0, 0.3, 0.0), (1.5, 0.0, 0.0)])
+    # the encoders count the wheels turning as commanded (after the first periods of the
+    # start, in which the nominal motors spin the wheels up: about 2 mm of wheel travel)
+    np.testing.assert_allclose(log["ticks"][10:41], nominal["ticks"][10:41], atol=40)
+    # at constant speed the body runs v·dt·(1 − k)/k behind the wheels, and catches up after the stop
+    k = _lag_gain(0.15, DT)
+    behind = nominal["pose_gt"][38, 0] - log["pose_gt"][38, 0]
+    assert behind == pytest.approx(0.3 * DT * (1 - k) / k, rel=0.1)
+    assert _speed(log, 30, 40) == pytest.approx(0.3, rel=0.02)
+    assert log["pose_gt"][-1, 0] == pytest.approx(nominal["pose_gt"][-1, 0], abs=2e-3)
+    np.testing.assert_allclose(log["ticks"][-1], nominal["ticks"][-1], rtol=5e-3)
+
+
+def test_traction_slip_shows_in_and_replays_from_the_ticks() -> None:
+    log = run([(2.0, 0.3, 0.0), (1.5, 0.0, 1.0)], ("traction_slip", {"t_slip": 0.15}))
+    reality = Reality((make_effect("traction_slip", t_slip=0.15),))
+    again = simulate(log.t, params=P, ticks=log["ticks"], reality=reality)
+    plain = simulate(log.t, params=P, ticks=log["ticks"])
+    err_slip = np.abs(again["pose_gt"][:, 0] - log["pose_gt"][:, 0]).max()
+    err_plain = np.abs(plain["pose_gt"][:, 0] - log["pose_gt"][:, 0]).max()
+    # a tick-driven replay sees the effect, and with it reproduces the run
+    assert err_plain > 0.03 and err_slip < 0.2 * err_plain
+
+
+def test_skipping_recursion_equals_the_step_by_step_one() -> None:
+    from realitygap.robots.effects.diffdrive_drivetrain import (
+        _lag,
+        _recurse,
+        speed_limiter_step,
+        torque_speed_step,
+    )
+
+    rng = np.random.default_rng(1)
+    x = np.repeat(rng.uniform(-0.6, 0.6, (7, 20)), 25, axis=1)
+    up, down = rng.uniform(0.005, 0.05, (7, 1)), rng.uniform(0.005, 0.05, (7, 1))
+    up[0] = down[0] = np.inf
+    v_top, k = rng.uniform(0.1, 1.2, (7, 1)), rng.uniform(0.1, 1.0, (7, 1))
+
+    def naive(step):
+        y, prev = np.empty_like(x), np.zeros((7, 1))
+        for i in range(x.shape[1]):
+            prev = step(prev, x[:, i : i + 1])
+            y[:, i : i + 1] = prev
+        return y
+
+    for step in (
+        lambda y0, xk: speed_limiter_step(y0, xk, up, down),
+        lambda y0, xk: torque_speed_step(y0, xk, v_top, k),
+    ):
+        np.testing.assert_array_equal(_recurse(x, step), naive(step))
+    np.testing.assert_allclose(
+        _lag(x, k[:, 0]), naive(lambda y0, xk: y0 + k * (xk - y0)), rtol=0, atol=1e-12
+    )
+    # the unlimited row follows its input exactly
+    np.testing.assert_array_equal(
+        _recurse(x, lambda y0, xk: speed_limiter_step(y0, xk, up, down))[0], x[0]
+    )

@@ -137,3 +137,35 @@ def test_calibration_cache_key_holds_no_source_code(tmp_path, monkeypatch) -> No
     assert path != surrogate._cache_path(P, 10)
     monkeypatch.setattr(surrogate, "CALIBRATION_VERSION", surrogate.CALIBRATION_VERSION + 1)
     assert path != surrogate._cache_path(P, 0)
+
+
+DRIVE_TRAIN = (
+    "wheel_velocity_lag",
+    "acceleration_limits",
+    "wheel_dead_zone",
+    "torque_speed_saturation",
+    "traction_slip",
+)
+
+
+@pytest.mark.parametrize("effect", DRIVE_TRAIN)
+def test_drive_train_effects_compose_with_command_latency(base, effect) -> None:
+    # a bus delay in front of each drive-train effect: the surrogate's change of the features
+    # agrees with PyBullet as well as the effect's own, whatever order the effects are given in
+    sur, scales, out = base
+    values = {"command_latency": {"delay": 0.1}, effect: dict(EFFECTS[effect].surrogate_example)}
+    flat = {f"{e}.{k}": v for e, vals in values.items() for k, v in vals.items()}
+    bound = max(EFFECTS[effect].surrogate_tolerance, EFFECTS["command_latency"].surrogate_tolerance)
+    for order in (("command_latency", effect), (effect, "command_latency")):
+        reality = Reality(tuple(make_effect(n, **values[n]) for n in order))
+        num = den = 0.0
+        for t, cmd, b, pb0, s0 in out.values():
+            pb = features(simulate(t, params=P, commands=cmd, reality=reality).channels, b, MPT)
+            s = features(sur.simulate(SurrogateInputs(DT, np.zeros(3), commands=cmd), flat), b, MPT)
+            for g in pb:
+                d_pb = (pb[g] - pb0[g]) / scales.scale(g)
+                d_s = (s[g][0] - s0[g]) / scales.scale(g)
+                num += float(np.sum((d_s - d_pb) ** 2))
+                den += float(np.sum(d_pb**2))
+        assert den > 1.0
+        assert np.sqrt(num / den) < bound, order

@@ -39,6 +39,9 @@ class _Recorder:
     def ticks_inverse_hooks(self):
         return []
 
+    def wheel_hooks(self, dt: float, nominal: object = None):
+        return []
+
 
 def test_limits_clip_speed_then_rate() -> None:
     lim = FirmwareLimits(v_max=0.5, w_max=1.0, a_max=1.0, alpha_max=4.0)
