@@ -305,7 +305,9 @@ def parameter_status(problem: Problem, fit: ModelFit, step: float = 0.25) -> dic
     """Which fitted parameters are not findings: ``"at bound"`` or ``"untestable"``.
 
     A parameter sits *at a bound* when it lies within 0.5 % of its span from
-    either end of its physical range. It is *untestable* when the training data
+    either end of its physical range, unless that end is its nominal value
+    (a lag of 0 s, a dead zone of 0 m/s: the part of the effect is absent, not
+    stretched to a limit). It is *untestable* when the training data
     are flat around it: moving it towards either bound by ``step`` of the
     distance to that bound changes no training window by more than the noise
     floor (a speed limit far above anything the robot was commanded, a dead
@@ -331,8 +333,15 @@ def parameter_status(problem: Problem, fit: ModelFit, step: float = 0.25) -> dic
         span = spec.high - spec.low
         v = fit.values[k]
         change = [float(np.max(np.abs(z[1 + 2 * j + e] - z[0]))) for e in (0, 1)]
-        if math.isfinite(span) and min(v - spec.low, spec.high - v) < 0.005 * span:
+        near = 0.005 * span
+        # "no effect" may sit at a bound (a lag of 0 s): there the fit is absent, not pinned
+        nominal_is_bound = min(spec.nominal - spec.low, spec.high - spec.nominal) < near
+        at_nominal_end = nominal_is_bound and abs(v - spec.nominal) < near
+        if math.isfinite(span) and min(v - spec.low, spec.high - v) < near and not at_nominal_end:
             out[k] = "at bound"
+        elif at_nominal_end:  # only the move away from nominal can show anything
+            if max(change) < problem.settings.floor:
+                out[k] = "untestable"
         elif max(change) < problem.settings.floor:
             out[k] = "untestable"
         elif min(change) < problem.settings.floor:

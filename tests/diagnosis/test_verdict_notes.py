@@ -261,6 +261,27 @@ def test_parameters_at_a_bound_or_untested_get_no_error_bar() -> None:
     }
 
 
+def test_a_parameter_at_its_nominal_bound_is_absent_not_pinned() -> None:
+    n = 50
+
+    def surrogate_residuals(layout, batch, B):
+        lag_l, lag_r = batch["wheel_velocity_lag.tau_left"], batch["wheel_velocity_lag.tau_right"]
+        return np.repeat((10.0 * (lag_l + lag_r))[:, None], n, axis=1)
+
+    problem = SimpleNamespace(
+        train=_layout(n, 1), settings=AttributionSettings(), surrogate_residuals=surrogate_residuals
+    )
+    # tau_left = 0 is the nominal end of [0, 0.5] s: no lag on that wheel, not a pinned fit
+    fit = _fit(
+        ("wheel_velocity_lag",),
+        np.zeros(n),
+        {"wheel_velocity_lag.tau_left": 0.0, "wheel_velocity_lag.tau_right": 0.4999},
+    )
+    assert parameter_status(problem, fit) == {  # type: ignore[arg-type]
+        "wheel_velocity_lag.tau_right": "at bound"
+    }
+
+
 # --------------------------------------------------------------------------- manoeuvres
 @pytest.mark.parametrize("name", PROBE_MANOEUVRES)
 def test_probe_manoeuvres_respect_the_robots_speed_limits(name: str) -> None:
