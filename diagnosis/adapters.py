@@ -181,6 +181,7 @@ class RobotAdapter(Protocol):
     channels: tuple[ChannelSpec, ...]
     schema: FeatureSchema
     stage_group: str
+    transient_detection: bool
 
     def effect_names(self) -> tuple[str, ...]: ...
 
@@ -221,6 +222,17 @@ class RobotAdapter(Protocol):
     ) -> dict[str, float] | None: ...
 
     def hidden_effects(self) -> HiddenTable: ...
+
+    def baseline_nuisances(
+        self, prepared: Sequence[PreparedLog], drive: Drive
+    ) -> dict[str, tuple[float, float, str]]: ...
+
+    def alias_groups(
+        self,
+        prepared: Sequence[PreparedLog],
+        threshold: float = 0.95,
+        effects: Sequence[str] | None = None,
+    ) -> list[dict[str, Any]]: ...
 
     def record_blind_logs(
         self, reality: Reality, rng: np.random.Generator, settings: SuiteSettings
@@ -269,6 +281,18 @@ class AdapterBase:
     ) -> tuple[list[Log], list[Log]]:
         """Training and held-out logs of the robot ``reality`` for one blind case."""
         raise NotImplementedError(f"the blind suite cannot record {self.robot!r} logs")
+
+    transient_detection: bool = False
+    """Whether the logs are time series in which disturbed windows (stalls, bumps, lost
+    markers) are detected and set aside (:mod:`~realitygap.diagnosis.transients`)."""
+
+    def baseline_nuisances(
+        self, prepared: Sequence[PreparedLog], drive: Drive
+    ) -> dict[str, tuple[float, float, str]]:
+        """Nuisances fitted first as the calibrated baseline
+        (:mod:`~realitygap.diagnosis.baseline`): ``"effect.param"`` → (low, high, what it is);
+        none by default."""
+        return {}
 
     def alias_groups(
         self,

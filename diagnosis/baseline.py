@@ -160,9 +160,8 @@ def calibrate_baseline(
     -------
     Baseline
     """
-    declare = getattr(problem.adapter, "baseline_nuisances", None)
-    ranges: dict[str, NuisanceRange] = (
-        dict(declare(problem.logs, problem.drive)) if declare is not None else {}
+    ranges: dict[str, NuisanceRange] = dict(
+        problem.adapter.baseline_nuisances(problem.logs, problem.drive)
     )
     ranges = {k: r for k, r in ranges.items() if k.partition(".")[0] in candidates}
     check_nuisances(ranges)

@@ -530,7 +530,7 @@ def diagnose(
 
     problem = Problem(adapter, prepared, drive, s.features, s.sim, s.attribution)
     transients = TransientReport()
-    if s.transients is not None and getattr(adapter, "transient_detection", False):
+    if s.transients is not None and adapter.transient_detection:
         transients = detect_transients(problem, s.transients)
         problem.exclude(transients.masks)
         say(transients.summary())
