@@ -201,7 +201,7 @@ def _diagnose(args: argparse.Namespace) -> int:
         say(f"wrote {path}")
     v = result.verdict
     rows = result.ranking_rows()[:5]
-    for line in explain(v, [r["name"] for r in rows]):
+    for line in explain(v, [r["name"] for r in rows[:1]]):
         print(line)
     status = v.notes.get("parameter_status", {})
     for row in rows:

@@ -198,7 +198,7 @@ def diagnose_real(ctx: RunContext) -> dict[str, Any]:
         tables[f"{drive}_shrink_best_candidate"] = [
             r for r in js["shrink_best_candidate"] if r["regime"] == "all"
         ]
-        top = [f.name for f in d.ranking[:5]]
+        top = [f.name for f in d.ranking[:1]]  # the ranking table marks the others
         notes += [f"{drive}: {line}" for line in explain(d.verdict, top)]
         for info in d.identifiability:
             if not info.get("separable"):
@@ -282,7 +282,7 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
                 {k: r[k] for k in ("where", "column", "regime", "n_windows", "rms", "share")}
                 for r in js["localisation"]["table"][:8]
             ]
-            top = [f.name for f in d.ranking[:5]]
+            top = [f.name for f in d.ranking[:1]]  # the ranking table marks the others
             notes += [f"{names}: {line}" for line in explain(d.verdict, top)]
             for e, why in d.not_observable.items():
                 if prefix == "":
