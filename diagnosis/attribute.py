@@ -147,9 +147,6 @@ class AttributionSettings:
 
 
 # --------------------------------------------------------------------------- parameters
-_LOG_PARAMS = {"velocity_saturation.v_limit"}
-
-
 def model_keys(effects: Sequence[str]) -> tuple[str, ...]:
     """``"effect.param"`` keys of a model's parameters, in effect order."""
     return tuple(f"{e}.{s.name}" for e in effects for s in EFFECTS[e].specs)
@@ -165,21 +162,21 @@ def _spec(key: str) -> Any:
 
 def _to_x(key: str, u: FloatArray) -> FloatArray:
     s = _spec(key)
-    if key in _LOG_PARAMS:
+    if s.log_scale:
         return np.exp(np.log(s.low) + u * (np.log(s.high) - np.log(s.low)))
     return s.low + u * (s.high - s.low)
 
 
 def _to_u(key: str, x: float) -> float:
     s = _spec(key)
-    if key in _LOG_PARAMS:
+    if s.log_scale:
         return float((math.log(x) - math.log(s.low)) / (math.log(s.high) - math.log(s.low)))
     return float((x - s.low) / (s.high - s.low))
 
 
 def _dx_du(key: str, x: float) -> float:
     s = _spec(key)
-    if key in _LOG_PARAMS:
+    if s.log_scale:
         return x * (math.log(s.high) - math.log(s.low))
     return s.high - s.low
 

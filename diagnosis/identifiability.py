@@ -51,7 +51,7 @@ def jacobian(
         effect, _, pname = k.partition(".")
         spec = EFFECTS[effect]().spec(pname)
         h = 1e-3 * (spec.high - spec.low)
-        if k == "velocity_saturation.v_limit":
+        if spec.log_scale:
             h = 1e-3 * max(point[k], 0.2)
         steps.append(h if point[k] + h <= spec.high else -h)
     # row 0: the point; row j + 1: the point with key j stepped

@@ -120,6 +120,9 @@ class ParamSpec:
     low, high : float
         Physical bounds of the parameter.
     description : str
+    log_scale : bool
+        The parameter spans decades (a speed limit): fits search it in log units and
+        difference it with a step relative to its value.
     """
 
     name: str
@@ -128,6 +131,7 @@ class ParamSpec:
     low: float
     high: float
     description: str
+    log_scale: bool = False
 
 
 class BlindRange(NamedTuple):

@@ -419,7 +419,13 @@ class VelocitySaturation(Effect):
     )
     specs = (
         ParamSpec(
-            "v_limit", "m/s", 10.0, 0.05, 10.0, "largest wheel surface speed actually reached"
+            "v_limit",
+            "m/s",
+            10.0,
+            0.05,
+            10.0,
+            "largest wheel surface speed actually reached",
+            log_scale=True,
         ),
     )
     blind = (BlindRange("v_limit", 0.35, 0.55, False, absolute=True),)
