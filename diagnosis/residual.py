@@ -23,7 +23,19 @@ if TYPE_CHECKING:
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["describe_residual", "white_level"]
+__all__ = ["describe_residual", "robust_spread", "white_level"]
+
+_MAD_TO_SD = 1.4826
+"""Ratio of a normal distribution's standard deviation to its median absolute deviation."""
+
+
+def robust_spread(x: FloatArray, axis: int | None = None) -> tuple[Any, Any]:
+    """Median of ``x`` and its normal-consistent spread ``1.4826 · MAD``, ignoring NaNs.
+
+    Over all of ``x`` (floats) or along ``axis`` (arrays).
+    """
+    med = np.nanmedian(x, axis=axis)
+    return med, _MAD_TO_SD * np.nanmedian(np.abs(x - med), axis=axis)
 
 
 def white_level(z: FloatArray, layout: Layout, sel: npt.NDArray[np.bool_]) -> float:
@@ -42,9 +54,8 @@ def white_level(z: FloatArray, layout: Layout, sel: npt.NDArray[np.bool_]) -> fl
                 diffs.append(np.diff(v))
     if not diffs:
         return 0.0
-    d = np.concatenate(diffs)
-    mad = float(np.median(np.abs(d - np.median(d))))
-    return 1.4826 * mad / math.sqrt(2.0)
+    _, spread = robust_spread(np.concatenate(diffs))
+    return float(spread) / math.sqrt(2.0)
 
 
 def describe_residual(

@@ -59,6 +59,7 @@ import numpy.typing as npt
 from realitygap.diagnosis.adapters import PreparedLog
 from realitygap.diagnosis.attribute import Problem
 from realitygap.diagnosis.log import LogError
+from realitygap.diagnosis.residual import robust_spread
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -231,9 +232,8 @@ def _robust_scores(problem: Problem) -> dict[int, tuple[FloatArray, list[str]]]:
         resid[i] = z
     allz = np.vstack(list(resid.values())) if resid else np.zeros((0, len(cols)))
     out = {}
-    med = np.nanmedian(allz, axis=0) if allz.size else np.zeros(len(cols))
-    mad = np.nanmedian(np.abs(allz - med), axis=0) if allz.size else np.zeros(len(cols))
-    sd = np.maximum(1.4826 * np.nan_to_num(mad), floor)
+    med, spread = robust_spread(allz, axis=0) if allz.size else (np.zeros(len(cols)),) * 2
+    sd = np.maximum(np.nan_to_num(spread), floor)
     for i, z in resid.items():
         out[i] = (np.nan_to_num(np.abs(z - med) / sd), [f"{g}.{c}" for g, _, c in cols])
     return out
