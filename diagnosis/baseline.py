@@ -46,7 +46,7 @@ import numpy.typing as npt
 
 from realitygap.core.parallel import Backend
 from realitygap.diagnosis.adapters import PreparedLog
-from realitygap.diagnosis.attribute import Problem, _rho, _spec, fit_model
+from realitygap.diagnosis.attribute import Problem, _rho, _spec, fit_model, model_keys
 from realitygap.diagnosis.log import Log
 from realitygap.diagnosis.shrink import overall_shrink
 
@@ -170,12 +170,11 @@ def calibrate_baseline(
     effects = tuple(dict.fromkeys(k.partition(".")[0] for k in ranges))
     box = {k: (r[0], r[1]) for k, r in ranges.items()}
     # parameters of a nuisance effect that are not nuisances stay at nominal
-    for e in effects:
-        for k in (f"{e}.{s.name}" for s in _effect_specs(e)):
-            if k not in box:
-                nom = _spec(k).nominal
-                span = 1e-9 * (_spec(k).high - _spec(k).low)
-                box[k] = (max(nom - span, _spec(k).low), min(nom + span, _spec(k).high))
+    for k in model_keys(effects):
+        if k not in box:
+            nom = _spec(k).nominal
+            span = 1e-9 * (_spec(k).high - _spec(k).low)
+            box[k] = (max(nom - span, _spec(k).low), min(nom + span, _spec(k).high))
     say(f"calibrating the baseline: {', '.join(ranges)}")
     fit = fit_model(problem, effects, box=box)
     values = {k: fit.values[k] for k in ranges}
@@ -216,9 +215,3 @@ def calibrate_baseline(
         train_shrink_pct=overall_shrink(z_before, z_after),
         replays=replays,
     )
-
-
-def _effect_specs(effect: str) -> Sequence[Any]:
-    from realitygap.robots.effects import EFFECTS
-
-    return EFFECTS[effect].specs
