@@ -152,7 +152,8 @@ def model_keys(effects: Sequence[str]) -> tuple[str, ...]:
     return tuple(f"{e}.{s.name}" for e in effects for s in EFFECTS[e].specs)
 
 
-def _spec(key: str) -> Any:
+def param_spec(key: str) -> Any:
+    """The :class:`~realitygap.robots.effects.ParamSpec` of ``"effect.param"``."""
     effect, _, param = key.partition(".")
     for s in EFFECTS[effect].specs:
         if s.name == param:
@@ -161,21 +162,21 @@ def _spec(key: str) -> Any:
 
 
 def _to_x(key: str, u: FloatArray) -> FloatArray:
-    s = _spec(key)
+    s = param_spec(key)
     if s.log_scale:
         return np.exp(np.log(s.low) + u * (np.log(s.high) - np.log(s.low)))
     return s.low + u * (s.high - s.low)
 
 
 def _to_u(key: str, x: float) -> float:
-    s = _spec(key)
+    s = param_spec(key)
     if s.log_scale:
         return float((math.log(x) - math.log(s.low)) / (math.log(s.high) - math.log(s.low)))
     return float((x - s.low) / (s.high - s.low))
 
 
 def _dx_du(key: str, x: float) -> float:
-    s = _spec(key)
+    s = param_spec(key)
     if s.log_scale:
         return x * (math.log(s.high) - math.log(s.low))
     return s.high - s.low
@@ -527,7 +528,7 @@ def fit_model(
             if hi_u[j] <= lo_u[j]:
                 raise ValueError(
                     f"fit_model: box for {k!r} ({box[k][0]:g} … {box[k][1]:g}) lies outside its "
-                    f"physical bounds ({_spec(k).low:g} … {_spec(k).high:g})"
+                    f"physical bounds ({param_spec(k).low:g} … {param_spec(k).high:g})"
                 )
     loss, c = settings.loss, problem.f_scale
     # baseline nuisances the model does not fit itself: refined with it inside their ranges
@@ -554,9 +555,9 @@ def fit_model(
     rng = np.random.default_rng(seed)
     cand: list[FloatArray] = []
     for st in starts:
-        u = np.array([_to_u(k, float(st.get(k, _spec(k).nominal))) for k in keys])
+        u = np.array([_to_u(k, float(st.get(k, param_spec(k).nominal))) for k in keys])
         cand.append(np.clip(u, lo_u, hi_u))
-    u_nom = np.clip(np.array([_to_u(k, _spec(k).nominal) for k in keys]), lo_u, hi_u)
+    u_nom = np.clip(np.array([_to_u(k, param_spec(k).nominal) for k in keys]), lo_u, hi_u)
     if not local_only:
         U = lo_u + _grid(keys, settings, rng) * (hi_u - lo_u)
         U = np.vstack([U, u_nom[None], *cand])
@@ -700,7 +701,7 @@ def _effect_sizes(
         row = dict(values)
         for k in keys:
             if k.split(".")[0] == e:
-                row[k] = _spec(k).nominal
+                row[k] = param_spec(k).nominal
         rows.append(row)
     batch = {k: np.array([r[k] for r in rows]) for k in keys}
     z = problem.surrogate_residuals(problem.train, batch, len(rows))

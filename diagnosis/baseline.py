@@ -46,7 +46,7 @@ import numpy.typing as npt
 
 from realitygap.core.parallel import Backend
 from realitygap.diagnosis.adapters import PreparedLog
-from realitygap.diagnosis.attribute import Problem, _rho, _spec, fit_model, model_keys
+from realitygap.diagnosis.attribute import Problem, _rho, fit_model, model_keys, param_spec
 from realitygap.diagnosis.log import Log
 from realitygap.diagnosis.shrink import overall_shrink
 
@@ -118,7 +118,7 @@ class Baseline:
 def check_nuisances(ranges: Mapping[str, NuisanceRange]) -> None:
     """Refuse a nuisance range that is empty or outside its parameter's physical bounds."""
     for key, (low, high, _) in ranges.items():
-        spec = _spec(key)
+        spec = param_spec(key)
         if not low < high:
             raise ValueError(
                 f"baseline nuisance {key!r}: low ({low:g}) must be below high ({high:g})"
@@ -172,9 +172,9 @@ def calibrate_baseline(
     # parameters of a nuisance effect that are not nuisances stay at nominal
     for k in model_keys(effects):
         if k not in box:
-            nom = _spec(k).nominal
-            span = 1e-9 * (_spec(k).high - _spec(k).low)
-            box[k] = (max(nom - span, _spec(k).low), min(nom + span, _spec(k).high))
+            nom = param_spec(k).nominal
+            span = 1e-9 * (param_spec(k).high - param_spec(k).low)
+            box[k] = (max(nom - span, param_spec(k).low), min(nom + span, param_spec(k).high))
     say(f"calibrating the baseline: {', '.join(ranges)}")
     fit = fit_model(problem, effects, box=box)
     values = {k: fit.values[k] for k in ranges}
@@ -206,12 +206,12 @@ def calibrate_baseline(
         problem.baseline_values, problem.baseline_features = {}, {}
         problem.baseline_ranges = {}
         say("baseline calibration: the nuisances do not improve the nominal replay; none applied")
-        return Baseline(ranges=ranges, units={k: _spec(k).unit for k in ranges})
+        return Baseline(ranges=ranges, units={k: param_spec(k).unit for k in ranges})
     problem.f_scale = problem.noise_scale()
     return Baseline(
         values=values,
         ranges=ranges,
-        units={k: _spec(k).unit for k in ranges},
+        units={k: param_spec(k).unit for k in ranges},
         train_shrink_pct=overall_shrink(z_before, z_after),
         replays=replays,
     )

@@ -14,8 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.diagnosis.attribute import ModelFit, Problem, model_keys
-from realitygap.robots.effects import EFFECTS
+from realitygap.diagnosis.attribute import ModelFit, Problem, model_keys, param_spec
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -48,8 +47,7 @@ def jacobian(
     p = len(keys)
     steps = []
     for k in keys:
-        effect, _, pname = k.partition(".")
-        spec = EFFECTS[effect]().spec(pname)
+        spec = param_spec(k)
         h = 1e-3 * (spec.high - spec.low)
         if spec.log_scale:
             h = 1e-3 * max(point[k], 0.2)
@@ -76,8 +74,7 @@ def identifiability(problem: Problem, a: ModelFit, b: ModelFit) -> dict[str, Any
     keys = model_keys(effects)
     point: dict[str, float] = {}
     for k in keys:
-        effect, _, pname = k.partition(".")
-        point[k] = EFFECTS[effect]().spec(pname).nominal
+        point[k] = param_spec(k).nominal
     point.update(b.values)
     point.update(a.values)
 

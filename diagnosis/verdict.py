@@ -22,7 +22,7 @@ from realitygap.diagnosis.attribute import (
     ModelFit,
     Problem,
     Verdict,
-    _spec,
+    param_spec,
 )
 from realitygap.diagnosis.residual import describe_residual
 from realitygap.diagnosis.shrink import overall_shrink
@@ -151,8 +151,8 @@ def judge(
         )
     elif pinned := _pinned(problem, best):
         edges = ", ".join(
-            f"{k} = {best.values[k]:.4g} {_spec(k).unit} (range {_spec(k).low:g} … "
-            f"{_spec(k).high:g})"
+            f"{k} = {best.values[k]:.4g} {param_spec(k).unit} (range {param_spec(k).low:g} … "
+            f"{param_spec(k).high:g})"
             for k in pinned
         )
         verdict = Verdict(
@@ -200,7 +200,7 @@ def _pinned(problem: Problem, fit: ModelFit) -> list[str]:
     point = {k: np.array([v]) for k, v in fit.values.items()}
     base: FloatArray | None = None
     for key, value in fit.values.items():
-        spec = _spec(key)
+        spec = param_spec(key)
         span = spec.high - spec.low
         at_low = spec.low != spec.nominal and value - spec.low < 0.005 * span
         at_high = spec.high != spec.nominal and spec.high - value < 0.005 * span
@@ -320,7 +320,7 @@ def parameter_status(problem: Problem, fit: ModelFit, step: float = 0.25) -> dic
     keys = list(fit.keys)
     pts: list[dict[str, float]] = [dict(fit.values)]
     for k in keys:
-        spec = _spec(k)
+        spec = param_spec(k)
         v = fit.values[k]
         for end in (spec.low, spec.high):
             moved = v + step * (end - v) if math.isfinite(end) else v
@@ -329,7 +329,7 @@ def parameter_status(problem: Problem, fit: ModelFit, step: float = 0.25) -> dic
     z = problem.surrogate_residuals(problem.train, batch, len(pts))
     out: dict[str, str] = {}
     for j, k in enumerate(keys):
-        spec = _spec(k)
+        spec = param_spec(k)
         span = spec.high - spec.low
         v = fit.values[k]
         change = [float(np.max(np.abs(z[1 + 2 * j + e] - z[0]))) for e in (0, 1)]
