@@ -2,8 +2,9 @@
 
 :func:`joseph_update` is the EKF measurement update in Joseph form,
 :func:`all_finite` the guard the filters apply to every input, and
-:func:`rotation_2d` with :data:`SKEW_2D` the planar rotation and its derivative
-generator, :math:`\\frac{d}{d\\theta} R(\\theta) = S R(\\theta)`.
+:data:`SKEW_2D` the derivative generator of the planar rotation
+:func:`realitygap.core.geometry.rotation_2d`,
+:math:`\\frac{d}{d\\theta} R(\\theta) = S R(\\theta)`.
 """
 
 from __future__ import annotations

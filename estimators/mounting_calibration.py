@@ -57,6 +57,11 @@ __all__ = [
 _MOUNT_NAMES = ("l_x", "l_y", "l_theta")
 _SCALE_NAMES = ("k_left", "k_right", "k_wheelbase")
 
+#: Default prior standard deviations of the mounting ``[l_x, l_y, l_θ]`` (m, m, rad)
+#: and of the wheel scale factors ``[k_L, k_R, k_b]``.
+DEFAULT_MOUNTING_STD = (0.1, 0.1, 0.2)
+DEFAULT_SCALE_STD = (0.05, 0.05, 0.05)
+
 
 def sensor_motion(mounting: npt.ArrayLike, delta: npt.ArrayLike) -> FloatArray:
     r"""Sensor ego-motion for a base motion: ``z = ⊖l ⊕ δ ⊕ l``.
@@ -361,7 +366,9 @@ class MountingCalibrationEKF:
     ):
         self._l0 = check_finite("l0", l0, (3,)).copy()
         self._P0_l = (
-            np.diag([0.1, 0.1, 0.2]) ** 2 if P0 is None else check_finite("P0", P0, (3, 3)).copy()
+            np.diag(DEFAULT_MOUNTING_STD) ** 2
+            if P0 is None
+            else check_finite("P0", P0, (3, 3)).copy()
         )
         self.noise = noise if noise is not None else MountingNoise()
         self.estimate_odometry = bool(estimate_odometry)
@@ -373,7 +380,7 @@ class MountingCalibrationEKF:
         self.kinematics = kinematics
         self._k0 = np.ones(3) if scales0 is None else check_finite("scales0", scales0, (3,)).copy()
         self._P0_k = (
-            np.diag([0.05, 0.05, 0.05]) ** 2
+            np.diag(DEFAULT_SCALE_STD) ** 2
             if P0_scales is None
             else check_finite("P0_scales", P0_scales, (3, 3)).copy()
         )
@@ -685,7 +692,7 @@ def calibrate_mounting_lsq(
     l0: npt.ArrayLike,
     *,
     noise: MountingNoise | None = None,
-    std_reference: npt.ArrayLike = (0.1, 0.1, 0.2),
+    std_reference: npt.ArrayLike = DEFAULT_MOUNTING_STD,
     warn: bool = True,
 ) -> tuple[FloatArray, FloatArray]:
     r"""Mounting by nonlinear least squares over the same residuals as the EKF.

@@ -25,6 +25,8 @@ import numpy.typing as npt
 from realitygap.core.geometry import wrap_angle
 from realitygap.estimators.diffdrive_model import arc_increment
 from realitygap.estimators.mounting_calibration import (
+    DEFAULT_MOUNTING_STD,
+    DEFAULT_SCALE_STD,
     MountingCalibrationEKF,
     MountingNoise,
     mounting_observability,
@@ -70,7 +72,7 @@ class OdometryMountingFit:
         return np.sqrt(np.clip(np.diag(self.cov), 0.0, None))
 
 
-_DEFAULT_PRIOR = np.diag([0.1, 0.1, 0.2, 0.05, 0.05, 0.05]) ** 2
+_DEFAULT_PRIOR = np.diag([*DEFAULT_MOUNTING_STD, *DEFAULT_SCALE_STD]) ** 2
 """Prior covariance of ``[l_x, l_y, l_θ, k_L, k_R, k_b]`` (the filter's defaults)."""
 
 

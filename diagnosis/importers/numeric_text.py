@@ -1,7 +1,7 @@
 """Reading comma-separated numeric text files, with errors that name the file, line and column.
 
-Shared by the importers of recorded data: each parses whole files of numbers,
-and a malformed row is reported precisely (slow path only on failure).
+Used by the OptiOdom importer (:mod:`.optiodom`), which parses whole files of
+numbers; a malformed row is reported precisely (slow path only on failure).
 """
 
 from __future__ import annotations

@@ -132,8 +132,6 @@ class ArmCalibrationReport:
         What the errors are.
     nominal, calibrated : ErrorStats
         Held-out errors of the nominal and the identified model (m).
-    improvement : float
-        ``nominal.rms / calibrated.rms``.
     identification : IdentificationResult
         The fit on the training part.
     n_train, n_test : int
@@ -145,11 +143,15 @@ class ArmCalibrationReport:
     metric: str
     nominal: ErrorStats
     calibrated: ErrorStats
-    improvement: float
     identification: IdentificationResult
     n_train: int
     n_test: int
     secondary: dict[str, ErrorStats]
+
+    @property
+    def improvement(self) -> float:
+        """``nominal.rms / calibrated.rms``."""
+        return self.nominal.rms / max(self.calibrated.rms, 1e-300)
 
 
 def _check_split(
@@ -228,7 +230,6 @@ def calibrate_ur10(
         metric="3-D probe position error after rigid registration (m)",
         nominal=nominal,
         calibrated=calibrated,
-        improvement=nominal.rms / max(calibrated.rms, 1e-300),
         identification=res,
         n_train=int(tr.size),
         n_test=int(te.size),
@@ -319,7 +320,6 @@ def calibrate_fr3(
         metric="distance-accuracy error between held-out pose pairs (m)",
         nominal=nominal,
         calibrated=calibrated,
-        improvement=nominal.rms / max(calibrated.rms, 1e-300),
         identification=res,
         n_train=int(tr.size),
         n_test=int(te.size),

@@ -38,6 +38,7 @@ def test_calibrate_ur10_on_synthetic_tracker_data() -> None:
     m += rng.normal(0, 2e-5, m.shape)
     rep = calibrate_ur10(TrackerSeries(q, m, probe), np.arange(0, 200, 2), np.arange(1, 200, 2))
     assert rep.calibrated.rms < 0.1 * rep.nominal.rms
+    assert rep.improvement == rep.nominal.rms / rep.calibrated.rms > 10
     assert rep.calibrated.rms < 1e-4
     assert rep.n_train == rep.n_test == 100
     assert "calibrated_train_registration" in rep.secondary

@@ -11,7 +11,7 @@ from realitygap.core.geometry import quat_xyzw_from_matrix, rot_z
 from realitygap.estimators.climb.constrained import ConstrainedConfig, ConstrainedEstimator
 from realitygap.estimators.climb.measurements import ClimbEstimate, TetherReading
 from realitygap.estimators.climb.surface import SurfaceModel
-from realitygap.robots.blade_geometry import BladeSurface, cad_point_cloud
+from realitygap.robots.blade_geometry import BladeSurface
 from realitygap.robots.climb_synthetic import (
     ClimbScenario,
     TruthTrajectory,
@@ -20,13 +20,6 @@ from realitygap.robots.climb_synthetic import (
 SC = ClimbScenario()
 ANCHOR = np.asarray(SC.anchor_cad)
 PATH = (*SC.init_waypoints, (4.5, 0.12), (4.5, 0.3), (1.5, 0.3))
-
-
-@pytest.fixture(scope="module")
-def surface() -> SurfaceModel:
-    pts, nrm = cad_point_cloud(SC.blade, 0.01)
-    keep = pts[:, 0] < 5.0
-    return SurfaceModel(pts[keep], nrm[keep])
 
 
 @pytest.fixture(scope="module")

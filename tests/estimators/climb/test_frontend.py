@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 from scipy.spatial.transform import Rotation
 
 from realitygap.core.geometry import (
@@ -11,7 +10,6 @@ from realitygap.core.geometry import (
     so3_log,
 )
 from realitygap.estimators.climb.frontend import relative_motion_from_images
-from realitygap.robots.blade_geometry import blade_texture
 from realitygap.robots.climb_synthetic import render_planar_view
 
 # ------------------------------------------------------------------ visual front-end
@@ -19,11 +17,6 @@ from realitygap.robots.climb_synthetic import render_planar_view
 K = np.array([[280.0, 0.0, 160.0], [0.0, 280.0, 120.0], [0.0, 0.0, 1.0]])
 DOWN = np.diag([1.0, -1.0, -1.0])  # camera looking along -z of the plane frame
 TEXEL = 0.25 / 1024
-
-
-@pytest.fixture(scope="module")
-def texture() -> np.ndarray:
-    return blade_texture(np.random.default_rng(0), 1024)
 
 
 def test_homography_front_end_recovers_metric_motion(texture: np.ndarray) -> None:

@@ -10,18 +10,10 @@ import pytest
 from realitygap.estimators.climb.localiser import ClimbLocaliser, LocaliserConfig, LocaliserPhase
 from realitygap.estimators.climb.measurements import ImuSample
 from realitygap.estimators.climb.surface import SurfaceModel
-from realitygap.robots.blade_geometry import cad_point_cloud
 from realitygap.robots.climb_synthetic import ClimbScenario, synthesise_recording
 
 SC = ClimbScenario()
 ANCHOR = np.asarray(SC.anchor_cad)
-
-
-@pytest.fixture(scope="module")
-def surface() -> SurfaceModel:
-    pts, nrm = cad_point_cloud(SC.blade, 0.01)
-    keep = pts[:, 0] < 5.0
-    return SurfaceModel(pts[keep], nrm[keep])
 
 
 def test_localiser_phases_on_synthetic_recording(surface: SurfaceModel) -> None:

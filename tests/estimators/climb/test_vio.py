@@ -18,7 +18,6 @@ from realitygap.estimators.climb.measurements import (
     TetherReading,
 )
 from realitygap.estimators.climb.vio import SlidingWindowVIO, VioConfig
-from realitygap.robots.blade_geometry import blade_texture
 from realitygap.robots.climb_synthetic import (
     ClimbRecording,
     ClimbScenario,
@@ -120,11 +119,6 @@ def test_scipy_solver_agrees(loop_recording: ClimbRecording) -> None:
 
 K = np.array([[280.0, 0.0, 160.0], [0.0, 280.0, 120.0], [0.0, 0.0, 1.0]])
 TEXEL = 0.25 / 1024
-
-
-@pytest.fixture(scope="module")
-def texture() -> np.ndarray:
-    return blade_texture(np.random.default_rng(0), 1024)
 
 
 def test_vio_on_rendered_images(texture: np.ndarray) -> None:
