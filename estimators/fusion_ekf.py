@@ -26,7 +26,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.core.geometry import check_finite, rotation_2d, se2_between, se2_compose, wrap_angle
+from realitygap.core.geometry import (
+    SKEW_2D,
+    check_finite,
+    rotation_2d,
+    se2_between,
+    se2_compose,
+    wrap_angle,
+)
 from realitygap.estimators.base import Estimate, WheelTicks
 from realitygap.estimators.diffdrive_model import (
     DiffDriveKinematics,
@@ -35,7 +42,7 @@ from realitygap.estimators.diffdrive_model import (
     arc_increment_jacobian,
     se2_compose_jacobians,
 )
-from realitygap.estimators.kalman import SKEW_2D, all_finite, joseph_update
+from realitygap.estimators.kalman import all_finite, joseph_update
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -1,10 +1,9 @@
 """Building blocks shared by the planar extended Kalman filters.
 
-:func:`joseph_update` is the EKF measurement update in Joseph form,
-:func:`all_finite` the guard the filters apply to every input, and
-:data:`SKEW_2D` the derivative generator of the planar rotation
-:func:`realitygap.core.geometry.rotation_2d`,
-:math:`\\frac{d}{d\\theta} R(\\theta) = S R(\\theta)`.
+:func:`joseph_update` is the EKF measurement update in Joseph form and
+:func:`all_finite` the guard the filters apply to every input (the planar
+rotation and its generator are :mod:`realitygap.core.geometry`'s
+``rotation_2d`` and ``SKEW_2D``).
 """
 
 from __future__ import annotations
@@ -16,12 +15,7 @@ import numpy.typing as npt
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["SKEW_2D", "all_finite", "joseph_update"]
-
-
-#: Generator of planar rotations: d R(θ)/dθ = S R(θ).
-SKEW_2D = np.array([[0.0, -1.0], [1.0, 0.0]])
-SKEW_2D.setflags(write=False)
+__all__ = ["all_finite", "joseph_update"]
 
 
 def all_finite(*values: Any) -> bool:

@@ -29,7 +29,14 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import least_squares
 
-from realitygap.core.geometry import check_finite, rotation_2d, se2_compose, se2_inverse, wrap_angle
+from realitygap.core.geometry import (
+    SKEW_2D,
+    check_finite,
+    rotation_2d,
+    se2_compose,
+    se2_inverse,
+    wrap_angle,
+)
 from realitygap.estimators.base import Estimate
 from realitygap.estimators.diffdrive_model import (
     DiffDriveKinematics,
@@ -37,7 +44,7 @@ from realitygap.estimators.diffdrive_model import (
     arc_increment_jacobian,
     se2_compose_jacobians,
 )
-from realitygap.estimators.kalman import SKEW_2D, all_finite, joseph_update
+from realitygap.estimators.kalman import all_finite, joseph_update
 
 FloatArray = npt.NDArray[np.float64]
 

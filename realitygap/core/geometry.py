@@ -65,6 +65,11 @@ def rotation_2d(theta: float) -> FloatArray:
     return np.array([[c, -s], [s, c]])
 
 
+SKEW_2D = np.array([[0.0, -1.0], [1.0, 0.0]])
+"""Generator of planar rotations: d R(θ)/dθ = S R(θ) (read-only)."""
+SKEW_2D.setflags(write=False)
+
+
 def rot_z(angle: float) -> FloatArray:
     """3×3 rotation about z by ``angle`` rad."""
     c, s = np.cos(angle), np.sin(angle)
