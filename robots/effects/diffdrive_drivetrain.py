@@ -31,7 +31,8 @@ from realitygap.robots.effects.base import (
 from realitygap.robots.effects.diffdrive import (
     SurrogateContext,
     SurrogateSlot,
-    _half_wheelbase,
+    _wheel_command_hook,
+    _wheel_gains,
 )
 
 FloatArray = npt.NDArray[np.float64]
@@ -45,26 +46,6 @@ __all__ = [
     "speed_limiter_step",
     "torque_speed_step",
 ]
-
-
-def _wheel_command_hook(
-    nominal: DiffDriveParams | None,
-    step: Any,
-) -> CommandHook:
-    """A twist hook that applies ``step(s_L, s_R, dt) -> (s_L, s_R)`` to the wheel-speed commands.
-
-    The firmware's inverse kinematics (nominal half wheelbase ``b/2``) is linear
-    and invertible, so the hook returns the twist that the firmware turns into
-    the changed wheel-surface speeds (m/s).
-    """
-    hb = _half_wheelbase(nominal)
-
-    def hook(v: float, w: float, dt_: float) -> tuple[float, float]:
-        sl, sr = step(v - w * hb, v + w * hb, dt_)
-        sl, sr = float(sl), float(sr)
-        return (sl + sr) / 2.0, (sr - sl) / (2.0 * hb)
-
-    return hook
 
 
 def _lag_gain(tau: Any, dt: float) -> Any:
@@ -134,11 +115,6 @@ def torque_speed_step(s0: Any, target: Any, v_top: Any, k: Any) -> Any:
         np.where(speeding_up & (mag - mag0 > room), mag0 + room, mag),
     )
     return np.sign(target) * new_mag
-
-
-def _wheel_gains(ratio: Any) -> tuple[Any, Any]:
-    """Left and right gains with right / left ``ratio`` and their mean 1."""
-    return 2.0 / (ratio + 1.0), 2.0 * ratio / (ratio + 1.0)
 
 
 def _recurse(x: FloatArray, step: Any) -> FloatArray:
