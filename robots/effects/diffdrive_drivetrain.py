@@ -469,17 +469,20 @@ class _SlipHook:
 
     def __init__(self, k: float, dt: float):
         self.k, self.dt = k, dt
-        self.ground = np.zeros(2)
-        self.slip = np.zeros(2)
+        self.ground_left = self.ground_right = 0.0  # rolling speeds, rad/s
+        self.slip_left = self.slip_right = 0.0  # turned minus rolled angles, rad
 
     def command(self, w_left: float, w_right: float) -> tuple[float, float]:
-        turned = np.array([w_left, w_right], dtype=float)
-        self.ground = self.ground + self.k * (turned - self.ground)
-        self.slip = self.slip + (turned - self.ground) * self.dt
-        return float(self.ground[0]), float(self.ground[1])
+        k, dt = self.k, self.dt
+        tl, tr = float(w_left), float(w_right)
+        gl = self.ground_left = self.ground_left + k * (tl - self.ground_left)
+        gr = self.ground_right = self.ground_right + k * (tr - self.ground_right)
+        self.slip_left += (tl - gl) * dt
+        self.slip_right += (tr - gr) * dt
+        return gl, gr
 
     def encoder(self, a_left: float, a_right: float) -> tuple[float, float]:
-        return a_left + float(self.slip[0]), a_right + float(self.slip[1])
+        return a_left + self.slip_left, a_right + self.slip_right
 
     def rolling_from_encoder(self, angles: Any) -> FloatArray:
         ang = np.asarray(angles, dtype=float)
