@@ -207,12 +207,12 @@ class WheelVelocityLag(Effect):
     ) -> CommandHook | None:
         if self.is_nominal():
             return None
-        kl, kr = _lag_gain(self["tau_left"], dt), _lag_gain(self["tau_right"], dt)
+        kl, kr = float(_lag_gain(self["tau_left"], dt)), float(_lag_gain(self["tau_right"], dt))
         state = [0.0, 0.0]
 
         def step(sl: float, sr: float, dt_: float) -> tuple[float, float]:
-            state[0] += float(kl) * (sl - state[0])
-            state[1] += float(kr) * (sr - state[1])
+            state[0] += kl * (sl - state[0])
+            state[1] += kr * (sr - state[1])
             return state[0], state[1]
 
         return _wheel_command_hook(nominal, step)
