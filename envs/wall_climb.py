@@ -88,6 +88,7 @@ from realitygap.robots.climber import (
     chart_pose,
 )
 from realitygap.robots.climber_sensors import CameraModel, ImuModel, TetherModel
+from realitygap.robots.diffdrive import FirmwareLimits
 from realitygap.robots.effects import Reality
 from realitygap.robots.sensors import SensorMode, check_sensor_mode
 
@@ -330,6 +331,8 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._t = 0.0
         self._steps = 0
         self._cmd = np.zeros(2)
+        self._firmware = FirmwareLimits(a_max=0.5, alpha_max=2.0)
+        """The firmware's acceleration limits (m/s², rad/s²); the speeds are the action's."""
         self._goal = np.zeros(3)
         self._estimate: ClimbEstimate | None = None
         self._good_estimate: ClimbEstimate | None = None
@@ -465,9 +468,9 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             raise RuntimeError("call reset() before step()")
         a0, a1 = check_twist_action(action)
         prm = self.params
-        dv, dw = 0.5 * self.dt, 2.0 * self.dt  # firmware acceleration limits
-        v = self._cmd[0] + min(dv, max(-dv, a0 * prm.v_max - self._cmd[0]))
-        w = self._cmd[1] + min(dw, max(-dw, a1 * prm.w_max - self._cmd[1]))
+        v, w = self._firmware.limit(
+            a0 * prm.v_max, a1 * prm.w_max, self._cmd[0], self._cmd[1], self.dt
+        )
         self._cmd[:] = (v, w)
         self.robot.set_twist(v, w, prm)
         measurements = self._simulate()

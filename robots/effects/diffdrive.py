@@ -100,6 +100,31 @@ def _half_wheelbase(nominal: DiffDriveParams | None) -> float:
     return float(params.wheelbase) / 2.0
 
 
+def _wheel_command_hook(
+    nominal: DiffDriveParams | None,
+    step: Any,
+) -> CommandHook:
+    """A twist hook that applies ``step(s_L, s_R, dt) -> (s_L, s_R)`` to the wheel-speed commands.
+
+    The firmware's inverse kinematics (nominal half wheelbase ``b/2``) is linear
+    and invertible, so the hook returns the twist that the firmware turns into
+    the changed wheel-surface speeds (m/s).
+    """
+    hb = _half_wheelbase(nominal)
+
+    def hook(v: float, w: float, dt_: float) -> tuple[float, float]:
+        sl, sr = step(v - w * hb, v + w * hb, dt_)
+        sl, sr = float(sl), float(sr)
+        return (sl + sr) / 2.0, (sr - sl) / (2.0 * hb)
+
+    return hook
+
+
+def _wheel_gains(ratio: Any) -> tuple[Any, Any]:
+    """Left and right gains with right / left ``ratio`` and their mean 1."""
+    return 2.0 / (ratio + 1.0), 2.0 * ratio / (ratio + 1.0)
+
+
 def _shift(u: FloatArray, steps: FloatArray) -> FloatArray:
     """Delay series ``u`` (N, k) by fractional ``steps`` (B,) → (B, N, k), zeros before the start."""
     n = u.shape[0]
@@ -380,15 +405,10 @@ class MotorDeadband(Effect):
         thr = self["threshold"]
         if thr <= 0:
             return None
-        hb = _half_wheelbase(nominal)
-
-        def hook(v: float, w: float, dt_: float) -> tuple[float, float]:
-            vl, vr = v - w * hb, v + w * hb
-            vl = 0.0 if abs(vl) < thr else vl
-            vr = 0.0 if abs(vr) < thr else vr
-            return (vl + vr) / 2.0, (vr - vl) / (2.0 * hb)
-
-        return hook
+        return _wheel_command_hook(
+            nominal,
+            lambda vl, vr, dt_: (0.0 if abs(vl) < thr else vl, 0.0 if abs(vr) < thr else vr),
+        )
 
     @classmethod
     def surrogate_term(cls, x: Any, p: Mapping[str, FloatArray], ctx: SurrogateContext) -> Any:
@@ -438,14 +458,10 @@ class VelocitySaturation(Effect):
         lim = self["v_limit"]
         if lim >= self.spec("v_limit").nominal:
             return None
-        hb = _half_wheelbase(nominal)
-
-        def hook(v: float, w: float, dt_: float) -> tuple[float, float]:
-            vl, vr = v - w * hb, v + w * hb
-            vl, vr = max(-lim, min(lim, vl)), max(-lim, min(lim, vr))
-            return (vl + vr) / 2.0, (vr - vl) / (2.0 * hb)
-
-        return hook
+        return _wheel_command_hook(
+            nominal,
+            lambda vl, vr, dt_: (max(-lim, min(lim, vl)), max(-lim, min(lim, vr))),
+        )
 
     @classmethod
     def surrogate_term(cls, x: Any, p: Mapping[str, FloatArray], ctx: SurrogateContext) -> Any:
@@ -551,20 +567,16 @@ class EncoderRatio(Effect):
     surrogate_slot = SurrogateSlot.ENCODER_GAIN
     surrogate_example = (("E_c", 1.03),)
 
-    def _gains(self) -> tuple[float, float]:
-        e = self["E_c"]
-        return 2.0 / (e + 1.0), 2.0 * e / (e + 1.0)
-
     def make_ticks_hook(self) -> TicksHook | None:
         if self["E_c"] == 1.0:
             return None
-        gl, gr = self._gains()
+        gl, gr = _wheel_gains(self["E_c"])
         return lambda left, right: (left * gl, right * gr)
 
     def make_ticks_inverse_hook(self) -> TicksHook | None:
         if self["E_c"] == 1.0:
             return None
-        gl, gr = self._gains()
+        gl, gr = _wheel_gains(self["E_c"])
         return lambda left, right: (left / gl, right / gr)
 
     @classmethod
@@ -573,4 +585,5 @@ class EncoderRatio(Effect):
         e = p["E_c"]
         if not np.any(e != 1.0):
             return cl, cr
-        return cl * (2.0 / (e + 1.0)), cr * (2.0 * e / (e + 1.0))
+        gl, gr = _wheel_gains(e)
+        return cl * gl, cr * gr

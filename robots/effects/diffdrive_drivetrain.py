@@ -31,7 +31,8 @@ from realitygap.robots.effects.base import (
 from realitygap.robots.effects.diffdrive import (
     SurrogateContext,
     SurrogateSlot,
-    _half_wheelbase,
+    _wheel_command_hook,
+    _wheel_gains,
 )
 
 FloatArray = npt.NDArray[np.float64]
@@ -45,26 +46,6 @@ __all__ = [
     "speed_limiter_step",
     "torque_speed_step",
 ]
-
-
-def _wheel_command_hook(
-    nominal: DiffDriveParams | None,
-    step: Any,
-) -> CommandHook:
-    """A twist hook that applies ``step(s_L, s_R, dt) -> (s_L, s_R)`` to the wheel-speed commands.
-
-    The firmware's inverse kinematics (nominal half wheelbase ``b/2``) is linear
-    and invertible, so the hook returns the twist that the firmware turns into
-    the changed wheel-surface speeds (m/s).
-    """
-    hb = _half_wheelbase(nominal)
-
-    def hook(v: float, w: float, dt_: float) -> tuple[float, float]:
-        sl, sr = step(v - w * hb, v + w * hb, dt_)
-        sl, sr = float(sl), float(sr)
-        return (sl + sr) / 2.0, (sr - sl) / (2.0 * hb)
-
-    return hook
 
 
 def _lag_gain(tau: Any, dt: float) -> Any:
@@ -134,11 +115,6 @@ def torque_speed_step(s0: Any, target: Any, v_top: Any, k: Any) -> Any:
         np.where(speeding_up & (mag - mag0 > room), mag0 + room, mag),
     )
     return np.sign(target) * new_mag
-
-
-def _wheel_gains(ratio: Any) -> tuple[Any, Any]:
-    """Left and right gains with right / left ``ratio`` and their mean 1."""
-    return 2.0 / (ratio + 1.0), 2.0 * ratio / (ratio + 1.0)
 
 
 def _recurse(x: FloatArray, step: Any) -> FloatArray:
@@ -231,12 +207,12 @@ class WheelVelocityLag(Effect):
     ) -> CommandHook | None:
         if self.is_nominal():
             return None
-        kl, kr = _lag_gain(self["tau_left"], dt), _lag_gain(self["tau_right"], dt)
+        kl, kr = float(_lag_gain(self["tau_left"], dt)), float(_lag_gain(self["tau_right"], dt))
         state = [0.0, 0.0]
 
         def step(sl: float, sr: float, dt_: float) -> tuple[float, float]:
-            state[0] += float(kl) * (sl - state[0])
-            state[1] += float(kr) * (sr - state[1])
+            state[0] += kl * (sl - state[0])
+            state[1] += kr * (sr - state[1])
             return state[0], state[1]
 
         return _wheel_command_hook(nominal, step)
@@ -493,17 +469,20 @@ class _SlipHook:
 
     def __init__(self, k: float, dt: float):
         self.k, self.dt = k, dt
-        self.ground = np.zeros(2)
-        self.slip = np.zeros(2)
+        self.ground_left = self.ground_right = 0.0  # rolling speeds, rad/s
+        self.slip_left = self.slip_right = 0.0  # turned minus rolled angles, rad
 
     def command(self, w_left: float, w_right: float) -> tuple[float, float]:
-        turned = np.array([w_left, w_right], dtype=float)
-        self.ground = self.ground + self.k * (turned - self.ground)
-        self.slip = self.slip + (turned - self.ground) * self.dt
-        return float(self.ground[0]), float(self.ground[1])
+        k, dt = self.k, self.dt
+        tl, tr = float(w_left), float(w_right)
+        gl = self.ground_left = self.ground_left + k * (tl - self.ground_left)
+        gr = self.ground_right = self.ground_right + k * (tr - self.ground_right)
+        self.slip_left += (tl - gl) * dt
+        self.slip_right += (tr - gr) * dt
+        return gl, gr
 
     def encoder(self, a_left: float, a_right: float) -> tuple[float, float]:
-        return a_left + float(self.slip[0]), a_right + float(self.slip[1])
+        return a_left + self.slip_left, a_right + self.slip_right
 
     def rolling_from_encoder(self, angles: Any) -> FloatArray:
         ang = np.asarray(angles, dtype=float)
