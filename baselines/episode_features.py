@@ -82,7 +82,10 @@ class ObstacleMemory:
         self.cell = float(cell)
         self.n_obs = SCAN_START + self.scan_angles.size
         self._cells: set[tuple[int, int]] = set()
-        self._points: list[tuple[float, float]] = []
+        # the kept points are rows 0 … _n − 1, in the order they were seen; the buffer
+        # grows by doubling so a step does not rebuild an array of the whole episode
+        self._points = np.empty((64, 2))
+        self._n = 0
 
     @classmethod
     def from_spec(cls, spec: Mapping[str, Any]) -> ObstacleMemory:
@@ -96,7 +99,7 @@ class ObstacleMemory:
         )
 
     def __len__(self) -> int:
-        return len(self._points)
+        return self._n
 
     @property
     def n_features(self) -> int:
@@ -109,7 +112,7 @@ class ObstacleMemory:
     def reset(self) -> None:
         """Forget everything (a new episode)."""
         self._cells.clear()
-        self._points.clear()
+        self._n = 0
 
     def update(self, obs: npt.ArrayLike) -> npt.NDArray[np.float32]:
         """Add the hits of one observation and return the sector feature ``(n_sectors,)``."""
@@ -128,19 +131,31 @@ class ObstacleMemory:
             px = x + ranges[hit] * np.cos(bearings)
             py = y + ranges[hit] * np.sin(bearings)
             inv = 1.0 / self.cell
+            new: list[tuple[float, float]] = []
             for qx, qy in zip(px.tolist(), py.tolist()):
                 key = (math.floor(qx * inv), math.floor(qy * inv))
                 if key not in self._cells:
                     self._cells.add(key)
-                    self._points.append((qx, qy))
+                    new.append((qx, qy))
+            if new:
+                self._append(new)
         return self.features(x, y, theta)
+
+    def _append(self, points: list[tuple[float, float]]) -> None:
+        end = self._n + len(points)
+        if end > len(self._points):
+            grown = np.empty((max(end, 2 * len(self._points)), 2))
+            grown[: self._n] = self._points[: self._n]
+            self._points = grown
+        self._points[self._n : end] = points
+        self._n = end
 
     def features(self, x: float, y: float, theta: float) -> npt.NDArray[np.float32]:
         """Sector ranges / horizon around the pose ``(x, y, θ)``, clipped to 1."""
         out = np.ones(self.n_sectors, dtype=np.float64)
-        if not self._points:
+        if not self._n:
             return out.astype(np.float32)
-        pts = np.asarray(self._points)
+        pts = self._points[: self._n]
         dx, dy = pts[:, 0] - x, pts[:, 1] - y
         d = np.hypot(dx, dy)
         near = d < self.horizon

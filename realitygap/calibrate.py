@@ -24,12 +24,13 @@ Usage::
 
     realitygap calibrate umbmark SESSION_DIR [SESSION_DIR ...] [--json PATH]
 
-The lead's CLI hooks it in with :func:`add_calibrate_parser`.
+The package CLI hooks it in with :func:`add_calibrate_parser`.
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime
 import math
 import sys
 from collections.abc import Sequence
@@ -46,6 +47,7 @@ __all__ = [
     "calibrate_session",
     "format_calibrations",
     "pool_calibrations",
+    "session_time",
 ]
 
 
@@ -153,17 +155,19 @@ class PooledCalibration:
         return out
 
 
+def session_time(session_id: str) -> datetime.datetime | None:
+    """Recording time from an OptiOdom session id ``DDMMYYYYhhmm``, ``None`` if it does not parse."""
+    if not (len(session_id) == 12 and session_id.isdigit()):
+        return None
+    try:
+        return datetime.datetime.strptime(session_id, "%d%m%Y%H%M")
+    except ValueError:
+        return None
+
+
 def _recorded(session_id: str) -> str:
-    if len(session_id) == 12 and session_id.isdigit():
-        d, mo, y, h, mi = (
-            session_id[:2],
-            session_id[2:4],
-            session_id[4:8],
-            session_id[8:10],
-            session_id[10:12],
-        )
-        return f"{y}-{mo}-{d}T{h}:{mi}"
-    return ""
+    when = session_time(session_id)
+    return "" if when is None else when.strftime("%Y-%m-%dT%H:%M")
 
 
 def calibrate_session(folder: str | Path, side_length: float | None = None) -> SessionCalibration:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
 import shutil
 from pathlib import Path
@@ -116,3 +117,13 @@ def test_non_square_session_needs_a_side_length(capsys: pytest.CaptureFixture[st
     assert "UMBmark needs square runs" in capsys.readouterr().err
     assert _main(["calibrate", "umbmark", str(session), "--side-length", "-1"]) == 2
     assert "--side-length" in capsys.readouterr().err
+
+
+def test_session_time_parses_an_optiodom_id_and_rejects_others() -> None:
+    from realitygap.calibrate import _recorded, session_time
+
+    assert session_time("250320241432") == datetime.datetime(2024, 3, 25, 14, 32)
+    assert _recorded("250320241432") == "2024-03-25T14:32"
+    for bad in ("", "25032024143", "2503202414320", "25032024143x", "991320241432"):
+        assert session_time(bad) is None
+        assert _recorded(bad) == ""

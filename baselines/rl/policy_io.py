@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import gymnasium as gym
@@ -253,9 +253,14 @@ class ObsNormalizer:
     var: npt.NDArray[np.float64]
     clip: float = 10.0
     eps: float = 1e-8
+    _std: npt.NDArray[np.float64] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        # computed once: the normaliser runs on every observation of a rollout
+        object.__setattr__(self, "_std", np.sqrt(self.var + self.eps))
 
     def __call__(self, obs: npt.ArrayLike) -> npt.NDArray[np.float32]:
-        x = (np.asarray(obs, dtype=np.float64) - self.mean) / np.sqrt(self.var + self.eps)
+        x = (np.asarray(obs, dtype=np.float64) - self.mean) / self._std
         return np.clip(x, -self.clip, self.clip).astype(np.float32)
 
     def to_dict(self) -> dict[str, Any]:

@@ -206,22 +206,6 @@ def matrix_from_quat_xyzw(quat_xyzw: npt.ArrayLike) -> FloatArray:
     )
 
 
-def so3_gamma(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """:math:`\\int_0^1 \\mathrm{Exp}(\\sigma\\theta)d\\sigma` and
-    :math:`\\int_0^1 (1-\\sigma)\\mathrm{Exp}(\\sigma\\theta)d\\sigma`."""
-    a = math.sqrt(float(theta @ theta))
-    K = hat(theta)
-    K2 = K @ K
-    if a < 1e-4:
-        g1 = np.eye(3) + K / 2.0 + K2 / 6.0
-        g2 = 0.5 * np.eye(3) + K / 6.0 + K2 / 24.0
-        return g1, g2
-    s, c = math.sin(a), math.cos(a)
-    g1 = np.eye(3) + ((1 - c) / a**2) * K + ((a - s) / a**3) * K2
-    g2 = 0.5 * np.eye(3) + ((a - s) / a**3) * K + ((a * a / 2 - 1 + c) / a**4) * K2
-    return g1, g2
-
-
 # ------------------------------------------------------------- batched SO(3)
 # The same maps over stacks of K vectors / matrices (shapes (K, 3), (K, 3, 3)); the
 # window solver evaluates all its factors at once with them.

@@ -226,8 +226,8 @@ def diagnose_independent(ctx: RunContext) -> dict[str, Any]:
         figures[f"{p}open_set_lenient_rate"] = (
             float(np.mean([r["open_set_lenient"] for r in opened])) if opened else math.nan
         )
-        figures[f"{p}false_attribution_rate"] = (
-            float(np.mean([r["false_attribution"] for r in sel])) if sel else math.nan
+        figures[f"{p}false_attribution_rate"] = float(
+            np.mean([r["false_attribution"] for r in sel])
         )
         figures[f"{p}heldout_shrink_pct_median"] = _median(
             [r["heldout_shrink_pct"] for r in closed]

@@ -7,6 +7,7 @@ sessions from their wheel ticks.
 
 from __future__ import annotations
 
+import datetime as dt
 from collections.abc import Sequence
 from typing import Any
 
@@ -19,11 +20,10 @@ __all__ = ["umbmark_real", "umbmark_real_calibration"]
 
 def _session_time(session_id: str) -> float | None:
     """Recording time (days since 2000) from an id ``DDMMYYYYhhmm``, or ``None``."""
-    import datetime as dt
+    from realitygap.calibrate import session_time
 
-    try:
-        when = dt.datetime.strptime(session_id, "%d%m%Y%H%M")
-    except ValueError:
+    when = session_time(session_id)
+    if when is None:
         return None
     return (when - dt.datetime(2000, 1, 1)).total_seconds() / 86400.0
 

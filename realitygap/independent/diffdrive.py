@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -514,13 +514,6 @@ def _num(x: float) -> str:
     return repr(float(x)) if x != int(x) else str(int(x))
 
 
-@dataclass(frozen=True)
-class _SessionInfo:
-    method: str
-    side: float | None
-    extra: dict[str, str] = field(default_factory=dict)
-
-
 _METHODS = {
     "square": "Borenstein and Feng (1996): UMBmark",
     "circular": "New method (circular paths)",
@@ -636,8 +629,3 @@ def write_session(
     ]
     (out / f"{sid}_metadata.csv").write_text("\n".join(meta) + "\n", encoding="utf-8")
     return out
-
-
-def with_values(hidden: Hidden, **values: float) -> Hidden:
-    """A copy of ``hidden`` with ``values`` replaced (names checked by the dataclass)."""
-    return replace(hidden, **values)
