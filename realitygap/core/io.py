@@ -44,7 +44,19 @@ def atomic_write(path: str | os.PathLike[str], writer: Callable[[IO[bytes]], obj
 
 
 def _umask() -> int:
-    """The process's file-creation mask (read by setting and restoring it)."""
+    """The process's file-creation mask.
+
+    Read from ``/proc/self/status`` where the kernel reports it, so that no other
+    thread ever creates a file under a cleared mask; elsewhere by setting and
+    restoring it.
+    """
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
     mask = os.umask(0)
     os.umask(mask)
     return mask
