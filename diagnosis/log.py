@@ -93,6 +93,7 @@ from typing import IO, Any
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.checks import check_regular_file
 from realitygap.core.io import atomic_write
 
 FloatArray = npt.NDArray[np.float64]
@@ -583,9 +584,19 @@ class Log:
             If the file is not a realitygap log (wrong content whatever its
             extension, pickled objects, missing parts, newer format version).
         """
+        from realitygap.diagnosis.importers.archive import (
+            ArchiveError,
+            parse_log_header,
+            read_log_archive,
+        )
+
         path = Path(path)
         if not path.exists():
             raise FileNotFoundError(f"log file not found: {path}")
+        try:
+            check_regular_file(path, "log")
+        except ValueError as exc:
+            raise LogError(str(exc)) from None
         kind = sniff_file_kind(path)
         if kind != "npz":
             raise LogError(
@@ -594,47 +605,30 @@ class Log:
                 "re-save it with Log.save"
             )
         try:
-            with np.load(path, allow_pickle=False) as data:
-                keys = set(data.files)
-                if "meta.json" not in keys or "t" not in keys:
-                    raise LogError(
-                        f"{path}: a zip/npz archive but not a realitygap log (no 't' and "
-                        "'meta.json' arrays). Fix: re-save it with Log.save"
-                    )
-                header = json.loads(bytes(np.asarray(data["meta.json"], dtype=np.uint8)))
-                t = np.asarray(data["t"])
-                raw = {k[3:]: np.asarray(data[k]) for k in keys if k.startswith("ch.")}
-        except LogError:
-            raise
-        except ValueError as exc:
-            if "pickle" in str(exc).lower() or "object arrays" in str(exc).lower():
+            data = read_log_archive(path)
+            if "meta.json" not in data or "t" not in data:
                 raise LogError(
-                    f"{path}: the archive holds pickled Python objects, which are never loaded "
-                    "(unsafe). Fix: store plain numeric arrays (Log.save does)"
-                ) from None
-            raise LogError(f"{path}: unreadable log archive ({exc})") from None
-        except (OSError, EOFError, KeyError) as exc:
-            raise LogError(f"{path}: unreadable or truncated log archive ({exc})") from None
-        except json.JSONDecodeError as exc:  # pragma: no cover - JSONDecodeError is a ValueError
-            raise LogError(f"{path}: corrupt metadata ({exc})") from None
-        if not isinstance(header, dict) or header.get("format") != FORMAT_NAME:
-            raise LogError(f"{path}: metadata does not describe a {FORMAT_NAME!r} file")
-        version = int(header.get("version", 0))
-        if version > FORMAT_VERSION:
-            raise LogError(
-                f"{path}: log format version {version} is newer than this reader "
-                f"({FORMAT_VERSION}). Fix: update realitygap"
-            )
-        chan_meta = header.get("channels", {})
+                    f"{path}: a zip/npz archive but not a realitygap log (no 't' and "
+                    "'meta.json' arrays). Fix: re-save it with Log.save"
+                )
+            header = parse_log_header(data["meta.json"], path, FORMAT_NAME, FORMAT_VERSION)
+        except ArchiveError as exc:
+            raise LogError(str(exc)) from None
+        t = np.asarray(data["t"])
+        raw = {k[3:]: np.asarray(v) for k, v in data.items() if k.startswith("ch.")}
+        chan_meta = header["channels"]
         if set(chan_meta) != set(raw):
             raise LogError(
                 f"{path}: channels in the metadata ({sorted(chan_meta)}) and arrays "
                 f"({sorted(raw)}) differ; the file is damaged"
             )
-        specs = {k: ChannelSpec.from_dict(k, v) for k, v in chan_meta.items()}
-        meta = dict(header.get("meta", {}))
-        if header.get("source"):
-            meta.setdefault("recorded_from", str(header["source"]))
+        try:
+            specs = {k: ChannelSpec.from_dict(k, v) for k, v in chan_meta.items()}
+        except ValueError as exc:
+            raise LogError(f"{path}: {exc}") from None
+        meta = dict(header["meta"])
+        if header["source"]:
+            meta.setdefault("recorded_from", header["source"])
         return cls(t=t, channels=raw, specs=specs, meta=meta, source=str(path))
 
     def __repr__(self) -> str:

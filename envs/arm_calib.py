@@ -83,12 +83,19 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
 
+from realitygap.core.checks import (
+    check_finite_float,
+    check_int,
+    check_nonnegative_int,
+    check_positive_int,
+)
 from realitygap.envs.arm_calib_pipeline import (
     ArmPoseMeasurement,
     CalibrationEstimate,
     MDHCalibrationEstimator,
     observation_from_corners,
 )
+from realitygap.envs.common import check_action_array, check_bool
 from realitygap.envs.tasks.arm_calib import (
     ArmCalibRewardWeights,
     ArmCalibTask,
@@ -115,6 +122,12 @@ __all__ = [
     "default_arm_reality",
     "random_arm_reality",
 ]
+
+MAX_BUDGET = 10_000
+"""Most measurement attempts per campaign an env accepts."""
+
+MAX_VALIDATION_POSES = 10_000
+"""Most validation poses an env accepts (each costs a forward-kinematics evaluation per step)."""
 
 DEFAULT_JOINT_CENTER: tuple[float, ...] = (0.0, -1.3, 1.6, -1.87, -1.57, 0.0)
 """Centre of the action box (rad): the camera looks down at the board from about 0.3 m."""
@@ -274,8 +287,26 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.sensor_mode = check_sensor_mode(sensor_mode, self.sensor_modes)
-        if int(n_validation) < 4:
-            raise ValueError(f"n_validation must be >= 4, got {n_validation}")
+        budget = check_positive_int(budget, "budget", high=MAX_BUDGET)
+        n_validation = check_int(n_validation, "n_validation", low=4, high=MAX_VALIDATION_POSES)
+        validation_seed = check_nonnegative_int(validation_seed, "validation_seed")
+        min_poses = check_positive_int(min_poses, "min_poses")
+        identify_every = check_positive_int(identify_every, "identify_every")
+        invalid_penalty = check_finite_float(
+            invalid_penalty, "invalid_penalty", low=0.0, high=100.0
+        )
+        check_bool(randomize_reality, "randomize_reality")
+        for arg_name, arg, kind in (
+            ("params", params, ArmParams),
+            ("reality", reality, Reality),
+            ("identification", identification, IdentificationSettings),
+            ("measurement", measurement, BoardMeasurementSettings),
+            ("board", board, CodedBoard),
+            ("placement", placement, BoardPlacement),
+            ("view", view, ViewConstraints),
+        ):
+            if arg is not None and not isinstance(arg, kind):
+                raise TypeError(f"{arg_name} must be a {kind.__name__}, got {type(arg).__name__}")
         self.render_mode = render_mode
         self.params = params if params is not None else ArmParams()
         self.randomize_reality = bool(randomize_reality)
@@ -334,6 +365,7 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._nominal_param_vec = self.params.mdh.params()
         # episode state
         self._q_enc = self.home.copy()
+        self._was_reset = False
         self._capture_seconds = 0.0
         self._measure_seconds = 0.0
 
@@ -406,6 +438,7 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         super().reset(seed=seed)
         if options:
             raise ValueError(f"ArmCalib-v0 takes no reset options, got {sorted(options)}")
+        self._was_reset = True
         rng = self.np_random
         if self.randomize_reality:
             self._rebuild(random_arm_reality(rng))
@@ -423,10 +456,10 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     def step(
         self, action: npt.ArrayLike
     ) -> tuple[npt.NDArray[np.float32], float, bool, bool, dict[str, Any]]:
-        a = np.asarray(action, dtype=np.float64)
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"action must be finite, got {a.tolist()}")
-        if a.shape != (6,):
+        if not self._was_reset:
+            raise RuntimeError("call reset() before step() (a campaign starts at reset)")
+        a = check_action_array(action, (6,))
+        if np.shape(action) != (6,):
             raise ValueError(f"action must have shape (6,), got {np.shape(action)}")
         rng = self.np_random
         q_cmd = self.q_from_action(a)

@@ -1,22 +1,96 @@
-"""Pieces shared by the environments."""
+"""Pieces shared by the environments: action checks and constructor-argument checks."""
 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+
+from realitygap.core.checks import check_finite_float, check_positive_int
+
+FloatArray = npt.NDArray[np.float64]
+
+__all__ = [
+    "MAX_PHYSICS_HZ",
+    "check_action_array",
+    "check_bool",
+    "check_rates",
+    "check_twist_action",
+]
+
+MAX_PHYSICS_HZ = 10_000.0
+"""Highest physics rate an env accepts (Hz): beyond it a second of simulation takes minutes."""
+
+
+def check_action_array(action: Any, shape: tuple[int, ...], name: str = "action") -> FloatArray:
+    """``action`` as a finite float64 array of ``shape``.
+
+    Raises
+    ------
+    TypeError
+        Strings, ``None`` or objects that are not numbers, naming the expected
+        dtype and shape.
+    ValueError
+        A wrong shape or a NaN/inf entry.
+    """
+    expected = f"a float array of shape {shape} with entries in [-1, 1]"
+    raw = np.asarray(action) if not isinstance(action, (str, bytes)) else None
+    if raw is None or raw.dtype.kind not in "biuf":
+        got = type(action).__name__ if raw is None else f"dtype {raw.dtype}"
+        raise TypeError(f"{name} must be {expected}, got {got}: {action!r:.60}")
+    a = raw.astype(np.float64).reshape(-1)
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be finite, got {a.tolist()}")
+    if a.size != math.prod(shape):
+        raise ValueError(f"{name} must be {expected}, got shape {raw.shape}")
+    return a.reshape(shape)
 
 
 def check_twist_action(action: npt.ArrayLike) -> tuple[float, float]:
     """Validate a normalised ``(v, ω)`` action and clip it to ``[-1, 1]``.
 
-    Raises ``ValueError`` for a wrong shape or a non-finite entry (a NaN action would
-    otherwise drive the simulation into NaN states silently).
+    Raises ``TypeError`` for a non-numeric action and ``ValueError`` for a wrong
+    shape or a non-finite entry (a NaN action would otherwise drive the simulation
+    into NaN states silently).
     """
-    a = np.asarray(action, dtype=np.float64).reshape(-1)
-    if a.shape != (2,):
-        raise ValueError(f"action must have shape (2,), got {np.shape(action)}")
-    if not (math.isfinite(a[0]) and math.isfinite(a[1])):
-        raise ValueError(f"action must be finite, got {a.tolist()}")
+    a = check_action_array(action, (2,))
     return min(1.0, max(-1.0, float(a[0]))), min(1.0, max(-1.0, float(a[1])))
+
+
+def check_bool(value: Any, name: str) -> bool:
+    """``value`` if it is a ``bool`` (or NumPy bool), else ``TypeError``."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be True or False, got {value!r} ({type(value).__name__})")
+    return bool(value)
+
+
+def check_rates(physics_hz: Any, control_hz: Any) -> tuple[float, float, int]:
+    """Physics and control rates (Hz) and the physics sub-steps per control step.
+
+    Raises
+    ------
+    TypeError, ValueError
+        Non-numbers, NaN, rates ≤ 0, ``physics_hz`` above :data:`MAX_PHYSICS_HZ`,
+        or a ratio that is not a positive whole number.
+    """
+    ph = check_finite_float(
+        physics_hz, "physics_hz", low=0.0, high=MAX_PHYSICS_HZ, strict_low=True, unit="Hz"
+    )
+    ch = check_finite_float(
+        control_hz,
+        "control_hz",
+        low=0.0,
+        high=ph,
+        strict_low=True,
+        unit="Hz",
+        fix="the control rate must not exceed physics_hz",
+    )
+    ratio = ph / ch
+    if abs(ratio - round(ratio)) > 1e-9:
+        raise ValueError(
+            f"physics_hz / control_hz must be a positive whole number, got {ph:g} / {ch:g} = "
+            f"{ratio:g}. Fix: choose a control rate that divides the physics rate"
+        )
+    return ph, ch, check_positive_int(round(ratio), "physics_hz / control_hz")

@@ -86,6 +86,35 @@ def free_route_exists(
     return False
 
 
+MIN_ROOM_HALF_SIZE = 1.0
+"""Smallest room half-size (m) with room for a start and a goal 1 m apart."""
+
+MAX_ROOM_HALF_SIZE = 50.0
+"""Largest room half-size (m): the route check and maps grow with the room's area."""
+
+OBSTACLE_MIN_SPACING = 0.4
+"""Least distance between obstacle centres (m): smallest radius 0.1 m plus 0.3 m clearance."""
+
+
+RSA_JAMMING_DENSITY = 0.547
+"""Covered fraction at which discs dropped at random positions jam (random sequential adsorption)."""
+
+
+def obstacle_capacity(half_size: float) -> int:
+    """How many obstacles :func:`random_layout` may be asked to place in the room.
+
+    Centres are drawn in a square of side ``2 (half_size - 0.4)`` m and lie at
+    least :data:`OBSTACLE_MIN_SPACING` apart, so discs of half that spacing around
+    them do not overlap. Discs dropped at random jam once they cover about
+    :data:`RSA_JAMMING_DENSITY` of the area (random sequential adsorption), which
+    gives this count over the square grown by the disc radius; more can never be
+    drawn in reasonable time.
+    """
+    r = 0.5 * OBSTACLE_MIN_SPACING
+    side = max(2.0 * (half_size - 0.4), 0.0) + 2.0 * r
+    return int(side * side * RSA_JAMMING_DENSITY / (math.pi * r * r))
+
+
 def random_layout(
     rng: np.random.Generator,
     n_obstacles: int,
@@ -96,9 +125,27 @@ def random_layout(
     max_tries: int = 200,
 ) -> list[Primitive]:
     """Draw ``n_obstacles`` boxes and cylinders, none within ``clear_radius`` of the
-    ``keep_clear`` points, and a free route between the first two of them."""
+    ``keep_clear`` points, and a free route between the first two of them.
+
+    Raises
+    ------
+    ValueError
+        If ``n_obstacles`` exceeds :func:`obstacle_capacity`, or three draws in a row
+        could not place them all: the room cannot hold them.
+    RuntimeError
+        If no draw leaves a free route within ``max_tries``.
+    """
+    capacity = obstacle_capacity(half_size)
+    if n_obstacles > capacity:
+        raise ValueError(
+            f"n_obstacles={n_obstacles}: a room of half-size {half_size:g} m cannot hold more "
+            f"than {capacity} obstacles. Fix: fewer obstacles or a larger room_half_size"
+        )
+    crowded = 0
     for _ in range(max_tries):
         prims: list[Primitive] = []
+        centres: list[tuple[float, float]] = []
+        reach: list[float] = []
         attempts = 0
         while len(prims) < n_obstacles and attempts < 50 * max(n_obstacles, 1):
             attempts += 1
@@ -125,9 +172,26 @@ def random_layout(
             pts = np.asarray(keep_clear, dtype=float)
             if np.any(prim.footprint_distance(pts) < clear_radius):
                 continue
-            if prims and np.min(clearance(prims, np.asarray(prim.center))) < 0.3:
-                continue
+            if prims:
+                # footprint distance ≥ centre distance − bounding radius: only near ones matter
+                gap = np.hypot(*(np.asarray(centres) - prim.center).T) - np.asarray(reach)
+                near = [prims[i] for i in np.flatnonzero(gap < 0.3)]
+                if near and np.min(clearance(near, np.asarray(prim.center))) < 0.3:
+                    continue
             prims.append(prim)
+            centres.append(prim.center)
+            reach.append(
+                prim.radius if prim.shape is Shape.CYLINDER else math.hypot(*prim.half_extents)
+            )
+        if len(prims) < n_obstacles:
+            crowded += 1
+            if crowded >= 3:
+                raise ValueError(
+                    f"n_obstacles={n_obstacles}: the room (half-size {half_size:g} m) cannot hold "
+                    f"them; at most {len(prims)} fitted with 0.3 m clearance and the start and "
+                    "goal kept clear. Fix: fewer obstacles or a larger room_half_size"
+                )
+            continue
         if len(keep_clear) < 2 or free_route_exists(
             prims, keep_clear[0], keep_clear[1], robot_radius + 0.02, half_size
         ):

@@ -62,8 +62,9 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
 
+from realitygap.core.checks import check_finite_float
 from realitygap.core.geometry import quat_xyzw_from_matrix, so3_exp
-from realitygap.envs.common import check_twist_action
+from realitygap.envs.common import check_rates, check_twist_action
 from realitygap.envs.tasks.wall_climb import WallClimbRewardWeights, WallClimbTask
 from realitygap.estimators.climb import (
     ClimbEstimate,
@@ -265,10 +266,28 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.sensor_mode = check_sensor_mode(sensor_mode, self.sensor_modes)
-        ratio = physics_hz / control_hz
-        if control_hz <= 0 or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise ValueError(
-                f"physics_hz / control_hz must be a positive whole number, got {physics_hz} / {control_hz}"
+        physics_hz, control_hz, ratio = check_rates(physics_hz, control_hz)
+        success_tol = check_finite_float(
+            success_tol, "success_tol", low=0.0, high=1.0, strict_low=True, unit="m"
+        )
+        detach_margin = check_finite_float(
+            detach_margin, "detach_margin", low=0.0, high=0.5, strict_low=True, unit="m"
+        )
+        if faults is not None and not isinstance(faults, ClimbFaults):
+            raise TypeError(f"faults must be ClimbFaults, got {type(faults).__name__}")
+        if reality is not None and not isinstance(reality, Reality):
+            raise TypeError(f"reality must be a Reality, got {type(reality).__name__}")
+        if reward_weights is not None and not isinstance(reward_weights, WallClimbRewardWeights):
+            raise TypeError(
+                "reward_weights must be WallClimbRewardWeights, got "
+                f"{type(reward_weights).__name__}"
+            )
+        if not isinstance(estimator, str) and not (
+            hasattr(estimator, "reset") and hasattr(estimator, "update")
+        ):
+            raise TypeError(
+                "estimator must be a name or have reset() and update() methods, got "
+                f"{type(estimator).__name__}"
             )
         self.render_mode = render_mode
         self.params = params if params is not None else ClimberParams()
@@ -303,7 +322,7 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self.scene = ClimbWorld(
             self.true_params,
             physics_hz=physics_hz,
-            n_substeps=int(round(ratio)),
+            n_substeps=ratio,
             textured=textured,
         )
         self.robot = ClimberRobot(self.scene, self.true_params)

@@ -49,7 +49,9 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
 
-from realitygap.envs.common import check_twist_action
+from realitygap.core.checks import check_finite_float, check_nonnegative_int, check_positive_int
+from realitygap.envs.common import check_bool, check_rates, check_twist_action
+from realitygap.envs.layouts import MAX_ROOM_HALF_SIZE, MIN_ROOM_HALF_SIZE, obstacle_capacity
 from realitygap.envs.tasks.nav import NavRewardWeights, NavTask
 from realitygap.estimators.base import DiffDriveMeasurement, Estimate, Estimator, Scan
 from realitygap.robots.diffdrive import (
@@ -61,6 +63,9 @@ from realitygap.robots.diffdrive import (
 from realitygap.robots.effects import Reality
 from realitygap.robots.sensors import PlanarScanner, RGBDCamera, SensorMode, check_sensor_mode
 from realitygap.robots.world import Primitive, World
+
+MAX_BEAMS = 4096
+"""Most range beams per scan an env accepts."""
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -158,11 +163,50 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.sensor_mode = check_sensor_mode(sensor_mode, self.sensor_modes)
-        ratio = physics_hz / control_hz
-        if control_hz <= 0 or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise ValueError(
-                f"physics_hz / control_hz must be a positive whole number, got {physics_hz} / {control_hz}"
+        physics_hz, control_hz, ratio = check_rates(physics_hz, control_hz)
+        room_half_size = check_finite_float(
+            room_half_size,
+            "room_half_size",
+            low=MIN_ROOM_HALF_SIZE,
+            high=MAX_ROOM_HALF_SIZE,
+            unit="m",
+        )
+        n_obstacles = check_nonnegative_int(
+            n_obstacles,
+            "n_obstacles",
+            high=obstacle_capacity(room_half_size),
+            fix=f"a room of half-size {room_half_size:g} m holds at most that many obstacles",
+        )
+        success_pos_tol = check_finite_float(
+            success_pos_tol,
+            "success_pos_tol",
+            low=0.0,
+            high=room_half_size,
+            strict_low=True,
+            unit="m",
+        )
+        success_ang_tol = check_finite_float(
+            success_ang_tol,
+            "success_ang_tol",
+            low=0.0,
+            high=math.pi,
+            strict_low=True,
+            unit="rad",
+        )
+        n_beams = check_positive_int(n_beams, "n_beams", high=MAX_BEAMS)
+        for rate_name, rate in (("scan_hz", scan_hz), ("camera_hz", camera_hz)):
+            check_finite_float(
+                rate, rate_name, low=0.0, high=control_hz, strict_low=True, unit="Hz"
             )
+        check_bool(terminate_on_success, "terminate_on_success")
+        if not isinstance(reward_weights, NavRewardWeights):
+            raise TypeError(
+                f"reward_weights must be NavRewardWeights, got {type(reward_weights).__name__}"
+            )
+        if params is not None and not isinstance(params, DiffDriveParams):
+            raise TypeError(f"params must be DiffDriveParams, got {type(params).__name__}")
+        if reality is not None and not isinstance(reality, Reality):
+            raise TypeError(f"reality must be a Reality, got {type(reality).__name__}")
         self.task = NavTask(
             room_half_size=room_half_size,
             n_obstacles=n_obstacles,
@@ -190,7 +234,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             estimator if estimator is not None else default_estimator(self.params, self.sensor_mode)
         )
 
-        self.world = World(physics_hz=physics_hz, n_substeps=int(round(ratio)))
+        self.world = World(physics_hz=physics_hz, n_substeps=ratio)
         self.robot: DiffDriveRobot | None = None
         self.scanner: PlanarScanner | None = None
         self.camera: RGBDCamera | None = None
