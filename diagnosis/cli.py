@@ -18,6 +18,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from realitygap.core.checks import (
+    check_disjoint,
+    check_finite_float,
+    check_output_path,
+    check_positive_int,
+    parse_json_option,
+)
+
 __all__ = ["add_diagnose_parser", "main", "run_diagnose"]
 
 EXAMPLES = """\
@@ -44,7 +52,7 @@ def _parse_kv(text: str, what: str) -> dict[str, Any]:
             raise ValueError(f"{what}: {text} must hold a JSON object")
         return data
     if text.startswith("{"):
-        data = json.loads(text)
+        data = parse_json_option(text, what)
         if not isinstance(data, dict):
             raise ValueError(f"{what}: expected a JSON object")
         return data
@@ -151,9 +159,25 @@ def _diagnose(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"[diagnose] {msg}", file=sys.stderr, flush=True)
 
+    def warn(msg: str) -> None:
+        print(f"warning: {msg}", file=sys.stderr, flush=True)
+
     try:
         if not args.report and not args.json:
             raise ValueError("nothing to write: give --report DIR and/or --json PATH")
+        inputs = [*args.logs, *args.holdout]
+        if args.json:
+            check_output_path(args.json, "--json", inputs=inputs)
+        if args.report:
+            check_output_path(args.report, "--report", inputs=inputs, folder=True)
+        if args.holdout:
+            check_disjoint(args.logs, args.holdout)
+        if args.resample is not None:
+            check_finite_float(args.resample, "--resample", low=0.0, strict_low=True, unit="s")
+        if args.workers is not None:
+            check_positive_int(args.workers, "--workers")
+        check_finite_float(args.window, "--window", low=0.0, strict_low=True, unit="s")
+        check_finite_float(args.rate, "--rate", low=0.0, strict_low=True, unit="Hz")
         options = ReadOptions(
             columns=args.columns,
             decimal=args.decimal,
@@ -169,8 +193,8 @@ def _diagnose(args: argparse.Namespace) -> int:
             rate_hz=args.rate,
             resample=args.resample,
         )
-        train = read_many(args.logs, options)
-        holdout = read_many(args.holdout, options) if args.holdout else None
+        train = read_many(args.logs, options, warn=warn)
+        holdout = read_many(args.holdout, options, warn=warn) if args.holdout else None
         effects = (
             tuple(e.strip() for e in args.effects.split(",") if e.strip()) if args.effects else None
         )

@@ -16,15 +16,22 @@ with a message naming both.
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from realitygap.core.checks import (
+    ResourceLimits,
+    check_finite_float,
+    check_regular_file,
+    check_rows_limit,
+)
 from realitygap.diagnosis.log import Log, LogError, sniff_file_kind
 from realitygap.diagnosis.replay import nominal_odometry, params_to_meta
 from realitygap.robots.diffdrive import DiffDriveParams
@@ -35,6 +42,7 @@ __all__ = [
     "logs_from_optiodom",
     "logs_from_ur10",
     "read_logs",
+    "resample_split",
 ]
 
 _EXT_KIND = {
@@ -87,7 +95,9 @@ class ReadOptions:
     resample: float | None = None
 
 
-def logs_from_optiodom(folder: str | os.PathLike[str]) -> list[Log]:
+def logs_from_optiodom(
+    folder: str | os.PathLike[str], warn: Callable[[str], None] | None = None
+) -> list[Log]:
     """One :class:`Log` per run of an OptiOdom session folder (or of every session below a folder).
 
     Channels: ``pose_gt`` (OptiTrack, start frame), ``ticks`` (cumulative
@@ -98,7 +108,8 @@ def logs_from_optiodom(folder: str | os.PathLike[str]) -> list[Log]:
     (ticks/cycle → m/s) and angular (rad/cycle → rad/s) velocity. The
     firmware's acceleration limits from the robot-log header (``DVMAX``
     ticks/cycle², ``DWMAX`` rad/cycle²) go to ``meta["firmware"]``, so a replay
-    ramps the commands as the robot did.
+    ramps the commands as the robot did. A run too short to be a log is dropped and
+    named through ``warn``.
     """
     from realitygap.diagnosis.importers.optiodom import find_sessions, read_session
 
@@ -108,6 +119,7 @@ def logs_from_optiodom(folder: str | os.PathLike[str]) -> list[Log]:
         raise LogError(
             f"{root}: no OptiOdom session found (expected <ID>/<ID>_metadata.csv below it)"
         )
+    say = warn if warn is not None else (lambda msg: None)
     logs: list[Log] = []
     for sdir in sessions:
         session = read_session(sdir)
@@ -125,6 +137,10 @@ def logs_from_optiodom(folder: str | os.PathLike[str]) -> list[Log]:
         for run in session.runs:
             t = np.asarray(run.time, dtype=float)
             if t.shape[0] < 3:
+                say(
+                    f"{run.path}: run dropped: {t.shape[0]} row(s), a log needs at least 3 "
+                    "(a start, a motion and an end)"
+                )
                 continue
             dt = float(np.median(np.diff(t)))
             inc = np.column_stack([run.ticks_left, run.ticks_right]).astype(float)
@@ -279,8 +295,14 @@ def _looks_like_optiodom(p: Path) -> bool:
     return any(p.glob("*/*_metadata.csv")) or any(p.glob("*/*/*_metadata.csv"))
 
 
-def read_logs(path: str | os.PathLike[str], options: ReadOptions | None = None) -> list[Log]:
+def read_logs(
+    path: str | os.PathLike[str],
+    options: ReadOptions | None = None,
+    warn: Callable[[str], None] | None = None,
+) -> list[Log]:
     """Read one LOG argument (file or folder) into one or more logs.
+
+    ``warn`` receives a message for every run dropped or split (with the reason).
 
     Raises
     ------
@@ -293,6 +315,11 @@ def read_logs(path: str | os.PathLike[str], options: ReadOptions | None = None) 
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"no such file or folder: {p}")
+    if not p.is_dir():
+        try:
+            check_regular_file(p, "LOG")
+        except ValueError as exc:
+            raise LogError(str(exc)) from None
     kind = sniff_file_kind(p)
     ext = p.suffix.lower()
     if kind != "directory" and ext in _EXT_KIND and kind not in _EXT_KIND[ext]:
@@ -304,7 +331,7 @@ def read_logs(path: str | os.PathLike[str], options: ReadOptions | None = None) 
         if (p / "metadata.yaml").is_file():
             logs = [_read_bag(p, opt)]
         elif _looks_like_optiodom(p):
-            logs = logs_from_optiodom(p)
+            logs = logs_from_optiodom(p, warn)
         elif _looks_like_ur10(p):
             logs = logs_from_ur10(p)
         else:
@@ -320,8 +347,10 @@ def read_logs(path: str | os.PathLike[str], options: ReadOptions | None = None) 
     elif kind == "text":
         if not opt.columns:
             raise LogError(
-                f"{p}: a CSV file needs a column map saying which column is what, e.g. "
-                "--columns 't=time:s,cmd.v=v,cmd.w=w,pose_gt.x=x,pose_gt.y=y,pose_gt.theta=yaw'"
+                f"{p}: a CSV file with the header {_header_text(p)}; it is not a known layout "
+                f"(a UR10 measurement file has the columns {', '.join(UR10_KEY_COLUMNS)}), so "
+                "it needs a column map saying which column is what, e.g. --columns "
+                "'t=time:s,cmd.v=v,cmd.w=w,pose_gt.x=x,pose_gt.y=y,pose_gt.theta=yaw'"
             )
         from realitygap.diagnosis.importers.csv_log import read_csv_log
 
@@ -341,12 +370,74 @@ def read_logs(path: str | os.PathLike[str], options: ReadOptions | None = None) 
         logs = [_read_bag(p, opt)]
     else:
         raise LogError(
-            f"{p}: not a log the diagnosis can read (content looks like {kind}); expected a .npz "
+            f"{p}: not a log the diagnosis can read (content looks like {kind}, not text); "
+            "expected a .npz "
             "log, a CSV file, a ROS bag or an OptiOdom session folder"
         )
     if opt.resample is not None:
-        logs = [lg.resampled(opt.resample) for lg in logs]
+        logs = [piece for lg in logs for piece in resample_split(lg, opt.resample, warn)]
     return logs
+
+
+UR10_KEY_COLUMNS = ("Goal x", "measurement_x", "shoulder_pan_joint")
+"""Header names that mark a UR10 laser-tracker measurement file."""
+
+
+def _header_text(p: Path) -> str:
+    try:
+        with open(p, encoding="utf-8-sig", errors="replace") as fh:
+            head = fh.readline(2000).strip()
+    except OSError:
+        return "(unreadable)"
+    return repr(head[:200] + ("…" if len(head) > 200 else ""))
+
+
+def resample_split(
+    log: Log,
+    dt: float,
+    warn: Callable[[str], None] | None = None,
+    limits: ResourceLimits | None = None,
+) -> list[Log]:
+    """``log`` resampled to the step ``dt`` (s), split where its time stamps have gaps.
+
+    A gap longer than ``limits.max_gap_steps`` steps is never bridged by
+    interpolation: the log is split there, each piece is resampled on its own
+    and ``warn`` names the gap. Pieces shorter than 3 rows are dropped (and
+    named). The number of rows is checked against the limits before any array
+    is allocated.
+
+    Raises
+    ------
+    LogError
+        ``dt`` not a positive number, or the resampled log beyond the limits.
+    """
+    lim = limits if limits is not None else ResourceLimits.from_environment()
+    say = warn if warn is not None else (lambda msg: None)
+    try:
+        dt = check_finite_float(dt, "--resample", low=0.0, strict_low=True, unit="s")
+        cols = sum(a.shape[1] for a in log.channels.values()) + 1
+        check_rows_limit(int(log.duration / dt) + 1, cols, f"{log.source}: --resample {dt:g}", lim)
+    except ValueError as exc:
+        raise LogError(str(exc)) from None
+    gaps = np.flatnonzero(np.diff(log.t) > lim.max_gap_steps * dt)
+    bounds = [0, *(int(g) + 1 for g in gaps), log.n]
+    for g in gaps:
+        say(
+            f"{log.source}: a gap of {log.t[g + 1] - log.t[g]:.6g} s after t={log.t[g]:.6g} s is "
+            f"longer than {lim.max_gap_steps:g} resampling steps of {dt:g} s; the run is split "
+            "there instead of inventing rows"
+        )
+    out: list[Log] = []
+    for k, (a, b) in enumerate(itertools.pairwise(bounds)):
+        if b - a < 2 or int((log.t[b - 1] - log.t[a]) / dt) + 1 < 3:
+            say(f"{log.source}: piece {k + 1} (rows {a}..{b - 1}) dropped: shorter than 3 steps")
+            continue
+        piece = log.slice(a, b) if len(bounds) > 2 else log
+        res = piece.resampled(dt)
+        if len(bounds) > 2:
+            res = res.replace(meta={**res.meta, "name": f"{log.name}_part-{k + 1}"})
+        out.append(res)
+    return out
 
 
 def _read_bag(p: Path, opt: ReadOptions) -> Log:
@@ -364,12 +455,25 @@ def _read_bag(p: Path, opt: ReadOptions) -> Log:
 
 
 def read_many(
-    paths: Sequence[str | os.PathLike[str]], options: ReadOptions | None = None
+    paths: Sequence[str | os.PathLike[str]],
+    options: ReadOptions | None = None,
+    warn: Callable[[str], None] | None = None,
 ) -> list[Log]:
-    """:func:`read_logs` over several paths, concatenated."""
+    """:func:`read_logs` over several paths, concatenated.
+
+    Raises
+    ------
+    LogError
+        If no path gave a log (every run dropped), naming the paths.
+    """
     out: list[Log] = []
     for path in paths:
-        out += read_logs(path, options)
+        out += read_logs(path, options, warn)
+    if paths and not out:
+        raise LogError(
+            f"no usable log in {', '.join(map(str, paths))}: every run was dropped (see the "
+            "warnings above for each run and why)"
+        )
     return out
 
 
