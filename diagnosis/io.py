@@ -38,6 +38,7 @@ from realitygap.robots.diffdrive import DiffDriveParams
 
 __all__ = [
     "ReadOptions",
+    "check_plausible",
     "log_from_ur10_series",
     "logs_from_optiodom",
     "logs_from_ur10",
@@ -78,6 +79,9 @@ class ReadOptions:
         Resampling rate of bags.
     resample : float or None
         Resample every log to this step (s) — for jittery time stamps.
+    check_plausible : bool
+        Refuse wheeled logs whose speeds, wheel rates or row rate are physically
+        implausible (:func:`check_plausible`), a sign of a wrong unit.
     """
 
     columns: str | None = None
@@ -93,6 +97,7 @@ class ReadOptions:
     wheels_topic: str | None = None
     rate_hz: float = 20.0
     resample: float | None = None
+    check_plausible: bool = True
 
 
 def logs_from_optiodom(
@@ -374,9 +379,93 @@ def read_logs(
             "expected a .npz "
             "log, a CSV file, a ROS bag or an OptiOdom session folder"
         )
+    if opt.check_plausible:
+        for lg in logs:
+            check_plausible(lg)
     if opt.resample is not None:
         logs = [piece for lg in logs for piece in resample_split(lg, opt.resample, warn)]
     return logs
+
+
+MAX_BASE_SPEED = 10.0
+"""Fastest plausible speed of a wheeled base (m/s)."""
+
+MAX_WHEEL_RPM = 3000.0
+"""Fastest plausible wheel rotation (rev/min)."""
+
+MIN_ROW_RATE = 1.0
+"""Slowest plausible row rate of a wheeled log (Hz); slower suggests a time unit mix-up."""
+
+ODOMETRY_RATIO_RANGE = (0.5, 2.0)
+"""Plausible ratio of wheel-odometry path length to true path length."""
+
+
+def check_plausible(log: Log) -> None:
+    """Refuse a wheeled log whose numbers are physically implausible (a unit mix-up).
+
+    Checked, with the unit in the message: the 99th-percentile speed of
+    ``pose_gt`` and ``pose_est`` (≤ :data:`MAX_BASE_SPEED`), the
+    99th-percentile wheel rate from ``ticks`` and ``ticks_per_rev``
+    (≤ :data:`MAX_WHEEL_RPM`), the row rate (≥ :data:`MIN_ROW_RATE`), and the
+    wheel-odometry path length against the true one (within
+    :data:`ODOMETRY_RATIO_RANGE` when the robot moved more than 0.5 m).
+
+    Raises
+    ------
+    LogError
+        Naming the file, the channel, the value with its unit, the bound and the likely fix.
+    """
+    if str(log.meta.get("robot", "diffdrive")) != "diffdrive" or log.n < 3:
+        return
+    src = log.source or log.name
+    dt = np.diff(log.t)
+    rate = 1.0 / float(np.median(dt))
+    if rate < MIN_ROW_RATE:
+        raise LogError(
+            f"{src}: rows arrive at {rate:.3g} Hz over {log.duration / 3600:.3g} h, implausible "
+            f"for a wheeled log (at least {MIN_ROW_RATE:g} Hz expected). Fix: a time column in "
+            "ms or µs declared as s? give its unit in the column map, e.g. 't=time:ms'"
+        )
+    paths: dict[str, float] = {}
+    for name in ("pose_gt", "pose_est"):
+        if log.has(name):
+            step = np.hypot(*np.diff(log[name][:, :2], axis=0).T)
+            paths[name] = float(step.sum())
+            speed = float(np.percentile(step / dt, 99))
+            if speed > MAX_BASE_SPEED:
+                raise LogError(
+                    f"{src}: channel {name!r} moves at {speed:.4g} m/s (99th percentile), "
+                    f"implausible for a wheeled robot (≤ {MAX_BASE_SPEED:g} m/s). Fix: positions "
+                    "in mm or cm declared as m? give the unit in the column map, e.g. "
+                    f"'{name}.x=x:mm'"
+                )
+    params = log.meta.get("params", {})
+    tpr = params.get("ticks_per_rev") if isinstance(params, dict) else None
+    if log.has("ticks") and isinstance(tpr, (int, float)) and tpr > 0:
+        dticks = np.abs(np.diff(log["ticks"], axis=0))
+        rpm = float(np.percentile(dticks.max(axis=1) / dt, 99)) / tpr * 60.0
+        if rpm > MAX_WHEEL_RPM:
+            raise LogError(
+                f"{src}: channel 'ticks' turns a wheel at {rpm:.4g} rev/min (99th percentile, "
+                f"with ticks_per_rev={tpr:g}), implausible (≤ {MAX_WHEEL_RPM:g} rev/min). Fix: "
+                "check ticks_per_rev in --params and whether the counts are scaled"
+            )
+        radius = 0.5 * (
+            float(params.get("wheel_radius_left", 0.0))
+            + float(params.get("wheel_radius_right", 0.0))
+        )
+        truth = paths.get("pose_gt", 0.0)
+        if radius > 0 and truth > 0.5:
+            wheel = float(np.sum(np.abs(np.diff(log["ticks"].mean(axis=1)))))
+            ratio = wheel * 2.0 * math.pi * radius / tpr / truth
+            lo, hi = ODOMETRY_RATIO_RANGE
+            if not lo <= ratio <= hi:
+                raise LogError(
+                    f"{src}: the wheels travelled {ratio:.3g} × the true path length "
+                    f"({truth:.3g} m of 'pose_gt'), outside the plausible {lo:g}–{hi:g}. Fix: "
+                    "scaled tick counts (e.g. quadrature ×4), a wrong ticks_per_rev or wheel "
+                    "radius in --params, or pose_gt in the wrong unit"
+                )
 
 
 UR10_KEY_COLUMNS = ("Goal x", "measurement_x", "shoulder_pan_joint")

@@ -18,12 +18,11 @@ drops the rows. Every error names the file, the line or column and the fix.
 from __future__ import annotations
 
 import csv
-import io
 import json
 import math
 import os
 import re
-from collections.abc import Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,6 +30,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.checks import ResourceLimits, check_regular_file, check_rows_limit
 from realitygap.diagnosis.log import (
     Log,
     LogError,
@@ -159,6 +159,54 @@ def _sniff_delimiter(lines: list[str]) -> str:
         return best if counts[best] else ","
 
 
+def regularise_rounded_time(t: FloatArray, quantum: float) -> tuple[FloatArray, bool]:
+    """A regular time base if ``t`` is one written with too few decimals.
+
+    A 20 Hz log written with 3 decimals has steps of 49–51 ms: each stamp is a
+    regular grid point ``t0 + k·dt`` rounded to ``quantum`` (s). When every stamp
+    lies within ``quantum / 2`` of the least-squares grid (plus float noise) the
+    grid is returned (and ``True``); otherwise ``t`` itself (and ``False``): real
+    jitter or gaps are never smoothed away.
+    """
+    n = t.shape[0]
+    if n < 3 or not np.all(np.isfinite(t)) or quantum <= 0:
+        return t, False
+    k = np.arange(n, dtype=float)
+    dt, t0 = np.polyfit(k, t, 1)
+    grid = t0 + dt * k
+    if dt <= 0 or np.max(np.abs(t - grid)) > 0.5 * quantum + 1e-9 * max(abs(t[-1]), 1.0):
+        return t, False
+    step = np.diff(t)
+    if np.allclose(step, dt, rtol=1e-9, atol=0.0):
+        return t, False
+    return grid, True
+
+
+def _data_lines(fh: Iterable[str]) -> Iterator[str]:
+    """The lines of a CSV file that are neither blank nor ``#`` comments."""
+    for line in fh:
+        if line.strip() and not line.lstrip().startswith("#"):
+            yield line
+
+
+def _scan_lines(path: Path, encoding: str) -> tuple[list[str], int, str, bool]:
+    """One streaming pass: the first 60 data lines, their count, the last one, and
+    whether the file ends with a newline."""
+    head: list[str] = []
+    n = 0
+    last = ""
+    with open(path, encoding=encoding, newline="") as fh:
+        for line in _data_lines(fh):
+            if n < 60:
+                head.append(line.rstrip("\r\n"))
+            n += 1
+            last = line
+    with open(path, "rb") as fb:
+        fb.seek(max(path.stat().st_size - 1, 0))
+        ends_newline = fb.read(1) in (b"\n", b"\r")
+    return head, n, last, ends_newline
+
+
 _DEC_COMMA = re.compile(r"^\s*[-+]?\d+,\d+([eE][-+]?\d+)?\s*$")
 
 
@@ -209,8 +257,12 @@ def read_csv_log(
         non-monotonic time.
     """
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise FileNotFoundError(f"CSV file not found: {path}")
+    try:
+        check_regular_file(path, "CSV file")
+    except ValueError as exc:
+        raise LogError(str(exc)) from None
     cmap = (
         column_map
         if isinstance(column_map, ColumnMap)
@@ -228,32 +280,30 @@ def read_csv_log(
             f"{path}: not a text CSV file (its content looks like {kind}); whatever its extension, "
             "pass it with the matching importer (a .npz log, a ROS bag)"
         )
-    raw = path.read_bytes()
+    lim = ResourceLimits.from_environment()
+    size = path.stat().st_size
+    if size > lim.max_file_bytes:
+        raise LogError(
+            f"{path}: {size / 2**20:.0f} MB is more than the {lim.max_file_bytes / 2**20:.0f} MB a "
+            "CSV log may have. Fix: split the file, or raise the limit with the environment "
+            "variable REALITYGAP_MAX_FILE_MB"
+        )
+    encoding = "utf-8-sig"
     try:
-        text = raw.decode("utf-8-sig")
+        head, n_lines, last, ends_newline = _scan_lines(path, encoding)
     except UnicodeDecodeError:
-        text = raw.decode("latin-1")
-    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-    if len(lines) < 3:
+        encoding = "latin-1"
+        head, n_lines, last, ends_newline = _scan_lines(path, encoding)
+    if n_lines < 3:
         raise LogError(f"{path}: expected a header row and at least two data rows")
-    delim = delimiter or _sniff_delimiter(lines)
-    rows = list(csv.reader(io.StringIO("\n".join(lines)), delimiter=delim))
-    header = [h.strip() for h in rows[0]]
-    data_rows = rows[1:]
+    delim = delimiter or _sniff_delimiter(head)
+    header = [h.strip() for h in next(csv.reader([head[0]], delimiter=delim))]
     width = len(header)
-    for i, r in enumerate(data_rows, start=2):
-        if len(r) != width:
-            hint = ""
-            if delim == "," and len(r) > width:
-                hint = (
-                    " — decimal commas in a comma-separated file? Fix: export with ';' as the "
-                    "separator (decimal commas are then understood) or with '.' decimals"
-                )
-            raise LogError(f"{path}, line {i}: {len(r)} fields but the header has {width}{hint}")
+    sample_rows = list(csv.reader(head[1:], delimiter=delim))
     if decimal is None:
         decimal = "."
         if delim != ",":
-            sample = [c for r in data_rows[:50] for c in r]
+            sample = [c for r in sample_rows[:50] for c in r]
             if sum(bool(_DEC_COMMA.match(c)) for c in sample) > 0:
                 decimal = ","
     elif decimal not in (".", ","):
@@ -277,26 +327,65 @@ def read_csv_log(
             )
         return header.index(col)
 
-    values: dict[str, FloatArray] = {}
-    for target, (col, unit) in cmap.entries.items():
-        j = col_index(target, col)
-        out = np.empty(len(data_rows))
-        for i, r in enumerate(data_rows):
-            cell = r[j]
-            try:
-                out[i] = _to_float(cell, decimal)
-            except ValueError:
+    targets = list(cmap.entries)
+    index = [col_index(t, cmap.entries[t][0]) for t in targets]
+    n_rows = n_lines - 1
+    try:
+        check_rows_limit(n_rows, len(targets), str(path), lim)
+    except ValueError as exc:
+        raise LogError(str(exc)) from None
+    table = np.empty((n_rows, len(targets)))
+    widths: list[list[int]] = []
+    with open(path, encoding=encoding, newline="") as fh:
+        rows = csv.reader(_data_lines(fh), delimiter=delim)
+        next(rows)
+        for i, r in enumerate(rows):
+            line_no = i + 2
+            if len(r) != width:
                 hint = ""
-                if decimal == "." and _DEC_COMMA.match(cell):
-                    hint = " — a decimal comma; Fix: pass decimal=',' (CLI --decimal ,)"
+                if delim == "," and len(r) > width:
+                    hint = (
+                        " — decimal commas in a comma-separated file? Fix: export with ';' as "
+                        "the separator (decimal commas are then understood) or with '.' decimals"
+                    )
+                if i == n_rows - 1 and not ends_newline:
+                    hint += " — the last line has no newline: the file looks cut off"
                 raise LogError(
-                    f"{path}, line {i + 2}, column {header[j]!r} ({target}): expected a number, "
-                    f"got {cell.strip()!r}{hint}"
-                ) from None
+                    f"{path}, line {line_no}: {len(r)} fields but the header has {width}{hint}"
+                )
+            if i >= n_rows - 21:
+                widths.append([len(r[j].strip()) for j in index])
+            for k, j in enumerate(index):
+                cell = r[j]
+                try:
+                    table[i, k] = _to_float(cell, decimal)
+                except ValueError:
+                    hint = ""
+                    if decimal == "." and _DEC_COMMA.match(cell):
+                        hint = " — a decimal comma; Fix: pass decimal=',' (CLI --decimal ,)"
+                    raise LogError(
+                        f"{path}, line {line_no}, column {header[j]!r} ({targets[k]}): expected "
+                        f"a number, got {cell.strip()!r}{hint}"
+                    ) from None
+    if not ends_newline and len(widths) > 1:
+        before = np.min(np.asarray(widths[:-1]), axis=0)
+        short = [k for k, w in enumerate(widths[-1]) if w < before[k]]
+        if short:
+            k = short[0]
+            raise LogError(
+                f"{path}: the last line ({last.strip()!r:.80}) has no newline and its field "
+                f"{header[index[k]]!r} is narrower than in every line before it: the file looks "
+                "cut off mid-write. Fix: delete the last line, or end the file with a newline "
+                "if the line is complete"
+            )
+    values: dict[str, FloatArray] = {}
+    for k, target in enumerate(targets):
+        unit = cmap.entries[target][1]
         si = "s" if target == "t" else _default_unit(target)
         values[target] = convert_units(
-            out, unit, si, what=f"{path}: column {header[j]!r} ({target})"
+            table[:, k], unit, si, what=f"{path}: column {header[index[k]]!r} ({target})"
         )
+    del table
 
     stacked = np.column_stack(list(values.values()))
     bad = ~np.isfinite(stacked)
@@ -323,6 +412,12 @@ def read_csv_log(
                     values[k] = fill_gaps(values["t"], values[k])
 
     t = values.pop("t")
+    t_col = index[targets.index("t")]
+    decimals = max(
+        (len(r[t_col].strip().partition(".")[2]) for r in sample_rows if len(r) > t_col), default=0
+    )
+    quantum = float(convert_units(10.0**-decimals, cmap.entries["t"][1], "s"))
+    t, regularised = regularise_rounded_time(t, quantum)
     channels: dict[str, FloatArray] = {}
     by_channel: dict[str, dict[str, FloatArray]] = {}
     for target, v in values.items():
@@ -356,4 +451,9 @@ def read_csv_log(
         "source": str(path),
     }
     full_meta.update(dict(meta or {}))
+    if regularised:
+        full_meta["time_regularised"] = (
+            f"time written with {decimals} decimals; stamps replaced by the regular grid they "
+            "round to"
+        )
     return Log(t=t, channels=channels, meta=full_meta, source=str(path))
