@@ -19,6 +19,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from realitygap.core.checks import int_option
+
 
 def show_progress(logger_name: str, stream: Any) -> None:
     """Print the ``INFO`` lines of logger ``logger_name`` (training or benchmark progress)
@@ -53,10 +55,12 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
         default="classical,ppo,sac,random",
         help="comma-separated: classical, ppo, sac, random, or name=path/to/model.zip",
     )
-    p.add_argument("--episodes", type=int, default=50, help="episodes per cell (default 50)")
+    p.add_argument(
+        "--episodes", type=int_option(1), default=50, help="episodes per cell (default 50)"
+    )
     p.add_argument(
         "--image-episodes",
-        type=int,
+        type=int_option(1),
         default=10,
         help="episodes per cell in image sensor mode, which renders and is ~50x slower "
         "(default 10)",
@@ -71,12 +75,17 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument(
         "--sensor-modes", default="fast,image", help="fast and/or image (default fast,image)"
     )
-    p.add_argument("--seed", type=int, default=0, help="episode k uses env seed 1000*seed + k")
+    p.add_argument(
+        "--seed", type=int_option(0), default=0, help="episode k uses env seed 1000*seed + k"
+    )
     p.add_argument("--out", default="runs/benchmark", help="output folder (default runs/benchmark)")
     p.add_argument("--backend", choices=("local", "ray"), default="local")
     p.add_argument("--address", default=None, help="Ray cluster address (default: a local one)")
     p.add_argument(
-        "--workers", type=int, default=1, help="local worker processes (default 1: in-process)"
+        "--workers",
+        type=int_option(1),
+        default=1,
+        help="local worker processes (default 1: in-process)",
     )
     p.add_argument("--fresh", action="store_true", help="discard finished episodes in --out")
     p.add_argument(
@@ -86,7 +95,10 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
         "of loading the shipped ones",
     )
     p.add_argument(
-        "--train-timesteps", type=int, default=None, help="training budget (default: files)"
+        "--train-timesteps",
+        type=int_option(1),
+        default=None,
+        help="training budget (default: files)",
     )
     p.add_argument("--train-seeds", default="0", help="training seeds, comma-separated")
     p.add_argument("--silent", action="store_true", help="no progress output")
@@ -102,9 +114,11 @@ def add_train_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     p.add_argument("--env", default="realitygap/WheeledNav-v0", help="env id")
     p.add_argument("--algo", choices=("ppo", "sac"), default="ppo")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--timesteps", type=int, default=None, help="budget (default: file)")
-    p.add_argument("--n-envs", type=int, default=None, help="parallel envs (default: file)")
+    p.add_argument("--seed", type=int_option(0), default=0)
+    p.add_argument("--timesteps", type=int_option(1), default=None, help="budget (default: file)")
+    p.add_argument(
+        "--n-envs", type=int_option(1), default=None, help="parallel envs (default: file)"
+    )
     p.add_argument(
         "--vec-env", choices=("subproc", "dummy"), default=None, help="default: the file's"
     )
@@ -118,11 +132,16 @@ def add_train_parser(subparsers: Any) -> argparse.ArgumentParser:
             "or a PPO policy's exported weights (.pth + .json, e.g. a shipped policy)"
         ),
     )
-    p.add_argument("--eval-every", type=int, default=50_000, help="steps between evaluations")
     p.add_argument(
-        "--checkpoint-every", type=int, default=100_000, help="steps between checkpoints (0: none)"
+        "--eval-every", type=int_option(1), default=50_000, help="steps between evaluations"
     )
-    p.add_argument("--eval-episodes", type=int, default=20)
+    p.add_argument(
+        "--checkpoint-every",
+        type=int_option(0),
+        default=100_000,
+        help="steps between checkpoints (0: none)",
+    )
+    p.add_argument("--eval-episodes", type=int_option(1), default=20)
     p.add_argument(
         "--ship",
         action="store_true",

@@ -14,12 +14,13 @@ raises it.
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import numbers
 import os
 import stat
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,6 +37,7 @@ __all__ = [
     "check_positive_int",
     "check_regular_file",
     "check_rows_limit",
+    "int_option",
     "parse_json_option",
 ]
 
@@ -70,7 +72,7 @@ def check_int(
         NaN/inf, a fraction, or outside ``[low, high]``.
     """
     tail = f". Fix: {fix}" if fix else ""
-    rng = _range_text(low, high)
+    rng = "" if what != "an integer" and high is None else _range_text(low, high)
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise TypeError(f"{name} must be {what}{rng}, got {_describe(value)}{tail}")
     if isinstance(value, numbers.Integral):
@@ -138,6 +140,30 @@ def check_finite_float(
     if bad:
         raise ValueError(f"{name} must be a finite number{rng}, got {value!r}{tail}")
     return f
+
+
+def int_option(low: int = 0, high: int | None = None) -> Callable[[str], int]:
+    """An ``argparse`` ``type=`` converter for integers in ``[low, high]``.
+
+    ``argparse`` prefixes its message with the option (``argument --seed: expected
+    a non-negative integer, got -5``).
+    """
+
+    def convert(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        what = {0: "a non-negative integer", 1: "a positive integer"}.get(low, "an integer")
+        if value is None or value < low or (high is not None and value > high):
+            raise argparse.ArgumentTypeError(
+                f"expected {what}{_range_text(low, high) if low not in (0, 1) or high else ''}, "
+                f"got {text!r}"
+            )
+        return value
+
+    convert.__name__ = "integer"
+    return convert
 
 
 def check_choice(value: Any, name: str, choices: Iterable[Any]) -> Any:

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from realitygap.core.checks import check_nonnegative_int
 from realitygap.core.io import atomic_write_text
 
 _MODULES = (
@@ -48,6 +49,17 @@ class RunContext:
     data_dir: Path | None = None
     options: dict[str, Any] = field(default_factory=dict)
     verbose: bool = True
+
+    def check(self) -> RunContext:
+        """Validate the fields (``ValueError``/``TypeError`` naming the option); returns self."""
+        self.seed = check_nonnegative_int(
+            self.seed, "--seed", fix="seeds of NumPy generators and envs are ≥ 0"
+        )
+        if not isinstance(self.quick, bool):
+            raise TypeError(f"quick must be True or False, got {self.quick!r}")
+        if not isinstance(self.options, dict):
+            raise TypeError(f"options must be a dict, got {type(self.options).__name__}")
+        return self
 
     def progress(self, message: str) -> None:
         """Report progress of a long run on stderr (keeps stdout for the result table)."""
@@ -161,6 +173,7 @@ def run(
 ) -> dict[str, Any]:
     """Run experiment ``name`` and return its result (also written to ``json_path`` if given)."""
     exp = get(name)
+    ctx.check()
     start = time.perf_counter()
     out = exp.func(ctx)
     if "figures" not in out:
