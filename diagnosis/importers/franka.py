@@ -17,12 +17,13 @@ Expected arrays (``np.load(..., allow_pickle=False)``):
 from __future__ import annotations
 
 import difflib
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
+
+from realitygap.diagnosis.importers.archive import ArchiveError, read_log_archive
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -99,22 +100,20 @@ def read_franka_npz(path: str | Path) -> FrankaEyeInHandData:
         if fh.read(4) != b"PK\x03\x04":
             raise ValueError(f"{p.name}: not a readable .npz archive (no zip signature)")
     try:
-        with np.load(p, allow_pickle=False) as z:
-            keys = list(z.files)
-            missing = [k for k in REQUIRED_KEYS if k not in keys]
-            if missing:
-                hints = {k: difflib.get_close_matches(k, keys, n=1) for k in missing}
-                raise ValueError(
-                    f"{p.name}: missing array(s) {missing}; found {keys}"
-                    + "".join(f"; for {k!r} did you mean {h[0]!r}?" for k, h in hints.items() if h)
-                )
-            arrays = {k: z[k] for k in REQUIRED_KEYS}
-    except (zipfile.BadZipFile, OSError) as exc:
-        raise ValueError(f"{p.name}: not a readable .npz archive ({exc})") from exc
-    except ValueError as exc:
-        if "pickle" in str(exc).lower():
-            raise ValueError(f"{p.name}: contains pickled objects, which are refused") from exc
-        raise
+        z = read_log_archive(p)
+    except ArchiveError as exc:
+        if "pickled" in str(exc):
+            raise ValueError(f"{p.name}: contains pickled objects, which are refused") from None
+        raise ValueError(f"{p.name}: not a readable .npz archive ({exc})") from None
+    keys = list(z)
+    missing = [k for k in REQUIRED_KEYS if k not in keys]
+    if missing:
+        hints = {k: difflib.get_close_matches(k, keys, n=1) for k in missing}
+        raise ValueError(
+            f"{p.name}: missing array(s) {missing}; found {keys}"
+            + "".join(f"; for {k!r} did you mean {h[0]!r}?" for k, h in hints.items() if h)
+        )
+    arrays = {k: z[k] for k in REQUIRED_KEYS}
     out: dict[str, FloatArray] = {}
     for k, a in arrays.items():
         if not np.issubdtype(a.dtype, np.number):
