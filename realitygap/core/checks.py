@@ -83,7 +83,7 @@ def check_int(
             raise ValueError(f"{name} must be {what}{rng}, got {value!r}{tail}")
         out = int(f)
     if (low is not None and out < low) or (high is not None and out > high):
-        raise ValueError(f"{name} must be {what}{rng}, got {out}{tail}")
+        raise ValueError(f"{name} must be {what}{rng}, got {value!r}{tail}")
     return out
 
 
