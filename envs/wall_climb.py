@@ -64,7 +64,7 @@ from gymnasium import spaces
 
 from realitygap.core.checks import check_finite_float
 from realitygap.core.geometry import quat_xyzw_from_matrix, so3_exp
-from realitygap.envs.common import check_rates, check_twist_action
+from realitygap.envs.common import check_rates, check_twist_action, release_freed_memory
 from realitygap.envs.tasks.wall_climb import WallClimbRewardWeights, WallClimbTask
 from realitygap.estimators.climb import (
     ClimbEstimate,
@@ -548,6 +548,7 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self.scene.close()
         self._state = None
         self._closed = True
+        release_freed_memory()
 
     # ------------------------------------------------------------------ internals
     def _set_estimate(self, est: ClimbEstimate) -> None:
