@@ -17,6 +17,7 @@ FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 __all__ = [
+    "check_last_line",
     "locate_bad_row",
     "make_readonly",
     "numeric_file",
@@ -92,7 +93,11 @@ def numeric_rows(
 
 
 def numeric_file(path: Path, columns: tuple[str, ...]) -> FloatArray:
-    """Every non-empty line of ``path`` as a row of ``len(columns)`` finite numbers."""
+    """Every non-empty line of ``path`` as a row of ``len(columns)`` finite numbers.
+
+    A last line without its newline that looks cut off (:func:`check_last_line`) is
+    an error.
+    """
     lines = read_text_lines(path)
     numbered = [(i + 1, ln) for i, ln in enumerate(lines) if ln.strip()]
     if not numbered:
@@ -100,7 +105,55 @@ def numeric_file(path: Path, columns: tuple[str, ...]) -> FloatArray:
             f"{path}: empty file, expected rows of {len(columns)} comma-separated numbers "
             f"({', '.join(columns)})"
         )
+    check_last_line(path, numbered, columns)
     return numeric_rows(path, numbered, columns)
+
+
+def check_last_line(
+    path: Path, numbered: list[tuple[int, str]], columns: tuple[str, ...], window: int = 20
+) -> None:
+    """Refuse a file whose last line has no newline and looks cut off mid-write.
+
+    A writer killed mid-line leaves e.g. ``…,51,6`` for ``…,51,66``: the line
+    still parses, silently wrong. When the file does not end with a newline, the
+    last line must have as many fields as the header's ``columns`` and no field
+    narrower than the same field in every one of the ``window`` lines before it.
+
+    Raises
+    ------
+    ValueError
+        Naming the file, the line, the field and the fix.
+    """
+    try:
+        with open(path, "rb") as fh:
+            fh.seek(0, 2)
+            if fh.tell() == 0:
+                return
+            fh.seek(-1, 2)
+            if fh.read(1) in (b"\n", b"\r"):
+                return
+    except OSError:
+        return
+    line_no, last = numbered[-1]
+    fields = last.split(",")
+    fix = "Fix: delete the last line, or end the file with a newline if the line is complete"
+    if len(fields) != len(columns):
+        raise ValueError(
+            f"{path}, line {line_no}: the last line has no newline and {len(fields)} of "
+            f"{len(columns)} fields ({', '.join(columns)}): the file looks cut off. {fix}"
+        )
+    before = [ln.split(",") for _, ln in numbered[-window - 1 : -1]]
+    before = [b for b in before if len(b) == len(fields)]
+    if not before:
+        return
+    for j, cell in enumerate(fields):
+        narrowest = min(len(b[j].strip()) for b in before)
+        if len(cell.strip()) < narrowest:
+            raise ValueError(
+                f"{path}, line {line_no}: the last line has no newline and its field "
+                f"{columns[j]} ({cell.strip()!r}) is narrower than in every line before it: "
+                f"the file looks cut off mid-write. {fix}"
+            )
 
 
 def whole_ticks(path: Path, values: FloatArray, column: str, first_line: int = 1) -> IntArray:

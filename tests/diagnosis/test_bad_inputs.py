@@ -284,3 +284,16 @@ def test_training_and_benchmark_counts(argv: list[str], message: str, capsys) ->
     with pytest.raises(SystemExit):
         parser.parse_args(argv)
     assert message in capsys.readouterr().err
+
+
+def test_optiodom_run_cut_inside_its_last_field(tmp_path: Path) -> None:
+    from realitygap.diagnosis.importers.numeric_text import numeric_file
+
+    cols = ("time", "x", "y", "theta", "ticks_right", "ticks_left")
+    rows = [f"{0.05 * k:.2f},0.1,0.2,0.3,51,66" for k in range(30)]
+    f = tmp_path / "s_run-01.csv"
+    f.write_text("\n".join(rows)[:-1])  # "…,51,6" with no newline
+    with pytest.raises(ValueError, match=r"s_run-01\.csv, line 30: .*ticks_left \('6'\).*cut off"):
+        numeric_file(f, cols)
+    f.write_text("\n".join(rows))  # complete, newline missing only
+    assert numeric_file(f, cols)[-1, 5] == 66
