@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.checks import check_rows_limit
 from realitygap.core.geometry import yaw_from_quat_xyzw
 from realitygap.diagnosis.log import Log, LogError, sniff_file_kind
 from realitygap.diagnosis.replay import params_to_meta
@@ -295,6 +296,10 @@ def read_bag(
     t0, t1 = max(starts), min(ends)
     dt = 1.0 / rate_hz
     n = int(math.floor((t1 - t0) / dt + 1e-9)) + 1
+    try:
+        check_rows_limit(n, 3 * len(arrays), f"{p} at --rate {rate_hz:g} Hz")
+    except ValueError as exc:
+        raise LogError(str(exc)) from None
     if n < 3:
         raise LogError(
             f"{p}: the topics overlap for only {max(t1 - t0, 0.0):.3f} s; nothing to diagnose"
