@@ -278,12 +278,20 @@ def check_output_path(
             f"{name} {p}: {ancestor} is a file, so no folder can be made under it. "
             f"Fix: choose another {name} path"
         )
-    if not os.access(ancestor, os.W_OK | os.X_OK):
+    if _read_only_fs(ancestor) or not os.access(ancestor, os.W_OK | os.X_OK):
         raise ValueError(
             f"{name} {p}: the folder {ancestor} is not writable (read-only file system or no "
             f"permission). Fix: choose a writable {name} path"
         )
     return p
+
+
+def _read_only_fs(path: Path) -> bool:
+    """Whether ``path`` lies on a file system mounted read-only (``False`` where unknown)."""
+    try:
+        return bool(os.statvfs(path).f_flag & getattr(os, "ST_RDONLY", 1))
+    except (OSError, AttributeError):
+        return False
 
 
 def check_disjoint(

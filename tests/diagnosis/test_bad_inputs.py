@@ -297,3 +297,14 @@ def test_optiodom_run_cut_inside_its_last_field(tmp_path: Path) -> None:
         numeric_file(f, cols)
     f.write_text("\n".join(rows))  # complete, newline missing only
     assert numeric_file(f, cols)[-1, 5] == 66
+
+
+def test_read_only_file_system_is_named(tmp_path: Path, monkeypatch) -> None:
+    import realitygap.core.checks as checks
+
+    class ReadOnly:
+        f_flag = os.ST_RDONLY
+
+    monkeypatch.setattr(checks.os, "statvfs", lambda path: ReadOnly())
+    with pytest.raises(ValueError, match=r"--report .*not writable \(read-only file system"):
+        check_output_path(tmp_path / "out", "--report", folder=True)
