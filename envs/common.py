@@ -103,6 +103,7 @@ def check_rates(physics_hz: Any, control_hz: Any) -> tuple[float, float, int]:
     ph = check_finite_float(
         physics_hz, "physics_hz", low=0.0, high=MAX_PHYSICS_HZ, strict_low=True, unit="Hz"
     )
+    too_fast = isinstance(control_hz, (int, float)) and control_hz > ph
     ch = check_finite_float(
         control_hz,
         "control_hz",
@@ -110,7 +111,7 @@ def check_rates(physics_hz: Any, control_hz: Any) -> tuple[float, float, int]:
         high=ph,
         strict_low=True,
         unit="Hz",
-        fix="the control rate must not exceed physics_hz",
+        fix="the control rate cannot exceed physics_hz" if too_fast else "",
     )
     ratio = ph / ch
     if abs(ratio - round(ratio)) > 1e-9:

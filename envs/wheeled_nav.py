@@ -175,7 +175,11 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             n_obstacles,
             "n_obstacles",
             high=obstacle_capacity(room_half_size),
-            fix=f"a room of half-size {room_half_size:g} m holds at most that many obstacles",
+            fix=(
+                f"a room of half-size {room_half_size:g} m holds at most that many obstacles"
+                if isinstance(n_obstacles, (int, float)) and n_obstacles > 0
+                else ""
+            ),
         )
         success_pos_tol = check_finite_float(
             success_pos_tol,
