@@ -519,7 +519,8 @@ def resample_split(
         say(
             f"{log.source}: a gap of {log.t[g + 1] - log.t[g]:.6g} s after t={log.t[g]:.6g} s is "
             f"longer than {lim.max_gap_steps:g} resampling steps of {dt:g} s; the run is split "
-            "there instead of inventing rows"
+            "there instead of inventing rows (REALITYGAP_MAX_GAP_STEPS sets how many steps may "
+            "be bridged)"
         )
     out: list[Log] = []
     for k, (a, b) in enumerate(itertools.pairwise(bounds)):

@@ -366,7 +366,7 @@ class ResourceLimits:
         Size of one text log file (default 512 MB); ``REALITYGAP_MAX_FILE_MB``.
     max_gap_steps : float
         Longest time gap, in resampling steps, that resampling may bridge
-        (default 5); a longer one splits the run.
+        (default 5); a longer one splits the run. ``REALITYGAP_MAX_GAP_STEPS``.
     """
 
     max_cells: int = 50_000_000
@@ -375,13 +375,15 @@ class ResourceLimits:
 
     @classmethod
     def from_environment(cls, environ: Mapping[str, str] | None = None) -> ResourceLimits:
-        """The defaults, raised by ``REALITYGAP_MAX_CELLS`` / ``REALITYGAP_MAX_FILE_MB``."""
+        """The defaults, changed by ``REALITYGAP_MAX_CELLS``, ``REALITYGAP_MAX_FILE_MB`` and
+        ``REALITYGAP_MAX_GAP_STEPS``."""
         base = cls()
         return cls(
             max_cells=int(_env_number("REALITYGAP_MAX_CELLS", base.max_cells)),
             max_file_bytes=int(
                 _env_number("REALITYGAP_MAX_FILE_MB", base.max_file_bytes / 2**20) * 2**20
             ),
+            max_gap_steps=_env_number("REALITYGAP_MAX_GAP_STEPS", base.max_gap_steps),
         )
 
 

@@ -308,3 +308,10 @@ def test_read_only_file_system_is_named(tmp_path: Path, monkeypatch) -> None:
     monkeypatch.setattr(checks.os, "statvfs", lambda path: ReadOnly())
     with pytest.raises(ValueError, match=r"--report .*not writable \(read-only file system"):
         check_output_path(tmp_path / "out", "--report", folder=True)
+
+
+def test_gap_limit_can_be_raised(monkeypatch) -> None:
+    log = drive_log(n=200, gap_at=100, gap=0.5)  # a 0.55 s gap: 11 steps of 0.05 s
+    assert len(resample_split(log, 0.05)) == 2
+    monkeypatch.setenv("REALITYGAP_MAX_GAP_STEPS", "20")
+    assert [p.n for p in resample_split(log, 0.05)] == [210]
