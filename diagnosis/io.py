@@ -351,6 +351,9 @@ def read_logs(
         logs = logs_from_ur10(p)
     elif kind == "text":
         if not opt.columns:
+            near = _ur10_near_miss(p)
+            if near:
+                raise LogError(near)
             raise LogError(
                 f"{p}: a CSV file with the header {_header_text(p)}; it is not a known layout "
                 f"(a UR10 measurement file has the columns {', '.join(UR10_KEY_COLUMNS)}), so "
@@ -475,6 +478,33 @@ def _check_plausible(log: Log) -> None:
 
 UR10_KEY_COLUMNS = ("Goal x", "measurement_x", "shoulder_pan_joint")
 """Header names that mark a UR10 laser-tracker measurement file."""
+
+
+def _ur10_near_miss(p: Path) -> str | None:
+    """The message for a file with most, but not all, UR10 measurement columns (else None)."""
+    import difflib
+
+    from realitygap.diagnosis.importers.ur10 import REQUIRED_COLUMNS
+
+    try:
+        with open(p, encoding="utf-8-sig", errors="replace") as fh:
+            head = fh.readline(20_000).strip()
+    except OSError:
+        return None
+    found = [c.strip() for c in head.replace(";", ",").split(",")]
+    missing = [c for c in REQUIRED_COLUMNS if c not in found]
+    if not missing or len(missing) > len(REQUIRED_COLUMNS) // 2:
+        return None
+    extra = [c for c in found if c and c not in REQUIRED_COLUMNS and c != "Timestamp"]
+    hints = []
+    for c in missing:
+        close = difflib.get_close_matches(c, extra, n=1, cutoff=0.6)
+        hints.append(f"{c!r}" + (f" (found {close[0]!r})" if close else ""))
+    return (
+        f"{p}: looks like a UR10 laser-tracker measurement file, but the header lacks "
+        f"{', '.join(hints)}; expected the columns {', '.join(REQUIRED_COLUMNS)}. Fix: restore the "
+        "column names (or pass a column map with --columns for another layout)"
+    )
 
 
 def _header_text(p: Path) -> str:

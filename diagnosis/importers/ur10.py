@@ -38,6 +38,7 @@ FloatArray = npt.NDArray[np.float64]
 
 __all__ = [
     "JOINT_COLUMNS",
+    "REQUIRED_COLUMNS",
     "UR10Dataset",
     "UR10HandEyeData",
     "UR10Series",
@@ -72,6 +73,9 @@ _REQUIRED = (
     "measurement_ry",
     "measurement_rz",
 )
+REQUIRED_COLUMNS: tuple[str, ...] = _REQUIRED
+"""The columns every UR10 measurement file has (besides ``Timestamp``)."""
+
 _STD = (
     "measurement_std_x",
     "measurement_std_y",

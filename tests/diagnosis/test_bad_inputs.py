@@ -184,7 +184,7 @@ def test_not_text_and_renamed_ur10_columns(tmp_path: Path) -> None:
         read_logs(junk)
     ur = tmp_path / "m.csv"
     ur.write_text("Timestamp;Goal x;measurement_X;shoulder_pan_joint\n1;2;3;4\n")
-    with pytest.raises(LogError, match=r"header 'Timestamp;Goal x;measurement_X.*measurement_x"):
+    with pytest.raises(LogError, match=r"header .Timestamp;Goal x;measurement_X.*measurement_x"):
         read_logs(ur)
 
 
@@ -315,3 +315,17 @@ def test_gap_limit_can_be_raised(monkeypatch) -> None:
     assert len(resample_split(log, 0.05)) == 2
     monkeypatch.setenv("REALITYGAP_MAX_GAP_STEPS", "20")
     assert [p.n for p in resample_split(log, 0.05)] == [210]
+
+
+def test_ur10_file_with_a_renamed_column_names_it(tmp_path: Path) -> None:
+    from realitygap.diagnosis.importers.ur10 import REQUIRED_COLUMNS
+
+    cols = ["Timestamp", *(c if c != "measurement_x" else "meas_x" for c in REQUIRED_COLUMNS)]
+    f = tmp_path / "measurements_1.csv"
+    f.write_text(";".join(cols) + "\n" + ";".join(["1"] * len(cols)) + "\n")
+    with pytest.raises(
+        LogError,
+        match=r"measurements_1\.csv: looks like a UR10 .*lacks "
+        r"'measurement_x' \(found 'meas_x'\)",
+    ):
+        read_logs(f)
