@@ -13,6 +13,8 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.checks import check_regular_file
+
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
@@ -30,6 +32,8 @@ __all__ = [
 def read_text_lines(path: Path) -> list[str]:
     """The lines of a UTF-8 text file (a BOM is dropped); ``ValueError`` naming the file if it
     cannot be read or is not UTF-8 text."""
+    if path.exists():
+        check_regular_file(path, "file")  # a FIFO would block the read forever
     try:
         raw = path.read_bytes()
     except FileNotFoundError:

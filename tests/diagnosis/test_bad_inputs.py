@@ -329,3 +329,12 @@ def test_ur10_file_with_a_renamed_column_names_it(tmp_path: Path) -> None:
         r"'measurement_x' \(found 'meas_x'\)",
     ):
         read_logs(f)
+
+
+def test_fifo_inside_a_session_folder_is_refused(tmp_path: Path) -> None:
+    from realitygap.diagnosis.importers.numeric_text import read_text_lines
+
+    f = tmp_path / "s_run-01.csv"
+    os.mkfifo(f)
+    with pytest.raises(ValueError, match=r"s_run-01\.csv is a FIFO \(named pipe\), not a regular"):
+        read_text_lines(f)
