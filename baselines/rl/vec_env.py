@@ -101,3 +101,108 @@ def measure_vec_env_speed(
         out[f"{kind}_steps_per_s"] = n_iter * n_envs / (time.perf_counter() - t0)
         venv.close()
     return out
+
+
+def sb3_vector_env(env: gym.vector.VectorEnv[Any, Any, Any]) -> Any:
+    """A same-step-autoreset Gymnasium ``VectorEnv`` (e.g. ``realitygap/WheeledNavVec-v0``) as
+    an SB3 ``VecEnv``: one batched call per step, with SB3's per-env ``infos`` (``is_success``,
+    ``collision``, ``pos_error``, ``terminal_observation``, ``TimeLimit.truncated`` and a
+    Monitor-style ``episode`` record on the step an episode ends)."""
+    require_sb3()
+    from gymnasium.vector import AutoresetMode
+
+    if env.metadata.get("autoreset_mode") is not AutoresetMode.SAME_STEP:
+        raise ValueError(
+            f"{type(env).__name__} must reset finished sub-envs in the same step "
+            f"(metadata['autoreset_mode'] = AutoresetMode.SAME_STEP), got "
+            f"{env.metadata.get('autoreset_mode')!r}"
+        )
+    return _SB3VectorEnv(env)
+
+
+def _make_sb3_vector_env_class() -> type:
+    from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+    class SB3VectorEnv(VecEnv):  # type: ignore[misc]
+        """SB3 view of a batched Gymnasium ``VectorEnv`` (see :func:`sb3_vector_env`)."""
+
+        def __init__(self, venv: gym.vector.VectorEnv[Any, Any, Any]):
+            self.venv = venv
+            super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
+            self._actions: np.ndarray | None = None
+            self._seed: int | None = None
+            self._returns = np.zeros(venv.num_envs)
+            self._lengths = np.zeros(venv.num_envs, dtype=np.int64)
+            self._t0 = time.perf_counter()
+
+        def reset(self) -> np.ndarray:
+            obs, _ = self.venv.reset(seed=self._seed)
+            self._seed = None
+            self._returns[:] = 0.0
+            self._lengths[:] = 0
+            return obs
+
+        def step_async(self, actions: np.ndarray) -> None:
+            self._actions = np.asarray(actions)
+
+        def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
+            assert self._actions is not None, "step_async before step_wait"
+            obs, reward, term, trunc, info = self.venv.step(self._actions)
+            done = term | trunc
+            self._returns += reward
+            self._lengths += 1
+            infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+            final = info.get("final_info", info)
+            for i in np.flatnonzero(done):
+                d = infos[i]
+                d["terminal_observation"] = info["final_obs"][i]
+                d["TimeLimit.truncated"] = bool(trunc[i] and not term[i])
+                for key in ("is_success", "collision", "pos_error"):
+                    if key in final:
+                        d[key] = final[key][i].item()
+                d["episode"] = {
+                    "r": float(self._returns[i]),
+                    "l": int(self._lengths[i]),
+                    "t": round(time.perf_counter() - self._t0, 6),
+                }
+            self._returns[done] = 0.0
+            self._lengths[done] = 0
+            return obs, np.asarray(reward, dtype=np.float32), done, infos
+
+        def close(self) -> None:
+            self.venv.close()
+
+        def seed(self, seed: int | None = None) -> list[int | None]:
+            self._seed = seed
+            return [None if seed is None else seed + i for i in range(self.num_envs)]
+
+        def get_attr(self, attr_name: str, indices: Any = None) -> list[Any]:
+            value = getattr(self.venv.unwrapped, attr_name)
+            return [value for _ in self._get_indices(indices)]
+
+        def set_attr(self, attr_name: str, value: Any, indices: Any = None) -> None:
+            setattr(self.venv.unwrapped, attr_name, value)
+
+        def env_method(
+            self, method_name: str, *method_args: Any, indices: Any = None, **method_kwargs: Any
+        ) -> list[Any]:
+            out = getattr(self.venv.unwrapped, method_name)(*method_args, **method_kwargs)
+            return [out for _ in self._get_indices(indices)]
+
+        def env_is_wrapped(self, wrapper_class: type, indices: Any = None) -> list[bool]:
+            return [False for _ in self._get_indices(indices)]
+
+        def get_images(self) -> list[Any]:
+            return [None for _ in range(self.num_envs)]
+
+    return SB3VectorEnv
+
+
+def _SB3VectorEnv(env: gym.vector.VectorEnv[Any, Any, Any]) -> Any:
+    global _SB3_CLASS
+    if _SB3_CLASS is None:
+        _SB3_CLASS = _make_sb3_vector_env_class()
+    return _SB3_CLASS(env)
+
+
+_SB3_CLASS: type | None = None
