@@ -403,23 +403,29 @@ class BatchScenery:
 
     def clearance(self, xy: FloatArray) -> FloatArray:
         """Signed distance (N,) from each robot's point ``xy`` (N, 2) to its nearest footprint."""
+        return self.clearance_of(np.arange(self.n), xy)
+
+    def clearance_of(self, idx: npt.NDArray[np.intp], xy: FloatArray) -> FloatArray:
+        """Signed distance (M,) from point ``xy[k]`` (M, 2) to the nearest footprint of
+        robot ``idx[k]``'s scenery (as :meth:`Primitive.footprint_distance`)."""
         h = self.room_half_size
         room = np.minimum(h - np.abs(xy[:, 0]), h - np.abs(xy[:, 1]))
-        best = np.where(self.in_room, room, np.inf)
+        best = np.where(self.in_room[idx], room, np.inf)
         if self.box_center.shape[1]:
-            rx = xy[:, None, 0] - self.box_center[..., 0]
-            ry = xy[:, None, 1] - self.box_center[..., 1]
-            c, s = self.box_cos, self.box_sin
-            qx = np.abs(c * rx + s * ry) - self.box_half[..., 0]
-            qy = np.abs(-s * rx + c * ry) - self.box_half[..., 1]
+            rx = xy[:, None, 0] - self.box_center[idx, :, 0]
+            ry = xy[:, None, 1] - self.box_center[idx, :, 1]
+            c, s = self.box_cos[idx], self.box_sin[idx]
+            qx = np.abs(c * rx + s * ry) - self.box_half[idx, :, 0]
+            qy = np.abs(-s * rx + c * ry) - self.box_half[idx, :, 1]
             outside = np.hypot(np.maximum(qx, 0.0), np.maximum(qy, 0.0))
             inside = np.minimum(np.maximum(qx, qy), 0.0)
             best = np.minimum(best, (outside + inside).min(axis=1))
         if self.cyl_center.shape[1]:
             dist = np.hypot(
-                xy[:, None, 0] - self.cyl_center[..., 0], xy[:, None, 1] - self.cyl_center[..., 1]
+                xy[:, None, 0] - self.cyl_center[idx, :, 0],
+                xy[:, None, 1] - self.cyl_center[idx, :, 1],
             )
-            best = np.minimum(best, (dist - self.cyl_radius).min(axis=1))
+            best = np.minimum(best, (dist - self.cyl_radius[idx]).min(axis=1))
         return best
 
     def ray_cast(

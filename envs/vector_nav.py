@@ -389,6 +389,40 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
                     info[key][done] = value[done]
         return obs, np.asarray(reward, dtype=np.float64), terminated, truncated, info
 
+    def restart_from(
+        self, idx: npt.ArrayLike, starts: npt.ArrayLike
+    ) -> tuple[npt.NDArray[np.float32], dict[str, Any]]:
+        """Start robots ``idx`` again from poses ``starts`` (K, 3), at rest, in the same
+        episode (goal and obstacles kept; odometry, scan and step count restarted).
+
+        Returns the observation and info of every robot, as :meth:`reset` does.
+
+        Raises
+        ------
+        ValueError
+            If a pose is not finite or overlaps the room's walls or an obstacle.
+        """
+        rows = np.asarray(idx, dtype=np.intp).reshape(-1)
+        poses = np.asarray(starts, dtype=float).reshape(-1, 3)
+        if poses.shape[0] != rows.size or not np.all(np.isfinite(poses)):
+            raise ValueError(
+                f"starts must be {rows.size} finite poses [x, y, θ], got shape {poses.shape}"
+            )
+        if rows.size and np.any(
+            self.scenery.clearance_of(rows, poses[:, :2]) <= self.true_params.body_radius
+        ):
+            raise ValueError("a start pose overlaps a wall or an obstacle of its episode")
+        self.pose[rows] = poses
+        self.estimate[rows] = poses
+        self.drive.reset(rows)
+        self.ticks[rows] = 0.0
+        self.steps[rows] = 0
+        self._measure_scan(rows)
+        dist, ang = self._pose_error()
+        self.prev[rows, 0], self.prev[rows, 1] = dist[rows], ang[rows]
+        zeros = np.zeros(self.num_envs, bool)
+        return self._observation(), self._info(zeros, zeros)
+
     def close_extras(self, **kwargs: Any) -> None:
         self._started = False
 
