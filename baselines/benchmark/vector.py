@@ -28,7 +28,13 @@ FloatArray = npt.NDArray[np.float64]
 VECTOR_ENV_ID = "realitygap/WheeledNavVec-v0"
 """Id of the vectorised WheeledNav (``gymnasium.make_vec``)."""
 
-__all__ = ["VECTOR_ENV_ID", "pose_agreement", "vector_speed", "vector_success"]
+__all__ = [
+    "VECTOR_ENV_ID",
+    "pose_agreement",
+    "surrogate_transfer_rows",
+    "vector_speed",
+    "vector_success",
+]
 
 
 def vector_speed(
@@ -226,3 +232,77 @@ def vector_success(
         "reached_10cm": float(reached.mean()),
         "collision": float(collision.mean()),
     }
+
+
+def surrogate_transfer_rows(
+    cfg: Any, summary: Sequence[Mapping[str, Any]], notes: list[str] | None = None
+) -> list[dict[str, Any]]:
+    """The surrogate → PyBullet column: every learned policy of ``cfg`` on an env with a
+    vectorised surrogate, run on the benchmark's seeds in the vector env (nominal and each
+    reality profile the surrogate can realise), next to its PyBullet figures in ``summary``
+    (fast sensors). A policy whose success drops from the surrogate to PyBullet meets a
+    sim-to-sim gap the diagnosis can localise.
+
+    Rows: ``env``, ``policy``, ``trained_on``, ``reality``, ``n``, ``success_surrogate``,
+    ``success_pybullet``, ``success_drop_pp`` (surrogate − PyBullet), ``reached_10cm_*``,
+    ``collision_*``.
+    """
+    from realitygap.baselines.benchmark.profiles import reality_for
+    from realitygap.baselines.benchmark.runner import episode_seeds, n_episodes
+    from realitygap.baselines.rl import VECTOR_ENVS, load_policy, read_policy_meta, shipped_policy
+
+    by_cell = {
+        (r.get("env_id", r["env"]), r["policy"], r["sensor_mode"], r["reality"]): r for r in summary
+    }
+    rows: list[dict[str, Any]] = []
+    for env_id in cfg.env_ids:
+        if env_id not in VECTOR_ENVS or "fast" not in cfg.sensor_modes:
+            continue
+        n = n_episodes(cfg, env_id, "fast")
+        seeds = episode_seeds(cfg, n)
+        for spec in cfg.policies:
+            if spec.kind not in ("ppo", "sac", "file"):
+                continue
+            path = spec.path_for(env_id)
+            if path is None:
+                try:
+                    path = shipped_policy(env_id, spec.kind)
+                except FileNotFoundError:
+                    continue
+            meta = read_policy_meta(path)
+            if meta.get("env_id") != env_id:
+                continue
+            for reality_name in ("nominal", *cfg.realities):
+                base = by_cell.get((env_id, spec.name, "fast", reality_name))
+                if base is None:
+                    continue
+                try:
+                    reality = reality_for(env_id, reality_name)
+                    probe = gym.make(env_id, sensor_mode="fast")
+                    policy = load_policy(path, probe, env_id=env_id)
+                    probe.close()
+                    kwargs = {} if reality is None else {"reality": reality}
+                    sur = vector_success(policy, seeds, kwargs)
+                except ValueError as exc:
+                    if notes is not None:
+                        notes.append(
+                            f"surrogate column left out for {spec.name}, {reality_name}: {exc}"
+                        )
+                    continue
+                rows.append(
+                    {
+                        "env": env_id,
+                        "policy": spec.name,
+                        "trained_on": meta.get("train_env", env_id),
+                        "reality": reality_name,
+                        "n": n,
+                        "success_surrogate": sur["success"],
+                        "success_pybullet": base["success_mean"],
+                        "success_drop_pp": 100.0 * (sur["success"] - base["success_mean"]),
+                        "reached_10cm_surrogate": sur["reached_10cm"],
+                        "reached_10cm_pybullet": base["reached_10cm_mean"],
+                        "collision_surrogate": sur["collision"],
+                        "collision_pybullet": base["collision_mean"],
+                    }
+                )
+    return rows

@@ -97,6 +97,7 @@ from realitygap.baselines.rl.wrappers import (
     apply_train_wrappers,
     check_train_wrappers,
     set_env_attrs,
+    wheeled_nav_potential,
 )
 
 __all__ = [
@@ -169,5 +170,6 @@ __all__ = [
     "wheeled_nav_goal_features",
     "wheeled_nav_goal_smooth_features",
     "wheeled_nav_goal_zoom_features",
+    "wheeled_nav_potential",
     "write_csv_atomic",
 ]
