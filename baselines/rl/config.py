@@ -90,6 +90,7 @@ TRAIN_KEYS = frozenset(
         "obs_rest_timer",
         "obs_scene_fade",
         "demonstrations",
+        "vector_env_kwargs",
     }
 )
 _INSTALL_RL = "pip install 'realitygap[rl]'  (stable-baselines3 and torch)"

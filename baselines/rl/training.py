@@ -361,7 +361,7 @@ def train(cfg: TrainConfig) -> TrainResult:
     if rs.vector:
         venv = make_vector_train_env(
             vector_env_id(rs.env_id),
-            rs.env_kwargs,
+            {**rs.env_kwargs, **dict(rs.hp.get("vector_env_kwargs", {}) or {})},
             rs.n_envs,
             cfg.seed,
             rs.io,

@@ -755,3 +755,29 @@ def test_vector_shaping_is_the_wrappers_potential_difference() -> None:
     _, r_shaped, _, _ = shaped.step(a)
     phi1 = rl.wheeled_nav_potential(*base._pose_error(), 0.05, 0.1)
     np.testing.assert_allclose(r_shaped - r_plain, 2.0 * (phi1 - phi0), atol=1e-5)
+
+
+def test_vector_recipe_randomises_effects_only_in_the_vector_env(tmp_path: Path) -> None:
+    hp = rl.load_hyperparams("ppo", "realitygap/WheeledNavVec-v0")
+    hp.update(n_steps=16, batch_size=128, n_epochs=1)
+    hp["vector_env_kwargs"] = {"randomize": {"wheelbase_error.E_b": [0.95, 1.05]}}
+    cfg = rl.TrainConfig(
+        env_id="realitygap/WheeledNav-v0",
+        algo="ppo",
+        out_dir=tmp_path / "dr",
+        total_timesteps=256,
+        n_envs=8,
+        hyperparams=hp,
+        checkpoint_every=0,
+        eval_every=0,
+        eval_episodes=0,
+        vector=True,
+    )
+    result = rl.train(cfg)
+    assert result.timesteps >= 256
+    venv = rl.make_vector_train_env(
+        "realitygap/WheeledNavVec-v0", hp["vector_env_kwargs"], 8, seed=0
+    )
+    venv.reset()
+    eb = venv.venv.unwrapped.drive.values["wheelbase_error.E_b"]
+    assert np.all((eb >= 0.95) & (eb <= 1.05)) and np.ptp(eb) > 0
