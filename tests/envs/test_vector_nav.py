@@ -266,3 +266,17 @@ def test_sb3_vec_env_contract_and_a_short_ppo_run() -> None:
     assert model.num_timesteps >= 256
     with pytest.raises(ValueError, match="SAME_STEP"):
         sb3_vector_env(gym.make_vec(PB_ID, num_envs=1, vectorization_mode="sync"))
+
+
+def test_bench_vec_experiment_reports_speeds_and_agreement() -> None:
+    from realitygap.experiments import RunContext, get, load_all
+
+    load_all()
+
+    ctx = RunContext(quick=True, options={"sizes": (1, 8), "episodes": 2}, verbose=False)
+    out = get("bench-vec").func(ctx)
+    figs = out["figures"]
+    assert figs["steps_per_s.N1"] > 0 and figs["steps_per_s.N8"] > 0
+    assert figs["step_translation_mm.p95"] < 0.5
+    assert figs["collision_agreement"] == 1.0
+    assert out["config"]["episodes"] == 2
