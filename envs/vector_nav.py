@@ -134,7 +134,8 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
     ----------
     num_envs : number of robots ``N``.
     params : nominal robot parameters.
-    reality : effects applied to every robot (each must have a surrogate term).
+    reality : effects applied to every robot (each must have a surrogate term); a
+        :class:`Reality` or its :meth:`~Reality.to_dict` form.
     randomize : ``{"effect.param": (low, high)}``: drawn uniformly per robot and
         episode from the robot's generator, on top of ``reality``.
     calibration : the surrogate's calibration; default: measured once on the
@@ -154,7 +155,7 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
         num_envs: int = 64,
         *,
         params: DiffDriveParams | None = None,
-        reality: Reality | None = None,
+        reality: Reality | Mapping[str, Any] | None = None,
         randomize: Mapping[str, Any] | None = None,
         calibration: Any = None,
         n_obstacles: int = 6,
@@ -193,6 +194,12 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
             )
         self.num_envs = n
         self.params = params if params is not None else DiffDriveParams()
+        if isinstance(reality, Mapping):
+            reality = Reality.from_dict(reality)  # JSON form, e.g. from a hyperparameter file
+        if reality is not None and not isinstance(reality, Reality):
+            raise TypeError(
+                f"reality must be a Reality or its to_dict() form, got {type(reality).__name__}"
+            )
         self.reality = reality if reality is not None else Reality()
         self.fixed_values = effect_values(self.reality)
         self.randomize = _check_randomize(randomize)

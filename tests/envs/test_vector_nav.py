@@ -280,3 +280,15 @@ def test_bench_vec_experiment_reports_speeds_and_agreement() -> None:
     assert figs["step_translation_mm.p95"] < 0.5
     assert figs["collision_agreement"] == 1.0
     assert out["config"]["episodes"] == 2
+
+
+def test_reality_in_json_form_is_the_same_robot() -> None:
+    worn = Reality((make_effect("wheelbase_error", E_b=1.04),))
+    a = WheeledNavVecEnv(num_envs=2, reality=worn)
+    b = WheeledNavVecEnv(num_envs=2, reality=worn.to_dict())
+    a.reset(seed=0)
+    b.reset(seed=0)
+    np.testing.assert_array_equal(a.drive.b, b.drive.b)
+    assert abs(a.drive.b[0] - 0.230 * 1.04) < 1e-12
+    with pytest.raises(TypeError, match="reality must be a Reality"):
+        WheeledNavVecEnv(num_envs=1, reality="kobuki-worn")  # type: ignore[arg-type]
