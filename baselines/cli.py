@@ -123,6 +123,15 @@ def add_train_parser(subparsers: Any) -> argparse.ArgumentParser:
         "--vec-env", choices=("subproc", "dummy"), default=None, help="default: the file's"
     )
     p.add_argument("--hyperparams", default=None, help="another hyperparameter JSON file")
+    p.add_argument(
+        "--vector",
+        action="store_true",
+        help=(
+            "train on the env's vectorised surrogate (WheeledNav: realitygap/WheeledNavVec-v0, "
+            "--n-envs robots per batched step; same as --env realitygap/WheeledNavVec-v0); "
+            "evaluations run in PyBullet"
+        ),
+    )
     p.add_argument("--out", default=None, help="folder (default runs/train/<env>/<algo>/seed<k>)")
     p.add_argument(
         "--init-model",
@@ -156,8 +165,13 @@ def cmd_train(args: argparse.Namespace) -> int:
     from realitygap.baselines import rl
 
     try:
-        env_id = rl.check_env_id(args.env)
-        hp = rl.load_hyperparams(args.algo, env_id, args.hyperparams)
+        vector = bool(getattr(args, "vector", False))
+        by_vector = {v: k for k, v in rl.VECTOR_ENVS.items()}
+        env_arg = by_vector.get(args.env, by_vector.get(f"realitygap/{args.env}", args.env))
+        vector = vector or env_arg != args.env
+        env_id = rl.check_env_id(env_arg)
+        hp_id = rl.vector_env_id(env_id) if vector else env_id
+        hp = rl.load_hyperparams(args.algo, hp_id, args.hyperparams)
         rl.require_sb3()
     except (ValueError, KeyError, FileNotFoundError, ImportError) as exc:
         print(f"error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
@@ -165,7 +179,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     out = (
         Path(args.out)
         if args.out
-        else Path("runs") / "train" / rl.env_slug(env_id) / args.algo / f"seed{args.seed}"
+        else Path("runs") / "train" / rl.env_slug(hp_id) / args.algo / f"seed{args.seed}"
     )
     cfg = rl.TrainConfig(
         env_id=env_id,
@@ -180,6 +194,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         checkpoint_every=args.checkpoint_every,
         eval_episodes=args.eval_episodes,
         init_model=Path(args.init_model) if args.init_model else None,
+        vector=vector,
     )
     show_progress("realitygap.baselines.rl", sys.stdout)
     try:

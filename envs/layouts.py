@@ -9,7 +9,6 @@ of the given radius (grid breadth-first search on the inflated footprints).
 from __future__ import annotations
 
 import math
-from collections import deque
 
 import numpy as np
 import numpy.typing as npt
@@ -71,19 +70,11 @@ def free_route_exists(
         if not (0 <= c[0] < n and 0 <= c[1] < n):
             return False
     free[s] = free[g] = True
-    seen = np.zeros_like(free)
-    seen[s] = True
-    queue: deque[tuple[int, int]] = deque([s])
-    while queue:
-        i, j = queue.popleft()
-        if (i, j) == g:
-            return True
-        for di, dj in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-            a, b = i + di, j + dj
-            if 0 <= a < n and 0 <= b < n and free[a, b] and not seen[a, b]:
-                seen[a, b] = True
-                queue.append((a, b))
-    return False
+    # 4-connected components of the free cells (scipy's default structure in 2-D)
+    from scipy import ndimage
+
+    labels, _ = ndimage.label(free)
+    return bool(labels[s] == labels[g])
 
 
 MIN_ROOM_HALF_SIZE = 1.0

@@ -27,4 +27,11 @@ for _card in ENV_CARDS.values():
             max_episode_steps=_card.max_episode_steps,
         )
 
+if "realitygap/WheeledNavVec-v0" not in registry:
+    register(
+        id="realitygap/WheeledNavVec-v0",
+        vector_entry_point="realitygap.envs.vector_nav:WheeledNavVecEnv",
+        max_episode_steps=1200,
+    )
+
 __all__ = ["ENV_CARDS", "ENV_IDS", "EnvCard", "__version__", "card_for"]

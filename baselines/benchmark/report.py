@@ -32,8 +32,9 @@ def markdown_report(
     summary: Sequence[Mapping[str, Any]],
     transfer: Sequence[Mapping[str, Any]],
     notes: Sequence[str] = (),
+    surrogate: Sequence[Mapping[str, Any]] = (),
 ) -> str:
-    """The benchmark tables in Markdown."""
+    """The benchmark tables in Markdown (``surrogate``: the surrogate → PyBullet rows)."""
     lines = [
         "# Benchmark",
         "",
@@ -70,6 +71,24 @@ def markdown_report(
                 f"{_fmt(t['success_drop_pp'], 0)} | {_fmt(t['reached_10cm_nominal'])} | "
                 f"{_fmt(t['reached_10cm_reality'])} | {_fmt(t['final_pos_error_cm_nominal'], 1)} | "
                 f"{_fmt(t['final_pos_error_cm_reality'], 1)} |"
+            )
+    if surrogate:
+        lines += [
+            "",
+            "## Sim-to-sim transfer (success, vectorised surrogate → PyBullet, same episodes)",
+            "",
+            "| env | policy | trained on | reality | n | success surrogate | success PyBullet | "
+            "drop (pp) | reached surrogate | reached PyBullet | collision surrogate | "
+            "collision PyBullet |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        ]
+        for t in surrogate:
+            lines.append(
+                f"| {t['env']} | {t['policy']} | {t['trained_on']} | {t['reality']} | {t['n']} | "
+                f"{_fmt(t['success_surrogate'])} | {_fmt(t['success_pybullet'])} | "
+                f"{_fmt(t['success_drop_pp'], 0)} | {_fmt(t['reached_10cm_surrogate'])} | "
+                f"{_fmt(t['reached_10cm_pybullet'])} | {_fmt(t['collision_surrogate'])} | "
+                f"{_fmt(t['collision_pybullet'])} |"
             )
     extra_rows = [
         (r, extra_metrics(r["env_id"])) for r in summary if extra_metrics(r.get("env_id", ""))

@@ -482,6 +482,8 @@ class BenchmarkResult:
     errors: list[str]
     files: dict[str, Path]
     wall_seconds: float
+    surrogate: list[dict[str, Any]] = field(default_factory=list)
+    """Surrogate → PyBullet rows (:func:`~realitygap.baselines.benchmark.vector.surrogate_transfer_rows`)."""
 
 
 def run_benchmark(
@@ -498,7 +500,8 @@ def run_benchmark(
     """Run the benchmark described by ``cfg`` and write its tables and plots to ``out_dir``.
 
     Files: ``episodes.jsonl`` (streamed), ``summary.csv``, ``transfer.csv``,
-    ``benchmark.md``, ``success.png``, ``learning_curves.png`` (when curves are
+    ``surrogate_transfer.csv`` (learned WheeledNav policies: success in the vectorised
+    surrogate next to PyBullet), ``benchmark.md``, ``success.png``, ``learning_curves.png`` (when curves are
     given), ``config.json``.
     """
     t0 = time.perf_counter()
@@ -539,6 +542,10 @@ def run_benchmark(
     records = [r for r in store.load() if record_key(r)[:4] in wanted]
     summary = summarise(records)
     transfer = transfer_rows(summary)
+    from realitygap.baselines.benchmark.vector import surrogate_transfer_rows
+
+    all_notes = list(notes)
+    surrogate = surrogate_transfer_rows(cfg, summary, all_notes)
     files = {
         "episodes": store.path,
         "summary_csv": out / "summary.csv",
@@ -547,7 +554,10 @@ def run_benchmark(
     }
     write_csv_atomic(files["summary_csv"], summary)
     write_csv_atomic(files["transfer_csv"], transfer)
-    all_notes = list(notes) + [f"failed task: {e}" for e in errors]
+    if surrogate:
+        files["surrogate_transfer_csv"] = out / "surrogate_transfer.csv"
+        write_csv_atomic(files["surrogate_transfer_csv"], surrogate)
+    all_notes += [f"failed task: {e}" for e in errors]
     crashed: dict[tuple[str, ...], list[Mapping[str, Any]]] = {}
     for rec in records:
         if rec.get("error"):
@@ -561,7 +571,9 @@ def run_benchmark(
     for name in cfg.realities:
         if name in REALITY_PROFILES:
             all_notes.append(f"reality `{name}`: {REALITY_PROFILES[name]['description']}")
-    atomic_write_text(files["markdown"], markdown_report(summary, transfer, all_notes))
+    atomic_write_text(
+        files["markdown"], markdown_report(summary, transfer, all_notes, surrogate=surrogate)
+    )
     png = plot_success(summary, out / "success.png")
     if png is not None:
         files["success_png"] = png
@@ -571,4 +583,6 @@ def run_benchmark(
         lc = plot_learning_curves(learning_curves, out / "learning_curves.png")
         if lc is not None:
             files["learning_curves_png"] = lc
-    return BenchmarkResult(out, summary, transfer, errors, files, time.perf_counter() - t0)
+    return BenchmarkResult(
+        out, summary, transfer, errors, files, time.perf_counter() - t0, surrogate
+    )

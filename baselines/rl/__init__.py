@@ -26,6 +26,7 @@ from realitygap.baselines.rl.config import (
     HYPERPARAMS_DIR,
     POLICIES_DIR,
     TRAIN_KEYS,
+    VECTOR_ENVS,
     Curriculum,
     TrainConfig,
     TrainResult,
@@ -37,6 +38,7 @@ from realitygap.baselines.rl.config import (
     load_hyperparams,
     require_sb3,
     resolve_policy_kwargs,
+    vector_env_id,
 )
 from realitygap.baselines.rl.features import (
     BEARING_FADE,
@@ -77,7 +79,13 @@ from realitygap.baselines.rl.plots import (
 )
 from realitygap.baselines.rl.policy_io import OBS_MIRRORS, ObsNormalizer, PolicyIO
 from realitygap.baselines.rl.training import train
-from realitygap.baselines.rl.vec_env import make_env_fn, make_vec_env, measure_vec_env_speed
+from realitygap.baselines.rl.vec_env import (
+    make_env_fn,
+    make_vec_env,
+    make_vector_train_env,
+    measure_vec_env_speed,
+    sb3_vector_env,
+)
 from realitygap.baselines.rl.wrappers import (
     TRAIN_WRAPPERS,
     ArmObservabilityShaping,
@@ -89,6 +97,7 @@ from realitygap.baselines.rl.wrappers import (
     apply_train_wrappers,
     check_train_wrappers,
     set_env_attrs,
+    wheeled_nav_potential,
 )
 
 __all__ = [
@@ -102,6 +111,7 @@ __all__ = [
     "POLICIES_DIR",
     "TRAIN_KEYS",
     "TRAIN_WRAPPERS",
+    "VECTOR_ENVS",
     "WHEELED_NAV_SCENE_START",
     "WORLD_FRAME_COLUMNS",
     "ZOOM_ANG_SCALES",
@@ -136,6 +146,7 @@ __all__ = [
     "make_callback",
     "make_env_fn",
     "make_vec_env",
+    "make_vector_train_env",
     "measure_vec_env_speed",
     "obs_feature_fn",
     "plot_learning_curve",
@@ -145,6 +156,7 @@ __all__ = [
     "require_sb3",
     "resolve_policy_kwargs",
     "save_policy",
+    "sb3_vector_env",
     "scene_fade",
     "set_env_attrs",
     "ship_policy",
@@ -152,10 +164,12 @@ __all__ = [
     "space_summary",
     "stop_gate",
     "train",
+    "vector_env_id",
     "wheeled_nav_egocentric_features",
     "wheeled_nav_egocentric_mirror",
     "wheeled_nav_goal_features",
     "wheeled_nav_goal_smooth_features",
     "wheeled_nav_goal_zoom_features",
+    "wheeled_nav_potential",
     "write_csv_atomic",
 ]

@@ -90,6 +90,7 @@ TRAIN_KEYS = frozenset(
         "obs_rest_timer",
         "obs_scene_fade",
         "demonstrations",
+        "vector_env_kwargs",
     }
 )
 _INSTALL_RL = "pip install 'realitygap[rl]'  (stable-baselines3 and torch)"
@@ -280,6 +281,10 @@ class TrainConfig:
         curriculum schedule keeps referring to the file's ``n_timesteps``, and the file's
         learning rate, clip range, KL target, epochs, batch size and entropy coefficient
         replace the saved ones.
+    vector : train on the vectorised surrogate of the env (``realitygap/WheeledNavVec-v0``
+        for WheeledNav) with the file's entry for that id; ``n_envs`` robots step in one
+        batched call. The policy is the env's (its spaces are the same): every evaluation,
+        and the final one, runs in the PyBullet env.
     """
 
     env_id: str
@@ -295,6 +300,20 @@ class TrainConfig:
     eval_episodes: int = 20
     progress_every_s: float = 30.0
     init_model: Path | None = None
+    vector: bool = False
+
+
+VECTOR_ENVS: dict[str, str] = {"realitygap/WheeledNav-v0": "realitygap/WheeledNavVec-v0"}
+"""Env id → id of its vectorised surrogate (``gymnasium.make_vec``)."""
+
+
+def vector_env_id(env_id: str) -> str:
+    """The vectorised surrogate of ``env_id``, or a ``ValueError`` naming the envs that have one."""
+    if env_id not in VECTOR_ENVS:
+        raise ValueError(
+            f"{env_id} has no vectorised surrogate; --vector works for {', '.join(VECTOR_ENVS)}"
+        )
+    return VECTOR_ENVS[env_id]
 
 
 @dataclass(frozen=True)

@@ -43,6 +43,7 @@ from realitygap.baselines.rl.config import (
     check_env_id,
     load_hyperparams,
     resolve_policy_kwargs,
+    vector_env_id,
 )
 from realitygap.baselines.rl.persistence import (
     LearnedPolicy,
@@ -55,7 +56,7 @@ from realitygap.baselines.rl.persistence import (
 )
 from realitygap.baselines.rl.plots import plot_learning_curve
 from realitygap.baselines.rl.policy_io import ObsNormalizer, PolicyIO
-from realitygap.baselines.rl.vec_env import make_vec_env
+from realitygap.baselines.rl.vec_env import make_vec_env, make_vector_train_env
 from realitygap.baselines.rl.wrappers import check_train_wrappers
 from realitygap.core.io import atomic_write_text
 
@@ -84,6 +85,7 @@ class _RunSettings:
     env_spaces: dict[str, Any]
     algo_kwargs: dict[str, Any]
     max_steps: int | None
+    vector: bool = False
 
 
 def _resolve_settings(cfg: TrainConfig) -> _RunSettings:
@@ -93,7 +95,8 @@ def _resolve_settings(cfg: TrainConfig) -> _RunSettings:
     algo_class(algo)
     import torch  # noqa: F401  (after the install hint of algo_class)
 
-    hp = dict(cfg.hyperparams) if cfg.hyperparams is not None else load_hyperparams(algo, env_id)
+    hp_id = vector_env_id(env_id) if cfg.vector else env_id
+    hp = dict(cfg.hyperparams) if cfg.hyperparams is not None else load_hyperparams(algo, hp_id)
     hp = {k: v for k, v in hp.items() if not k.startswith("_")}
     budget = int(hp["n_timesteps"])
     env_kwargs = dict(hp.get("env_kwargs", {}))
@@ -127,6 +130,7 @@ def _resolve_settings(cfg: TrainConfig) -> _RunSettings:
         },
         algo_kwargs=resolve_policy_kwargs({k: v for k, v in hp.items() if k not in TRAIN_KEYS}),
         max_steps=None if max_steps is None else int(max_steps),
+        vector=bool(cfg.vector),
     )
 
 
@@ -252,6 +256,7 @@ class _Run:
             "init_model": str(cfg.init_model) if cfg.init_model is not None else None,
             "obs_norm_frozen": bool(self.rs.normalize) and not getattr(self.venv, "training", True),
             "demonstrations": self.demo_rows,
+            "train_env": vector_env_id(self.rs.env_id) if self.rs.vector else self.rs.env_id,
         }
 
     def save(self, path: Path) -> Path:
@@ -353,16 +358,27 @@ def train(cfg: TrainConfig) -> TrainResult:
     torch.set_num_threads(1)
     torch.manual_seed(cfg.seed)
 
-    venv = make_vec_env(
-        rs.env_id,
-        rs.env_kwargs,
-        rs.n_envs,
-        cfg.seed,
-        rs.vec_kind,
-        rs.io,
-        rs.max_steps,
-        rs.train_wrappers,
-    )
+    if rs.vector:
+        venv = make_vector_train_env(
+            vector_env_id(rs.env_id),
+            {**rs.env_kwargs, **dict(rs.hp.get("vector_env_kwargs", {}) or {})},
+            rs.n_envs,
+            cfg.seed,
+            rs.io,
+            rs.max_steps,
+            rs.train_wrappers,
+        )
+    else:
+        venv = make_vec_env(
+            rs.env_id,
+            rs.env_kwargs,
+            rs.n_envs,
+            cfg.seed,
+            rs.vec_kind,
+            rs.io,
+            rs.max_steps,
+            rs.train_wrappers,
+        )
     init_meta = _read_init_meta(cfg, rs)
     if rs.normalize:
         venv = _normalize_env(venv, rs, init_meta)
@@ -371,7 +387,8 @@ def train(cfg: TrainConfig) -> TrainResult:
     run.callback = _make_run_callback(cfg, rs, run, init_meta, out_dir)
     logger.info(
         f"[{time.strftime('%H:%M:%S')}] training {rs.algo} on {rs.env_id}: {rs.total} steps "
-        f"(from {model.num_timesteps}), {rs.n_envs} x {rs.vec_kind} envs, seed {cfg.seed} "
+        f"(from {model.num_timesteps}), {rs.n_envs} x "
+        f"{'vectorised surrogate' if rs.vector else rs.vec_kind} envs, seed {cfg.seed} "
         f"-> {out_dir}"
     )
     try:

@@ -107,6 +107,16 @@ class WheeledNavRestRelaxation(gym.Wrapper):
         return obs, reward, terminated, truncated, info
 
 
+def wheeled_nav_potential(
+    pos_error: Any, heading_error: Any, pos_scale: float, ang_scale: float
+) -> Any:
+    r"""The shaping potential :math:`\Phi` of :class:`WheeledNavShaping` for pose errors
+    ``pos_error`` (m) and ``heading_error`` (rad), scalars or arrays of one shape."""
+    d, a = np.asarray(pos_error, dtype=float), np.abs(np.asarray(heading_error, dtype=float))
+    near = np.exp(-d / (3.0 * pos_scale)) * np.exp(-a / ang_scale)
+    return 0.5 * np.exp(-d / pos_scale) + 0.5 * near
+
+
 class WheeledNavShaping(gym.Wrapper):
     r"""Training only: extra WheeledNav reward terms for the final approach and for collisions.
 
@@ -145,9 +155,9 @@ class WheeledNavShaping(gym.Wrapper):
 
     def potential(self, pos_error: float, heading_error: float) -> float:
         """``Φ`` of a pose error (m, rad); 1 on the goal pose."""
-        d, a = pos_error, abs(heading_error)
-        near = math.exp(-d / (3.0 * self.pos_scale)) * math.exp(-a / self.ang_scale)
-        return 0.5 * math.exp(-d / self.pos_scale) + 0.5 * near
+        return float(
+            wheeled_nav_potential(pos_error, heading_error, self.pos_scale, self.ang_scale)
+        )
 
     def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
         obs, info = self.env.reset(**kwargs)

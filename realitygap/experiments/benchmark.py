@@ -120,3 +120,56 @@ def benchmark(ctx: RunContext) -> dict[str, Any]:
         "tables": {"summary": result.summary, "transfer": result.transfer},
         "notes": notes,
     }
+
+
+@experiment(
+    "bench-vec",
+    "the vectorised WheeledNav: steps/s at N = 1, 64, 1024 and per-step pose agreement with "
+    "PyBullet on the benchmark's episodes",
+    robots=("diffdrive",),
+)
+def bench_vec(ctx: RunContext) -> dict[str, Any]:
+    """Speed of ``realitygap/WheeledNavVec-v0`` (uniform random actions, about 5 s per size,
+    2 s in quick mode) and its pose agreement with PyBullet: the classical policy drives the
+    benchmark's episodes (seeds ``1000 * seed + k``; 100, quick 10) in PyBullet, its actions
+    replayed open loop in the vector env (:func:`~realitygap.baselines.benchmark.vector.pose_agreement`).
+    The machine's load average is recorded with the speeds."""
+    import os
+
+    from realitygap.baselines.benchmark.vector import pose_agreement, vector_speed
+    from realitygap.cards import ENV_CARDS, load_object
+
+    sizes = tuple(int(n) for n in ctx.options.get("sizes", (1, 64, 1024)))
+    load_before = os.getloadavg()[0]
+    ctx.progress(f"bench-vec: steps/s at N = {', '.join(map(str, sizes))}")
+    speed = vector_speed(sizes, seconds=2.0 if ctx.quick else 5.0, seed=ctx.seed)
+    load_after = os.getloadavg()[0]
+    n_episodes = int(ctx.options.get("episodes", 10 if ctx.quick else 100))
+    seeds = [1000 * ctx.seed + k for k in range(n_episodes)]
+    ctx.progress(f"bench-vec: pose agreement over {n_episodes} benchmark episodes")
+    factory = load_object(ENV_CARDS["realitygap/WheeledNav-v0"].classical_policy)
+    agree = pose_agreement(factory, seeds)
+    figures: dict[str, float] = {f"steps_per_s.N{n}": v for n, v in speed.items()}
+    figures["load_average_1min"] = 0.5 * (load_before + load_after)
+    figures["cpu_count"] = float(os.cpu_count() or 0)
+    for key in ("step_translation_mm", "step_rotation_mrad"):
+        for stat, value in agree[key].items():
+            figures[f"{key}.{stat}"] = value
+    for key in ("drift_pos_cm", "drift_heading_deg"):
+        for stat, value in agree[key].items():
+            figures[f"{key}.{stat}"] = value
+    figures["collision_agreement"] = agree["collision_agreement"]
+    figures["agreement_steps"] = float(agree["steps"])
+    return {
+        "figures": figures,
+        "config": {
+            "sizes": list(sizes),
+            "episodes": n_episodes,
+            "episode_seeds": f"1000 * {ctx.seed} + k",
+            "actions": "classical policy in PyBullet, replayed open loop",
+        },
+        "notes": [
+            "steps/s = robots x batched calls / wall s, random actions, one process",
+            "per-step agreement: body-frame pose increments of the two simulators per control step",
+        ],
+    }

@@ -142,8 +142,9 @@ def test_hyperparameter_files_are_valid_and_keyed_by_registered_envs(algo: str) 
     table = json.loads((rl.HYPERPARAMS_DIR / f"{algo}.json").read_text())
     env_ids = [k for k in table if not k.startswith("_")]
     assert "realitygap/WheeledNav-v0" in env_ids
+    vector_ids = set(rl.VECTOR_ENVS.values())
     for env_id in env_ids:
-        assert env_id in realitygap.ENV_IDS
+        assert env_id in realitygap.ENV_IDS or env_id in vector_ids
         hp = rl.load_hyperparams(algo, env_id)
         assert hp["n_timesteps"] > 0 and "sensor_mode" in hp["env_kwargs"]
         if "curriculum" in hp:
@@ -700,3 +701,83 @@ def test_arm_observability_shaping_telescopes_and_pays_for_spread_poses() -> Non
     assert shaping.potential(same) < shaping.potential(measured[:4]) < shaping.potential(measured)
     with pytest.raises(ValueError, match="needs ArmCalib-v0"):
         rl.ArmObservabilityShaping(gym.make(ENV_ID, n_obstacles=0))
+
+
+def test_vector_training_gives_a_wheeled_nav_policy_evaluated_in_pybullet(tmp_path: Path) -> None:
+    hp = rl.load_hyperparams("ppo", "realitygap/WheeledNavVec-v0")
+    hp.update(n_steps=32, batch_size=256, n_epochs=1)
+    cfg = rl.TrainConfig(
+        env_id="realitygap/WheeledNav-v0",
+        algo="ppo",
+        out_dir=tmp_path / "vec",
+        total_timesteps=1024,
+        n_envs=16,
+        hyperparams=hp,
+        checkpoint_every=0,
+        eval_every=0,
+        eval_episodes=1,
+        vector=True,
+    )
+    result = rl.train(cfg)
+    meta = json.loads(result.meta_path.read_text())
+    assert meta["env_id"] == "realitygap/WheeledNav-v0"
+    assert meta["train_env"] == "realitygap/WheeledNavVec-v0"
+    assert set(result.final_eval) >= {"success", "reached_10cm", "collision"}
+    env = gym.make("realitygap/WheeledNav-v0")
+    policy = rl.load_policy(result.model_path, env, env_id="realitygap/WheeledNav-v0")
+    obs, _ = env.reset(seed=0)
+    action, _ = policy.predict(obs)
+    assert action.shape == (2,) and np.all(np.abs(action) <= 1.0)
+    env.close()
+
+
+def test_vector_training_refuses_single_env_wrappers_and_other_envs() -> None:
+    venv = gym.make_vec("realitygap/WheeledNavVec-v0", num_envs=2)
+    with pytest.raises(ValueError, match="acts on single envs"):
+        rl.sb3_vector_env(venv, train_wrappers=[{"name": "arm_observability_shaping"}])
+    with pytest.raises(ValueError, match="no vectorised surrogate"):
+        rl.vector_env_id("realitygap/ArmCalib-v0")
+
+
+def test_vector_shaping_is_the_wrappers_potential_difference() -> None:
+    shaping = {"name": "wheeled_nav_shaping", "precision": 2.0, "collision_penalty": 10.0}
+    plain = rl.sb3_vector_env(gym.make_vec("realitygap/WheeledNavVec-v0", num_envs=4))
+    shaped = rl.sb3_vector_env(
+        gym.make_vec("realitygap/WheeledNavVec-v0", num_envs=4), train_wrappers=[shaping]
+    )
+    for v in (plain, shaped):
+        v.seed(3)
+        v.reset()
+    base = plain.venv.unwrapped
+    phi0 = rl.wheeled_nav_potential(*base._pose_error(), 0.05, 0.1)
+    a = np.full((4, 2), 0.5, np.float32)
+    _, r_plain, _, _ = plain.step(a)
+    _, r_shaped, _, _ = shaped.step(a)
+    phi1 = rl.wheeled_nav_potential(*base._pose_error(), 0.05, 0.1)
+    np.testing.assert_allclose(r_shaped - r_plain, 2.0 * (phi1 - phi0), atol=1e-5)
+
+
+def test_vector_recipe_randomises_effects_only_in_the_vector_env(tmp_path: Path) -> None:
+    hp = rl.load_hyperparams("ppo", "realitygap/WheeledNavVec-v0")
+    hp.update(n_steps=16, batch_size=128, n_epochs=1)
+    hp["vector_env_kwargs"] = {"randomize": {"wheelbase_error.E_b": [0.95, 1.05]}}
+    cfg = rl.TrainConfig(
+        env_id="realitygap/WheeledNav-v0",
+        algo="ppo",
+        out_dir=tmp_path / "dr",
+        total_timesteps=256,
+        n_envs=8,
+        hyperparams=hp,
+        checkpoint_every=0,
+        eval_every=0,
+        eval_episodes=0,
+        vector=True,
+    )
+    result = rl.train(cfg)
+    assert result.timesteps >= 256
+    venv = rl.make_vector_train_env(
+        "realitygap/WheeledNavVec-v0", hp["vector_env_kwargs"], 8, seed=0
+    )
+    venv.reset()
+    eb = venv.venv.unwrapped.drive.values["wheelbase_error.E_b"]
+    assert np.all((eb >= 0.95) & (eb <= 1.05)) and np.ptp(eb) > 0

@@ -1,0 +1,561 @@
+r"""``realitygap/WheeledNavVec-v0``: ``N`` WheeledNav robots per call on the calibrated surrogate.
+
+A :class:`gymnasium.vector.VectorEnv` for reinforcement learning at thousands
+of env steps per second. It has WheeledNav's spaces, observation, reward,
+success and termination (fast sensor mode; see
+:mod:`realitygap.envs.wheeled_nav`), so a policy trained here runs unchanged
+in the PyBullet env; what differs is the simulator:
+
+* the drive is the kinematic surrogate that the diagnosis validates against
+  PyBullet (:mod:`realitygap.diagnosis.surrogate`), batched and stepped one
+  control period at a time (:class:`~realitygap.envs.vector_drive.BatchDrive`),
+  behind the same firmware limits and nominal inverse kinematics;
+* the scan is the same analytic ray cast against the same footprints
+  (walls and obstacles from :class:`~realitygap.envs.tasks.nav.NavTask`), with
+  the same depth-noise model, at the same rate;
+* the estimate is wheel odometry on the quantised encoder counts, as the fast
+  env's default :class:`~realitygap.estimators.diffdrive_model.WheelOdometry`;
+* episodes are drawn by :class:`~realitygap.envs.tasks.nav.NavTask` from a
+  generator per robot: robot ``i`` reset with seed ``s + i`` starts the episode
+  that ``WheeledNav-v0`` starts with ``reset(seed=s + i)`` (same start, goal and
+  obstacles).
+
+Known limits (stated fidelity, measured by ``tests/envs/test_vector_nav.py``
+and the ``bench-vec`` experiment):
+
+* **contacts** — no rigid-body dynamics: the body does not pitch onto a
+  caster, bounce, or get pushed; motors and traction are the surrogate's
+  calibrated rate limits.
+* **collisions** — detected analytically: the body disc (radius
+  ``body_radius``) within :data:`CONTACT_MARGIN` of a footprint. The episode
+  ends there, as in PyBullet; the robot never slides along a wall.
+* **slip** — only as the surrogate models it (friction-limited acceleration,
+  the ``longitudinal_slip`` and ``traction_slip`` terms); no lateral slip.
+* **effects** — a ``reality`` (and domain randomisation, ``randomize``) may
+  use every differential-drive effect with a surrogate term. Terms that are
+  constant over an episode are exact; time-series terms (latency, limiters,
+  lags, dead zones) act on a rolling window of ``history_steps`` applied
+  twists: exact for delays shorter than the window, approximate for limiter
+  transients or lags longer than it. ``timestamp_offset`` changes only
+  recorded ground truth and has no effect here.
+* the pose is planar; the estimator is wheel odometry only (no image mode).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import numpy.typing as npt
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode
+
+from realitygap.envs.tasks.nav import NavRewardWeights, NavTask
+from realitygap.envs.vector_drive import (
+    BatchDrive,
+    BatchScenery,
+    effect_values,
+    vector_effects,
+)
+from realitygap.robots.diffdrive import DiffDriveParams
+from realitygap.robots.effects import EFFECTS, Reality
+from realitygap.robots.world import Primitive
+
+FloatArray = npt.NDArray[np.float64]
+
+__all__ = ["CONTACT_MARGIN", "MAX_NUM_ENVS", "WheeledNavVecEnv", "check_num_envs"]
+
+CONTACT_MARGIN = 0.0
+"""Distance (m) between the body disc and a footprint at which a collision is reported."""
+
+MAX_NUM_ENVS = 1 << 20
+"""Largest number of robots per vector env (about 1 GB of state)."""
+
+
+def check_num_envs(num_envs: Any) -> int:
+    """``num_envs`` as an int in ``[1, MAX_NUM_ENVS]``, else a ``ValueError`` saying so."""
+    if (
+        isinstance(num_envs, bool)
+        or not isinstance(num_envs, (int, np.integer))
+        or not 1 <= int(num_envs) <= MAX_NUM_ENVS
+    ):
+        raise ValueError(
+            f"num_envs must be a whole number of robots in [1, {MAX_NUM_ENVS}], got {num_envs!r}; "
+            "pass e.g. gym.make_vec('realitygap/WheeledNavVec-v0', num_envs=64)"
+        )
+    return int(num_envs)
+
+
+def _check_randomize(randomize: Mapping[str, Any] | None) -> dict[str, tuple[float, float]]:
+    """``{"effect.param": (low, high)}`` checked against the effects' physical bounds."""
+    out: dict[str, tuple[float, float]] = {}
+    known = vector_effects()
+    for key, bounds in dict(randomize or {}).items():
+        name, _, param = str(key).partition(".")
+        if name not in known:
+            raise ValueError(
+                f"randomize key {key!r}: expected 'effect.param' with an effect that has a "
+                f"surrogate term ({', '.join(known)})"
+            )
+        specs = {s.name: s for s in EFFECTS[name].specs}
+        if param not in specs:
+            raise ValueError(
+                f"randomize key {key!r}: effect {name!r} has parameters {', '.join(specs)}"
+            )
+        try:
+            lo, hi = (float(v) for v in bounds)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"randomize[{key!r}] must be a (low, high) pair of numbers, got {bounds!r}"
+            ) from None
+        s = specs[param]
+        if not (s.low <= lo <= hi <= s.high):
+            raise ValueError(
+                f"randomize[{key!r}] = ({lo}, {hi}) must satisfy {s.low} <= low <= high <= "
+                f"{s.high} {s.unit} (the parameter's physical bounds)"
+            )
+        out[f"{name}.{param}"] = (lo, hi)
+    return out
+
+
+class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
+    """WheeledNav for ``num_envs`` robots on the batched surrogate (see the module docstring).
+
+    Spaces: ``single_action_space`` and ``single_observation_space`` are
+    WheeledNav's (fast mode); ``action_space`` / ``observation_space`` batch them.
+    Autoreset is same-step: a finished robot's last observation and info are in
+    ``info["final_obs"]`` / ``info["final_info"]`` (masks ``"_final_obs"``) and its
+    row of the returned observation already starts the next episode.
+
+    Parameters
+    ----------
+    num_envs : number of robots ``N``.
+    params : nominal robot parameters.
+    reality : effects applied to every robot (each must have a surrogate term); a
+        :class:`Reality` or its :meth:`~Reality.to_dict` form.
+    randomize : ``{"effect.param": (low, high)}``: drawn uniformly per robot and
+        episode from the robot's generator, on top of ``reality``.
+    calibration : the surrogate's calibration; default: measured once on the
+        PyBullet body (:func:`realitygap.diagnosis.surrogate.calibrate`, cached).
+    n_obstacles, obstacles, room_half_size, start, goal, success_pos_tol,
+    success_ang_tol, terminate_on_success, reward_weights :
+        as :class:`~realitygap.envs.wheeled_nav.WheeledNavEnv`.
+    control_hz, n_beams, scan_hz : control rate (Hz), scan beams, scan rate (Hz).
+    max_episode_steps : per-robot time limit (truncation), steps.
+    history_steps : window of applied twists for time-series effect terms.
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}  # noqa: RUF012 (gymnasium's name)
+
+    def __init__(
+        self,
+        num_envs: int = 64,
+        *,
+        params: DiffDriveParams | None = None,
+        reality: Reality | Mapping[str, Any] | None = None,
+        randomize: Mapping[str, Any] | None = None,
+        calibration: Any = None,
+        n_obstacles: int = 6,
+        obstacles: list[Primitive] | None = None,
+        room_half_size: float = 3.5,
+        start: npt.ArrayLike | None = None,
+        goal: npt.ArrayLike | None = None,
+        success_pos_tol: float = 0.03,
+        success_ang_tol: float = math.radians(5.0),
+        control_hz: float = 20.0,
+        n_beams: int = 64,
+        scan_hz: float = 10.0,
+        terminate_on_success: bool = True,
+        reward_weights: NavRewardWeights = NavRewardWeights(),  # noqa: B008 (frozen)
+        max_episode_steps: int = 1200,
+        history_steps: int = 40,
+        render_mode: str | None = None,
+    ):
+        n = check_num_envs(num_envs)
+        if render_mode is not None:
+            raise ValueError(
+                f"the vector env does not render; render_mode must be None, got {render_mode!r}"
+            )
+        if not (isinstance(n_beams, (int, np.integer)) and n_beams >= 2):
+            raise ValueError(f"n_beams must be a whole number >= 2, got {n_beams!r}")
+        if not (control_hz > 0 and math.isfinite(control_hz)):
+            raise ValueError(f"control_hz must be a positive number of Hz, got {control_hz!r}")
+        k = control_hz / scan_hz if scan_hz > 0 else -1.0
+        if k < 1 or abs(k - round(k)) > 1e-9:
+            raise ValueError(
+                f"scan_hz must divide control_hz={control_hz} (whole ratio >= 1), got {scan_hz!r}"
+            )
+        if not (isinstance(max_episode_steps, (int, np.integer)) and max_episode_steps >= 1):
+            raise ValueError(
+                f"max_episode_steps must be a whole number >= 1, got {max_episode_steps!r}"
+            )
+        self.num_envs = n
+        self.params = params if params is not None else DiffDriveParams()
+        if isinstance(reality, Mapping):
+            reality = Reality.from_dict(reality)  # JSON form, e.g. from a hyperparameter file
+        if reality is not None and not isinstance(reality, Reality):
+            raise TypeError(
+                f"reality must be a Reality or its to_dict() form, got {type(reality).__name__}"
+            )
+        self.reality = reality if reality is not None else Reality()
+        self.fixed_values = effect_values(self.reality)
+        self.randomize = _check_randomize(randomize)
+        self.true_params = self.reality.apply_params(self.params)
+        self.dt = 1.0 / float(control_hz)
+        self.n_beams = int(n_beams)
+        self.max_episode_steps = int(max_episode_steps)
+        self._scan_every = int(round(k))
+        self.tasks = [
+            NavTask(
+                room_half_size=room_half_size,
+                n_obstacles=n_obstacles,
+                obstacles=obstacles,
+                start=start,
+                goal=goal,
+                success_pos_tol=success_pos_tol,
+                success_ang_tol=success_ang_tol,
+                terminate_on_success=terminate_on_success,
+                weights=reward_weights,
+            )
+            for _ in range(n)
+        ]
+        task = self.tasks[0]
+        self.weights = task.weights
+        self.room_half_size = task.room_half_size
+        self.success_pos_tol, self.success_ang_tol = task.success_pos_tol, task.success_ang_tol
+        self.terminate_on_success = task.terminate_on_success
+        if calibration is None:
+            from realitygap.diagnosis.surrogate import calibrate
+
+            calibration = calibrate(self.params)
+        self.calibration = calibration
+        effects = sorted(
+            {k.split(".")[0] for k in (*self.fixed_values, *self.randomize)},
+            key=vector_effects().index,
+        )
+        self.drive = BatchDrive(
+            self.params, calibration, n, self.dt, effects, history_steps=int(history_steps)
+        )
+        self.scenery = BatchScenery(
+            n, max(0, int(n_obstacles)), max(0, int(n_obstacles)), self.room_half_size
+        )
+
+        # spaces: WheeledNav's, fast mode
+        self.single_action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+        n_obs = 12 + self.n_beams
+        low = np.full(n_obs, -1.0, dtype=np.float32)
+        high = np.full(n_obs, 1.0, dtype=np.float32)
+        big = 4.0 * self.room_half_size
+        for i in (0, 1, 4, 5, 8, 9):
+            low[i], high[i] = -big, big
+        low[12:] = 0.0
+        self.single_observation_space = spaces.Box(low, high, dtype=np.float32)
+        self.action_space = gym.vector.utils.batch_space(self.single_action_space, n)
+        self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, n)
+        self._obs_low, self._obs_high = low, high
+
+        cam = self.params.camera
+        half = math.radians(cam.hfov_deg) / 2.0
+        self._beam_offsets = np.linspace(-half, half, self.n_beams)
+        self._beam_cos, self._beam_sin = np.cos(self._beam_offsets), np.sin(self._beam_offsets)
+        self.scan_range_max = float(cam.range_max)
+        self._odo_m_per_tick = (
+            2.0
+            * math.pi
+            * np.array([self.params.wheel_radius_left, self.params.wheel_radius_right])
+            / self.params.ticks_per_rev
+        )
+        self._ticks_per_rad = self.params.ticks_per_rev / (2.0 * math.pi)
+
+        # state
+        self.rngs = [np.random.default_rng(i) for i in range(n)]
+        self.noise_rng = np.random.default_rng(0)
+        self.pose = np.zeros((n, 3))
+        self.estimate = np.zeros((n, 3))
+        self.ticks = np.zeros((n, 2))
+        self.goal = np.zeros((n, 3))
+        self.prev = np.zeros((n, 2))  # previous (distance, heading error)
+        self.steps = np.zeros(n, dtype=np.int64)
+        self.scan = np.full((n, self.n_beams), np.inf)
+        self.obstacles: list[tuple[Primitive, ...]] = [() for _ in range(n)]
+        self._started = False
+
+    @property
+    def scan_angles(self) -> FloatArray:
+        """Bearings (rad, base frame) of the scan beams, nominal mount."""
+        return self.params.camera.mount_yaw + self._beam_offsets
+
+    # ------------------------------------------------------------------ gym API
+    def reset(
+        self, *, seed: int | list[int] | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[npt.NDArray[np.float32], dict[str, Any]]:
+        """Start an episode for every robot; robot ``i`` is seeded ``seed + i`` (or
+        ``seed[i]``). ``options`` may hold ``start`` / ``goal`` poses, (3,) or (N, 3)."""
+        n = self.num_envs
+        if seed is not None:
+            seeds = (
+                [int(s) for s in seed]
+                if isinstance(seed, (list, tuple))
+                else [int(seed) + i for i in range(n)]
+            )
+            if len(seeds) != n:
+                raise ValueError(f"reset(seed=...) needs {n} seeds, got {len(seeds)}")
+            self.rngs = [np.random.default_rng(s) for s in seeds]
+            self.noise_rng = np.random.default_rng(
+                np.random.SeedSequence([seeds[0], n]).generate_state(2)
+            )
+        options = dict(options or {})
+        unknown = set(options) - {"start", "goal"}
+        if unknown:
+            raise ValueError(
+                f"unknown reset option(s) {sorted(unknown)}; expected 'start' and/or 'goal'"
+            )
+        per_robot: list[dict[str, Any]] = [{} for _ in range(n)]
+        for key, value in options.items():
+            arr = np.asarray(value, dtype=float)
+            if arr.shape == (3,):
+                arr = np.broadcast_to(arr, (n, 3))
+            if arr.shape != (n, 3):
+                raise ValueError(
+                    f"reset option {key!r} must have shape (3,) or ({n}, 3), got {arr.shape}"
+                )
+            for i in range(n):
+                per_robot[i][key] = arr[i]
+        self._reset_robots(np.arange(n), per_robot)
+        self._started = True
+        return self._observation(), self._info(np.zeros(n, bool), np.zeros(n, bool))
+
+    def step(
+        self, actions: npt.ArrayLike
+    ) -> tuple[
+        npt.NDArray[np.float32],
+        FloatArray,
+        npt.NDArray[np.bool_],
+        npt.NDArray[np.bool_],
+        dict[str, Any],
+    ]:
+        if not self._started:
+            raise RuntimeError("call reset() before step()")
+        a = np.asarray(actions, dtype=np.float64)
+        if a.shape != (self.num_envs, 2):
+            raise ValueError(f"actions must have shape ({self.num_envs}, 2), got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError("actions must be finite; got NaN or inf")
+        a = np.clip(a, -1.0, 1.0)
+        self.drive.step(a, self.pose)
+        self.steps += 1
+        self._update_estimate()
+        due = np.flatnonzero(self.steps % self._scan_every == 0)
+        if due.size:
+            self._measure_scan(due)
+
+        dist, ang = self._pose_error()
+        collision = self._collisions()
+        twist = self.drive.twist()
+        success = (
+            (dist <= self.success_pos_tol)
+            & (ang <= self.success_ang_tol)
+            & (np.abs(twist[:, 0]) < 0.01)
+            & (np.abs(twist[:, 1]) < 0.05)
+        )
+        w = self.weights
+        terms = {
+            "progress": w.progress * (self.prev[:, 0] - dist),
+            "heading": w.heading * np.exp(-dist / w.heading_scale) * (self.prev[:, 1] - ang),
+            "time": np.full(self.num_envs, -w.time),
+            "effort": -w.effort * (a[:, 0] ** 2 + a[:, 1] ** 2),
+            "collision": np.where(collision, -w.collision, 0.0),
+            "success": np.where(success, w.success, 0.0),
+        }
+        reward = sum(terms.values())
+        self.prev[:, 0], self.prev[:, 1] = dist, ang
+        terminated = collision | (success & self.terminate_on_success)
+        truncated = (self.steps >= self.max_episode_steps) & ~terminated
+        obs = self._observation()
+        info = self._info(collision, success, dist, ang, terms)
+        done = np.flatnonzero(terminated | truncated)
+        if done.size:
+            info["final_obs"] = obs.copy()
+            info["_final_obs"] = terminated | truncated
+            info["final_info"] = {
+                k: (v.copy() if isinstance(v, np.ndarray) else v)
+                for k, v in info.items()
+                if k not in ("final_obs", "_final_obs")
+            }
+            info["_final_info"] = terminated | truncated
+            self._reset_robots(done, [{} for _ in done])
+            fresh = self._observation()
+            obs[done] = fresh[done]
+            start_info = self._info(np.zeros(self.num_envs, bool), np.zeros(self.num_envs, bool))
+            for key, value in start_info.items():
+                if isinstance(value, np.ndarray):
+                    info[key] = info[key].copy()
+                    info[key][done] = value[done]
+        return obs, np.asarray(reward, dtype=np.float64), terminated, truncated, info
+
+    def restart_from(
+        self, idx: npt.ArrayLike, starts: npt.ArrayLike
+    ) -> tuple[npt.NDArray[np.float32], dict[str, Any]]:
+        """Start robots ``idx`` again from poses ``starts`` (K, 3), at rest, in the same
+        episode (goal and obstacles kept; odometry, scan and step count restarted).
+
+        Returns the observation and info of every robot, as :meth:`reset` does.
+
+        Raises
+        ------
+        ValueError
+            If a pose is not finite or overlaps the room's walls or an obstacle.
+        """
+        rows = np.asarray(idx, dtype=np.intp).reshape(-1)
+        poses = np.asarray(starts, dtype=float).reshape(-1, 3)
+        if poses.shape[0] != rows.size or not np.all(np.isfinite(poses)):
+            raise ValueError(
+                f"starts must be {rows.size} finite poses [x, y, θ], got shape {poses.shape}"
+            )
+        if rows.size and np.any(
+            self.scenery.clearance_of(rows, poses[:, :2]) <= self.true_params.body_radius
+        ):
+            raise ValueError("a start pose overlaps a wall or an obstacle of its episode")
+        self.pose[rows] = poses
+        self.estimate[rows] = poses
+        self.drive.reset(rows)
+        self.ticks[rows] = 0.0
+        self.steps[rows] = 0
+        self._measure_scan(rows)
+        dist, ang = self._pose_error()
+        self.prev[rows, 0], self.prev[rows, 1] = dist[rows], ang[rows]
+        zeros = np.zeros(self.num_envs, bool)
+        return self._observation(), self._info(zeros, zeros)
+
+    def close_extras(self, **kwargs: Any) -> None:
+        self._started = False
+
+    # ------------------------------------------------------------------ internals
+    def _reset_robots(self, idx: npt.NDArray[np.intp], options: list[dict[str, Any]]) -> None:
+        radius = self.true_params.body_radius
+        values: dict[str, FloatArray] = {
+            k: np.full(idx.size, v) for k, v in self.fixed_values.items()
+        }
+        for j, i in enumerate(idx):
+            rng, task = self.rngs[i], self.tasks[i]
+            start, goal = task.sample_start_goal(rng, options[j], radius)
+            arena = task.sample_arena(rng, start, goal, radius)
+            self.obstacles[i] = arena
+            self.scenery.set(int(i), arena)
+            self.pose[i] = start
+            self.estimate[i] = start
+            self.goal[i] = goal
+            task.goal = goal
+            for key, (lo, hi) in self.randomize.items():
+                values.setdefault(key, np.full(idx.size, np.nan))[j] = rng.uniform(lo, hi)
+        if self.randomize or self.fixed_values:
+            self.drive.set_values(idx, values)
+        self.drive.reset(idx)
+        self.ticks[idx] = 0.0
+        self.steps[idx] = 0
+        self._measure_scan(idx)
+        dist, ang = self._pose_error()
+        self.prev[idx, 0], self.prev[idx, 1] = dist[idx], ang[idx]
+
+    def _pose_error(self) -> tuple[FloatArray, FloatArray]:
+        d = self.pose - self.goal
+        dist = np.hypot(d[:, 0], d[:, 1])
+        ang = np.abs((d[:, 2] + math.pi) % (2.0 * math.pi) - math.pi)
+        return dist, ang
+
+    def _collisions(self) -> npt.NDArray[np.bool_]:
+        return (
+            self.scenery.clearance(self.pose[:, :2]) < self.true_params.body_radius + CONTACT_MARGIN
+        )
+
+    def _update_estimate(self) -> None:
+        """Wheel odometry on quantised counts (the increments of
+        :class:`~realitygap.estimators.diffdrive_model.WheelOdometry`)."""
+        ticks = np.floor(self.drive.encoder_angles() * self._ticks_per_rad)
+        s = (ticks - self.ticks) * self._odo_m_per_tick
+        self.ticks = ticks
+        ds = 0.5 * (s[:, 0] + s[:, 1])
+        dth = (s[:, 1] - s[:, 0]) / self.params.wheelbase
+        est = self.estimate
+        with np.errstate(divide="ignore", invalid="ignore"):
+            small = np.abs(dth) < 1e-9
+            f1 = np.where(small, 1.0 - dth**2 / 6.0, np.sin(dth) / np.where(small, 1.0, dth))
+            f2 = np.where(small, dth / 2.0, (1.0 - np.cos(dth)) / np.where(small, 1.0, dth))
+        dx, dy = ds * f1, ds * f2
+        c, sn = np.cos(est[:, 2]), np.sin(est[:, 2])
+        est[:, 0] += c * dx - sn * dy
+        est[:, 1] += sn * dx + c * dy
+        est[:, 2] = (est[:, 2] + dth + math.pi) % (2.0 * math.pi) - math.pi
+
+    def _measure_scan(self, idx: npt.NDArray[np.intp]) -> None:
+        """Analytic scan with depth noise for robots ``idx`` (as ``PlanarScanner.scan_fast``)."""
+        cam = self.true_params.camera
+        mount = self.drive.mount[idx]
+        pose = self.pose[idx]
+        c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+        origin = np.column_stack(
+            [
+                pose[:, 0] + c * mount[:, 0] - s * mount[:, 1],
+                pose[:, 1] + s * mount[:, 0] + c * mount[:, 1],
+            ]
+        )
+        # beam directions by the angle-sum identities (no trigonometry per beam)
+        co, so = self._beam_cos[None, :], self._beam_sin[None, :]
+        ya = mount[:, 2]
+        cy, sy = np.cos(ya)[:, None], np.sin(ya)[:, None]
+        cb, sb = cy * co - sy * so, sy * co + cy * so  # bearing in the base frame
+        ch, sh = c[:, None] * cb - s[:, None] * sb, s[:, None] * cb + c[:, None] * sb
+        dirs = np.stack([ch, sh], axis=-1)
+        ranges = self.scenery.ray_cast(
+            idx, origin, dirs, cam.range_max, half_fov=float(np.ptp(self._beam_offsets)) / 2.0
+        )
+        ranges += mount[:, 0, None] * cb + mount[:, 1, None] * sb
+        sigma = cam.depth_noise_a + cam.depth_noise_b * ranges * ranges
+        ranges += self.noise_rng.standard_normal(ranges.shape) * np.where(
+            np.isfinite(sigma), sigma, 0.0
+        )
+        np.maximum(ranges, cam.range_min, out=ranges)
+        self.scan[idx] = ranges
+
+    def _observation(self) -> npt.NDArray[np.float32]:
+        n = self.num_envs
+        est, goal = self.estimate, self.goal
+        c, s = np.cos(est[:, 2]), np.sin(est[:, 2])
+        dx, dy = goal[:, 0] - est[:, 0], goal[:, 1] - est[:, 1]
+        obs = np.empty((n, 12 + self.n_beams), dtype=np.float64)
+        obs[:, 0], obs[:, 1], obs[:, 2], obs[:, 3] = est[:, 0], est[:, 1], c, s
+        obs[:, 4], obs[:, 5] = goal[:, 0], goal[:, 1]
+        obs[:, 6], obs[:, 7] = np.cos(goal[:, 2]), np.sin(goal[:, 2])
+        obs[:, 8], obs[:, 9] = c * dx + s * dy, -s * dx + c * dy
+        obs[:, 10] = self.drive.cmd[:, 0] / self.params.v_max
+        obs[:, 11] = self.drive.cmd[:, 1] / self.params.w_max
+        np.divide(self.scan, self.scan_range_max, out=obs[:, 12:])
+        np.minimum(obs[:, 12:], 1.0, out=obs[:, 12:])
+        out = obs.astype(np.float32)
+        np.clip(out, self._obs_low, self._obs_high, out=out)
+        return out
+
+    def _info(
+        self,
+        collision: npt.NDArray[np.bool_],
+        success: npt.NDArray[np.bool_],
+        dist: FloatArray | None = None,
+        ang: FloatArray | None = None,
+        terms: Mapping[str, FloatArray] | None = None,
+    ) -> dict[str, Any]:
+        if dist is None or ang is None:
+            dist, ang = self._pose_error()
+        return {
+            "true_pose": self.pose.copy(),
+            "estimated_pose": self.estimate.copy(),
+            "goal": self.goal.copy(),
+            "pos_error": dist,
+            "heading_error": ang,
+            "collision": collision,
+            "is_success": success,
+            "t": self.steps * self.dt,
+            "reward_terms": {k: np.asarray(v, dtype=float) for k, v in (terms or {}).items()},
+        }
