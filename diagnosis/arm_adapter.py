@@ -10,9 +10,10 @@ flange frame (``meta["tool"]``, m) and the noise of one tool-point measurement
 repeatability).
 
 Features
-    Poses are grouped in windows of four consecutive ones; each window's
-    features are the six distances between their tool points (group
-    ``tool_dist``). Distances do not depend on where the instrument stands, so
+    Poses are grouped in windows of four, a quarter of the series apart
+    (:func:`spread_windows`: long distances across the workspace, whatever the
+    order of measurement); each window's features are the six distances between
+    their tool points (group ``tool_dist``). Distances do not depend on where the instrument stands, so
     no base registration enters the comparison — the distance-accuracy idea of
     the calibration, applied to the gap. (The base yaw offset ``dtheta1`` and
     the base height ``d1`` are invisible to distances, and say so.)
@@ -113,6 +114,7 @@ __all__ = [
     "reach_ratio",
     "record_arm_log",
     "sample_arm_poses",
+    "spread_windows",
     "surrogate_points",
     "tool_distance_features",
 ]
@@ -275,6 +277,19 @@ def _windows(n: int) -> npt.NDArray[np.int64]:
     m = n // POSES_PER_WINDOW
     a = np.arange(m) * POSES_PER_WINDOW
     return np.stack([a, a + POSES_PER_WINDOW], axis=1).astype(np.int64)
+
+
+def spread_windows(n: int) -> npt.NDArray[np.int64]:
+    """Rows (M, 4) of the poses of each window of a series of ``n`` poses.
+
+    Window ``m`` holds poses ``m, m + M, m + 2M, m + 3M`` with ``M = n // 4``: its
+    four poses lie a quarter of the series apart, so its tool-point distances span
+    the workspace whatever order the poses were measured in (in a grid series
+    neighbouring poses are a few centimetres apart, and a short distance hardly
+    changes with the geometry: it would hide what the calibration sees).
+    """
+    m = n // POSES_PER_WINDOW
+    return (np.arange(m)[:, None] + m * np.arange(POSES_PER_WINDOW)[None, :]).astype(np.int64)
 
 
 # --------------------------------------------------------------------------- surrogate
@@ -450,17 +465,17 @@ class ArmAdapter(AdapterBase):
         tool = _tool(log)
         q_all = np.asarray(log["joints"], dtype=float)
         dir_all = backlash_directions(q_all)  # from the full sequence of moves
-        windows = _windows(log.n)
-        # windows with a pose of unknown approach direction are left out, not assumed
-        known = known_direction_poses(dir_all)
-        ok = np.array([known[a:b].all() for a, b in windows], dtype=bool)
-        if ok.sum() >= 2:
-            windows = windows[ok]
+        # poses of unknown approach direction are left out, not assumed; only when fewer
+        # than two windows would remain are they kept, in the middle of their play
+        usable = np.flatnonzero(known_direction_poses(dir_all))
+        if usable.size < 2 * POSES_PER_WINDOW:
+            usable = np.arange(log.n)
+        windows = usable[spread_windows(usable.size)]
         if windows.shape[0] > self.max_windows:
             # evenly spread windows; every pose keeps the direction of its real last move
             pick = np.unique(np.linspace(0, windows.shape[0] - 1, self.max_windows).round())
             windows = windows[pick.astype(np.int64)]
-        keep = np.concatenate([np.arange(a, b) for a, b in windows])
+        keep = windows.reshape(-1)
         q, direction = q_all[keep], dir_all[keep]
         points = np.asarray(log["tool_pos"], dtype=float)[keep]
         bounds = _windows(keep.size)
@@ -602,6 +617,21 @@ class ArmAdapter(AdapterBase):
             for name in ("arm_train", "arm_holdout")
         )
         return train, holdout
+
+    def discover_residual(
+        self,
+        problem: Any,
+        z_train: FloatArray,
+        z_holdout: FloatArray,
+        mask: npt.NDArray[np.bool_] | None,
+        settings: Any,
+    ) -> Any:
+        """Discovery on tool distances: joint-angle error generators, per residual entry
+        (:func:`~realitygap.diagnosis.arm_discovery.discover_arm`); the per-window terms of
+        :meth:`discovery_terms` cannot describe a distance between two poses."""
+        from realitygap.diagnosis.arm_discovery import discover_arm
+
+        return discover_arm(problem, z_train, z_holdout, mask, settings)
 
     def discovery_terms(self, prepared: PreparedLog) -> dict[str, tuple[FloatArray, str]]:
         """Candidate terms of an unexplained residual, one value per window, with SI units.
