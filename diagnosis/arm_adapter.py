@@ -633,6 +633,15 @@ class ArmAdapter(AdapterBase):
 
         return discover_arm(problem, z_train, z_holdout, mask, settings)
 
+    def residual_structure(
+        self, problem: Any, values: Mapping[str, float], desc: dict[str, Any]
+    ) -> dict[str, Any]:
+        """The structured-residual test with held-out predictability added
+        (:func:`~realitygap.diagnosis.arm_discovery.held_out_structure`)."""
+        from realitygap.diagnosis.arm_discovery import held_out_structure
+
+        return held_out_structure(problem, values, desc)
+
     def discovery_terms(self, prepared: PreparedLog) -> dict[str, tuple[FloatArray, str]]:
         """Candidate terms of an unexplained residual, one value per window, with SI units.
 

@@ -29,6 +29,7 @@ the verdict's best model; discovery only describes it.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -38,7 +39,7 @@ from realitygap.diagnosis.discovery import Discovery, DiscoverySettings, fit_ter
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["arm_discovery_generators", "discover_arm", "pair_terms"]
+__all__ = ["arm_discovery_generators", "discover_arm", "held_out_structure", "pair_terms"]
 
 _STEP = 1e-6
 """Step (rad) of the central differences of the tool point by a joint angle."""
@@ -208,3 +209,40 @@ def _term_words(term: dict[str, Any]) -> str:
     name, coef, unit = str(term["term"]), float(term["coef"]), str(term["unit"])
     lhs, _, rhs = name.partition(" ∝ ")
     return f"{lhs} = {coef:+.3g} {unit}·{rhs}" if rhs else f"{coef:+.3g} {unit}·{name}"
+
+
+def held_out_structure(
+    problem: Any, values: Mapping[str, float], desc: dict[str, Any]
+) -> dict[str, Any]:
+    """``desc`` (:func:`~realitygap.diagnosis.residual.describe_residual`) with a held-out
+    predictability test added: is the residual of the model ``values`` structured?
+
+    A residual is structured when terms of the arm's library chosen on the
+    *training* windows' residual (:func:`discover_arm`) predict the *held-out*
+    residual (held-out shrink of at least
+    :attr:`~realitygap.diagnosis.discovery.DiscoverySettings.min_shrink`): a
+    systematic part that is not noise, whatever noise level the logs state. With
+    the stated noise alone a model that compensates a missing effect passes as
+    soon as what it leaves is within a few times a conservative noise figure (a
+    data-sheet repeatability); on noise the one-standard-error rule of the
+    regression selects nothing, so a correct model is not touched. ``values``
+    empty: the reference replay's residual.
+    """
+    if values:
+        point = {k: np.array([v]) for k, v in values.items()}
+        z_tr = problem.surrogate_residuals(problem.train, point, 1)[0]
+        z_ho = problem.surrogate_residuals(problem.holdout, point, 1)[0]
+    else:
+        z_tr = problem.nominal_residuals(problem.train)
+        z_ho = problem.nominal_residuals(problem.holdout)
+    disc = discover_arm(problem, z_tr, z_ho)
+    out = {**desc, "reasons": list(desc.get("reasons", ())), "held_out_structure": disc.to_json()}
+    if disc.found:
+        fit = disc.fits[0]
+        out["reasons"].append(
+            "tool_dist: terms fitted on the training residual predict the held-out residual "
+            f"({fit.heldout_shrink_pct:.0f} % of its RMS): "
+            + "; ".join(_term_words(t) for t in fit.terms)
+        )
+        out["structured"] = True
+    return out
