@@ -39,7 +39,19 @@ from realitygap.diagnosis.discovery import Discovery, DiscoverySettings, fit_ter
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["arm_discovery_generators", "discover_arm", "held_out_structure", "pair_terms"]
+__all__ = [
+    "STATED_NOISE_TOLERANCE",
+    "arm_discovery_generators",
+    "discover_arm",
+    "held_out_structure",
+    "pair_terms",
+]
+
+STATED_NOISE_TOLERANCE = 1.5
+"""A held-out residual RMS above this multiple of the noise floor is structured: more than
+the stated noise figure's own uncertainty (a data-sheet repeatability, a tracker's
+specification) allows. On hundreds of distances pure noise stays within a few per cent of
+the floor, so the tolerance is for the figure, not for chance."""
 
 _STEP = 1e-6
 """Step (rad) of the central differences of the tool point by a joint angle."""
@@ -214,8 +226,13 @@ def _term_words(term: dict[str, Any]) -> str:
 def held_out_structure(
     problem: Any, values: Mapping[str, float], desc: dict[str, Any]
 ) -> dict[str, Any]:
-    """``desc`` (:func:`~realitygap.diagnosis.residual.describe_residual`) with a held-out
-    predictability test added: is the residual of the model ``values`` structured?
+    """``desc`` (:func:`~realitygap.diagnosis.residual.describe_residual`) with two held-out
+    tests added: is the residual of the model ``values`` structured?
+
+    Its held-out RMS is compared with the noise floor: the noise the logs state,
+    raised by the noise the fitted parameters carry onto the held-out windows
+    (:func:`~realitygap.diagnosis.arm_aliases.fit_noise_inflation`); above
+    :data:`STATED_NOISE_TOLERANCE` times that floor it is structured.
 
     A residual is structured when terms of the arm's library chosen on the
     *training* windows' residual (:func:`discover_arm`) predict the *held-out*
@@ -235,8 +252,21 @@ def held_out_structure(
     else:
         z_tr = problem.nominal_residuals(problem.train)
         z_ho = problem.nominal_residuals(problem.holdout)
+    from realitygap.diagnosis.arm_aliases import fit_noise_inflation
+
     disc = discover_arm(problem, z_tr, z_ho)
     out = {**desc, "reasons": list(desc.get("reasons", ())), "held_out_structure": disc.to_json()}
+    group = desc.get("groups", {}).get("tool_dist")
+    if group is not None and group["white_level"] > 0.0:
+        effects = sorted({k.split(".")[0] for k in values})
+        inflation = fit_noise_inflation(problem.adapter, problem.logs, effects)
+        ratio = group["rms"] / (group["white_level"] * inflation)
+        out["noise_floor"] = {"inflation": inflation, "ratio": ratio}
+        if ratio > STATED_NOISE_TOLERANCE:
+            out["reasons"].append(
+                f"tool_dist: held-out residual RMS is {ratio:.2f}× the noise floor (the noise "
+                f"the logs state, × {inflation:.3f} for the fitted parameters' own noise)"
+            )
     if disc.found:
         fit = disc.fits[0]
         out["reasons"].append(
@@ -244,5 +274,5 @@ def held_out_structure(
             f"({fit.heldout_shrink_pct:.0f} % of its RMS): "
             + "; ".join(_term_words(t) for t in fit.terms)
         )
-        out["structured"] = True
+    out["structured"] = bool(out["reasons"])
     return out
