@@ -53,6 +53,14 @@ Unknown directions
     (:func:`~realitygap.diagnosis.arm_kinematics.known_direction_poses`), so a
     direction-dependent fit (backlash) never assumes one.
 
+Structured residual and discovery
+    Windows of random poses are independent, so the verdict's residual tests use
+    the stated measurement noise; :meth:`ArmAdapter.residual_structure` adds two
+    held-out tests (the noise floor raised by the fitted parameters' own noise,
+    and terms fitted on the training residual that predict the held-out one), and
+    :meth:`ArmAdapter.discover_residual` describes a residual by joint-angle error
+    generators (:mod:`~realitygap.diagnosis.arm_discovery`).
+
 Aliases
     :meth:`ArmAdapter.alias_groups` states which effects tool-point distances
     cannot separate (tool offset / link lengths / measurement scale; base tilt /

@@ -81,3 +81,30 @@ def test_noise_alone_is_no_gap_and_no_finding() -> None:
     assert d.verdict.kind == "none", d.verdict.reason
     structure = d.verdict.residual.get("held_out_structure")
     assert structure is not None and not structure["found"]
+
+
+def test_the_noise_floor_grows_with_the_fitted_parameters() -> None:
+    from realitygap.diagnosis.adapters import get_adapter
+    from realitygap.diagnosis.arm_aliases import fit_noise_inflation
+    from realitygap.diagnosis.features import FeatureSettings
+    from realitygap.diagnosis.replay import Drive
+
+    rng = np.random.default_rng(4)
+    adapter = get_adapter("arm")
+    prepared = [
+        adapter.prepare(
+            _series(rng, 48, 0.0, sp),
+            split=sp,
+            drive=Drive.COMMANDS,
+            features_settings=FeatureSettings(),
+            sim=None,
+        )
+        for sp in ("train", "holdout")
+    ]
+    n_ho = 6 * prepared[1].bounds.shape[0]
+    assert fit_noise_inflation(adapter, prepared, []) == 1.0
+    tool = fit_noise_inflation(adapter, prepared, ["arm_tool_offset"])
+    # training and held-out poses from one distribution: close to sqrt(1 + p / n)
+    assert 0.5 < (tool**2 - 1.0) * n_ho / 3 < 2.0
+    many = fit_noise_inflation(adapter, prepared, ["arm_geometric_tolerances"])
+    assert many > tool > 1.0
