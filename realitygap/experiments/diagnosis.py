@@ -296,6 +296,7 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
                 figures[f"ur10_{prefix}discovered_terms"] = [
                     f"{t['term']}: {t['coef']:.3g} {t['unit']}"
                     for f in disc["fits"][:1]
+                    if f["found"]
                     for t in f["terms"]
                 ]
                 figures[f"ur10_{prefix}discovery_heldout_shrink_pct"] = (
@@ -331,7 +332,7 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
         ADAPTERS.pop("arm", None)
     notes.append(
         "distance error: RMS over held-out windows of the six tool-point distances between four "
-        "consecutive poses (registration-free); shrink = 1 - best/nominal"
+        "poses a quarter of the series apart (registration-free); shrink = 1 - best/nominal"
     )
     notes.append(
         "identified_*: distance-mode MDH identification (estimators.arm.identify) on the training "
