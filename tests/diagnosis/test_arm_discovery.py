@@ -10,7 +10,7 @@ from realitygap.diagnosis.arm_adapter import arm_params_to_meta
 from realitygap.diagnosis.arm_discovery import discover_arm, pair_terms
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.log import Log
-from realitygap.estimators.arm.mdh import tool_positions
+from realitygap.estimators.arm.mdh import MDHTable, tool_positions
 from realitygap.robots.arm import ArmParams
 
 TOOL = np.array([0.0, 0.02, 0.11])
@@ -28,15 +28,24 @@ def test_pair_terms_of_a_translation_vanish_and_of_a_scale_are_the_distance() ->
     np.testing.assert_allclose(X[:, 1], np.linalg.norm(pts[j] - pts[i], axis=1), rtol=1e-12)
 
 
-def _series(rng: np.random.Generator, n: int, eccentric: float, name: str) -> Log:
-    """Random poses of the nominal arm with joint 2 off by ``eccentric``·sin 2q2 (rad),
-    measured with isotropic noise: plain numpy, no PyBullet."""
+def _series(
+    rng: np.random.Generator,
+    n: int,
+    eccentric: float,
+    name: str,
+    table: MDHTable | None = None,
+    tool: np.ndarray = TOOL,
+) -> Log:
+    """Random poses of the arm ``table`` (default nominal) with joint 2 off by
+    ``eccentric``·sin 2q2 (rad) and the point ``tool`` measured with isotropic noise;
+    the log declares the nominal arm and tool. Plain numpy, no PyBullet."""
     params = ArmParams()
     q = rng.uniform(-2.5, 2.5, (n, 6))
     q[:, 1] = rng.uniform(-2.8, -0.3, n)
     q_true = q.copy()
     q_true[:, 1] += eccentric * np.sin(2 * q[:, 1])
-    pts = tool_positions(params.mdh, q_true, TOOL) + rng.normal(0.0, NOISE, (n, 3))
+    true_table = params.mdh if table is None else table
+    pts = tool_positions(true_table, q_true, tool) + rng.normal(0.0, NOISE, (n, 3))
     return Log(
         t=np.arange(n, dtype=float),
         channels={"joints": q, "tool_pos": pts},
@@ -108,3 +117,24 @@ def test_the_noise_floor_grows_with_the_fitted_parameters() -> None:
     assert 0.5 < (tool**2 - 1.0) * n_ho / 3 < 2.0
     many = fit_noise_inflation(adapter, prepared, ["arm_geometric_tolerances"])
     assert many > tool > 1.0
+
+
+def test_many_small_geometric_errors_are_a_verdict() -> None:
+    from realitygap.robots.effects.arm import GEOMETRIC_TOLERANCE_PARAMS
+
+    rng = np.random.default_rng(11)
+    # every identifiable MDH parameter and the tool point off by up to 0.6 mm / 0.6 mrad
+    deltas = {n: float(rng.uniform(-6e-4, 6e-4)) for n in GEOMETRIC_TOLERANCE_PARAMS}
+    nominal = ArmParams().mdh
+    kin = [n for n in deltas if not n.startswith("tool_")]
+    table = nominal.with_params([nominal.param_dict()[n] + deltas[n] for n in kin], kin)
+    tool = TOOL + np.array([deltas["tool_x"], deltas["tool_y"], deltas["tool_z"]])
+    train = [_series(rng, 120, 0.0, "train", table, tool)]
+    holdout = [_series(rng, 120, 0.0, "holdout", table, tool)]
+    d = diagnose(train, holdout, settings=DiagnosisSettings(robot="arm"))
+    assert d.verdict.effects == ("arm_geometric_tolerances",), d.verdict.reason
+    assert d.gap["heldout_shrink_pct"] > 90.0
+    floor = d.verdict.residual["noise_floor"]
+    # 21 parameters on 120 poses: a little above the measurement noise, and no more
+    assert 1.0 < floor["inflation"] < 1.2
+    assert floor["ratio"] < 1.5
