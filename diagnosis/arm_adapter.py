@@ -10,9 +10,10 @@ flange frame (``meta["tool"]``, m) and the noise of one tool-point measurement
 repeatability).
 
 Features
-    Poses are grouped in windows of four consecutive ones; each window's
-    features are the six distances between their tool points (group
-    ``tool_dist``). Distances do not depend on where the instrument stands, so
+    Poses are grouped in windows of four, a quarter of the series apart
+    (:func:`spread_windows`: long distances across the workspace, whatever the
+    order of measurement); each window's features are the six distances between
+    their tool points (group ``tool_dist``). Distances do not depend on where the instrument stands, so
     no base registration enters the comparison — the distance-accuracy idea of
     the calibration, applied to the gap. (The base yaw offset ``dtheta1`` and
     the base height ``d1`` are invisible to distances, and say so.)
@@ -51,6 +52,14 @@ Unknown directions
     joint before its first move; windows with such a pose are left out
     (:func:`~realitygap.diagnosis.arm_kinematics.known_direction_poses`), so a
     direction-dependent fit (backlash) never assumes one.
+
+Structured residual and discovery
+    Windows of random poses are independent, so the verdict's residual tests use
+    the stated measurement noise; :meth:`ArmAdapter.residual_structure` adds two
+    held-out tests (the noise floor raised by the fitted parameters' own noise,
+    and terms fitted on the training residual that predict the held-out one), and
+    :meth:`ArmAdapter.discover_residual` describes a residual by joint-angle error
+    generators (:mod:`~realitygap.diagnosis.arm_discovery`).
 
 Aliases
     :meth:`ArmAdapter.alias_groups` states which effects tool-point distances
@@ -113,6 +122,7 @@ __all__ = [
     "reach_ratio",
     "record_arm_log",
     "sample_arm_poses",
+    "spread_windows",
     "surrogate_points",
     "tool_distance_features",
 ]
@@ -275,6 +285,19 @@ def _windows(n: int) -> npt.NDArray[np.int64]:
     m = n // POSES_PER_WINDOW
     a = np.arange(m) * POSES_PER_WINDOW
     return np.stack([a, a + POSES_PER_WINDOW], axis=1).astype(np.int64)
+
+
+def spread_windows(n: int) -> npt.NDArray[np.int64]:
+    """Rows (M, 4) of the poses of each window of a series of ``n`` poses.
+
+    Window ``m`` holds poses ``m, m + M, m + 2M, m + 3M`` with ``M = n // 4``: its
+    four poses lie a quarter of the series apart, so its tool-point distances span
+    the workspace whatever order the poses were measured in (in a grid series
+    neighbouring poses are a few centimetres apart, and a short distance hardly
+    changes with the geometry: it would hide what the calibration sees).
+    """
+    m = n // POSES_PER_WINDOW
+    return (np.arange(m)[:, None] + m * np.arange(POSES_PER_WINDOW)[None, :]).astype(np.int64)
 
 
 # --------------------------------------------------------------------------- surrogate
@@ -450,17 +473,17 @@ class ArmAdapter(AdapterBase):
         tool = _tool(log)
         q_all = np.asarray(log["joints"], dtype=float)
         dir_all = backlash_directions(q_all)  # from the full sequence of moves
-        windows = _windows(log.n)
-        # windows with a pose of unknown approach direction are left out, not assumed
-        known = known_direction_poses(dir_all)
-        ok = np.array([known[a:b].all() for a, b in windows], dtype=bool)
-        if ok.sum() >= 2:
-            windows = windows[ok]
+        # poses of unknown approach direction are left out, not assumed; only when fewer
+        # than two windows would remain are they kept, in the middle of their play
+        usable = np.flatnonzero(known_direction_poses(dir_all))
+        if usable.size < 2 * POSES_PER_WINDOW:
+            usable = np.arange(log.n)
+        windows = usable[spread_windows(usable.size)]
         if windows.shape[0] > self.max_windows:
             # evenly spread windows; every pose keeps the direction of its real last move
             pick = np.unique(np.linspace(0, windows.shape[0] - 1, self.max_windows).round())
             windows = windows[pick.astype(np.int64)]
-        keep = np.concatenate([np.arange(a, b) for a, b in windows])
+        keep = windows.reshape(-1)
         q, direction = q_all[keep], dir_all[keep]
         points = np.asarray(log["tool_pos"], dtype=float)[keep]
         bounds = _windows(keep.size)
@@ -602,6 +625,30 @@ class ArmAdapter(AdapterBase):
             for name in ("arm_train", "arm_holdout")
         )
         return train, holdout
+
+    def discover_residual(
+        self,
+        problem: Any,
+        z_train: FloatArray,
+        z_holdout: FloatArray,
+        mask: npt.NDArray[np.bool_] | None,
+        settings: Any,
+    ) -> Any:
+        """Discovery on tool distances: joint-angle error generators, per residual entry
+        (:func:`~realitygap.diagnosis.arm_discovery.discover_arm`); the per-window terms of
+        :meth:`discovery_terms` cannot describe a distance between two poses."""
+        from realitygap.diagnosis.arm_discovery import discover_arm
+
+        return discover_arm(problem, z_train, z_holdout, mask, settings)
+
+    def residual_structure(
+        self, problem: Any, values: Mapping[str, float], desc: dict[str, Any]
+    ) -> dict[str, Any]:
+        """The structured-residual test with held-out predictability added
+        (:func:`~realitygap.diagnosis.arm_discovery.held_out_structure`)."""
+        from realitygap.diagnosis.arm_discovery import held_out_structure
+
+        return held_out_structure(problem, values, desc)
 
     def discovery_terms(self, prepared: PreparedLog) -> dict[str, tuple[FloatArray, str]]:
         """Candidate terms of an unexplained residual, one value per window, with SI units.

@@ -44,6 +44,7 @@ __all__ = [
     "ARM_ALIAS_GROUPS",
     "AliasGroup",
     "effect_jacobian",
+    "fit_noise_inflation",
     "identify_window_geometry",
     "measure_aliases",
 ]
@@ -87,13 +88,15 @@ ARM_ALIAS_GROUPS: tuple[AliasGroup, ...] = (
 """The alias groups the arm adapter knows (see :meth:`ArmAdapter.alias_groups`)."""
 
 
-def effect_jacobian(adapter: Any, prepared: Sequence[PreparedLog], effect: str) -> FloatArray:
+def effect_jacobian(
+    adapter: Any, prepared: Sequence[PreparedLog], effect: str, held: bool = False
+) -> FloatArray:
     """Derivatives (n, p) of the training features by ``effect``'s parameters.
 
     Central differences of the adapter's surrogate at the nominal values, a step
     of 1e-3 of each parameter's physical range; rows are the training windows'
-    features of every log (m: one unit, so no scale enters the correlations),
-    columns the parameters
+    features of every log (the held-out windows' with ``held``; m: one unit, so
+    no scale enters the correlations), columns the parameters
     (a column of zeros: a parameter the features do not see).
     """
     if effect not in EFFECTS:
@@ -101,7 +104,7 @@ def effect_jacobian(adapter: Any, prepared: Sequence[PreparedLog], effect: str) 
     specs = EFFECTS[effect].specs
     blocks = []
     for p in prepared:
-        wins = np.flatnonzero(~p.holdout_windows)
+        wins = np.flatnonzero(p.holdout_windows == held)
         if wins.size == 0:
             continue
         batch: dict[str, FloatArray] = {}
@@ -117,8 +120,35 @@ def effect_jacobian(adapter: Any, prepared: Sequence[PreparedLog], effect: str) 
         )
         blocks.append(((F[0::2] - F[1::2]) / (2.0 * steps[:, None])).T)
     if not blocks:
-        raise ValueError("the prepared logs have no training windows")
+        raise ValueError(f"the prepared logs have no {'held-out' if held else 'training'} windows")
     return np.concatenate(blocks, axis=0)
+
+
+def fit_noise_inflation(
+    adapter: Any, prepared: Sequence[PreparedLog], effects: Sequence[str]
+) -> float:
+    r"""Factor by which fitting ``effects`` on the training windows raises the held-out
+    residual of pure noise.
+
+    Fitting their :math:`p` parameters on training features with independent
+    noise :math:`\sigma` leaves a parameter error of covariance
+    :math:`\sigma^2 (J_{tr}^\top J_{tr})^{-1}`, which the held-out windows see
+    on top of their own noise:
+
+    .. math:: \frac{\sigma_{ho}}{\sigma} = \sqrt{1 + \tfrac{1}{n_{ho}}
+        \mathrm{tr}\big(J_{ho} (J_{tr}^\top J_{tr})^{+} J_{ho}^\top\big)},
+
+    with the Jacobians of :func:`effect_jacobian` stacked over the effects
+    (pseudo-inverse: directions the training windows do not see add nothing).
+    1 without effects.
+    """
+    if not effects:
+        return 1.0
+    J_tr = np.hstack([effect_jacobian(adapter, prepared, e) for e in effects])
+    J_ho = np.hstack([effect_jacobian(adapter, prepared, e, held=True) for e in effects])
+    cov = np.linalg.pinv(J_tr.T @ J_tr, rcond=1e-10, hermitian=True)
+    extra = float(np.einsum("ij,jk,ik->", J_ho, cov, J_ho)) / max(J_ho.shape[0], 1)
+    return float(np.sqrt(1.0 + extra))
 
 
 def _span(J: FloatArray) -> FloatArray:

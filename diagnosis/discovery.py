@@ -366,6 +366,8 @@ def discover(
     """
     st = settings if settings is not None else DiscoverySettings()
     adapter = problem.adapter
+    if hasattr(adapter, "discover_residual"):  # an adapter whose terms are not per window
+        return adapter.discover_residual(problem, z_train, z_holdout, mask, st)
     if not hasattr(adapter, "discovery_terms"):
         return None
     tr, ho = problem.train, problem.holdout

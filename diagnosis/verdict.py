@@ -105,6 +105,9 @@ def judge(
     scales = problem.features
     z_nom = problem.nominal_residuals(problem.holdout)
     nominal_desc = describe_residual(z_nom, problem.holdout, st, scales, noise)
+    structure = getattr(problem.adapter, "residual_structure", None)  # adapter's own test
+    if structure is not None:
+        nominal_desc = structure(problem, {}, nominal_desc)
     best = ranking[0]
     # the runner-up: the best model that is neither this one nor a superset rejected for it
     runner = next(
@@ -120,6 +123,8 @@ def judge(
     gap_mask = gap_channels(z_nom, problem)
     shrink_all = overall_shrink(z_nom[gap_mask], best.z_heldout[gap_mask])
     best_desc = describe_residual(best.z_heldout, problem.holdout, st, scales, noise)
+    if structure is not None and best.effects:
+        best_desc = structure(problem, best.values, best_desc)
     gain = nominal_fit.rank_score - best.rank_score
     if not nominal_desc["structured"] and gain < st.margin_strong:
         verdict = Verdict(

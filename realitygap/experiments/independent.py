@@ -171,7 +171,9 @@ def _median(xs: list[float]) -> float:
 @experiment(
     "diagnose-independent",
     "the diagnosis on OptiOdom and UR10 data written by an independent simulator "
-    "(its own kinematics, actuators, timing and noise; cases in and out of the library)",
+    "(its own kinematics, actuators, timing and noise; cases in and out of the library; "
+    "--robot diffdrive|arm runs one robot's cases)",
+    robots=("diffdrive", "arm"),
 )
 def diagnose_independent(ctx: RunContext) -> dict[str, Any]:
     from realitygap.core.parallel import ProcessBackend
@@ -185,6 +187,9 @@ def diagnose_independent(ctx: RunContext) -> dict[str, Any]:
         cases = [case_by_name(n) for n in QUICK]
     else:
         cases = list(CASES)
+    robot = ctx.options.get("robot")
+    if robot is not None:
+        cases = [c for c in cases if c.robot == robot]
     backend = ProcessBackend(ctx.options.get("workers"))
     rows: list[dict[str, Any]] = []
     t0 = time.perf_counter()

@@ -15,6 +15,7 @@ from realitygap.diagnosis.arm_adapter import (
     probe_positions,
     record_arm_log,
     replay_arm,
+    spread_windows,
     surrogate_points,
     tool_distance_features,
 )
@@ -194,6 +195,42 @@ def test_a_ur10_folder_reads_as_arm_logs(tmp_path: Path) -> None:
         lg, split="train", drive=Drive.COMMANDS, features_settings=FeatureSettings(), sim=None
     )
     np.testing.assert_allclose(prepared.real["tool_dist"], prepared.nominal["tool_dist"], atol=1e-6)
+
+
+def test_a_ur10_series_leaves_out_poses_of_unknown_approach_direction(tmp_path: Path) -> None:
+    """Read through the UR10 importer, the first pose (no known approach) and every pose
+    before a joint's first move are in no window; every kept pose knows its direction."""
+    series = tmp_path / "Series_Y"
+    series.mkdir()
+    q = _poses(40, seed=6)
+    q[:9, 5] = 0.3  # the last joint holds still until pose 9
+    pts = tool_positions(MDHTable.ur10(), q, (0.0, 0.0, 0.109))
+    _ur10_csv(series / "measurements_order.csv", q, 1e3 * pts)
+    (lg,) = read_logs(tmp_path)
+    prepared = get_adapter("arm").prepare(
+        lg, split="train", drive=Drive.COMMANDS, features_settings=FeatureSettings(), sim=None
+    )
+    rows = prepared.context.rows
+    assert rows.size > 0 and rows.min() >= 9  # poses 0-8: joint 6 not yet moved
+    assert np.all(prepared.context.direction != 0.0)
+    np.testing.assert_allclose(prepared.context.q, q[rows], atol=1e-8)
+
+
+def test_spread_windows_take_poses_a_quarter_of_the_series_apart() -> None:
+    w = spread_windows(10)
+    assert w.tolist() == [[0, 2, 4, 6], [1, 3, 5, 7]]
+    assert spread_windows(3).shape == (0, 4)
+    # in a grid series neighbours are close; spread windows see the long distances
+    q = np.zeros((40, 6))
+    q[:, 0] = np.linspace(-1.5, 1.5, 40)
+    q[:, 1], q[:, 2] = -1.2, 1.0
+    pts = tool_positions(MDHTable.ur10(), q, TOOL)
+    w = spread_windows(40)
+    spread = tool_distance_features(
+        pts[w.reshape(-1)], np.array([[4 * k, 4 * k + 4] for k in range(10)])
+    )
+    nearby = tool_distance_features(pts, np.array([[4 * k, 4 * k + 4] for k in range(10)]))
+    assert np.median(spread) > 5 * np.median(nearby)
 
 
 # --------------------------------------------------------------------------- bad input
