@@ -215,8 +215,9 @@ def _true_joints(q: FloatArray, hidden: ArmHidden) -> FloatArray:
             prev = q[i]
     flex = np.asarray(hidden.flex)
     if np.any(flex):
+        # a compliant joint gives way to gravity: it deflects against its holding torque
         for i in range(q.shape[0]):
-            out[i] += flex * gravity_torques(out[i])
+            out[i] -= flex * gravity_torques(out[i])
     return out
 
 

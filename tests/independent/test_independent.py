@@ -188,3 +188,18 @@ def test_scoring_rules() -> None:
     assert weak["open_set_strict"] == 0.0 and weak["open_set_lenient"] == 1.0
     assert weak["false_attribution"]
     assert score(drag, _fake("none", ()))["open_set_strict"] == 0.0
+
+
+def test_a_compliant_shoulder_sags_under_gravity() -> None:
+    """Joint flexibility lowers an outstretched tool; it never lifts it."""
+    q = np.array([[0.0, -0.3, 0.2, 0.0, 0.5, 0.0], [0.4, -1.2, 0.8, -0.6, 1.1, 0.2]])
+    stiff = ur10._true_joints(q, ur10.ArmHidden())
+    flexible = ur10._true_joints(q, ur10.ArmHidden(flex=(0.0, 2.5e-5, 0.0, 0.0, 0.0, 0.0)))
+    for k in range(q.shape[0]):
+        z_stiff = ur10.forward(stiff[k])[-1][2, 3]
+        z_flex = ur10.forward(flexible[k])[-1][2, 3]
+        torque = ur10.gravity_torques(q[k])[1]
+        reach = float(np.hypot(*ur10.forward(q[k])[-1][:2, 3]))
+        # closed form to first order: the shoulder turns by flex·τ, dropping the tool ≈ reach·flex·|τ|
+        assert z_flex < z_stiff
+        assert z_stiff - z_flex == pytest.approx(reach * 2.5e-5 * abs(torque), rel=0.35)
