@@ -4,8 +4,9 @@ A model fitted on the surrogate is refitted with the surrogate's defect
 against PyBullet replays removed (defect correction), then scored on PyBullet
 replays of every log (:func:`verify_model`). :func:`verify_ranking` verifies
 the leading models one by one, prefers simpler sub-models within the parsimony
-margin and drops effects whose fitted size is below the noise floor, until
-the top of the ranking is settled.
+margin, drops effects whose fitted size is below the noise floor and effects
+that do not improve the held-out residual beyond its noise
+(:func:`heldout_gain_significant`), until the top of the ranking is settled.
 """
 
 from __future__ import annotations
@@ -25,7 +26,10 @@ from realitygap.diagnosis.log import Log
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["Verification", "verify_model", "verify_ranking"]
+__all__ = ["Verification", "heldout_gain_significant", "verify_model", "verify_ranking"]
+
+HELDOUT_GAIN_SIGMAS = 2.0
+"""How many standard errors the held-out gain of a larger model must reach."""
 
 
 def _replay_task(
@@ -90,6 +94,27 @@ def verify_model(
         "rms_difference": math.sqrt(num / max(sum(p.bounds.shape[0] for p in problem.logs), 1)),
     }
     return verified, logs, agreement
+
+
+def heldout_gain_significant(
+    larger: ModelFit, smaller: ModelFit, sigmas: float = HELDOUT_GAIN_SIGMAS
+) -> bool:
+    r"""Whether ``larger`` fits the held-out data better than its sub-model ``smaller`` beyond noise.
+
+    A paired comparison of the normalised held-out residuals
+    :math:`z^{(s)}_k, z^{(l)}_k` of the same windows and columns: with
+    :math:`d_k = (z^{(s)}_k)^2 - (z^{(l)}_k)^2`, the gain counts when
+    :math:`\bar d > \sigma\, \mathrm{sd}(d) / \sqrt{n}`. An effect that a
+    training fit gives a size but that leaves the held-out residual where it was
+    is not named. Without held-out residuals the gain is taken as given.
+    """
+    zl, zs = np.asarray(larger.z_heldout), np.asarray(smaller.z_heldout)
+    if zl.size == 0 or zl.shape != zs.shape:
+        return True
+    d = zs**2 - zl**2
+    if d.size < 2:
+        return bool(d.mean() > 0)
+    return bool(d.mean() > sigmas * d.std(ddof=1) / math.sqrt(d.size))
 
 
 @dataclass
@@ -192,6 +217,15 @@ class _Ranker:
             ]
             if simpler and len(best.effects) > 1:
                 self.demote(best, simpler)
+                return True
+            # a second effect that does not improve the held-out residual beyond noise
+            unhelpful = [
+                f
+                for f in self.sub_models(best)
+                if f.verified and best.verified and not heldout_gain_significant(best, f)
+            ]
+            if unhelpful and len(best.effects) > 1:
+                self.demote(best, unhelpful)
                 return True
         n_ver = sum(1 for f in self.ranking if f.verified)
         todo = [
