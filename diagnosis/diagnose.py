@@ -470,6 +470,12 @@ def gap_report(
         gap["heldout_trajectory_gap_m_best"] = trajectory_gap(
             real_ho, [reps_best[i] for i in ho_idx]
         )
+        nom = gap["heldout_trajectory_gap_m_nominal"]
+        if nom > 0:
+            # whole replays: what a drift-type effect integrates into, next to the window figures
+            gap["heldout_trajectory_shrink_pct_best"] = 100.0 * (
+                1.0 - gap["heldout_trajectory_gap_m_best"] / nom
+            )
     gt_sel = problem.holdout.group == "pose_gt"
     if gt_sel.any():
         scale = scales.scale("pose_gt")[0]

@@ -101,3 +101,43 @@ def test_tick_replay_agrees_with_umbmark_on_the_same_squares(tmp_path: Path) -> 
     assert umb.E_d == pytest.approx(e_d_true, abs=0.003)
     g = d.gap
     assert g["heldout_trajectory_gap_m_best"] < 0.5 * g["heldout_trajectory_gap_m_nominal"]
+    assert g["heldout_trajectory_shrink_pct_best"] == pytest.approx(
+        100.0 * (1.0 - g["heldout_trajectory_gap_m_best"] / g["heldout_trajectory_gap_m_nominal"])
+    )
+
+
+@pytest.mark.slow
+def test_tick_replay_recovers_planted_factors_of_the_projects_own_generator() -> None:
+    from realitygap.diagnosis.diffdrive_adapter import DiffDriveAdapter
+    from realitygap.diagnosis.manoeuvres import MANOEUVRES
+    from realitygap.diagnosis.replay import simulate
+
+    params = DiffDriveParams()
+    reality = Reality(
+        (make_effect("wheelbase_error", E_b=1.02), make_effect("wheel_diameter_ratio", E_d=1.01))
+    )
+    rng = np.random.default_rng(11)
+
+    def record(name: str) -> object:
+        t, cmd = MANOEUVRES[name].applied(0.05, params)
+        return simulate(
+            t,
+            params=params,
+            reality=reality,
+            commands=cmd,
+            noise=DiffDriveAdapter.blind_noise,
+            rng=rng,
+            meta={"name": name},
+        )
+
+    train = [record("square_cw"), record("square_ccw")]
+    held = [record("tour")]
+    d = diagnose(train, held, settings=DiagnosisSettings(drive="ticks", effects=GEOMETRY))
+    assert not d.nominal_reference  # one declared geometry: nothing to relate
+    fit = d.ranking[0]
+    assert set(fit.effects) == {"wheelbase_error", "wheel_diameter_ratio"}
+    # PyBullet's wheels touch the floor over their width: the body's effective wheelbase
+    # is within a few tenths of a per cent of E_b · b, as for a real robot
+    for key, truth in (("wheelbase_error.E_b", 1.02), ("wheel_diameter_ratio.E_d", 1.01)):
+        assert abs(fit.values[key] - truth) < max(4.0 * fit.stderr[key], 0.003), key
+    assert d.gap["heldout_trajectory_shrink_pct_best"] > 50.0
