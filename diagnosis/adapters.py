@@ -227,6 +227,8 @@ class RobotAdapter(Protocol):
         self, prepared: Sequence[PreparedLog], drive: Drive
     ) -> dict[str, tuple[float, float, str]]: ...
 
+    def link_logs(self, prepared: Sequence[PreparedLog], drive: Drive) -> dict[str, Any]: ...
+
     def alias_groups(
         self,
         prepared: Sequence[PreparedLog],
@@ -292,6 +294,15 @@ class AdapterBase:
         """Nuisances fitted first as the calibrated baseline
         (:mod:`~realitygap.diagnosis.baseline`): ``"effect.param"`` → (low, high, what it is);
         none by default."""
+        return {}
+
+    def link_logs(self, prepared: Sequence[PreparedLog], drive: Drive) -> dict[str, Any]:
+        """Relate prepared logs of one robot to each other once all are prepared.
+
+        An adapter whose logs may declare different nominal parameters for the same
+        physical robot puts their effects on one reference here; returns a JSON-able
+        description of what it did (empty: nothing to relate, the default).
+        """
         return {}
 
     def alias_groups(

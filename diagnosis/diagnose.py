@@ -152,6 +152,7 @@ class Diagnosis:
     shrink_best: list[dict[str, Any]] = field(default_factory=list)
     baseline: Baseline = field(default_factory=Baseline)
     transients: TransientReport = field(default_factory=TransientReport)
+    nominal_reference: dict[str, Any] = field(default_factory=dict)
 
     @property
     def chosen(self) -> ModelFit | None:
@@ -219,6 +220,7 @@ class Diagnosis:
                     p.split == "train" and p.holdout_windows.any() for p in self.prepared
                 ),
             },
+            "nominal_reference": self.nominal_reference,
             "baseline_calibration": self.baseline.to_json(),
             "transients": self.transients.to_json(),
             "verdict": v.label,
@@ -468,6 +470,12 @@ def gap_report(
         gap["heldout_trajectory_gap_m_best"] = trajectory_gap(
             real_ho, [reps_best[i] for i in ho_idx]
         )
+        nom = gap["heldout_trajectory_gap_m_nominal"]
+        if nom > 0:
+            # whole replays: what a drift-type effect integrates into, next to the window figures
+            gap["heldout_trajectory_shrink_pct_best"] = 100.0 * (
+                1.0 - gap["heldout_trajectory_gap_m_best"] / nom
+            )
     gt_sel = problem.holdout.group == "pose_gt"
     if gt_sel.any():
         scale = scales.scale("pose_gt")[0]
@@ -526,6 +534,9 @@ def diagnose(
     t0 = time.perf_counter()
     library = candidate_library(adapter, s)
     prepared = prepare_logs(adapter, logs, holdout, s, be, say)
+    reference = adapter.link_logs(prepared, drive)
+    if reference:
+        say(reference["summary"])
     timing["prepare"] = time.perf_counter() - t0
 
     problem = Problem(adapter, prepared, drive, s.features, s.sim, s.attribution)
@@ -593,4 +604,5 @@ def diagnose(
         shrink_best=shrink_table(z_nom, best.z_heldout, problem.holdout, s.features),
         baseline=baseline,
         transients=transients,
+        nominal_reference=reference,
     )

@@ -90,6 +90,7 @@ __all__ = [
     "DiffDriveAdapter",
     "DiffDriveContext",
     "record_case_logs",
+    "values_for_log",
 ]
 
 _POSE = ("x", "y", "theta")
@@ -153,12 +154,17 @@ class DiffDriveContext(LogContext):
     twist : ndarray, shape (N, 2)
         Applied body twist (m/s, rad/s): the commands, or the wheel motion.
     surrogate : DiffDriveSurrogate
+    reference : DiffDriveParams or None
+        The nominal geometry every log of the diagnosis shares when the logs
+        declare different ones (:meth:`DiffDriveAdapter.link_logs`); ``None``
+        while the log is judged against its own.
     """
 
     params: DiffDriveParams
     inputs: SurrogateInputs
     twist: FloatArray
     surrogate: DiffDriveSurrogate
+    reference: DiffDriveParams | None = None
 
     def window_motion(self, bounds: npt.NDArray[np.int64]) -> FloatArray | None:
         """Mean speed and turn rate, their change over the window and ranges, (M, 6)."""
@@ -214,6 +220,69 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         if drive is Drive.COMMANDS:
             out["command_latency.delay"] = (0.0, half, "response time of the replayed commands")
         return out
+
+    # ------------------------------------------------------------------ common geometry
+    def link_logs(self, prepared: Sequence[PreparedLog], drive: Drive) -> dict[str, Any]:
+        """Put the geometric effects of logs with different declared geometry on one reference.
+
+        The logs of one diagnosis come from one physical robot, but their metadata may
+        declare different nominal wheel radii or wheelbases (an odometry configuration
+        changed between sessions). A factor such as ``E_b = b_actual / b_nominal``
+        relative to each log's own nominal would then be a different physical wheelbase
+        in each log, and no single value could fit them. When the declared geometries
+        differ, the most common one (the first log's on a tie) becomes the reference:
+        every geometric factor is relative to it (:func:`values_for_log`), and the
+        nominal replay of a log that declares another geometry is the robot with the
+        reference geometry (what its own ticks and commands would do on it).
+
+        Returns
+        -------
+        dict
+            Empty when every log declares the same geometry; else ``reference``
+            (wheel radii and wheelbase, m), ``relinked`` (the logs whose nominal
+            replay now uses it) and ``summary`` (one line).
+        """
+        if not prepared:
+            return {}
+        geoms = [_geometry(self._context(p).params) for p in prepared]
+        counts: dict[tuple[float, float, float], int] = {}
+        for g in geoms:
+            counts[g] = counts.get(g, 0) + 1
+        if len(counts) < 2:
+            return {}
+        ref_geom = max(counts, key=lambda g: (counts[g], -geoms.index(g)))
+        ref = self._context(prepared[geoms.index(ref_geom)]).params
+        relinked = []
+        for p, g in zip(prepared, geoms):
+            ctx = self._context(p)
+            ctx.reference = ref
+            if g == ref_geom:
+                continue
+            relinked.append(p.name)
+            nominal, replay_log = self.replay_features(p, {}, drive, ctx.sim)
+            p.nominal = {k: v for k, v in nominal.items() if k in p.real}
+            p.replay_log = replay_log
+            sur = self.surrogate_features(p, {}, drive)
+            p.bias = {k: p.nominal[k] - sur[k][0] for k in p.groups}
+        rl, rr, b = ref_geom
+        return {
+            "reference": {"wheel_radius_left": rl, "wheel_radius_right": rr, "wheelbase": b},
+            "declared": [
+                {
+                    "wheel_radius_left": g[0],
+                    "wheel_radius_right": g[1],
+                    "wheelbase": g[2],
+                    "logs": n,
+                }
+                for g, n in counts.items()
+            ],
+            "relinked": relinked,
+            "summary": (
+                f"the logs declare {len(counts)} nominal geometries; geometric factors are "
+                f"relative to the most common one (wheel radii {1e3 * rl:.2f} / {1e3 * rr:.2f} mm, "
+                f"wheelbase {1e3 * b:.1f} mm); {len(relinked)} log(s) replayed on it"
+            ),
+        }
 
     # ------------------------------------------------------------------ checks
     def check(self, log: Log, drive: Drive) -> Log:
@@ -311,7 +380,9 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         self, prepared: PreparedLog, values: Mapping[str, float], drive: Drive, sim: SimSettings
     ) -> tuple[Features, Log]:
         """PyBullet replay with effect values ``{"effect.param": v}``; its features and log."""
-        params = self._context(prepared).params
+        ctx = self._context(prepared)
+        params = ctx.params
+        values = values_for_log(ctx, values)
         reality = reality_from_values(values) if values else None
         rep = replay(prepared.log, reality, drive=drive, settings=sim, params=params)
         feats = features(rep.channels, prepared.bounds, self.meters_per_tick(params))
@@ -329,7 +400,7 @@ class DiffDriveAdapter(WheelDrivenAdapter):
     ) -> Features:
         """Surrogate features for a batch of effect values, (B, M, k) per group."""
         ctx = self._context(prepared)
-        out = ctx.surrogate.simulate(ctx.inputs, values)
+        out = ctx.surrogate.simulate(ctx.inputs, values_for_log(ctx, values))
         feats = features(out, prepared.bounds, self.meters_per_tick(ctx.params))
         return {g: v for g, v in feats.items() if g in prepared.real}
 
@@ -418,6 +489,54 @@ class DiffDriveAdapter(WheelDrivenAdapter):
             "right wheel speed": (v + half * w, "m/s"),
             "time": (0.5 * (t[b[:, 0]] + t[b[:, 1] - 1]), "s"),
         }
+
+
+# --------------------------------------------------------------------------- common geometry
+def _geometry(params: DiffDriveParams) -> tuple[float, float, float]:
+    """Declared wheel radii and wheelbase (m), the geometry the geometric effects scale."""
+    return (
+        float(params.wheel_radius_left),
+        float(params.wheel_radius_right),
+        float(params.wheelbase),
+    )
+
+
+def values_for_log(ctx: DiffDriveContext, values: Mapping[str, Any]) -> dict[str, Any]:
+    r"""Effect values relative to the reference geometry, re-expressed for one log's nominal.
+
+    With a reference (:meth:`DiffDriveAdapter.link_logs`) of radii :math:`r^*_{L,R}`
+    and wheelbase :math:`b^*`, a log that declares :math:`r_{L,R}`, :math:`b` gets
+
+    .. math::
+
+        E_b' = E_b \frac{b^*}{b}, \quad
+        s' = s \frac{\bar r^*}{\bar r}, \quad
+        E_d' = E_d \frac{r^*_R / r^*_L}{r_R / r_L},
+
+    so that every log's physical wheelbase and wheel radii are the same
+    (``wheelbase_error``, ``wheel_radius_scale``, ``wheel_diameter_ratio``;
+    values may be arrays over a batch). Without a reference, or for a log that
+    declares the reference geometry, ``values`` is returned unchanged.
+    """
+    ref = ctx.reference
+    if ref is None:
+        return dict(values)
+    rl0, rr0, b0 = _geometry(ref)
+    rl, rr, b = _geometry(ctx.params)
+    if (rl, rr, b) == (rl0, rr0, b0):
+        return dict(values)
+    out = dict(values)
+    factors = {
+        "wheelbase_error.E_b": b0 / b,
+        "wheel_radius_scale.scale": (rl0 + rr0) / (rl + rr),
+        "wheel_diameter_ratio.E_d": (rr0 / rl0) / (rr / rl),
+    }
+    for key, f in factors.items():
+        if f != 1.0:
+            out[key] = np.asarray(values.get(key, 1.0), dtype=float) * f
+            if out[key].ndim == 0:
+                out[key] = float(out[key])
+    return out
 
 
 # --------------------------------------------------------------------------- recording

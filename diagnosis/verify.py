@@ -4,8 +4,9 @@ A model fitted on the surrogate is refitted with the surrogate's defect
 against PyBullet replays removed (defect correction), then scored on PyBullet
 replays of every log (:func:`verify_model`). :func:`verify_ranking` verifies
 the leading models one by one, prefers simpler sub-models within the parsimony
-margin and drops effects whose fitted size is below the noise floor, until
-the top of the ranking is settled.
+margin, drops effects whose fitted size is below the noise floor and effects
+that do not improve the held-out residual beyond its noise
+(:func:`heldout_gain_counts`), until the top of the ranking is settled.
 """
 
 from __future__ import annotations
@@ -25,7 +26,12 @@ from realitygap.diagnosis.log import Log
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["Verification", "verify_model", "verify_ranking"]
+__all__ = ["Verification", "heldout_gain_counts", "verify_model", "verify_ranking"]
+
+HELDOUT_GAIN_SIGMAS = 2.0
+"""How many standard errors a held-out gain must reach to count whatever its size."""
+HELDOUT_GAIN_MIN_SHARE = 0.05
+"""Share of the held-out mean square a gain must remove to count whatever its noise."""
 
 
 def _replay_task(
@@ -90,6 +96,35 @@ def verify_model(
         "rms_difference": math.sqrt(num / max(sum(p.bounds.shape[0] for p in problem.logs), 1)),
     }
     return verified, logs, agreement
+
+
+def heldout_gain_counts(
+    larger: ModelFit,
+    smaller: ModelFit,
+    sigmas: float = HELDOUT_GAIN_SIGMAS,
+    min_share: float = HELDOUT_GAIN_MIN_SHARE,
+) -> bool:
+    r"""Whether ``larger`` improves on its sub-model ``smaller`` on the held-out data.
+
+    A paired comparison of the normalised held-out residuals
+    :math:`z^{(s)}_k, z^{(l)}_k` of the same windows and columns, with
+    :math:`d_k = (z^{(s)}_k)^2 - (z^{(l)}_k)^2`. The gain counts when it is beyond
+    noise, :math:`\bar d > \sigma\, \mathrm{sd}(d) / \sqrt{n}`, or sizeable,
+    :math:`\bar d > s_{min}\, \overline{(z^{(s)})^2}` (few held-out windows
+    may show a real second effect without statistical power). An effect that a
+    training fit gives a size but that leaves the held-out residual where it was
+    does not count. Without held-out residuals the gain is taken as given.
+    """
+    zl, zs = np.asarray(larger.z_heldout), np.asarray(smaller.z_heldout)
+    if zl.size == 0 or zl.shape != zs.shape:
+        return True
+    d = zs**2 - zl**2
+    gain = float(d.mean())
+    if gain > min_share * float(np.mean(zs**2)):
+        return True
+    if d.size < 2:
+        return False
+    return gain > sigmas * float(d.std(ddof=1)) / math.sqrt(d.size)
 
 
 @dataclass
@@ -192,6 +227,15 @@ class _Ranker:
             ]
             if simpler and len(best.effects) > 1:
                 self.demote(best, simpler)
+                return True
+            # a second effect that leaves the held-out residual where it was
+            unhelpful = [
+                f
+                for f in self.sub_models(best)
+                if f.verified and best.verified and not heldout_gain_counts(best, f)
+            ]
+            if unhelpful and len(best.effects) > 1:
+                self.demote(best, unhelpful)
                 return True
         n_ver = sum(1 for f in self.ranking if f.verified)
         todo = [

@@ -12,7 +12,9 @@ A backend maps a module-level function over items in two ways:
 
 * :class:`SerialBackend` — in this process.
 * :class:`ProcessBackend` — a :class:`concurrent.futures.ProcessPoolExecutor`
-  (default: one worker per CPU).
+  (default: one worker per CPU), each worker's BLAS limited to one thread:
+  several processes each running a multithreaded BLAS on the same cores
+  oversubscribe them, and small least-squares fits then run many times slower.
 * :class:`RayBackend` — tasks on a Ray cluster (a local one unless an address
   is given). Ray is optional; it is imported only when this backend is used.
 """
@@ -32,6 +34,7 @@ __all__ = [
     "ProcessBackend",
     "RayBackend",
     "SerialBackend",
+    "limit_blas_threads",
     "make_backend",
     "require_ray",
 ]
@@ -105,10 +108,47 @@ class SerialBackend:
 
 
 _SHARED: Any = None
+_BLAS_LIMIT: Any = None
+
+BLAS_THREAD_VARIABLES = (
+    "OPENBLAS_NUM_THREADS",
+    "OMP_NUM_THREADS",
+    "MKL_NUM_THREADS",
+    "BLIS_NUM_THREADS",
+    "VECLIB_MAXIMUM_THREADS",
+    "NUMEXPR_NUM_THREADS",
+)
+"""Environment variables that set the thread pools of BLAS / OpenMP libraries."""
 
 
-def _init_worker(shared: Any) -> None:
+def limit_blas_threads(threads: int) -> None:
+    """Limit the BLAS / OpenMP thread pools of this process to ``threads`` threads.
+
+    Sets :data:`BLAS_THREAD_VARIABLES` (read by libraries loaded from now on and by
+    child processes) and, when ``threadpoolctl`` is installed, limits the pools of
+    libraries already loaded (a forked worker inherits a loaded OpenBLAS).
+
+    Raises
+    ------
+    ValueError
+        If ``threads`` is not a positive integer.
+    """
+    global _BLAS_LIMIT
+    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
+        raise ValueError(f"blas_threads must be a positive integer, got {threads!r}")
+    for var in BLAS_THREAD_VARIABLES:
+        os.environ[var] = str(threads)
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - optional
+        return
+    _BLAS_LIMIT = threadpool_limits(limits=threads)
+
+
+def _init_worker(shared: Any, blas_threads: int | None = None) -> None:
     global _SHARED
+    if blas_threads is not None:
+        limit_blas_threads(blas_threads)
     _SHARED = shared
 
 
@@ -127,11 +167,24 @@ class ProcessBackend:
     start_method : str, optional
         :mod:`multiprocessing` start method (default ``"fork"`` where available).
         ``"forkserver"`` suits work that imports torch or PyBullet in the workers.
+    blas_threads : int or None
+        Threads of each worker's BLAS / OpenMP pools (default 1, see
+        :func:`limit_blas_threads`); ``None`` leaves them as the libraries choose.
+
+    Raises
+    ------
+    ValueError
+        If ``workers`` or ``blas_threads`` is below 1.
     """
 
     name = "process"
 
-    def __init__(self, workers: int | None = None, start_method: str | None = None):
+    def __init__(
+        self,
+        workers: int | None = None,
+        start_method: str | None = None,
+        blas_threads: int | None = 1,
+    ):
         if workers is None:
             try:
                 workers = len(os.sched_getaffinity(0))
@@ -139,8 +192,15 @@ class ProcessBackend:
                 workers = os.cpu_count() or 1
         if workers < 1:
             raise ValueError(f"workers must be >= 1, got {workers}")
+        if blas_threads is not None and (
+            isinstance(blas_threads, bool) or not isinstance(blas_threads, int) or blas_threads < 1
+        ):
+            raise ValueError(
+                f"blas_threads must be a positive integer or None, got {blas_threads!r}"
+            )
         self.workers = int(workers)
         self.start_method = start_method
+        self.blas_threads = blas_threads
 
     def _context(self) -> Any:
         if self.start_method is not None:
@@ -154,7 +214,10 @@ class ProcessBackend:
             return [fn(shared, item) for item in items]
         n = min(self.workers, len(items))
         with ProcessPoolExecutor(
-            max_workers=n, mp_context=self._context(), initializer=_init_worker, initargs=(shared,)
+            max_workers=n,
+            mp_context=self._context(),
+            initializer=_init_worker,
+            initargs=(shared, self.blas_threads),
         ) as pool:
             return list(pool.map(_call, [(fn, item) for item in items]))
 
@@ -165,7 +228,12 @@ class ProcessBackend:
         :class:`concurrent.futures.process.BrokenProcessPool` error of its items.
         """
         items = list(items)
-        with ProcessPoolExecutor(max_workers=self.workers, mp_context=self._context()) as pool:
+        with ProcessPoolExecutor(
+            max_workers=self.workers,
+            mp_context=self._context(),
+            initializer=_init_worker,
+            initargs=(None, self.blas_threads),
+        ) as pool:
             futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
             for fut in as_completed(futures):
                 i = futures[fut]

@@ -103,6 +103,11 @@ def _pick(logs: list[Any], per_session: int, max_sessions: int | None) -> list[A
     return out
 
 
+def _log_geometry(log: Any) -> dict[str, float]:
+    p = log.meta["params"]
+    return {k: float(p[k]) for k in ("wheel_radius_left", "wheel_radius_right", "wheelbase")}
+
+
 def _ranking_table(js: dict[str, Any], n: int) -> list[dict[str, Any]]:
     """The first ``n`` models of a diagnosis (its JSON form) as table rows."""
     return [
@@ -115,6 +120,78 @@ def _ranking_table(js: dict[str, Any], n: int) -> list[dict[str, Any]]:
         }
         for r in js["ranking"][:n]
     ]
+
+
+def _umbmark_on_logs(logs: list[Any], reference: dict[str, float]) -> dict[str, float]:
+    """UMBmark (closed form on the squares' end poses) on exactly these square runs.
+
+    Per session, Borenstein & Feng's ``E_d`` and ``E_b`` from the picked runs
+    (:func:`~realitygap.estimators.umbmark.umbmark_from_runs`) and from all its
+    runs (:func:`~realitygap.calibrate.calibrate_session`); pooled as
+    ``umbmark-real`` pools (means of ``E_d`` and of the dimensionless ``b / D̄``,
+    the quantity UMBmark observes) and expressed as ``E_b`` relative to
+    ``reference`` (wheel radii and wheelbase, m).
+    """
+    from pathlib import Path
+
+    from realitygap.calibrate import calibrate_session
+    from realitygap.diagnosis.importers.optiodom import read_session
+    from realitygap.estimators.umbmark import UMBmarkRun, umbmark_from_runs
+
+    d_ref = reference["wheel_radius_left"] + reference["wheel_radius_right"]
+    b_ref = reference["wheelbase"]
+    picked: dict[str, set[int]] = {}
+    folders: dict[str, Path] = {}
+    for lg in logs:
+        sid = str(lg.meta.get("session"))
+        picked.setdefault(sid, set()).add(int(lg.meta.get("run", -1)))
+        folders[sid] = Path(str(lg.meta.get("source"))).parent
+    same_runs: list[tuple[float, float]] = []
+    all_runs: list[tuple[float, float]] = []
+    for sid, folder in sorted(folders.items()):
+        session = read_session(folder)
+        kin = session.kinematics()
+        d_mean = kin.wheel_radius_left + kin.wheel_radius_right
+        side = session.metadata.side_length
+        runs = [
+            UMBmarkRun(
+                r.gt_pose, r.ticks_left.astype(float), r.ticks_right.astype(float), r.direction
+            )
+            for r in session.runs
+            if r.index in picked[sid] and r.direction is not None
+        ]
+        if side and {r.direction for r in runs} == {"cw", "ccw"}:
+            res = umbmark_from_runs(runs, kin, float(side))
+            same_runs.append((res.E_d, res.E_b * kin.wheelbase / d_mean))
+        cal = calibrate_session(folder)
+        all_runs.append((cal.E_d, cal.b_over_D))
+    out: dict[str, float] = {}
+    for label, rows in (("same_runs", same_runs), ("same_sessions", all_runs)):
+        if rows:
+            arr = np.asarray(rows)
+            out[f"umbmark_{label}_E_d"] = float(arr[:, 0].mean())
+            out[f"umbmark_{label}_E_b"] = float(arr[:, 1].mean() * d_ref / b_ref)
+    return out
+
+
+def _geometry_found(d: Any) -> dict[str, Any]:
+    """Wheelbase and diameter factors the diagnosis found, as UMBmark defines them.
+
+    From the best-ranked model holding ``wheelbase_error`` (resp.
+    ``wheel_diameter_ratio``): UMBmark observes the wheelbase relative to the mean
+    wheel diameter, so its ``E_b`` is the wheelbase factor over the radius scale.
+    """
+    out: dict[str, Any] = {}
+    for fit in d.ranking:
+        if "wheelbase_error" in fit.effects and "E_b" not in out:
+            out["E_b"] = fit.values["wheelbase_error.E_b"] / fit.values.get(
+                "wheel_radius_scale.scale", 1.0
+            )
+            out["E_b_model"] = fit.name
+        if "wheel_diameter_ratio" in fit.effects and "E_d" not in out:
+            out["E_d"] = fit.values["wheel_diameter_ratio.E_d"]
+            out["E_d_model"] = fit.name
+    return out
 
 
 @experiment(
@@ -171,6 +248,13 @@ def diagnose_real(ctx: RunContext) -> dict[str, Any]:
             "heldout_window_gap_m_best", math.nan
         )
         figures[prefix + "shrink_pct"] = g["heldout_shrink_pct_best"]
+        if "heldout_trajectory_gap_m_best" in g and g["heldout_trajectory_gap_m_nominal"] > 0:
+            figures[prefix + "trajectory_shrink_pct"] = 100.0 * (
+                1.0 - g["heldout_trajectory_gap_m_best"] / g["heldout_trajectory_gap_m_nominal"]
+            )
+        tr_rep = d.transients
+        figures[prefix + "transient_windows_set_aside"] = float(tr_rep.n_excluded)
+        figures[prefix + "transient_share_pct"] = 100.0 * tr_rep.share_excluded
         figures[prefix + "top_effect"] = best.name
         figures[prefix + "verdict"] = (
             "+".join(d.verdict.effects) if d.verdict.kind == "effects" else d.verdict.kind
@@ -200,6 +284,27 @@ def diagnose_real(ctx: RunContext) -> dict[str, Any]:
         ]
         top = [f.name for f in d.ranking[:1]]  # the ranking table marks the others
         notes += [f"{drive}: {line}" for line in explain(d.verdict, top)]
+        if d.nominal_reference:
+            notes.append(f"{drive}: {d.nominal_reference['summary']}")
+        if drive == "ticks":
+            ref = d.nominal_reference.get("reference") or _log_geometry(train[0])
+            found = _geometry_found(d)
+            umb = _umbmark_on_logs(tr, ref)
+            for k in ("E_b", "E_d"):
+                if k in found:
+                    figures[f"ticks_{k}"] = found[k]
+                for label in ("same_runs", "same_sessions"):
+                    if f"umbmark_{label}_{k}" in umb:
+                        figures[f"umbmark_{label}_{k}"] = umb[f"umbmark_{label}_{k}"]
+            if "E_b" in found and "umbmark_same_runs_E_b" in umb:
+                figures["ticks_E_b_minus_umbmark"] = found["E_b"] - umb["umbmark_same_runs_E_b"]
+            notes.append(
+                "ticks: E_b (b / D̄ over the reference's, as UMBmark defines it) from "
+                f"{found.get('E_b_model', 'no model with wheelbase_error')}, E_d from "
+                f"{found.get('E_d_model', 'no model with wheel_diameter_ratio')}; umbmark_same_runs_*: "
+                "UMBmark on exactly the training square runs, umbmark_same_sessions_*: on all runs "
+                "of their sessions (both pooled as umbmark-real pools)"
+            )
         for info in d.identifiability:
             if not info.get("separable"):
                 notes.append(f"{drive}: {info['message']}")

@@ -2,11 +2,11 @@ r"""Drive-train effects of the differential drive: what happens between the firm
 wheel-speed commands, the wheels and the floor.
 
 Per-wheel velocity-loop lag, acceleration / deceleration limits (the speed
-limiter of ros2 ``diff_drive_controller``), per-wheel dead zones and a gain
-ratio, DC-motor torque–speed saturation, and traction slip. Each acts with
-state carried from one control period to the next; one vectorised step
-function per effect serves the PyBullet hook (a batch of one) and the
-surrogate term (a batch of parameter sets), so both realise the same law.
+limiter of ros2 ``diff_drive_controller``), per-wheel dead zones, DC-motor
+torque–speed saturation, and traction slip. Each acts with state carried
+from one control period to the next; one vectorised step function per effect
+serves the PyBullet hook (a batch of one) and the surrogate term (a batch of
+parameter sets), so both realise the same law.
 """
 
 from __future__ import annotations
@@ -32,7 +32,6 @@ from realitygap.robots.effects.diffdrive import (
     SurrogateContext,
     SurrogateSlot,
     _wheel_command_hook,
-    _wheel_gains,
 )
 
 FloatArray = npt.NDArray[np.float64]
@@ -319,26 +318,23 @@ class AccelerationLimits(Effect):
 
 @register_effect
 class WheelDeadZone(Effect):
-    r"""Per-wheel dead zones and a gain asymmetry of the two motor drives.
+    r"""Per-wheel dead zones of the two motor drives.
 
     Each wheel stands still while its commanded surface speed is below its
     own threshold (static friction, a PWM dead zone differing between the two
-    drivers), and the right drive turns ``G`` times as fast as the left one
-    for the same command (mean gain kept):
+    drivers):
 
     .. math::
 
-        s'_L = \frac{2}{G+1}\,s_L\,[|s_L| \ge δ_L], \qquad
-        s'_R = \frac{2G}{G+1}\,s_R\,[|s_R| \ge δ_R].
+        s'_L = s_L\,[|s_L| \ge δ_L], \qquad s'_R = s_R\,[|s_R| \ge δ_R].
 
     Unlike ``motor_deadband`` (one threshold for both wheels) the wheels
-    differ: a slow turn pivots on the wheel whose threshold is not reached,
-    and the gain asymmetry turns the encoder rates as well as the body (a
-    wheel-diameter ratio leaves the rates alone). The gain ratio alone is an
-    alias of ``wheel_diameter_ratio`` with ``E_d = G`` together with
-    ``encoder_ratio`` with ``E_c = G`` (the same ground and count ratios); only
-    the dead zones tell this effect from that pair. Realised on the firmware's
-    wheel-speed commands.
+    differ: a slow turn pivots on the wheel whose threshold is not reached.
+    A drive-gain asymmetry (the right wheel turning ``G`` times as fast for
+    the same command) is not a parameter here: it is exactly
+    ``wheel_diameter_ratio`` with ``E_d = G`` together with ``encoder_ratio``
+    with ``E_c = G`` (the same ground and count ratios). Realised on the
+    firmware's wheel-speed commands.
     """
 
     name = "wheel_dead_zone"
@@ -346,30 +342,27 @@ class WheelDeadZone(Effect):
     stage = Stage.COMMAND
     observed_in = (Channel.POSE_GT, Channel.TICKS, Channel.POSE_CAM)
     description = (
-        "Per-wheel dead zones (m/s: a wheel commanded below its threshold does not turn) and a "
-        "right / left drive-gain ratio G (mean gain kept). Realised on the firmware's wheel-speed "
-        "commands (nominal geometry)."
+        "Per-wheel dead zones (m/s): a wheel commanded below its threshold does not turn, so "
+        "slow turns pivot on it. Realised on the firmware's wheel-speed commands (nominal "
+        "geometry)."
     )
     specs = (
         ParamSpec("dz_left", "m/s", 0.0, 0.0, 0.08, "left wheel dead zone (surface speed)"),
         ParamSpec("dz_right", "m/s", 0.0, 0.0, 0.08, "right wheel dead zone (surface speed)"),
-        ParamSpec("gain_ratio", "1", 1.0, 0.9, 1.1, "right / left wheel speed per command"),
     )
     blind = (
         BlindRange("dz_left", 0.0, 0.06, False),
         BlindRange("dz_right", 0.0, 0.06, False),
-        BlindRange("gain_ratio", 0.01, 0.04, True),
     )
     since = 2
     surrogate_slot = SurrogateSlot.WHEEL_SPEED
     surrogate_order = 1
-    surrogate_example = (("dz_left", 0.06), ("dz_right", 0.01), ("gain_ratio", 1.03))
+    surrogate_example = (("dz_left", 0.06), ("dz_right", 0.01))
 
     @staticmethod
-    def _apply(sl: Any, sr: Any, dzl: Any, dzr: Any, ratio: Any) -> tuple[Any, Any]:
-        gl, gr = _wheel_gains(ratio)
-        sl = np.where(np.abs(sl) < dzl, 0.0, sl * gl)
-        sr = np.where(np.abs(sr) < dzr, 0.0, sr * gr)
+    def _apply(sl: Any, sr: Any, dzl: Any, dzr: Any) -> tuple[Any, Any]:
+        sl = np.where(np.abs(sl) < dzl, 0.0, sl)
+        sr = np.where(np.abs(sr) < dzr, 0.0, sr)
         return sl, sr
 
     def make_command_hook(
@@ -377,16 +370,16 @@ class WheelDeadZone(Effect):
     ) -> CommandHook | None:
         if self.is_nominal():
             return None
-        dzl, dzr, g = self["dz_left"], self["dz_right"], self["gain_ratio"]
-        return _wheel_command_hook(nominal, lambda sl, sr, dt_: self._apply(sl, sr, dzl, dzr, g))
+        dzl, dzr = self["dz_left"], self["dz_right"]
+        return _wheel_command_hook(nominal, lambda sl, sr, dt_: self._apply(sl, sr, dzl, dzr))
 
     @classmethod
     def surrogate_term(cls, x: Any, p: Mapping[str, FloatArray], ctx: SurrogateContext) -> Any:
         sl, sr = x
-        dzl, dzr, g = p["dz_left"], p["dz_right"], p["gain_ratio"]
-        if not (np.any(dzl > 0) or np.any(dzr > 0) or np.any(g != 1.0)):
+        dzl, dzr = p["dz_left"], p["dz_right"]
+        if not (np.any(dzl > 0) or np.any(dzr > 0)):
             return sl, sr
-        return cls._apply(sl, sr, dzl[:, None], dzr[:, None], g[:, None])
+        return cls._apply(sl, sr, dzl[:, None], dzr[:, None])
 
 
 @register_effect

@@ -35,8 +35,32 @@ def test_imap_unordered_yields_each_item_and_its_failure(backend: Any) -> None:
     ]
 
 
+def _blas_threads(shared: Any = None, item: Any = None) -> int:
+    import numpy  # noqa: F401  (loads the BLAS)
+    import threadpoolctl
+
+    pools = [i["num_threads"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"]
+    return max(pools) if pools else -1
+
+
+@pytest.mark.parametrize("start_method", [None, "forkserver"])
+def test_process_workers_run_a_single_threaded_blas(start_method: str | None) -> None:
+    pytest.importorskip("threadpoolctl")
+    import threadpoolctl
+
+    # the parent's pool stays as it is; the workers' pools are limited either way
+    with threadpoolctl.threadpool_limits(limits=2):
+        backend = ProcessBackend(2, start_method=start_method)
+        assert backend.map(_blas_threads, [0, 1], None) == [1, 1]
+        assert [o.value for o in backend.imap_unordered(_blas_threads, [0])] == [1]
+        free = ProcessBackend(2, start_method=start_method, blas_threads=None)
+        assert free.map(_blas_threads, [0, 1], None)[0] >= 1
+
+
 def test_bad_backend_names_and_worker_counts_are_refused() -> None:
     with pytest.raises(ValueError, match="unknown backend 'slurm'"):
         make_backend("slurm")
     with pytest.raises(ValueError, match="workers must be >= 1"):
         ProcessBackend(0)
+    with pytest.raises(ValueError, match="blas_threads must be a positive integer"):
+        ProcessBackend(2, blas_threads=0)

@@ -1,0 +1,143 @@
+"""Tick replay: wheelbase and diameter factors against UMBmark's closed form.
+
+The tick-driven diagnosis and UMBmark (Borenstein & Feng's closed form on the end
+poses of closed squares) must agree on the same squares, also when the sessions
+declare different nominal geometries of the same physical robot.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
+from realitygap.diagnosis.diffdrive_adapter import DiffDriveContext, values_for_log
+from realitygap.diagnosis.replay import SimSettings
+from realitygap.diagnosis.surrogate import DiffDriveSurrogate, SurrogateInputs
+from realitygap.robots.diffdrive import DiffDriveParams
+from realitygap.robots.effects import Reality, make_effect
+
+GEOMETRY = ("wheelbase_error", "wheel_diameter_ratio", "wheel_radius_scale")
+
+
+def _context(params: DiffDriveParams, reference: DiffDriveParams | None) -> DiffDriveContext:
+    return DiffDriveContext(
+        sim=SimSettings(),
+        params=params,
+        inputs=SurrogateInputs(0.05, np.zeros(3), commands=np.zeros((2, 2))),
+        twist=np.zeros((2, 2)),
+        surrogate=DiffDriveSurrogate(params),
+        reference=reference,
+    )
+
+
+def test_values_for_log_give_every_log_the_same_physical_geometry() -> None:
+    ref = DiffDriveParams(wheel_radius_left=0.042, wheel_radius_right=0.042, wheelbase=0.2)
+    other = DiffDriveParams(wheel_radius_left=0.0425, wheel_radius_right=0.0425, wheelbase=0.205)
+    values = {"wheelbase_error.E_b": 1.01, "wheel_radius_scale.scale": 0.995}
+    physical = []
+    for params in (ref, other):
+        mapped = values_for_log(_context(params, ref), values)
+        reality = Reality(
+            tuple(make_effect(k.split(".")[0], **{k.split(".")[1]: v}) for k, v in mapped.items())
+        )
+        p = reality.apply_params(params)
+        physical.append((p.wheel_radius_left, p.wheel_radius_right, p.wheelbase))
+    np.testing.assert_allclose(physical[0], physical[1], rtol=1e-12)
+    np.testing.assert_allclose(physical[0], (0.042 * 0.995, 0.042 * 0.995, 0.202), rtol=1e-12)
+    # batches keep their shape; no reference leaves the values alone
+    batch = values_for_log(_context(other, ref), {"wheelbase_error.E_b": np.array([1.0, 1.02])})
+    np.testing.assert_allclose(batch["wheelbase_error.E_b"], [0.2 / 0.205, 1.02 * 0.2 / 0.205])
+    assert values_for_log(_context(other, None), values) == values
+
+
+def _independent_squares(root: Path, seed: int) -> tuple[list[Path], list[Path], float, float]:
+    """Two square sessions of one robot declaring different wheelbases, and a circle session."""
+    import realitygap.independent.diffdrive as dd
+
+    rng = np.random.default_rng(seed)
+    b_true, d_r, d_l = 0.2 * 1.012, 1.003, 0.997  # E_b = 1.012 of b = 0.2 m, E_d ≈ 1.006
+    squares, held = [], []
+    for k, declared_b in enumerate((0.2, 0.205)):
+        robot = dd.DriveRobot(wheelbase=declared_b)
+        hidden = dd.Hidden(b_true=b_true / declared_b, d_right=d_r, d_left=d_l)
+        runs = [
+            dd.simulate_run(dd.square_path(robot, 0.5, d), robot, hidden, rng)
+            for d in ("cw", "ccw")
+        ]
+        squares.append(
+            dd.write_session(root, f"010320240{k}10", runs, robot, "square", side=0.5, rng=rng)
+        )
+    robot = dd.DriveRobot()
+    hidden = dd.Hidden(b_true=1.012, d_right=d_r, d_left=d_l)
+    runs = [
+        dd.simulate_run(dd.circle_path(robot, 0.4, d), robot, hidden, rng) for d in ("cw", "ccw")
+    ]
+    held.append(dd.write_session(root, "010320240220", runs, robot, "circular", rng=rng))
+    return squares, held, 1.012, d_r / d_l
+
+
+@pytest.mark.slow
+def test_tick_replay_agrees_with_umbmark_on_the_same_squares(tmp_path: Path) -> None:
+    from realitygap.calibrate import calibrate_session, pool_calibrations
+    from realitygap.diagnosis.io import logs_from_optiodom
+
+    squares, _, e_b_true, e_d_true = _independent_squares(tmp_path, seed=3)
+    umb = pool_calibrations([calibrate_session(p) for p in squares])
+    umb_e_b = umb.E_b_for(0.084, 0.2)
+    logs = logs_from_optiodom(tmp_path)
+    train = [lg for lg in logs if lg.meta.get("path_type") == "square"]
+    held = [lg for lg in logs if lg.meta.get("path_type") != "square"]
+    d = diagnose(train, held, settings=DiagnosisSettings(drive="ticks", effects=GEOMETRY))
+    assert d.nominal_reference["reference"]["wheelbase"] == pytest.approx(0.2)
+    fit = next(f for f in d.ranking if "wheelbase_error" in f.effects)
+    # UMBmark sees b / D: the wheelbase factor over the radius scale
+    e_b = fit.values["wheelbase_error.E_b"] / fit.values.get("wheel_radius_scale.scale", 1.0)
+    assert e_b == pytest.approx(umb_e_b, abs=0.003)
+    assert e_b == pytest.approx(e_b_true, abs=0.003)
+    assert umb_e_b == pytest.approx(e_b_true, abs=0.003)
+    assert umb.E_d == pytest.approx(e_d_true, abs=0.003)
+    g = d.gap
+    assert g["heldout_trajectory_gap_m_best"] < 0.5 * g["heldout_trajectory_gap_m_nominal"]
+    assert g["heldout_trajectory_shrink_pct_best"] == pytest.approx(
+        100.0 * (1.0 - g["heldout_trajectory_gap_m_best"] / g["heldout_trajectory_gap_m_nominal"])
+    )
+
+
+@pytest.mark.slow
+def test_tick_replay_recovers_planted_factors_of_the_projects_own_generator() -> None:
+    from realitygap.diagnosis.diffdrive_adapter import DiffDriveAdapter
+    from realitygap.diagnosis.manoeuvres import MANOEUVRES
+    from realitygap.diagnosis.replay import simulate
+
+    params = DiffDriveParams()
+    reality = Reality(
+        (make_effect("wheelbase_error", E_b=1.02), make_effect("wheel_diameter_ratio", E_d=1.01))
+    )
+    rng = np.random.default_rng(11)
+
+    def record(name: str) -> object:
+        t, cmd = MANOEUVRES[name].applied(0.05, params)
+        return simulate(
+            t,
+            params=params,
+            reality=reality,
+            commands=cmd,
+            noise=DiffDriveAdapter.blind_noise,
+            rng=rng,
+            meta={"name": name},
+        )
+
+    train = [record("square_cw"), record("square_ccw")]
+    held = [record("tour")]
+    d = diagnose(train, held, settings=DiagnosisSettings(drive="ticks", effects=GEOMETRY))
+    assert not d.nominal_reference  # one declared geometry: nothing to relate
+    fit = d.ranking[0]
+    assert set(fit.effects) == {"wheelbase_error", "wheel_diameter_ratio"}
+    # PyBullet's wheels touch the floor over their width: the body's effective wheelbase
+    # is within a few tenths of a per cent of E_b · b, as for a real robot
+    for key, truth in (("wheelbase_error.E_b", 1.02), ("wheel_diameter_ratio.E_d", 1.01)):
+        assert abs(fit.values[key] - truth) < max(4.0 * fit.stderr[key], 0.003), key
+    assert d.gap["heldout_trajectory_shrink_pct_best"] > 50.0
