@@ -3,7 +3,10 @@
 ::
 
     realitygap diagnose LOG... [--holdout LOG...] [--robot diffdrive|arm|climber] [--effects a,b,…]
-                        [--drive commands|ticks] --report DIR --json PATH
+                        [--drive commands|ticks] [--report DIR] [--json PATH] [--quiet|--verbose]
+
+It prints the verdict in sentences and the candidates by held-out shrink; ``--report``
+adds ``report.html`` (self-contained), ``report.md``, ``diagnosis.json`` and figures.
 
 A LOG is a saved ``.npz`` log, an OptiOdom session folder, a UR10 laser-tracker set,
 a CSV file (with ``--columns``) or a ROS bag (with ``--truth-topic`` …).
@@ -14,7 +17,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +37,10 @@ examples:
   # the first series trains, the last is held out
   realitygap diagnose shared/data/ipa_ur10_lasertracker --json out/ur10.json
 """
+
+SECONDS_PER_LOG_SECOND_AND_FIT = 0.03
+"""Rough cost of one candidate fit per second of logged motion on one worker, s (measured
+on the OptiOdom sample with PyBullet replays); only for the estimate shown before a run."""
 
 
 def _parse_kv(text: str, what: str) -> dict[str, Any]:
@@ -68,7 +77,7 @@ def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
         description=(
             "Replay real logs in the nominal simulation, localise the gap, attribute it to "
             "effects fitted on training logs and scored on held-out ones, and report how far "
-            "it shrinks."
+            "it shrinks. Prints the verdict; --report DIR and --json PATH also write files."
         ),
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -77,8 +86,8 @@ def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--holdout", nargs="+", metavar="LOG", default=[], help="held-out logs")
     p.add_argument(
         "--robot",
-        help="robot adapter: diffdrive, arm or climber (default: the robot the logs name, "
-        "else diffdrive)",
+        help="robot: diffdrive (differential drive), arm or climber (blade-climbing robot); "
+        "default: the robot the logs name, else diffdrive",
     )
     p.add_argument(
         "--effects", help="comma-separated candidate effects (default: every effect of the robot)"
@@ -89,7 +98,11 @@ def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
         default="commands",
         help="replay the logged commands (default) or the logged wheel rotation",
     )
-    p.add_argument("--report", metavar="DIR", help="write report.md and figures here")
+    p.add_argument(
+        "--report",
+        metavar="DIR",
+        help="write report.html (self-contained), report.md, diagnosis.json and figures here",
+    )
     p.add_argument("--json", metavar="PATH", help="write the diagnosis as JSON here")
     p.add_argument(
         "--backend",
@@ -112,14 +125,26 @@ def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     g.add_argument("--params", help="nominal robot parameters: 'k=v,…', JSON or a .json file")
     g.add_argument("--firmware", help="firmware rate limits of the commands: 'a_max=…,alpha_max=…'")
-    g.add_argument("--cmd-topic", default="/cmd_vel")
-    g.add_argument("--odom-topic", default="/odom")
+    g.add_argument(
+        "--cmd-topic", default="/cmd_vel", help="ROS bag: velocity command topic (default /cmd_vel)"
+    )
+    g.add_argument(
+        "--odom-topic",
+        default="/odom",
+        help="ROS bag: wheel odometry topic (default /odom; empty: none)",
+    )
     g.add_argument("--truth-topic", help="ground-truth pose topic, or /tf with --truth-frame")
     g.add_argument("--truth-frame", help="tracked frame in /tf")
     g.add_argument("--wheels-topic", help="JointState topic with the wheel joints")
     g.add_argument("--rate", type=float, default=20.0, help="bag resampling rate, Hz (default 20)")
     g.add_argument("--resample", type=float, help="resample every log to this step, s")
-    p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    p.add_argument(
+        "-v",
+        "--verbose",
+        action="store_true",
+        help="every candidate and every note, and detailed progress",
+    )
     p.set_defaults(func=run_diagnose)
     return p
 
@@ -144,16 +169,23 @@ def _diagnose(args: argparse.Namespace) -> int:
     from realitygap.diagnosis.features import FeatureSettings
     from realitygap.diagnosis.io import ReadOptions, read_many
     from realitygap.diagnosis.log import LogError
-    from realitygap.diagnosis.report import write_json, write_report
-    from realitygap.diagnosis.verdict import explain
+    from realitygap.diagnosis.report import write_json, write_reports
+
+    t0 = time.perf_counter()
 
     def say(msg: str) -> None:
         if not args.quiet:
-            print(f"[diagnose] {msg}", file=sys.stderr, flush=True)
+            print(
+                f"[diagnose {time.perf_counter() - t0:5.0f} s] {msg}", file=sys.stderr, flush=True
+            )
 
     try:
-        if not args.report and not args.json:
-            raise ValueError("nothing to write: give --report DIR and/or --json PATH")
+        for path in [*args.logs, *args.holdout]:
+            if not Path(path).exists():
+                raise FileNotFoundError(
+                    f"no such file or folder: {path!r} (a LOG is an .npz log, a session folder, "
+                    "a CSV file or a ROS bag; paths are relative to the current folder)"
+                )
         options = ReadOptions(
             columns=args.columns,
             decimal=args.decimal,
@@ -187,7 +219,8 @@ def _diagnose(args: argparse.Namespace) -> int:
             attribution=AttributionSettings(),
         )
         backend = make_backend(args.backend, workers=args.workers, address=args.ray_address)
-        say(f"{len(train)} training log(s), {len(holdout or [])} held-out log(s)")
+        for line in _plan(train, holdout, settings, backend):
+            say(line)
         result = diagnose(train, holdout, settings=settings, backend=backend, progress=say)
     except (LogError, ValueError, FileNotFoundError, ImportError, KeyError) as exc:
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
@@ -196,28 +229,84 @@ def _diagnose(args: argparse.Namespace) -> int:
     if args.json:
         write_json(args.json, result.to_json())
         say(f"wrote {args.json}")
-    if args.report:
-        path = write_report(result, args.report)
-        say(f"wrote {path}")
+    report = write_reports([("", result)], args.report) if args.report else None
+    print_result(result, verbose=args.verbose)
+    if report is not None:
+        print(f"report: {report}")
+    return 0
+
+
+def _plan(train: list[Any], holdout: list[Any] | None, settings: Any, backend: Any) -> list[str]:
+    """What the diagnosis is about to do, said before it starts: the split and the cost."""
+    from realitygap.diagnosis.adapters import get_adapter
+    from realitygap.diagnosis.diagnose import candidate_library
+    from realitygap.robots.effects import EFFECTS
+
+    lines = []
+    if holdout:
+        lines.append(f"{len(train)} training log(s), {len(holdout)} held-out log(s)")
+    elif len(train) >= 2:
+        n_ho = min(len(train) - 1, max(1, math.ceil(settings.holdout_fraction * len(train))))
+        names = ", ".join(lg.name for lg in train[-n_ho:])
+        lines.append(
+            f"warning: no --holdout: holding out the last {n_ho} of {len(train)} logs ({names}); "
+            "pass --holdout LOG... to choose"
+        )
+    else:
+        lines.append(
+            f"warning: no --holdout and one log: holding out alternate blocks of "
+            f"{settings.block_windows} windows of {train[0].name}; a held-out log of another "
+            "path is a stronger test"
+        )
+    try:
+        library = candidate_library(get_adapter(settings.robot), settings)
+    except (KeyError, ValueError):
+        library = tuple(e for e, cls in EFFECTS.items() if cls.robot == settings.robot)
+    seconds_of_motion = sum(float(lg.duration) for lg in [*train, *(holdout or [])])
+    fits = len(library) + settings.attribution.pair_candidates * 3
+    workers = max(1, int(getattr(backend, "workers", 1) or 1))
+    estimate = SECONDS_PER_LOG_SECOND_AND_FIT * seconds_of_motion * fits / workers
+    from realitygap.core.progress import duration_words
+
+    lines.append(
+        f"{len(train) + len(holdout or [])} log(s), {seconds_of_motion:.0f} s of motion × "
+        f"{len(library)} candidate effect(s) on {workers} worker(s): roughly "
+        f"{duration_words(estimate)}"
+    )
+    return lines
+
+
+def print_result(result: Any, verbose: bool = False, file: Any = None) -> None:
+    """Print a diagnosis for a person: the summary sentences, then the candidates by
+    held-out shrink (the first five; all with ``verbose``) and the notes."""
+    from realitygap.diagnosis.summary import quantity, ranking_by_shrink, summary_sentences
+    from realitygap.diagnosis.verdict import explain
+
+    out = file if file is not None else sys.stdout
+    for sentence in summary_sentences(result):
+        print(sentence, file=out)
     v = result.verdict
-    rows = result.ranking_rows()[:5]
-    for line in explain(v, [r["name"] for r in rows[:1]]):
-        print(line)
+    rows = ranking_by_shrink(result.ranking_rows())
+    shown = rows if verbose else rows[:5]
+    print(f"candidates by held-out shrink ({len(shown)} of {len(rows)}):", file=out)
     status = v.notes.get("parameter_status", {})
-    for row in rows:
+    for row in shown:
         marks = status.get(row["name"], {})
         vals = ", ".join(
-            f"{k}={p['value']:.4g}" + (f" ({marks[k]})" if k in marks else "")
+            f"{k.split('.', 1)[-1]} = {quantity(p['value'], p['unit'], p['stderr'])}"
+            + (f" ({marks[k]})" if k in marks else "")
             for k, p in row["params"].items()
         )
         print(
-            f"  {row['rank']}. {row['name']:<40} held-out shrink {row['heldout_shrink_pct']:6.1f} %"
-            f"  {vals}"
+            f"  {row['heldout_shrink_pct']:6.1f} %  {row['name']:<40} {vals}",
+            file=out,
         )
+    notes = explain(v, [r["name"] for r in rows[:1]])[2:]
+    for line in notes if verbose else notes[:3]:
+        print(f"note: {line}", file=out)
     for info in result.identifiability:
         if not info.get("separable"):
-            print(f"note: {info['message']}")
-    return 0
+            print(f"note: {info['message']}", file=out)
 
 
 def main(argv: list[str] | None = None) -> int:

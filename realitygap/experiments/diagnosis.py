@@ -157,6 +157,7 @@ def diagnose_real(ctx: RunContext) -> dict[str, Any]:
             backend=backend,
             progress=ctx.progress,
         )
+        ctx.add_diagnosis(f"{drive}-driven replay", d)
         best = next(f for f in d.ranking)
         prefix = "" if drive == "commands" else "ticks_"
         g = d.gap
@@ -262,6 +263,7 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
                 backend=backend,
                 progress=ctx.progress,
             )
+            ctx.add_diagnosis(names, d)
             best = d.ranking[0]
             scale = 1e-4  # tool_dist feature scale, m
             figures[f"ur10_{prefix}top_effects"] = list(best.effects)
@@ -357,6 +359,7 @@ def diagnose_bench(ctx: RunContext) -> dict[str, Any]:
     t0 = time.perf_counter()
     d = diagnose([log], backend=backend, progress=ctx.progress)
     seconds = time.perf_counter() - t0
+    ctx.add_diagnosis("", d)
     figures: dict[str, Any] = {
         "diagnose_seconds": seconds,
         "log_seconds": log.duration,

@@ -78,7 +78,9 @@ def test_diagnose_writes_report_and_json(saved_logs, tmp_path, capsys) -> None:
     assert "## Verdict" in text and "wheelbase_error" in text and "## Where the gap is" in text
     for fig in ("trajectories.png", "residuals.png", "ranking.png"):
         assert (report / fig).is_file()
-    assert "verdict: wheelbase_error" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "Verdict: wheelbase_error" in out and out.index("Compared") < out.index("candidates by")
+    assert (report / "report.html").is_file() and (report / "diagnosis.json").is_file()
 
 
 def test_bad_input_is_refused_and_nothing_is_written(saved_logs, tmp_path, capsys) -> None:
