@@ -138,6 +138,11 @@ def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
     g.add_argument("--wheels-topic", help="JointState topic with the wheel joints")
     g.add_argument("--rate", type=float, default=20.0, help="bag resampling rate, Hz (default 20)")
     g.add_argument("--resample", type=float, help="resample every log to this step, s")
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="single effects only and one PyBullet verification: faster, coarser",
+    )
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.add_argument(
         "-v",
@@ -216,7 +221,9 @@ def _diagnose(args: argparse.Namespace) -> int:
             drive=args.drive,
             effects=effects,
             features=FeatureSettings(window_s=args.window),
-            attribution=AttributionSettings(),
+            attribution=AttributionSettings(pair_candidates=0, verify_top=1)
+            if args.quick
+            else AttributionSettings(),
         )
         backend = make_backend(args.backend, workers=args.workers, address=args.ray_address)
         for line in _plan(train, holdout, settings, backend):

@@ -56,3 +56,77 @@ def test_robot_option_only_for_experiments_that_take_it(
     assert cli.main(["run", "diagnose-suite", "--robot", "tank"]) == 2
     err = capsys.readouterr().err
     assert "diffdrive" in err and "climber" in err and "'tank'" in err
+
+
+def test_every_command_is_described_and_every_option_helped() -> None:
+    import argparse
+
+    parser = cli.build_parser()
+    assert "``" not in parser.format_help()
+    subs = cli._subparsers(parser)
+    assert {"list", "run", "sample", "diagnose", "benchmark", "train", "calibrate"} <= {
+        s.prog.split()[-1] for s in subs
+    }
+    for sub in subs:
+        assert sub.description, f"{sub.prog} has no description"
+        text = sub.format_help()
+        assert "``" not in text and ":func:" not in text, sub.prog
+        options = sub._option_string_actions
+        assert "--quiet" in options and "--verbose" in options, sub.prog
+        for action in sub._actions:
+            assert action.help is not None, f"{sub.prog} {action.option_strings or action.dest}"
+            if action.help is not argparse.SUPPRESS:
+                assert action.help.strip(), f"{sub.prog} {action.option_strings}"
+    diagnose = next(s for s in subs if s.prog.endswith("diagnose"))
+    assert "climber" in diagnose._option_string_actions["--robot"].help
+
+
+def test_no_pybullet_banner_on_any_stream(tmp_path) -> None:
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-c", "from realitygap.cli import main; main(['list', '--quiet'])"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "pybullet build time" not in done.stdout + done.stderr
+    assert "wheel_diameter_ratio" in done.stdout
+
+
+def test_embedded_sample_stands_in_without_a_data_folder(tmp_path, monkeypatch) -> None:
+    import os
+
+    from realitygap import samples
+
+    archive = samples._archive("optiodom_diffdrive")
+    assert archive.stat().st_size <= 3 * 2**20
+    assert (archive.parent / "LICENSE-optiodom_diffdrive").read_text().startswith("MIT License")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    ctx = experiments.RunContext(data_dir=None, verbose=False)
+    folder = ctx.data_subdir("optiodom_diffdrive")
+    assert folder.is_relative_to(tmp_path / "cache")
+    assert sorted(os.listdir(folder)) == ["LICENSE", "ivanjko", "square"]
+    assert len(os.listdir(folder / "square")) == 2
+    assert "embedded OptiOdom sample" in ctx.data_used["optiodom_diffdrive"]
+    assert ctx.data_subdir("optiodom_diffdrive") == folder  # unpacked once
+    with pytest.raises(FileNotFoundError, match="no data folder was found: pass --data DIR"):
+        ctx.data_subdir("ipa_ur10_lasertracker")
+    with pytest.raises(KeyError, match="no embedded sample named 'nope'"):
+        samples.sample_dir("nope")
+    full = experiments.RunContext(data_dir=tmp_path, verbose=False)
+    (tmp_path / "optiodom_diffdrive").mkdir()
+    assert full.data_subdir("optiodom_diffdrive") == tmp_path / "optiodom_diffdrive"
+    assert full.data_used == {"optiodom_diffdrive": str(tmp_path / "optiodom_diffdrive")}
+
+
+def test_sample_command_prints_the_folder(tmp_path, monkeypatch, capsys) -> None:
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    assert cli.main(["sample"]) == 0
+    out = capsys.readouterr().out.strip()
+    assert out.endswith("optiodom_diffdrive") and out.startswith(str(tmp_path))
+    assert cli.main(["sample", "nope"]) == 2
+    assert "embedded samples: optiodom_diffdrive" in capsys.readouterr().err

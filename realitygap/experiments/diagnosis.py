@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections import Counter
 from typing import Any
@@ -26,23 +27,31 @@ GOALS = {
     robots=("diffdrive", "arm", "climber"),
 )
 def diagnose_suite(ctx: RunContext) -> dict[str, Any]:
-    from realitygap.core.parallel import ProcessBackend
+    from realitygap.core.parallel import make_backend
+    from realitygap.core.progress import duration_words
     from realitygap.diagnosis.suite import SuiteSettings, draw_cases, run_suite, summarise
 
     n = int(ctx.options.get("cases", 12 if ctx.quick else 48))
     robot = str(ctx.options.get("robot", "diffdrive"))
     settings = SuiteSettings(robot=robot)
     cases = draw_cases(n, ctx.seed, settings)
-    backend = ProcessBackend(ctx.options.get("workers"))
-    chunk = max(1, 2 * backend.workers)
+    backend = make_backend(
+        str(ctx.options.get("backend", "process")),
+        workers=ctx.options.get("workers"),
+        address=ctx.options.get("address"),
+    )
+    workers = int(getattr(backend, "workers", 0) or os.cpu_count() or 1)
+    chunk = max(1, 2 * workers)
     outcomes: list[dict[str, Any]] = []
     t0 = time.perf_counter()
     for a in range(0, n, chunk):
         part = run_suite(cases[a : a + chunk], settings, backend)
         outcomes += part
         ok = sum(o["correct"] for o in outcomes)
+        elapsed = time.perf_counter() - t0
+        left = duration_words(elapsed * (n - len(outcomes)) / len(outcomes))
         ctx.progress(
-            f"{len(outcomes)}/{n} cases, {ok} correct, {time.perf_counter() - t0:.0f} s "
+            f"{len(outcomes)}/{n} cases, {ok} correct, {elapsed:.0f} s, {left} left "
             f"(last: {', '.join(str(o['verdict']) for o in part)})"
         )
     figures, tables = summarise(outcomes)
@@ -70,7 +79,8 @@ def diagnose_suite(ctx: RunContext) -> dict[str, Any]:
             "cases": n,
             "open_set_every": settings.open_set_every,
             "pair_probability": settings.pair_probability,
-            "workers": backend.workers,
+            "backend": backend.name,
+            "workers": workers,
         },
     }
 
