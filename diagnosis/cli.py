@@ -19,7 +19,6 @@ import argparse
 import json
 import math
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -169,6 +168,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
 def _diagnose(args: argparse.Namespace) -> int:
     from realitygap.core.parallel import make_backend
+    from realitygap.core.progress import Countdown
     from realitygap.diagnosis.attribute import AttributionSettings
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
     from realitygap.diagnosis.features import FeatureSettings
@@ -176,13 +176,11 @@ def _diagnose(args: argparse.Namespace) -> int:
     from realitygap.diagnosis.log import LogError
     from realitygap.diagnosis.report import write_json, write_reports
 
-    t0 = time.perf_counter()
+    clock = Countdown(math.nan)
 
     def say(msg: str) -> None:
         if not args.quiet:
-            print(
-                f"[diagnose {time.perf_counter() - t0:5.0f} s] {msg}", file=sys.stderr, flush=True
-            )
+            print(f"{clock.prefix()} {msg}", file=sys.stderr, flush=True)
 
     try:
         for path in [*args.logs, *args.holdout]:
@@ -226,8 +224,10 @@ def _diagnose(args: argparse.Namespace) -> int:
             else AttributionSettings(),
         )
         backend = make_backend(args.backend, workers=args.workers, address=args.ray_address)
-        for line in _plan(train, holdout, settings, backend):
+        lines, estimate = _plan(train, holdout, settings, backend)
+        for line in lines:
             say(line)
+        clock.estimate_s = clock.elapsed_s() + estimate
         result = diagnose(train, holdout, settings=settings, backend=backend, progress=say)
     except (LogError, ValueError, FileNotFoundError, ImportError, KeyError) as exc:
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
@@ -243,8 +243,11 @@ def _diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
-def _plan(train: list[Any], holdout: list[Any] | None, settings: Any, backend: Any) -> list[str]:
-    """What the diagnosis is about to do, said before it starts: the split and the cost."""
+def _plan(
+    train: list[Any], holdout: list[Any] | None, settings: Any, backend: Any
+) -> tuple[list[str], float]:
+    """What the diagnosis is about to do, said before it starts: the split and the cost
+    (lines to show, and the estimated duration in s)."""
     from realitygap.diagnosis.adapters import get_adapter
     from realitygap.diagnosis.diagnose import candidate_library
     from realitygap.robots.effects import EFFECTS
@@ -280,7 +283,7 @@ def _plan(train: list[Any], holdout: list[Any] | None, settings: Any, backend: A
         f"{len(library)} candidate effect(s) on {workers} worker(s): roughly "
         f"{duration_words(estimate)}"
     )
-    return lines
+    return lines, estimate
 
 
 def print_result(result: Any, verbose: bool = False, file: Any = None) -> None:

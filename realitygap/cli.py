@@ -10,12 +10,15 @@ takes ``--quiet`` and ``--verbose``.
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import sys
 import time
 from pathlib import Path
 
 import realitygap
 from realitygap import experiments
+from realitygap.core.progress import Countdown, duration_words
 
 
 def default_data_dir() -> Path | None:
@@ -62,6 +65,50 @@ def _cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
+class _TimedContext(experiments.RunContext):
+    """A run context whose progress lines show the elapsed time and the time left, against
+    the duration of the last run of the same experiment with the same options."""
+
+    clock: Countdown | None = None
+
+    def progress(self, message: str) -> None:
+        if self.verbose:
+            prefix = self.clock.prefix() if self.clock is not None else ""
+            print(f"{prefix} {message}".strip(), file=sys.stderr, flush=True)
+
+
+def _history_path() -> Path:
+    from realitygap.samples import cache_root
+
+    return cache_root() / "run-times.json"
+
+
+def _last_duration(key: str) -> float | None:
+    try:
+        data = json.loads(_history_path().read_text(encoding="utf-8"))
+        value = float(data[key])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return value if math.isfinite(value) and value > 0 else None
+
+
+def _remember_duration(key: str, seconds: float) -> None:
+    from realitygap.core.io import atomic_write_text
+
+    path = _history_path()
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        if not isinstance(data, dict):
+            data = {}
+    except (OSError, ValueError):
+        data = {}
+    data[key] = round(float(seconds), 1)
+    try:
+        atomic_write_text(path, json.dumps(data, indent=1, sort_keys=True) + "\n")
+    except OSError:  # a read-only cache only costs the next estimate
+        pass
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     data = Path(args.data) if args.data else default_data_dir()
     if args.data and not Path(args.data).is_dir():
@@ -86,9 +133,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
         options["backend"] = args.backend
     if args.workers is not None:
         options["workers"] = args.workers
-    ctx = experiments.RunContext(
+    ctx = _TimedContext(
         quick=args.quick, seed=args.seed, data_dir=data, verbose=not args.silent, options=options
     )
+    key = json.dumps([args.experiment, args.quick, str(data), options], sort_keys=True, default=str)
+    last = _last_duration(key)
+    ctx.clock = Countdown(last if last is not None else math.nan)
+    if last is not None and last > 30:
+        ctx.progress(
+            f"{args.experiment}: the last run with these options took {duration_words(last)}"
+        )
     report_dir = args.report
     if report_dir is None:
         stamp = time.strftime("%Y%m%d-%H%M%S")
@@ -101,6 +155,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     except (FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    _remember_duration(key, float(result["wall_seconds"]))
     _print_diagnoses(ctx, verbose=args.verbose)
     print(experiments.format_figures(result))
     if args.verbose:

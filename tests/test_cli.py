@@ -22,7 +22,11 @@ def test_unknown_experiment_suggests_the_close_name(capsys: pytest.CaptureFixtur
     assert "nav8" in capsys.readouterr().err
 
 
-def test_run_writes_json_atomically(tmp_path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_run_writes_json_atomically(
+    tmp_path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+
     @experiments.experiment("unit-test-exp", "a tiny experiment for the tests")
     def _tiny(ctx: experiments.RunContext) -> dict:
         return {"figures": {"answer": 42.0, "seed": ctx.seed}, "config": {"k": 1}}
@@ -37,6 +41,9 @@ def test_run_writes_json_atomically(tmp_path, capsys: pytest.CaptureFixture[str]
         assert data["figures"] == {"answer": 42.0, "seed": 7}
         assert data["config"]["k"] == 1 and data["config"]["seed"] == 7
         assert [p.name for p in out.parent.iterdir()] == ["r.json"]  # no temporary left behind
+        # the next run of the same experiment knows how long the last one took
+        times = json.loads((tmp_path / "cache" / "realitygap" / "run-times.json").read_text())
+        assert len(times) == 1 and next(iter(times.values())) >= 0.0
     finally:
         experiments.EXPERIMENTS.pop("unit-test-exp", None)
 

@@ -4,6 +4,8 @@
   estimate of the time left (``tqdm``), or nothing when the run is quiet.
 * :func:`quiet_c_output` — silence what C code prints to file descriptors 1
   and 2 while a block runs (PyBullet prints its build time when it is imported).
+* :class:`Countdown` — elapsed time and time left against an estimate made before a
+  run whose steps are not counted (a diagnosis: replays, fits, verification).
 * :func:`duration_words` — a duration in the unit a person reads ("about 7 min").
 
 Standard library only at import; ``tqdm`` is imported when a bar is shown.
@@ -12,13 +14,14 @@ Standard library only at import; ``tqdm`` is imported when a bar is shown.
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import sys
 import time
 from collections.abc import Iterator
 from typing import IO, Any
 
-__all__ = ["Progress", "duration_words", "quiet_c_output"]
+__all__ = ["Countdown", "Progress", "duration_words", "quiet_c_output"]
 
 
 @contextlib.contextmanager
@@ -177,3 +180,40 @@ class Progress:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class Countdown:
+    """Elapsed time and the time left of a run against an estimate made before it started.
+
+    Parameters
+    ----------
+    estimate_s : float
+        Expected duration of the whole run, s (``nan``: unknown).
+
+    Examples
+    --------
+    >>> c = Countdown(120.0)
+    >>> c.prefix(elapsed_s=30.0)
+    '[0:30, about 2 min left]'
+    >>> c.prefix(elapsed_s=150.0)
+    '[2:30, longer than the 2 min estimated]'
+    """
+
+    def __init__(self, estimate_s: float) -> None:
+        self.estimate_s = float(estimate_s)
+        self._t0 = time.perf_counter()
+
+    def elapsed_s(self) -> float:
+        """Seconds since the countdown started."""
+        return time.perf_counter() - self._t0
+
+    def prefix(self, elapsed_s: float | None = None) -> str:
+        """``"[m:ss, about … left]"`` for a progress line."""
+        t = self.elapsed_s() if elapsed_s is None else float(elapsed_s)
+        clock = f"{int(t // 60)}:{int(t % 60):02d}"
+        if not math.isfinite(self.estimate_s):
+            return f"[{clock}]"
+        left = self.estimate_s - t
+        if left < 0:
+            return f"[{clock}, longer than the {duration_words(self.estimate_s).removeprefix('about ')} estimated]"
+        return f"[{clock}, {duration_words(left)} left]".replace(", about", ", about")

@@ -24,7 +24,7 @@ import tarfile
 import tempfile
 from pathlib import Path
 
-__all__ = ["SAMPLES", "sample_dir"]
+__all__ = ["SAMPLES", "cache_root", "sample_dir"]
 
 _HERE = Path(__file__).resolve().parent
 
@@ -44,7 +44,9 @@ def _archive(name: str) -> Path:
     return _HERE / f"{name}.tar.xz"
 
 
-def _cache_root() -> Path:
+def cache_root() -> Path:
+    """The user's cache folder of this package (``$XDG_CACHE_HOME/realitygap`` or
+    ``~/.cache/realitygap``)."""
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
     return Path(base) / "realitygap"
 
@@ -83,7 +85,7 @@ def sample_dir(name: str) -> Path:
     """
     archive = _archive(name)
     digest = hashlib.sha256(archive.read_bytes()).hexdigest()[:12]
-    root = _cache_root() / f"sample-{name}-{digest}"
+    root = cache_root() / f"sample-{name}-{digest}"
     if (root / name).is_dir():
         return root / name
     try:

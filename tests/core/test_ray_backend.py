@@ -1,0 +1,86 @@
+"""The Ray backend on a local two-CPU cluster gives the process backend's results."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'realitygap[ray]')")
+
+
+@pytest.fixture(scope="module")
+def local_cluster():
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield
+    ray.shutdown()
+
+
+def _square(shared: int, item: int) -> int:
+    return shared + item * item
+
+
+def test_map_keeps_item_order(local_cluster) -> None:
+    from realitygap.core.parallel import RayBackend
+
+    assert RayBackend().map(_square, list(range(7)), 10) == [10 + k * k for k in range(7)]
+
+
+def test_small_diagnose_suite_equals_the_process_backend(local_cluster) -> None:
+    from realitygap import experiments
+
+    results = {}
+    for backend in ("ray", "process"):
+        ctx = experiments.RunContext(
+            quick=True,
+            seed=3,
+            verbose=False,
+            options={"cases": 2, "backend": backend, "workers": 2},
+        )
+        results[backend] = experiments.run("diagnose-suite", ctx)
+    ray_rows = results["ray"]["tables"]["cases"]
+    process_rows = results["process"]["tables"]["cases"]
+    timing = ("seconds",)
+    strip = [
+        [{k: v for k, v in row.items() if not k.startswith(timing)} for row in rows]
+        for rows in (ray_rows, process_rows)
+    ]
+    assert strip[0] == strip[1]
+    same = {k: v for k, v in results["ray"]["figures"].items() if not k.startswith("seconds")}
+    assert same == {
+        k: v for k, v in results["process"]["figures"].items() if not k.startswith("seconds")
+    }
+    assert results["ray"]["config"]["backend"] == "ray"
+
+
+def _episodes(folder: Path) -> list[str]:
+    """The episode records without their wall-clock timing, as sorted JSON strings (NaN-safe)."""
+    rows = [json.loads(line) for line in (folder / "episodes.jsonl").read_text().splitlines()]
+    timing = {"compute_ms", "wall_s", "seconds"}
+    return sorted(
+        json.dumps({k: v for k, v in r.items() if k not in timing}, sort_keys=True) for r in rows
+    )
+
+
+def test_small_benchmark_equals_the_process_backend(local_cluster, tmp_path: Path) -> None:
+    from realitygap.cli import main
+
+    common = [
+        "benchmark",
+        "--envs",
+        "realitygap/WheeledNav-v0",
+        "--policies",
+        "classical,random",
+        "--episodes",
+        "1",
+        "--sensor-modes",
+        "fast",
+        "--reality",
+        "none",
+        "--quiet",
+    ]
+    assert main([*common, "--backend", "ray", "--out", str(tmp_path / "ray")]) == 0
+    assert main([*common, "--workers", "2", "--out", str(tmp_path / "process")]) == 0
+    assert _episodes(tmp_path / "ray") == _episodes(tmp_path / "process")
+    assert len(_episodes(tmp_path / "ray")) == 2  # one episode of each policy
