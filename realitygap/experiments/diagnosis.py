@@ -28,7 +28,7 @@ GOALS = {
 )
 def diagnose_suite(ctx: RunContext) -> dict[str, Any]:
     from realitygap.core.parallel import make_backend
-    from realitygap.core.progress import duration_words
+    from realitygap.core.progress import Progress
     from realitygap.diagnosis.suite import SuiteSettings, draw_cases, run_suite, summarise
 
     n = int(ctx.options.get("cases", 12 if ctx.quick else 48))
@@ -43,17 +43,15 @@ def diagnose_suite(ctx: RunContext) -> dict[str, Any]:
     workers = int(getattr(backend, "workers", 0) or os.cpu_count() or 1)
     chunk = max(1, 2 * workers)
     outcomes: list[dict[str, Any]] = []
-    t0 = time.perf_counter()
-    for a in range(0, n, chunk):
-        part = run_suite(cases[a : a + chunk], settings, backend)
-        outcomes += part
-        ok = sum(o["correct"] for o in outcomes)
-        elapsed = time.perf_counter() - t0
-        left = duration_words(elapsed * (n - len(outcomes)) / len(outcomes))
-        ctx.progress(
-            f"{len(outcomes)}/{n} cases, {ok} correct, {elapsed:.0f} s, {left} left "
-            f"(last: {', '.join(str(o['verdict']) for o in part)})"
-        )
+    with Progress(n, f"{robot} blind cases", enabled=ctx.verbose) as bar:
+        for a in range(0, n, chunk):
+            part = run_suite(cases[a : a + chunk], settings, backend)
+            outcomes += part
+            ok = sum(o["correct"] for o in outcomes)
+            bar.write(
+                f"cases {a}–{a + len(part) - 1}: {', '.join(str(o['verdict']) for o in part)}"
+            )
+            bar.update(len(part), note=f"{ok} correct")
     figures, tables = summarise(outcomes)
     figures["seconds_per_case_median"] = float(
         np.median([o["seconds_record"] + o["seconds_diagnose"] for o in outcomes])
