@@ -167,6 +167,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print(f"wrote {args.json}")
     if "report" in result:
         print(f"report: {Path(result['report']).resolve()}")
+    elif args.report is not None:
+        print(f"note: {args.experiment} makes no diagnosis, so --report wrote nothing")
     return 0
 
 

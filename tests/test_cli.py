@@ -33,9 +33,11 @@ def test_run_writes_json_atomically(
 
     try:
         out = tmp_path / "sub" / "r.json"
-        assert (
-            cli.main(["run", "unit-test-exp", "--seed", "7", "--json", str(out), "--silent"]) == 0
-        )
+        report = tmp_path / "report"
+        argv = ["run", "unit-test-exp", "--seed", "7", "--json", str(out), "--report", str(report)]
+        assert cli.main([*argv, "--silent"]) == 0
+        assert "makes no diagnosis, so --report wrote nothing" in capsys.readouterr().out
+        assert not report.exists()
         data = json.loads(out.read_text())
         assert data["experiment"] == "unit-test-exp"
         assert data["figures"] == {"answer": 42.0, "seed": 7}
