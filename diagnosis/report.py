@@ -81,13 +81,8 @@ def _fmt(x: Any, nd: int = 3) -> str:
 
 
 def _si(value: float, unit: str) -> str:
-    if unit == "m":
-        return f"{value * 1e3:.3g} mm"
-    if unit == "rad":
-        return f"{value * 1e3:.3g} mrad"
-    if unit == "1":
-        return f"{value:.3g}"
-    return f"{value:.3g} {unit}"
+    """A value of SI ``unit`` in the engineering units the summary and figures use."""
+    return quantity(value, unit)
 
 
 # --------------------------------------------------------------------------- markdown

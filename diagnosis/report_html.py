@@ -176,7 +176,7 @@ def markdown_to_html(
             while i < len(lines) and lines[i].strip().startswith(">"):
                 quoted.append(_inline(lines[i].strip()[1:].strip()))
                 i += 1
-            body.append('<div class="summary"><p>' + " ".join(quoted) + "</p></div>")
+            body.append('<div class="summary">' + "".join(f"<p>{q}</p>" for q in quoted) + "</div>")
             continue
         para.append(line)
         i += 1
