@@ -254,7 +254,14 @@ def _ranking(d: Diagnosis, out: Path, prefix: str, plt: Any) -> tuple[str, str] 
                         va="center", fontsize=7, color="white")  # fmt: skip
     line = 100 * d.settings.attribution.min_shrink
     ax.axvline(line, color="k", ls=":", lw=1)
-    ax.text(line, len(rows) - 0.4, f" {line:.0f} %: needed to be named", fontsize=7, va="bottom")
+    ax.text(
+        line,
+        len(rows) - 0.4,
+        f"needed to be named: {line:.0f} % ",
+        fontsize=7,
+        va="bottom",
+        ha="right",
+    )
     ax.set_xlim(floor, 100.0)
     ax.set_ylim(-0.6, len(rows) + 0.2)
     ax.set_xlabel("held-out gap closed [%]  (✓ verified in PyBullet)")

@@ -250,8 +250,15 @@ def summary_sentences(d: Diagnosis) -> list[str]:
         )
         if "heldout_trajectory_gap_m_best" in g:
             sentence += (
-                f" (whole held-out runs: {100 * g['heldout_trajectory_gap_m_nominal']:.1f} cm RMS "
-                f"position error nominal → {100 * g['heldout_trajectory_gap_m_best']:.1f} cm)"
+                " (RMS position error over whole held-out runs: "
+                f"{quantity(g['heldout_trajectory_gap_m_nominal'], 'm')} nominal → "
+                f"{quantity(g['heldout_trajectory_gap_m_best'], 'm')})"
+            )
+        widest = max(rows, key=lambda r: float(r["heldout_shrink_pct"]))
+        if float(widest["heldout_shrink_pct"]) > closes + 1.0 and widest is not best_row:
+            sentence += (
+                f"; the most any candidate closes is {float(widest['heldout_shrink_pct']):.0f} % "
+                f"({widest['name']}), not enough to outscore it on held-out data"
             )
         out.append(sentence + ".")
     v = d.verdict
