@@ -79,14 +79,17 @@ def markdown_to_html(
     FileNotFoundError
         If an image the Markdown refers to does not exist.
     """
+    read: Callable[[str], bytes]
     if isinstance(image_bytes, Path):
         folder = image_bytes
 
-        def read(src: str) -> bytes:
+        def read_file(src: str) -> bytes:
             path = folder / src
             if not path.is_file():
                 raise FileNotFoundError(f"the report refers to an image {path} that does not exist")
             return path.read_bytes()
+
+        read = read_file
     else:
         read = image_bytes
 
@@ -112,9 +115,7 @@ def markdown_to_html(
             continue
         if stripped.startswith(("<details", "</details")):
             flush_para()
-            body.append(
-                stripped.replace("<summary>", "<summary>").replace("</summary>", "</summary>")
-            )
+            body.append(stripped)  # the report's own <details> blocks, as written
             i += 1
             continue
         heading = re.match(r"^(#{1,6})\s+(.*)$", stripped)

@@ -213,3 +213,37 @@ def test_report_opens_in_headless_chromium_with_every_image_loaded(
     assert loaded is not None, done.stdout[-2000:]
     ok, total = int(loaded.group(1)), int(loaded.group(2))
     assert total >= 5 and ok == total
+
+
+def test_markdown_to_html_renders_the_subset_and_escapes_text() -> None:
+    png = b"\x89PNG\r\n\x1a\nfake"
+    md = "\n".join(
+        [
+            "# Title",
+            "",
+            "> first sentence",
+            "> second <sentence>",
+            "",
+            "| a | b |",
+            "|---|---|",
+            "| **x** | `y<z` |",
+            "",
+            "- item *one*",
+            "",
+            "<details><summary>more</summary>",
+            "",
+            "![cap](f.png)",
+            "",
+            "*cap*",
+            "",
+            "</details>",
+        ]
+    )
+    page = markdown_to_html(md, lambda src: png, title="t & u")
+    assert "<title>t &amp; u</title>" in page and "<h1>Title</h1>" in page
+    assert '<div class="summary"><p>first sentence</p><p>second &lt;sentence&gt;</p></div>' in page
+    assert "<td><strong>x</strong></td><td><code>y&lt;z</code></td>" in page
+    assert "<li>item <em>one</em></li>" in page
+    assert "<details><summary>more</summary>" in page and "</details>" in page
+    assert f'src="data:image/png;base64,{base64.b64encode(png).decode()}"' in page
+    assert "<figcaption>cap</figcaption>" in page and "<em>cap</em>" not in page  # one caption
