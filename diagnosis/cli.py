@@ -19,10 +19,11 @@ import argparse
 import json
 import math
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-__all__ = ["add_diagnose_parser", "main", "run_diagnose"]
+__all__ = ["add_diagnose_parser", "estimate_seconds", "main", "print_result", "run_diagnose"]
 
 EXAMPLES = """\
 examples:
@@ -243,14 +244,36 @@ def _diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
+def _library(settings: Any) -> tuple[str, ...]:
+    from realitygap.diagnosis.adapters import get_adapter
+    from realitygap.diagnosis.diagnose import candidate_library
+    from realitygap.robots.effects import EFFECTS
+
+    try:
+        return tuple(candidate_library(get_adapter(settings.robot), settings))
+    except (KeyError, ValueError):
+        return tuple(e for e, cls in EFFECTS.items() if cls.robot == settings.robot)
+
+
+def estimate_seconds(logs: Sequence[Any], settings: Any, backend: Any) -> float:
+    """A rough duration of :func:`~realitygap.diagnosis.diagnose.diagnose` on ``logs``, s.
+
+    Proportional to the seconds of logged motion, the fits (every single effect of the
+    library and up to three pairs per pair candidate) and inversely to the backend's
+    workers, at :data:`SECONDS_PER_LOG_SECOND_AND_FIT`; shown before a run and used for
+    the time left.
+    """
+    seconds_of_motion = sum(float(lg.duration) for lg in logs)
+    fits = len(_library(settings)) + settings.attribution.pair_candidates * 3
+    workers = max(1, int(getattr(backend, "workers", 1) or 1))
+    return SECONDS_PER_LOG_SECOND_AND_FIT * seconds_of_motion * fits / workers
+
+
 def _plan(
     train: list[Any], holdout: list[Any] | None, settings: Any, backend: Any
 ) -> tuple[list[str], float]:
     """What the diagnosis is about to do, said before it starts: the split and the cost
     (lines to show, and the estimated duration in s)."""
-    from realitygap.diagnosis.adapters import get_adapter
-    from realitygap.diagnosis.diagnose import candidate_library
-    from realitygap.robots.effects import EFFECTS
 
     lines = []
     if holdout:
@@ -268,14 +291,10 @@ def _plan(
             f"{settings.block_windows} windows of {train[0].name}; a held-out log of another "
             "path is a stronger test"
         )
-    try:
-        library = candidate_library(get_adapter(settings.robot), settings)
-    except (KeyError, ValueError):
-        library = tuple(e for e, cls in EFFECTS.items() if cls.robot == settings.robot)
+    library = _library(settings)
     seconds_of_motion = sum(float(lg.duration) for lg in [*train, *(holdout or [])])
-    fits = len(library) + settings.attribution.pair_candidates * 3
     workers = max(1, int(getattr(backend, "workers", 1) or 1))
-    estimate = SECONDS_PER_LOG_SECOND_AND_FIT * seconds_of_motion * fits / workers
+    estimate = estimate_seconds([*train, *(holdout or [])], settings, backend)
     from realitygap.core.progress import duration_words
 
     lines.append(

@@ -71,6 +71,11 @@ class _TimedContext(experiments.RunContext):
 
     clock: Countdown | None = None
 
+    def expect(self, seconds: float) -> None:
+        if self.clock is not None and not math.isfinite(self.clock.estimate_s):
+            self.clock.estimate_s = self.clock.elapsed_s() + float(seconds)
+        super().expect(seconds)
+
     def progress(self, message: str) -> None:
         if self.verbose:
             prefix = self.clock.prefix() if self.clock is not None else ""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 
@@ -139,3 +140,25 @@ def test_sample_command_prints_the_folder(tmp_path, monkeypatch, capsys) -> None
     assert out.endswith("optiodom_diffdrive") and out.startswith(str(tmp_path))
     assert cli.main(["sample", "nope"]) == 2
     assert "embedded samples: optiodom_diffdrive" in capsys.readouterr().err
+
+
+def test_progress_shows_the_time_left_once_an_experiment_states_its_duration(
+    tmp_path, capsys, monkeypatch
+) -> None:
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+
+    @experiments.experiment("unit-test-eta", "states its duration")
+    def _eta(ctx: experiments.RunContext) -> dict:
+        ctx.progress("before")
+        ctx.expect(150.0)
+        ctx.progress("after")
+        return {"figures": {"expected_s": ctx.expected_s}}
+
+    try:
+        assert cli.main(["run", "unit-test-eta"]) == 0
+        err = capsys.readouterr().err
+        assert re.search(r"^\[0:00\] before$", err, flags=re.M)
+        assert "this run takes roughly 2 min" in err
+        assert re.search(r"^\[0:00, about 2 min left\] after$", err, flags=re.M)
+    finally:
+        experiments.EXPERIMENTS.pop("unit-test-eta", None)

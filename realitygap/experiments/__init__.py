@@ -53,6 +53,18 @@ class RunContext:
     diagnoses: list[tuple[str, Any]] = field(default_factory=list)
     """Diagnoses the experiment made, labelled, for its report (:meth:`add_diagnosis`)."""
 
+    expected_s: float = math.nan
+    """The experiment's own estimate of its duration, s (:meth:`expect`); ``nan``: none."""
+
+    def expect(self, seconds: float) -> None:
+        """State how long the run is expected to take, s (progress shows the time left)."""
+        self.expected_s = float(seconds)
+        self.progress(
+            f"this run takes roughly {seconds / 60:.0f} min"
+            if seconds >= 90
+            else f"this run takes roughly {seconds:.0f} s"
+        )
+
     def add_diagnosis(self, label: str, diagnosis: Any) -> None:
         """Hand a :class:`~realitygap.diagnosis.diagnose.Diagnosis` to the run's report."""
         self.diagnoses.append((label, diagnosis))

@@ -132,6 +132,7 @@ def _ranking_table(js: dict[str, Any], n: int) -> list[dict[str, Any]]:
 )
 def diagnose_real(ctx: RunContext) -> dict[str, Any]:
     from realitygap.core.parallel import ProcessBackend
+    from realitygap.diagnosis.cli import estimate_seconds
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
     from realitygap.diagnosis.verdict import explain
 
@@ -151,6 +152,12 @@ def diagnose_real(ctx: RunContext) -> dict[str, Any]:
     if not holdout:
         raise FileNotFoundError("diagnose-real needs held-out runs of another path type")
     backend = ProcessBackend(ctx.options.get("workers"))
+    ctx.expect(
+        sum(
+            estimate_seconds(train + holdout, DiagnosisSettings(drive=d), backend)
+            for d in ("commands", "ticks")
+        )
+    )
     figures: dict[str, Any] = {}
     tables: dict[str, Any] = {}
     notes: list[str] = []
