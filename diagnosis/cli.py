@@ -27,15 +27,17 @@ __all__ = ["add_diagnose_parser", "estimate_seconds", "main", "print_result", "r
 
 EXAMPLES = """\
 examples:
-  realitygap diagnose shared/data/optiodom_diffdrive/square/230620202042 \\
-      --holdout shared/data/optiodom_diffdrive/ivanjko/231220200057 --report out/ --json out/d.json
+  # the OptiOdom sample shipped with the package (realitygap sample prints its folder)
+  SAMPLE="$(realitygap sample optiodom_diffdrive)"
+  realitygap diagnose "$SAMPLE/square/231220200029" --holdout "$SAMPLE/ivanjko/231220200057" \\
+      --report out/
   realitygap diagnose run.csv --columns 't=time:ms,cmd.v=v,cmd.w=w,pose_gt.x=x,pose_gt.y=y,pose_gt.theta=yaw:deg' \\
       --report out/ --json out/d.json
-  realitygap diagnose drive.bag --truth-topic /mocap/robot/pose --report out/ --json out/d.json
+  realitygap diagnose drive.bag --truth-topic /mocap/robot/pose --report out/
 
   # an arm measured by a laser tracker (UR10 layout: Series_*/measurements_*.csv);
   # the first series trains, the last is held out
-  realitygap diagnose shared/data/ipa_ur10_lasertracker --json out/ur10.json
+  realitygap diagnose path/to/ipa_ur10_lasertracker --report out/ur10/
 """
 
 SECONDS_PER_LOG_SECOND_AND_FIT = 0.03
