@@ -73,9 +73,7 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     p.add_argument("--seed", type=int, default=0, help="episode k uses env seed 1000*seed + k")
     p.add_argument("--out", default="runs/benchmark", help="output folder (default runs/benchmark)")
-    p.add_argument(
-        "--backend", choices=("local", "ray"), default="local", help="where episodes run"
-    )
+    p.add_argument("--backend", choices=("local", "ray"), default="local")
     p.add_argument("--address", default=None, help="Ray cluster address (default: a local one)")
     p.add_argument(
         "--workers", type=int, default=1, help="local worker processes (default 1: in-process)"
@@ -101,12 +99,10 @@ def add_train_parser(subparsers: Any) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "train",
         help="train a PPO or SAC baseline (stable-baselines3) with the hyperparameter files",
-        description="Train a PPO or SAC policy on one env with the rl-zoo style hyperparameter "
-        "file of the algorithm (baselines/hyperparams/), evaluating and checkpointing as it goes.",
     )
     p.add_argument("--env", default="realitygap/WheeledNav-v0", help="env id")
-    p.add_argument("--algo", choices=("ppo", "sac"), default="ppo", help="algorithm (default ppo)")
-    p.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
+    p.add_argument("--algo", choices=("ppo", "sac"), default="ppo")
+    p.add_argument("--seed", type=int, default=0)
     p.add_argument("--timesteps", type=int, default=None, help="budget (default: file)")
     p.add_argument("--n-envs", type=int, default=None, help="parallel envs (default: file)")
     p.add_argument(
@@ -126,7 +122,7 @@ def add_train_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument(
         "--checkpoint-every", type=int, default=100_000, help="steps between checkpoints (0: none)"
     )
-    p.add_argument("--eval-episodes", type=int, default=20, help="episodes per evaluation")
+    p.add_argument("--eval-episodes", type=int, default=20)
     p.add_argument(
         "--ship",
         action="store_true",

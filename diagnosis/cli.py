@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-__all__ = ["add_diagnose_parser", "estimate_seconds", "main", "print_result", "run_diagnose"]
+__all__ = ["add_diagnose_parser", "main", "run_diagnose"]
 
 EXAMPLES = """\
 examples:

@@ -349,12 +349,8 @@ def add_calibrate_parser(subparsers: Any) -> argparse.ArgumentParser:
     argparse.ArgumentParser
         The ``calibrate`` parser (its handler is in ``args.func``, returning an exit code).
     """
-    p_cal = subparsers.add_parser(
-        "calibrate",
-        help="calibrate a robot from recorded runs",
-        description="Calibrate a robot from recorded runs (one sub-command per method).",
-    )
-    sub = p_cal.add_subparsers(dest="calibration", required=True, help="calibration method")
+    p_cal = subparsers.add_parser("calibrate", help="calibrate a robot from recorded runs")
+    sub = p_cal.add_subparsers(dest="calibration", required=True)
     p_umb = sub.add_parser(
         "umbmark",
         help="UMBmark (wheel-diameter ratio E_d, wheelbase factor E_b) from square sessions",

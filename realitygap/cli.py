@@ -204,6 +204,31 @@ def _print_diagnoses(ctx: experiments.RunContext, verbose: bool) -> None:
         print()
 
 
+HELP_WHERE_MISSING: dict[tuple[str, str], str] = {
+    ("train", ""): "Train a PPO or SAC policy on one env with the rl-zoo style hyperparameter "
+    "file of the algorithm (baselines/hyperparams/), evaluating and checkpointing as it goes.",
+    ("train", "--algo"): "algorithm (default ppo)",
+    ("train", "--seed"): "training seed (default 0)",
+    ("train", "--eval-episodes"): "episodes per evaluation (default 20)",
+    ("benchmark", "--backend"): "where episodes run: local processes or a Ray cluster "
+    "(RAY_ADDRESS or --address names an existing one)",
+    ("calibrate", ""): "Calibrate a robot from recorded runs (one sub-command per method).",
+    ("calibrate", "calibration"): "calibration method",
+}
+"""Descriptions (option ``""``) and option help the sub-command modules leave out."""
+
+
+def _fill_help(parser: argparse.ArgumentParser) -> None:
+    """Give ``parser`` the description and option help of :data:`HELP_WHERE_MISSING` it lacks."""
+    command = parser.prog.split()[-1]
+    if not parser.description and (command, "") in HELP_WHERE_MISSING:
+        parser.description = HELP_WHERE_MISSING[(command, "")]
+    for action in parser._actions:
+        name = action.option_strings[-1] if action.option_strings else action.dest
+        if action.help is None and (command, name) in HELP_WHERE_MISSING:
+            action.help = HELP_WHERE_MISSING[(command, name)]
+
+
 def _add_verbosity(parser: argparse.ArgumentParser) -> None:
     """``--quiet`` and ``--verbose`` on ``parser`` where it lacks them (``--silent`` is kept
     as another spelling of ``--quiet``)."""
@@ -309,6 +334,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_benchmark_parser(sub)
     add_train_parser(sub)
     for choice in _subparsers(parser):
+        _fill_help(choice)
         _add_verbosity(choice)
     return parser
 
