@@ -182,7 +182,7 @@ def _diagnose(args: argparse.Namespace) -> int:
     clock = Countdown(math.nan)
 
     def say(msg: str) -> None:
-        if not args.quiet:
+        if not args.quiet and (args.verbose or not msg.startswith("  ")):  # details: --verbose
             print(f"{clock.prefix()} {msg}", file=sys.stderr, flush=True)
 
     try:

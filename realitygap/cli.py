@@ -70,6 +70,8 @@ class _TimedContext(experiments.RunContext):
     the duration of the last run of the same experiment with the same options."""
 
     clock: Countdown | None = None
+    details: bool = False
+    """Show indented detail lines (one per transient event, …) too (``--verbose``)."""
 
     def expect(self, seconds: float) -> None:
         if self.clock is not None and not math.isfinite(self.clock.estimate_s):
@@ -77,7 +79,7 @@ class _TimedContext(experiments.RunContext):
         super().expect(seconds)
 
     def progress(self, message: str) -> None:
-        if self.verbose:
+        if self.verbose and (self.details or not message.startswith("  ")):
             prefix = self.clock.prefix() if self.clock is not None else ""
             print(f"{prefix} {message}".strip(), file=sys.stderr, flush=True)
 
@@ -144,6 +146,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     key = json.dumps([args.experiment, args.quick, str(data), options], sort_keys=True, default=str)
     last = _last_duration(key)
     ctx.clock = Countdown(last if last is not None else math.nan)
+    ctx.details = bool(args.verbose)
     if last is not None and last > 30:
         ctx.progress(
             f"{args.experiment}: the last run with these options took {duration_words(last)}"

@@ -162,3 +162,24 @@ def test_progress_shows_the_time_left_once_an_experiment_states_its_duration(
         assert re.search(r"^\[0:00, about 2 min left\] after$", err, flags=re.M)
     finally:
         experiments.EXPERIMENTS.pop("unit-test-eta", None)
+
+
+def test_indented_detail_lines_only_with_verbose(tmp_path, capsys, monkeypatch) -> None:
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+
+    @experiments.experiment("unit-test-details", "says a detail")
+    def _details(ctx: experiments.RunContext) -> dict:
+        ctx.progress("headline")
+        ctx.progress("  detail")
+        return {"figures": {}}
+
+    try:
+        assert cli.main(["run", "unit-test-details"]) == 0
+        err = capsys.readouterr().err
+        assert "headline" in err and "detail\n" not in err.replace("headline", "")
+        assert cli.main(["run", "unit-test-details", "--verbose"]) == 0
+        assert "  detail" in capsys.readouterr().err
+        assert cli.main(["run", "unit-test-details", "--quiet"]) == 0
+        assert capsys.readouterr().err == ""
+    finally:
+        experiments.EXPERIMENTS.pop("unit-test-details", None)
