@@ -40,9 +40,10 @@ examples:
   realitygap diagnose path/to/ipa_ur10_lasertracker --report out/ur10/
 """
 
-SECONDS_PER_LOG_SECOND_AND_FIT = 0.03
-"""Rough cost of one candidate fit per second of logged motion on one worker, s (measured
-on the OptiOdom sample with PyBullet replays); only for the estimate shown before a run."""
+SECONDS_PER_LOG_SECOND_AND_FIT = 0.02
+"""Rough cost of one candidate fit per second of logged motion on one worker, s (0.012 to
+0.036 measured on the embedded OptiOdom sample with PyBullet replays on two cores, idle to
+heavily loaded); only for the estimate shown before a run and the time left."""
 
 
 def _parse_kv(text: str, what: str) -> dict[str, Any]:
