@@ -29,7 +29,7 @@ EXAMPLES = """\
 examples:
   # the OptiOdom sample shipped with the package (realitygap sample prints its folder)
   SAMPLE="$(realitygap sample optiodom_diffdrive)"
-  realitygap diagnose "$SAMPLE/square/231220200029" --holdout "$SAMPLE/ivanjko/231220200057" \\
+  realitygap diagnose "$SAMPLE/square/231220200029" --holdout "$SAMPLE/circular/231220200157" \\
       --report out/
   realitygap diagnose run.csv --columns 't=time:ms,cmd.v=v,cmd.w=w,pose_gt.x=x,pose_gt.y=y,pose_gt.theta=yaw:deg' \\
       --report out/ --json out/d.json

@@ -320,7 +320,7 @@ def build_parser() -> argparse.ArgumentParser:
         "name",
         nargs="?",
         default="optiodom_diffdrive",
-        help="sample name (default optiodom_diffdrive: 2 OptiOdom square sessions, 1 Ivanjko)",
+        help="sample name (default optiodom_diffdrive: 2 OptiOdom square sessions, 1 circular)",
     )
     p_sample.set_defaults(func=_cmd_sample)
 

@@ -119,7 +119,7 @@ def test_embedded_sample_stands_in_without_a_data_folder(tmp_path, monkeypatch) 
     ctx = experiments.RunContext(data_dir=None, verbose=False)
     folder = ctx.data_subdir("optiodom_diffdrive")
     assert folder.is_relative_to(tmp_path / "cache")
-    assert sorted(os.listdir(folder)) == ["LICENSE", "ivanjko", "square"]
+    assert sorted(os.listdir(folder)) == ["LICENSE", "circular", "square"]
     assert len(os.listdir(folder / "square")) == 2
     assert "embedded OptiOdom sample" in ctx.data_used["optiodom_diffdrive"]
     assert ctx.data_subdir("optiodom_diffdrive") == folder  # unpacked once

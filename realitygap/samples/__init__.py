@@ -4,8 +4,8 @@
 et al., J. Intell. Robot. Syst. 105:39, 2022; MIT licence in
 ``LICENSE-optiodom_diffdrive`` beside it and inside the archive): two UMBmark square
 sessions (``square/231220200029``, ``square/230620202144``, 0.75 m … 1.7 m squares,
-runs 1–3 clockwise, 4–6 counter-clockwise) to train on and one Ivanjko session
-(``ivanjko/231220200057``, straight legs and 180° turns) to hold out. The full set
+runs 1–3 clockwise, 4–6 counter-clockwise) to train on and one circular session
+(``circular/231220200157``, two 30 s circle runs) to hold out. The full set
 (five square, eight circular, five Ivanjko and two free sessions) is read with
 ``--data DIR``.
 
@@ -30,7 +30,7 @@ _HERE = Path(__file__).resolve().parent
 
 SAMPLES: dict[str, str] = {
     "optiodom_diffdrive": (
-        "embedded OptiOdom sample: 2 square sessions to train on, 1 Ivanjko session held out"
+        "embedded OptiOdom sample: 2 square sessions to train on, 1 circular session held out"
     ),
 }
 """Sample name (a sub-folder of a data folder) → one-line description."""
