@@ -3,7 +3,10 @@
 ::
 
     realitygap diagnose LOG... [--holdout LOG...] [--robot diffdrive|arm|climber] [--effects a,b,…]
-                        [--drive commands|ticks] --report DIR --json PATH
+                        [--drive commands|ticks] [--report DIR] [--json PATH] [--quiet|--verbose]
+
+It prints the verdict in sentences and the candidates by held-out shrink; ``--report``
+adds ``report.html`` (self-contained), ``report.md``, ``diagnosis.json`` and figures.
 
 A LOG is a saved ``.npz`` log, an OptiOdom session folder, a UR10 laser-tracker set,
 a CSV file (with ``--columns``) or a ROS bag (with ``--truth-topic`` …).
@@ -14,7 +17,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -30,16 +35,23 @@ __all__ = ["add_diagnose_parser", "main", "run_diagnose"]
 
 EXAMPLES = """\
 examples:
-  realitygap diagnose shared/data/optiodom_diffdrive/square/230620202042 \\
-      --holdout shared/data/optiodom_diffdrive/ivanjko/231220200057 --report out/ --json out/d.json
+  # the OptiOdom sample shipped with the package (realitygap sample prints its folder)
+  SAMPLE="$(realitygap sample optiodom_diffdrive)"
+  realitygap diagnose "$SAMPLE/square/231220200029" --holdout "$SAMPLE/circular/231220200157" \\
+      --report out/
   realitygap diagnose run.csv --columns 't=time:ms,cmd.v=v,cmd.w=w,pose_gt.x=x,pose_gt.y=y,pose_gt.theta=yaw:deg' \\
       --report out/ --json out/d.json
-  realitygap diagnose drive.bag --truth-topic /mocap/robot/pose --report out/ --json out/d.json
+  realitygap diagnose drive.bag --truth-topic /mocap/robot/pose --report out/
 
   # an arm measured by a laser tracker (UR10 layout: Series_*/measurements_*.csv);
   # the first series trains, the last is held out
-  realitygap diagnose shared/data/ipa_ur10_lasertracker --json out/ur10.json
+  realitygap diagnose path/to/ipa_ur10_lasertracker --report out/ur10/
 """
+
+SECONDS_PER_LOG_SECOND_AND_FIT = 0.02
+"""Rough cost of one candidate fit per second of logged motion on one worker, s (0.012 to
+0.036 measured on the embedded OptiOdom sample with PyBullet replays on two cores, idle to
+heavily loaded); only for the estimate shown before a run and the time left."""
 
 
 def _parse_kv(text: str, what: str) -> dict[str, Any]:
@@ -76,7 +88,7 @@ def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
         description=(
             "Replay real logs in the nominal simulation, localise the gap, attribute it to "
             "effects fitted on training logs and scored on held-out ones, and report how far "
-            "it shrinks."
+            "it shrinks. Prints the verdict; --report DIR and --json PATH also write files."
         ),
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -85,8 +97,8 @@ def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--holdout", nargs="+", metavar="LOG", default=[], help="held-out logs")
     p.add_argument(
         "--robot",
-        help="robot adapter: diffdrive, arm or climber (default: the robot the logs name, "
-        "else diffdrive)",
+        help="robot: diffdrive (differential drive), arm or climber (blade-climbing robot); "
+        "default: the robot the logs name, else diffdrive",
     )
     p.add_argument(
         "--effects", help="comma-separated candidate effects (default: every effect of the robot)"
@@ -97,7 +109,11 @@ def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
         default="commands",
         help="replay the logged commands (default) or the logged wheel rotation",
     )
-    p.add_argument("--report", metavar="DIR", help="write report.md and figures here")
+    p.add_argument(
+        "--report",
+        metavar="DIR",
+        help="write report.html (self-contained), report.md, diagnosis.json and figures here",
+    )
     p.add_argument("--json", metavar="PATH", help="write the diagnosis as JSON here")
     p.add_argument(
         "--backend",
@@ -120,14 +136,31 @@ def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     g.add_argument("--params", help="nominal robot parameters: 'k=v,…', JSON or a .json file")
     g.add_argument("--firmware", help="firmware rate limits of the commands: 'a_max=…,alpha_max=…'")
-    g.add_argument("--cmd-topic", default="/cmd_vel")
-    g.add_argument("--odom-topic", default="/odom")
+    g.add_argument(
+        "--cmd-topic", default="/cmd_vel", help="ROS bag: velocity command topic (default /cmd_vel)"
+    )
+    g.add_argument(
+        "--odom-topic",
+        default="/odom",
+        help="ROS bag: wheel odometry topic (default /odom; empty: none)",
+    )
     g.add_argument("--truth-topic", help="ground-truth pose topic, or /tf with --truth-frame")
     g.add_argument("--truth-frame", help="tracked frame in /tf")
     g.add_argument("--wheels-topic", help="JointState topic with the wheel joints")
     g.add_argument("--rate", type=float, default=20.0, help="bag resampling rate, Hz (default 20)")
     g.add_argument("--resample", type=float, help="resample every log to this step, s")
-    p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="single effects only and one PyBullet verification: faster, coarser",
+    )
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    p.add_argument(
+        "-v",
+        "--verbose",
+        action="store_true",
+        help="every candidate and every note, and detailed progress",
+    )
     p.set_defaults(func=run_diagnose)
     return p
 
@@ -147,24 +180,30 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
 def _diagnose(args: argparse.Namespace) -> int:
     from realitygap.core.parallel import make_backend
+    from realitygap.core.progress import Countdown
     from realitygap.diagnosis.attribute import AttributionSettings
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
     from realitygap.diagnosis.features import FeatureSettings
     from realitygap.diagnosis.io import ReadOptions, read_many
     from realitygap.diagnosis.log import LogError
-    from realitygap.diagnosis.report import write_json, write_report
-    from realitygap.diagnosis.verdict import explain
+    from realitygap.diagnosis.report import write_json, write_reports
+
+    clock = Countdown(math.nan)
 
     def say(msg: str) -> None:
-        if not args.quiet:
-            print(f"[diagnose] {msg}", file=sys.stderr, flush=True)
+        if not args.quiet and (args.verbose or not msg.startswith("  ")):  # details: --verbose
+            print(f"{clock.prefix()} {msg}", file=sys.stderr, flush=True)
 
     def warn(msg: str) -> None:
         print(f"warning: {msg}", file=sys.stderr, flush=True)
 
     try:
-        if not args.report and not args.json:
-            raise ValueError("nothing to write: give --report DIR and/or --json PATH")
+        for path in [*args.logs, *args.holdout]:
+            if not Path(path).exists():
+                raise FileNotFoundError(
+                    f"no such file or folder: {path!r} (a LOG is an .npz log, a session folder, "
+                    "a CSV file or a ROS bag; paths are relative to the current folder)"
+                )
         inputs = [*args.logs, *args.holdout]
         if args.json:
             check_output_path(args.json, "--json", inputs=inputs)
@@ -208,10 +247,15 @@ def _diagnose(args: argparse.Namespace) -> int:
             drive=args.drive,
             effects=effects,
             features=FeatureSettings(window_s=args.window),
-            attribution=AttributionSettings(),
+            attribution=AttributionSettings(pair_candidates=0, verify_top=1)
+            if args.quick
+            else AttributionSettings(),
         )
         backend = make_backend(args.backend, workers=args.workers, address=args.ray_address)
-        say(f"{len(train)} training log(s), {len(holdout or [])} held-out log(s)")
+        lines, estimate = _plan(train, holdout, settings, backend)
+        for line in lines:
+            say(line)
+        clock.estimate_s = clock.elapsed_s() + estimate
         result = diagnose(train, holdout, settings=settings, backend=backend, progress=say)
     except (LogError, ValueError, FileNotFoundError, ImportError, KeyError) as exc:
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
@@ -220,28 +264,105 @@ def _diagnose(args: argparse.Namespace) -> int:
     if args.json:
         write_json(args.json, result.to_json())
         say(f"wrote {args.json}")
-    if args.report:
-        path = write_report(result, args.report)
-        say(f"wrote {path}")
+    report = write_reports([("", result)], args.report) if args.report else None
+    print_result(result, verbose=args.verbose)
+    if report is not None:
+        print(f"report: {report}")
+    return 0
+
+
+def _library(settings: Any) -> tuple[str, ...]:
+    from realitygap.diagnosis.adapters import get_adapter
+    from realitygap.diagnosis.diagnose import candidate_library
+    from realitygap.robots.effects import EFFECTS
+
+    try:
+        return tuple(candidate_library(get_adapter(settings.robot), settings))
+    except (KeyError, ValueError):
+        return tuple(e for e, cls in EFFECTS.items() if cls.robot == settings.robot)
+
+
+def estimate_seconds(logs: Sequence[Any], settings: Any, backend: Any) -> float:
+    """A rough duration of :func:`~realitygap.diagnosis.diagnose.diagnose` on ``logs``, s.
+
+    Proportional to the seconds of logged motion, the fits (every single effect of the
+    library and up to three pairs per pair candidate) and inversely to the backend's
+    workers, at :data:`SECONDS_PER_LOG_SECOND_AND_FIT`; shown before a run and used for
+    the time left.
+    """
+    seconds_of_motion = sum(float(lg.duration) for lg in logs)
+    fits = len(_library(settings)) + settings.attribution.pair_candidates * 3
+    workers = max(1, int(getattr(backend, "workers", 1) or 1))
+    return SECONDS_PER_LOG_SECOND_AND_FIT * seconds_of_motion * fits / workers
+
+
+def _plan(
+    train: list[Any], holdout: list[Any] | None, settings: Any, backend: Any
+) -> tuple[list[str], float]:
+    """What the diagnosis is about to do, said before it starts: the split and the cost
+    (lines to show, and the estimated duration in s)."""
+
+    lines = []
+    if holdout:
+        lines.append(f"{len(train)} training log(s), {len(holdout)} held-out log(s)")
+    elif len(train) >= 2:
+        n_ho = min(len(train) - 1, max(1, math.ceil(settings.holdout_fraction * len(train))))
+        names = ", ".join(lg.name for lg in train[-n_ho:])
+        lines.append(
+            f"warning: no --holdout: holding out the last {n_ho} of {len(train)} logs ({names}); "
+            "pass --holdout LOG... to choose"
+        )
+    else:
+        lines.append(
+            f"warning: no --holdout and one log: holding out alternate blocks of "
+            f"{settings.block_windows} windows of {train[0].name}; a held-out log of another "
+            "path is a stronger test"
+        )
+    library = _library(settings)
+    seconds_of_motion = sum(float(lg.duration) for lg in [*train, *(holdout or [])])
+    workers = max(1, int(getattr(backend, "workers", 1) or 1))
+    estimate = estimate_seconds([*train, *(holdout or [])], settings, backend)
+    from realitygap.core.progress import duration_words
+
+    lines.append(
+        f"{len(train) + len(holdout or [])} log(s), {seconds_of_motion:.0f} s of motion × "
+        f"{len(library)} candidate effect(s) on {workers} worker(s): roughly "
+        f"{duration_words(estimate)}"
+    )
+    return lines, estimate
+
+
+def print_result(result: Any, verbose: bool = False, file: Any = None) -> None:
+    """Print a diagnosis for a person: the summary sentences, then the candidates by
+    held-out shrink (the first five; all with ``verbose``) and the notes."""
+    from realitygap.diagnosis.summary import quantity, ranking_by_shrink, summary_sentences
+    from realitygap.diagnosis.verdict import explain
+
+    out = file if file is not None else sys.stdout
+    for sentence in summary_sentences(result):
+        print(sentence, file=out)
     v = result.verdict
-    rows = result.ranking_rows()[:5]
-    for line in explain(v, [r["name"] for r in rows[:1]]):
-        print(line)
+    rows = ranking_by_shrink(result.ranking_rows())
+    shown = rows if verbose else rows[:5]
+    print(f"candidates by held-out shrink ({len(shown)} of {len(rows)}):", file=out)
     status = v.notes.get("parameter_status", {})
-    for row in rows:
+    for row in shown:
         marks = status.get(row["name"], {})
         vals = ", ".join(
-            f"{k}={p['value']:.4g}" + (f" ({marks[k]})" if k in marks else "")
+            f"{k.split('.', 1)[-1]} = {quantity(p['value'], p['unit'], p['stderr'])}"
+            + (f" ({marks[k]})" if k in marks else "")
             for k, p in row["params"].items()
         )
         print(
-            f"  {row['rank']}. {row['name']:<40} held-out shrink {row['heldout_shrink_pct']:6.1f} %"
-            f"  {vals}"
+            f"  {row['heldout_shrink_pct']:6.1f} %  {row['name']:<40} {vals}",
+            file=out,
         )
+    notes = explain(v, [r["name"] for r in rows[:1]])[2:]
+    for line in notes if verbose else notes[:3]:
+        print(f"note: {line}", file=out)
     for info in result.identifiability:
         if not info.get("separable"):
-            print(f"note: {info['message']}")
-    return 0
+            print(f"note: {info['message']}", file=out)
 
 
 def main(argv: list[str] | None = None) -> int:

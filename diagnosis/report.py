@@ -1,12 +1,12 @@
-"""Write a diagnosis as a Markdown report with figures, and as JSON.
+"""Write a diagnosis as a report a person opens: HTML and Markdown with figures, and JSON.
 
-:func:`write_report` creates ``DIR/report.md`` and, when matplotlib is
-installed, ``DIR/*.png``: the trajectory overlay (real / nominal replay /
-corrected replay) of held-out logs, the held-out residual per channel and
-regime before and after, the candidate ranking, where the gap is, and the
-surrogate's agreement with PyBullet. Without matplotlib the report says so
-and keeps its tables. :func:`write_json` writes :meth:`Diagnosis.to_json`.
-Every file is written atomically.
+:func:`write_reports` (one or several diagnoses) and :func:`write_report` (one)
+create ``DIR/report.html`` (self-contained, figures embedded), ``DIR/report.md``,
+``DIR/diagnosis.json`` and the figures (:mod:`realitygap.diagnosis.report_figures`).
+The report opens with sentences (:mod:`realitygap.diagnosis.summary`), then the
+verdict, the baseline, where the gap is, the candidates by held-out shrink,
+identifiability, the shrink per channel and the figures. :func:`write_json`
+writes :meth:`Diagnosis.to_json`. Every file is written atomically.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
 
@@ -22,9 +22,18 @@ import numpy as np
 
 from realitygap.core.io import atomic_write
 from realitygap.diagnosis.diagnose import Diagnosis
+from realitygap.diagnosis.report_figures import make_figures
+from realitygap.diagnosis.report_html import markdown_to_html
+from realitygap.diagnosis.summary import (
+    channel_name,
+    quantity,
+    ranking_by_shrink,
+    regime_name,
+    summary_sentences,
+)
 from realitygap.diagnosis.verdict import explain_markdown
 
-__all__ = ["jsonable", "write_json", "write_report"]
+__all__ = ["jsonable", "write_json", "write_report", "write_reports"]
 
 
 def jsonable(value: Any) -> Any:
@@ -72,172 +81,8 @@ def _fmt(x: Any, nd: int = 3) -> str:
 
 
 def _si(value: float, unit: str) -> str:
-    if unit == "m":
-        return f"{value * 1e3:.3g} mm"
-    if unit == "rad":
-        return f"{value * 1e3:.3g} mrad"
-    if unit == "1":
-        return f"{value:.3g}"
-    return f"{value:.3g} {unit}"
-
-
-# --------------------------------------------------------------------------- figures
-def _figures(d: Diagnosis, out: Path) -> list[tuple[str, str]]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    made: list[tuple[str, str]] = []
-    prepared = d.prepared
-    ho_idx = [
-        i for i, p in enumerate(prepared) if p.holdout_windows.any() and p.log.has("pose_gt")
-    ][:6]
-
-    # trajectories ---------------------------------------------------------
-    if ho_idx:
-        n = len(ho_idx)
-        cols = min(3, n)
-        rows = math.ceil(n / cols)
-        fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 4.0 * rows), squeeze=False)
-        for ax, i in zip(axes.flat, ho_idx):
-            p = prepared[i]
-            real = p.log["pose_gt"]
-            nom = p.replay_log["pose_gt"]
-            ax.plot(real[:, 0], real[:, 1], "k-", lw=1.6, label="real")
-            ax.plot(nom[:, 0], nom[:, 1], "r--", lw=1.1, label="nominal replay")
-            corr = d.corrected_replays.get(i)
-            if corr is not None:
-                c = corr["pose_gt"]
-                ax.plot(c[:, 0], c[:, 1], "g-", lw=1.0, alpha=0.8, label="with fitted effects")
-            ax.set_title(p.name, fontsize=9)
-            ax.set_aspect("equal", adjustable="datalim")
-            ax.set_xlabel("x [m]")
-            ax.set_ylabel("y [m]")
-        for ax in list(axes.flat)[n:]:
-            ax.axis("off")
-        axes.flat[0].legend(fontsize=8)
-        fig.tight_layout()
-        fig.savefig(out / "trajectories.png", dpi=110)
-        plt.close(fig)
-        made.append(("trajectories.png", "Held-out trajectories: real, nominal replay, corrected"))
-
-    # residual per channel and regime ---------------------------------------
-    bars = [r for r in d.shrink if r["column"] != "all"]
-    if bars:
-        labels = [f"{r['group']}.{r['column']}\n{r['regime']}" for r in bars]
-        before = [r["rms_before"] * (1e3 if r["unit"] in ("m", "rad") else 1) for r in bars]
-        after = [r["rms_after"] * (1e3 if r["unit"] in ("m", "rad") else 1) for r in bars]
-        fig, ax = plt.subplots(figsize=(max(8.0, 0.45 * len(bars)), 4.2))
-        x = np.arange(len(bars))
-        ax.bar(x - 0.2, before, 0.4, color="tab:red", label="nominal")
-        ax.bar(x + 0.2, after, 0.4, color="tab:green", label="corrected")
-        ax.set_xticks(x, labels, rotation=90, fontsize=7)
-        ax.set_ylabel("held-out RMS per window [mm or mrad]")
-        ax.set_yscale("symlog", linthresh=0.5)
-        ax.legend()
-        fig.tight_layout()
-        fig.savefig(out / "residuals.png", dpi=110)
-        plt.close(fig)
-        made.append(("residuals.png", "Held-out residual per channel and motion regime"))
-
-    # ranking ----------------------------------------------------------------
-    ranking = d.ranking_rows()[:12]
-    if ranking:
-        fig, ax = plt.subplots(figsize=(7.5, 0.38 * len(ranking) + 1.2))
-        names = [r["name"] + (" ✓" if r["verified_in_pybullet"] else "") for r in ranking][::-1]
-        vals = [max(-50.0, r["heldout_shrink_pct"]) for r in ranking][::-1]
-        ax.barh(names, vals, color=["tab:green" if v > 0 else "tab:gray" for v in vals])
-        ax.set_xlabel("held-out shrink [%]  (✓ verified in PyBullet)")
-        ax.axvline(100 * d.settings.attribution.min_shrink, color="k", ls=":", lw=1)
-        fig.tight_layout()
-        fig.savefig(out / "ranking.png", dpi=110)
-        plt.close(fig)
-        made.append(("ranking.png", "Candidate ranking (held-out shrink)"))
-
-    # localisation -----------------------------------------------------------
-    table = [r for r in d.localisation["table"] if r["kind"] == "channel"][:12]
-    if table:
-        fig, ax = plt.subplots(figsize=(7.5, 0.36 * len(table) + 1.2))
-        names = [f"{r['where']}.{r['column']} / {r['regime']}" for r in table][::-1]
-        ax.barh(names, [100 * r["share"] for r in table][::-1], color="tab:orange")
-        ax.set_xlabel("share of the normalised squared gap [%]")
-        fig.tight_layout()
-        fig.savefig(out / "localisation.png", dpi=110)
-        plt.close(fig)
-        made.append(("localisation.png", "Where the gap is (nominal replay)"))
-
-    # surrogate agreement ------------------------------------------------------
-    chosen = next((f for f in d.ranking if f.verified and f.effects), None)
-    if chosen is not None and d.corrected_replays and chosen.effects == d.ranking[0].effects:
-        xs, ys = [], []
-        adapter = d.problem.adapter
-        point = {k: np.array([v]) for k, v in chosen.values.items()}
-        for i, rep in d.corrected_replays.items():
-            p = prepared[i]
-            pb = adapter.log_features(p, rep)
-            sur = adapter.surrogate_features(p, point, d.problem.drive)
-            for g in p.groups:
-                s = d.settings.features.scale(g)
-                xs.append(((pb[g] - p.nominal[g]) / s).ravel())
-                ys.append(((sur[g][0] + p.bias[g] - p.nominal[g]) / s).ravel())
-        if xs:
-            xa, ya = np.concatenate(xs), np.concatenate(ys)
-            fig, ax = plt.subplots(figsize=(4.6, 4.4))
-            ax.plot(xa, ya, ".", ms=3, alpha=0.5)
-            lim = float(np.max(np.abs(np.concatenate([xa, ya])))) or 1.0
-            ax.plot([-lim, lim], [-lim, lim], "k:", lw=1)
-            ax.set_xlabel("PyBullet: effect on window features [scale units]")
-            ax.set_ylabel("surrogate: effect on window features")
-            ax.set_title(chosen.name, fontsize=9)
-            fig.tight_layout()
-            fig.savefig(out / "surrogate_agreement.png", dpi=110)
-            plt.close(fig)
-            made.append(
-                ("surrogate_agreement.png", "Surrogate against PyBullet at the fitted values")
-            )
-    timeline = _transient_timeline(d, out, plt)
-    if timeline:
-        made.append(timeline)
-    return made
-
-
-def _transient_timeline(d: Diagnosis, out: Path, plt: Any) -> tuple[str, str] | None:
-    """One row per run: its windows (train grey, held out blue) and transient events on top."""
-    events = d.transients.events
-    if not events:
-        return None
-    runs = sorted({e.log_index for e in events})[:12]
-    fig, ax = plt.subplots(figsize=(8.0, 0.45 * len(runs) + 1.2))
-    colours = {"stall or slip": "tab:red", "ground truth frozen": "tab:purple"}
-    for row, i in enumerate(runs):
-        p = d.prepared[i]
-        t0 = float(p.log.t[0])
-        ax.broken_barh(
-            [(0.0, float(p.log.t[-1]) - t0)],
-            (row - 0.3, 0.6),
-            color="tab:blue" if p.holdout_windows.any() else "0.8",
-            alpha=0.3,
-        )
-        for e in (e for e in events if e.log_index == i):
-            ax.broken_barh(
-                [(e.start_s, e.end_s - e.start_s)],
-                (row - 0.3, 0.6),
-                color=colours.get(e.kind, "tab:orange"),
-                alpha=0.9 if e.excluded else 0.5,
-            )
-    ax.set_yticks(range(len(runs)))
-    ax.set_yticklabels([d.prepared[i].name[:28] for i in runs], fontsize=7)
-    ax.set_xlabel("time [s]")
-    ax.set_title(
-        "transient events (red: stall or slip, purple: ground truth frozen — set aside; "
-        "orange: residual outlier, kept)",
-        fontsize=8,
-    )
-    fig.tight_layout()
-    fig.savefig(out / "transients.png", dpi=110)
-    plt.close(fig)
-    return ("transients.png", "Transient events on each run's timeline")
+    """A value of SI ``unit`` in the engineering units the summary and figures use."""
+    return quantity(value, unit)
 
 
 # --------------------------------------------------------------------------- markdown
@@ -290,10 +135,12 @@ def _baseline_and_transients(d: Diagnosis) -> list[str]:
     return lines
 
 
-def _markdown(d: Diagnosis, figures: list[tuple[str, str]], note: str) -> str:
+def _markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str, note: str = "") -> str:
     js = d.to_json()
     v = d.verdict
-    lines = ["# Sim-to-real gap diagnosis", ""]
+    lines = [f"# {title}", ""]
+    lines += [f"> {sentence}" for sentence in summary_sentences(d)]
+    lines += [""]
     lines.append(f"Robot **{js['robot']}**, replay driven by **{js['drive']}**.  ")
     lines.append(
         f"Training logs: {', '.join(js['logs']['train']) or '—'}; held-out: "
@@ -340,12 +187,12 @@ def _markdown(d: Diagnosis, figures: list[tuple[str, str]], note: str) -> str:
     lines.append("Nominal replay against the real logs, per channel and motion regime (top rows):")
     lines += [
         "",
-        "| channel | column | regime | windows | RMS | mean | share |",
-        "|---|---|---|---|---|---|---|",
+        "| channel | regime | windows | RMS | mean | share |",
+        "|---|---|---|---|---|---|",
     ]
     for r in [r for r in d.localisation["table"] if r["kind"] == "channel"][:12]:
         lines.append(
-            f"| {r['where']} | {r['column']} | {r['regime']} | {r['n_windows']} | "
+            f"| {_channel(r['where'], r['column'])} | {_regime(r['regime'])} | {r['n_windows']} | "
             f"{_si(r['rms'], r['unit'])} | {_si(r['mean'], r['unit'])} | {100 * r['share']:.1f} % |"
         )
     stages = [r for r in d.localisation["overall"] if r["kind"] == "stage"]
@@ -360,18 +207,20 @@ def _markdown(d: Diagnosis, figures: list[tuple[str, str]], note: str) -> str:
 
     lines += ["", "## Candidate ranking", ""]
     lines.append(
-        "Fitted on the training windows, scored on the held-out ones (profile likelihood + "
-        "BIC penalty; lower is better). ✓ = verified with PyBullet replays."
+        "Fitted on the training windows, scored on the held-out ones, sorted by the share of "
+        "the held-out gap each closes (# is the rank by score: profile likelihood + BIC "
+        "penalty, lower is better). ✓ = verified with PyBullet replays. A model is named "
+        f"only if it closes ≥ {100 * d.settings.attribution.min_shrink:.0f} % and leaves a "
+        "noise-like residual."
     )
     lines += [
         "",
         "| # | model | fitted values (± 1σ) | held-out shrink | score | ✓ |",
         "|---|---|---|---|---|---|",
     ]
-    for r in js["ranking"][:15]:
+    for r in ranking_by_shrink(js["ranking"])[:15]:
         vals = "; ".join(
-            f"{k.split('.', 1)[1]} = {_fmt(p['value'], 4)} ± {_fmt(p['stderr'], 2)}"
-            + ("" if p["unit"] == "1" else f" {p['unit']}")
+            f"{k.split('.', 1)[1]} = {quantity(p['value'], p['unit'], p['stderr'])}"
             for k, p in r["params"].items()
         )
         lines.append(
@@ -445,10 +294,9 @@ def _markdown(d: Diagnosis, figures: list[tuple[str, str]], note: str) -> str:
         lines.append("No model was verified.")
 
     lines += ["", "## Figures", ""]
-    if figures:
-        for fname, caption in figures:
-            lines += [f"![{caption}]({fname})", "", f"*{caption}*", ""]
-    else:
+    for fname, caption in figures:
+        lines += [f"![{caption}]({fname})", "", f"*{caption}*", ""]
+    if note:
         lines.append(note)
     t = d.timing
     lines += [
@@ -460,21 +308,95 @@ def _markdown(d: Diagnosis, figures: list[tuple[str, str]], note: str) -> str:
     return "\n".join(lines)
 
 
-def write_report(d: Diagnosis, directory: str | os.PathLike[str]) -> Path:
-    """Write ``report.md`` (and figures when matplotlib is available) into ``directory``."""
+def _channel(group: str, column: str) -> str:
+    return f"{channel_name(group, column)} (`{group}.{column}`)"
+
+
+def _regime(regime: str) -> str:
+    return regime_name(regime).removeprefix("while ")
+
+
+def _demote(markdown: str) -> str:
+    """Headings one level down (a part of a report with several diagnoses)."""
+    return "\n".join("#" + line if line.startswith("#") else line for line in markdown.splitlines())
+
+
+def _slug(label: str) -> str:
+    return "".join(c if c.isalnum() else "-" for c in label.lower()).strip("-")
+
+
+def write_reports(
+    parts: Sequence[tuple[str, Diagnosis]],
+    directory: str | os.PathLike[str],
+    title: str = "Sim-to-real gap diagnosis",
+    intro: Sequence[str] = (),
+    payload: Any = None,
+) -> Path:
+    """Write one report of one or more diagnoses into ``directory``.
+
+    Writes ``report.md``, ``report.html`` (self-contained: figures embedded as
+    base64 PNG), ``diagnosis.json`` and the figures as PNG files; every file
+    atomically, with the permissions the umask gives a new file.
+
+    Parameters
+    ----------
+    parts : sequence of (label, Diagnosis)
+        One diagnosis with an empty label, or several, each with a section title
+        (their figures' file names start with the label).
+    directory : path-like
+        Output folder, created if missing.
+    title : str
+        The report's title.
+    intro : sequence of str
+        Sentences shown under the title, before the parts.
+    payload : optional
+        JSON written as ``diagnosis.json`` instead of the diagnoses' own JSON.
+
+    Returns
+    -------
+    Path
+        ``directory/report.html``.
+    """
+    if not parts:
+        raise ValueError("write_reports: expected at least one (label, Diagnosis) part, got none")
     out = Path(directory)
+    if out.exists() and not out.is_dir():
+        raise NotADirectoryError(
+            f"report folder {out} is a file; pass a folder (it is created if missing)"
+        )
     out.mkdir(parents=True, exist_ok=True)
-    figures: list[tuple[str, str]] = []
+    single = len(parts) == 1 and not parts[0][0]
     note = ""
     try:
         import matplotlib  # noqa: F401
-    except ImportError:
+    except ImportError:  # a core dependency; an environment without it still gets the text
         note = (
-            "matplotlib is not installed, so this report has no figures "
-            "(pip install 'realitygap[plots]')."
+            "matplotlib is not installed, so this report has no figures (pip install matplotlib)."
         )
+    texts = []
+    for label, d in parts:
+        prefix = f"{_slug(label)}-" if label else ""
+        figures = [] if note else make_figures(d, out, prefix)
+        texts.append(_markdown(d, figures, label or title, note))
+    if single:
+        markdown = texts[0]
     else:
-        figures = _figures(d, out)
-    path = out / "report.md"
-    _write_text(path, _markdown(d, figures, note))
-    return path
+        head = [f"# {title}", ""] + [f"> {s}" for s in intro] + [""]
+        markdown = "\n".join(head) + "\n" + "\n\n".join(_demote(t) for t in texts)
+    _write_text(out / "report.md", markdown)
+    _write_text(out / "report.html", markdown_to_html(markdown, out, title=title))
+    if payload is None:
+        payload = parts[0][1].to_json() if single else {lbl: d.to_json() for lbl, d in parts}
+    write_json(out / "diagnosis.json", payload)
+    return out / "report.html"
+
+
+def write_report(d: Diagnosis, directory: str | os.PathLike[str]) -> Path:
+    """Write the report of ``d`` into ``directory`` (see :func:`write_reports`).
+
+    Returns
+    -------
+    Path
+        ``directory/report.md``; ``report.html`` and ``diagnosis.json`` lie beside it.
+    """
+    return write_reports([("", d)], directory).with_name("report.md")

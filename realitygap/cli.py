@@ -2,17 +2,23 @@
 
 ``realitygap list`` shows environments, experiments and effects;
 ``realitygap run EXPERIMENT`` runs one experiment, prints its figures and
-writes them as JSON.
+writes them as JSON; an experiment that diagnoses a sim-to-real gap also
+writes a report (``report.html`` with its figures embedded). Every sub-command
+takes ``--quiet`` and ``--verbose``.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import sys
+import time
 from pathlib import Path
 
 import realitygap
 from realitygap import experiments
+from realitygap.core.progress import Countdown, duration_words
 
 
 def default_data_dir() -> Path | None:
@@ -28,6 +34,19 @@ def default_data_dir() -> Path | None:
     return None
 
 
+DESCRIPTION = (
+    "realitygap: Gymnasium robot environments on PyBullet and a tool that diagnoses the "
+    "sim-to-real gap of a real robot from its recorded runs."
+)
+EPILOG = """\
+the main job (a real differential drive; an embedded sample unless --data DIR is given):
+  realitygap run diagnose-real
+
+your own robot's logs:
+  realitygap diagnose LOG... --holdout LOG... --report out/
+"""
+
+
 def _cmd_list(args: argparse.Namespace) -> int:
     from realitygap.robots.effects import EFFECTS
 
@@ -36,12 +55,65 @@ def _cmd_list(args: argparse.Namespace) -> int:
         print(f"  {env_id}")
     print("experiments:")
     for name, exp in sorted(experiments.load_all().items()):
-        print(f"  {name:<18} {exp.description}")
+        print(f"  {name}" if args.quiet else f"  {name:<18} {exp.description}")
     print("effects:")
     for name, cls in sorted(EFFECTS.items()):
         params = ", ".join(f"{s.name} [{s.unit}]" for s in cls.specs)
-        print(f"  {name:<22} ({cls.robot}) {params}")
+        print(f"  {name}" if args.quiet else f"  {name:<22} ({cls.robot}) {params}")
+        if args.verbose:
+            print(f"      {cls.description}")
     return 0
+
+
+class _TimedContext(experiments.RunContext):
+    """A run context whose progress lines show the elapsed time and the time left, against
+    the duration of the last run of the same experiment with the same options."""
+
+    clock: Countdown | None = None
+    details: bool = False
+    """Show indented detail lines (one per transient event, …) too (``--verbose``)."""
+
+    def expect(self, seconds: float) -> None:
+        if self.clock is not None and not math.isfinite(self.clock.estimate_s):
+            self.clock.estimate_s = self.clock.elapsed_s() + float(seconds)
+        super().expect(seconds)
+
+    def progress(self, message: str) -> None:
+        if self.verbose and (self.details or not message.startswith("  ")):
+            prefix = self.clock.prefix() if self.clock is not None else ""
+            print(f"{prefix} {message}".strip(), file=sys.stderr, flush=True)
+
+
+def _history_path() -> Path:
+    from realitygap.samples import cache_root
+
+    return cache_root() / "run-times.json"
+
+
+def _last_duration(key: str) -> float | None:
+    try:
+        data = json.loads(_history_path().read_text(encoding="utf-8"))
+        value = float(data[key])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return value if math.isfinite(value) and value > 0 else None
+
+
+def _remember_duration(key: str, seconds: float) -> None:
+    from realitygap.core.io import atomic_write_text
+
+    path = _history_path()
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        if not isinstance(data, dict):
+            data = {}
+    except (OSError, ValueError):
+        data = {}
+    data[key] = round(float(seconds), 1)
+    try:
+        atomic_write_text(path, json.dumps(data, indent=1, sort_keys=True) + "\n")
+    except OSError:  # a read-only cache only costs the next estimate
+        pass
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -64,48 +136,193 @@ def _cmd_run(args: argparse.Namespace) -> int:
             )
             return 2
         options["robot"] = args.robot
-    ctx = experiments.RunContext(
+    if args.backend is not None:
+        options["backend"] = args.backend
+    if args.workers is not None:
+        options["workers"] = args.workers
+    ctx = _TimedContext(
         quick=args.quick, seed=args.seed, data_dir=data, verbose=not args.silent, options=options
     )
+    key = json.dumps([args.experiment, args.quick, str(data), options], sort_keys=True, default=str)
+    last = _last_duration(key)
+    ctx.clock = Countdown(last if last is not None else math.nan)
+    ctx.details = bool(args.verbose)
+    if last is not None and last > 30:
+        ctx.progress(
+            f"{args.experiment}: the last run with these options took {duration_words(last)}"
+        )
+    report_dir = args.report
+    if report_dir is None:
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        report_dir = str(Path("realitygap-reports") / f"{args.experiment}-{stamp}")
     try:
-        result = experiments.run(args.experiment, ctx, json_path=args.json)
+        result = experiments.run(args.experiment, ctx, json_path=args.json, report_dir=report_dir)
     except KeyError as exc:
         print(f"error: {exc.args[0]}", file=sys.stderr)
         return 2
     except (FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    _remember_duration(key, float(result["wall_seconds"]))
+    _print_diagnoses(ctx, verbose=args.verbose)
     print(experiments.format_figures(result))
+    if args.verbose:
+        for name, rows in result.get("tables", {}).items():
+            print(f"table {name}:")
+            for row in rows:
+                print(f"  {row}")
     if args.json:
         print(f"wrote {args.json}")
+    if "report" in result:
+        print(f"report: {Path(result['report']).resolve()}")
+    elif args.report is not None:
+        print(f"note: {args.experiment} makes no diagnosis, so --report wrote nothing")
     return 0
+
+
+def _cmd_sample(args: argparse.Namespace) -> int:
+    from realitygap.samples import SAMPLES, sample_dir
+
+    try:
+        path = sample_dir(args.name)
+    except KeyError as exc:
+        print(f"error: {exc.args[0]}", file=sys.stderr)
+        return 2
+    if args.verbose:
+        print(f"{args.name}: {SAMPLES[args.name]}", file=sys.stderr)
+    print(path)
+    return 0
+
+
+def _print_diagnoses(ctx: experiments.RunContext, verbose: bool) -> None:
+    """Words before numbers: each diagnosis of the run in sentences, before the figures."""
+    if not ctx.diagnoses:
+        return
+    from realitygap.diagnosis.cli import print_result
+
+    for label, d in ctx.diagnoses:
+        if label:
+            print(f"{label}:")
+        print_result(d, verbose=verbose)
+        print()
+
+
+HELP_WHERE_MISSING: dict[tuple[str, str], str] = {
+    ("train", ""): "Train a PPO or SAC policy on one env with the rl-zoo style hyperparameter "
+    "file of the algorithm (baselines/hyperparams/), evaluating and checkpointing as it goes.",
+    ("train", "--algo"): "algorithm (default ppo)",
+    ("train", "--seed"): "training seed (default 0)",
+    ("train", "--eval-episodes"): "episodes per evaluation (default 20)",
+    ("benchmark", "--backend"): "where episodes run: local processes or a Ray cluster "
+    "(RAY_ADDRESS or --address names an existing one)",
+    ("calibrate", ""): "Calibrate a robot from recorded runs (one sub-command per method).",
+    ("calibrate", "calibration"): "calibration method",
+}
+"""Descriptions (option ``""``) and option help the sub-command modules leave out."""
+
+
+def _fill_help(parser: argparse.ArgumentParser) -> None:
+    """Give ``parser`` the description and option help of :data:`HELP_WHERE_MISSING` it lacks."""
+    command = parser.prog.split()[-1]
+    if not parser.description and (command, "") in HELP_WHERE_MISSING:
+        parser.description = HELP_WHERE_MISSING[(command, "")]
+    for action in parser._actions:
+        name = action.option_strings[-1] if action.option_strings else action.dest
+        if action.help is None and (command, name) in HELP_WHERE_MISSING:
+            action.help = HELP_WHERE_MISSING[(command, name)]
+
+
+def _add_verbosity(parser: argparse.ArgumentParser) -> None:
+    """``--quiet`` and ``--verbose`` on ``parser`` where it lacks them (``--silent`` is kept
+    as another spelling of ``--quiet``)."""
+    options = parser._option_string_actions
+    if "--quiet" not in options:
+        silent = options.get("--silent")
+        parser.add_argument(
+            "-q",
+            "--quiet",
+            dest=silent.dest if silent is not None else "quiet",
+            action="store_true",
+            help="no progress output",
+        )
+    if "--verbose" not in options:
+        parser.add_argument(
+            "-v", "--verbose", action="store_true", help="more detail: tables and every note"
+        )
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="realitygap", description=__doc__.splitlines()[0] if __doc__ else None
+        prog="realitygap",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument(
         "--version", action="version", version=f"realitygap {realitygap.__version__}"
     )
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p_list = sub.add_parser("list", help="list environments, experiments and effects")
+    p_list = sub.add_parser(
+        "list",
+        help="list environments, experiments and effects",
+        description="List the environments, experiments and effects this package knows.",
+    )
     p_list.set_defaults(func=_cmd_list)
 
-    p_run = sub.add_parser("run", help="run an experiment and print its figures")
-    p_run.add_argument("experiment", help="experiment name (see `realitygap list`)")
+    p_run = sub.add_parser(
+        "run",
+        help="run an experiment and print its figures",
+        description=(
+            "Run one experiment, print its figures and, for an experiment that diagnoses a "
+            "sim-to-real gap, its verdict in words and a report folder (report.html with "
+            "figures, report.md, diagnosis.json)."
+        ),
+    )
+    p_run.add_argument("experiment", help="experiment name (see: realitygap list)")
     p_run.add_argument("--quick", action="store_true", help="a smaller, faster version")
     p_run.add_argument("--seed", type=int, default=0, help="base random seed (default 0)")
     p_run.add_argument(
-        "--data", help="folder laid out like shared/data/ (default: shared/data when present)"
+        "--data",
+        metavar="DIR",
+        help="folder of recorded data laid out like shared/data/ (default: shared/data beside "
+        "the checkout when present, else the sample embedded in the package)",
     )
     p_run.add_argument(
         "--robot", help="robot, for experiments that run for several (e.g. diagnose-suite)"
     )
-    p_run.add_argument("--json", help="write the result as JSON to this path")
-    p_run.add_argument("--silent", action="store_true", help="no progress output")
+    p_run.add_argument(
+        "--backend",
+        choices=("serial", "process", "ray"),
+        help="where an experiment that runs cases in parallel (diagnose-suite) runs them "
+        "(default: a process pool; ray: a local Ray cluster, or the one RAY_ADDRESS names)",
+    )
+    p_run.add_argument("--workers", type=int, help="processes of the process backend")
+    p_run.add_argument("--json", metavar="PATH", help="write the result as JSON to this path")
+    p_run.add_argument(
+        "--report",
+        metavar="DIR",
+        help="where an experiment that diagnoses writes its report (default: "
+        "realitygap-reports/EXPERIMENT-DATE-TIME/)",
+    )
+    p_run.add_argument("--silent", action="store_true", help=argparse.SUPPRESS)
     p_run.set_defaults(func=_cmd_run)
+
+    p_sample = sub.add_parser(
+        "sample",
+        help="print the folder of a recorded-data sample embedded in the package",
+        description=(
+            "Unpack (once, into the user cache) a small real data set shipped with the package "
+            "and print its folder, laid out like the same sub-folder of a full data folder."
+        ),
+    )
+    p_sample.add_argument(
+        "name",
+        nargs="?",
+        default="optiodom_diffdrive",
+        help="sample name (default optiodom_diffdrive: 2 OptiOdom square sessions, 1 circular)",
+    )
+    p_sample.set_defaults(func=_cmd_sample)
 
     from realitygap.calibrate import add_calibrate_parser
 
@@ -119,12 +336,30 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_benchmark_parser(sub)
     add_train_parser(sub)
+    for choice in _subparsers(parser):
+        _fill_help(choice)
+        _add_verbosity(choice)
     return parser
+
+
+def _subparsers(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
+    """Every sub-command parser below ``parser`` (nested ones included)."""
+    found = []
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in dict.fromkeys(action.choices.values()):
+                found.append(child)
+                found += _subparsers(child)
+    return found
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if getattr(args, "verbose", False):  # every module's INFO messages on stderr
+        import logging
+
+        logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
     return int(args.func(args))
 
 

@@ -49,6 +49,26 @@ class RunContext:
     data_dir: Path | None = None
     options: dict[str, Any] = field(default_factory=dict)
     verbose: bool = True
+    data_used: dict[str, str] = field(default_factory=dict)
+    """Data folders the experiment read (sub-folder name → path or sample description)."""
+    diagnoses: list[tuple[str, Any]] = field(default_factory=list)
+    """Diagnoses the experiment made, labelled, for its report (:meth:`add_diagnosis`)."""
+
+    expected_s: float = math.nan
+    """The experiment's own estimate of its duration, s (:meth:`expect`); ``nan``: none."""
+
+    def expect(self, seconds: float) -> None:
+        """State how long the run is expected to take, s (progress shows the time left)."""
+        self.expected_s = float(seconds)
+        self.progress(
+            f"this run takes roughly {seconds / 60:.0f} min"
+            if seconds >= 90
+            else f"this run takes roughly {seconds:.0f} s"
+        )
+
+    def add_diagnosis(self, label: str, diagnosis: Any) -> None:
+        """Hand a :class:`~realitygap.diagnosis.diagnose.Diagnosis` to the run's report."""
+        self.diagnoses.append((label, diagnosis))
 
     def check(self) -> RunContext:
         """Validate the fields (``ValueError``/``TypeError`` naming the option); returns self."""
@@ -67,8 +87,20 @@ class RunContext:
             print(f"[{time.strftime('%H:%M:%S')}] {message}", file=sys.stderr, flush=True)
 
     def data_subdir(self, name: str) -> Path:
-        """The sub-folder ``name`` of the data folder, or a clear error when it is missing."""
+        """The sub-folder ``name`` of the data folder, or a clear error when it is missing.
+
+        Without a data folder, a sample embedded in the package stands in where one
+        exists (:mod:`realitygap.samples`). Every folder handed out is recorded in
+        :attr:`data_used` (name → description), which the runner adds to the result.
+        """
         if self.data_dir is None:
+            from realitygap.samples import SAMPLES, sample_dir
+
+            if name in SAMPLES:
+                path = sample_dir(name)
+                self.data_used[name] = f"{SAMPLES[name]} ({path}); --data DIR reads a full set"
+                self.progress(f"data: {name}: {self.data_used[name]}")
+                return path
             raise FileNotFoundError(
                 f"this experiment reads recorded data from '<data>/{name}/'; no data folder was "
                 "found: pass --data DIR (a folder laid out like shared/data/)"
@@ -78,6 +110,8 @@ class RunContext:
             raise FileNotFoundError(
                 f"expected a folder '{path}' with recorded data; it does not exist"
             )
+        self.data_used[name] = str(path)
+        self.progress(f"data: {name}: {path}")
         return path
 
 
@@ -165,13 +199,23 @@ def format_figures(result: dict[str, Any]) -> str:
         lines.append(f"{key:<{width}}  {text}")
     for note in result.get("notes", []):
         lines.append(f"note: {note}")
+    for name, used in result.get("data", {}).items():
+        lines.append(f"data: {name}: {used}")
     return "\n".join(lines)
 
 
 def run(
-    name: str, ctx: RunContext, json_path: str | os.PathLike[str] | None = None
+    name: str,
+    ctx: RunContext,
+    json_path: str | os.PathLike[str] | None = None,
+    report_dir: str | os.PathLike[str] | None = None,
 ) -> dict[str, Any]:
-    """Run experiment ``name`` and return its result (also written to ``json_path`` if given)."""
+    """Run experiment ``name`` and return its result (also written to ``json_path`` if given).
+
+    With ``report_dir``, the diagnoses the experiment made (:meth:`RunContext.add_diagnosis`)
+    are written there as a report (``report.html``, ``report.md``, ``diagnosis.json``,
+    figures) and ``result["report"]`` names the HTML file.
+    """
     exp = get(name)
     ctx.check()
     start = time.perf_counter()
@@ -183,7 +227,21 @@ def run(
         if key in out:
             result[key] = out[key]
     result["config"] = {"quick": ctx.quick, "seed": ctx.seed, **result["config"]}
+    if ctx.data_used:
+        result["data"] = dict(ctx.data_used)
     result["wall_seconds"] = time.perf_counter() - start
+    if report_dir is not None and ctx.diagnoses:
+        from realitygap.diagnosis.report import write_reports
+
+        ctx.progress(f"writing the report into {report_dir}")
+        result["report"] = str(
+            write_reports(
+                ctx.diagnoses,
+                report_dir,
+                title=f"{name}: {exp.description}",
+                intro=[f"{k}: {v}" for k, v in result.get("data", {}).items()],
+            )
+        )
     if json_path is not None:
         write_json_atomic(json_path, result)
     return result

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections import Counter
 from typing import Any
@@ -26,25 +27,31 @@ GOALS = {
     robots=("diffdrive", "arm", "climber"),
 )
 def diagnose_suite(ctx: RunContext) -> dict[str, Any]:
-    from realitygap.core.parallel import ProcessBackend
+    from realitygap.core.parallel import make_backend
+    from realitygap.core.progress import Progress
     from realitygap.diagnosis.suite import SuiteSettings, draw_cases, run_suite, summarise
 
     n = int(ctx.options.get("cases", 12 if ctx.quick else 48))
     robot = str(ctx.options.get("robot", "diffdrive"))
     settings = SuiteSettings(robot=robot)
     cases = draw_cases(n, ctx.seed, settings)
-    backend = ProcessBackend(ctx.options.get("workers"))
-    chunk = max(1, 2 * backend.workers)
+    backend = make_backend(
+        str(ctx.options.get("backend", "process")),
+        workers=ctx.options.get("workers"),
+        address=ctx.options.get("address"),
+    )
+    workers = int(getattr(backend, "workers", 0) or os.cpu_count() or 1)
+    chunk = max(1, 2 * workers)
     outcomes: list[dict[str, Any]] = []
-    t0 = time.perf_counter()
-    for a in range(0, n, chunk):
-        part = run_suite(cases[a : a + chunk], settings, backend)
-        outcomes += part
-        ok = sum(o["correct"] for o in outcomes)
-        ctx.progress(
-            f"{len(outcomes)}/{n} cases, {ok} correct, {time.perf_counter() - t0:.0f} s "
-            f"(last: {', '.join(str(o['verdict']) for o in part)})"
-        )
+    with Progress(n, f"{robot} blind cases", enabled=ctx.verbose) as bar:
+        for a in range(0, n, chunk):
+            part = run_suite(cases[a : a + chunk], settings, backend)
+            outcomes += part
+            ok = sum(o["correct"] for o in outcomes)
+            bar.write(
+                f"cases {a}–{a + len(part) - 1}: {', '.join(str(o['verdict']) for o in part)}"
+            )
+            bar.update(len(part), note=f"{ok} correct")
     figures, tables = summarise(outcomes)
     figures["seconds_per_case_median"] = float(
         np.median([o["seconds_record"] + o["seconds_diagnose"] for o in outcomes])
@@ -70,7 +77,8 @@ def diagnose_suite(ctx: RunContext) -> dict[str, Any]:
             "cases": n,
             "open_set_every": settings.open_set_every,
             "pair_probability": settings.pair_probability,
-            "workers": backend.workers,
+            "backend": backend.name,
+            "workers": workers,
         },
     }
 
@@ -201,6 +209,7 @@ def _geometry_found(d: Any) -> dict[str, Any]:
 )
 def diagnose_real(ctx: RunContext) -> dict[str, Any]:
     from realitygap.core.parallel import ProcessBackend
+    from realitygap.diagnosis.cli import estimate_seconds
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
     from realitygap.diagnosis.verdict import explain
 
@@ -220,6 +229,12 @@ def diagnose_real(ctx: RunContext) -> dict[str, Any]:
     if not holdout:
         raise FileNotFoundError("diagnose-real needs held-out runs of another path type")
     backend = ProcessBackend(ctx.options.get("workers"))
+    ctx.expect(
+        sum(
+            estimate_seconds(train + holdout, DiagnosisSettings(drive=d), backend)
+            for d in ("commands", "ticks")
+        )
+    )
     figures: dict[str, Any] = {}
     tables: dict[str, Any] = {}
     notes: list[str] = []
@@ -234,6 +249,7 @@ def diagnose_real(ctx: RunContext) -> dict[str, Any]:
             backend=backend,
             progress=ctx.progress,
         )
+        ctx.add_diagnosis(f"{drive}-driven replay", d)
         best = next(f for f in d.ranking)
         prefix = "" if drive == "commands" else "ticks_"
         g = d.gap
@@ -367,6 +383,7 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
                 backend=backend,
                 progress=ctx.progress,
             )
+            ctx.add_diagnosis(names, d)
             best = d.ranking[0]
             scale = 1e-4  # tool_dist feature scale, m
             figures[f"ur10_{prefix}top_effects"] = list(best.effects)
@@ -494,6 +511,7 @@ def diagnose_bench(ctx: RunContext) -> dict[str, Any]:
     t0 = time.perf_counter()
     d = diagnose([log], backend=backend, progress=ctx.progress)
     seconds = time.perf_counter() - t0
+    ctx.add_diagnosis("", d)
     figures: dict[str, Any] = {
         "diagnose_seconds": seconds,
         "log_seconds": log.duration,

@@ -229,7 +229,7 @@ def test_missing_ray_gives_the_install_hint(
     assert not (tmp_path / "episodes.jsonl").exists()
 
 
-def test_bad_names_are_refused_with_suggestions() -> None:
+def test_bad_names_are_refused_with_suggestions(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="Did you mean 'classical'"):
         bm.parse_policies("clasical,random")
     with pytest.raises(ValueError, match="Did you mean 'kobuki-worn'"):
@@ -237,7 +237,7 @@ def test_bad_names_are_refused_with_suggestions() -> None:
     with pytest.raises(FileNotFoundError, match="no file"):
         bm.parse_policies("mine=/no/such/model.zip")
     with pytest.raises(ValueError, match="backend must be"):
-        bm.run_benchmark(_cfg(), "unused", backend="slurm", verbose=False)
+        bm.run_benchmark(_cfg(), tmp_path / "unused", backend="slurm", verbose=False)
 
 
 def test_reality_profiles_build_and_json_profiles_load(tmp_path: Path) -> None:

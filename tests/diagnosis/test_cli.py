@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -78,7 +79,9 @@ def test_diagnose_writes_report_and_json(saved_logs, tmp_path, capsys) -> None:
     assert "## Verdict" in text and "wheelbase_error" in text and "## Where the gap is" in text
     for fig in ("trajectories.png", "residuals.png", "ranking.png"):
         assert (report / fig).is_file()
-    assert "verdict: wheelbase_error" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "Verdict: wheelbase_error" in out and out.index("Compared") < out.index("candidates by")
+    assert (report / "report.html").is_file() and (report / "diagnosis.json").is_file()
 
 
 def test_bad_input_is_refused_and_nothing_is_written(saved_logs, tmp_path, capsys) -> None:
@@ -153,3 +156,33 @@ def _square(shared, x):
 
 def test_process_backend_maps_in_order() -> None:
     assert ProcessBackend(2).map(_square, [3, 1, 2], None) == [9, 1, 4]
+
+
+def test_diagnose_warns_before_it_starts_and_prints_without_output_options(
+    saved_logs, capsys
+) -> None:
+    rc = main(
+        [
+            "diagnose",
+            *saved_logs,
+            "--effects",
+            "wheelbase_error,encoder_scale",
+            "--backend",
+            "serial",
+            "--quick",
+        ]
+    )
+    assert rc == 0
+    captured = capsys.readouterr()
+    assert "warning: no --holdout: holding out the last 1 of 2 logs (loop)" in captured.err
+    assert re.search(r"2 candidate effect\(s\) on 1 worker\(s\): roughly \d+ s", captured.err)
+    assert re.search(r"^\[0:\d\d, ", captured.err, flags=re.M)  # elapsed and time left
+    out = captured.out
+    assert out.startswith("Compared 1 recorded training run(s) and 1 held-out run(s)")
+    assert "Verdict: wheelbase_error" in out and "report:" not in out
+
+
+def test_missing_holdout_path_is_named_before_anything_runs(saved_logs, tmp_path, capsys) -> None:
+    rc = main(["diagnose", saved_logs[0], "--holdout", str(tmp_path / "nope"), "--quiet"])
+    assert rc == 2
+    assert "no such file or folder" in capsys.readouterr().err
