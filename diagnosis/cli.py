@@ -198,12 +198,6 @@ def _diagnose(args: argparse.Namespace) -> int:
         print(f"warning: {msg}", file=sys.stderr, flush=True)
 
     try:
-        for path in [*args.logs, *args.holdout]:
-            if not Path(path).exists():
-                raise FileNotFoundError(
-                    f"no such file or folder: {path!r} (a LOG is an .npz log, a session folder, "
-                    "a CSV file or a ROS bag; paths are relative to the current folder)"
-                )
         inputs = [*args.logs, *args.holdout]
         if args.json:
             check_output_path(args.json, "--json", inputs=inputs)
@@ -217,6 +211,12 @@ def _diagnose(args: argparse.Namespace) -> int:
             check_positive_int(args.workers, "--workers")
         check_finite_float(args.window, "--window", low=0.0, strict_low=True, unit="s")
         check_finite_float(args.rate, "--rate", low=0.0, strict_low=True, unit="Hz")
+        for path in [*args.logs, *args.holdout]:
+            if not Path(path).exists():
+                raise FileNotFoundError(
+                    f"no such file or folder: {path!r} (a LOG is an .npz log, a session folder, "
+                    "a CSV file or a ROS bag; paths are relative to the current folder)"
+                )
         options = ReadOptions(
             columns=args.columns,
             decimal=args.decimal,
