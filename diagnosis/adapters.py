@@ -227,6 +227,14 @@ class RobotAdapter(Protocol):
         self, prepared: Sequence[PreparedLog], drive: Drive
     ) -> dict[str, tuple[float, float, str]]: ...
 
+    def actuator_conventions(
+        self, prepared: Sequence[PreparedLog], drive: Drive
+    ) -> dict[str, str]: ...
+
+    def actuator_convention(self, log: Log) -> str: ...
+
+    def with_actuator_convention(self, log: Log, name: str) -> Log: ...
+
     def alias_groups(
         self,
         prepared: Sequence[PreparedLog],
@@ -293,6 +301,19 @@ class AdapterBase:
         (:mod:`~realitygap.diagnosis.baseline`): ``"effect.param"`` → (low, high, what it is);
         none by default."""
         return {}
+
+    def actuator_conventions(self, prepared: Sequence[PreparedLog], drive: Drive) -> dict[str, str]:
+        """Discrete conventions of the nominal's actuator response the baseline chooses among
+        (name → what it is; :mod:`~realitygap.diagnosis.baseline`); none by default."""
+        return {}
+
+    def actuator_convention(self, log: Log) -> str:
+        """The actuator convention ``log`` is replayed with (``""``: the adapter has none)."""
+        return ""
+
+    def with_actuator_convention(self, log: Log, name: str) -> Log:
+        """``log`` replayed with the actuator convention ``name`` (itself by default)."""
+        return log
 
     def alias_groups(
         self,

@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import numpy.typing as npt
@@ -201,19 +201,65 @@ class DiffDriveAdapter(WheelDrivenAdapter):
     ) -> dict[str, tuple[float, float, str]]:
         """Nuisances of the calibrated baseline (:mod:`~realitygap.diagnosis.baseline`).
 
-        The ground truth's time alignment (``timestamp_offset.offset``) and, with
-        a command-driven replay, the response time of the replayed commands
-        (``command_latency.delay``), each within half the shortest sample period
-        of the logs: stamps are quantised to the sample period, so offsets that
-        small are a sampling convention, not a finding.
+        The ground truth's time alignment (``timestamp_offset.offset``) within
+        half the shortest sample period of the logs (stamps are quantised to the
+        sample period, so offsets that small are a sampling convention, not a
+        finding) and, with a command-driven replay, the response time of the
+        replayed commands (``command_latency.delay``) within one sample period:
+        whether a command takes effect in the period it is issued or in the next
+        one, and a drive's velocity loop that settles within a period, are the
+        actuator response of the robot, not a finding. Longer delays remain
+        candidates of the effect library. The firmware's ramp convention is
+        chosen beside them (:meth:`actuator_conventions`).
         """
         if not prepared:
             return {}
-        half = 0.5 * min(p.log.dt for p in prepared)
+        dt = min(p.log.dt for p in prepared)
+        half = 0.5 * dt
         out = {"timestamp_offset.offset": (-half, half, "ground-truth time alignment")}
         if drive is Drive.COMMANDS:
-            out["command_latency.delay"] = (0.0, half, "response time of the replayed commands")
+            out["command_latency.delay"] = (0.0, dt, "response time of the replayed commands")
         return out
+
+    _CONVENTIONS: ClassVar[dict[str, str]] = {
+        "body": "the firmware ramps the body twist (a_max on v, alpha_max on ω)",
+        "wheels": "the firmware ramps each wheel's speed set-point (a_max per wheel)",
+    }
+
+    def actuator_conventions(self, prepared: Sequence[PreparedLog], drive: Drive) -> dict[str, str]:
+        """Where the firmware's rate limit acts, when the commands are requests it ramps.
+
+        A command-driven replay of logs whose ``meta["firmware"]`` states an
+        acceleration limit can ramp the body twist (ros2 ``diff_drive_controller``'s
+        speed limiter) or each wheel's speed set-point (many motor firmwares);
+        on arcs the two give different curvature while the speed changes
+        (:meth:`~realitygap.robots.diffdrive.FirmwareLimits.limit_wheels`).
+        """
+        if drive is not Drive.COMMANDS:
+            return {}
+        for p in prepared:
+            fw = p.log.meta.get("firmware")
+            if isinstance(fw, Mapping) and math.isfinite(float(fw.get("a_max", math.inf))):
+                return dict(self._CONVENTIONS)
+        return {}
+
+    def actuator_convention(self, log: Log) -> str:
+        """``"body"`` or ``"wheels"`` (``meta["firmware"]["ramp"]``); ``""`` without a firmware."""
+        fw = log.meta.get("firmware")
+        if not isinstance(fw, Mapping) or not fw:
+            return ""
+        return str(fw.get("ramp", "body"))
+
+    def with_actuator_convention(self, log: Log, name: str) -> Log:
+        """A copy of ``log`` whose firmware ramps as ``name`` says (``"body"`` or ``"wheels"``)."""
+        if name not in self._CONVENTIONS:
+            raise ValueError(
+                f"actuator convention must be one of {', '.join(self._CONVENTIONS)}, got {name!r}"
+            )
+        fw = log.meta.get("firmware")
+        if not isinstance(fw, Mapping) or not fw:
+            return log
+        return log.replace(meta={**log.meta, "firmware": {**fw, "ramp": name}})
 
     # ------------------------------------------------------------------ checks
     def check(self, log: Log, drive: Drive) -> Log:

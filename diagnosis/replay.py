@@ -185,7 +185,9 @@ def applied_commands(log: Log) -> FloatArray:
     Without ``meta["firmware"]`` this is the ``cmd`` channel. With it, the
     firmware's :class:`~realitygap.robots.diffdrive.FirmwareLimits` (rate limits
     ``a_max`` m/s², ``alpha_max`` rad/s²; speed limits ``v_max``, ``w_max``,
-    optional) are applied from rest, as
+    optional) are applied from rest — to the body twist, or with
+    ``meta["firmware"]["ramp"] == "wheels"`` to each wheel
+    (:meth:`~realitygap.robots.diffdrive.FirmwareLimits.limit_wheels`) — as
     :meth:`~realitygap.robots.diffdrive.DiffDriveRobot.command_twist` does in
     :class:`~realitygap.envs.wheeled_nav.WheeledNavEnv`.
     """
@@ -203,8 +205,17 @@ def applied_commands(log: Log) -> FloatArray:
     )
     out = np.empty_like(cmd)
     v = w = 0.0
+    ramp = fw.get("ramp", "body")
+    if ramp not in ("body", "wheels"):
+        raise LogError(
+            f"{log.source}: meta['firmware']['ramp'] must be 'body' or 'wheels', got {ramp!r}"
+        )
+    b = params_from_meta(log).wheelbase
     for k in range(cmd.shape[0]):
-        v, w = limits.limit(float(cmd[k, 0]), float(cmd[k, 1]), v, w, dt)
+        if ramp == "wheels":
+            v, w = limits.limit_wheels(float(cmd[k, 0]), float(cmd[k, 1]), v, w, dt, b)
+        else:
+            v, w = limits.limit(float(cmd[k, 0]), float(cmd[k, 1]), v, w, dt)
         out[k, 0], out[k, 1] = v, w
     return out
 

@@ -176,6 +176,36 @@ class FirmwareLimits:
         w = w_prev + min(dw, max(-dw, w - w_prev))
         return float(v), float(w)
 
+    def limit_wheels(
+        self, v: float, w: float, v_prev: float, w_prev: float, dt: float, wheelbase: float
+    ) -> tuple[float, float]:
+        r"""As :meth:`limit`, with the rate limit acting on each wheel instead of the body.
+
+        Many motor firmwares ramp each wheel's speed set-point rather than the
+        body twist. After the speed limits, the wheel surface speeds
+        :math:`s_{l,r} = v \mp ω b / 2` each move from their previous values by
+        at most ``a_max·dt`` (``a_max`` is then a wheel's surface acceleration,
+        m/s²; ``alpha_max`` is not used: a turn in place ramps at
+        :math:`2 a_{max} / b`):
+
+        .. math::
+
+            s_k = s_{k-1} + \operatorname{clip}(s^{req} - s_{k-1}, \pm a_{max}\,Δt),
+            \qquad v_k = \tfrac12 (s_{r,k} + s_{l,k}), \quad ω_k = (s_{r,k} - s_{l,k}) / b .
+
+        ``wheelbase`` is the nominal wheelbase ``b`` in m. On an arc the wheel
+        that must change more saturates first, so the curvature during a ramp
+        differs from that of a body-twist ramp.
+        """
+        v = min(self.v_max, max(-self.v_max, v))
+        w = min(self.w_max, max(-self.w_max, w))
+        half = 0.5 * wheelbase
+        ds = self.a_max * dt
+        sl_prev, sr_prev = v_prev - w_prev * half, v_prev + w_prev * half
+        sl = sl_prev + min(ds, max(-ds, v - w * half - sl_prev))
+        sr = sr_prev + min(ds, max(-ds, v + w * half - sr_prev))
+        return float(0.5 * (sl + sr)), float((sr - sl) / wheelbase)
+
 
 def _inertia_cylinder(m: float, r: float, h: float) -> tuple[float, float, float]:
     ixx = m * (3 * r * r + h * h) / 12.0
