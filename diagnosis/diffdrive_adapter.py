@@ -222,18 +222,25 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         return out
 
     _CONVENTIONS: ClassVar[dict[str, str]] = {
-        "body": "the firmware ramps the body twist (a_max on v, alpha_max on ω)",
-        "wheels": "the firmware ramps each wheel's speed set-point (a_max per wheel)",
+        "body/limited": "the firmware ramps the body twist up and down (a_max on v, alpha_max on ω)",
+        "body/free": "the firmware ramps the body twist up only (a_max on v, alpha_max on ω); "
+        "it slows down at once",
+        "wheels/limited": "the firmware ramps each wheel's speed set-point up and down "
+        "(a_max per wheel)",
+        "wheels/free": "the firmware ramps each wheel's speed set-point up only (a_max per "
+        "wheel); it slows down at once",
     }
 
     def actuator_conventions(self, prepared: Sequence[PreparedLog], drive: Drive) -> dict[str, str]:
-        """Where the firmware's rate limit acts, when the commands are requests it ramps.
+        """How the firmware's rate limit acts, when the commands are requests it ramps.
 
         A command-driven replay of logs whose ``meta["firmware"]`` states an
         acceleration limit can ramp the body twist (ros2 ``diff_drive_controller``'s
-        speed limiter) or each wheel's speed set-point (many motor firmwares);
+        speed limiter) or each wheel's speed set-point (many motor firmwares) —
         on arcs the two give different curvature while the speed changes
-        (:meth:`~realitygap.robots.diffdrive.FirmwareLimits.limit_wheels`).
+        (:meth:`~realitygap.robots.diffdrive.FirmwareLimits.limit_wheels`) — and
+        it can limit deceleration as well, or only speeding up (a drive that
+        brakes at once): ``"<body|wheels>/<limited|free>"``.
         """
         if drive is not Drive.COMMANDS:
             return {}
@@ -244,14 +251,14 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         return {}
 
     def actuator_convention(self, log: Log) -> str:
-        """``"body"`` or ``"wheels"`` (``meta["firmware"]["ramp"]``); ``""`` without a firmware."""
+        """``"<ramp>/<deceleration>"`` from ``meta["firmware"]``; ``""`` without a firmware."""
         fw = log.meta.get("firmware")
         if not isinstance(fw, Mapping) or not fw:
             return ""
-        return str(fw.get("ramp", "body"))
+        return f"{fw.get('ramp', 'body')}/{fw.get('deceleration', 'limited')}"
 
     def with_actuator_convention(self, log: Log, name: str) -> Log:
-        """A copy of ``log`` whose firmware ramps as ``name`` says (``"body"`` or ``"wheels"``)."""
+        """A copy of ``log`` whose firmware ramps as ``name`` says (``"wheels/free"``, …)."""
         if name not in self._CONVENTIONS:
             raise ValueError(
                 f"actuator convention must be one of {', '.join(self._CONVENTIONS)}, got {name!r}"
@@ -259,7 +266,10 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         fw = log.meta.get("firmware")
         if not isinstance(fw, Mapping) or not fw:
             return log
-        return log.replace(meta={**log.meta, "firmware": {**fw, "ramp": name}})
+        ramp, _, decel = name.partition("/")
+        return log.replace(
+            meta={**log.meta, "firmware": {**fw, "ramp": ramp, "deceleration": decel}}
+        )
 
     # ------------------------------------------------------------------ checks
     def check(self, log: Log, drive: Drive) -> Log:

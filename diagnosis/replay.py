@@ -187,7 +187,9 @@ def applied_commands(log: Log) -> FloatArray:
     ``a_max`` m/s², ``alpha_max`` rad/s²; speed limits ``v_max``, ``w_max``,
     optional) are applied from rest — to the body twist, or with
     ``meta["firmware"]["ramp"] == "wheels"`` to each wheel
-    (:meth:`~realitygap.robots.diffdrive.FirmwareLimits.limit_wheels`) — as
+    (:meth:`~realitygap.robots.diffdrive.FirmwareLimits.limit_wheels`); with
+    ``meta["firmware"]["deceleration"] == "free"`` only speeding up is
+    limited — as
     :meth:`~realitygap.robots.diffdrive.DiffDriveRobot.command_twist` does in
     :class:`~realitygap.envs.wheeled_nav.WheeledNavEnv`.
     """
@@ -206,16 +208,23 @@ def applied_commands(log: Log) -> FloatArray:
     out = np.empty_like(cmd)
     v = w = 0.0
     ramp = fw.get("ramp", "body")
-    if ramp not in ("body", "wheels"):
+    decel = fw.get("deceleration", "limited")
+    if ramp not in ("body", "wheels") or decel not in ("limited", "free"):
         raise LogError(
-            f"{log.source}: meta['firmware']['ramp'] must be 'body' or 'wheels', got {ramp!r}"
+            f"{log.source}: meta['firmware'] must have ramp 'body' or 'wheels' and deceleration "
+            f"'limited' or 'free', got ramp {ramp!r}, deceleration {decel!r}"
         )
-    b = params_from_meta(log).wheelbase
+    free = decel == "free"
+    b = params_from_meta(log).wheelbase if ramp == "wheels" else 0.0
     for k in range(cmd.shape[0]):
         if ramp == "wheels":
-            v, w = limits.limit_wheels(float(cmd[k, 0]), float(cmd[k, 1]), v, w, dt, b)
+            v, w = limits.limit_wheels(
+                float(cmd[k, 0]), float(cmd[k, 1]), v, w, dt, b, free_deceleration=free
+            )
         else:
-            v, w = limits.limit(float(cmd[k, 0]), float(cmd[k, 1]), v, w, dt)
+            v, w = limits.limit(
+                float(cmd[k, 0]), float(cmd[k, 1]), v, w, dt, free_deceleration=free
+            )
         out[k, 0], out[k, 1] = v, w
     return out
 

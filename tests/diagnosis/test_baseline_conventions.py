@@ -12,7 +12,7 @@ from realitygap.diagnosis.diffdrive_adapter import DiffDriveAdapter
 from realitygap.diagnosis.log import Log, LogError
 from realitygap.diagnosis.manoeuvres import Manoeuvre
 from realitygap.diagnosis.replay import MeasurementNoise, applied_commands, simulate
-from realitygap.robots.diffdrive import DiffDriveParams, FirmwareLimits
+from realitygap.robots.diffdrive import DiffDriveParams, FirmwareLimits, ramp_step
 from realitygap.robots.effects import Reality, make_effect
 
 P = DiffDriveParams()
@@ -72,12 +72,13 @@ def _requests() -> tuple[np.ndarray, np.ndarray]:
 
 
 def _log(convention: str, reality: Reality, rng: np.random.Generator) -> Log:
-    """A log of requests whose robot's firmware ramps as ``convention`` says (not stated)."""
+    """A log of requests whose robot's firmware ramps as ``convention`` (``"wheels/free"``, …)
+    says; the log states the limits, not the convention."""
     t, req = _requests()
+    ramp, _, decel = convention.partition("/")
+    fw = {**FIRMWARE, "ramp": ramp, "deceleration": decel}
     probe = Log(
-        t=t,
-        channels={"cmd": req},
-        meta={"params": {"wheelbase": P.wheelbase}, "firmware": {**FIRMWARE, "ramp": convention}},
+        t=t, channels={"cmd": req}, meta={"params": {"wheelbase": P.wheelbase}, "firmware": fw}
     )
     real = simulate(
         t, params=P, reality=reality, commands=applied_commands(probe), noise=NOISE, rng=rng
@@ -85,12 +86,26 @@ def _log(convention: str, reality: Reality, rng: np.random.Generator) -> Log:
     return real.with_channels(cmd=req).replace(meta={**real.meta, "firmware": dict(FIRMWARE)})
 
 
+def test_free_deceleration_limits_only_speeding_up() -> None:
+    assert ramp_step(0.3, 0.0, 0.01, True) == 0.0  # brakes at once
+    assert ramp_step(0.3, -0.2, 0.01, True) == -0.2  # through standstill at once
+    assert ramp_step(0.0, -0.2, 0.01, True) == pytest.approx(-0.01)  # from rest: ramped
+    assert ramp_step(0.3, 0.5, 0.01, True) == pytest.approx(0.31)
+    assert ramp_step(0.3, 0.0, 0.01, False) == pytest.approx(0.29)
+    assert ramp_step(-0.3, 0.0, 0.01, True) == 0.0
+    fw = FirmwareLimits(a_max=A_MAX, alpha_max=ALPHA_MAX)
+    # a turn ends: the wheels stop at once, the body twist too
+    v, w = fw.limit_wheels(0.0, 0.0, 0.0, 1.0, DT, P.wheelbase, free_deceleration=True)
+    assert (v, w) == (0.0, 0.0)
+    assert fw.limit(0.0, 0.0, 0.2, 1.0, DT, free_deceleration=True) == (0.0, 0.0)
+
+
 def test_unknown_ramp_convention_is_refused() -> None:
     t, req = _requests()
     log = Log(t=t, channels={"cmd": req}, meta={"firmware": {**FIRMWARE, "ramp": "motor"}})
-    with pytest.raises(LogError, match="ramp'\\] must be 'body' or 'wheels', got 'motor'"):
+    with pytest.raises(LogError, match=r"ramp 'body' or 'wheels'.*got ramp 'motor'"):
         applied_commands(log)
-    with pytest.raises(ValueError, match="actuator convention must be one of body, wheels"):
+    with pytest.raises(ValueError, match="actuator convention must be one of body/limited"):
         DiffDriveAdapter().with_actuator_convention(log, "motor")
 
 
@@ -112,11 +127,14 @@ def test_applied_commands_follow_the_stated_convention() -> None:
     assert not differ[settled].any()
 
 
-def test_planted_wheel_ramp_is_baseline_calibration_and_the_effect_is_found() -> None:
+@pytest.mark.parametrize("convention", ["wheels/limited", "body/free"])
+def test_planted_ramp_convention_is_baseline_calibration_and_the_effect_is_found(
+    convention: str,
+) -> None:
     rng = np.random.default_rng(11)
     reality = Reality((make_effect("wheelbase_error", E_b=1.04),))
-    train = [_log("wheels", reality, rng), _log("wheels", reality, rng)]
-    hold = [_log("wheels", reality, rng)]
+    train = [_log(convention, reality, rng), _log(convention, reality, rng)]
+    hold = [_log(convention, reality, rng)]
     d = diagnose(
         train,
         hold,
@@ -125,14 +143,15 @@ def test_planted_wheel_ramp_is_baseline_calibration_and_the_effect_is_found() ->
             attribution=AttributionSettings(pair_candidates=2, verify_top=1),
         ),
     )
-    assert d.baseline.convention == "wheels"
+    assert d.baseline.convention == convention
     costs = d.baseline.convention_costs
-    assert costs["wheels"] < costs["body"]
+    assert min(costs, key=costs.get) == convention and len(costs) == 4
     assert d.verdict.label == ["wheelbase_error"]
     assert d.ranking[0].values["wheelbase_error.E_b"] == pytest.approx(1.04, abs=0.01)
     js = d.to_json()["baseline_calibration"]["actuator_convention"]
-    assert js["chosen"] == "wheels" and "each wheel" in js["what"]
-    assert "each wheel" in d.baseline.summary()
+    what = "each wheel" if convention.startswith("wheels") else "slows down at once"
+    assert js["chosen"] == convention and what in js["what"]
+    assert what in d.baseline.summary()
 
 
 def test_baseline_without_convention_says_so() -> None:
