@@ -22,13 +22,16 @@ Each adapter states its nuisances (:meth:`baseline_nuisances` of the adapter):
 For the differential drive these are the ground truth's time alignment
 (``timestamp_offset.offset``, within half a sample period) and the response
 time of the replayed commands (``command_latency.delay``, with a
-command-driven replay, within one sample period):
+command-driven replay, within half a sample period, or one period when the
+logged commands are requests to the robot's firmware):
 
-.. math::  |δ_{align}| \le \tfrac{1}{2} Δt, \qquad 0 \le τ_{resp} \le Δt ,
+.. math::  |δ_{align}| \le \tfrac{1}{2} Δt, \qquad 0 \le τ_{resp} \le \tfrac{1}{2} Δt
+           \ (\text{requests: } Δt),
 
 because stamps are quantised to the sample period :math:`Δt`, and whether a
-command acts in the period it is issued or the next one (or through a velocity
-loop that settles within a period) is the robot's actuator response. Larger
+firmware takes a request in the period it is issued or the next one (or
+through a velocity loop that settles within a period) is the robot's actuator
+response. Larger
 values are findings and remain candidates of the effect library.
 
 :func:`calibrate_baseline` fits the nuisances together on the training windows

@@ -205,12 +205,14 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         half the shortest sample period of the logs (stamps are quantised to the
         sample period, so offsets that small are a sampling convention, not a
         finding) and, with a command-driven replay, the response time of the
-        replayed commands (``command_latency.delay``) within one sample period:
-        whether a command takes effect in the period it is issued or in the next
-        one, and a drive's velocity loop that settles within a period, are the
-        actuator response of the robot, not a finding. Longer delays remain
-        candidates of the effect library. The firmware's ramp convention is
-        chosen beside them (:meth:`actuator_conventions`).
+        replayed commands (``command_latency.delay``): within half a period when
+        the logs hold the twist the drive received, within one period when they
+        hold requests to the robot's firmware (``meta["firmware"]``) — whether
+        the firmware takes a request in the period it is issued or the next one,
+        and a velocity loop that settles within a period, are the robot's
+        actuator response, not a finding. Longer delays remain candidates of the
+        effect library. The firmware's ramp convention is chosen beside them
+        (:meth:`actuator_conventions`).
         """
         if not prepared:
             return {}
@@ -218,7 +220,12 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         half = 0.5 * dt
         out = {"timestamp_offset.offset": (-half, half, "ground-truth time alignment")}
         if drive is Drive.COMMANDS:
-            out["command_latency.delay"] = (0.0, dt, "response time of the replayed commands")
+            requests = bool(self.actuator_conventions(prepared, drive))
+            out["command_latency.delay"] = (
+                0.0,
+                dt if requests else half,
+                "response time of the replayed commands",
+            )
         return out
 
     _CONVENTIONS: ClassVar[dict[str, str]] = {
