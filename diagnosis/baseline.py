@@ -13,8 +13,10 @@ Beside these continuous nuisances an adapter may offer discrete conventions
 of the nominal's actuator response (:meth:`actuator_conventions` of the
 adapter; for the differential drive, whether the firmware's rate limit ramps
 the body twist, as ros2 ``diff_drive_controller`` does, or each wheel, as many
-motor firmwares do); :func:`choose_convention` replays each, fits the
-nuisances under it and keeps the one that fits best.
+motor firmwares do, and whether it limits deceleration too or brakes at once);
+:func:`choose_convention` replays each, fits the nuisances under it and keeps
+the one that fits best. It is reported with the nuisances as baseline
+calibration.
 
 Each adapter states its nuisances (:meth:`baseline_nuisances` of the adapter):
 ``{"effect.param": (low, high, what)}`` — an existing effect's parameter with a
@@ -94,13 +96,13 @@ class Baseline:
         PyBullet replays of each log at the baseline.
     convention : str
         The actuator convention of the nominal chosen by the calibration
-        (``""``: the adapter offers none), e.g. ``"wheels"`` for a firmware
-        that ramps each wheel.
+        (``""``: the adapter offers none), e.g. ``"wheels/free"`` for a
+        firmware that ramps each wheel up and brakes at once.
     convention_what : str
         What the chosen convention means.
     convention_costs : dict of str to float
-        Robust training cost of each convention with its nuisances fitted
-        (lower is better; the same loss scale for all).
+        Robust cost of each convention over every window, its nuisances fitted
+        on the training windows (lower is better; the same loss scale for all).
     """
 
     values: dict[str, float] = field(default_factory=dict)
@@ -129,7 +131,7 @@ class Baseline:
             "actuator_convention": {
                 "chosen": self.convention,
                 "what": self.convention_what,
-                "train_cost": dict(self.convention_costs),
+                "cost": dict(self.convention_costs),
             }
             if self.convention
             else None,
