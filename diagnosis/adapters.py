@@ -228,6 +228,13 @@ class RobotAdapter(Protocol):
     ) -> dict[str, tuple[float, float, str]]: ...
 
     def link_logs(self, prepared: Sequence[PreparedLog], drive: Drive) -> dict[str, Any]: ...
+    def actuator_conventions(
+        self, prepared: Sequence[PreparedLog], drive: Drive
+    ) -> dict[str, str]: ...
+
+    def actuator_convention(self, log: Log) -> str: ...
+
+    def with_actuator_convention(self, log: Log, name: str) -> Log: ...
 
     def alias_groups(
         self,
@@ -304,6 +311,19 @@ class AdapterBase:
         description of what it did (empty: nothing to relate, the default).
         """
         return {}
+
+    def actuator_conventions(self, prepared: Sequence[PreparedLog], drive: Drive) -> dict[str, str]:
+        """Discrete conventions of the nominal's actuator response the baseline chooses among
+        (name → what it is; :mod:`~realitygap.diagnosis.baseline`); none by default."""
+        return {}
+
+    def actuator_convention(self, log: Log) -> str:
+        """The actuator convention ``log`` is replayed with (``""``: the adapter has none)."""
+        return ""
+
+    def with_actuator_convention(self, log: Log, name: str) -> Log:
+        """``log`` replayed with the actuator convention ``name`` (itself by default)."""
+        return log
 
     def alias_groups(
         self,

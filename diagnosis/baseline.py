@@ -9,18 +9,31 @@ truth). Left alone, these small differences are picked up by whichever effect
 can absorb them — a time offset of some ten milliseconds came out beside the
 true effect on every robot the diagnosis did not simulate itself.
 
+Beside these continuous nuisances an adapter may offer discrete conventions
+of the nominal's actuator response (:meth:`actuator_conventions` of the
+adapter; for the differential drive, whether the firmware's rate limit ramps
+the body twist, as ros2 ``diff_drive_controller`` does, or each wheel, as many
+motor firmwares do, and whether it limits deceleration too or brakes at once);
+:func:`choose_convention` replays each, fits the nuisances under it and keeps
+the one that fits best. It is reported with the nuisances as baseline
+calibration.
+
 Each adapter states its nuisances (:meth:`baseline_nuisances` of the adapter):
 ``{"effect.param": (low, high, what)}`` — an existing effect's parameter with a
 *narrow* range around its nominal value that is a convention, not a finding.
 For the differential drive these are the ground truth's time alignment
-(``timestamp_offset.offset``) and the response time of the replayed commands
-(``command_latency.delay``, with a command-driven replay), each within half a
-sample period:
+(``timestamp_offset.offset``, within half a sample period) and the response
+time of the replayed commands (``command_latency.delay``, with a
+command-driven replay, within half a sample period, or one period when the
+logged commands are requests to the robot's firmware):
 
-.. math::  |δ_{align}| \le \tfrac{1}{2} Δt, \qquad 0 \le τ_{resp} \le \tfrac{1}{2} Δt ,
+.. math::  |δ_{align}| \le \tfrac{1}{2} Δt, \qquad 0 \le τ_{resp} \le \tfrac{1}{2} Δt
+           \ (\text{requests: } Δt),
 
-because stamps are quantised to the sample period :math:`Δt`, so an offset
-within half a sample cannot be told from the sampling convention. Larger
+because stamps are quantised to the sample period :math:`Δt`, and whether a
+firmware takes a request in the period it is issued or the next one (or
+through a velocity loop that settles within a period) is the robot's actuator
+response. Larger
 values are findings and remain candidates of the effect library.
 
 :func:`calibrate_baseline` fits the nuisances together on the training windows
@@ -52,7 +65,13 @@ from realitygap.diagnosis.shrink import overall_shrink
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["Baseline", "NuisanceRange", "calibrate_baseline", "check_nuisances"]
+__all__ = [
+    "Baseline",
+    "NuisanceRange",
+    "calibrate_baseline",
+    "check_nuisances",
+    "choose_convention",
+]
 
 NuisanceRange = tuple[float, float, str]
 """``(low, high, what)``: a nuisance parameter's range (natural units) and what it stands for."""
@@ -75,6 +94,15 @@ class Baseline:
         is not applied (``values`` empty).
     replays : dict of int to Log
         PyBullet replays of each log at the baseline.
+    convention : str
+        The actuator convention of the nominal chosen by the calibration
+        (``""``: the adapter offers none), e.g. ``"wheels/free"`` for a
+        firmware that ramps each wheel up and brakes at once.
+    convention_what : str
+        What the chosen convention means.
+    convention_costs : dict of str to float
+        Robust cost of each convention over every window, its nuisances fitted
+        on the training windows (lower is better; the same loss scale for all).
     """
 
     values: dict[str, float] = field(default_factory=dict)
@@ -82,6 +110,9 @@ class Baseline:
     units: dict[str, str] = field(default_factory=dict)
     train_shrink_pct: float = 0.0
     replays: dict[int, Log] = field(default_factory=dict)
+    convention: str = ""
+    convention_what: str = ""
+    convention_costs: dict[str, float] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         """JSON form: one row per nuisance and the training shrink of the baseline."""
@@ -97,13 +128,21 @@ class Baseline:
                 for k, v in self.values.items()
             ],
             "train_shrink_pct": self.train_shrink_pct,
+            "actuator_convention": {
+                "chosen": self.convention,
+                "what": self.convention_what,
+                "cost": dict(self.convention_costs),
+            }
+            if self.convention
+            else None,
         }
 
     def summary(self) -> str:
         """One line for the terminal and the report."""
+        conv = f"actuator response: {self.convention_what}" if self.convention else ""
         if not self.values:
-            return "baseline calibration: none (the adapter states no nuisances)"
-        parts = []
+            return "baseline calibration: " + (conv or "none (the adapter states no nuisances)")
+        parts = [conv] if conv else []
         for k, v in self.values.items():
             unit = self.units.get(k, "")
             scale, shown = (1e3, "ms") if unit == "s" else (1.0, unit)
@@ -135,6 +174,103 @@ def _replay_task(problem: Problem, item: tuple[int, dict[str, float]]) -> tuple[
     p = problem.logs[i]
     sim = problem.sim if problem.sim is not None else p.context.sim
     return problem.adapter.replay_features(p, values, problem.drive, sim)
+
+
+def _prepare_task(problem: Problem, item: tuple[int, Log]) -> PreparedLog:
+    i, log = item
+    old = problem.logs[i]
+    p = problem.adapter.prepare(
+        log,
+        split=old.split,
+        drive=problem.drive,
+        features_settings=problem.features,
+        sim=problem.sim,
+    )
+    p.holdout_windows = old.holdout_windows.copy()
+    return p
+
+
+def _fitted_cost(
+    problem: Problem, effects: tuple[str, ...], box: Mapping[str, tuple[float, float]], c: float
+) -> tuple[float, dict[str, float]]:
+    """Robust cost (loss scale ``c``) over every window of ``problem`` with the nuisances
+    fitted on the training windows."""
+    values: dict[str, float] = {}
+    if effects:
+        values = dict(fit_model(problem, effects, box=box).values)
+    point = {k: np.array([v]) for k, v in values.items()}
+    cost = 0.0
+    for layout in (problem.train, problem.holdout):
+        if layout.n:
+            z = problem.surrogate_residuals(layout, point, 1)[0]
+            cost += float(np.sum(_rho(z**2, problem.settings.loss, c)))
+    return cost, values
+
+
+def choose_convention(
+    problem: Problem,
+    effects: tuple[str, ...],
+    box: Mapping[str, tuple[float, float]],
+    backend: Backend,
+    say: Callable[[str], None] = lambda msg: None,
+) -> tuple[str, str, dict[str, float]]:
+    """Choose the nominal's actuator convention that fits the logs best.
+
+    Each convention the adapter offers (:meth:`actuator_conventions`, e.g. a
+    firmware that ramps the body twist or each wheel) is replayed in
+    PyBullet, the nuisances ``effects`` are fitted inside ``box`` on the
+    training windows, and the robust cost over every window (training and
+    held-out, transient events set aside) is compared at one loss scale;
+    ``problem`` is switched in place to the convention of least cost.
+
+    The convention is a property of the robot's firmware, the same in every
+    log, and the motions that tell conventions apart (arcs while the speed
+    changes) may lie only in the held-out logs — a training set of straight
+    runs and turns in place ramps identically under both. The choice is one
+    discrete bit made on the reference replay without any effect, so it
+    cannot favour an effect; it only makes the reference every effect is
+    scored against the better one.
+
+    Returns
+    -------
+    name, what, costs : str, str, dict of str to float
+        ``("", "", {})`` when the adapter offers fewer than two conventions.
+    """
+    offered = problem.adapter.actuator_conventions(problem.logs, problem.drive)
+    if len(offered) < 2 or problem.train.n == 0:
+        return "", "", {}
+    c = problem.f_scale
+    current = problem.adapter.actuator_convention(problem.logs[0].log)
+    costs: dict[str, float] = {}
+    options: dict[str, Problem] = {}
+    for name in offered:
+        if name == current:
+            cand = problem
+        else:
+            say(f"replaying with the actuator convention {name!r}")
+            items = [
+                (i, problem.adapter.with_actuator_convention(p.log, name))
+                for i, p in enumerate(problem.logs)
+            ]
+            logs = list(backend.map(_prepare_task, items, problem))
+            # logs that declare different geometries stay on the one reference
+            problem.adapter.link_logs(logs, problem.drive)
+            cand = Problem(
+                problem.adapter,
+                list(logs),
+                problem.drive,
+                problem.features,
+                problem.sim,
+                problem.settings,
+            )
+            cand.exclude(problem.excluded)
+        costs[name], _ = _fitted_cost(cand, effects, box, c)
+        options[name] = cand
+    best = min(costs, key=lambda k: costs[k])
+    if best != current:
+        problem.logs[:] = options[best].logs
+        problem.exclude(problem.excluded)
+    return best, offered[best], costs
 
 
 def calibrate_baseline(
@@ -175,6 +311,9 @@ def calibrate_baseline(
             nom = param_spec(k).nominal
             span = 1e-9 * (param_spec(k).high - param_spec(k).low)
             box[k] = (max(nom - span, param_spec(k).low), min(nom + span, param_spec(k).high))
+    conv, conv_what, conv_costs = choose_convention(problem, effects, box, backend, say)
+    if conv:
+        say(f"actuator response of the nominal: {conv_what}")
     say(f"calibrating the baseline: {', '.join(ranges)}")
     fit = fit_model(problem, effects, box=box)
     values = {k: fit.values[k] for k in ranges}
@@ -206,7 +345,13 @@ def calibrate_baseline(
         problem.baseline_values, problem.baseline_features = {}, {}
         problem.baseline_ranges = {}
         say("baseline calibration: the nuisances do not improve the nominal replay; none applied")
-        return Baseline(ranges=ranges, units={k: param_spec(k).unit for k in ranges})
+        return Baseline(
+            ranges=ranges,
+            units={k: param_spec(k).unit for k in ranges},
+            convention=conv,
+            convention_what=conv_what,
+            convention_costs=conv_costs,
+        )
     problem.f_scale = problem.noise_scale()
     return Baseline(
         values=values,
@@ -214,4 +359,7 @@ def calibrate_baseline(
         units={k: param_spec(k).unit for k in ranges},
         train_shrink_pct=overall_shrink(z_before, z_after),
         replays=replays,
+        convention=conv,
+        convention_what=conv_what,
+        convention_costs=conv_costs,
     )

@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import numpy.typing as npt
@@ -207,18 +207,31 @@ class DiffDriveAdapter(WheelDrivenAdapter):
     ) -> dict[str, tuple[float, float, str]]:
         """Nuisances of the calibrated baseline (:mod:`~realitygap.diagnosis.baseline`).
 
-        The ground truth's time alignment (``timestamp_offset.offset``) and, with
-        a command-driven replay, the response time of the replayed commands
-        (``command_latency.delay``), each within half the shortest sample period
-        of the logs: stamps are quantised to the sample period, so offsets that
-        small are a sampling convention, not a finding.
+        The ground truth's time alignment (``timestamp_offset.offset``) within
+        half the shortest sample period of the logs (stamps are quantised to the
+        sample period, so offsets that small are a sampling convention, not a
+        finding) and, with a command-driven replay, the response time of the
+        replayed commands (``command_latency.delay``): within half a period when
+        the logs hold the twist the drive received, within one period when they
+        hold requests to the robot's firmware (``meta["firmware"]``) — whether
+        the firmware takes a request in the period it is issued or the next one,
+        and a velocity loop that settles within a period, are the robot's
+        actuator response, not a finding. Longer delays remain candidates of the
+        effect library. The firmware's ramp convention is chosen beside them
+        (:meth:`actuator_conventions`).
         """
         if not prepared:
             return {}
-        half = 0.5 * min(p.log.dt for p in prepared)
+        dt = min(p.log.dt for p in prepared)
+        half = 0.5 * dt
         out = {"timestamp_offset.offset": (-half, half, "ground-truth time alignment")}
         if drive is Drive.COMMANDS:
-            out["command_latency.delay"] = (0.0, half, "response time of the replayed commands")
+            requests = bool(self.actuator_conventions(prepared, drive))
+            out["command_latency.delay"] = (
+                0.0,
+                dt if requests else half,
+                "response time of the replayed commands",
+            )
         return out
 
     # ------------------------------------------------------------------ common geometry
@@ -283,6 +296,56 @@ class DiffDriveAdapter(WheelDrivenAdapter):
                 f"wheelbase {1e3 * b:.1f} mm); {len(relinked)} log(s) replayed on it"
             ),
         }
+
+    _CONVENTIONS: ClassVar[dict[str, str]] = {
+        "body/limited": "the firmware ramps the body twist up and down (a_max on v, alpha_max on ω)",
+        "body/free": "the firmware ramps the body twist up only (a_max on v, alpha_max on ω); "
+        "it slows down at once",
+        "wheels/limited": "the firmware ramps each wheel's speed set-point up and down "
+        "(a_max per wheel)",
+        "wheels/free": "the firmware ramps each wheel's speed set-point up only (a_max per "
+        "wheel); it slows down at once",
+    }
+
+    def actuator_conventions(self, prepared: Sequence[PreparedLog], drive: Drive) -> dict[str, str]:
+        """How the firmware's rate limit acts, when the commands are requests it ramps.
+
+        A command-driven replay of logs whose ``meta["firmware"]`` states an
+        acceleration limit can ramp the body twist (ros2 ``diff_drive_controller``'s
+        speed limiter) or each wheel's speed set-point (many motor firmwares) —
+        on arcs the two give different curvature while the speed changes
+        (:meth:`~realitygap.robots.diffdrive.FirmwareLimits.limit_wheels`) — and
+        it can limit deceleration as well, or only speeding up (a drive that
+        brakes at once): ``"<body|wheels>/<limited|free>"``.
+        """
+        if drive is not Drive.COMMANDS:
+            return {}
+        for p in prepared:
+            fw = p.log.meta.get("firmware")
+            if isinstance(fw, Mapping) and math.isfinite(float(fw.get("a_max", math.inf))):
+                return dict(self._CONVENTIONS)
+        return {}
+
+    def actuator_convention(self, log: Log) -> str:
+        """``"<ramp>/<deceleration>"`` from ``meta["firmware"]``; ``""`` without a firmware."""
+        fw = log.meta.get("firmware")
+        if not isinstance(fw, Mapping) or not fw:
+            return ""
+        return f"{fw.get('ramp', 'body')}/{fw.get('deceleration', 'limited')}"
+
+    def with_actuator_convention(self, log: Log, name: str) -> Log:
+        """A copy of ``log`` whose firmware ramps as ``name`` says (``"wheels/free"``, …)."""
+        if name not in self._CONVENTIONS:
+            raise ValueError(
+                f"actuator convention must be one of {', '.join(self._CONVENTIONS)}, got {name!r}"
+            )
+        fw = log.meta.get("firmware")
+        if not isinstance(fw, Mapping) or not fw:
+            return log
+        ramp, _, decel = name.partition("/")
+        return log.replace(
+            meta={**log.meta, "firmware": {**fw, "ramp": ramp, "deceleration": decel}}
+        )
 
     # ------------------------------------------------------------------ checks
     def check(self, log: Log, drive: Drive) -> Log:

@@ -185,7 +185,11 @@ def applied_commands(log: Log) -> FloatArray:
     Without ``meta["firmware"]`` this is the ``cmd`` channel. With it, the
     firmware's :class:`~realitygap.robots.diffdrive.FirmwareLimits` (rate limits
     ``a_max`` m/s², ``alpha_max`` rad/s²; speed limits ``v_max``, ``w_max``,
-    optional) are applied from rest, as
+    optional) are applied from rest — to the body twist, or with
+    ``meta["firmware"]["ramp"] == "wheels"`` to each wheel
+    (:meth:`~realitygap.robots.diffdrive.FirmwareLimits.limit_wheels`); with
+    ``meta["firmware"]["deceleration"] == "free"`` only speeding up is
+    limited — as
     :meth:`~realitygap.robots.diffdrive.DiffDriveRobot.command_twist` does in
     :class:`~realitygap.envs.wheeled_nav.WheeledNavEnv`.
     """
@@ -203,8 +207,24 @@ def applied_commands(log: Log) -> FloatArray:
     )
     out = np.empty_like(cmd)
     v = w = 0.0
+    ramp = fw.get("ramp", "body")
+    decel = fw.get("deceleration", "limited")
+    if ramp not in ("body", "wheels") or decel not in ("limited", "free"):
+        raise LogError(
+            f"{log.source}: meta['firmware'] must have ramp 'body' or 'wheels' and deceleration "
+            f"'limited' or 'free', got ramp {ramp!r}, deceleration {decel!r}"
+        )
+    free = decel == "free"
+    b = params_from_meta(log).wheelbase if ramp == "wheels" else 0.0
     for k in range(cmd.shape[0]):
-        v, w = limits.limit(float(cmd[k, 0]), float(cmd[k, 1]), v, w, dt)
+        if ramp == "wheels":
+            v, w = limits.limit_wheels(
+                float(cmd[k, 0]), float(cmd[k, 1]), v, w, dt, b, free_deceleration=free
+            )
+        else:
+            v, w = limits.limit(
+                float(cmd[k, 0]), float(cmd[k, 1]), v, w, dt, free_deceleration=free
+            )
         out[k, 0], out[k, 1] = v, w
     return out
 

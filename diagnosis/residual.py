@@ -5,7 +5,10 @@ group's residual is structured when it is much larger than its noise level,
 concentrates in one column or motion regime, or follows the commanded motion
 (:data:`~realitygap.diagnosis.attribute.MOTION_COLUMNS`). The noise level is
 the robust (MAD-based) window-to-window level :func:`white_level`, or the
-measurement noise an adapter states.
+measurement noise an adapter states; a regime's concentration is judged
+against the larger of the column's level and the regime's own
+window-to-window level, so a regime that only scatters more is not taken for
+structure, while a residual that stays put from window to window is.
 """
 
 from __future__ import annotations
@@ -131,8 +134,14 @@ def describe_residual(
                 if m.sum() < 5:
                     continue
                 r_rms = float(np.sqrt(np.mean(z[m] ** 2)))
-                if r_rms > settings.floor and r_rms / lvl_c > worst_ratio:
-                    worst_ratio = r_rms / lvl_c
+                # the noise floor of this regime itself: a regime whose windows scatter more
+                # (starts and stops replay less exactly) is not structured for that; a
+                # residual that stays put from window to window is
+                lvl_r = lvl_c
+                if r != "all" and not (noise is not None and g in noise):
+                    lvl_r = max(lvl_c, white_level(z, layout, m))
+                if r_rms > settings.floor and r_rms / lvl_r > worst_ratio:
+                    worst_ratio = r_rms / lvl_r
                     worst_ratio_where = c if r == "all" else f"{c} while {r}"
         regime_means: dict[str, dict[str, float]] = {}
         worst_t, worst_where = 0.0, ""

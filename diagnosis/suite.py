@@ -14,7 +14,10 @@ the candidate library (open set): the right answer is then ``"unexplained"``.
 
 :func:`summarise` turns case outcomes into the suite's figures (top-1 / top-2
 accuracy, parameter error, held-out shrink, open-set and false-attribution
-rates) and a confusion matrix.
+rates) and a confusion matrix. Top-1 is strict (the verdict's own model is
+the truth); ``top1_alias_aware_accuracy`` also counts a verdict "X or Y
+(aliases on this data)" whose alternatives include the truth, reported beside
+the strict figure, never instead of it.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from realitygap.core.parallel import Backend, SerialBackend
 from realitygap.diagnosis.adapters import HiddenTable, get_adapter, known_robots
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.replay import MeasurementNoise
+from realitygap.diagnosis.verdict import verdict_alternatives
 from realitygap.robots.effects import EFFECTS, Reality, make_effect
 
 __all__ = [
@@ -179,10 +183,13 @@ def run_case(settings: SuiteSettings, case: BlindCase) -> dict[str, Any]:
     truth = case.truth_names
     named = tuple(sorted(verdict)) if isinstance(verdict, list) else None
     top = [tuple(sorted(r["effects"])) for r in rows if r["effects"]]
+    alternatives = [tuple(sorted(a)) for a in verdict_alternatives(d.verdict)]
     if case.open_set:
         correct = verdict == "unexplained"
+        alias_aware = correct
     else:
         correct = named == truth
+        alias_aware = truth in alternatives
     param_err: dict[str, float] = {}
     if not case.open_set and named == truth:
         fit = next(r for r in rows if tuple(sorted(r["effects"])) == truth)
@@ -203,6 +210,8 @@ def run_case(settings: SuiteSettings, case: BlindCase) -> dict[str, Any]:
         "reason": d.verdict.reason,
         "confidence": d.verdict.confidence,
         "correct": bool(correct),
+        "correct_alias_aware": bool(alias_aware),
+        "verdict_alternatives": [list(a) for a in alternatives],
         "top1": (not case.open_set) and bool(top and top[0] == truth),
         "top2": (not case.open_set) and truth in top[:2],
         "best": best["name"],
@@ -257,6 +266,11 @@ def summarise(outcomes: Sequence[dict[str, Any]]) -> tuple[dict[str, float], dic
         "top1_accuracy": float(np.mean([o["top1"] and o["correct"] for o in closed]))
         if closed
         else math.nan,
+        "top1_alias_aware_accuracy": float(
+            np.mean([o.get("correct_alias_aware", o["correct"]) for o in closed])
+        )
+        if closed
+        else math.nan,
         "top2_accuracy": float(np.mean([o["top2"] for o in closed])) if closed else math.nan,
         "param_rel_err_median": float(np.median(errs)) if errs else math.nan,
         "heldout_shrink_pct_median": float(np.median([o["heldout_shrink_pct"] for o in closed]))
@@ -293,6 +307,7 @@ def summarise(outcomes: Sequence[dict[str, Any]]) -> tuple[dict[str, float], dic
                 "withheld": o["withheld"],
                 "verdict": o["verdict"],
                 "correct": o["correct"],
+                "correct_alias_aware": o.get("correct_alias_aware", o["correct"]),
                 "best": o["best"],
                 "best_params": o["best_params"],
                 "param_rel_err": o["param_rel_err"],

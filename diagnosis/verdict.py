@@ -39,6 +39,7 @@ __all__ = [
     "parameter_status",
     "regime_consistency",
     "run_discovery",
+    "verdict_alternatives",
 ]
 
 
@@ -423,12 +424,34 @@ def alias_notes(
             continue
         if info is None and identify is not None:
             info = identify(problem, best, other)
-        entry: dict[str, Any] = {"model": other.name, "why": why, "heldout_shrink_pct": shrink}
+        entry: dict[str, Any] = {
+            "model": other.name,
+            "effects": list(other.effects),
+            "why": why,
+            "heldout_shrink_pct": shrink,
+        }
         if info is not None and "separating_motion" in info:
             entry["separating_motion"] = info["separating_motion"]
         out.append(entry)
         if len(out) >= 3:
             break
+    return out
+
+
+def verdict_alternatives(verdict: Any) -> list[tuple[str, ...]]:
+    """The effect sets a verdict names: its model, then each alias of it on this data.
+
+    ``[]`` for ``"unexplained"`` and ``"none"``; a verdict "X or Y (aliases on this
+    data)" gives ``[("X",), ("Y",)]``. Scoring that counts a verdict right when one
+    of these is the truth is *alias-aware*; strict scoring looks at the first only.
+    """
+    if verdict.kind != "effects":
+        return []
+    out = [tuple(verdict.effects)]
+    for a in (getattr(verdict, "notes", None) or {}).get("aliases", []):
+        eff = tuple(a.get("effects") or str(a.get("model", "")).split(" + "))
+        if eff and eff not in out:
+            out.append(eff)
     return out
 
 

@@ -156,7 +156,14 @@ class FirmwareLimits:
         return cls(params.v_max, params.w_max, params.a_max, params.alpha_max)
 
     def limit(
-        self, v: float, w: float, v_prev: float, w_prev: float, dt: float
+        self,
+        v: float,
+        w: float,
+        v_prev: float,
+        w_prev: float,
+        dt: float,
+        *,
+        free_deceleration: bool = False,
     ) -> tuple[float, float]:
         r"""The twist (m/s, rad/s) applied for request ``(v, w)`` after ``(v_prev, w_prev)``.
 
@@ -166,15 +173,67 @@ class FirmwareLimits:
                   - v_{k-1}, \pm a_{max}\,\Delta t)
 
         and likewise for ω with ``w_max`` and ``alpha_max``; ``dt`` is the
-        control period in s.
+        control period in s. With ``free_deceleration`` only speeding up is
+        limited (:func:`ramp_step`): slowing down, and a reversal through
+        standstill, pass at once, as in a firmware that brakes without a ramp.
         """
         v = min(self.v_max, max(-self.v_max, v))
         w = min(self.w_max, max(-self.w_max, w))
-        dv = self.a_max * dt
-        dw = self.alpha_max * dt
-        v = v_prev + min(dv, max(-dv, v - v_prev))
-        w = w_prev + min(dw, max(-dw, w - w_prev))
+        v = ramp_step(v_prev, v, self.a_max * dt, free_deceleration)
+        w = ramp_step(w_prev, w, self.alpha_max * dt, free_deceleration)
         return float(v), float(w)
+
+    def limit_wheels(
+        self,
+        v: float,
+        w: float,
+        v_prev: float,
+        w_prev: float,
+        dt: float,
+        wheelbase: float,
+        *,
+        free_deceleration: bool = False,
+    ) -> tuple[float, float]:
+        r"""As :meth:`limit`, with the rate limit acting on each wheel instead of the body.
+
+        Many motor firmwares ramp each wheel's speed set-point rather than the
+        body twist. After the speed limits, the wheel surface speeds
+        :math:`s_{l,r} = v \mp ω b / 2` each move from their previous values by
+        at most ``a_max·dt`` (``a_max`` is then a wheel's surface acceleration,
+        m/s²; ``alpha_max`` is not used: a turn in place ramps at
+        :math:`2 a_{max} / b`):
+
+        .. math::
+
+            s_k = s_{k-1} + \operatorname{clip}(s^{req} - s_{k-1}, \pm a_{max}\,Δt),
+            \qquad v_k = \tfrac12 (s_{r,k} + s_{l,k}), \quad ω_k = (s_{r,k} - s_{l,k}) / b .
+
+        ``wheelbase`` is the nominal wheelbase ``b`` in m. On an arc the wheel
+        that must change more saturates first, so the curvature during a ramp
+        differs from that of a body-twist ramp. ``free_deceleration`` as in
+        :meth:`limit`, per wheel.
+        """
+        v = min(self.v_max, max(-self.v_max, v))
+        w = min(self.w_max, max(-self.w_max, w))
+        half = 0.5 * wheelbase
+        ds = self.a_max * dt
+        sl = ramp_step(v_prev - w_prev * half, v - w * half, ds, free_deceleration)
+        sr = ramp_step(v_prev + w_prev * half, v + w * half, ds, free_deceleration)
+        return float(0.5 * (sl + sr)), float((sr - sl) / wheelbase)
+
+
+def ramp_step(prev: float, target: float, step: float, free_deceleration: bool = False) -> float:
+    """One period of a rate limiter: ``prev`` moves towards ``target`` by at most ``step``.
+
+    With ``free_deceleration`` a move towards standstill (judged by the sign of
+    ``prev``, as ros2 ``diff_drive_controller``'s speed limiter judges
+    acceleration and deceleration) is not limited; from standstill the limit
+    applies both ways. An infinite ``step`` does not limit.
+    """
+    d = target - prev
+    if free_deceleration and ((prev > 0.0 and d < 0.0) or (prev < 0.0 and d > 0.0)):
+        return float(target)
+    return float(prev + min(step, max(-step, d)))
 
 
 def _inertia_cylinder(m: float, r: float, h: float) -> tuple[float, float, float]:

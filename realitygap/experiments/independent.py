@@ -20,6 +20,11 @@ open set (out-of-library cases)
 false attribution
     The verdict names an effect the case does not accept (out-of-library cases:
     any named effect), over every scored diagnosis.
+top-1, alias-aware (in-library cases)
+    As strict top-1, or the verdict is "X or Y (aliases on this data)" and one
+    of its alternatives names only accepted effects
+    (:func:`~realitygap.diagnosis.verdict.verdict_alternatives`); a separate
+    column, so that an alias verdict is never counted as a strict hit.
 held-out shrink
     ``gap["heldout_shrink_pct_best"]`` of the diagnosis, median over in-library cases.
 
@@ -132,15 +137,19 @@ def diagnose_case(
 
 def score(case: Any, d: Any, drive: str = "commands", **extra: float) -> dict[str, Any]:
     """Score a diagnosis ``d`` of ``case`` replayed with ``drive`` (see the module notes)."""
+    from realitygap.diagnosis.verdict import verdict_alternatives
+
     v = d.verdict
     named = list(v.effects) if v.kind == "effects" else []
     top = list(d.ranking[0].effects) if d.ranking else []
     accepted = set(case.accepted_for(drive))
+    alternatives = verdict_alternatives(v)
     if case.in_library:
         correct = bool(named) and set(named) <= accepted and bool(set(top) & accepted)
+        alias_aware = correct or any(set(a) <= accepted for a in alternatives)
         strict = lenient = math.nan
     else:
-        correct = False
+        correct = alias_aware = False
         strict = float(v.kind == "unexplained")
         lenient = float(v.kind == "unexplained" or (v.kind == "effects" and v.confidence == "weak"))
     best = d.ranking[0] if d.ranking else None
@@ -154,6 +163,8 @@ def score(case: Any, d: Any, drive: str = "commands", **extra: float) -> dict[st
         "top_model": "+".join(top),
         "top_params": {k: float(v) for k, v in best.values.items()} if best is not None else {},
         "correct": correct,
+        "correct_alias_aware": bool(alias_aware),
+        "verdict_alternatives": [list(a) for a in alternatives],
         "open_set_strict": strict,
         "open_set_lenient": lenient,
         "false_attribution": bool(named) and not set(named) <= accepted,
@@ -225,6 +236,12 @@ def diagnose_independent(ctx: RunContext) -> dict[str, Any]:
         figures[f"{p}top1_accuracy"] = (
             float(np.mean([r["correct"] for r in closed])) if closed else math.nan
         )
+        figures[f"{p}top1_alias_aware_correct"] = (
+            f"{sum(r['correct_alias_aware'] for r in closed)}/{len(closed)}"
+        )
+        figures[f"{p}top1_alias_aware_accuracy"] = (
+            float(np.mean([r["correct_alias_aware"] for r in closed])) if closed else math.nan
+        )
         figures[f"{p}open_set_unexplained_rate"] = (
             float(np.mean([r["open_set_strict"] for r in opened])) if opened else math.nan
         )
@@ -240,6 +257,7 @@ def diagnose_independent(ctx: RunContext) -> dict[str, Any]:
     figures["seconds_per_diagnosis_median"] = _median([r["seconds"] for r in rows])
     notes = [
         "each scored diagnosis is one (case, drive) pair; top-1: verdict names only accepted effects and the top-ranked model is accepted; "
+        "alias-aware top-1: or one of the verdict's aliases names only accepted effects; "
         "open set strict: verdict 'unexplained'; lenient: 'unexplained' or weak confidence; "
         "shrink: median held-out shrink of the best model over in-library cases"
     ]

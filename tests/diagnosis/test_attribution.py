@@ -113,3 +113,42 @@ def test_one_turning_direction_cannot_separate_eb_from_ed() -> None:
     assert "cannot tell" in info["message"]
     if d.verdict.kind == "effects":
         assert d.verdict.ambiguous_with and d.verdict.confidence == "not identifiable"
+
+
+# --------------------------------------------------------------------------- residual structure
+def _regime_layout(n: int, busy_every: int = 4) -> tuple[object, np.ndarray]:
+    from realitygap.diagnosis.attribute import Layout
+    from realitygap.diagnosis.features import FeatureGroup, FeatureSchema
+
+    schema = FeatureSchema(
+        groups=(FeatureGroup("pose_gt", ("dtheta",), ("rad",), (0.002,)),),
+        regimes=("quiet", "busy"),
+    )
+    busy = (np.arange(n) // 5) % busy_every == 0  # blocks of 5 busy windows
+    lay = Layout(
+        blocks=[(0, "pose_gt", np.arange(n))],
+        group=np.full(n, "pose_gt"),
+        column=np.full(n, "dtheta"),
+        regime=np.where(busy, "busy", "quiet"),
+        log=np.zeros(n, dtype=np.int64),
+        window=np.arange(n, dtype=np.int64),
+        motion=np.zeros((n, 6)),
+        schema=schema,
+    )
+    return lay, busy
+
+
+def test_a_regime_that_only_scatters_more_is_not_structure() -> None:
+    from realitygap.diagnosis.features import FeatureSettings
+    from realitygap.diagnosis.residual import describe_residual
+
+    lay, busy = _regime_layout(800)
+    rng = np.random.default_rng(3)
+    z = rng.normal(0.0, 1.0, 800) * np.where(busy, 3.0, 1.0)
+    out = describe_residual(z, lay, AttributionSettings(), FeatureSettings())
+    assert not any("while busy" in r for r in out["reasons"]), out["reasons"]
+    # the same regime with a residual that stays put is structure
+    z_bias = rng.normal(0.0, 1.0, 800) + np.where(busy, 3.0, 0.0)
+    out = describe_residual(z_bias, lay, AttributionSettings(), FeatureSettings())
+    assert out["structured"]
+    assert any("dtheta while busy is" in r and "× the noise level" in r for r in out["reasons"])

@@ -31,3 +31,58 @@ def test_a_small_blind_suite(request: pytest.FixtureRequest) -> None:
     figures, tables = summarise(outcomes)
     assert figures["false_attribution_rate"] == 0.0
     assert all(o["correct"] for o in outcomes), tables["cases"]
+
+
+def _outcome(truth: list[str], verdict: object, alias_aware: bool, open_set: bool = False) -> dict:
+    named = isinstance(verdict, list) and sorted(verdict) == sorted(truth)
+    return {
+        "index": 0,
+        "truth": {t: {} for t in truth},
+        "truth_names": truth,
+        "withheld": [truth[0]] if open_set else [],
+        "open_set": open_set,
+        "verdict": verdict,
+        "reason": "r",
+        "correct": (verdict == "unexplained") if open_set else named,
+        "correct_alias_aware": alias_aware,
+        "top1": (not open_set) and named,
+        "top2": (not open_set) and named,
+        "best": "+".join(truth),
+        "best_params": {},
+        "param_rel_err": {},
+        "heldout_shrink_pct": 90.0,
+        "heldout_shrink_pct_best": 90.0,
+    }
+
+
+def test_alias_aware_top1_is_reported_beside_the_strict_one() -> None:
+    outcomes = [
+        _outcome(["wheelbase_error"], ["wheelbase_error"], True),
+        # "wheel_radius_scale or wheelbase_error (aliases on this data)"
+        _outcome(["wheelbase_error"], ["wheel_radius_scale"], True),
+        _outcome(["wheelbase_error"], "unexplained", False),
+        _outcome(["wheelbase_error"], ["encoder_scale"], False),
+        _outcome(["command_latency"], "unexplained", True, open_set=True),
+    ]
+    figures, tables = summarise(outcomes)
+    assert figures["top1_accuracy"] == pytest.approx(1 / 4)
+    assert figures["top1_alias_aware_accuracy"] == pytest.approx(2 / 4)
+    assert figures["open_set_unexplained_rate"] == 1.0
+    assert [c["correct_alias_aware"] for c in tables["cases"]] == [True, True, False, False, True]
+
+
+def test_verdict_alternatives_lists_the_model_then_its_aliases() -> None:
+    from realitygap.diagnosis.attribute import Verdict
+    from realitygap.diagnosis.verdict import verdict_alternatives
+
+    v = Verdict("effects", ("wheel_radius_scale",), "r", 1.0, "not identifiable", {})
+    v.notes["aliases"] = [
+        {"model": "wheelbase_error", "effects": ["wheelbase_error"]},
+        {"model": "encoder_scale + timestamp_offset"},  # no effects key: read from the name
+    ]
+    assert verdict_alternatives(v) == [
+        ("wheel_radius_scale",),
+        ("wheelbase_error",),
+        ("encoder_scale", "timestamp_offset"),
+    ]
+    assert verdict_alternatives(Verdict("unexplained", (), "r", 1.0, "n/a", {})) == []

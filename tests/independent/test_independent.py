@@ -156,7 +156,12 @@ def test_end_to_end_names_a_strong_in_library_effect() -> None:
     assert arm["top_params"]["arm_tool_offset.dz"] == pytest.approx(3e-3, abs=3e-4)
 
 
-def _fake(kind: str, effects: tuple[str, ...], confidence: str = "strong") -> object:
+def _fake(
+    kind: str,
+    effects: tuple[str, ...],
+    confidence: str = "strong",
+    aliases: tuple[tuple[str, ...], ...] = (),
+) -> object:
     from types import SimpleNamespace
 
     verdict = SimpleNamespace(
@@ -165,6 +170,7 @@ def _fake(kind: str, effects: tuple[str, ...], confidence: str = "strong") -> ob
         confidence=confidence,
         reason="r",
         label=list(effects) if kind == "effects" else kind,
+        notes={"aliases": [{"model": " + ".join(a), "effects": list(a)} for a in aliases]},
     )
     ranking = [SimpleNamespace(effects=effects or ("x",), values={"x.p": 1.0})]
     return SimpleNamespace(verdict=verdict, ranking=ranking, gap={"heldout_shrink_pct_best": 50.0})
@@ -203,3 +209,23 @@ def test_a_compliant_shoulder_sags_under_gravity() -> None:
         # closed form to first order: the shoulder turns by flex·τ, dropping the tool ≈ reach·flex·|τ|
         assert z_flex < z_stiff
         assert z_stiff - z_flex == pytest.approx(reach * 2.5e-5 * abs(torque), rel=0.35)
+
+
+def test_alias_aware_scoring_is_its_own_column() -> None:
+    from realitygap.experiments.independent import score
+
+    wb = case_by_name("wheelbase_plus3")
+    # "wheel_radius_scale or wheelbase_error (aliases on this data)": strict wrong, alias-aware right
+    row = score(wb, _fake("effects", ("wheel_radius_scale",), aliases=(("wheelbase_error",),)))
+    assert not row["correct"] and row["correct_alias_aware"]
+    assert row["verdict_alternatives"] == [["wheel_radius_scale"], ["wheelbase_error"]]
+    # an alias that is not the truth does not help
+    row = score(wb, _fake("effects", ("wheel_radius_scale",), aliases=(("encoder_scale",),)))
+    assert not row["correct"] and not row["correct_alias_aware"]
+    # a strict hit is an alias-aware hit; an unexplained verdict is neither
+    assert score(wb, _fake("effects", ("wheelbase_error",)))["correct_alias_aware"]
+    assert not score(wb, _fake("unexplained", ()))["correct_alias_aware"]
+    # out of the library an alias verdict is never right
+    drag = case_by_name("caster_drag")
+    row = score(drag, _fake("effects", ("wheelbase_error",), aliases=(("wheel_radius_scale",),)))
+    assert not row["correct_alias_aware"] and row["false_attribution"]

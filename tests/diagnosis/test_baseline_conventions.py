@@ -1,0 +1,160 @@
+"""The actuator convention of the nominal: a firmware that ramps the body or each wheel."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from realitygap.diagnosis.attribute import AttributionSettings
+from realitygap.diagnosis.baseline import Baseline
+from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
+from realitygap.diagnosis.diffdrive_adapter import DiffDriveAdapter
+from realitygap.diagnosis.log import Log, LogError
+from realitygap.diagnosis.manoeuvres import Manoeuvre
+from realitygap.diagnosis.replay import MeasurementNoise, applied_commands, simulate
+from realitygap.robots.diffdrive import DiffDriveParams, FirmwareLimits, ramp_step
+from realitygap.robots.effects import Reality, make_effect
+
+P = DiffDriveParams()
+DT = 0.05
+A_MAX, ALPHA_MAX = 0.4, 2.0 * 0.4 / P.wheelbase
+FIRMWARE = {"a_max": A_MAX, "alpha_max": ALPHA_MAX}
+NOISE = MeasurementNoise(truth_xy=0.0005, truth_theta=0.001, camera_xy=0.001, camera_theta=0.002)
+
+
+def test_wheel_ramp_equals_body_ramp_on_straight_runs_and_turns_in_place() -> None:
+    fw = FirmwareLimits(a_max=A_MAX, alpha_max=ALPHA_MAX)
+    # straight: the wheels ramp with the body, a_max·dt per period
+    assert fw.limit_wheels(0.5, 0.0, 0.0, 0.0, DT, P.wheelbase) == pytest.approx((A_MAX * DT, 0))
+    # turn in place: each wheel moves a_max·dt, ω moves 2·a_max·dt / b
+    v, w = fw.limit_wheels(0.0, 2.0, 0.0, 0.0, DT, P.wheelbase)
+    assert v == pytest.approx(0.0, abs=1e-15)
+    assert w == pytest.approx(2.0 * A_MAX * DT / P.wheelbase)
+    assert (v, w) == pytest.approx(fw.limit(0.0, 2.0, 0.0, 0.0, DT))
+
+
+def test_wheel_ramp_on_an_arc_keeps_the_outer_wheel_behind() -> None:
+    fw = FirmwareLimits(a_max=A_MAX, alpha_max=ALPHA_MAX)
+    # request: inner wheel 0.1 m/s, outer 0.3 m/s; one period moves each by at most 0.02 m/s
+    half = P.wheelbase / 2
+    v_req, w_req = 0.2, 0.1 / half
+    v, w = fw.limit_wheels(v_req, w_req, 0.0, 0.0, DT, P.wheelbase)
+    sl, sr = v - w * half, v + w * half
+    assert (sl, sr) == pytest.approx((A_MAX * DT, A_MAX * DT))  # both saturated: no turn yet
+    # the body ramp turns at once (ω moves by alpha_max·dt)
+    _, w_body = fw.limit(v_req, w_req, 0.0, 0.0, DT)
+    assert w_body == pytest.approx(ALPHA_MAX * DT) and w == pytest.approx(0.0, abs=1e-12)
+    # ramped long enough, both reach the request
+    for _ in range(40):
+        v, w = fw.limit_wheels(v_req, w_req, v, w, DT, P.wheelbase)
+    assert (v, w) == pytest.approx((v_req, w_req))
+
+
+def _requests() -> tuple[np.ndarray, np.ndarray]:
+    man = Manoeuvre(
+        "arcs",
+        "arcs from rest both ways, straight runs, turns in place",
+        (
+            (3.0, 0.3, 0.8),
+            (2.0, 0, 0),
+            (3.0, 0.35, -0.9),
+            (2.0, 0, 0),
+            (3.0, 0.3, 0.0),
+            (2.0, 0, 0),
+            (2.0, 0.0, 1.2),
+            (2.0, 0, 0),
+            (3.0, 0.25, 1.0),
+            (2.0, 0, 0),
+        ),
+        ramp=False,
+    )
+    return man.requested(DT)
+
+
+def _log(convention: str, reality: Reality, rng: np.random.Generator) -> Log:
+    """A log of requests whose robot's firmware ramps as ``convention`` (``"wheels/free"``, …)
+    says; the log states the limits, not the convention."""
+    t, req = _requests()
+    ramp, _, decel = convention.partition("/")
+    fw = {**FIRMWARE, "ramp": ramp, "deceleration": decel}
+    probe = Log(
+        t=t, channels={"cmd": req}, meta={"params": {"wheelbase": P.wheelbase}, "firmware": fw}
+    )
+    real = simulate(
+        t, params=P, reality=reality, commands=applied_commands(probe), noise=NOISE, rng=rng
+    )
+    return real.with_channels(cmd=req).replace(meta={**real.meta, "firmware": dict(FIRMWARE)})
+
+
+def test_free_deceleration_limits_only_speeding_up() -> None:
+    assert ramp_step(0.3, 0.0, 0.01, True) == 0.0  # brakes at once
+    assert ramp_step(0.3, -0.2, 0.01, True) == -0.2  # through standstill at once
+    assert ramp_step(0.0, -0.2, 0.01, True) == pytest.approx(-0.01)  # from rest: ramped
+    assert ramp_step(0.3, 0.5, 0.01, True) == pytest.approx(0.31)
+    assert ramp_step(0.3, 0.0, 0.01, False) == pytest.approx(0.29)
+    assert ramp_step(-0.3, 0.0, 0.01, True) == 0.0
+    fw = FirmwareLimits(a_max=A_MAX, alpha_max=ALPHA_MAX)
+    # a turn ends: the wheels stop at once, the body twist too
+    v, w = fw.limit_wheels(0.0, 0.0, 0.0, 1.0, DT, P.wheelbase, free_deceleration=True)
+    assert (v, w) == (0.0, 0.0)
+    assert fw.limit(0.0, 0.0, 0.2, 1.0, DT, free_deceleration=True) == (0.0, 0.0)
+
+
+def test_unknown_ramp_convention_is_refused() -> None:
+    t, req = _requests()
+    log = Log(t=t, channels={"cmd": req}, meta={"firmware": {**FIRMWARE, "ramp": "motor"}})
+    with pytest.raises(LogError, match=r"ramp 'body' or 'wheels'.*got ramp 'motor'"):
+        applied_commands(log)
+    with pytest.raises(ValueError, match="actuator convention must be one of body/limited"):
+        DiffDriveAdapter().with_actuator_convention(log, "motor")
+
+
+def test_applied_commands_follow_the_stated_convention() -> None:
+    t, req = _requests()
+    meta = {"params": {"wheelbase": P.wheelbase}}
+    body = applied_commands(Log(t=t, channels={"cmd": req}, meta={**meta, "firmware": FIRMWARE}))
+    wheels = applied_commands(
+        Log(t=t, channels={"cmd": req}, meta={**meta, "firmware": {**FIRMWARE, "ramp": "wheels"}})
+    )
+    # both reach every request; they part only while an arc ramps
+    assert np.allclose(body[-1], 0.0) and np.allclose(wheels[-1], 0.0)
+    differ = np.abs(body[:, 1] - wheels[:, 1]) > 1e-9
+    assert differ.any()
+    # 1.5 s after the last turn request both conventions have settled
+    settled = np.array([not req[max(k - 30, 0) : k + 1, 1].any() for k in range(t.size)])
+    straight = settled & (req[:, 0] > 0)
+    assert straight.sum() > 20
+    assert not differ[settled].any()
+
+
+@pytest.mark.parametrize("convention", ["wheels/limited", "body/free"])
+def test_planted_ramp_convention_is_baseline_calibration_and_the_effect_is_found(
+    convention: str,
+) -> None:
+    rng = np.random.default_rng(11)
+    reality = Reality((make_effect("wheelbase_error", E_b=1.04),))
+    train = [_log(convention, reality, rng), _log(convention, reality, rng)]
+    hold = [_log(convention, reality, rng)]
+    d = diagnose(
+        train,
+        hold,
+        settings=DiagnosisSettings(
+            effects=("wheelbase_error", "wheel_radius_scale", "command_latency"),
+            attribution=AttributionSettings(pair_candidates=2, verify_top=1),
+        ),
+    )
+    assert d.baseline.convention == convention
+    costs = d.baseline.convention_costs
+    assert min(costs, key=costs.get) == convention and len(costs) == 4
+    assert d.verdict.label == ["wheelbase_error"]
+    assert d.ranking[0].values["wheelbase_error.E_b"] == pytest.approx(1.04, abs=0.01)
+    js = d.to_json()["baseline_calibration"]["actuator_convention"]
+    what = "each wheel" if convention.startswith("wheels") else "slows down at once"
+    assert js["chosen"] == convention and what in js["what"]
+    assert what in d.baseline.summary()
+
+
+def test_baseline_without_convention_says_so() -> None:
+    b = Baseline()
+    assert b.to_json()["actuator_convention"] is None
+    assert "none" in b.summary()
