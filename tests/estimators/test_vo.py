@@ -219,7 +219,7 @@ def test_depth_weighting_copes_with_depth_noise() -> None:
         err = []
         for pose in SMALL_MOTIONS:
             rng = np.random.default_rng(1)
-            vo = make_vo(depth_weighting=weighting)
+            vo = make_vo(depth_weighting=weighting, motion_solver="3d3d")
             vo.update(with_depth_noise(frame_at(*ORIGIN), rng))
             result = vo.update(with_depth_noise(frame_at(*pose), rng))
             assert result.ok
