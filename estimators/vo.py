@@ -10,11 +10,19 @@ The front end follows the classical RGB-D pipeline
 5. estimate the rigid motion with RANSAC over Kabsch fits
    (:func:`~realitygap.estimators.registration.ransac_rigid`,
    :func:`~realitygap.estimators.registration.kabsch_umeyama`), each pair weighted
-   by its inverse depth variance, and refine it with point-to-point ICP
-   (:func:`~realitygap.estimators.registration.icp_point_to_point`);
+   by its inverse depth variance, and refine it by maximum likelihood under the
+   RGB-D noise model (pixel noise across each viewing ray, depth noise along
+   it; ``VOParams.motion_solver`` also offers point-to-point ICP,
+   :func:`~realitygap.estimators.registration.icp_point_to_point`, and PnP);
 6. chain the key-frame-relative motions into the camera trajectory; a frame
    becomes the next key-frame when the camera has moved or turned far enough or
-   the inliers thin out.
+   the inliers thin out. When the key-frame no longer matches (it left the
+   view), the frame is registered against the last tracked frame instead,
+   becomes the key-frame, and says so in :attr:`VOResult.reference`.
+
+Keypoints are spread over the image by a grid (``VOParams.bucket_grid``), so
+near floor and furniture texture is kept beside the strong corners of far
+posters: near points fix the translation, far ones the rotation.
 
 Frames: ``camera`` is the optical frame (x right, y down, z forward), ``base``
 the robot body (x forward, y left, z up), ``world`` the frame in which the
@@ -551,14 +559,9 @@ class RGBDVisualOdometry:
         last = self._last
         if status is not VOStatus.OK and last is not None and last is not kf:
             # the key-frame is out of view: chain through the last tracked frame instead
+            counts_b: dict[str, object] = {"n_keypoints": n_kp}
             status_b, motion_b = self._register(
-                last,
-                pixels,
-                desc,
-                points,
-                valid_now,
-                counts_b := {"n_keypoints": n_kp},
-                frame.intrinsics,
+                last, pixels, desc, points, valid_now, counts_b, frame.intrinsics
             )
             if status_b is VOStatus.OK:
                 status, motion, counts, reference = status_b, motion_b, counts_b, "previous_frame"
