@@ -51,6 +51,7 @@ from realitygap.estimators.registration import (
     ransac_rigid,
     rotation_angle,
 )
+from realitygap.estimators.rgbd_motion import point_covariance, refine_motion_ml, solve_pnp
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -624,7 +625,15 @@ class RGBDVisualOdometry:
 
         P_kf, P_cur = ref.points[i_kf], points[i_cur]
         if p.motion_solver == "pnp":
-            found = self._solve_pnp(P_kf, pixels[i_cur], intrinsics)
+            found = solve_pnp(
+                P_kf,
+                pixels[i_cur],
+                intrinsics,
+                self._rng,
+                p.ransac_max_iters,
+                p.pnp_reprojection_px,
+                p.min_inliers,
+            )
             if found is None:
                 return VOStatus.RANSAC_FAILED, None
             R, t, inl = found
@@ -644,7 +653,15 @@ class RGBDVisualOdometry:
             except RegistrationError:
                 return VOStatus.RANSAC_FAILED, None
             if p.motion_solver == "ml":
-                R, t = self._refine_ml(P_cur[inl], P_kf[inl], R, t, intrinsics)
+                noise = (p.pixel_sigma_px, p.depth_sigma_a_m, p.depth_sigma_b_per_m)
+                R, t = refine_motion_ml(
+                    P_cur[inl],
+                    P_kf[inl],
+                    R,
+                    t,
+                    point_covariance(P_cur[inl], intrinsics, *noise),
+                    point_covariance(P_kf[inl], intrinsics, *noise),
+                )
             elif p.use_icp:
                 R, t = self._refine(P_cur[inl], P_kf[inl], R, t, None if w is None else w[inl])
         res = P_cur[inl] @ R.T + t - P_kf[inl]
@@ -759,116 +776,6 @@ class RGBDVisualOdometry:
             keep = np.lexsort((-response, rank))[: p.max_features]
             kps = [kps[i] for i in np.sort(keep)]
         return self._detector.compute(gray, kps)
-
-    def _solve_pnp(
-        self, P_kf: FloatArray, px: FloatArray, intr: CameraIntrinsics
-    ) -> tuple[FloatArray, FloatArray, npt.NDArray[np.bool_]] | None:
-        """Pose ``(R, t)`` of the current camera in the key-frame (``P_kf ≈ R P_cur + t``)
-        from key-frame points and current pixels, and the inlier mask; ``None`` if RANSAC
-        finds fewer than ``min_inliers``."""
-        p = self.params
-        K = np.array([[intr.fx, 0.0, intr.cx], [0.0, intr.fy, intr.cy], [0.0, 0.0, 1.0]])
-        obj = np.ascontiguousarray(P_kf, dtype=np.float64)
-        img = np.ascontiguousarray(px, dtype=np.float64)
-        cv2.setRNGSeed(int(self._rng.integers(2**31)))  # OpenCV's RANSAC draws from its own RNG
-        ok, rvec, tvec, idx = cv2.solvePnPRansac(
-            obj,
-            img,
-            K,
-            None,
-            iterationsCount=p.ransac_max_iters,
-            reprojectionError=p.pnp_reprojection_px,
-            confidence=0.999,
-            flags=cv2.SOLVEPNP_EPNP,
-        )
-        if not ok or idx is None or len(idx) < p.min_inliers:
-            return None
-        inl = np.zeros(len(obj), dtype=bool)
-        inl[idx.ravel()] = True
-        rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], K, None, rvec, tvec)
-        # re-select the inliers at the refined pose
-        proj, _ = cv2.projectPoints(obj, rvec, tvec, K, None)
-        err = np.linalg.norm(proj.reshape(-1, 2) - img, axis=1)
-        inl = err <= p.pnp_reprojection_px
-        if np.count_nonzero(inl) < p.min_inliers:
-            return None
-        R_ck, _ = cv2.Rodrigues(rvec)  # key-frame → current: X_cur = R_ck X_kf + t_ck
-        R = R_ck.T
-        t = -R @ tvec.ravel()
-        return R, t, inl
-
-    def _point_covariance(self, P: FloatArray, intr: CameraIntrinsics) -> FloatArray:
-        """Covariances (n, 3, 3) of back-projected points: pixel noise across the ray,
-        depth noise along it (first-order propagation through the back-projection)."""
-        p = self.params
-        z = P[:, 2]
-        n = len(P)
-        J = np.zeros((n, 3, 3))
-        J[:, 0, 0] = z / intr.fx
-        J[:, 1, 1] = z / intr.fy
-        J[:, 0, 2] = P[:, 0] / z
-        J[:, 1, 2] = P[:, 1] / z
-        J[:, 2, 2] = 1.0
-        s_z = p.depth_sigma_a_m + p.depth_sigma_b_per_m * z * z
-        D = np.zeros((n, 3, 3))
-        D[:, 0, 0] = D[:, 1, 1] = p.pixel_sigma_px**2
-        D[:, 2, 2] = s_z * s_z
-        return J @ D @ J.transpose(0, 2, 1)
-
-    def _refine_ml(
-        self,
-        P_cur: FloatArray,
-        P_kf: FloatArray,
-        R: FloatArray,
-        t: FloatArray,
-        intr: CameraIntrinsics,
-        iterations: int = 6,
-    ) -> tuple[FloatArray, FloatArray]:
-        """Gauss–Newton on SE(3) for ``P_kf ≈ R P_cur + t`` under anisotropic point noise.
-
-        Minimises ``Σ eᵢᵀ Cᵢ⁻¹ eᵢ`` with ``eᵢ = P_kf,i − R P_cur,i − t`` and
-        ``Cᵢ = Σ_kf,i + R Σ_cur,i Rᵀ`` (:meth:`_point_covariance`); kept only if
-        it lowers that cost.
-        """
-        S_kf = self._point_covariance(P_kf, intr)
-        S_cur = self._point_covariance(P_cur, intr)
-
-        def info(R: FloatArray) -> FloatArray:
-            return np.linalg.inv(S_kf + R @ S_cur @ R.T)
-
-        def cost(R: FloatArray, t: FloatArray, W: FloatArray) -> float:
-            e = P_kf - P_cur @ R.T - t
-            return float(np.einsum("ni,nij,nj->", e, W, e))
-
-        W = info(R)
-        best = cost(R, t, W)
-        R0, t0, c0 = R, t, best
-        for _ in range(iterations):
-            q = P_cur @ R.T
-            e = P_kf - q - t
-            # e(δθ, δt) ≈ e + [q]× δθ − δt  for R ← exp([δθ]×) R, t ← t + δt
-            Jr = np.zeros((len(q), 3, 6))
-            Jr[:, 0, 1], Jr[:, 0, 2] = -q[:, 2], q[:, 1]
-            Jr[:, 1, 0], Jr[:, 1, 2] = q[:, 2], -q[:, 0]
-            Jr[:, 2, 0], Jr[:, 2, 1] = -q[:, 1], q[:, 0]
-            Jr[:, :, 3:] = -np.eye(3)
-            JW = Jr.transpose(0, 2, 1) @ W
-            H = np.einsum("nij,njk->ik", JW, Jr)
-            g = np.einsum("nij,nj->i", JW, e)
-            try:
-                delta = -np.linalg.solve(H, g)
-            except np.linalg.LinAlgError:
-                break
-            R_new = cv2.Rodrigues(delta[:3])[0] @ R
-            t_new = t + delta[3:]
-            W_new = info(R_new)
-            c_new = cost(R_new, t_new, W_new)
-            R, t, W = R_new, t_new, W_new
-            if abs(best - c_new) < 1e-9 * max(best, 1.0):
-                best = c_new
-                break
-            best = c_new
-        return (R, t) if cost(R, t, info(R)) <= cost(R0, t0, info(R0)) or c0 != c0 else (R0, t0)
 
     def _refine(
         self,
