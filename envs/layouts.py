@@ -18,8 +18,12 @@ from realitygap.robots.world import Primitive, Shape
 FloatArray = npt.NDArray[np.float64]
 
 
-def room_walls(half_size: float, height: float = 0.8, thickness: float = 0.1) -> list[Primitive]:
-    """Four walls enclosing the square ``[-half_size, half_size]²`` (inner faces)."""
+def room_walls(half_size: float, height: float = 2.0, thickness: float = 0.1) -> list[Primitive]:
+    """Four walls enclosing the square ``[-half_size, half_size]²`` (inner faces).
+
+    They stand ``height`` m high (2 m by default, so that the camera sees wall, not
+    sky, above the obstacles out to the far side of the room).
+    """
     h, t = half_size, thickness / 2.0
     return [
         Primitive("wall_n", Shape.BOX, (0.0, h + t), height, half_extents=(h + 2 * t, t)),

@@ -62,6 +62,7 @@ from realitygap.robots.diffdrive import (
 )
 from realitygap.robots.effects import Reality
 from realitygap.robots.sensors import PlanarScanner, RGBDCamera, SensorMode, check_sensor_mode
+from realitygap.robots.textures import SurfaceKind
 from realitygap.robots.world import Primitive, World
 
 MAX_BEAMS = 4096
@@ -411,12 +412,19 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         """A fresh world: floor, the episode's walls and obstacles, the robot at ``start``."""
         w = self.world
         w.reset_simulation()
-        w.add_floor()
         textured = self.sensor_mode is SensorMode.IMAGE or self.render_mode == "rgb_array"
+        # one draw from the episode's generator whatever the mode, so that fast and image
+        # episodes of one seed share their layouts and noise
         tex_rng = np.random.default_rng(int(rng.integers(2**31)))
-        for prim in self._obstacles:
-            tex = w.texture(prim.name, tex_rng) if textured else None
-            w.add_primitive(prim, texture_id=tex)
+        if textured:
+            w.add_floor(textured_half_size=self.room_half_size + 0.1, rng=tex_rng)
+            for prim in self._obstacles:
+                kind = SurfaceKind.WALL if prim.name.startswith("wall") else SurfaceKind.OBJECT
+                w.add_primitive(prim, surface=kind, rng=tex_rng)
+        else:
+            w.add_floor()
+            for prim in self._obstacles:
+                w.add_primitive(prim)
         robot = DiffDriveRobot(w, self.true_params)
         robot.reset(start)
         self.robot = robot

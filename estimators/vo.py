@@ -2,7 +2,7 @@
 
 The front end follows the classical RGB-D pipeline
 
-1. detect and describe keypoints (SIFT, or ORB for speed) on the grey image;
+1. detect and describe keypoints (ORB by default, or SIFT) on the grey image;
 2. match descriptors against the current key-frame with Lowe's ratio test;
 3. reject outlier matches with Graph Transformation Matching
    (:func:`~realitygap.estimators.gtm.gtm_filter`);
@@ -10,11 +10,19 @@ The front end follows the classical RGB-D pipeline
 5. estimate the rigid motion with RANSAC over Kabsch fits
    (:func:`~realitygap.estimators.registration.ransac_rigid`,
    :func:`~realitygap.estimators.registration.kabsch_umeyama`), each pair weighted
-   by its inverse depth variance, and refine it with point-to-point ICP
-   (:func:`~realitygap.estimators.registration.icp_point_to_point`);
+   by its inverse depth variance, and refine it by maximum likelihood under the
+   RGB-D noise model (pixel noise across each viewing ray, depth noise along
+   it; ``VOParams.motion_solver`` also offers point-to-point ICP,
+   :func:`~realitygap.estimators.registration.icp_point_to_point`, and PnP);
 6. chain the key-frame-relative motions into the camera trajectory; a frame
    becomes the next key-frame when the camera has moved or turned far enough or
-   the inliers thin out.
+   the inliers thin out. When the key-frame no longer matches (it left the
+   view), the frame is registered against the last tracked frame instead,
+   becomes the key-frame, and says so in :attr:`VOResult.reference`.
+
+Keypoints are spread over the image by a grid (``VOParams.bucket_grid``), so
+near floor and furniture texture is kept beside the strong corners of far
+posters: near points fix the translation, far ones the rotation.
 
 Frames: ``camera`` is the optical frame (x right, y down, z forward), ``base``
 the robot body (x forward, y left, z up), ``world`` the frame in which the
@@ -43,6 +51,7 @@ from realitygap.estimators.registration import (
     ransac_rigid,
     rotation_angle,
 )
+from realitygap.estimators.rgbd_motion import point_covariance, refine_motion_ml, solve_pnp
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -140,6 +149,31 @@ class VOParams:
         :math:`\sigma_z \propto z^2` noise of RGB-D sensors.
     use_icp : bool
         Refine the RANSAC motion with point-to-point ICP on the inlier points.
+    bucket_grid : tuple of int or None
+        ``(columns, rows)`` of a grid over the image: from four times
+        ``max_features`` candidates (twice for SIFT), each cell's strongest are
+        kept in turn, so features spread over the image; ``None``: the
+        detector's own ``max_features`` strongest.
+    motion_solver : {"ml", "pnp", "3d3d"}
+        ``"ml"`` (default): RANSAC over weighted Kabsch fits selects the inliers,
+        then Gauss–Newton on SE(3) minimises the Mahalanobis distance of each
+        pair under its anisotropic covariance — ``pixel_sigma_px`` across the
+        viewing ray, ``σ_z = depth_sigma_a_m + depth_sigma_b_per_m·z²`` along it,
+        in both frames — the maximum-likelihood motion for an RGB-D sensor
+        (lateral and vertical motion and the rotation come from the pixels, the
+        forward motion from the near, precise depths).
+        ``"pnp"``: the key-frame's 3-D points against the current frame's pixels
+        (EPnP in RANSAC, then Levenberg–Marquardt on the reprojection error of
+        the inliers); the current frame's depth only selects the pairs, so its
+        noise (σ ∝ z²) does not enter the motion and the rotation is as precise
+        as the keypoints. ``"3d3d"``: weighted Kabsch fits in RANSAC and ICP on
+        the points of both frames.
+    pnp_reprojection_px : float
+        Inlier threshold of the PnP RANSAC, pixels.
+    pixel_sigma_px : float
+        Keypoint position noise (``"ml"``), pixels.
+    depth_sigma_a_m, depth_sigma_b_per_m : float
+        Depth noise model of the ``"ml"`` solver, m and 1/m.
     icp_max_iters : int
         ICP iteration cap.
     icp_tol_m : float
@@ -162,7 +196,7 @@ class VOParams:
         Seed of the RANSAC sampler (reset with :meth:`RGBDVisualOdometry.reset`).
     """
 
-    detector: Detector | str = Detector.SIFT
+    detector: Detector | str = Detector.ORB
     max_features: int = 500
     ratio: float = 0.75
     min_keypoints: int = 10
@@ -175,6 +209,12 @@ class VOParams:
     min_inliers: int = 8
     depth_weighting: bool = True
     use_icp: bool = True
+    bucket_grid: tuple[int, int] | None = (8, 6)
+    motion_solver: str = "ml"
+    pnp_reprojection_px: float = 2.0
+    pixel_sigma_px: float = 0.5
+    depth_sigma_a_m: float = 0.001
+    depth_sigma_b_per_m: float = 0.002
     icp_max_iters: int = 20
     icp_tol_m: float = 1e-5
     keyframe_min_inliers: int = 60
@@ -223,6 +263,25 @@ class VOParams:
             )
         if not self.depth_edge_ratio > 0.0:
             raise ValueError(f"depth_edge_ratio must be > 0, got {self.depth_edge_ratio}")
+        if self.bucket_grid is not None and (
+            len(self.bucket_grid) != 2 or min(self.bucket_grid) < 1
+        ):
+            raise ValueError(
+                f"bucket_grid must be None or two positive cell counts, got {self.bucket_grid!r}"
+            )
+        if self.motion_solver not in ("ml", "pnp", "3d3d"):
+            raise ValueError(
+                f"motion_solver must be 'ml', 'pnp' or '3d3d', got {self.motion_solver!r}"
+            )
+        if not (
+            self.pixel_sigma_px > 0 and self.depth_sigma_a_m > 0 and self.depth_sigma_b_per_m >= 0
+        ):
+            raise ValueError(
+                "need pixel_sigma_px > 0, depth_sigma_a_m > 0 and depth_sigma_b_per_m >= 0, got "
+                f"{self.pixel_sigma_px}, {self.depth_sigma_a_m}, {self.depth_sigma_b_per_m}"
+            )
+        if not self.pnp_reprojection_px > 0.0:
+            raise ValueError(f"pnp_reprojection_px must be > 0, got {self.pnp_reprojection_px}")
         if self.icp_tol_m < 0.0 or self.max_lost_frames < 0 or self.keyframe_min_inliers < 0:
             raise ValueError("icp_tol_m, max_lost_frames and keyframe_min_inliers must be ≥ 0")
 
@@ -257,6 +316,11 @@ class VOResult:
         valid depth on both sides; RANSAC/ICP inliers.
     keyframe : bool
         This frame became the new key-frame.
+    reference : str
+        What the motion was registered against: ``"keyframe"``, or
+        ``"previous_frame"`` when the key-frame no longer matched (too few shared
+        features in view) and the frame was chained through the last tracked
+        frame instead; such a frame always becomes the new key-frame.
     rms_m : float
         RMS 3-D residual of the inliers at the final motion [m] (``nan``-free;
         0 when no motion was estimated).
@@ -281,6 +345,7 @@ class VOResult:
     n_depth: int = 0
     n_inliers: int = 0
     keyframe: bool = False
+    reference: str = "keyframe"
     rms_m: float = 0.0
     inlier_indices: npt.NDArray[np.intp] = field(default_factory=lambda: np.zeros((0, 2), np.intp))
     inlier_pixels_prev: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
@@ -386,10 +451,10 @@ class RGBDVisualOdometry:
         p = self.params
         self._detector: cv2.Feature2D
         if p.detector == Detector.SIFT:
-            self._detector = cv2.SIFT.create(nfeatures=p.max_features)
+            self._detector = cv2.SIFT.create(nfeatures=p.max_features * (2 if p.bucket_grid else 1))
             self._matcher = cv2.BFMatcher(cv2.NORM_L2)
         else:
-            self._detector = cv2.ORB.create(nfeatures=p.max_features)
+            self._detector = cv2.ORB.create(nfeatures=p.max_features * (4 if p.bucket_grid else 1))
             self._matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
         self.reset()
 
@@ -416,6 +481,7 @@ class RGBDVisualOdometry:
         )
         self._rng = np.random.default_rng(self.params.seed)
         self._keyframe: _Keyframe | None = None
+        self._last: _Keyframe | None = None
         self._T_world_kf = T0.copy()
         self._T_kf_curr = np.eye(4)
         self._t = 0.0
@@ -470,7 +536,7 @@ class RGBDVisualOdometry:
         self._t = float(frame.t)
         p = self.params
 
-        kps, raw = self._detector.detectAndCompute(gray, None)
+        kps, raw = self._detect(gray)
         n_kp = 0 if raw is None else len(kps)
         if n_kp < p.min_keypoints:
             return self._result(VOStatus.NO_FEATURES, ok=False, n_keypoints=n_kp)
@@ -487,13 +553,62 @@ class RGBDVisualOdometry:
             return self._result(VOStatus.INITIALISED, ok=True, n_keypoints=n_kp, keyframe=True)
 
         counts: dict[str, object] = {"n_keypoints": n_kp}
-        i_kf, i_cur = self._match(kf.descriptors, desc)
+        status, motion = self._register(
+            kf, pixels, desc, points, valid_now, counts, frame.intrinsics
+        )
+        reference = "keyframe"
+        last = self._last
+        if status is not VOStatus.OK and last is not None and last is not kf:
+            # the key-frame is out of view: chain through the last tracked frame instead
+            counts_b: dict[str, object] = {"n_keypoints": n_kp}
+            status_b, motion_b = self._register(
+                last, pixels, desc, points, valid_now, counts_b, frame.intrinsics
+            )
+            if status_b is VOStatus.OK:
+                status, motion, counts, reference = status_b, motion_b, counts_b, "previous_frame"
+        if status is not VOStatus.OK or motion is None:
+            return self._lost_frame(status, pixels, desc, points, counts)
+        R, t = motion
+        self._lost = 0
+        if reference == "keyframe":
+            self._T_kf_curr = transform_from_rt(R, t)
+        else:
+            T_world_curr = last.T_world_camera @ transform_from_rt(R, t)  # type: ignore[union-attr]
+            self._T_kf_curr = transform_inverse(self._T_world_kf) @ T_world_curr
+        n_inliers = int(counts["n_inliers"])  # type: ignore[call-overload]
+        new_kf = (
+            reference != "keyframe"
+            or n_inliers < p.keyframe_min_inliers
+            or float(np.linalg.norm(t)) > p.keyframe_translation_m
+            or rotation_angle(R) > p.keyframe_rotation_rad
+        )
+        result = self._result(VOStatus.OK, ok=True, keyframe=new_kf, reference=reference, **counts)
+        if new_kf:
+            self._set_keyframe(pixels, desc, points, result.T_world_camera)
+        else:
+            self._last = _Keyframe(result.T_world_camera, pixels, desc, points)
+        return result
+
+    def _register(
+        self,
+        ref: _Keyframe,
+        pixels: FloatArray,
+        desc: Descriptors,
+        points: FloatArray,
+        valid_now: npt.NDArray[np.bool_],
+        counts: dict[str, object],
+        intrinsics: CameraIntrinsics,
+    ) -> tuple[VOStatus, tuple[FloatArray, FloatArray] | None]:
+        """Motion ``(R, t)`` of this frame in the reference frame ``ref`` (match, GTM,
+        RANSAC, ICP); fills ``counts`` and the inlier fields."""
+        p = self.params
+        i_kf, i_cur = self._match(ref.descriptors, desc)
         counts["n_matches"] = counts["n_gtm"] = len(i_kf)
         if len(i_kf) < p.min_matches:
-            return self._lost_frame(VOStatus.TOO_FEW_MATCHES, pixels, desc, points, counts)
+            return VOStatus.TOO_FEW_MATCHES, None
         if p.use_gtm:
             keep = gtm_filter(
-                kf.pixels[i_kf],
+                ref.pixels[i_kf],
                 pixels[i_cur],
                 k=p.gtm_k,
                 tolerance=0.0 if p.gtm_k else p.gtm_tolerance,
@@ -501,52 +616,64 @@ class RGBDVisualOdometry:
             i_kf, i_cur = i_kf[keep], i_cur[keep]
             counts["n_gtm"] = len(i_kf)
             if len(i_kf) < p.min_matches:
-                return self._lost_frame(VOStatus.TOO_FEW_MATCHES, pixels, desc, points, counts)
-        has_depth = np.all(np.isfinite(kf.points[i_kf]), axis=1) & valid_now[i_cur]
+                return VOStatus.TOO_FEW_MATCHES, None
+        has_depth = np.all(np.isfinite(ref.points[i_kf]), axis=1) & valid_now[i_cur]
         i_kf, i_cur = i_kf[has_depth], i_cur[has_depth]
         counts["n_depth"] = len(i_kf)
         if len(i_kf) < p.min_inliers:
-            return self._lost_frame(VOStatus.DEPTH_HOLES, pixels, desc, points, counts)
+            return VOStatus.DEPTH_HOLES, None
 
-        P_kf, P_cur = kf.points[i_kf], points[i_cur]
-        # σ_z ∝ z² for RGB-D sensors: weight each pair by its inverse depth variance
-        w = 1.0 / (P_kf[:, 2] ** 4 + P_cur[:, 2] ** 4) if p.depth_weighting else None
-        try:
-            R, t, inl = ransac_rigid(
-                P_cur,
+        P_kf, P_cur = ref.points[i_kf], points[i_cur]
+        if p.motion_solver == "pnp":
+            found = solve_pnp(
                 P_kf,
-                p.ransac_threshold_m,
+                pixels[i_cur],
+                intrinsics,
                 self._rng,
                 p.ransac_max_iters,
+                p.pnp_reprojection_px,
                 p.min_inliers,
-                weights=w,
             )
-        except RegistrationError:
-            return self._lost_frame(VOStatus.RANSAC_FAILED, pixels, desc, points, counts)
-        if p.use_icp:
-            R, t = self._refine(P_cur[inl], P_kf[inl], R, t, None if w is None else w[inl])
+            if found is None:
+                return VOStatus.RANSAC_FAILED, None
+            R, t, inl = found
+        else:
+            # σ_z ∝ z² for RGB-D sensors: weight each pair by its inverse depth variance
+            w = 1.0 / (P_kf[:, 2] ** 4 + P_cur[:, 2] ** 4) if p.depth_weighting else None
+            try:
+                R, t, inl = ransac_rigid(
+                    P_cur,
+                    P_kf,
+                    p.ransac_threshold_m,
+                    self._rng,
+                    p.ransac_max_iters,
+                    p.min_inliers,
+                    weights=w,
+                )
+            except RegistrationError:
+                return VOStatus.RANSAC_FAILED, None
+            if p.motion_solver == "ml":
+                noise = (p.pixel_sigma_px, p.depth_sigma_a_m, p.depth_sigma_b_per_m)
+                R, t = refine_motion_ml(
+                    P_cur[inl],
+                    P_kf[inl],
+                    R,
+                    t,
+                    point_covariance(P_cur[inl], intrinsics, *noise),
+                    point_covariance(P_kf[inl], intrinsics, *noise),
+                )
+            elif p.use_icp:
+                R, t = self._refine(P_cur[inl], P_kf[inl], R, t, None if w is None else w[inl])
         res = P_cur[inl] @ R.T + t - P_kf[inl]
         counts["rms_m"] = float(np.sqrt(np.mean(np.sum(res * res, axis=1))))
-        n_inliers = int(np.count_nonzero(inl))
-        counts["n_inliers"] = n_inliers
+        counts["n_inliers"] = int(np.count_nonzero(inl))
         i_kf, i_cur = i_kf[inl], i_cur[inl]
         counts["inlier_indices"] = np.stack([i_kf, i_cur], axis=1)
-        counts["inlier_pixels_prev"] = kf.pixels[i_kf]
+        counts["inlier_pixels_prev"] = ref.pixels[i_kf]
         counts["inlier_pixels_curr"] = pixels[i_cur]
-        counts["inlier_points_prev"] = kf.points[i_kf]
+        counts["inlier_points_prev"] = ref.points[i_kf]
         counts["inlier_points_curr"] = points[i_cur]
-
-        self._lost = 0
-        self._T_kf_curr = transform_from_rt(R, t)
-        new_kf = (
-            n_inliers < p.keyframe_min_inliers
-            or float(np.linalg.norm(t)) > p.keyframe_translation_m
-            or rotation_angle(R) > p.keyframe_rotation_rad
-        )
-        result = self._result(VOStatus.OK, ok=True, keyframe=new_kf, **counts)
-        if new_kf:
-            self._set_keyframe(pixels, desc, points, result.T_world_camera)
-        return result
+        return VOStatus.OK, (R, t)
 
     # -- helpers -------------------------------------------------------------
 
@@ -621,6 +748,35 @@ class RGBDVisualOdometry:
         trip = trip[first]
         return trip[:, 0].astype(np.intp), trip[:, 1].astype(np.intp)
 
+    def _detect(self, gray: npt.NDArray[np.uint8]) -> tuple[Any, Any]:
+        """Keypoints and descriptors; with ``bucket_grid``, the strongest candidates of each
+        grid cell, so that near texture (floor, furniture) is kept beside the strong
+        corners of far posters that would otherwise take the whole budget."""
+        p = self.params
+        if not p.bucket_grid:
+            return self._detector.detectAndCompute(gray, None)
+        kps = self._detector.detect(gray, None)
+        if len(kps) > p.max_features:
+            nx, ny = p.bucket_grid
+            h, w = gray.shape
+            cell = np.array(
+                [
+                    min(int(k.pt[0] * nx / w), nx - 1) + nx * min(int(k.pt[1] * ny / h), ny - 1)
+                    for k in kps
+                ]
+            )
+            response = np.array([k.response for k in kps])
+            order = np.lexsort((-response, cell))  # by cell, strongest first
+            rank = np.empty(len(kps), dtype=np.intp)
+            sorted_cells = cell[order]
+            starts = np.flatnonzero(np.r_[True, sorted_cells[1:] != sorted_cells[:-1]])
+            counts = np.diff(np.r_[starts, len(order)])
+            rank[order] = np.arange(len(order)) - np.repeat(starts, counts)
+            # round-robin over the cells: every cell's best, then every cell's second, ...
+            keep = np.lexsort((-response, rank))[: p.max_features]
+            kps = [kps[i] for i in np.sort(keep)]
+        return self._detector.compute(gray, kps)
+
     def _refine(
         self,
         P_cur: FloatArray,
@@ -659,6 +815,7 @@ class RGBDVisualOdometry:
         T_world_camera: FloatArray,
     ) -> None:
         self._keyframe = _Keyframe(T_world_camera.copy(), pixels, desc, points)
+        self._last = self._keyframe
         self._T_world_kf = T_world_camera.copy()
         self._T_kf_curr = np.eye(4)
 

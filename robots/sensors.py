@@ -67,6 +67,8 @@ class RGBDCamera:
     """
 
     NEAR, FAR = 0.1, 12.0
+    TINY_RENDERER_ROW_SHIFT = 1.0
+    """Rows (px) by which TinyRenderer's picture sits above the pinhole projection."""
 
     def __init__(self, robot: DiffDriveRobot, params: RGBDCameraParams):
         self.robot = robot
@@ -75,11 +77,15 @@ class RGBDCamera:
         w, h = params.width, params.height
         n, f = self.NEAR, self.FAR
         fx, fy = self.intrinsics.fx, self.intrinsics.fy
-        # OpenGL projection for a pinhole camera with centred principal point (column-major list)
+        # OpenGL projection for a pinhole camera with centred principal point (column-major
+        # list). TinyRenderer writes image row r from its framebuffer row h - 1 - r, which puts
+        # the scene one row higher than the pinhole model with cy = h / 2 that the estimators
+        # use (a 0.28° pitch at 240 rows); the z-term in row 1 shifts the picture down by
+        # TINY_RENDERER_ROW_SHIFT rows so that rendering and intrinsics agree.
         proj = np.array(
             [
                 [2 * fx / w, 0, 0, 0],
-                [0, 2 * fy / h, 0, 0],
+                [0, 2 * fy / h, 2 * self.TINY_RENDERER_ROW_SHIFT / h, 0],
                 [0, 0, -(f + n) / (f - n), -2 * f * n / (f - n)],
                 [0, 0, -1, 0],
             ]

@@ -26,6 +26,8 @@ import numpy.typing as npt
 import pybullet as p
 from pybullet_utils import bullet_client
 
+from realitygap.robots.textures import SurfaceKind, surface_texture
+
 FloatArray = npt.NDArray[np.float64]
 
 
@@ -166,6 +168,73 @@ def procedural_texture(rng: np.random.Generator, size: int = 256) -> npt.NDArray
     coarse = rng.integers(-20, 21, size=(size // 4, size // 4)).astype(np.int16)
     noise = cv2.resize(coarse, (size, size), interpolation=cv2.INTER_NEAREST)
     return np.clip(img.astype(np.int16) + noise[..., None], 0, 255).astype(np.uint8)
+
+
+def side_mesh(
+    prim: Primitive, segments: int = 48
+) -> tuple[list[list[float]], list[int], list[list[float]], list[list[float]], float]:
+    """A visual mesh of ``prim`` in its body frame with texture coordinates at metric scale.
+
+    The side faces are unwrapped into one strip: ``u`` runs along the perimeter
+    (left to right as seen from outside), ``v`` from the bottom (0) to the top
+    (1), so a texture of ``perimeter × height`` metres keeps its aspect on every
+    face. The top is closed with a cap that samples one corner of the texture.
+    A cylinder is a prism of ``segments`` faces (0.6 mm sagitta for a 0.3 m radius).
+
+    Returns
+    -------
+    vertices, indices, uvs, normals, perimeter_m
+        Arguments of ``createVisualShape(GEOM_MESH, ...)`` and the unwrapped width, m.
+    """
+    z0, z1 = -prim.height / 2.0, prim.height / 2.0
+    if prim.shape is Shape.BOX:
+        hx, hy = prim.half_extents
+        ring = [(hx, -hy), (hx, hy), (-hx, hy), (-hx, -hy)]
+        flat = True
+    else:
+        ang = np.linspace(0.0, 2.0 * np.pi, int(segments), endpoint=False)
+        ring = [(prim.radius * np.cos(a), prim.radius * np.sin(a)) for a in ang]
+        flat = False
+    n = len(ring)
+    lengths = [float(np.hypot(*np.subtract(ring[(k + 1) % n], ring[k]))) for k in range(n)]
+    perimeter = float(sum(lengths))
+    verts: list[list[float]] = []
+    uvs: list[list[float]] = []
+    normals: list[list[float]] = []
+    idx: list[int] = []
+    s = 0.0
+    for k in range(n):
+        (ax, ay), (bx, by) = ring[k], ring[(k + 1) % n]
+        if flat:
+            mx, my = by - ay, -(bx - ax)
+            na = nb = (mx / lengths[k], my / lengths[k])
+        else:
+            na = (ax / prim.radius, ay / prim.radius)
+            nb = (bx / prim.radius, by / prim.radius)
+        u0, u1 = s / perimeter, (s + lengths[k]) / perimeter
+        s += lengths[k]
+        base = len(verts)
+        verts += [[ax, ay, z0], [bx, by, z0], [bx, by, z1], [ax, ay, z1]]
+        uvs += [[u0, 0.0], [u1, 0.0], [u1, 1.0], [u0, 1.0]]
+        normals += [
+            [na[0], na[1], 0.0],
+            [nb[0], nb[1], 0.0],
+            [nb[0], nb[1], 0.0],
+            [na[0], na[1], 0.0],
+        ]
+        idx += [base, base + 1, base + 2, base, base + 2, base + 3]
+    centre = len(verts)
+    verts.append([0.0, 0.0, z1])
+    uvs.append([0.0, 1.0])
+    normals.append([0.0, 0.0, 1.0])
+    for k in range(n):
+        a, b = ring[k], ring[(k + 1) % n]
+        base = len(verts)
+        verts += [[a[0], a[1], z1], [b[0], b[1], z1]]
+        uvs += [[0.0, 1.0], [0.01, 1.0]]
+        normals += [[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]
+        idx += [centre, base, base + 1]
+    return verts, idx, uvs, normals, perimeter
 
 
 @contextlib.contextmanager
@@ -326,15 +395,53 @@ class World:
         self._texture_cache.clear()
         self._arrays = None
 
-    def add_floor(self, rgba: tuple[float, float, float, float] = (0.55, 0.5, 0.45, 1.0)) -> int:
-        """A flat floor at z = 0, friction 1."""
+    def add_floor(
+        self,
+        rgba: tuple[float, float, float, float] = (0.55, 0.5, 0.45, 1.0),
+        textured_half_size: float | None = None,
+        rng: np.random.Generator | None = None,
+    ) -> int:
+        """A flat floor at z = 0, friction 1.
+
+        With ``textured_half_size`` (m) and ``rng``, the square
+        ``[-textured_half_size, textured_half_size]²`` is covered with a tiled
+        floor texture (:func:`~realitygap.robots.textures.surface_texture`) drawn
+        from ``rng``; the rest keeps the plain colour ``rgba``.
+        """
         c = self.bullet
         col = c.createCollisionShape(p.GEOM_PLANE)
         vis = c.createVisualShape(p.GEOM_BOX, halfExtents=[15, 15, 0.001], rgbaColor=list(rgba))
         body = c.createMultiBody(0.0, col, vis, [0, 0, 0])
         c.changeDynamics(body, -1, lateralFriction=1.0)
         self.bodies["floor"] = body
+        if textured_half_size is not None:
+            if rng is None:
+                raise ValueError("a textured floor needs rng, a numpy Generator")
+            a = float(textured_half_size)
+            if not (np.isfinite(a) and a > 0):
+                raise ValueError(f"textured_half_size must be a positive size in m, got {a!r}")
+            tid = self.load_texture_image(
+                "floor", surface_texture(rng, 2 * a, 2 * a, SurfaceKind.FLOOR)
+            )
+            z = 0.0015  # just above the plain floor's top face
+            quad = c.createVisualShape(
+                p.GEOM_MESH,
+                vertices=[[-a, -a, z], [a, -a, z], [a, a, z], [-a, a, z]],
+                indices=[0, 1, 2, 0, 2, 3],
+                uvs=[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]],
+                normals=[[0.0, 0.0, 1.0]] * 4,
+            )
+            tile = c.createMultiBody(0.0, -1, quad, [0, 0, 0])
+            c.changeVisualShape(tile, -1, textureUniqueId=tid, rgbaColor=[1, 1, 1, 1])
+            self.bodies["floor_surface"] = tile
         return body
+
+    def load_texture_image(self, key: str, image: npt.NDArray[np.uint8]) -> int:
+        """Load an RGB image (H, W, 3) into the renderer under ``key``; its texture id."""
+        path = os.path.join(self._asset_dir, f"tex_{key}.png")
+        cv2.imwrite(path, np.ascontiguousarray(image[..., ::-1]), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+        self._texture_cache[key] = self.bullet.loadTexture(path)
+        return self._texture_cache[key]
 
     def texture(self, key: str, rng: np.random.Generator) -> int:
         """A procedural texture loaded into the renderer (cached per world and key)."""
@@ -349,8 +456,16 @@ class World:
         prim: Primitive,
         rgba: tuple[float, float, float, float] = (0.8, 0.8, 0.8, 1.0),
         texture_id: int | None = None,
+        surface: SurfaceKind | str | None = None,
+        rng: np.random.Generator | None = None,
     ) -> int:
-        """Create a static body for ``prim`` and remember its analytic shape."""
+        """Create a static body for ``prim`` and remember its analytic shape.
+
+        With ``surface`` (``"wall"``, ``"object"``; see :class:`SurfaceKind`) and
+        ``rng``, the body is drawn as a mesh whose sides carry a texture of that
+        kind at metric scale (:func:`side_mesh`, :func:`surface_texture`);
+        otherwise in ``rgba``, or with the whole ``texture_id`` on every face.
+        """
         if prim.name in self.bodies:
             raise ValueError(f"a body named {prim.name!r} already exists in this world")
         c = self.bullet
@@ -363,6 +478,15 @@ class World:
             col = c.createCollisionShape(p.GEOM_CYLINDER, radius=prim.radius, height=prim.height)
             vis = c.createVisualShape(
                 p.GEOM_CYLINDER, radius=prim.radius, length=prim.height, rgbaColor=list(rgba)
+            )
+        if surface is not None:
+            if rng is None:
+                raise ValueError(f"a {surface!r} surface for {prim.name!r} needs rng")
+            verts, idx, uvs, normals, perimeter = side_mesh(prim)
+            image = surface_texture(rng, perimeter, prim.height, surface)
+            texture_id = self.load_texture_image(prim.name, image)
+            vis = c.createVisualShape(
+                p.GEOM_MESH, vertices=verts, indices=idx, uvs=uvs, normals=normals
             )
         quat = c.getQuaternionFromEuler([0.0, 0.0, prim.yaw])
         body = c.createMultiBody(0.0, col, vis, [prim.center[0], prim.center[1], half_h], quat)

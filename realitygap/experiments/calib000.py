@@ -601,7 +601,7 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
             "first_excitation_figure_eights": [list(e) for e in cfg.first_excitation],
             "excitation_speed_m_s": cfg.excitation_speed,
             "frame_hz": cfg.frame_hz,
-            "vo": "SIFT + GTM + RANSAC/ICP (VOParams defaults)",
+            "vo": "VOParams defaults: ORB (bucketed) + GTM + RANSAC, maximum-likelihood RGB-D motion",
             "umbmark_absolute_reference": "camera: loop closure of the last frame on the first, "
             "else chained VO; converted to the base with the current mounting estimate",
             "positions_per_trajectory": cfg.n_positions,

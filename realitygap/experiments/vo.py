@@ -1,8 +1,8 @@
 r"""The ``vo`` experiment: RGB-D visual odometry against ground truth.
 
-RGB-D visual odometry on a figure-eight drive through a textured
+RGB-D visual odometry on a figure-eight drive through the textured
 ``realitygap/WheeledNav-v0`` room (image mode): trajectory error, relative
-error per metre, processing rate, SIFT against ORB, and the precision of the
+error per metre, frames lost, processing rate, ORB against SIFT, and the precision of the
 matches the ratio test, GTM and RANSAC keep, judged against ground-truth
 correspondences (:func:`match_precision`).
 """
@@ -330,8 +330,14 @@ def _gtm_precision(log: DriveLog, params: Any, every: int = 2) -> dict[str, floa
     """Precision of ratio-test matches and of the matches GTM keeps, consecutive frames."""
     import cv2
 
-    detector = cv2.SIFT.create(nfeatures=params.max_features)
-    matcher = cv2.BFMatcher(cv2.NORM_L2)
+    if params.detector == "sift":
+        detector, matcher = (
+            cv2.SIFT.create(nfeatures=params.max_features),
+            cv2.BFMatcher(cv2.NORM_L2),
+        )
+    else:
+        detector = cv2.ORB.create(nfeatures=params.max_features)
+        matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
     totals = np.zeros(4)
     for k in range(1, len(log.frames), every):
         prev = _features(detector, log.frames[k - 1], params)
@@ -348,20 +354,20 @@ def _gtm_precision(log: DriveLog, params: Any, every: int = 2) -> dict[str, floa
 
 @experiment(
     "vo",
-    "RGB-D visual odometry on a 60 s drive through the textured room: ATE, RPE, fps, GTM precision",
+    "RGB-D visual odometry on a 60 s drive through the default room: ATE, RPE, frames lost, fps",
 )
 def vo(ctx: RunContext) -> dict[str, Any]:
-    """RGB-D VO on 60 s (quick: 15 s) of driving, in the panelled room and the env's own room.
+    """RGB-D VO on 60 s (quick: 15 s) of driving, in the env's own room and a panelled one.
 
-    Figures without suffix: the panelled room (:func:`calibration_room`), SIFT.
-    ``*_orb``: ORB on the same frames; ``*_default_room``: the env's default
-    room, whose walls each carry one texture stretched over 7 m.
+    Figures without suffix: the env's default room (textured walls, floor and
+    8 random obstacles) with the default VO (:class:`~realitygap.estimators.vo.VOParams`,
+    ORB). ``*_sift``: SIFT on the same frames; ``*_panelled``: the panelled
+    room (:func:`calibration_room`) with the default VO.
     """
     from realitygap.estimators.vo import VOParams
 
     seconds = 15.0 if ctx.quick else 60.0
     rows = []
-    figures: dict[str, float] = {}
     for room, panelled in (("default", False), ("panelled", True)):
         drive_out = _vo_room(ctx, panelled, seconds)
         log: DriveLog = drive_out["log"]
@@ -369,38 +375,40 @@ def vo(ctx: RunContext) -> dict[str, Any]:
             f"vo {room} room: drove {log.t[-1]:.0f} s, {len(log.frames)} frames, "
             f"collision={log.collided}"
         )
-        for detector in ("sift", "orb"):
+        for detector in ("orb", "sift") if not panelled else ("orb",):
             params = VOParams(detector=detector, seed=int(ctx.seed))
             row = {"room": room, "detector": detector, "obstacles": drive_out["obstacles"]}
             row.update(_evaluate_vo(log, drive_out["mounting"], params))
-            if detector == "sift":
+            row["frames_lost_pct"] = 100.0 * row["frames_failed"] / max(row["frames"], 1)
+            if detector == "orb":
                 row.update(_gtm_precision(log, params))
             rows.append(row)
             ctx.progress(
                 f"vo {room}/{detector}: ATE {row['ate_cm']:.1f} cm, RPE {row['rpe_cm_per_m']:.2f} "
-                f"cm/m {row['rpe_deg_per_m']:.2f} °/m, {row['vo_fps']:.0f} fps"
+                f"cm/m {row['rpe_deg_per_m']:.2f} °/m, {row['frames_failed']} frames lost, "
+                f"{row['vo_fps']:.0f} fps"
             )
     by = {(r["room"], r["detector"]): r for r in rows}
-    head, orb = by[("panelled", "sift")], by[("panelled", "orb")]
-    bare, bare_orb = by[("default", "sift")], by[("default", "orb")]
+    head, sift, pan = by[("default", "orb")], by[("default", "sift")], by[("panelled", "orb")]
     figures = {
         "ate_cm": head["ate_cm"],
         "ate_cm_rigid": head["ate_cm_rigid"],
         "rpe_cm_per_m": head["rpe_cm_per_m"],
         "rpe_deg_per_m": head["rpe_deg_per_m"],
+        "frames_lost_pct": head["frames_lost_pct"],
+        "frames_failed": head["frames_failed"],
+        "frames": head["frames"],
         "vo_fps": head["vo_fps"],
         "gtm_inlier_precision": head["gtm_inlier_precision"],
         "ratio_match_precision": head["ratio_match_precision"],
         "ransac_inlier_precision": head["ransac_inlier_precision"],
-        "ate_cm_orb": orb["ate_cm"],
-        "rpe_cm_per_m_orb": orb["rpe_cm_per_m"],
-        "vo_fps_orb": orb["vo_fps"],
-        "ate_cm_default_room": bare["ate_cm"],
-        "rpe_cm_per_m_default_room": bare["rpe_cm_per_m"],
-        "frames_failed_default_room": bare["frames_failed"],
-        "frames_default_room": bare["frames"],
-        "ate_cm_default_room_orb": bare_orb["ate_cm"],
-        "gtm_inlier_precision_default_room": bare["gtm_inlier_precision"],
+        "ate_cm_sift": sift["ate_cm"],
+        "rpe_cm_per_m_sift": sift["rpe_cm_per_m"],
+        "frames_lost_pct_sift": sift["frames_lost_pct"],
+        "vo_fps_sift": sift["vo_fps"],
+        "ate_cm_panelled": pan["ate_cm"],
+        "rpe_cm_per_m_panelled": pan["rpe_cm_per_m"],
+        "frames_lost_pct_panelled": pan["frames_lost_pct"],
     }
     return {
         "figures": figures,
@@ -409,14 +417,16 @@ def vo(ctx: RunContext) -> dict[str, Any]:
             "resolution": [320, 240],
             "camera_hz": 10,
             "drive": "figure-eight tracked on wheel odometry (Kanayama), 0.3 m/s",
-            "room": "WheeledNav-v0, image mode, half-size 2.5 m, walls lined with 0.5 m textured "
-            "panels (calibration_room) plus four pieces of furniture; figures without suffix",
-            "default_room": "*_default_room: the env's own room (half-size 3.5 m, one texture "
-            "stretched over each wall) with 8 random obstacles kept off the path",
+            "room": "figures without suffix: WheeledNav-v0's own room, image mode, half-size "
+            "3.5 m, textured walls (posters), tiled floor and 8 random textured obstacles kept "
+            "off the path; default VOParams (ORB, bucketed features, ML motion)",
+            "panelled_room": "*_panelled: half-size 2.5 m, walls lined with 0.5 m panels "
+            "(calibration_room) plus four pieces of furniture",
             "load_avg_1min": load_average(),
             "ate": "RMS planar position error, VO started at the true first pose (no further "
             "alignment); ate_cm_rigid after a best-fit rotation + translation",
             "rpe": "mean over all 1 m segments of true travel",
+            "frames_lost": "frames whose VO result is not ok (lost or reinitialised)",
             "correct_match": "3-D point of the previous frame, moved by the true camera motion, "
             "reprojects within 3 px of the matched keypoint",
             "vo_fps": "RGBDVisualOdometry.update only (rendering excluded)",

@@ -219,7 +219,7 @@ def test_depth_weighting_copes_with_depth_noise() -> None:
         err = []
         for pose in SMALL_MOTIONS:
             rng = np.random.default_rng(1)
-            vo = make_vo(depth_weighting=weighting)
+            vo = make_vo(depth_weighting=weighting, motion_solver="3d3d")
             vo.update(with_depth_noise(frame_at(*ORIGIN), rng))
             result = vo.update(with_depth_noise(frame_at(*pose), rng))
             assert result.ok
@@ -464,3 +464,46 @@ def test_malformed_frames_raise() -> None:
         vo.update(good.rgb)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match=r"T_base_camera\[:3, :3\] must be a proper rotation"):
         RGBDVisualOdometry(T_base_camera=np.diag([2.0, 1.0, 1.0, 1.0]))
+
+
+def test_lost_keyframe_falls_back_to_the_previous_frame_and_says_so() -> None:
+    # key-frames never renew on their own: only the fallback can carry the turn
+    vo = make_vo(keyframe_translation_m=10.0, keyframe_rotation_rad=3.0, keyframe_min_inliers=0)
+    yaws = np.deg2rad(np.arange(0.0, 81.0, 8.0))
+    results = [vo.update(frame_at(0.0, 0.0, float(yaw))) for yaw in yaws]
+    assert all(r.ok for r in results), [r.status for r in results]
+    fallbacks = [r for r in results if r.reference == "previous_frame"]
+    assert fallbacks and all(r.keyframe for r in fallbacks)
+    assert all(r.reference == "keyframe" for r in results[:3])
+    err_t, err_r = relative_error(results[-1].T_world_camera, T_world_camera_at(0, 0, yaws[-1]))
+    # chained 8° steps drift a little; a wrongly composed fallback is off by the step itself
+    assert err_t < 0.1 and err_r < np.deg2rad(2.0), (err_t, np.rad2deg(err_r))
+
+
+def test_bucketed_features_spread_over_the_image() -> None:
+    frame = frame_at(*ORIGIN)
+    gray = frame.rgb if frame.rgb.ndim == 2 else frame.rgb.mean(axis=2).astype(np.uint8)
+    spread = {}
+    for grid in (None, (8, 6)):
+        vo = make_vo(detector="orb", max_features=200, bucket_grid=grid)
+        kps, desc = vo._detect(np.ascontiguousarray(gray))
+        assert len(kps) == len(desc) <= 200
+        pts = np.array([k.pt for k in kps])
+        cells = {(int(u * 4 / 320), int(v * 3 / 240)) for u, v in pts}
+        spread[grid] = len(cells)
+    assert spread[(8, 6)] >= spread[None]
+    with pytest.raises(ValueError, match="bucket_grid must be None or two positive"):
+        VOParams(bucket_grid=(0, 4))
+    with pytest.raises(ValueError, match="motion_solver must be"):
+        VOParams(motion_solver="icp")
+
+
+@pytest.mark.parametrize("solver", ["ml", "3d3d", "pnp"])
+def test_every_motion_solver_recovers_a_small_motion(solver: str) -> None:
+    vo = make_vo(motion_solver=solver)
+    vo.update(frame_at(*ORIGIN))
+    for pose in SMALL_MOTIONS:
+        result = vo.update(frame_at(*pose))
+        assert result.ok, result.status
+        err_t, err_r = relative_error(result.T_prev_curr, true_motion(ORIGIN, pose))
+        assert err_t < 0.01 and err_r < np.deg2rad(0.3), (solver, pose, err_t, err_r)
