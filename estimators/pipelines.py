@@ -23,7 +23,8 @@ from realitygap.estimators.base import DiffDriveMeasurement, Estimate
 from realitygap.estimators.diffdrive_model import DiffDriveKinematics
 from realitygap.estimators.fusion_ekf import FusionSettings, OdomVOFusionEKF
 from realitygap.estimators.occupancy import OccupancyGrid
-from realitygap.estimators.vo import RGBDVisualOdometry, VOParams, planar_motion_from_camera
+from realitygap.estimators.vo import RGBDVisualOdometry, planar_motion_from_camera
+from realitygap.estimators.vo_params import VOParams
 
 FloatArray = npt.NDArray[np.float64]
 

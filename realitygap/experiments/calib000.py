@@ -140,7 +140,8 @@ def end_pose_from_frames(
     EndPose
     """
     from realitygap.core.geometry import se2_compose, se2_inverse
-    from realitygap.estimators.vo import RGBDVisualOdometry, VOParams
+    from realitygap.estimators.vo import RGBDVisualOdometry
+    from realitygap.estimators.vo_params import VOParams
 
     params = params if params is not None else VOParams()
     if len(frames) < 2:
@@ -381,7 +382,8 @@ def _fused_poses(log: DriveLog, kin: Any, mounting: FloatArray, vo_params: Any) 
     from realitygap.estimators.base import WheelTicks
     from realitygap.estimators.diffdrive_model import OdometryNoise
     from realitygap.estimators.fusion_ekf import FusionSettings, OdomVOFusionEKF
-    from realitygap.estimators.vo import RGBDVisualOdometry, VOStatus, planar_motion_from_camera
+    from realitygap.estimators.vo import RGBDVisualOdometry, planar_motion_from_camera
+    from realitygap.estimators.vo_params import VOStatus
 
     T_bc = _T_base_camera_planar(mounting)
     vo = RGBDVisualOdometry(vo_params, T_base_camera=T_bc)
@@ -430,7 +432,7 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
     from realitygap.controllers.drives import PathFollower
     from realitygap.core.geometry import wrap_angle
     from realitygap.estimators.odometry_mounting import fit_odometry_and_mounting
-    from realitygap.estimators.vo import VOParams
+    from realitygap.estimators.vo_params import VOParams
     from realitygap.robots.diffdrive import DiffDriveParams
 
     cfg = CalibConfig.quick() if ctx.quick else CalibConfig()

@@ -360,11 +360,11 @@ def vo(ctx: RunContext) -> dict[str, Any]:
     """RGB-D VO on 60 s (quick: 15 s) of driving, in the env's own room and a panelled one.
 
     Figures without suffix: the env's default room (textured walls, floor and
-    8 random obstacles) with the default VO (:class:`~realitygap.estimators.vo.VOParams`,
+    8 random obstacles) with the default VO (:class:`~realitygap.estimators.vo_params.VOParams`,
     ORB). ``*_sift``: SIFT on the same frames; ``*_panelled``: the panelled
     room (:func:`calibration_room`) with the default VO.
     """
-    from realitygap.estimators.vo import VOParams
+    from realitygap.estimators.vo_params import VOParams
 
     seconds = 15.0 if ctx.quick else 60.0
     rows = []

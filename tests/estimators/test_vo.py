@@ -14,11 +14,10 @@ from realitygap.estimators.base import CameraIntrinsics, Estimate, RGBDFrame
 from realitygap.estimators.vo import (
     T_BASE_CAMERA_FORWARD,
     RGBDVisualOdometry,
-    VOParams,
     VOResult,
-    VOStatus,
     planar_motion_from_camera,
 )
+from realitygap.estimators.vo_params import VOParams, VOStatus
 
 # Kinect-V2-like field of view (70.6° horizontal) at 320 × 240.
 INTRINSICS = CameraIntrinsics(width=320, height=240, fx=226.0, fy=226.0, cx=159.5, cy=119.5)

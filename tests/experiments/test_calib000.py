@@ -62,7 +62,7 @@ def excitation_log() -> DriveLog:
 def test_online_calibration_recovers_wheelbase_and_diameter_ratio(
     excitation_log: DriveLog,
 ) -> None:
-    from realitygap.estimators.vo import VOParams
+    from realitygap.estimators.vo_params import VOParams
     from realitygap.robots.diffdrive import DiffDriveParams
 
     log = excitation_log
