@@ -246,13 +246,15 @@ def summary_sentences(d: Diagnosis) -> list[str]:
         closes = float(g.get("heldout_shrink_pct_best", best_row["heldout_shrink_pct"]))
         sentence = (
             f"The best-scoring candidate is {best_row['name']}: {vals}. "
-            f"It closes {closes:.0f} % of the held-out gap"
+            f"It closes {closes:.0f} % of the held-out gap window by window"
         )
         if "heldout_trajectory_gap_m_best" in g:
+            traj = g.get("heldout_trajectory_shrink_pct_best")
             sentence += (
-                " (RMS position error over whole held-out runs: "
-                f"{quantity(g['heldout_trajectory_gap_m_nominal'], 'm')} nominal → "
-                f"{quantity(g['heldout_trajectory_gap_m_best'], 'm')})"
+                "; over whole held-out runs the RMS position error goes from "
+                f"{quantity(g['heldout_trajectory_gap_m_nominal'], 'm')} nominal to "
+                f"{quantity(g['heldout_trajectory_gap_m_best'], 'm')}"
+                + (f" ({float(traj):.0f} % less)" if traj is not None else "")
             )
         widest = max(rows, key=lambda r: float(r["heldout_shrink_pct"]))
         if float(widest["heldout_shrink_pct"]) > closes + 1.0 and widest is not best_row:
