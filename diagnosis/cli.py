@@ -149,6 +149,12 @@ def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
     g.add_argument("--wheels-topic", help="JointState topic with the wheel joints")
     g.add_argument("--rate", type=float, default=20.0, help="bag resampling rate, Hz (default 20)")
     g.add_argument("--resample", type=float, help="resample every log to this step, s")
+    g.add_argument(
+        "--no-plausibility-check",
+        action="store_true",
+        help="accept wheeled logs whose speeds, wheel rates or row rate look like a unit "
+        "mix-up (checked by default)",
+    )
     p.add_argument(
         "--quick",
         action="store_true",
@@ -231,6 +237,7 @@ def _diagnose(args: argparse.Namespace) -> int:
             wheels_topic=args.wheels_topic,
             rate_hz=args.rate,
             resample=args.resample,
+            check_plausible=not args.no_plausibility_check,
         )
         train = read_many(args.logs, options, warn=warn)
         holdout = read_many(args.holdout, options, warn=warn) if args.holdout else None

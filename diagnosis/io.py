@@ -384,7 +384,13 @@ def read_logs(
         )
     if opt.check_plausible:
         for lg in logs:
-            check_plausible(lg)
+            try:
+                check_plausible(lg)
+            except LogError as exc:
+                raise LogError(
+                    f"{exc} (if these numbers are right, skip the check: --no-plausibility-check, "
+                    "or ReadOptions(check_plausible=False))"
+                ) from None
     if opt.resample is not None:
         logs = [piece for lg in logs for piece in resample_split(lg, opt.resample, warn)]
     return logs

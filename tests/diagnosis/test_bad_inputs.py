@@ -338,3 +338,19 @@ def test_fifo_inside_a_session_folder_is_refused(tmp_path: Path) -> None:
     os.mkfifo(f)
     with pytest.raises(ValueError, match=r"s_run-01\.csv is a FIFO \(named pipe\), not a regular"):
         read_text_lines(f)
+
+
+def test_plausibility_check_names_its_switch_and_can_be_switched_off(
+    tmp_path: Path, capsys
+) -> None:
+    log = drive_log()
+    mm = log.with_channels(pose_gt=log["pose_gt"] * 1000.0).save(tmp_path / "mm.npz")
+    with pytest.raises(LogError, match=r"moves at 200 m/s .*--no-plausibility-check"):
+        read_logs(mm, ReadOptions())
+    (read,) = read_logs(mm, ReadOptions(check_plausible=False))
+    np.testing.assert_array_equal(read["pose_gt"], log["pose_gt"] * 1000.0)
+    # the command line refuses it before any work and names the switch
+    rc = main(["diagnose", str(mm), "--json", str(tmp_path / "d.json"), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "moves at 200 m/s" in err and "--no-plausibility-check" in err
+    assert not (tmp_path / "d.json").exists()
