@@ -60,15 +60,16 @@ def check_action_array(action: Any, shape: tuple[int, ...], name: str = "action"
     ValueError
         A wrong shape or a NaN/inf entry.
     """
-    expected = f"a float array of shape {shape} with entries in [-1, 1]"
     raw = np.asarray(action) if not isinstance(action, (str, bytes)) else None
     if raw is None or raw.dtype.kind not in "biuf":
         got = type(action).__name__ if raw is None else f"dtype {raw.dtype}"
+        expected = f"a float array of shape {shape} with entries in [-1, 1]"
         raise TypeError(f"{name} must be {expected}, got {got}: {action!r:.60}")
-    a = raw.astype(np.float64).reshape(-1)
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} must be finite, got {a.tolist()}")
+    a = np.asarray(raw, dtype=np.float64)  # no copy for a float64 action (the hot path)
+    if not np.isfinite(a).all():
+        raise ValueError(f"{name} must be finite, got {a.reshape(-1).tolist()}")
     if a.size != math.prod(shape):
+        expected = f"a float array of shape {shape} with entries in [-1, 1]"
         raise ValueError(f"{name} must be {expected}, got shape {raw.shape}")
     return a.reshape(shape)
 
