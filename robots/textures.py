@@ -10,13 +10,24 @@ in, so a seeded env renders the same room.
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from enum import Enum
+from typing import Any
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["MAX_TEXTURE_PX", "PX_PER_M", "SurfaceKind", "surface_texture"]
+__all__ = [
+    "MAX_TEXTURE_PX",
+    "PX_PER_M",
+    "SurfaceKind",
+    "clear_texture_cache",
+    "set_texture_cache_limit",
+    "surface_texture",
+    "texture_cache_info",
+]
 
 Image = npt.NDArray[np.uint8]
 
@@ -195,10 +206,129 @@ def surface_texture(
     except ValueError:
         names = [k.value for k in SurfaceKind]
         raise ValueError(f"kind must be one of {names}, got {kind!r}") from None
+    state_key = _state_key(rng)
+    key = (kind.value, float(width_m), float(height_m), PX_PER_M, MAX_TEXTURE_PX, state_key)
+    hit = _CACHE.get(key) if state_key is not None else None
+    if hit is not None:
+        image, state_after = hit
+        rng.bit_generator.state = state_after  # the generator ends where drawing would leave it
+        return image.copy()
     ppm = min(PX_PER_M, MAX_TEXTURE_PX / max(width_m, height_m))
     w, h = max(8, int(round(width_m * ppm))), max(8, int(round(height_m * ppm)))
     make = {SurfaceKind.WALL: _wall, SurfaceKind.FLOOR: _floor, SurfaceKind.OBJECT: _object}
     img = make[kind](rng, h, w, ppm)
     # sensor-scale speckle so that no patch is perfectly flat
     speckle = rng.integers(-4, 5, size=(h, w, 1), dtype=np.int16)
-    return np.clip(img.astype(np.int16) + speckle, 0, 255).astype(np.uint8)
+    out = np.clip(img.astype(np.int16) + speckle, 0, 255).astype(np.uint8)
+    if state_key is not None:
+        _CACHE.put(key, out.copy(), rng.bit_generator.state)
+    return out
+
+
+# ---------------------------------------------------------------------------- cache
+def _state_key(rng: np.random.Generator) -> str | None:
+    """A hashable key of the generator's exact state (its bit generator's state dict), or
+    ``None`` for an object that is not a NumPy ``Generator`` (never cached)."""
+    if not isinstance(rng, np.random.Generator):
+        return None
+    return repr(rng.bit_generator.state)
+
+
+class _TextureCache:
+    """Least-recently-used store of drawn textures, bounded in bytes.
+
+    A texture is a pure function of its kind, size and the generator's state on
+    entry; the cache keeps the image and the generator's state on exit, so a hit
+    returns the same pixels and leaves the generator exactly where drawing would.
+    Seeded episodes that repeat a layout (evaluation seeds, one seed in fast and
+    image mode, several policies on one set of seeds) skip the drawing.
+    """
+
+    def __init__(self, max_bytes: int):
+        self.max_bytes = int(max_bytes)
+        self._items: OrderedDict[tuple[Any, ...], tuple[npt.NDArray[np.uint8], Any]] = OrderedDict()
+        self._bytes = 0
+        self._lock = threading.Lock()
+        self.hits = 0
+        self.misses = 0
+
+    def get(self, key: tuple[Any, ...]) -> tuple[npt.NDArray[np.uint8], Any] | None:
+        with self._lock:
+            item = self._items.get(key)
+            if item is None:
+                self.misses += 1
+                return None
+            self._items.move_to_end(key)
+            self.hits += 1
+            return item
+
+    def put(self, key: tuple[Any, ...], image: npt.NDArray[np.uint8], state_after: Any) -> None:
+        if image.nbytes > self.max_bytes:
+            return
+        image.setflags(write=False)
+        with self._lock:
+            old = self._items.pop(key, None)
+            if old is not None:
+                self._bytes -= old[0].nbytes
+            self._items[key] = (image, state_after)
+            self._bytes += image.nbytes
+            self._evict()
+
+    def resize(self, max_bytes: int) -> None:
+        with self._lock:
+            self.max_bytes = int(max_bytes)
+            self._evict()
+
+    def _evict(self) -> None:
+        """Drop the least recently used images until the bound holds (lock held)."""
+        while self._bytes > self.max_bytes:
+            _, (dropped, _) = self._items.popitem(last=False)
+            self._bytes -= dropped.nbytes
+
+    def clear(self) -> None:
+        with self._lock:
+            self._items.clear()
+            self._bytes = 0
+            self.hits = self.misses = 0
+
+    def info(self) -> dict[str, int]:
+        with self._lock:
+            return {
+                "entries": len(self._items),
+                "bytes": self._bytes,
+                "max_bytes": self.max_bytes,
+                "hits": self.hits,
+                "misses": self.misses,
+            }
+
+
+DEFAULT_TEXTURE_CACHE_BYTES = 256 * 1024 * 1024
+"""Default bound of the in-memory texture cache (bytes): about 25 textured rooms."""
+
+_CACHE = _TextureCache(DEFAULT_TEXTURE_CACHE_BYTES)
+
+
+def texture_cache_info() -> dict[str, int]:
+    """Entries, bytes held, bound (bytes), hits and misses of the texture cache."""
+    return _CACHE.info()
+
+
+def clear_texture_cache() -> None:
+    """Drop every cached texture and reset the hit counts."""
+    _CACHE.clear()
+
+
+def set_texture_cache_limit(max_bytes: int) -> None:
+    """Bound the texture cache to ``max_bytes`` (0 turns caching off); drops what exceeds it.
+
+    Raises
+    ------
+    ValueError
+        If ``max_bytes`` is not a whole number ≥ 0.
+    """
+    if isinstance(max_bytes, bool) or not isinstance(max_bytes, (int, np.integer)) or max_bytes < 0:
+        raise ValueError(
+            f"max_bytes must be a whole number of bytes >= 0 (0 turns the cache off), "
+            f"got {max_bytes!r}"
+        )
+    _CACHE.resize(int(max_bytes))
