@@ -129,7 +129,8 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     physics_hz, control_hz : physics rate and control rate (Hz); their ratio must be whole.
     n_beams : scan beams over the camera's horizontal field of view.
     scan_hz : rate of the planar scan (Hz); steps in between re-use the last scan.
-    camera_hz : rate of rendered RGB-D frames in image mode (Hz).
+    camera_hz : rate of rendered RGB-D frames in image mode (Hz). Frames are rendered only
+        at this rate; a scan due between frames renders the small depth picture it needs.
     terminate_on_success : end the episode on success (otherwise ``info["is_success"]`` is
         reported and the episode runs on, e.g. to measure where a controller settles).
     reward_weights : weights of the reward terms.
@@ -442,15 +443,17 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         ticks = encoder_ticks(self._t, angles, self.params.ticks_per_rev)
         frame = None
         scan = None
-        scan_due = self._steps % self._scan_every == 0
-        if self.camera is not None and (scan_due or self._steps % self._camera_every == 0):
+        # the camera renders only when its own frame is due; a scan due between frames
+        # renders the small depth picture it needs (PlanarScanner.render_size)
+        if self.camera is not None and self._steps % self._camera_every == 0:
             frame = self.camera.render(self._t, rng)
-        if scan_due:
-            scan = (
-                self.scanner.scan_from_frame(frame)
-                if frame is not None
-                else self.scanner.scan_fast(self._t, rng)
-            )
+        if self._steps % self._scan_every == 0:
+            if frame is not None:
+                scan = self.scanner.scan_from_frame(frame)
+            elif self.camera is not None:
+                scan = self.scanner.scan_rendered(self.camera, self._t, rng)
+            else:
+                scan = self.scanner.scan_fast(self._t, rng)
             self._scan = scan
         return DiffDriveMeasurement(t=self._t, ticks=ticks, scan=scan, rgbd=frame)
 

@@ -15,13 +15,14 @@ All noise is drawn from a ``numpy.random.Generator`` handed down by the env.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from enum import Enum
 
 import numpy as np
 import numpy.typing as npt
 import pybullet as p
 
-from realitygap.estimators.base import RGBDFrame, Scan
+from realitygap.estimators.base import CameraIntrinsics, RGBDFrame, Scan
 from realitygap.robots.diffdrive import DiffDriveRobot, RGBDCameraParams
 
 FloatArray = npt.NDArray[np.float64]
@@ -59,6 +60,22 @@ def depth_sigma(z: npt.ArrayLike, params: RGBDCameraParams) -> FloatArray:
     return params.depth_noise_a + params.depth_noise_b * z * z
 
 
+def _check_size(size: object) -> tuple[int, int]:
+    """``size`` as ``(width, height)`` in pixels, each a whole number in [2, 4096]."""
+    try:
+        w, h = size  # type: ignore[misc]
+    except (TypeError, ValueError):
+        w = h = None
+    if not all(
+        isinstance(v, (int, np.integer)) and not isinstance(v, bool) and 2 <= v <= 4096
+        for v in (w, h)
+    ):
+        raise ValueError(
+            f"size must be (width, height) in pixels, two whole numbers in [2, 4096], got {size!r}"
+        )
+    return int(w), int(h)  # type: ignore[arg-type]
+
+
 class RGBDCamera:
     """Kinect-V2-like camera rendered with PyBullet's TinyRenderer.
 
@@ -74,36 +91,65 @@ class RGBDCamera:
         self.robot = robot
         self.params = params
         self.intrinsics = params.intrinsics()
-        w, h = params.width, params.height
-        n, f = self.NEAR, self.FAR
-        fx, fy = self.intrinsics.fx, self.intrinsics.fy
-        # OpenGL projection for a pinhole camera with centred principal point (column-major
-        # list). TinyRenderer writes image row r from its framebuffer row h - 1 - r, which puts
-        # the scene one row higher than the pinhole model with cy = h / 2 that the estimators
-        # use (a 0.28° pitch at 240 rows); the z-term in row 1 shifts the picture down by
-        # TINY_RENDERER_ROW_SHIFT rows so that rendering and intrinsics agree.
-        proj = np.array(
-            [
-                [2 * fx / w, 0, 0, 0],
-                [0, 2 * fy / h, 2 * self.TINY_RENDERER_ROW_SHIFT / h, 0],
-                [0, 0, -(f + n) / (f - n), -2 * f * n / (f - n)],
-                [0, 0, -1, 0],
-            ]
-        )
-        self._proj = proj.T.reshape(-1).tolist()
+        self._projections: dict[tuple[int, int], tuple[list[float], CameraIntrinsics]] = {}
+        self._proj, _ = self._projection(params.width, params.height)
 
-    def render(self, t: float, rng: np.random.Generator) -> RGBDFrame:
-        """Render one frame at the camera's current (true) pose."""
+    def _projection(self, width: int, height: int) -> tuple[list[float], CameraIntrinsics]:
+        """OpenGL projection (column-major list) and pinhole intrinsics of a ``width`` ×
+        ``height`` picture with the camera's field of view (cached per size)."""
+        key = (int(width), int(height))
+        if key not in self._projections:
+            intr = (
+                self.intrinsics
+                if key == (self.params.width, self.params.height)
+                else replace(self.params, width=key[0], height=key[1]).intrinsics()
+            )
+            w, h = key
+            n, f = self.NEAR, self.FAR
+            # OpenGL projection for a pinhole camera with centred principal point. TinyRenderer
+            # writes image row r from its framebuffer row h - 1 - r, which puts the scene one
+            # row higher than the pinhole model with cy = h / 2 that the estimators use (a
+            # 0.28° pitch at 240 rows); the z-term in row 1 shifts the picture down by
+            # TINY_RENDERER_ROW_SHIFT rows so that rendering and intrinsics agree.
+            proj = np.array(
+                [
+                    [2 * intr.fx / w, 0, 0, 0],
+                    [0, 2 * intr.fy / h, 2 * self.TINY_RENDERER_ROW_SHIFT / h, 0],
+                    [0, 0, -(f + n) / (f - n), -2 * f * n / (f - n)],
+                    [0, 0, -1, 0],
+                ]
+            )
+            self._projections[key] = (proj.T.reshape(-1).tolist(), intr)
+        return self._projections[key]
+
+    def render(
+        self, t: float, rng: np.random.Generator, size: tuple[int, int] | None = None
+    ) -> RGBDFrame:
+        """Render one frame at the camera's current (true) pose.
+
+        Parameters
+        ----------
+        t : time stamp of the frame, s.
+        rng : generator of the depth noise.
+        size : ``(width, height)`` in pixels of a picture with the camera's field of view
+            (its intrinsics scale with it); default the camera's own resolution. A consumer
+            that needs less than a full frame (the planar scan) renders only what it needs:
+            TinyRenderer's time grows with the pixel count.
+        """
+        if size is None:
+            w, h = self.params.width, self.params.height
+        else:
+            w, h = _check_size(size)
+        proj, intrinsics = self._projection(w, h)
         T = self.robot.T_world_camera()
         # OpenGL camera looks along -z with y up; optical frame is z forward, y down
         T_gl = T @ np.diag([1.0, -1.0, -1.0, 1.0])
         view = np.linalg.inv(T_gl).T.reshape(-1).tolist()
-        w, h = self.params.width, self.params.height
         _, _, rgba, zbuf, _ = self.robot.world.bullet.getCameraImage(
             w,
             h,
             viewMatrix=view,
-            projectionMatrix=self._proj,
+            projectionMatrix=proj,
             renderer=p.ER_TINY_RENDERER,
             flags=p.ER_NO_SEGMENTATION_MASK,
         )
@@ -114,7 +160,7 @@ class RGBDCamera:
         depth = depth + rng.normal(0.0, 1.0, depth.shape) * depth_sigma(depth, self.params)
         invalid = (depth < self.params.range_min) | (depth > self.params.range_max) | (zb >= 1.0)
         depth[invalid] = np.nan
-        return RGBDFrame(t=t, rgb=rgb, depth=depth.astype(np.float32), intrinsics=self.intrinsics)
+        return RGBDFrame(t=t, rgb=rgb, depth=depth.astype(np.float32), intrinsics=intrinsics)
 
 
 class PlanarScanner:
@@ -160,6 +206,19 @@ class PlanarScanner:
         ranges += rng.standard_normal(self.n_beams) * np.where(np.isfinite(sigma), sigma, 0.0)
         np.maximum(ranges, self.params.range_min, out=ranges)
         return Scan(t, self.angles.copy(), ranges, self.params.range_min, self.params.range_max)
+
+    @property
+    def render_size(self) -> tuple[int, int]:
+        """``(width, height)`` in pixels of the depth picture a scan needs on its own: two
+        columns per beam (at most the camera's resolution), the camera's aspect ratio."""
+        w = min(self.params.width, 2 * self.n_beams)
+        h = max(2, round(w * self.params.height / self.params.width))
+        return w, h
+
+    def scan_rendered(self, camera: RGBDCamera, t: float, rng: np.random.Generator) -> Scan:
+        """Scan from a depth picture rendered for it alone at :attr:`render_size` (image
+        fidelity between camera frames: the camera's full frame is not due)."""
+        return self.scan_from_frame(camera.render(t, rng, size=self.render_size))
 
     def scan_from_frame(self, frame: RGBDFrame) -> Scan:
         """Scan derived from a rendered depth image (image fidelity)."""

@@ -304,6 +304,8 @@ class World:
         self._texture_cache: dict[str, int] = {}
         self._arrays: PrimitiveArrays | None = None
         self.physics_seconds = 0.0
+        self.physics_cpu_seconds = 0.0
+        self.cpu_timing = False
         self._step_simulation = self.client.stepSimulation
         self.reset_simulation()
 
@@ -336,12 +338,15 @@ class World:
         the engine does not keep from one step to the next, such as adsorption).
         The wall-clock time spent inside the loop is added to
         :attr:`physics_seconds`, so benchmarks can compare an env step with the
-        raw physics it wraps.
+        raw physics it wraps; with :attr:`cpu_timing` on, the thread's CPU time to
+        :attr:`physics_cpu_seconds` too (what one core spends, whatever else the
+        machine runs; a system call per step, so off by default).
         """
         n = self.n_substeps if n_physics_steps is None else int(n_physics_steps)
         if n < 0:
             raise ValueError(f"n_physics_steps must be >= 0, got {n_physics_steps!r}")
         step = self._step_simulation
+        cpu0 = time.thread_time() if self.cpu_timing else 0.0
         t0 = time.perf_counter()
         if before_each is None:
             for _ in range(n):
@@ -351,6 +356,8 @@ class World:
                 before_each()
                 step()
         self.physics_seconds += time.perf_counter() - t0
+        if self.cpu_timing:
+            self.physics_cpu_seconds += time.thread_time() - cpu0
 
     def set_file_caching(self, enabled: bool) -> None:
         """Whether PyBullet reuses a mesh loaded earlier from the same file name (default on).

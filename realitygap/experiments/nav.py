@@ -18,45 +18,91 @@ def _make_env(**kwargs: Any) -> Any:
     return gym.make("realitygap/WheeledNav-v0", **kwargs)
 
 
+BENCH_CAMERA_HZ = 5.0
+"""Camera rate (Hz) of bench-speed's second image-mode row: VO frames every fourth control
+step, scans (10 Hz) from their own small depth pictures in between."""
+
+
+def _bench_mode(ctx: RunContext, n_steps: int, **env_kwargs: Any) -> dict[str, float]:
+    """Time ``n_steps`` seeded env steps: wall clock and this thread's CPU time, each for
+    the whole step and for the physics inside it, and the first and a repeated reset."""
+    env = _make_env(n_obstacles=6, **env_kwargs)
+    world = env.unwrapped.world
+    t0 = time.perf_counter()
+    env.reset(seed=ctx.seed)
+    reset_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    env.reset(seed=ctx.seed)  # the same layout again: its textures come from the cache
+    reset_again_s = time.perf_counter() - t0
+    rng = np.random.default_rng(ctx.seed)
+    actions = rng.uniform(-1, 1, size=(n_steps, 2)).astype(np.float32)
+    # smooth the random commands so the robot drives rather than jitters
+    for i in range(1, len(actions)):
+        actions[i] = 0.9 * actions[i - 1] + 0.1 * actions[i]
+    for a in actions[:10]:  # warm-up
+        env.step(a)
+    world.cpu_timing = True
+    world.physics_seconds = world.physics_cpu_seconds = 0.0
+    step_time = step_cpu = physics = physics_cpu = 0.0
+    for a in actions:
+        before, before_cpu = world.physics_seconds, world.physics_cpu_seconds
+        c0 = time.thread_time()
+        t0 = time.perf_counter()
+        _, _, terminated, truncated, _ = env.step(a)
+        step_time += time.perf_counter() - t0
+        step_cpu += time.thread_time() - c0
+        physics += world.physics_seconds - before
+        physics_cpu += world.physics_cpu_seconds - before_cpu
+        if terminated or truncated:
+            env.reset()
+    dt = env.unwrapped.dt
+    env.close()
+    n = len(actions)
+    return {
+        "env_steps_per_s": n / step_time,
+        "real_time_factor": n * dt / step_time,
+        "overhead_ratio": step_time / physics,
+        "cpu_real_time_factor": n * dt / step_cpu,
+        "cpu_overhead_ratio": step_cpu / physics_cpu,
+        "physics_cpu_us_per_step": 1e6 * physics_cpu / n,
+        "reset_s": reset_s,
+        "reset_again_s": reset_again_s,
+    }
+
+
 @experiment(
     "bench-speed",
-    "WheeledNav steps/s, real-time factor and env overhead over raw physics (fast and image modes)",
+    "WheeledNav steps/s, real-time factor and env overhead over raw physics (fast and image "
+    "modes; wall clock and one core's CPU time)",
 )
 def bench_speed(ctx: RunContext) -> dict[str, Any]:
-    n_steps = {"fast": 600 if ctx.quick else 4000, "image": 20 if ctx.quick else 200}
+    n_fast, n_image = (600, 20) if ctx.quick else (4000, 200)
+    runs = {
+        "fast": (n_fast, {"sensor_mode": "fast"}),
+        "image": (n_image, {"sensor_mode": "image"}),
+        f"image_camera{BENCH_CAMERA_HZ:g}hz": (
+            n_image,
+            {"sensor_mode": "image", "camera_hz": BENCH_CAMERA_HZ},
+        ),
+    }
     figures: dict[str, float] = {}
-    for mode in ("fast", "image"):
-        env = _make_env(sensor_mode=mode, n_obstacles=6)
-        world = env.unwrapped.world
-        rng = np.random.default_rng(ctx.seed)
-        env.reset(seed=ctx.seed)
-        actions = rng.uniform(-1, 1, size=(n_steps[mode], 2)).astype(np.float32)
-        # smooth the random commands so the robot drives rather than jitters
-        for i in range(1, len(actions)):
-            actions[i] = 0.9 * actions[i - 1] + 0.1 * actions[i]
-        for a in actions[:10]:  # warm-up
-            env.step(a)
-        step_time = 0.0
-        world.physics_seconds = 0.0
-        physics_in_steps = 0.0
-        for a in actions:
-            before = world.physics_seconds
-            t0 = time.perf_counter()
-            _, _, terminated, truncated, _ = env.step(a)
-            step_time += time.perf_counter() - t0
-            physics_in_steps += world.physics_seconds - before
-            if terminated or truncated:
-                env.reset()
-        dt = env.unwrapped.dt
-        env.close()
-        n = len(actions)
-        figures[f"{mode}_env_steps_per_s"] = n / step_time
-        figures[f"{mode}_real_time_factor"] = n * dt / step_time
-        figures[f"{mode}_overhead_ratio"] = step_time / physics_in_steps
-        ctx.progress(f"{mode}: {n / step_time:.0f} steps/s, RTF {n * dt / step_time:.1f}")
+    for label, (n, kwargs) in runs.items():
+        res = _bench_mode(ctx, n, **kwargs)
+        figures.update({f"{label}_{key}": value for key, value in res.items()})
+        ctx.progress(
+            f"{label}: {res['env_steps_per_s']:.0f} steps/s, RTF {res['real_time_factor']:.1f} "
+            f"(one core's CPU time: RTF {res['cpu_real_time_factor']:.1f})"
+        )
     return {
         "figures": figures,
-        "config": {"steps": n_steps, "physics_hz": 240, "control_hz": 20, "n_obstacles": 6},
+        "config": {
+            "steps": {"fast": n_fast, "image": n_image},
+            "physics_hz": 240,
+            "control_hz": 20,
+            "n_obstacles": 6,
+            "camera_hz": {"image": 20, f"image_camera{BENCH_CAMERA_HZ:g}hz": BENCH_CAMERA_HZ},
+            "scan_hz": 10,
+        },
     }
 
 

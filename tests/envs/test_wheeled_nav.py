@@ -166,3 +166,47 @@ def test_image_mode_room_is_textured_and_seeded() -> None:
         assert "floor_surface" in env.world.bodies
     finally:
         env.close()
+
+
+def test_image_mode_renders_camera_frames_only_at_the_camera_rate() -> None:
+    """camera_hz below scan_hz: RGB-D frames reach the estimator every fourth step only, the
+    scans in between come from the small depth pictures the scanner renders for itself."""
+    from realitygap.envs.wheeled_nav import WheeledNavEnv
+
+    seen: list[tuple[bool, bool]] = []
+
+    class Recorder:
+        def reset(self, initial=None):
+            return inner.reset(initial)
+
+        def update(self, m):
+            seen.append((m.rgbd is not None, m.scan is not None))
+            if m.rgbd is not None:
+                assert m.rgbd.rgb.shape == (240, 320, 3)
+            if m.scan is not None:
+                assert np.isfinite(m.scan.ranges).mean() > 0.5  # walls and boxes in view
+            return inner.update(m)
+
+    from realitygap.estimators.diffdrive_model import DiffDriveKinematics, WheelOdometry
+
+    inner = WheelOdometry(DiffDriveKinematics(0.035, 0.035, 0.23, 2578.33))
+    env = WheeledNavEnv(
+        sensor_mode="image", n_obstacles=3, camera_hz=5.0, scan_hz=10.0, estimator=Recorder()
+    )
+    try:
+        env.reset(seed=3)
+        sizes = []
+        render = env.camera.render
+
+        def spy(t, rng, size=None):
+            sizes.append(size)
+            return render(t, rng, size)
+
+        env.camera.render = spy  # type: ignore[method-assign]
+        for _ in range(8):
+            env.step(np.array([0.3, 0.1], dtype=np.float32))
+    finally:
+        env.close()
+    # steps 1..8 after the reset: frames at steps 4 and 8, scans at 2, 4, 6, 8
+    assert seen[1:] == [(k % 4 == 0, k % 2 == 0) for k in range(1, 9)]
+    assert sizes == [(128, 96), None, (128, 96), None]  # 2 columns per beam, 64 beams
