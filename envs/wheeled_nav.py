@@ -481,7 +481,8 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         np.divide(self._scan.ranges, self._scan.range_max, out=obs[12:])
         np.minimum(obs[12:], 1.0, out=obs[12:])  # inf (nothing seen) -> 1
         out = obs.astype(np.float32)
-        np.clip(out, self._obs_low, self._obs_high, out=out)
+        np.minimum(out, self._obs_high, out=out)  # = np.clip, without its Python wrapper
+        np.maximum(out, self._obs_low, out=out)
         return out
 
     def _info(

@@ -192,15 +192,15 @@ class PlanarScanner:
 
     def scan_fast(self, t: float, rng: np.random.Generator) -> Scan:
         """Analytic ray cast against the world's primitives, with depth noise."""
-        x, y, th = self.robot.pose2d()
+        x, y, th = (float(v) for v in self.robot.pose2d())
         c, s = math.cos(th), math.sin(th)
-        dirs = np.empty((self.n_beams, 2))
-        dirs[:, 0] = c * self._cos - s * self._sin
-        dirs[:, 1] = s * self._cos + c * self._sin
+        dx = c * self._cos - s * self._sin
+        dy = s * self._cos + c * self._sin
         mx, my = self.params.mount_xyz[0], self.params.mount_xyz[1]
         # beams leave the camera's optical centre; ranges are reported from the base origin
-        origin = (x + c * mx - s * my, y + s * mx + c * my)
-        ranges = self.robot.world.scenery_arrays.ray_cast(origin, dirs, self.params.range_max)
+        ranges = self.robot.world.scenery_arrays.ray_cast_xy(
+            x + c * mx - s * my, y + s * mx + c * my, dx, dy, self.params.range_max
+        )
         ranges += self._along_beam_offset
         sigma = self.params.depth_noise_a + self.params.depth_noise_b * ranges * ranges
         ranges += rng.standard_normal(self.n_beams) * np.where(np.isfinite(sigma), sigma, 0.0)

@@ -97,8 +97,15 @@ class PrimitiveArrays:
         """Distance along each planar ray (n, 2 unit directions) to the first hit; ``inf`` beyond
         ``range_max``."""
         ox, oy = (float(v) for v in np.asarray(origin_xy, dtype=float)[:2])
-        dx, dy = directions[:, 0], directions[:, 1]
-        best = np.full(directions.shape[0], np.inf)
+        d = np.asarray(directions, dtype=float)
+        return self.ray_cast_xy(ox, oy, d[:, 0], d[:, 1], range_max)
+
+    def ray_cast_xy(
+        self, ox: float, oy: float, dx: FloatArray, dy: FloatArray, range_max: float
+    ) -> FloatArray:
+        """:meth:`ray_cast` from ``(ox, oy)`` (m) along unit directions given as their x and
+        y components ``dx``, ``dy`` (n,) (the per-step form of the fast scan)."""
+        best = np.full(dx.shape[0], np.inf)
         with np.errstate(divide="ignore", invalid="ignore"):
             if len(self.box_center):
                 # slab method in each box's frame; [0] is the x slab, [1] the y slab
