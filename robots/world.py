@@ -313,6 +313,7 @@ class World:
         self.physics_seconds = 0.0
         self.physics_cpu_seconds = 0.0
         self.cpu_timing = False
+        self._egl_plugin: int | None = None
         self._step_simulation = self.client.stepSimulation
         self.reset_simulation()
 
@@ -379,6 +380,27 @@ class World:
             raise KeyError(f"no body named {name!r}; bodies: {sorted(self.bodies)}")
         self.bullet.removeBody(self.bodies.pop(name))
 
+    def load_egl_renderer(self) -> bool:
+        """Load PyBullet's EGL renderer plugin into this client: headless OpenGL on a GPU,
+        or on a software device (Mesa's llvmpipe) on a CPU-only machine.
+
+        Returns ``False`` (and changes nothing) when the plugin or an EGL device is not
+        available. Once loaded, ``render_rgb(..., renderer="egl")`` uses it.
+        """
+        if self._egl_plugin is not None:
+            return True
+        import pkgutil
+
+        loader = pkgutil.get_loader("eglRenderer")
+        if loader is None or not hasattr(loader, "get_filename"):
+            return False
+        with _quiet_c_stdout():
+            plugin = self.bullet.loadPlugin(loader.get_filename(), "_eglRendererPlugin")
+        if plugin < 0:
+            return False
+        self._egl_plugin = int(plugin)
+        return True
+
     def render_rgb(
         self,
         eye: npt.ArrayLike,
@@ -389,9 +411,19 @@ class World:
         far: float = 30.0,
         width: int = 320,
         height: int = 240,
+        renderer: str = "tiny",
     ) -> npt.NDArray[np.uint8]:
         """An RGB picture (height, width, 3) of the scene from ``eye`` looking at ``target``
-        (world frame, m; z up), rendered with the TinyRenderer (works headless)."""
+        (world frame, m; z up), rendered with the TinyRenderer (``renderer="tiny"``, works
+        headless, single-threaded) or, after :meth:`load_egl_renderer`, with EGL OpenGL
+        (``renderer="egl"``)."""
+        if renderer not in ("tiny", "egl"):
+            raise ValueError(f"renderer must be 'tiny' or 'egl', got {renderer!r}")
+        if renderer == "egl" and self._egl_plugin is None:
+            raise RuntimeError(
+                "renderer='egl' needs the EGL plugin: call load_egl_renderer() first "
+                "(it returns False where EGL is not available)"
+            )
         c = self.bullet
         view = c.computeViewMatrix(
             np.asarray(eye, dtype=float).tolist(),
@@ -399,7 +431,15 @@ class World:
             [0, 0, 1],
         )
         proj = c.computeProjectionMatrixFOV(fov_deg, width / height, near, far)
-        _, _, rgba, _, _ = c.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER)
+        if renderer == "tiny":
+            _, _, rgba, _, _ = c.getCameraImage(
+                width, height, view, proj, renderer=p.ER_TINY_RENDERER
+            )
+        else:
+            with _quiet_c_stdout():  # the plugin reports its device on the first picture
+                _, _, rgba, _, _ = c.getCameraImage(
+                    width, height, view, proj, renderer=p.ER_BULLET_HARDWARE_OPENGL
+                )
         return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[..., :3].copy()
 
     # -------------------------------------------------------------- scenery
@@ -585,6 +625,10 @@ class World:
         """Disconnect and delete generated assets; safe to call twice."""
         if self.client is not None:
             try:
+                if self._egl_plugin is not None:
+                    with _quiet_c_stdout():
+                        self.client.unloadPlugin(self._egl_plugin)
+                    self._egl_plugin = None
                 self.client.disconnect()
             except p.error:
                 pass

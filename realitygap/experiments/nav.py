@@ -70,6 +70,31 @@ def _bench_mode(ctx: RunContext, n_steps: int, **env_kwargs: Any) -> dict[str, f
     }
 
 
+def _bench_renderers(ctx: RunContext, n_frames: int) -> dict[str, float]:
+    """Milliseconds per 320 × 240 picture of the textured room from the robot's camera pose,
+    TinyRenderer against the EGL plugin (NaN where EGL is unavailable): wall clock and the
+    process's CPU time over all its threads (llvmpipe renders on several)."""
+    env = _make_env(n_obstacles=6, sensor_mode="image")
+    env.reset(seed=ctx.seed)
+    u = env.unwrapped
+    T = u.robot.T_world_camera()
+    eye, target = T[:3, 3], T[:3, 3] + T[:3, 2]  # along the optical axis
+    out: dict[str, float] = {}
+    for renderer in ("tiny", "egl"):
+        key = "tinyrenderer" if renderer == "tiny" else "egl"
+        if renderer == "egl" and not u.world.load_egl_renderer():
+            out[f"render_{key}_ms"] = out[f"render_{key}_cpu_ms"] = math.nan
+            continue
+        u.world.render_rgb(eye, target, fov_deg=60.0, renderer=renderer)  # warm-up
+        c0, t0 = time.process_time(), time.perf_counter()
+        for _ in range(n_frames):
+            u.world.render_rgb(eye, target, fov_deg=60.0, renderer=renderer)
+        out[f"render_{key}_ms"] = 1e3 * (time.perf_counter() - t0) / n_frames
+        out[f"render_{key}_cpu_ms"] = 1e3 * (time.process_time() - c0) / n_frames
+    env.close()
+    return out
+
+
 @experiment(
     "bench-speed",
     "WheeledNav steps/s, real-time factor and env overhead over raw physics (fast and image "
@@ -93,6 +118,11 @@ def bench_speed(ctx: RunContext) -> dict[str, Any]:
             f"{label}: {res['env_steps_per_s']:.0f} steps/s, RTF {res['real_time_factor']:.1f} "
             f"(one core's CPU time: RTF {res['cpu_real_time_factor']:.1f})"
         )
+    figures.update(_bench_renderers(ctx, 5 if ctx.quick else 30))
+    ctx.progress(
+        f"320x240 frame: TinyRenderer {figures['render_tinyrenderer_ms']:.1f} ms, "
+        f"EGL {figures['render_egl_ms']:.1f} ms"
+    )
     return {
         "figures": figures,
         "config": {

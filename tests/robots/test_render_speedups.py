@@ -205,3 +205,22 @@ def test_scan_from_its_own_small_render_agrees_with_the_full_frame_scan() -> Non
     # a beam's range is the nearest pixel of its bin: fewer pixels give a slightly longer
     # one (a few mm per metre); beams across an obstacle's edge may see past it
     assert np.median(r) < 0.02 and np.mean(r < 0.05) > 0.9
+
+
+def test_egl_renderer_is_optional_and_checked() -> None:
+    world = World()
+    try:
+        world.add_floor(textured_half_size=2.0, rng=np.random.default_rng(0))
+        with pytest.raises(ValueError, match="renderer must be 'tiny' or 'egl'"):
+            world.render_rgb([0, -3, 2], [0, 0, 0], renderer="vulkan")
+        with pytest.raises(RuntimeError, match="call load_egl_renderer"):
+            world.render_rgb([0, -3, 2], [0, 0, 0], renderer="egl")
+        tiny = world.render_rgb([0, -3, 2], [0, 0, 0])
+        if world.load_egl_renderer():  # a GPU or a software EGL device on this machine
+            egl = world.render_rgb([0, -3, 2], [0, 0, 0], renderer="egl")
+            assert egl.shape == tiny.shape == (240, 320, 3)
+            # its own background and lighting, but the textured floor is there
+            assert egl[120:].std() > 10 and tiny[120:].std() > 10
+    finally:
+        world.close()
+        world.close()
