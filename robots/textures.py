@@ -302,8 +302,8 @@ class _TextureCache:
             }
 
 
-DEFAULT_TEXTURE_CACHE_BYTES = 256 * 1024 * 1024
-"""Default bound of the in-memory texture cache (bytes): about 25 textured rooms."""
+DEFAULT_TEXTURE_CACHE_BYTES = 128 * 1024 * 1024
+"""Default bound of the in-memory texture cache (bytes): about a dozen textured 7 m rooms."""
 
 _CACHE = _TextureCache(DEFAULT_TEXTURE_CACHE_BYTES)
 
