@@ -62,18 +62,15 @@ def depth_sigma(z: npt.ArrayLike, params: RGBDCameraParams) -> FloatArray:
 
 def _check_size(size: object) -> tuple[int, int]:
     """``size`` as ``(width, height)`` in pixels, each a whole number in [2, 4096]."""
-    try:
-        w, h = size  # type: ignore[misc]
-    except (TypeError, ValueError):
-        w = h = None
-    if not all(
+    values = list(size) if isinstance(size, (tuple, list)) else []
+    if len(values) != 2 or not all(
         isinstance(v, (int, np.integer)) and not isinstance(v, bool) and 2 <= v <= 4096
-        for v in (w, h)
+        for v in values
     ):
         raise ValueError(
             f"size must be (width, height) in pixels, two whole numbers in [2, 4096], got {size!r}"
         )
-    return int(w), int(h)  # type: ignore[arg-type]
+    return int(values[0]), int(values[1])
 
 
 class RGBDCamera:

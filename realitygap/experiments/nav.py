@@ -102,7 +102,7 @@ def _bench_renderers(ctx: RunContext, n_frames: int) -> dict[str, float]:
 )
 def bench_speed(ctx: RunContext) -> dict[str, Any]:
     n_fast, n_image = (600, 20) if ctx.quick else (4000, 200)
-    runs = {
+    runs: dict[str, tuple[int, dict[str, Any]]] = {
         "fast": (n_fast, {"sensor_mode": "fast"}),
         "image": (n_image, {"sensor_mode": "image"}),
         f"image_camera{BENCH_CAMERA_HZ:g}hz": (
