@@ -70,6 +70,54 @@ def _bench_mode(ctx: RunContext, n_steps: int, **env_kwargs: Any) -> dict[str, f
     }
 
 
+PROFILE_PHASES = ("physics", "sensors", "estimator", "observation")
+"""Phases of an env step that bench-speed's breakdown times on their own; the rest of a step
+(action check, firmware, task, reward, ``info``, Gymnasium's wrappers) is ``other``."""
+
+
+def _profile_steps(ctx: RunContext, n_steps: int, **env_kwargs: Any) -> dict[str, float]:
+    """CPU time (µs, this thread) per env step spent in each of :data:`PROFILE_PHASES` and in
+    the rest, from timers wrapped around the env's own methods (a separate pass: the timers
+    cost a few µs per call)."""
+    env = _make_env(n_obstacles=6, **env_kwargs)
+    env.reset(seed=ctx.seed)
+    u = env.unwrapped
+    spent = dict.fromkeys(PROFILE_PHASES, 0.0)
+
+    def timed(phase: str, fn: Any) -> Any:
+        def wrapper(*args: Any, **kwargs: Any) -> Any:
+            c0 = time.thread_time()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                spent[phase] += time.thread_time() - c0
+
+        return wrapper
+
+    u.world.step = timed("physics", u.world.step)
+    u._measure = timed("sensors", u._measure)
+    u.estimator.update = timed("estimator", u.estimator.update)
+    u._observation = timed("observation", u._observation)
+    rng = np.random.default_rng(ctx.seed + 1)
+    actions = rng.uniform(-1, 1, size=(n_steps, 2)).astype(np.float32)
+    for i in range(1, len(actions)):
+        actions[i] = 0.9 * actions[i - 1] + 0.1 * actions[i]
+    total = 0.0
+    for a in actions:
+        c0 = time.thread_time()
+        _, _, terminated, truncated, _ = env.step(a)
+        total += time.thread_time() - c0
+        if terminated or truncated:
+            before = dict(spent)
+            env.reset()
+            spent.update(before)  # a reset's physics and sensors are not a step's
+    env.close()
+    out = {f"profile_{k}_us": 1e6 * v / n_steps for k, v in spent.items()}
+    out["profile_other_us"] = 1e6 * (total - sum(spent.values())) / n_steps
+    out["profile_step_us"] = 1e6 * total / n_steps
+    return out
+
+
 def _bench_renderers(ctx: RunContext, n_frames: int) -> dict[str, float]:
     """Milliseconds per 320 × 240 picture of the textured room from the robot's camera pose,
     TinyRenderer against the EGL plugin (NaN where EGL is unavailable): wall clock and the
@@ -113,6 +161,7 @@ def bench_speed(ctx: RunContext) -> dict[str, Any]:
     figures: dict[str, float] = {}
     for label, (n, kwargs) in runs.items():
         res = _bench_mode(ctx, n, **kwargs)
+        res.update(_profile_steps(ctx, n, **kwargs))
         figures.update({f"{label}_{key}": value for key, value in res.items()})
         ctx.progress(
             f"{label}: {res['env_steps_per_s']:.0f} steps/s, RTF {res['real_time_factor']:.1f} "
