@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import types
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -89,7 +90,7 @@ def _demo_env(io: rl.PolicyIO, n: int) -> Callable[[int, Sequence[Any]], Any]:
 def test_warm_started_policy_matches_the_expert_on_held_out_states() -> None:
     """DAgger on the vector env (2 rounds of 24 episodes, 8 robots): on states of other
     episodes the cloned network's motion command is within 0.15 (RMS, of the normalised
-    command) of the expert's, under 0.4 of the expert's own spread about its mean, and
+    command) of the expert's, under half the expert's own spread about its mean, and
     its stop gate agrees on 95 % of the states."""
     from stable_baselines3 import PPO
 
@@ -120,7 +121,7 @@ def test_warm_started_policy_matches_the_expert_on_held_out_states() -> None:
     rms = float(np.sqrt(np.mean((pred[:, :2] - y[:, :2]) ** 2)))
     spread = float(np.sqrt(np.mean((y[:, :2] - y[:, :2].mean(axis=0)) ** 2)))
     gate = float(np.mean(np.sign(pred[:, 2]) == np.sign(y[:, 2])))
-    assert rms < 0.15 and rms < 0.4 * spread and gate > 0.95, (rms, spread, gate)
+    assert rms < 0.15 and rms < 0.5 * spread and gate > 0.95, (rms, spread, gate)
     venv.close()
     held.close()
 
@@ -144,3 +145,8 @@ def test_vector_demonstrations_need_a_batched_expert() -> None:
             gamma=0.99,
             normalizer_cls=rl.ObsNormalizer,
         )
+
+
+def test_a_vector_trained_policy_ships_under_a_name_of_its_own(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="variant must be a non-empty name"):
+        rl.ship_policy(tmp_path, "realitygap/WheeledNav-v0", "ppo", "../vector")
