@@ -154,7 +154,8 @@ def add_train_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument(
         "--ship",
         action="store_true",
-        help="copy the trained policy and its curves into the package's baselines/policies/",
+        help="copy the trained policy and its curves into the package's baselines/policies/ "
+        "(with --vector as <env>_<algo>_vector, beside the PyBullet-trained one)",
     )
     p.set_defaults(func=cmd_train)
     return p
@@ -206,7 +207,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     for key, value in result.final_eval.items():
         print(f"final eval {key}: {value:.3f}")
     if args.ship:
-        dest = rl.ship_policy(out, env_id, args.algo)
+        dest = rl.ship_policy(out, env_id, args.algo, "vector" if vector else None)
         print(f"shipped: {dest}")
     return 0
 

@@ -346,3 +346,186 @@ class GeodesicNavExpert(PerEnvPolicy):
             v = c.cruise_speed * max(0.0, math.cos(e)) ** 3 * min(1.0, togo / c.slow_distance, slow)
             v, w = self.limits.saturate(v, w)
         return np.array([v / self.limits.v_max, w / self.limits.w_max])
+
+
+class BatchGeodesicExpert:
+    """:class:`GeodesicNavExpert` for ``N`` robots per call, on the state of a vector env
+    (``realitygap/WheeledNavVec-v0``): the same command as the single-robot expert, from
+    the same estimated poses, goals and layouts, with the carrot search, the visibility
+    test and the command law evaluated for every robot at once in numpy.
+
+    Each robot's cost-to-go (:class:`GeodesicField`) is built when its layout or goal
+    changes (a new episode) and kept until then; the fields' arrays are stacked so that a
+    step indexes them all at once. Only the polar stabiliser, within ``stabilise_radius``
+    of the goal, runs robot by robot.
+
+    Parameters
+    ----------
+    env : the vector env (or a wrapper of it) whose ``obstacles`` (one layout per robot),
+        ``room_half_size``, ``params`` and ``num_envs`` the expert reads.
+    config : the expert's settings (default: :class:`GeodesicNavConfig`).
+    """
+
+    def __init__(self, env: Any, config: GeodesicNavConfig | None = None):
+        base = getattr(env, "unwrapped", env)
+        for name in ("obstacles", "room_half_size", "params", "num_envs"):
+            if not hasattr(base, name):
+                raise TypeError(
+                    f"BatchGeodesicExpert needs a vector WheeledNav env (with .{name}), "
+                    f"got {type(base).__name__}"
+                )
+        self.env = base
+        self.config = c = config or GeodesicNavConfig()
+        p = base.params
+        self.limits = VelocityLimits(
+            v_max=p.v_max, w_max=p.w_max, a_max=p.a_max, alpha_max=p.alpha_max
+        )
+        self.robot_radius = float(p.body_radius)
+        n = self.num_envs = int(base.num_envs)
+        self.stabilisers = [
+            PolarStabiliser(limits=self.limits, reverse_hysteresis=0.0) for _ in range(n)
+        ]
+        self.xy = room_grid(float(base.room_half_size), c.resolution).reshape(-1, 2)
+        cells = self.xy.shape[0]
+        self.fields: list[GeodesicField | None] = [None] * n
+        self._keys: list[tuple[Any, tuple[float, float]] | None] = [None] * n
+        self.cost_to_go = np.full((n, cells), np.inf)
+        self.next_cell = np.zeros((n, cells), dtype=np.int32)
+        self.clearance = np.zeros((n, cells))
+        self.goal_cell = np.zeros(n, dtype=np.intp)
+        self.blocked_below = self.robot_radius + c.margin
+
+    def reset(self) -> None:
+        """Forget every robot's field (they are rebuilt on the next call)."""
+        self.fields = [None] * self.num_envs
+        self._keys = [None] * self.num_envs
+
+    def _refresh(self, rows: npt.NDArray[np.intp], goal_xy: FloatArray) -> None:
+        """Build the fields of robots ``rows`` whose layout or goal changed."""
+        c = self.config
+        for i in rows:
+            layout = self.env.obstacles[i]
+            key = (float(goal_xy[i, 0]), float(goal_xy[i, 1]))
+            cached = self._keys[i]
+            if cached is not None and cached[0] is layout and cached[1] == key:
+                continue
+            f = GeodesicField(
+                list(layout),
+                float(self.env.room_half_size),
+                goal_xy[i],
+                self.robot_radius,
+                margin=c.margin,
+                soft_clearance=c.soft_clearance,
+                soft_weight=c.soft_weight,
+                resolution=c.resolution,
+            )
+            self.fields[i], self._keys[i] = f, (layout, key)
+            self.cost_to_go[i] = f.cost_to_go.reshape(-1)
+            self.next_cell[i] = f.next_cell.reshape(-1)
+            self.clearance[i] = f.clearance.reshape(-1)
+            self.goal_cell[i] = f.goal_cell[0] * f.n + f.goal_cell[1]
+
+    def _flat_cells(self, field: GeodesicField, xy: FloatArray) -> npt.NDArray[np.intp]:
+        ij = field.cells(xy)
+        return ij[..., 0] * field.n + ij[..., 1]
+
+    def act(self, pose: npt.ArrayLike, goal: npt.ArrayLike) -> FloatArray:
+        """Normalised actions ``(N, 2)`` (``[v / v_max, ω / w_max]``) for estimated poses
+        and goals ``(N, 3)`` ``[x, y, θ]`` (m, m, rad), world frame."""
+        pose = np.asarray(pose, dtype=float)
+        goal = np.asarray(goal, dtype=float)
+        n = self.num_envs
+        if pose.shape != (n, 3) or goal.shape != (n, 3):
+            raise ValueError(
+                f"pose and goal must have shape ({n}, 3), got {pose.shape} and {goal.shape}"
+            )
+        c = self.config
+        v, w = np.zeros(n), np.zeros(n)
+        dist = np.hypot(goal[:, 0] - pose[:, 0], goal[:, 1] - pose[:, 1])
+        align = dist <= c.align_radius
+        if np.any(align):
+            err = wrap_angle(goal[align, 2] - pose[align, 2])
+            rate = np.maximum(
+                c.align_min_rate, c.align_rate * np.tanh(c.align_gain * np.abs(err) / c.align_rate)
+            )
+            w[align] = np.where(np.abs(err) <= c.stop_angle, 0.0, np.copysign(rate, err))
+        for i in np.flatnonzero(~align & (dist <= c.stabilise_radius)):
+            v[i], w[i] = self.stabilisers[i].command(pose[i], goal[i])
+        path = np.flatnonzero(dist > c.stabilise_radius)
+        if path.size:
+            v[path], w[path] = self._path_command(path, pose[path], goal[path, :2])
+        return np.column_stack([v / self.limits.v_max, w / self.limits.w_max])
+
+    def _path_command(
+        self, rows: npt.NDArray[np.intp], pose: FloatArray, goal_xy: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """Steps 2 and 3 of the module docstring for robots ``rows`` far from the goal."""
+        c = self.config
+        full_goal = np.zeros((self.num_envs, 2))
+        full_goal[rows] = goal_xy
+        self._refresh(rows, full_goal)
+        field = self.fields[int(rows[0])]
+        assert field is not None
+        m = rows.size
+        p = pose[:, :2]
+        k = self._flat_cells(field, p)
+        lost = ~np.isfinite(self.cost_to_go[rows, k])
+        for j in np.flatnonzero(lost):  # rare: the robot's cell cannot reach the goal
+            f = self.fields[int(rows[j])]
+            assert f is not None
+            i, jj = f.nearest_reachable(p[j])
+            k[j] = i * f.n + jj
+        togo = self.cost_to_go[rows, k]
+        # the next-cell chain, for all robots at once, until the goal or the lookahead
+        chain = [k]
+        running = np.ones(m, dtype=bool)
+        goal_cell = self.goal_cell[rows]
+        for _ in range(4 * field.n):
+            running &= (k != goal_cell) & (np.hypot(*(self.xy[k] - p).T) < c.lookahead)
+            if not np.any(running):
+                break
+            k = np.where(running, self.next_cell[rows, k], k)
+            chain.append(np.where(running, k, -1))
+        cells = np.column_stack(chain)  # (m, L); -1 past a robot's end
+        length = np.sum(cells >= 0, axis=1)
+        best = cells[np.arange(m), np.minimum(1, length - 1)]
+        for j in range(1, cells.shape[1]):
+            ok = cells[:, j] >= 0
+            if not np.any(ok):
+                break
+            vis = self._visible(field, rows[ok], p[ok], self.xy[cells[ok, j]])
+            upd = np.flatnonzero(ok)[vis]
+            best[upd] = cells[upd, j]
+        carrot = self.xy[best]
+        e = wrap_angle(np.arctan2(carrot[:, 1] - p[:, 1], carrot[:, 0] - p[:, 0]) - pose[:, 2])
+        w = c.turn_rate * np.tanh(c.turn_gain * e / c.turn_rate)
+        here = self._flat_cells(field, p)
+        near = (self.clearance[rows, here] - self.blocked_below) / c.clear_slow
+        slow = c.min_speed_fraction + (1.0 - c.min_speed_fraction) * np.clip(near, 0.0, 1.0)
+        v = (
+            c.cruise_speed
+            * np.maximum(0.0, np.cos(e)) ** 3
+            * np.minimum(np.minimum(1.0, togo / c.slow_distance), slow)
+        )
+        scale = np.maximum(
+            1.0, np.maximum(np.abs(v) / self.limits.v_max, np.abs(w) / self.limits.w_max)
+        )
+        return v / scale, w / scale
+
+    def _visible(
+        self, field: GeodesicField, rows: npt.NDArray[np.intp], a: FloatArray, b: FloatArray
+    ) -> npt.NDArray[np.bool_]:
+        """:meth:`GeodesicField.visible` of segments ``a[j] -> b[j]`` in the fields of robots
+        ``rows[j]`` (all on ``field``'s grid)."""
+        seg = b - a
+        count = np.maximum(
+            2, np.ceil(np.hypot(seg[:, 0], seg[:, 1]) / (0.5 * field.resolution)).astype(int) + 1
+        )
+        top = int(count.max())
+        idx = np.arange(top)[None, :]
+        t = idx * (1.0 / (count[:, None] - 1.0))
+        t = np.where(idx == count[:, None] - 1, 1.0, np.minimum(t, 1.0))
+        pts = a[:, None, :] + t[..., None] * seg[:, None, :]
+        flat = self._flat_cells(field, pts)
+        free = self.clearance[rows[:, None], flat] > field.blocked_below
+        return np.all(free | (idx >= count[:, None]), axis=1)

@@ -374,17 +374,30 @@ def read_csv(path: str | os.PathLike[str]) -> list[dict[str, str]]:
         return list(csv.DictReader(fh))
 
 
-def ship_policy(run_dir: str | os.PathLike[str], env_id: str, algo: str) -> Path:
+def ship_policy(
+    run_dir: str | os.PathLike[str], env_id: str, algo: str, variant: str | None = None
+) -> Path:
     """Export a training folder's model into :data:`POLICIES_DIR` as ``<env>_<algo>.pth`` /
     ``.json`` (:func:`export_policy`), with its learning curves (``.episodes.csv``,
-    ``.eval.csv``). The folder's ``model.zip`` is loaded with SB3 (it must be your own)."""
+    ``.eval.csv``). The folder's ``model.zip`` is loaded with SB3 (it must be your own).
+
+    ``variant`` (letters, digits, ``-``) names a policy of its own beside the shipped one,
+    ``<env>_<algo>_<variant>.pth`` (e.g. ``vector`` for a policy trained on the vector env).
+    """
     src = Path(run_dir)
     algo = check_algo(algo)
+    if variant is not None and not (
+        variant and all(ch.isascii() and (ch.isalnum() or ch == "-") for ch in variant)
+    ):
+        raise ValueError(
+            f"variant must be a non-empty name of ASCII letters, digits and '-', got {variant!r}"
+        )
+    stem = f"{env_slug(env_id)}_{algo}" + (f"_{variant}" if variant else "")
     meta = read_policy_meta(src / "model.zip")
     if meta.get("env_id") not in (None, env_id):
         raise ValueError(f"{src / 'model.zip'} was trained for {meta.get('env_id')!r}")
     model = algo_class(algo).load(src / "model.zip", device="cpu")
-    dest = export_policy(model, meta, POLICIES_DIR / f"{env_slug(env_id)}_{algo}.pth")
+    dest = export_policy(model, meta, POLICIES_DIR / f"{stem}.pth")
     for name, target in (
         ("episodes.csv", dest.with_suffix(".episodes.csv")),
         ("eval.csv", dest.with_suffix(".eval.csv")),

@@ -200,7 +200,10 @@ def _build_model(
         device="cpu",
         **rs.algo_kwargs,
     )
-    if rs.hp.get("demonstrations"):
+    if rs.hp.get("demonstrations") and rs.vector:
+        demo_rows = _pretrain_from_vector_demonstrations(cfg, rs, model, venv)
+        write_csv_atomic(out_dir / "demonstrations.csv", demo_rows)
+    elif rs.hp.get("demonstrations"):
         demo_rows = _pretrain_from_demonstrations(
             cfg,
             rs.hp,
@@ -504,6 +507,44 @@ def _pretrain_from_demonstrations(
         train_wrappers,
         None if max_steps is None else int(max_steps),
         evaluate=evaluate if cfg.eval_episodes > 0 else None,
+        log=logger.info,
+    )
+    rms = venv.obs_rms
+    rms.mean, rms.var = norm.mean.copy(), norm.var.copy()
+    venv.training = False
+    return rows
+
+
+def _pretrain_from_vector_demonstrations(
+    cfg: TrainConfig, rs: _RunSettings, model: Any, venv: Any
+) -> list[dict[str, float]]:
+    """Warm-start ``model`` by DAgger on the vector env with the batched expert the settings
+    name (:mod:`realitygap.baselines.rl.vector_imitation`; as many robots as training) and
+    freeze the observation normalisation at the one the network was cloned with."""
+    from realitygap.baselines.imitation import DemoSettings
+    from realitygap.baselines.rl.vector_imitation import pretrain_vector
+
+    if cfg.algo != "ppo":
+        raise ValueError(f"demonstrations warm-start PPO only, not {cfg.algo}")
+    if not getattr(venv, "norm_obs", False):
+        raise ValueError('demonstrations need "normalize": {"obs": true}')
+    settings = DemoSettings.from_dict(rs.hp["demonstrations"])
+    kwargs = {**rs.env_kwargs, **dict(rs.hp.get("vector_env_kwargs", {}) or {})}
+
+    def make_env(seed: int, wrappers: Sequence[Mapping[str, Any]]) -> Any:
+        return make_vector_train_env(
+            vector_env_id(rs.env_id), kwargs, rs.n_envs, seed, rs.io, rs.max_steps, wrappers
+        )
+
+    norm, rows = pretrain_vector(
+        model,
+        make_env,
+        rs.io,
+        settings,
+        cfg.seed,
+        float(rs.algo_kwargs.get("gamma", 0.99)),
+        ObsNormalizer,
+        rs.train_wrappers,
         log=logger.info,
     )
     rms = venv.obs_rms

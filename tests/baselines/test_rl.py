@@ -706,6 +706,7 @@ def test_arm_observability_shaping_telescopes_and_pays_for_spread_poses() -> Non
 def test_vector_training_gives_a_wheeled_nav_policy_evaluated_in_pybullet(tmp_path: Path) -> None:
     hp = rl.load_hyperparams("ppo", "realitygap/WheeledNavVec-v0")
     hp.update(n_steps=32, batch_size=256, n_epochs=1)
+    hp["demonstrations"] = {**hp["demonstrations"], "rounds": 1, "episodes": 4, "epochs": 1}
     cfg = rl.TrainConfig(
         env_id="realitygap/WheeledNav-v0",
         algo="ppo",
@@ -722,6 +723,8 @@ def test_vector_training_gives_a_wheeled_nav_policy_evaluated_in_pybullet(tmp_pa
     meta = json.loads(result.meta_path.read_text())
     assert meta["env_id"] == "realitygap/WheeledNav-v0"
     assert meta["train_env"] == "realitygap/WheeledNavVec-v0"
+    assert [row["round"] for row in meta["demonstrations"]] == [0.0]
+    assert (tmp_path / "vec" / "demonstrations.csv").is_file()
     assert set(result.final_eval) >= {"success", "reached_10cm", "collision"}
     env = gym.make("realitygap/WheeledNav-v0")
     policy = rl.load_policy(result.model_path, env, env_id="realitygap/WheeledNav-v0")
@@ -760,6 +763,7 @@ def test_vector_shaping_is_the_wrappers_potential_difference() -> None:
 def test_vector_recipe_randomises_effects_only_in_the_vector_env(tmp_path: Path) -> None:
     hp = rl.load_hyperparams("ppo", "realitygap/WheeledNavVec-v0")
     hp.update(n_steps=16, batch_size=128, n_epochs=1)
+    hp.pop("demonstrations")
     hp["vector_env_kwargs"] = {"randomize": {"wheelbase_error.E_b": [0.95, 1.05]}}
     cfg = rl.TrainConfig(
         env_id="realitygap/WheeledNav-v0",
