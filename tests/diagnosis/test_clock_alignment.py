@@ -165,6 +165,12 @@ def test_a_common_latency_is_still_named_beside_per_log_offsets() -> None:
     )
 
 
+def test_logs_that_differ_only_by_their_clocks_and_noise_name_no_effect() -> None:
+    d, _ = _diagnose((), 0.0, seed=8, clock=ClockSettings())
+    assert d.verdict.kind != "effects", d.verdict.reason
+    assert not d.scales.get("named", False)
+
+
 def _independent_sessions(root: Path, seed: int) -> None:
     """UMBmark squares and held-out circles of one robot with E_b, E_d and per-run clock skews
     (the package's independent generator)."""
