@@ -62,6 +62,7 @@ from realitygap.diagnosis.adapters import PreparedLog
 from realitygap.diagnosis.attribute import Problem, _rho, fit_model, model_keys, param_spec
 from realitygap.diagnosis.clock import ClockAlignment, ClockSettings, align_clocks, timing_channel
 from realitygap.diagnosis.log import Log
+from realitygap.diagnosis.replay import Drive
 from realitygap.diagnosis.shrink import overall_shrink
 
 FloatArray = npt.NDArray[np.float64]
@@ -305,7 +306,10 @@ def calibrate_baseline(
         Fit each log's own clock offset first and re-stamp the logs whose
         deviation from the common offset is a synchronisation error
         (:func:`~realitygap.diagnosis.clock.align_clocks`, on the nuisance that
-        shifts a channel's stamps); ``None`` leaves every log's clock alone.
+        shifts a channel's stamps); ``None`` leaves every log's clock alone. Only
+        a replay driven by the measured wheel motion (``Drive.TICKS``) is aligned:
+        with a command-driven one, each log's manoeuvres meet the drive train's
+        response differently, and a per-log time shift would absorb part of it.
 
     Returns
     -------
@@ -320,7 +324,10 @@ def calibrate_baseline(
         return Baseline()
     aligned = ClockAlignment()
     timing = [k for k in ranges if timing_channel(k) is not None]
-    if clock is not None and timing:
+    # only a replay driven by the measured wheel motion isolates the clock: with a command-
+    # driven replay each log's manoeuvres meet the drive train's response (lags, ramps,
+    # limits) differently, and a per-log time shift would absorb part of it
+    if clock is not None and timing and problem.drive is Drive.TICKS:
         say(f"aligning each log's clock ({timing[0]})")
         aligned = align_clocks(problem, timing[0], clock, say)
     effects = tuple(dict.fromkeys(k.partition(".")[0] for k in ranges))

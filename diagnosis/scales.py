@@ -32,7 +32,10 @@ the window shrink. The best model is named, with both figures stated, when
 4. after those per-window offsets the residual is unstructured (the verdict's
    own structured-residual test, :func:`~realitygap.diagnosis.residual.describe_residual`).
 
-Otherwise the verdict stays as it was. A pure-noise log fails (1) and (2); an
+Only a replay driven by the measured wheel motion (``Drive.TICKS``) qualifies:
+with a command-driven replay a per-window time shift is confounded with the
+drive train's response to the commands (lags, ramps, limits), so a timing
+signature there identifies nothing. Otherwise the verdict stays as it was. A pure-noise log fails (1) and (2); an
 effect outside the library that a library effect partly compensates leaves a
 window residual that is not a clock's (3, 4).
 """
@@ -51,6 +54,7 @@ from scipy.stats import binomtest
 from realitygap.diagnosis.attribute import Layout, ModelFit, Problem, Verdict
 from realitygap.diagnosis.clock import timing_channel
 from realitygap.diagnosis.log import Log
+from realitygap.diagnosis.replay import Drive
 from realitygap.diagnosis.residual import describe_residual
 from realitygap.diagnosis.shrink import trajectory_gap
 
@@ -194,6 +198,7 @@ def judge_scales(
     # not the reference and a window shrink below the bar failed on that shrink
     if (
         verdict.kind != "unexplained"
+        or problem.drive is not Drive.TICKS
         or not best.effects
         or shrink_pct_best >= 100.0 * st.min_shrink
         or _pinned(problem, best)
