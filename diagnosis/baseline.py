@@ -60,7 +60,9 @@ import numpy.typing as npt
 from realitygap.core.parallel import Backend
 from realitygap.diagnosis.adapters import PreparedLog
 from realitygap.diagnosis.attribute import Problem, _rho, fit_model, model_keys, param_spec
+from realitygap.diagnosis.clock import ClockAlignment, ClockSettings, align_clocks, timing_channel
 from realitygap.diagnosis.log import Log
+from realitygap.diagnosis.replay import Drive
 from realitygap.diagnosis.shrink import overall_shrink
 
 FloatArray = npt.NDArray[np.float64]
@@ -103,6 +105,10 @@ class Baseline:
     convention_costs : dict of str to float
         Robust cost of each convention over every window, its nuisances fitted
         on the training windows (lower is better; the same loss scale for all).
+    clock : ClockAlignment
+        Each log's own clock offset, fitted before the nuisances: the deviations
+        from the common offset that were applied by re-stamping the log
+        (:mod:`~realitygap.diagnosis.clock`).
     """
 
     values: dict[str, float] = field(default_factory=dict)
@@ -113,6 +119,7 @@ class Baseline:
     convention: str = ""
     convention_what: str = ""
     convention_costs: dict[str, float] = field(default_factory=dict)
+    clock: ClockAlignment = field(default_factory=ClockAlignment)
 
     def to_json(self) -> dict[str, Any]:
         """JSON form: one row per nuisance and the training shrink of the baseline."""
@@ -135,14 +142,17 @@ class Baseline:
             }
             if self.convention
             else None,
+            "clock_alignment": self.clock.to_json() if self.clock.rows else None,
         }
 
     def summary(self) -> str:
         """One line for the terminal and the report."""
         conv = f"actuator response: {self.convention_what}" if self.convention else ""
+        clock = self.clock.summary()
         if not self.values:
-            return "baseline calibration: " + (conv or "none (the adapter states no nuisances)")
-        parts = [conv] if conv else []
+            head = "; ".join(x for x in (conv, clock) if x)
+            return "baseline calibration: " + (head or "none (the adapter states no nuisances)")
+        parts = [x for x in (conv, clock) if x]
         for k, v in self.values.items():
             unit = self.units.get(k, "")
             scale, shown = (1e3, "ms") if unit == "s" else (1.0, unit)
@@ -278,6 +288,7 @@ def calibrate_baseline(
     candidates: Sequence[str],
     backend: Backend,
     say: Callable[[str], None] = lambda msg: None,
+    clock: ClockSettings | None = None,
 ) -> Baseline:
     """Fit the adapter's nuisances and make the baseline the reference of ``problem``.
 
@@ -291,6 +302,14 @@ def calibrate_baseline(
     backend : Backend
         Where the PyBullet replays run.
     say : callable
+    clock : ClockSettings, optional
+        Fit each log's own clock offset first and re-stamp the logs whose
+        deviation from the common offset is a synchronisation error
+        (:func:`~realitygap.diagnosis.clock.align_clocks`, on the nuisance that
+        shifts a channel's stamps); ``None`` leaves every log's clock alone. Only
+        a replay driven by the measured wheel motion (``Drive.TICKS``) is aligned:
+        with a command-driven one, each log's manoeuvres meet the drive train's
+        response differently, and a per-log time shift would absorb part of it.
 
     Returns
     -------
@@ -303,6 +322,14 @@ def calibrate_baseline(
     check_nuisances(ranges)
     if not ranges or problem.train.n == 0:
         return Baseline()
+    aligned = ClockAlignment()
+    timing = [k for k in ranges if timing_channel(k) is not None]
+    # only a replay driven by the measured wheel motion isolates the clock: with a command-
+    # driven replay each log's manoeuvres meet the drive train's response (lags, ramps,
+    # limits) differently, and a per-log time shift would absorb part of it
+    if clock is not None and timing and problem.drive is Drive.TICKS:
+        say(f"aligning each log's clock ({timing[0]})")
+        aligned = align_clocks(problem, timing[0], clock, say)
     effects = tuple(dict.fromkeys(k.partition(".")[0] for k in ranges))
     box = {k: (r[0], r[1]) for k, r in ranges.items()}
     # parameters of a nuisance effect that are not nuisances stay at nominal
@@ -351,6 +378,7 @@ def calibrate_baseline(
             convention=conv,
             convention_what=conv_what,
             convention_costs=conv_costs,
+            clock=aligned,
         )
     problem.f_scale = problem.noise_scale()
     return Baseline(
@@ -362,4 +390,5 @@ def calibrate_baseline(
         convention=conv,
         convention_what=conv_what,
         convention_costs=conv_costs,
+        clock=aligned,
     )

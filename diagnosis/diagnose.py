@@ -62,11 +62,13 @@ from realitygap.diagnosis.attribute import (
     fit_model,
 )
 from realitygap.diagnosis.baseline import Baseline, calibrate_baseline
+from realitygap.diagnosis.clock import ClockSettings
 from realitygap.diagnosis.features import FeatureSettings
 from realitygap.diagnosis.identifiability import identifiability
 from realitygap.diagnosis.localise import localise
 from realitygap.diagnosis.log import Log, LogError
 from realitygap.diagnosis.replay import Drive, SimSettings
+from realitygap.diagnosis.scales import ScaleSettings, judge_scales
 from realitygap.diagnosis.shrink import overall_shrink, shrink_table, trajectory_gap
 from realitygap.diagnosis.transients import TransientReport, TransientSettings, detect_transients
 from realitygap.diagnosis.verdict import Judgement, conclude, judge
@@ -115,6 +117,13 @@ class DiagnosisSettings:
         Thresholds of the transient-event detector; ``None`` switches it off.
     calibrate : bool
         Fit the adapter's baseline nuisances first (the calibrated baseline).
+    clock : ClockSettings or None
+        With ``calibrate``: fit each log's own clock offset first and re-stamp the
+        logs whose deviation from the common offset is a synchronisation error
+        (:mod:`realitygap.diagnosis.clock`); ``None`` leaves every log's clock alone.
+    scales : ScaleSettings or None
+        Revisit a verdict that fails only on the window shrink on the scale of whole
+        held-out runs (:mod:`realitygap.diagnosis.scales`); ``None``: windows only.
     """
 
     robot: str = "diffdrive"
@@ -127,6 +136,8 @@ class DiagnosisSettings:
     block_windows: int = 10
     transients: TransientSettings | None = field(default_factory=TransientSettings)
     calibrate: bool = True
+    clock: ClockSettings | None = field(default_factory=ClockSettings)
+    scales: ScaleSettings | None = field(default_factory=ScaleSettings)
 
 
 @dataclass
@@ -153,6 +164,7 @@ class Diagnosis:
     baseline: Baseline = field(default_factory=Baseline)
     transients: TransientReport = field(default_factory=TransientReport)
     nominal_reference: dict[str, Any] = field(default_factory=dict)
+    scales: dict[str, Any] = field(default_factory=dict)
 
     @property
     def chosen(self) -> ModelFit | None:
@@ -234,6 +246,7 @@ class Diagnosis:
                 "ambiguous_with": v.ambiguous_with,
                 "remaining_residual": v.residual,
             },
+            "verdict_scales": self.scales,
             "ranking": self.ranking_rows(),
             "candidates": self.candidates,
             "not_observable": self.not_observable,
@@ -561,7 +574,7 @@ def diagnose(
     baseline = Baseline()
     if s.calibrate:
         t_b = time.perf_counter()
-        baseline = calibrate_baseline(problem, candidates, be, say)
+        baseline = calibrate_baseline(problem, candidates, be, say, clock=s.clock)
         timing["baseline"] = time.perf_counter() - t_b
         if baseline.values:
             say(baseline.summary())
@@ -578,6 +591,18 @@ def diagnose(
     judgement = judge(
         problem, verification.ranking, nominal_fit, adapter.noise_levels(prepared, s.features)
     )
+    scale_figures: dict[str, Any] = {}
+    if s.scales is not None:
+        judgement.verdict, scale_figures = judge_scales(
+            problem,
+            judgement.verdict,
+            judgement.best,
+            nominal_fit,
+            judgement.shrink_pct_best,
+            verification.replays,
+            adapter.noise_levels(prepared, s.features),
+            s.scales,
+        )
     ident = advise(problem, verification.ranking, judgement)
     conclude(problem, verification.ranking, judgement, ident)
     rows, gap = gap_report(problem, judgement, verification.replays, baseline)
@@ -605,4 +630,5 @@ def diagnose(
         baseline=baseline,
         transients=transients,
         nominal_reference=reference,
+        scales=scale_figures,
     )

@@ -268,6 +268,32 @@ def diagnose_real(ctx: RunContext) -> dict[str, Any]:
             figures[prefix + "trajectory_shrink_pct"] = 100.0 * (
                 1.0 - g["heldout_trajectory_gap_m_best"] / g["heldout_trajectory_gap_m_nominal"]
             )
+        clock = d.baseline.clock
+        if clock.rows:
+            devs = [1e3 * r["deviation_s"] for r in clock.rows if r["applied"]]
+            figures[prefix + "clock_common_offset_ms"] = 1e3 * clock.common
+            figures[prefix + "clock_logs_restamped"] = float(len(devs))
+            if devs:
+                figures[prefix + "clock_deviation_ms_min"] = min(devs)
+                figures[prefix + "clock_deviation_ms_max"] = max(devs)
+            tables[f"{drive}_clock_alignment"] = [
+                {
+                    "log": r["log"],
+                    "split": r["split"],
+                    "offset_ms": round(1e3 * r["offset_s"], 2),
+                    "deviation_ms": round(1e3 * r["deviation_s"], 2),
+                    "applied": r["applied"],
+                    "chi2_drop": round(r["chi2_drop"], 1),
+                }
+                for r in clock.rows
+            ]
+        if d.scales:
+            for k in ("run_shrink_pct", "timing_share_pct", "timing_share_pct_permuted_max"):
+                figures[prefix + "scales_" + k] = d.scales[k]
+            figures[prefix + "named_on_whole_runs"] = float(d.scales["named"])
+            notes += [
+                f"{drive}: two-scale verdict not drawn: {w}" for w in d.scales.get("why_not", [])
+            ]
         tr_rep = d.transients
         figures[prefix + "transient_windows_set_aside"] = float(tr_rep.n_excluded)
         figures[prefix + "transient_share_pct"] = 100.0 * tr_rep.share_excluded
