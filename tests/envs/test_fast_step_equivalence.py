@@ -11,6 +11,7 @@ import pytest
 
 import realitygap  # noqa: F401  (registers the envs)
 from realitygap.envs.common import check_action_array, check_twist_action
+from realitygap.envs.wheeled_nav import WheeledNavEnv
 from realitygap.estimators import diffdrive_model
 from realitygap.estimators.diffdrive_model import (
     DiffDriveKinematics,
@@ -124,6 +125,31 @@ def reference_scan_fast(self, t, rng):  # type: ignore[no-untyped-def]
     return sensors.Scan(t, self.angles.copy(), ranges, self.params.range_min, self.params.range_max)
 
 
+def reference_observation(self):  # type: ignore[no-untyped-def]
+    """The whole observation in float64, cast to float32 and clipped to the space."""
+    x, y, th = (float(v) for v in self._estimate.pose)
+    gx, gy, gth = (float(v) for v in self.task.goal)
+    c, s = math.cos(th), math.sin(th)
+    dx, dy = gx - x, gy - y
+    obs = np.empty(12 + self.n_beams)
+    obs[:12] = (
+        x,
+        y,
+        c,
+        s,
+        gx,
+        gy,
+        math.cos(gth),
+        math.sin(gth),
+        c * dx + s * dy,
+        -s * dx + c * dy,
+        self.robot.command[0] / self.v_max,
+        self.robot.command[1] / self.w_max,
+    )
+    obs[12:] = np.minimum(self._scan.ranges / self._scan.range_max, 1.0)
+    return np.clip(obs.astype(np.float32), self.observation_space.low, self.observation_space.high)
+
+
 # ---------------------------------------------------------------- unit checks
 
 
@@ -217,6 +243,7 @@ def _run(kwargs: dict[str, object], n_steps: int, reference: bool) -> list[tuple
     if reference:
         mp.setattr(diffdrive_model, "propagate_pose", reference_propagate_pose)
         mp.setattr(sensors.PlanarScanner, "scan_fast", reference_scan_fast)
+        mp.setattr(WheeledNavEnv, "_observation", reference_observation)
     try:
         env = gym.make("realitygap/WheeledNav-v0", sensor_mode="fast", **kwargs)
         rng = np.random.default_rng(11)
