@@ -126,8 +126,8 @@ class PrimitiveArrays:
         with np.errstate(divide="ignore", invalid="ignore"):
             if len(self.box_center):
                 # slab method in each box's frame; [0] is the x slab, [1] the y slab
-                rx = ox - self.box_center[:, :1]
-                ry = oy - self.box_center[:, 1:]
+                r = np.subtract((ox, oy), self.box_center)
+                rx, ry = r[:, :1], r[:, 1:]
                 c, s = self._slab_cos, self._slab_sin
                 o_local = c * rx + s * ry  # (2, n_boxes, 1): origin in the box frame
                 np.multiply(c, dx, out=d_local)  # (2, n_boxes, n): directions in the box frame
@@ -141,19 +141,20 @@ class PrimitiveArrays:
                 # a NaN bound (a ray along a face) compares False: no hit, never NaN
                 minimum.reduce(tmin, axis=0, initial=np.inf, where=tmax >= tmin, out=best)
             if len(self.cyl_center):
-                rx = ox - self.cyl_center[:, :1]
-                ry = oy - self.cyl_center[:, 1:]
+                r = np.subtract((ox, oy), self.cyl_center)
+                rx, ry = r[:, :1], r[:, 1:]
                 np.multiply(rx, dx, out=b)
                 b += ry * dy
                 cc = rx * rx + ry * ry - self.cyl_r2
                 np.multiply(b, b, out=disc)
                 disc -= cc
+                np.sqrt(disc, out=disc)  # NaN where the ray's line misses the circle
                 t = np.negative(b, out=b)
-                t -= np.sqrt(maximum(disc, 0.0))
+                t -= disc
                 t[cc[:, 0] < 0] = 0.0  # the origin inside: hit at once
-                hit = disc >= 0.0
-                hit &= t >= 0.0
-                minimum(best, minimum.reduce(t, axis=0, initial=np.inf, where=hit), out=best)
+                # t >= 0 is False for NaN: a miss, like a circle behind the origin
+                hit = minimum.reduce(t, axis=0, initial=np.inf, where=t >= 0.0)
+                minimum(best, hit, out=best)
         best[best > range_max] = np.inf
         return best
 
