@@ -466,7 +466,6 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         x, y, th = pose.tolist() if type(pose) is np.ndarray else (float(v) for v in pose)
         gx, gy, gth = self.task.goal.tolist()
         cmd_v, cmd_w = self.robot.command.tolist()
-        P = self.params
         c, s = math.cos(th), math.sin(th)
         dx, dy = gx - x, gy - y
         head = self._obs_buf
@@ -481,8 +480,8 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             math.sin(gth),
             c * dx + s * dy,
             -s * dx + c * dy,
-            cmd_v / P.v_max,
-            cmd_w / P.w_max,
+            cmd_v / self.v_max,
+            cmd_w / self.w_max,
         )
         out = self._obs_out
         if self._obs_scan is not self._scan:  # the scan part changes only with a new scan
