@@ -73,7 +73,8 @@ class PrimitiveArrays:
     """The primitives of a scene packed into arrays for vectorised ray casting.
 
     Built once per scene; :meth:`ray_cast` then costs a few numpy operations on
-    ``(n_primitives, n_rays)`` arrays.
+    ``(n_primitives, n_rays)`` arrays, written into work arrays kept per ray count (one
+    caster per thread).
     """
 
     def __init__(self, primitives: list[Primitive]):
