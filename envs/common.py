@@ -81,7 +81,12 @@ def check_twist_action(action: npt.ArrayLike) -> tuple[float, float]:
     shape or a non-finite entry (a NaN action would otherwise drive the simulation
     into NaN states silently).
     """
-    a = check_action_array(action, (2,))
+    if type(action) is np.ndarray and action.shape == (2,) and action.dtype.char in "fde":
+        # the hot path (a policy's float array): the same checks on two floats
+        a0, a1 = action.tolist()
+        if math.isfinite(a0) and math.isfinite(a1):
+            return min(1.0, max(-1.0, a0)), min(1.0, max(-1.0, a1))
+    a = check_action_array(action, (2,))  # any other form, and the errors
     return min(1.0, max(-1.0, float(a[0]))), min(1.0, max(-1.0, float(a[1])))
 
 

@@ -263,7 +263,9 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._scan: Scan | None = None
         self._estimate: Estimate | None = None
         self._obstacles: tuple[Primitive, ...] = ()
-        self._obs_buf = np.zeros(12 + self.n_beams, dtype=np.float64)
+        self._obs_buf = np.zeros(12, dtype=np.float64)  # the 12 entries before the scan
+        self._obs_out = np.zeros(12 + self.n_beams, dtype=np.float32)
+        self._obs_scan: Scan | None = None  # the scan whose values are in _obs_out[12:]
 
     # ------------------------------------------------------------------ properties
     @property
@@ -459,12 +461,15 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
 
     def _observation(self) -> npt.NDArray[np.float32]:
         assert self._estimate is not None and self._scan is not None
-        x, y, th = (float(v) for v in self._estimate.pose)
-        gx, gy, gth = (float(v) for v in self.task.goal)
+        assert self.robot is not None
+        pose = self._estimate.pose
+        x, y, th = pose.tolist() if type(pose) is np.ndarray else (float(v) for v in pose)
+        gx, gy, gth = self.task.goal.tolist()
+        cmd_v, cmd_w = self.robot.command.tolist()
         c, s = math.cos(th), math.sin(th)
         dx, dy = gx - x, gy - y
-        obs = self._obs_buf
-        obs[:12] = (
+        head = self._obs_buf
+        head[:] = (
             x,
             y,
             c,
@@ -475,15 +480,20 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             math.sin(gth),
             c * dx + s * dy,
             -s * dx + c * dy,
-            self.robot.command[0] / self.v_max,
-            self.robot.command[1] / self.w_max,
+            cmd_v / self.v_max,
+            cmd_w / self.w_max,
         )
-        np.divide(self._scan.ranges, self._scan.range_max, out=obs[12:])
-        np.minimum(obs[12:], 1.0, out=obs[12:])  # inf (nothing seen) -> 1
-        out = obs.astype(np.float32)
-        np.minimum(out, self._obs_high, out=out)  # = np.clip, without its Python wrapper
+        out = self._obs_out
+        if self._obs_scan is not self._scan:  # the scan part changes only with a new scan
+            scaled = np.divide(self._scan.ranges, self._scan.range_max)
+            np.minimum(scaled, 1.0, out=scaled)  # inf (nothing seen) -> 1
+            out[12:] = scaled  # float64 -> float32, as astype
+            self._obs_scan = self._scan
+        out[:12] = head
+        # = np.clip to the observation space, without its Python wrapper
+        np.minimum(out, self._obs_high, out=out)
         np.maximum(out, self._obs_low, out=out)
-        return out
+        return out.copy()
 
     def _info(
         self,

@@ -321,6 +321,10 @@ class DiffDriveKinematics:
             \Delta s = \tfrac12 (m_R n_R + m_L n_L), \qquad
             \Delta\theta = (m_R n_R - m_L n_L) / b .
         """
+        if type(d_left) is float and type(d_right) is float:  # one step: plain float math
+            s_l = self.meters_per_tick_left * d_left
+            s_r = self.meters_per_tick_right * d_right
+            return 0.5 * (s_r + s_l), (s_r - s_l) / self.wheelbase
         s_left = self.meters_per_tick_left * np.asarray(d_left, dtype=float)
         s_right = self.meters_per_tick_right * np.asarray(d_right, dtype=float)
         ds = 0.5 * (s_right + s_left)
@@ -445,15 +449,19 @@ class OdometryNoise:
             if not math.isfinite(v) or v < 0.0:
                 raise ValueError(f"{name} must be finite and >= 0, got {v!r}")
 
-    def covariance(self, ds: float, dtheta: float) -> FloatArray:
-        """2×2 covariance of ``(Δs, Δθ)`` for one step."""
+    def variances(self, ds: float, dtheta: float) -> tuple[float, float]:
+        """Variances ``(σ_s², σ_θ²)`` (m², rad²) of ``(Δs, Δθ)`` for one step."""
         var_s = self.distance_var_per_m * abs(ds) + self.distance_var_floor
         var_th = (
             self.heading_var_per_rad * abs(dtheta)
             + self.heading_var_per_m * abs(ds)
             + self.heading_var_floor
         )
-        return np.diag([var_s, var_th])
+        return var_s, var_th
+
+    def covariance(self, ds: float, dtheta: float) -> FloatArray:
+        """2×2 covariance of ``(Δs, Δθ)`` for one step (diagonal: :meth:`variances`)."""
+        return np.diag(self.variances(ds, dtheta))
 
 
 def propagate_pose(
@@ -481,21 +489,43 @@ def propagate_pose(
         df1 = (th * ct - st) / (th * th)
         df2 = (th * st - 1.0 + ct) / (th * th)
     dx, dy = ds * f1, ds * f2
-    c, s = math.cos(pose[2]), math.sin(pose[2])
+    x, y, th0 = pose.tolist()
+    c, s = math.cos(th0), math.sin(th0)
     new = np.array(
         [
-            pose[0] + c * dx - s * dy,
-            pose[1] + s * dx + c * dy,
-            (pose[2] + dtheta + math.pi) % (2.0 * math.pi) - math.pi,
+            x + c * dx - s * dy,
+            y + s * dx + c * dy,
+            (th0 + dtheta + math.pi) % (2.0 * math.pi) - math.pi,
         ]
     )
-    # J_a = ∂(a ⊕ δ)/∂a, G = ∂(a ⊕ δ)/∂δ · ∂δ/∂(Δs, Δθ)
-    J_a = np.array([[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]])
+    # J_a = ∂(a ⊕ δ)/∂a is the identity but for its last column (a, b, 1);
+    # G = ∂(a ⊕ δ)/∂δ · ∂δ/∂(Δs, Δθ) has the rows (g00, g01), (g10, g11), (0, 1)
+    a, b = -s * dx - c * dy, c * dx - s * dy
     g00, g01 = c * f1 - s * f2, ds * (c * df1 - s * df2)
     g10, g11 = s * f1 + c * f2, ds * (s * df1 + c * df2)
-    G = np.array([[g00, g01], [g10, g11], [0.0, 1.0]])
-    new_cov = J_a @ cov @ J_a.T + G @ noise.covariance(ds, dtheta) @ G.T
-    return new, 0.5 * (new_cov + new_cov.T)
+    q_s, q_th = noise.variances(ds, dtheta)
+    (p00, p01, p02), (p10, p11, p12), (p20, p21, p22) = cov.tolist()
+    # J_a P J_a^T, row by row: r_i = (J_a P)_i, then r_i J_a^T
+    r00, r01, r02 = p00 + a * p20, p01 + a * p21, p02 + a * p22
+    r10, r11, r12 = p10 + b * p20, p11 + b * p21, p12 + b * p22
+    m00, m01, m02 = r00 + r02 * a, r01 + r02 * b, r02
+    m10, m11, m12 = r10 + r12 * a, r11 + r12 * b, r12
+    m20, m21, m22 = p20 + p22 * a, p21 + p22 * b, p22
+    # + G Q G^T (Q diagonal)
+    u0, u1 = g00 * q_s, g01 * q_th
+    v0, v1 = g10 * q_s, g11 * q_th
+    n00 = m00 + (u0 * g00 + u1 * g01)
+    n01 = m01 + (u0 * g10 + u1 * g11)
+    n02 = m02 + u1
+    n10 = m10 + (v0 * g00 + v1 * g01)
+    n11 = m11 + (v0 * g10 + v1 * g11)
+    n12 = m12 + v1
+    n20 = m20 + q_th * g01
+    n21 = m21 + q_th * g11
+    n22 = m22 + q_th
+    # symmetric by construction up to rounding: average the two triangles
+    s01, s02, s12 = 0.5 * (n01 + n10), 0.5 * (n02 + n20), 0.5 * (n12 + n21)
+    return new, np.array([[n00, s01, s02], [s01, n11, s12], [s02, s12, n22]])
 
 
 class WheelOdometry:
@@ -585,9 +615,12 @@ class WheelOdometry:
                 f"WheelOdometry.update expects WheelTicks or None, got {type(measurement).__name__}"
             )
         reason = None
-        if not all(
-            math.isfinite(v)
-            for v in (measurement.t, measurement.left, measurement.right, measurement.ticks_per_rev)
+        isfinite = math.isfinite
+        if not (
+            isfinite(measurement.t)
+            and isfinite(measurement.left)
+            and isfinite(measurement.right)
+            and isfinite(measurement.ticks_per_rev)
         ):
             reason = "non-finite wheel ticks"
         elif measurement.ticks_per_rev <= 0:

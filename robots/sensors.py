@@ -186,23 +186,36 @@ class PlanarScanner:
         self._sin = np.sin(self.angles)
         mx, my = params.mount_xyz[0], params.mount_xyz[1]
         self._along_beam_offset = mx * self._cos + my * self._sin
+        self._cos_cos = np.stack([self._cos, self._cos])  # (2, n_beams)
+        self._sin_sin = np.stack([self._sin, self._sin])
+        self._rot_cs = np.zeros((2, 1))  # (cos θ, sin θ) of the base's heading
+        self._rot_sc = np.zeros((2, 1))  # (-sin θ, cos θ)
 
     def scan_fast(self, t: float, rng: np.random.Generator) -> Scan:
         """Analytic ray cast against the world's primitives, with depth noise."""
-        x, y, th = (float(v) for v in self.robot.pose2d())
+        x, y, th = self.robot.pose2d().tolist()
         c, s = math.cos(th), math.sin(th)
-        dx = c * self._cos - s * self._sin
-        dy = s * self._cos + c * self._sin
-        mx, my = self.params.mount_xyz[0], self.params.mount_xyz[1]
+        P = self.params
+        # world-frame beam directions, both components in one pass: rows (dx, dy) of
+        # (c·cos, s·cos) + (-s·sin, c·sin)
+        cs, sc = self._rot_cs, self._rot_sc
+        cs[0, 0], cs[1, 0], sc[0, 0], sc[1, 0] = c, s, -s, c
+        d = self._cos_cos * cs
+        d += self._sin_sin * sc
+        mx, my = P.mount_xyz[0], P.mount_xyz[1]
         # beams leave the camera's optical centre; ranges are reported from the base origin
         ranges = self.robot.world.scenery_arrays.ray_cast_xy(
-            x + c * mx - s * my, y + s * mx + c * my, dx, dy, self.params.range_max
+            x + c * mx - s * my, y + s * mx + c * my, d[0], d[1], P.range_max
         )
         ranges += self._along_beam_offset
-        sigma = self.params.depth_noise_a + self.params.depth_noise_b * ranges * ranges
-        ranges += rng.standard_normal(self.n_beams) * np.where(np.isfinite(sigma), sigma, 0.0)
-        np.maximum(ranges, self.params.range_min, out=ranges)
-        return Scan(t, self.angles.copy(), ranges, self.params.range_min, self.params.range_max)
+        sigma = ranges * P.depth_noise_b
+        sigma *= ranges
+        sigma += P.depth_noise_a
+        noise = rng.standard_normal(self.n_beams)
+        noise *= np.where(np.isfinite(sigma), sigma, 0.0)
+        ranges += noise
+        np.maximum(ranges, P.range_min, out=ranges)
+        return Scan(t, self.angles.copy(), ranges, P.range_min, P.range_max)
 
     @property
     def render_size(self) -> tuple[int, int]:

@@ -73,7 +73,8 @@ class PrimitiveArrays:
     """The primitives of a scene packed into arrays for vectorised ray casting.
 
     Built once per scene; :meth:`ray_cast` then costs a few numpy operations on
-    ``(n_primitives, n_rays)`` arrays.
+    ``(n_primitives, n_rays)`` arrays, written into work arrays kept per ray count (one
+    caster per thread).
     """
 
     def __init__(self, primitives: list[Primitive]):
@@ -90,6 +91,9 @@ class PrimitiveArrays:
         self._slab_cos = np.stack([self.box_cos, -self.box_sin])  # (2, n_boxes, 1)
         self._slab_sin = np.stack([self.box_sin, self.box_cos])
         self._slab_half = np.stack([self.box_half[:, :1], self.box_half[:, 1:]])
+        # both faces of both slabs: (face -/+, slab, n_boxes, 1)
+        self._slab_faces = np.stack([-self._slab_half, self._slab_half])
+        self._buffers: dict[int, tuple[FloatArray, ...]] = {}
 
     def ray_cast(
         self, origin_xy: npt.ArrayLike, directions: FloatArray, range_max: float
@@ -105,34 +109,53 @@ class PrimitiveArrays:
     ) -> FloatArray:
         """:meth:`ray_cast` from ``(ox, oy)`` (m) along unit directions given as their x and
         y components ``dx``, ``dy`` (n,) (the per-step form of the fast scan)."""
-        best = np.full(dx.shape[0], np.inf)
+        n = dx.shape[0]
+        best = np.full(n, np.inf)
+        bufs = self._buffers.get(n)
+        if bufs is None:
+            nb, nc = len(self.box_center), len(self.cyl_center)
+            bufs = self._buffers[n] = (
+                np.empty((2, 2, nb, n)),  # slab distances to both faces
+                np.empty((2, nb, n)),  # ray directions in the box frames, then near faces
+                np.empty((2, nb, n)),  # far faces
+                np.empty((nb, n)),
+                np.empty((nc, n)),
+                np.empty((nc, n)),
+            )
+        t_face, d_local, t_far, tmax, b, disc = bufs
+        minimum, maximum = np.minimum, np.maximum
         with np.errstate(divide="ignore", invalid="ignore"):
             if len(self.box_center):
                 # slab method in each box's frame; [0] is the x slab, [1] the y slab
-                rx = ox - self.box_center[:, :1]
-                ry = oy - self.box_center[:, 1:]
+                r = np.subtract((ox, oy), self.box_center)
+                rx, ry = r[:, :1], r[:, 1:]
                 c, s = self._slab_cos, self._slab_sin
                 o_local = c * rx + s * ry  # (2, n_boxes, 1): origin in the box frame
-                d_local = c * dx + s * dy  # (2, n_boxes, n): directions in the box frame
-                t_low = (-self._slab_half - o_local) / d_local
-                t_high = (self._slab_half - o_local) / d_local
-                t_near = np.minimum(t_low, t_high)
-                t_far = np.maximum(t_low, t_high)
-                tmin = np.maximum(np.maximum(t_near[0], t_near[1]), 0.0)
-                tmax = np.minimum(t_far[0], t_far[1])
+                np.multiply(c, dx, out=d_local)  # (2, n_boxes, n): directions in the box frame
+                d_local += s * dy
+                np.divide(self._slab_faces - o_local, d_local, out=t_face)
+                t_near = minimum(t_face[0], t_face[1], out=d_local)
+                maximum(t_face[0], t_face[1], out=t_far)
+                tmin = maximum(t_near[0], t_near[1], out=t_near[0])
+                maximum(tmin, 0.0, out=tmin)
+                minimum(t_far[0], t_far[1], out=tmax)
                 # a NaN bound (a ray along a face) compares False: no hit, never NaN
-                hit = np.where(tmax >= tmin, tmin, np.inf)
-                np.minimum(best, hit.min(axis=0), out=best)
+                minimum.reduce(tmin, axis=0, initial=np.inf, where=tmax >= tmin, out=best)
             if len(self.cyl_center):
-                rx = ox - self.cyl_center[:, :1]
-                ry = oy - self.cyl_center[:, 1:]
-                b = rx * dx + ry * dy
+                r = np.subtract((ox, oy), self.cyl_center)
+                rx, ry = r[:, :1], r[:, 1:]
+                np.multiply(rx, dx, out=b)
+                b += ry * dy
                 cc = rx * rx + ry * ry - self.cyl_r2
-                disc = b * b - cc
-                t = -b - np.sqrt(np.maximum(disc, 0.0))
-                t[cc[:, 0] < 0] = 0.0
-                t[(disc < 0) | (t < 0)] = np.inf
-                np.minimum(best, t.min(axis=0), out=best)
+                np.multiply(b, b, out=disc)
+                disc -= cc
+                np.sqrt(disc, out=disc)  # NaN where the ray's line misses the circle
+                t = np.negative(b, out=b)
+                t -= disc
+                t[cc[:, 0] < 0] = 0.0  # the origin inside: hit at once
+                # t >= 0 is False for NaN: a miss, like a circle behind the origin
+                hit = minimum.reduce(t, axis=0, initial=np.inf, where=t >= 0.0)
+                minimum(best, hit, out=best)
         best[best > range_max] = np.inf
         return best
 

@@ -1,0 +1,293 @@
+"""The fast-mode step of WheeledNav computes every observation bit as the plain numpy
+formulation below does: each fast path is checked against a reference kept here."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import realitygap  # noqa: F401  (registers the envs)
+from realitygap.envs.common import check_action_array, check_twist_action
+from realitygap.envs.wheeled_nav import WheeledNavEnv
+from realitygap.estimators import diffdrive_model
+from realitygap.estimators.diffdrive_model import (
+    DiffDriveKinematics,
+    OdometryNoise,
+    propagate_pose,
+)
+from realitygap.robots import sensors, world
+from realitygap.robots.effects import Reality, make_effect
+
+# ---------------------------------------------------------------- reference implementations
+
+
+def reference_propagate_pose(pose, cov, ds, dtheta, noise):  # type: ignore[no-untyped-def]
+    """Pose composition and covariance with 3×3 matrices (the textbook form)."""
+    th = float(dtheta)
+    if abs(th) < 1e-2:
+        th2 = th * th
+        f1 = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
+        f2 = th / 2.0 - th * th2 / 24.0 + th * th2 * th2 / 720.0
+        df1 = -th / 3.0 + th * th2 / 30.0 - th * th2 * th2 / 840.0
+        df2 = 0.5 - th2 / 8.0 + th2 * th2 / 144.0
+    else:
+        st, ct = math.sin(th), math.cos(th)
+        f1, f2 = st / th, (1.0 - ct) / th
+        df1 = (th * ct - st) / (th * th)
+        df2 = (th * st - 1.0 + ct) / (th * th)
+    dx, dy = ds * f1, ds * f2
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    new = np.array(
+        [
+            pose[0] + c * dx - s * dy,
+            pose[1] + s * dx + c * dy,
+            (pose[2] + dtheta + math.pi) % (2.0 * math.pi) - math.pi,
+        ]
+    )
+    J_a = np.array([[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]])
+    G = np.array(
+        [
+            [c * f1 - s * f2, ds * (c * df1 - s * df2)],
+            [s * f1 + c * f2, ds * (s * df1 + c * df2)],
+            [0.0, 1.0],
+        ]
+    )
+    new_cov = J_a @ cov @ J_a.T + G @ noise.covariance(ds, dtheta) @ G.T
+    return new, 0.5 * (new_cov + new_cov.T)
+
+
+def reference_increment(kin, d_left, d_right):  # type: ignore[no-untyped-def]
+    s_left = kin.meters_per_tick_left * np.asarray(d_left, dtype=float)
+    s_right = kin.meters_per_tick_right * np.asarray(d_right, dtype=float)
+    return float(0.5 * (s_right + s_left)), float((s_right - s_left) / kin.wheelbase)
+
+
+def reference_twist_action(action):  # type: ignore[no-untyped-def]
+    a = check_action_array(action, (2,))
+    return min(1.0, max(-1.0, float(a[0]))), min(1.0, max(-1.0, float(a[1])))
+
+
+def reference_ray_cast_xy(arrays, ox, oy, dx, dy, range_max):  # type: ignore[no-untyped-def]
+    """Slab method per box and circle intersection per cylinder, one ufunc per formula."""
+    best = np.full(dx.shape[0], np.inf)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if len(arrays.box_center):
+            rx = ox - arrays.box_center[:, :1]
+            ry = oy - arrays.box_center[:, 1:]
+            c = np.stack([arrays.box_cos, -arrays.box_sin])
+            s = np.stack([arrays.box_sin, arrays.box_cos])
+            half = np.stack([arrays.box_half[:, :1], arrays.box_half[:, 1:]])
+            o_local = c * rx + s * ry
+            d_local = c * dx + s * dy
+            t_low = (-half - o_local) / d_local
+            t_high = (half - o_local) / d_local
+            t_near = np.minimum(t_low, t_high)
+            t_far = np.maximum(t_low, t_high)
+            tmin = np.maximum(np.maximum(t_near[0], t_near[1]), 0.0)
+            tmax = np.minimum(t_far[0], t_far[1])
+            hit = np.where(tmax >= tmin, tmin, np.inf)
+            np.minimum(best, hit.min(axis=0), out=best)
+        if len(arrays.cyl_center):
+            rx = ox - arrays.cyl_center[:, :1]
+            ry = oy - arrays.cyl_center[:, 1:]
+            b = rx * dx + ry * dy
+            cc = rx * rx + ry * ry - arrays.cyl_r2
+            disc = b * b - cc
+            t = -b - np.sqrt(np.maximum(disc, 0.0))
+            t[cc[:, 0] < 0] = 0.0
+            t[(disc < 0) | (t < 0)] = np.inf
+            np.minimum(best, t.min(axis=0), out=best)
+    best[best > range_max] = np.inf
+    return best
+
+
+def reference_scan_fast(self, t, rng):  # type: ignore[no-untyped-def]
+    x, y, th = (float(v) for v in self.robot.pose2d())
+    c, s = math.cos(th), math.sin(th)
+    dx = c * self._cos - s * self._sin
+    dy = s * self._cos + c * self._sin
+    mx, my = self.params.mount_xyz[0], self.params.mount_xyz[1]
+    ranges = reference_ray_cast_xy(
+        self.robot.world.scenery_arrays,
+        x + c * mx - s * my,
+        y + s * mx + c * my,
+        dx,
+        dy,
+        self.params.range_max,
+    )
+    ranges += self._along_beam_offset
+    sigma = self.params.depth_noise_a + self.params.depth_noise_b * ranges * ranges
+    ranges += rng.standard_normal(self.n_beams) * np.where(np.isfinite(sigma), sigma, 0.0)
+    np.maximum(ranges, self.params.range_min, out=ranges)
+    return sensors.Scan(t, self.angles.copy(), ranges, self.params.range_min, self.params.range_max)
+
+
+def reference_observation(self):  # type: ignore[no-untyped-def]
+    """The whole observation in float64, cast to float32 and clipped to the space."""
+    x, y, th = (float(v) for v in self._estimate.pose)
+    gx, gy, gth = (float(v) for v in self.task.goal)
+    c, s = math.cos(th), math.sin(th)
+    dx, dy = gx - x, gy - y
+    obs = np.empty(12 + self.n_beams)
+    obs[:12] = (
+        x,
+        y,
+        c,
+        s,
+        gx,
+        gy,
+        math.cos(gth),
+        math.sin(gth),
+        c * dx + s * dy,
+        -s * dx + c * dy,
+        self.robot.command[0] / self.v_max,
+        self.robot.command[1] / self.w_max,
+    )
+    obs[12:] = np.minimum(self._scan.ranges / self._scan.range_max, 1.0)
+    return np.clip(obs.astype(np.float32), self.observation_space.low, self.observation_space.high)
+
+
+# ---------------------------------------------------------------- unit checks
+
+
+def test_scalar_pose_propagation_matches_the_matrix_form() -> None:
+    rng = np.random.default_rng(3)
+    noise = OdometryNoise(distance_var_floor=1e-6, heading_var_floor=2e-6)
+    for _ in range(500):
+        pose = np.array([rng.normal(), rng.normal(), rng.uniform(-math.pi, math.pi)])
+        M = rng.normal(size=(3, 3))
+        cov = M @ M.T * 10.0 ** rng.uniform(-8, 0)
+        ds = rng.normal(0.0, 0.02)
+        dtheta = rng.choice([rng.normal(0.0, 0.003), rng.normal(0.0, 0.3), 0.0])
+        new, new_cov = propagate_pose(pose, cov, ds, dtheta, noise)
+        ref, ref_cov = reference_propagate_pose(pose, cov, ds, dtheta, noise)
+        assert np.array_equal(new, ref)  # the pose, bit for bit
+        np.testing.assert_allclose(new_cov, ref_cov, rtol=1e-12, atol=1e-14 * np.abs(ref_cov).max())
+        assert np.array_equal(new_cov, new_cov.T)
+
+
+def test_scalar_tick_increment_matches_the_array_form() -> None:
+    kin = DiffDriveKinematics(0.0352, 0.0349, 0.231, 2578.33)
+    rng = np.random.default_rng(4)
+    for d_left, d_right in rng.integers(-400, 400, size=(300, 2)) * 0.997:
+        got = kin.increment_from_ticks(float(d_left), float(d_right))
+        assert got == reference_increment(kin, d_left, d_right)
+    ds, dth = kin.increment_from_ticks(np.array([1.0, 2.0]), np.array([3.0, 4.0]))
+    assert ds.shape == dth.shape == (2,)
+
+
+@pytest.mark.parametrize(
+    "action",
+    [
+        np.array([0.3, -0.7], dtype=np.float32),
+        np.array([1.7, -2.5]),
+        np.array([0.1, 0.2], dtype=np.float16),
+        [0.4, 0.9],
+        np.array([[0.2, 0.1]]),
+        np.array([3, -1]),
+    ],
+)
+def test_twist_action_fast_path_matches_the_general_check(action: object) -> None:
+    got = check_twist_action(action)  # type: ignore[arg-type]
+    assert got == reference_twist_action(action)
+    assert all(type(v) is float for v in got)
+
+
+def test_twist_action_fast_path_still_rejects_non_finite_values() -> None:
+    with pytest.raises(ValueError, match="action must be finite"):
+        check_twist_action(np.array([np.nan, 0.0], dtype=np.float32))
+    with pytest.raises(ValueError, match="action must be finite"):
+        check_twist_action(np.array([0.0, np.inf]))
+
+
+def test_ray_cast_matches_the_reference_on_random_scenes() -> None:
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        prims = []
+        for k in range(int(rng.integers(0, 7))):
+            centre = (float(rng.uniform(-3, 3)), float(rng.uniform(-3, 3)))
+            if rng.random() < 0.5:
+                half = (float(rng.uniform(0.05, 1.0)), float(rng.uniform(0.05, 1.0)))
+                prims.append(
+                    world.Primitive(
+                        f"b{k}",
+                        world.Shape.BOX,
+                        centre,
+                        0.5,
+                        yaw=float(rng.choice([0.0, math.pi / 2, rng.uniform(-3, 3)])),
+                        half_extents=half,
+                    )
+                )
+            else:
+                r = float(rng.uniform(0.05, 0.6))
+                prims.append(world.Primitive(f"c{k}", world.Shape.CYLINDER, centre, 0.5, radius=r))
+        arrays = world.PrimitiveArrays(prims)
+        ang = rng.uniform(-math.pi, math.pi) + np.linspace(-0.6, 0.6, int(rng.integers(2, 90)))
+        ang[0] = 0.0  # a ray along a box face
+        dx, dy = np.cos(ang), np.sin(ang)
+        ox, oy = float(rng.uniform(-3, 3)), float(rng.uniform(-3, 3))
+        for _ in range(2):  # the second call re-uses buffers sized by the first
+            got = arrays.ray_cast_xy(ox, oy, dx, dy, 4.0)
+            ref = reference_ray_cast_xy(arrays, ox, oy, dx, dy, 4.0)
+            assert np.array_equal(got, ref)
+
+
+# ---------------------------------------------------------------- the env, step by step
+
+
+def _run(kwargs: dict[str, object], n_steps: int, reference: bool) -> list[tuple]:
+    mp = pytest.MonkeyPatch()
+    if reference:
+        mp.setattr(diffdrive_model, "propagate_pose", reference_propagate_pose)
+        mp.setattr(sensors.PlanarScanner, "scan_fast", reference_scan_fast)
+        mp.setattr(WheeledNavEnv, "_observation", reference_observation)
+    try:
+        env = gym.make("realitygap/WheeledNav-v0", sensor_mode="fast", **kwargs)
+        rng = np.random.default_rng(11)
+        obs, info = env.reset(seed=7)
+        rows: list[tuple] = [(obs, info["estimated_pose"])]
+        for k in range(n_steps):
+            a = rng.uniform(-1.2, 1.2, 2).astype(np.float32 if k % 3 else np.float64)
+            obs, reward, terminated, truncated, info = env.step(a)
+            rows.append(
+                (
+                    obs,
+                    reward,
+                    terminated,
+                    info["true_pose"],
+                    info["estimated_pose"],
+                    info["collision"],
+                    info["is_success"],
+                    sorted(info["reward_terms"].items()),
+                )
+            )
+            if terminated or truncated:
+                obs, info = env.reset()
+                rows.append((obs, info["estimated_pose"]))
+        env.close()
+    finally:
+        mp.undo()
+    return rows
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"n_obstacles": 6},
+        {"n_obstacles": 3, "reality": Reality((make_effect("wheel_radius_scale", scale=1.03),))},
+    ],
+)
+def test_fast_steps_are_bit_identical_to_the_reference(kwargs: dict[str, object]) -> None:
+    fast = _run(kwargs, 300, reference=False)
+    ref = _run(kwargs, 300, reference=True)
+    assert len(fast) == len(ref)
+    for got, want in zip(fast, ref, strict=True):
+        assert len(got) == len(want)
+        for g, w in zip(got, want, strict=True):
+            if isinstance(g, np.ndarray):
+                assert g.dtype == w.dtype and np.array_equal(g, w)
+            else:
+                assert g == w
