@@ -187,3 +187,17 @@ def test_limits_fit_without_encoders_or_firmware_is_empty() -> None:
     t = np.arange(10) * DT
     log = Log(t=t, channels={"cmd": np.zeros((10, 2))}, meta={"firmware": {"a_max": 1.0}})
     assert fit_firmware_limits([log], "body/stop").n_rows == 0
+
+
+def test_baseline_states_the_fitted_limits() -> None:
+    from realitygap.diagnosis.baseline import Baseline
+    from realitygap.diagnosis.firmware import FirmwareFit
+
+    fit = FirmwareFit("body/stop", accel_scale=0.77, decel_factor=1.8, n_rows=10)
+    b = Baseline(convention="body/stop", convention_what="ramps", convention_limits=fit.to_json())
+    assert "acceleration ×0.77 the stated, deceleration ×1.80" in b.summary()
+    assert b.to_json()["actuator_convention"]["limits"]["decel_factor"] == 1.8
+    stated = {"a_max": 0.4, "alpha_max": 3.0, "ramp": "body"}
+    assert fit.meta(stated) == pytest.approx(
+        {"a_max": 0.4 * 0.77, "alpha_max": 3.0 * 0.77, "ramp": "body", "decel_factor": 1.8}
+    )
