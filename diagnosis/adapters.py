@@ -236,6 +236,10 @@ class RobotAdapter(Protocol):
 
     def with_actuator_convention(self, log: Log, name: str) -> Log: ...
 
+    def fit_actuator_limits(self, logs: Sequence[Log], name: str) -> Any: ...
+
+    def with_actuator_limits(self, log: Log, fit: Any) -> Log: ...
+
     def alias_groups(
         self,
         prepared: Sequence[PreparedLog],
@@ -323,6 +327,16 @@ class AdapterBase:
 
     def with_actuator_convention(self, log: Log, name: str) -> Log:
         """``log`` replayed with the actuator convention ``name`` (itself by default)."""
+        return log
+
+    def fit_actuator_limits(self, logs: Sequence[Log], name: str) -> Any:
+        """Continuous limits of the actuator convention ``name`` fitted to ``logs`` (the
+        training logs), or ``None`` when the adapter fits none (default)."""
+        return None
+
+    def with_actuator_limits(self, log: Log, fit: Any) -> Log:
+        """``log`` replayed with the limits ``fit`` of :meth:`fit_actuator_limits` (itself by
+        default)."""
         return log
 
     def alias_groups(

@@ -109,6 +109,11 @@ class Baseline:
         Each log's own clock offset, fitted before the nuisances: the deviations
         from the common offset that were applied by re-stamping the log
         (:mod:`~realitygap.diagnosis.clock`).
+    convention_limits : dict
+        The chosen convention's continuous limits fitted on the training logs
+        (the adapter's :meth:`fit_actuator_limits`, JSON form; empty when the
+        adapter fits none), e.g. the firmware's acceleration limits over the
+        stated ones and its deceleration factor.
     """
 
     values: dict[str, float] = field(default_factory=dict)
@@ -120,6 +125,7 @@ class Baseline:
     convention_what: str = ""
     convention_costs: dict[str, float] = field(default_factory=dict)
     clock: ClockAlignment = field(default_factory=ClockAlignment)
+    convention_limits: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         """JSON form: one row per nuisance and the training shrink of the baseline."""
@@ -139,6 +145,7 @@ class Baseline:
                 "chosen": self.convention,
                 "what": self.convention_what,
                 "cost": dict(self.convention_costs),
+                "limits": dict(self.convention_limits),
             }
             if self.convention
             else None,
@@ -149,6 +156,12 @@ class Baseline:
         """One line for the terminal and the report."""
         conv = f"actuator response: {self.convention_what}" if self.convention else ""
         clock = self.clock.summary()
+        lim = self.convention_limits
+        if conv and "accel_scale" in lim:
+            conv += (
+                f" (limits fitted to the encoders: acceleration ×{lim['accel_scale']:.2f} "
+                f"the stated, deceleration ×{lim['decel_factor']:.2f} the acceleration)"
+            )
         if not self.values:
             head = "; ".join(x for x in (conv, clock) if x)
             return "baseline calibration: " + (head or "none (the adapter states no nuisances)")
@@ -217,21 +230,38 @@ def _fitted_cost(
     return cost, values
 
 
+def _fit_limits_task(shared: tuple[Any, list[Log]], name: str) -> Any:
+    adapter, logs = shared
+    return adapter.fit_actuator_limits(logs, name)
+
+
+def _trivial_limits(fit: Any) -> bool:
+    """Whether fitted limits leave the stated ones as they are (no fit, or factors of one)."""
+    if fit is None:
+        return True
+    scale = getattr(fit, "accel_scale", 1.0)
+    return bool(scale == 1.0 and getattr(fit, "decel_factor", 1.0) == 1.0)
+
+
 def choose_convention(
     problem: Problem,
     effects: tuple[str, ...],
     box: Mapping[str, tuple[float, float]],
     backend: Backend,
     say: Callable[[str], None] = lambda msg: None,
-) -> tuple[str, str, dict[str, float]]:
+) -> tuple[str, str, dict[str, float], dict[str, Any]]:
     """Choose the nominal's actuator convention that fits the logs best.
 
     Each convention the adapter offers (:meth:`actuator_conventions`, e.g. a
-    firmware that ramps the body twist or each wheel) is replayed in
-    PyBullet, the nuisances ``effects`` are fitted inside ``box`` on the
-    training windows, and the robust cost over every window (training and
-    held-out, transient events set aside) is compared at one loss scale;
-    ``problem`` is switched in place to the convention of least cost.
+    firmware that ramps the body twist or each wheel, that limits slowing down
+    or not, that stops at once on a zero request) first gets its continuous
+    limits fitted on the training logs (:meth:`fit_actuator_limits`: for the
+    differential drive the firmware's acceleration and deceleration limits,
+    fitted to the encoders within physical bounds of the stated ones), is
+    replayed in PyBullet with them, the nuisances ``effects`` are fitted inside
+    ``box`` on the training windows, and the robust cost over every window
+    (training and held-out, transient events set aside) is compared at one loss
+    scale; ``problem`` is switched in place to the convention of least cost.
 
     The convention is a property of the robot's firmware, the same in every
     log, and the motions that tell conventions apart (arcs while the speed
@@ -239,27 +269,41 @@ def choose_convention(
     runs and turns in place ramps identically under both. The choice is one
     discrete bit made on the reference replay without any effect, so it
     cannot favour an effect; it only makes the reference every effect is
-    scored against the better one.
+    scored against the better one. The continuous limits use the training
+    logs only.
 
     Returns
     -------
-    name, what, costs : str, str, dict of str to float
-        ``("", "", {})`` when the adapter offers fewer than two conventions.
+    name, what, costs, limits : str, str, dict of str to float, dict
+        ``limits`` is the chosen convention's fit in JSON form (empty when the
+        adapter fits none); ``("", "", {}, {})`` when the adapter offers fewer
+        than two conventions.
     """
     offered = problem.adapter.actuator_conventions(problem.logs, problem.drive)
     if len(offered) < 2 or problem.train.n == 0:
-        return "", "", {}
+        return "", "", {}, {}
     c = problem.f_scale
     current = problem.adapter.actuator_convention(problem.logs[0].log)
+    train_logs = [p.log for p in problem.logs if p.split == "train"]
+    say(f"fitting the limits of {len(offered)} actuator conventions to the training logs")
+    fitted = backend.map(_fit_limits_task, list(offered), (problem.adapter, train_logs))
+    fits = dict(zip(offered, fitted, strict=True))
     costs: dict[str, float] = {}
     options: dict[str, Problem] = {}
     for name in offered:
-        if name == current:
+        fit = fits[name]
+        if name == current and _trivial_limits(fit):
             cand = problem
         else:
             say(f"replaying with the actuator convention {name!r}")
+            adapter = problem.adapter
             items = [
-                (i, problem.adapter.with_actuator_convention(p.log, name))
+                (
+                    i,
+                    adapter.with_actuator_limits(
+                        adapter.with_actuator_convention(p.log, name), fit
+                    ),
+                )
                 for i, p in enumerate(problem.logs)
             ]
             logs = list(backend.map(_prepare_task, items, problem))
@@ -277,10 +321,12 @@ def choose_convention(
         costs[name], _ = _fitted_cost(cand, effects, box, c)
         options[name] = cand
     best = min(costs, key=lambda k: costs[k])
-    if best != current:
+    if options[best] is not problem:
         problem.logs[:] = options[best].logs
         problem.exclude(problem.excluded)
-    return best, offered[best], costs
+    fit = fits[best]
+    limits = fit.to_json() if fit is not None and hasattr(fit, "to_json") else {}
+    return best, offered[best], costs, limits
 
 
 def calibrate_baseline(
@@ -338,7 +384,9 @@ def calibrate_baseline(
             nom = param_spec(k).nominal
             span = 1e-9 * (param_spec(k).high - param_spec(k).low)
             box[k] = (max(nom - span, param_spec(k).low), min(nom + span, param_spec(k).high))
-    conv, conv_what, conv_costs = choose_convention(problem, effects, box, backend, say)
+    conv, conv_what, conv_costs, conv_limits = choose_convention(
+        problem, effects, box, backend, say
+    )
     if conv:
         say(f"actuator response of the nominal: {conv_what}")
     say(f"calibrating the baseline: {', '.join(ranges)}")
@@ -379,6 +427,7 @@ def calibrate_baseline(
             convention_what=conv_what,
             convention_costs=conv_costs,
             clock=aligned,
+            convention_limits=conv_limits,
         )
     problem.f_scale = problem.noise_scale()
     return Baseline(
@@ -391,4 +440,5 @@ def calibrate_baseline(
         convention_what=conv_what,
         convention_costs=conv_costs,
         clock=aligned,
+        convention_limits=conv_limits,
     )

@@ -54,6 +54,7 @@ from realitygap.diagnosis.features import (
     features,
     window_bounds,
 )
+from realitygap.diagnosis.firmware import FirmwareFit, fit_firmware_limits
 from realitygap.diagnosis.log import ChannelSpec, Log, LogError, Role
 from realitygap.diagnosis.manoeuvres import MANOEUVRES
 from realitygap.diagnosis.record import RecordLog
@@ -305,6 +306,10 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         "(a_max per wheel)",
         "wheels/free": "the firmware ramps each wheel's speed set-point up only (a_max per "
         "wheel); it slows down at once",
+        "body/stop": "the firmware ramps the body twist up and down (a_max on v, alpha_max on "
+        "ω); a zero request stops at once",
+        "wheels/stop": "the firmware ramps each wheel's speed set-point up and down (a_max per "
+        "wheel); a zero request stops at once",
     }
 
     def actuator_conventions(self, prepared: Sequence[PreparedLog], drive: Drive) -> dict[str, str]:
@@ -316,7 +321,9 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         on arcs the two give different curvature while the speed changes
         (:meth:`~realitygap.robots.diffdrive.FirmwareLimits.limit_wheels`) — and
         it can limit deceleration as well, or only speeding up (a drive that
-        brakes at once): ``"<body|wheels>/<limited|free>"``.
+        brakes at once), or limit it but take a zero request for a stop command
+        (:class:`~realitygap.robots.diffdrive.Deceleration`):
+        ``"<body|wheels>/<limited|free|stop>"``.
         """
         if drive is not Drive.COMMANDS:
             return {}
@@ -346,6 +353,21 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         return log.replace(
             meta={**log.meta, "firmware": {**fw, "ramp": ramp, "deceleration": decel}}
         )
+
+    def fit_actuator_limits(self, logs: Sequence[Log], name: str) -> FirmwareFit | None:
+        """The firmware's rate limits under convention ``name``, fitted to the wheel speeds
+        the encoders of ``logs`` saw (:func:`~realitygap.diagnosis.firmware.fit_firmware_limits`);
+        ``None`` when no log has requests, encoder counts and a stated firmware."""
+        fit = fit_firmware_limits(logs, name)
+        return fit if fit.n_rows else None
+
+    def with_actuator_limits(self, log: Log, fit: FirmwareFit | None) -> Log:
+        """A copy of ``log`` whose firmware has the fitted limits ``fit`` (the stated ones
+        scaled; :meth:`FirmwareFit.meta`)."""
+        fw = log.meta.get("firmware")
+        if fit is None or not isinstance(fw, Mapping) or not fw:
+            return log
+        return log.replace(meta={**log.meta, "firmware": fit.meta(fw)})
 
     # ------------------------------------------------------------------ checks
     def check(self, log: Log, drive: Drive) -> Log:

@@ -28,12 +28,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.diagnosis.firmware import firmware_from_meta
 from realitygap.diagnosis.log import Log, LogError
 from realitygap.estimators.diffdrive_model import DiffDriveKinematics
 from realitygap.robots.diffdrive import (
     DiffDriveParams,
     DiffDriveRobot,
-    FirmwareLimits,
+    Ramp,
     RGBDCameraParams,
 )
 from realitygap.robots.effects import Reality
@@ -185,48 +186,20 @@ def applied_commands(log: Log) -> FloatArray:
     Without ``meta["firmware"]`` this is the ``cmd`` channel. With it, the
     firmware's :class:`~realitygap.robots.diffdrive.FirmwareLimits` (rate limits
     ``a_max`` m/s², ``alpha_max`` rad/s²; speed limits ``v_max``, ``w_max``,
-    optional) are applied from rest — to the body twist, or with
-    ``meta["firmware"]["ramp"] == "wheels"`` to each wheel
-    (:meth:`~realitygap.robots.diffdrive.FirmwareLimits.limit_wheels`); with
-    ``meta["firmware"]["deceleration"] == "free"`` only speeding up is
-    limited — as
+    optional) are applied from rest in the convention the metadata states
+    (:func:`~realitygap.diagnosis.firmware.firmware_from_meta`: the body twist or
+    each wheel ramped; deceleration limited, free, or limited with a zero request
+    stopping at once) — as
     :meth:`~realitygap.robots.diffdrive.DiffDriveRobot.command_twist` does in
     :class:`~realitygap.envs.wheeled_nav.WheeledNavEnv`.
     """
     log.require(["cmd"], "a command-driven replay")
     cmd = np.array(log["cmd"], dtype=float)
-    fw = log.meta.get("firmware")
-    if not isinstance(fw, Mapping) or not fw:
+    limits = firmware_from_meta(log)
+    if limits is None:
         return cmd
-    dt = log.dt
-    limits = FirmwareLimits(
-        v_max=float(fw.get("v_max", math.inf)),
-        w_max=float(fw.get("w_max", math.inf)),
-        a_max=float(fw.get("a_max", math.inf)),
-        alpha_max=float(fw.get("alpha_max", math.inf)),
-    )
-    out = np.empty_like(cmd)
-    v = w = 0.0
-    ramp = fw.get("ramp", "body")
-    decel = fw.get("deceleration", "limited")
-    if ramp not in ("body", "wheels") or decel not in ("limited", "free"):
-        raise LogError(
-            f"{log.source}: meta['firmware'] must have ramp 'body' or 'wheels' and deceleration "
-            f"'limited' or 'free', got ramp {ramp!r}, deceleration {decel!r}"
-        )
-    free = decel == "free"
-    b = params_from_meta(log).wheelbase if ramp == "wheels" else 0.0
-    for k in range(cmd.shape[0]):
-        if ramp == "wheels":
-            v, w = limits.limit_wheels(
-                float(cmd[k, 0]), float(cmd[k, 1]), v, w, dt, b, free_deceleration=free
-            )
-        else:
-            v, w = limits.limit(
-                float(cmd[k, 0]), float(cmd[k, 1]), v, w, dt, free_deceleration=free
-            )
-        out[k, 0], out[k, 1] = v, w
-    return out
+    wheelbase = params_from_meta(log).wheelbase if limits.ramp is Ramp.WHEELS else 1.0
+    return limits.applied(cmd, log.dt, wheelbase)
 
 
 # --------------------------------------------------------------------------- helpers

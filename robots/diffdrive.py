@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
+from enum import Enum
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -124,14 +125,39 @@ class DiffDriveParams:
         return (self.v_max + self.w_max * self.wheelbase / 2.0) / r
 
 
+class Ramp(str, Enum):
+    """What a firmware's rate limiter ramps."""
+
+    BODY = "body"
+    """The body twist ``(v, ω)`` (ros2 ``diff_drive_controller``'s speed limiter,
+    ``yocs_velocity_smoother``)."""
+    WHEELS = "wheels"
+    """Each wheel's speed set-point (many motor-driver firmwares)."""
+
+
+class Deceleration(str, Enum):
+    """How a firmware's rate limiter treats slowing down."""
+
+    LIMITED = "limited"
+    """Slowing down is rate-limited too, at ``decel_factor`` times the acceleration limit."""
+    FREE = "free"
+    """Only speeding up is limited; a move towards standstill passes at once."""
+    STOP = "stop"
+    """Rate-limited both ways, but a request of exactly zero (``v = ω = 0``) is a stop
+    command: the set-points drop to zero at once, as firmwares that take a zero twist
+    for a brake do (``yocs_velocity_smoother`` tests for the zero twist by name)."""
+
+
 @dataclass(frozen=True)
 class FirmwareLimits:
     """Speed and acceleration limits the base's firmware applies to a commanded twist.
 
     Each control period the twist request ``(v, ω)`` is clipped to
     ``|v| ≤ v_max``, ``|ω| ≤ w_max`` and then moved from the previously applied
-    twist by at most ``a_max·dt`` and ``alpha_max·dt``. An infinite limit is
-    no limit.
+    twist by at most ``a_max·dt`` and ``alpha_max·dt`` (:meth:`step` applies the
+    convention ``ramp`` / ``deceleration``; :meth:`limit` and
+    :meth:`limit_wheels` are its body and wheel ramps). An infinite limit is no
+    limit.
 
     Parameters
     ----------
@@ -140,20 +166,87 @@ class FirmwareLimits:
     w_max : float
         Largest turn rate, rad/s.
     a_max : float
-        Largest forward acceleration, m/s².
+        Largest forward acceleration, m/s² (with the wheel ramp: a wheel's surface
+        acceleration).
     alpha_max : float
-        Largest angular acceleration, rad/s².
+        Largest angular acceleration, rad/s² (not used by the wheel ramp).
+    ramp : Ramp
+        What is ramped: the body twist (default) or each wheel's set-point.
+    deceleration : Deceleration
+        Slowing down limited (default), free, or limited with a zero request
+        stopping at once.
+    decel_factor : float
+        Deceleration limit over acceleration limit (``yocs_velocity_smoother``'s
+        ``decel_factor``; ros2 ``diff_drive_controller`` states ``max_deceleration``
+        apart), used when slowing down is limited; 1 by default.
     """
 
     v_max: float = math.inf
     w_max: float = math.inf
     a_max: float = math.inf
     alpha_max: float = math.inf
+    ramp: Ramp = Ramp.BODY
+    deceleration: Deceleration = Deceleration.LIMITED
+    decel_factor: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("v_max", "w_max", "a_max", "alpha_max", "decel_factor"):
+            value = getattr(self, name)
+            if not value > 0.0:
+                raise ValueError(
+                    f"FirmwareLimits.{name} must be positive (inf: no limit), got {value!r}"
+                )
+        try:
+            object.__setattr__(self, "ramp", Ramp(self.ramp))
+            object.__setattr__(self, "deceleration", Deceleration(self.deceleration))
+        except ValueError:
+            raise ValueError(
+                f"FirmwareLimits: ramp must be one of {[r.value for r in Ramp]} and deceleration "
+                f"one of {[d.value for d in Deceleration]}, got ramp {self.ramp!r}, "
+                f"deceleration {self.deceleration!r}"
+            ) from None
+
+    @property
+    def convention(self) -> str:
+        """``"<ramp>/<deceleration>"``, e.g. ``"body/stop"``."""
+        return f"{self.ramp.value}/{self.deceleration.value}"
+
+    def step(
+        self, v: float, w: float, v_prev: float, w_prev: float, dt: float, wheelbase: float
+    ) -> tuple[float, float]:
+        r"""The twist (m/s, rad/s) applied for request ``(v, w)`` under this firmware's convention.
+
+        With ``deceleration`` :attr:`Deceleration.STOP` a request of exactly
+        ``(0, 0)`` gives ``(0, 0)`` at once; otherwise :meth:`limit` (body ramp)
+        or :meth:`limit_wheels` (wheel ramp, ``wheelbase`` in m) with free
+        deceleration when ``deceleration`` is :attr:`Deceleration.FREE`.
+        ``dt`` is the control period in s.
+        """
+        if self.deceleration is Deceleration.STOP and v == 0.0 and w == 0.0:
+            return 0.0, 0.0
+        free = self.deceleration is Deceleration.FREE
+        if self.ramp is Ramp.WHEELS:
+            return self.limit_wheels(v, w, v_prev, w_prev, dt, wheelbase, free_deceleration=free)
+        return self.limit(v, w, v_prev, w_prev, dt, free_deceleration=free)
 
     @classmethod
     def from_params(cls, params: DiffDriveParams) -> FirmwareLimits:
         """The limits stated in ``params`` (``v_max``, ``w_max``, ``a_max``, ``alpha_max``)."""
         return cls(params.v_max, params.w_max, params.a_max, params.alpha_max)
+
+    def applied(self, requests: npt.ArrayLike, dt: float, wheelbase: float) -> FloatArray:
+        """The twists applied for a sequence of requests (N, 2) [m/s, rad/s], from rest.
+
+        :meth:`step` row by row, each row's result the previous twist of the next;
+        ``dt`` is the control period (s), ``wheelbase`` the nominal one (m).
+        """
+        req = np.asarray(requests, dtype=float)
+        out = np.empty_like(req)
+        v = w = 0.0
+        for k in range(req.shape[0]):
+            v, w = self.step(float(req[k, 0]), float(req[k, 1]), v, w, dt, wheelbase)
+            out[k, 0], out[k, 1] = v, w
+        return out
 
     def limit(
         self,
@@ -173,14 +266,16 @@ class FirmwareLimits:
                   - v_{k-1}, \pm a_{max}\,\Delta t)
 
         and likewise for ω with ``w_max`` and ``alpha_max``; ``dt`` is the
-        control period in s. With ``free_deceleration`` only speeding up is
+        control period in s. Slowing down is limited by ``decel_factor`` times
+        the acceleration limit. With ``free_deceleration`` only speeding up is
         limited (:func:`ramp_step`): slowing down, and a reversal through
         standstill, pass at once, as in a firmware that brakes without a ramp.
         """
         v = min(self.v_max, max(-self.v_max, v))
         w = min(self.w_max, max(-self.w_max, w))
-        v = ramp_step(v_prev, v, self.a_max * dt, free_deceleration)
-        w = ramp_step(w_prev, w, self.alpha_max * dt, free_deceleration)
+        f = self.decel_factor
+        v = ramp_step(v_prev, v, self.a_max * dt, free_deceleration, f * self.a_max * dt)
+        w = ramp_step(w_prev, w, self.alpha_max * dt, free_deceleration, f * self.alpha_max * dt)
         return float(v), float(w)
 
     def limit_wheels(
@@ -217,22 +312,34 @@ class FirmwareLimits:
         w = min(self.w_max, max(-self.w_max, w))
         half = 0.5 * wheelbase
         ds = self.a_max * dt
-        sl = ramp_step(v_prev - w_prev * half, v - w * half, ds, free_deceleration)
-        sr = ramp_step(v_prev + w_prev * half, v + w * half, ds, free_deceleration)
+        dd = self.decel_factor * ds
+        sl = ramp_step(v_prev - w_prev * half, v - w * half, ds, free_deceleration, dd)
+        sr = ramp_step(v_prev + w_prev * half, v + w * half, ds, free_deceleration, dd)
         return float(0.5 * (sl + sr)), float((sr - sl) / wheelbase)
 
 
-def ramp_step(prev: float, target: float, step: float, free_deceleration: bool = False) -> float:
+def ramp_step(
+    prev: float,
+    target: float,
+    step: float,
+    free_deceleration: bool = False,
+    decel_step: float | None = None,
+) -> float:
     """One period of a rate limiter: ``prev`` moves towards ``target`` by at most ``step``.
 
-    With ``free_deceleration`` a move towards standstill (judged by the sign of
-    ``prev``, as ros2 ``diff_drive_controller``'s speed limiter judges
-    acceleration and deceleration) is not limited; from standstill the limit
-    applies both ways. An infinite ``step`` does not limit.
+    A move towards standstill (judged by the sign of ``prev``, as ros2
+    ``diff_drive_controller``'s speed limiter judges acceleration and
+    deceleration) is limited by ``decel_step`` instead (default: ``step``), and
+    not at all with ``free_deceleration``; from standstill the acceleration
+    limit applies both ways. An infinite step does not limit.
     """
     d = target - prev
-    if free_deceleration and ((prev > 0.0 and d < 0.0) or (prev < 0.0 and d > 0.0)):
-        return float(target)
+    slowing = (prev > 0.0 and d < 0.0) or (prev < 0.0 and d > 0.0)
+    if slowing:
+        if free_deceleration:
+            return float(target)
+        if decel_step is not None:
+            step = decel_step
     return float(prev + min(step, max(-step, d)))
 
 
@@ -432,8 +539,8 @@ class DiffDriveRobot:
         act on those and the wheel motors take them. The world is not stepped.
         """
         if self.firmware_limits is not None:
-            v, omega = self.firmware_limits.limit(
-                v, omega, self.command[0], self.command[1], self.control_dt
+            v, omega = self.firmware_limits.step(
+                v, omega, self.command[0], self.command[1], self.control_dt, self.nominal.wheelbase
             )
         self.command[0], self.command[1] = v, omega
         applied = (v, omega)

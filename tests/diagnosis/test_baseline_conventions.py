@@ -53,13 +53,15 @@ def test_wheel_ramp_on_an_arc_keeps_the_outer_wheel_behind() -> None:
 def _requests() -> tuple[np.ndarray, np.ndarray]:
     man = Manoeuvre(
         "arcs",
-        "arcs from rest both ways, straight runs, turns in place",
+        "arcs from rest both ways, slowing down, straight runs, turns in place",
         (
             (3.0, 0.3, 0.8),
+            (2.0, 0.1, 0.3),
             (2.0, 0, 0),
             (3.0, 0.35, -0.9),
             (2.0, 0, 0),
             (3.0, 0.3, 0.0),
+            (2.0, 0.1, 0.0),
             (2.0, 0, 0),
             (2.0, 0.0, 1.2),
             (2.0, 0, 0),
@@ -127,7 +129,7 @@ def test_applied_commands_follow_the_stated_convention() -> None:
     assert not differ[settled].any()
 
 
-@pytest.mark.parametrize("convention", ["wheels/limited", "body/free"])
+@pytest.mark.parametrize("convention", ["wheels/limited", "body/free", "body/stop"])
 def test_planted_ramp_convention_is_baseline_calibration_and_the_effect_is_found(
     convention: str,
 ) -> None:
@@ -145,11 +147,13 @@ def test_planted_ramp_convention_is_baseline_calibration_and_the_effect_is_found
     )
     assert d.baseline.convention == convention
     costs = d.baseline.convention_costs
-    assert min(costs, key=costs.get) == convention and len(costs) == 4
+    assert min(costs, key=costs.get) == convention and len(costs) == 6
     assert d.verdict.label == ["wheelbase_error"]
     assert d.ranking[0].values["wheelbase_error.E_b"] == pytest.approx(1.04, abs=0.01)
     js = d.to_json()["baseline_calibration"]["actuator_convention"]
-    what = "each wheel" if convention.startswith("wheels") else "slows down at once"
+    what = {"wheels/limited": "each wheel", "body/free": "slows down at once"}.get(
+        convention, "a zero request stops at once"
+    )
     assert js["chosen"] == convention and what in js["what"]
     assert what in d.baseline.summary()
 
