@@ -319,10 +319,13 @@ def parameter_status(problem: Problem, fit: ModelFit, step: float = 0.25) -> dic
     floor (a speed limit far above anything the robot was commanded, a dead
     zone below every command); *one-sided* when only one of the two moves
     changes anything (the logs bound it on one side only: a speed limit just
-    above the fastest command). None of these gets an error bar.
+    above the fastest command). Parameters the fit held at nominal because the
+    training data cannot identify them (:attr:`ModelFit.held`) are *not
+    identifiable*. None of these gets an error bar.
     """
+    held = {k: "not identifiable" for k in fit.held}
     if not fit.keys:
-        return {}
+        return held
     keys = list(fit.keys)
     pts: list[dict[str, float]] = [dict(fit.values)]
     for k in keys:
@@ -352,7 +355,7 @@ def parameter_status(problem: Problem, fit: ModelFit, step: float = 0.25) -> dic
             out[k] = "untestable"
         elif min(change) < problem.settings.floor:
             out[k] = "one-sided"
-    return out
+    return {**out, **held}
 
 
 def _known_alias_groups(problem: Problem, effects: Sequence[str]) -> list[set[str]]:
@@ -582,6 +585,8 @@ def explain(verdict: Verdict, top_models: Sequence[str] = ()) -> list[str]:
                 "at bound": "sits at a bound of its physical range",
                 "untestable": "is not exercised by the logged motions",
                 "one-sided": "is bounded on one side only by the logged motions",
+                "not identifiable": "cannot be identified from the training data and was "
+                "held at nominal",
             }.get(why, why)
             lines.append(f"not a finding: {key} of {model} {what} (no error bar)")
     disc = notes.get("discovery")
