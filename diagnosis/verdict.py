@@ -24,7 +24,7 @@ from realitygap.diagnosis.attribute import (
     Verdict,
     param_spec,
 )
-from realitygap.diagnosis.residual import describe_residual
+from realitygap.diagnosis.residual import describe_residual, white_level
 from realitygap.diagnosis.shrink import overall_shrink
 
 FloatArray = npt.NDArray[np.float64]
@@ -32,6 +32,7 @@ FloatArray = npt.NDArray[np.float64]
 __all__ = [
     "Judgement",
     "alias_notes",
+    "combination_check",
     "conclude",
     "explain",
     "explain_markdown",
@@ -307,6 +308,73 @@ def regime_consistency(
     }
 
 
+def combination_check(
+    problem: Problem,
+    fit: ModelFit,
+    z_nom: FloatArray,
+    mask: npt.NDArray[np.bool_] | None = None,
+    *,
+    min_entries: int = 10,
+) -> dict[str, Any]:
+    r"""Is the residual a combination of effects leaves noise-like wherever it acts?
+
+    Two effects fitted together have the freedom to mimic one mechanism outside
+    the library that couples them (a top speed that falls with acceleration
+    looks like a speed limit plus an acceleration limit). A combination is
+    accepted only if, in every feature group and motion regime where the gap
+    lived on held-out data (nominal RMS above ``excess_ratio`` of
+    :class:`AttributionSettings` times the noise level) and that it improves,
+    the residual it leaves is within ``excess_ratio`` of the noise level: the
+    larger of the group's and the regime's window-to-window level of that
+    residual (:func:`white_level`), without the blanket structure floor, so a
+    channel that resolves far below the floor (wheel encoders) is judged at its
+    own resolution.
+
+    Returns
+    -------
+    dict
+        ``model``, ``checked`` (per group and regime: RMS before and after, noise
+        level, ratio), ``failed`` (the same rows where the ratio exceeds the
+        limit, worst first) and ``passed``.
+    """
+    lay = problem.holdout
+    sel = np.ones(lay.n, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+    if z_nom.shape != (lay.n,) or fit.z_heldout.shape != (lay.n,):
+        raise ValueError(
+            f"combination_check: residuals must have the held-out layout's length {lay.n}; got "
+            f"{z_nom.shape} and {fit.z_heldout.shape}"
+        )
+    limit = problem.settings.excess_ratio
+    z = fit.z_heldout
+    rows: list[dict[str, Any]] = []
+    for g in sorted(set(lay.group[sel].tolist())):
+        mg = sel & (lay.group == g)
+        group_level = white_level(z, lay, mg)
+        for r in sorted(set(lay.regime[mg].tolist())):
+            m = mg & (lay.regime == r)
+            n = int(m.sum())
+            if n < min_entries:
+                continue
+            level = max(group_level, white_level(z, lay, m), 1e-12)
+            rms = float(np.sqrt(np.mean(z[m] ** 2)))
+            rms_nom = float(np.sqrt(np.mean(z_nom[m] ** 2)))
+            if rms_nom <= limit * level or rms >= rms_nom:
+                continue  # no gap lived here, or the combination does not act on it
+            rows.append(
+                {
+                    "group": g,
+                    "regime": r,
+                    "entries": n,
+                    "rms_nominal": rms_nom,
+                    "rms_model": rms,
+                    "noise_level": level,
+                    "ratio": rms / level,
+                }
+            )
+    failed = sorted((x for x in rows if x["ratio"] > limit), key=lambda x: -x["ratio"])
+    return {"model": fit.name, "checked": rows, "failed": failed, "passed": not failed}
+
+
 def parameter_status(problem: Problem, fit: ModelFit, step: float = 0.25) -> dict[str, str]:
     """Which fitted parameters are not findings: ``"at bound"`` or ``"untestable"``.
 
@@ -519,6 +587,19 @@ def conclude(
             f"{_improved_words(comp)} but worsens the {', '.join(comp['worsened'])} windows: "
             "a likely compensator for an effect outside the library, not a cause"
         )
+    combo = None
+    if verdict.kind == "effects" and len(best.effects) > 1 and best.z_heldout.shape == z_nom.shape:
+        combo = combination_check(problem, best, z_nom, mask)
+        if not combo["passed"]:
+            w = combo["failed"][0]
+            verdict.kind, verdict.effects, verdict.confidence = "unexplained", (), "n/a"
+            verdict.reason = (
+                f"partially explained: {best.name} closes {judgement.shrink_pct_best:.0f} % of "
+                f"the held-out gap, but where it acts the residual is still structured (the "
+                f"{w['group']} residual while {w['regime']} is {w['ratio']:.1f}× its noise "
+                "level): the two effects may stand in for one mechanism outside the library "
+                "that couples them"
+            )
     aliases = alias_notes(problem, ranking, judgement, ident, identify=identifiability)
     for a in aliases:
         if a["model"] not in verdict.ambiguous_with:
@@ -540,6 +621,14 @@ def conclude(
         "parameter_status": status,
         "discovery": disc.to_json() if disc is not None else None,
     }
+    if combo is not None:
+        notes["combination_check"] = combo
+        if not combo["passed"]:
+            notes["partially_explained_by"] = {
+                "model": best.name,
+                "effects": list(best.effects),
+                "heldout_shrink_pct": judgement.shrink_pct_best,
+            }
     verdict.notes.update(notes)
     return notes
 
