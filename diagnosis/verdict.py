@@ -609,6 +609,11 @@ def conclude(
     if verdict.kind == "effects":
         text = " or ".join([best.name, *(a["model"] for a in aliases)])
         text += " (aliases on this data)" if aliases else ""
+    elif combo is not None and not combo["passed"]:
+        text = (
+            f"unexplained (partially explained by {best.name}: "
+            f"{judgement.shrink_pct_best:.0f} % of the held-out gap)"
+        )
     else:
         text = verdict.kind
     disc = run_discovery(problem, judgement)
