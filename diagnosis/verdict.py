@@ -4,7 +4,12 @@ An effect (or pair) is named only if it improves on the nominal replay, closes
 enough of the held-out gap in the channels where the gap lives, is not
 stretched to the edge of its plausible range, and leaves an unstructured
 residual; otherwise the verdict is ``"unexplained"`` (or ``"none"`` when the
-nominal replay's residual already looks like noise).
+nominal replay's residual already looks like noise). A combination of two
+effects must also leave noise, at each channel's own resolution, in every
+regime where it acts (:func:`combination_check`): two effects fitted together
+can stand in for one mechanism outside the library that couples them, and
+such a verdict is "unexplained (partially explained by X + Y: N % of the
+held-out gap)".
 """
 
 from __future__ import annotations
