@@ -329,11 +329,12 @@ def combination_check(
     accepted only if, in every feature group and motion regime where the gap
     lived on held-out data (nominal RMS above ``excess_ratio`` of
     :class:`AttributionSettings` times the noise level) and that it improves,
-    the residual it leaves is within ``excess_ratio`` of the noise level: the
-    larger of the group's and the regime's window-to-window level of that
-    residual (:func:`white_level`), without the blanket structure floor, so a
-    channel that resolves far below the floor (wheel encoders) is judged at its
-    own resolution.
+    the residual it leaves is within ``excess_ratio`` of the noise level, or
+    below the structure floor (``floor``: smaller effects are below what the logs
+    resolve). The noise level is the larger of the group's and the regime's
+    window-to-window level of that residual (:func:`white_level`), not raised to
+    the floor, so a channel that resolves far below the floor (wheel encoders)
+    is judged at its own resolution.
 
     Returns
     -------
@@ -376,7 +377,11 @@ def combination_check(
                     "ratio": rms / level,
                 }
             )
-    failed = sorted((x for x in rows if x["ratio"] > limit), key=lambda x: -x["ratio"])
+    floor = problem.settings.floor
+    failed = sorted(
+        (x for x in rows if x["ratio"] > limit and x["rms_model"] > floor),
+        key=lambda x: -x["ratio"],
+    )
     return {"model": fit.name, "checked": rows, "failed": failed, "passed": not failed}
 
 
