@@ -641,6 +641,21 @@ class ArmAdapter(AdapterBase):
 
         return discover_arm(problem, z_train, z_holdout, mask, settings)
 
+    def held_parameters(self, problem: Any, keys: Sequence[str]) -> dict[str, str]:
+        """Parameters of a model the training poses cannot identify: held at nominal.
+
+        Tool distances depend linearly on small geometric errors, so the rank test
+        of the identification's identifiability analysis decides
+        (:func:`~realitygap.diagnosis.identifiability.dependent_parameters`): a
+        parameter that moves no training distance, or only along the directions of
+        parameters before it in the model (e.g. a wrist offset or twist when the
+        training poses keep the wrist still), is not fitted into a direction the
+        data cannot see.
+        """
+        from realitygap.diagnosis.identifiability import dependent_parameters
+
+        return dependent_parameters(problem, keys)
+
     def residual_structure(
         self, problem: Any, values: Mapping[str, float], desc: dict[str, Any]
     ) -> dict[str, Any]:

@@ -317,6 +317,7 @@ class Problem:
 
     def _build(self) -> None:
         schema = self.adapter.schema
+        self.__dict__.pop("_held_cache", None)
         self.train = Layout.build(self.logs, "train", schema, self.excluded)
         self.holdout = Layout.build(self.logs, "holdout", schema, self.excluded)
         self.f_scale = self.noise_scale()
@@ -350,6 +351,24 @@ class Problem:
         ]
         level = max(float(np.median(levels)) if levels else 0.0, st.floor)
         return st.robust_scale * level
+
+    def held_parameters(self, effects: Sequence[str]) -> dict[str, str]:
+        """Parameters of a model that the training windows cannot identify, with the reason.
+
+        Asked of the adapter (``adapter.held_parameters(problem, keys)``, where it
+        has one: the arm's geometry, whose tool-distance features are linear in
+        small parameter errors, so a rank test of their Jacobian decides); such
+        parameters are held at nominal and reported as not testable rather than
+        fitted into a direction the data cannot see. Cached per model.
+        """
+        keys = model_keys(effects)
+        hook = getattr(self.adapter, "held_parameters", None)
+        if hook is None or not keys or self.train.n == 0:
+            return {}
+        cache = self.__dict__.setdefault("_held_cache", {})
+        if keys not in cache:
+            cache[keys] = dict(hook(self, keys))
+        return dict(cache[keys])
 
     def with_baseline(self, values: Mapping[str, FloatArray], batch: int) -> dict[str, FloatArray]:
         """``values`` plus the calibrated baseline for every parameter they do not set."""
@@ -415,7 +434,10 @@ class ModelFit:
     """One candidate model: its fitted parameters, scores and residuals.
 
     Scores are the profile scores of :func:`profile_score` (lower is better);
-    ``rank_score`` = held-out score + ``p log n_train``.
+    ``rank_score`` = held-out score + ``p log n_train``. ``keys`` are the fitted
+    parameters; ``held`` the model's parameters the training data cannot
+    identify (:meth:`Problem.held_parameters`), kept at nominal in ``values``
+    with the reason, and without an error bar.
     """
 
     effects: tuple[str, ...]
@@ -433,6 +455,7 @@ class ModelFit:
     message: str = ""
     n_train: int = 0
     effect_sizes: dict[str, float] = field(default_factory=dict)
+    held: dict[str, str] = field(default_factory=dict)
 
     @property
     def name(self) -> str:
@@ -513,13 +536,16 @@ def fit_model(
         physical bounds (the baseline's nuisance ranges).
     """
     settings = problem.settings
-    keys = model_keys(effects)
+    held = problem.held_parameters(effects)
+    keys = tuple(k for k in model_keys(effects) if k not in held)
     p = len(keys)
     tr, ho = problem.train, problem.holdout
     if p == 0:
         z_tr = problem.surrogate_residuals(tr, {}, 1, bias)[0]
         z_ho = problem.surrogate_residuals(ho, {}, 1, bias)[0] if ho.n else np.zeros(0)
-        return _finish(problem, tuple(effects), keys, np.zeros(0), z_tr, z_ho, np.zeros((0, 0)))
+        return _finish(
+            problem, tuple(effects), keys, np.zeros(0), z_tr, z_ho, np.zeros((0, 0)), held=held
+        )
     lo_u, hi_u = np.zeros(p), np.ones(p)
     for j, k in enumerate(keys):
         if box and k in box:
@@ -623,7 +649,9 @@ def fit_model(
     J = jac(u_all)[:, :p]
     z_ho = residual_batch(u_all[None], ho)[0] if ho.n else np.zeros(0)
     nuisance = {k: float(_to_x(k, np.array([u_all[p + j]]))[0]) for j, k in enumerate(nuis)}
-    return _finish(problem, tuple(effects), keys, u_all[:p], z_tr, z_ho, J, nuisance=nuisance)
+    return _finish(
+        problem, tuple(effects), keys, u_all[:p], z_tr, z_ho, J, nuisance=nuisance, held=held
+    )
 
 
 def _finish(
@@ -636,11 +664,14 @@ def _finish(
     J_u: FloatArray,
     verified: bool = False,
     nuisance: Mapping[str, float] | None = None,
+    held: Mapping[str, str] | None = None,
 ) -> ModelFit:
     settings = problem.settings
     p = len(keys)
     n = max(z_tr.shape[0], 1)
     values = {k: float(_to_x(k, np.array([u_hat[j]]))[0]) for j, k in enumerate(keys)}
+    # parameters the training data cannot identify stay at nominal (not findings)
+    values.update({k: float(param_spec(k).nominal) for k in held or {}})
     stderr: dict[str, float] = {}
     corr = np.eye(p)
     if p and J_u.shape[-1] == p:
@@ -658,6 +689,7 @@ def _finish(
         except np.linalg.LinAlgError:  # pragma: no cover - pinv does not raise in practice
             stderr = {k: math.inf for k in keys}
     effect_sizes = _effect_sizes(problem, effects, values) if p else {}
+    stderr.update({k: math.nan for k in held or {}})
     # the calibrated baseline travels with every model (PyBullet replays use it)
     base = {**problem.baseline_values, **(nuisance or {})}
     values = {**{k: v for k, v in base.items() if k not in values}, **values}
@@ -684,6 +716,7 @@ def _finish(
         verified=verified,
         n_train=n,
         effect_sizes=effect_sizes,
+        held=dict(held or {}),
     )
 
 

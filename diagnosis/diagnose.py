@@ -187,7 +187,7 @@ class Diagnosis:
         )
         for rank, fit in enumerate(self.ranking, start=1):
             params = {}
-            for k in fit.keys:
+            for k in (*fit.keys, *fit.held):
                 effect, _, pname = k.partition(".")
                 spec = EFFECTS[effect]().spec(pname)
                 params[k] = {
@@ -196,6 +196,8 @@ class Diagnosis:
                     "unit": spec.unit,
                     "nominal": spec.nominal,
                 }
+                if k in fit.held:
+                    params[k]["held_at_nominal"] = fit.held[k]
             nxt = next((f for f in self.ranking[rank:] if f.effects != fit.effects), None)
             rows.append(
                 {

@@ -15,10 +15,11 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.diagnosis.attribute import ModelFit, Problem, model_keys, param_spec
+from realitygap.estimators.arm.identifiability import analyse_identifiability
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["identifiability", "jacobian", "probe_description"]
+__all__ = ["dependent_parameters", "identifiability", "jacobian", "probe_description"]
 
 
 def probe_description(ref: Any, name: str, description: str) -> str:
@@ -124,4 +125,70 @@ def identifiability(problem: Problem, a: ModelFit, b: ModelFit) -> dict[str, Any
         f"{cross:.2f}); recording '{best[0]}' ({description}) would "
         f"separate them (correlation {best[1]:.2f})"
     )
+    return out
+
+
+def dependent_parameters(
+    problem: Problem, keys: Sequence[str], rank_tol: float = 1e-6
+) -> dict[str, str]:
+    """Parameters of ``keys`` the training windows cannot identify, with the reason.
+
+    The Jacobian of the training residuals by the parameters at nominal (central
+    differences of the surrogate, a step of 1e-4 of each physical range; one-sided
+    where nominal is a bound) goes through the identifiability analysis of the
+    kinematic identification
+    (:func:`~realitygap.estimators.arm.identifiability.analyse_identifiability`):
+    in the order of ``keys``, a parameter whose unit-scaled column adds less than
+    ``rank_tol`` of a new direction to the ones admitted before it is not
+    identifiable (no effect on the training features, or a linear combination of
+    parameters admitted before it: e.g. a wrist offset when the wrist joint stands
+    still in every training pose). Meant for parameters the features depend on
+    linearly near nominal (small geometric errors); a saturation limit that only
+    acts away from nominal would look unidentifiable here.
+
+    Parameters
+    ----------
+    problem : Problem
+    keys : sequence of str
+        ``"effect.param"`` keys, most wanted first.
+    rank_tol : float
+        Admission threshold (fraction of a unit column outside the admitted span).
+
+    Returns
+    -------
+    dict of str to str
+        ``{key: reason}`` of the parameters to hold at nominal.
+    """
+    keys = list(keys)
+    if not keys:
+        return {}
+    if not 0.0 < rank_tol < 1.0:
+        raise ValueError(f"dependent_parameters: rank_tol must lie in (0, 1), got {rank_tol!r}")
+    rows: list[dict[str, float]] = []
+    steps = []
+    nominal = {k: float(param_spec(k).nominal) for k in keys}
+    for k in keys:
+        spec = param_spec(k)
+        h = 1e-4 * (spec.high - spec.low)
+        up = nominal[k] + h <= spec.high
+        down = nominal[k] - h >= spec.low
+        hi = nominal[k] + h if up else nominal[k]
+        lo = nominal[k] - h if down else nominal[k]
+        rows += [{**nominal, k: hi}, {**nominal, k: lo}]
+        steps.append(hi - lo)
+    batch = {k: np.array([r[k] for r in rows]) for k in keys}
+    z = problem.surrogate_residuals(problem.train, batch, len(rows))
+    J = ((z[0::2] - z[1::2]) / np.asarray(steps)[:, None]).T
+    # a parameter that moves the training residual by less than 1e-6 feature-scale units
+    # (RMS) over its whole physical range has no effect: its column is difference noise
+    spans = np.array([param_spec(k).high - param_spec(k).low for k in keys])
+    silent = np.sqrt(np.mean(J**2, axis=0)) * spans < 1e-6
+    J[:, silent] = 0.0
+    ana = analyse_identifiability(J, keys, rank_tol)
+    out = {}
+    for k in ana.fixed:
+        if ana.reasons[k].startswith("linearly dependent"):
+            out[k] = "a linear combination of the parameters before it on the training data"
+        else:
+            out[k] = "no effect on the training data"
     return out

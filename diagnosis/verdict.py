@@ -4,7 +4,12 @@ An effect (or pair) is named only if it improves on the nominal replay, closes
 enough of the held-out gap in the channels where the gap lives, is not
 stretched to the edge of its plausible range, and leaves an unstructured
 residual; otherwise the verdict is ``"unexplained"`` (or ``"none"`` when the
-nominal replay's residual already looks like noise).
+nominal replay's residual already looks like noise). A combination of two
+effects must also leave noise, at each channel's own resolution, in every
+regime where it acts (:func:`combination_check`): two effects fitted together
+can stand in for one mechanism outside the library that couples them, and
+such a verdict is "unexplained (partially explained by X + Y: N % of the
+held-out gap)".
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ from realitygap.diagnosis.attribute import (
     Verdict,
     param_spec,
 )
-from realitygap.diagnosis.residual import describe_residual
+from realitygap.diagnosis.residual import describe_residual, white_level
 from realitygap.diagnosis.shrink import overall_shrink
 
 FloatArray = npt.NDArray[np.float64]
@@ -32,6 +37,7 @@ FloatArray = npt.NDArray[np.float64]
 __all__ = [
     "Judgement",
     "alias_notes",
+    "combination_check",
     "conclude",
     "explain",
     "explain_markdown",
@@ -307,6 +313,78 @@ def regime_consistency(
     }
 
 
+def combination_check(
+    problem: Problem,
+    fit: ModelFit,
+    z_nom: FloatArray,
+    mask: npt.NDArray[np.bool_] | None = None,
+    *,
+    min_entries: int = 10,
+) -> dict[str, Any]:
+    r"""Is the residual a combination of effects leaves noise-like wherever it acts?
+
+    Two effects fitted together have the freedom to mimic one mechanism outside
+    the library that couples them (a top speed that falls with acceleration
+    looks like a speed limit plus an acceleration limit). A combination is
+    accepted only if, in every feature group and motion regime where the gap
+    lived on held-out data (nominal RMS above ``excess_ratio`` of
+    :class:`AttributionSettings` times the noise level) and that it improves,
+    the residual it leaves is within ``excess_ratio`` of the noise level, or
+    below the structure floor (``floor``: smaller effects are below what the logs
+    resolve). The noise level is the larger of the group's and the regime's
+    window-to-window level of that residual (:func:`white_level`), not raised to
+    the floor, so a channel that resolves far below the floor (wheel encoders)
+    is judged at its own resolution.
+
+    Returns
+    -------
+    dict
+        ``model``, ``checked`` (per group and regime: RMS before and after, noise
+        level, ratio), ``failed`` (the same rows where the ratio exceeds the
+        limit, worst first) and ``passed``.
+    """
+    lay = problem.holdout
+    sel = np.ones(lay.n, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+    if z_nom.shape != (lay.n,) or fit.z_heldout.shape != (lay.n,):
+        raise ValueError(
+            f"combination_check: residuals must have the held-out layout's length {lay.n}; got "
+            f"{z_nom.shape} and {fit.z_heldout.shape}"
+        )
+    limit = problem.settings.excess_ratio
+    z = fit.z_heldout
+    rows: list[dict[str, Any]] = []
+    for g in sorted(set(lay.group[sel].tolist())):
+        mg = sel & (lay.group == g)
+        group_level = white_level(z, lay, mg)
+        for r in sorted(set(lay.regime[mg].tolist())):
+            m = mg & (lay.regime == r)
+            n = int(m.sum())
+            if n < min_entries:
+                continue
+            level = max(group_level, white_level(z, lay, m), 1e-12)
+            rms = float(np.sqrt(np.mean(z[m] ** 2)))
+            rms_nom = float(np.sqrt(np.mean(z_nom[m] ** 2)))
+            if rms_nom <= limit * level or rms >= rms_nom:
+                continue  # no gap lived here, or the combination does not act on it
+            rows.append(
+                {
+                    "group": g,
+                    "regime": r,
+                    "entries": n,
+                    "rms_nominal": rms_nom,
+                    "rms_model": rms,
+                    "noise_level": level,
+                    "ratio": rms / level,
+                }
+            )
+    floor = problem.settings.floor
+    failed = sorted(
+        (x for x in rows if x["ratio"] > limit and x["rms_model"] > floor),
+        key=lambda x: -x["ratio"],
+    )
+    return {"model": fit.name, "checked": rows, "failed": failed, "passed": not failed}
+
+
 def parameter_status(problem: Problem, fit: ModelFit, step: float = 0.25) -> dict[str, str]:
     """Which fitted parameters are not findings: ``"at bound"`` or ``"untestable"``.
 
@@ -319,10 +397,13 @@ def parameter_status(problem: Problem, fit: ModelFit, step: float = 0.25) -> dic
     floor (a speed limit far above anything the robot was commanded, a dead
     zone below every command); *one-sided* when only one of the two moves
     changes anything (the logs bound it on one side only: a speed limit just
-    above the fastest command). None of these gets an error bar.
+    above the fastest command). Parameters the fit held at nominal because the
+    training data cannot identify them (:attr:`ModelFit.held`) are *not
+    identifiable*. None of these gets an error bar.
     """
+    held = {k: "not identifiable" for k in fit.held}
     if not fit.keys:
-        return {}
+        return held
     keys = list(fit.keys)
     pts: list[dict[str, float]] = [dict(fit.values)]
     for k in keys:
@@ -352,7 +433,7 @@ def parameter_status(problem: Problem, fit: ModelFit, step: float = 0.25) -> dic
             out[k] = "untestable"
         elif min(change) < problem.settings.floor:
             out[k] = "one-sided"
-    return out
+    return {**out, **held}
 
 
 def _known_alias_groups(problem: Problem, effects: Sequence[str]) -> list[set[str]]:
@@ -516,6 +597,19 @@ def conclude(
             f"{_improved_words(comp)} but worsens the {', '.join(comp['worsened'])} windows: "
             "a likely compensator for an effect outside the library, not a cause"
         )
+    combo = None
+    if verdict.kind == "effects" and len(best.effects) > 1 and best.z_heldout.shape == z_nom.shape:
+        combo = combination_check(problem, best, z_nom, mask)
+        if not combo["passed"]:
+            w = combo["failed"][0]
+            verdict.kind, verdict.effects, verdict.confidence = "unexplained", (), "n/a"
+            verdict.reason = (
+                f"partially explained: {best.name} closes {judgement.shrink_pct_best:.0f} % of "
+                f"the held-out gap, but where it acts the residual is still structured (the "
+                f"{w['group']} residual while {w['regime']} is {w['ratio']:.1f}× its noise "
+                "level): the two effects may stand in for one mechanism outside the library "
+                "that couples them"
+            )
     aliases = alias_notes(problem, ranking, judgement, ident, identify=identifiability)
     for a in aliases:
         if a["model"] not in verdict.ambiguous_with:
@@ -525,6 +619,11 @@ def conclude(
     if verdict.kind == "effects":
         text = " or ".join([best.name, *(a["model"] for a in aliases)])
         text += " (aliases on this data)" if aliases else ""
+    elif combo is not None and not combo["passed"]:
+        text = (
+            f"unexplained (partially explained by {best.name}: "
+            f"{judgement.shrink_pct_best:.0f} % of the held-out gap)"
+        )
     else:
         text = verdict.kind
     disc = run_discovery(problem, judgement)
@@ -537,6 +636,14 @@ def conclude(
         "parameter_status": status,
         "discovery": disc.to_json() if disc is not None else None,
     }
+    if combo is not None:
+        notes["combination_check"] = combo
+        if not combo["passed"]:
+            notes["partially_explained_by"] = {
+                "model": best.name,
+                "effects": list(best.effects),
+                "heldout_shrink_pct": judgement.shrink_pct_best,
+            }
     verdict.notes.update(notes)
     return notes
 
@@ -582,6 +689,8 @@ def explain(verdict: Verdict, top_models: Sequence[str] = ()) -> list[str]:
                 "at bound": "sits at a bound of its physical range",
                 "untestable": "is not exercised by the logged motions",
                 "one-sided": "is bounded on one side only by the logged motions",
+                "not identifiable": "cannot be identified from the training data and was "
+                "held at nominal",
             }.get(why, why)
             lines.append(f"not a finding: {key} of {model} {what} (no error bar)")
     disc = notes.get("discovery")

@@ -45,7 +45,17 @@ def _replay_task(
 
 def _rescore(problem: Problem, fit: ModelFit, z_tr: FloatArray, z_ho: FloatArray) -> ModelFit:
     u = np.array([_to_u(k, fit.values[k]) for k in fit.keys])
-    new = _finish(problem, fit.effects, fit.keys, u, z_tr, z_ho, np.zeros((z_tr.size, 0)), True)
+    new = _finish(
+        problem,
+        fit.effects,
+        fit.keys,
+        u,
+        z_tr,
+        z_ho,
+        np.zeros((z_tr.size, 0)),
+        True,
+        held=fit.held,
+    )
     new.stderr, new.corr = fit.stderr, fit.corr
     return new
 

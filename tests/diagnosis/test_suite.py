@@ -86,3 +86,23 @@ def test_verdict_alternatives_lists_the_model_then_its_aliases() -> None:
         ("encoder_scale", "timestamp_offset"),
     ]
     assert verdict_alternatives(Verdict("unexplained", (), "r", 1.0, "n/a", {})) == []
+
+
+def test_a_partially_explained_verdict_is_scored_as_unexplained() -> None:
+    # a combination that closed part of the gap but left structure where it acts
+    partial_open = _outcome(["torque_speed_saturation"], "unexplained", True, open_set=True)
+    partial_in = _outcome(["velocity_saturation", "acceleration_limits"], "unexplained", False)
+    confident_wrong = _outcome(
+        ["torque_speed_saturation"], ["velocity_saturation", "acceleration_limits"], False, True
+    )
+    for o in (partial_open, partial_in):
+        o["partially_explained_by"] = "velocity_saturation + acceleration_limits"
+    figures, tables = summarise([partial_open, partial_in])
+    assert figures["open_set_unexplained_rate"] == 1.0
+    assert figures["top1_accuracy"] == 0.0  # never a hit for an in-library case
+    assert figures["false_attribution_rate"] == 0.0
+    assert tables["cases"][0]["partially_explained_by"].startswith("velocity_saturation")
+    # a confident wrong attribution on an open set stays a failure and a false attribution
+    figures, _ = summarise([partial_open, confident_wrong])
+    assert figures["open_set_unexplained_rate"] == 0.5
+    assert figures["false_attribution_rate"] == 0.5

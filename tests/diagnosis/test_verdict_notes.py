@@ -435,3 +435,57 @@ def test_arm_term_library_has_every_joint() -> None:
     a, b = prep.bounds[0]
     assert terms["cos 2q2"][0][0] == pytest.approx(np.cos(2 * prep.context.q[a:b, 1]).mean())
     assert terms["τ2 (gravity)"][1] == "N·m" and "reach" in terms
+
+
+# --------------------------------------------------------------------------- combinations
+def _two_channel_layout(m: int) -> SimpleNamespace:
+    """``m`` windows of one log, half straight and half accelerating, in two groups: a
+    coarse one (``pose_gt``) and one that resolves far below the structure floor
+    (``ticks``)."""
+    regimes = np.array(["straight"] * (m // 2) + ["accelerating"] * (m - m // 2))
+    return SimpleNamespace(
+        n=2 * m,
+        group=np.repeat(["pose_gt", "ticks"], m),
+        column=np.repeat(["dtheta", "left"], m),
+        regime=np.tile(regimes, 2),
+        log=np.zeros(2 * m, dtype=int),
+        window=np.tile(np.arange(m), 2),
+    )
+
+
+def test_a_combination_must_leave_noise_wherever_it_acts() -> None:
+    from realitygap.diagnosis.verdict import combination_check
+
+    rng = np.random.default_rng(8)
+    m = 80
+    lay = _two_channel_layout(m)
+    problem = SimpleNamespace(holdout=lay, settings=AttributionSettings())
+    noise = np.concatenate([rng.normal(0, 0.5, m), rng.normal(0, 0.02, m)])
+    acc = lay.regime == "accelerating"
+    gap = np.where(acc, 4.0, 0.0) * np.where(lay.group == "ticks", 1.5, 1.0)
+    z_nom = noise + gap
+    exact = _fit(("velocity_saturation", "acceleration_limits"), noise.copy())
+    ok = combination_check(problem, exact, z_nom)
+    assert ok["passed"]
+    # only where a gap lived and the model acted: both groups while accelerating
+    assert {(r["group"], r["regime"]) for r in ok["checked"]} == {
+        ("pose_gt", "accelerating"),
+        ("ticks", "accelerating"),
+    }
+    # a remainder that drifts slowly from window to window, 0.5 scale units RMS: above the
+    # structure floor (0.3) but below 2.5 times it, and several times its own
+    # window-to-window level
+    drift = np.sqrt(2.0) * 0.5 * np.sin(np.linspace(0.0, 2.0 * np.pi, m - m // 2))
+    drift = np.concatenate([np.zeros(m // 2), drift])
+    partial = noise + np.where(lay.group == "ticks", np.tile(drift, 2), 0.0)
+    bad = combination_check(problem, _fit(("a", "b"), partial), z_nom)
+    assert not bad["passed"]
+    worst = bad["failed"][0]
+    assert (worst["group"], worst["regime"]) == ("ticks", "accelerating")
+    assert worst["ratio"] > 2 * AttributionSettings().excess_ratio
+    assert 0.3 < worst["rms_model"] < 0.75
+    # the same shape ten times smaller is below what the logs resolve: accepted
+    small = noise + np.where(lay.group == "ticks", np.tile(0.1 * drift, 2), 0.0)
+    assert combination_check(problem, _fit(("a", "b"), small), z_nom)["passed"]
+    with pytest.raises(ValueError, match="held-out layout's length"):
+        combination_check(problem, exact, z_nom[:-1])
