@@ -286,7 +286,6 @@ class RGBDVisualOdometry:
         self._rng = np.random.default_rng(self.params.seed)
         self._keyframe: _Keyframe | None = None
         self._last: _Keyframe | None = None
-        self._kf_first_inliers: int | None = None
         self._T_world_kf = T0.copy()
         self._T_kf_curr = np.eye(4)
         self._t = 0.0
@@ -381,12 +380,9 @@ class RGBDVisualOdometry:
             T_world_curr = last.T_world_camera @ transform_from_rt(R, t)  # type: ignore[union-attr]
             self._T_kf_curr = transform_inverse(self._T_world_kf) @ T_world_curr
         n_inliers = int(counts["n_inliers"])  # type: ignore[call-overload]
-        if reference == "keyframe" and self._kf_first_inliers is None:
-            self._kf_first_inliers = n_inliers
-        first = n_inliers if self._kf_first_inliers is None else self._kf_first_inliers
         new_kf = (
             reference != "keyframe"
-            or n_inliers < min(p.keyframe_min_inliers, p.keyframe_inlier_fraction * first)
+            or n_inliers < p.keyframe_min_inliers
             or float(np.linalg.norm(t)) > p.keyframe_translation_m
             or rotation_angle(R) > p.keyframe_rotation_rad
         )
@@ -620,7 +616,6 @@ class RGBDVisualOdometry:
     ) -> None:
         self._keyframe = _Keyframe(T_world_camera.copy(), pixels, desc, points)
         self._last = self._keyframe
-        self._kf_first_inliers: int | None = None
         self._T_world_kf = T_world_camera.copy()
         self._T_kf_curr = np.eye(4)
 

@@ -108,16 +108,7 @@ class VOParams:
     icp_tol_m : float
         ICP stopping RMS change [m].
     keyframe_min_inliers : int
-        Start a new key-frame when fewer inliers than this remain — and fewer than
-        ``keyframe_inlier_fraction`` of those the key-frame had at its first
-        registration.
-    keyframe_inlier_fraction : float
-        In a feature-poor view, where even a fresh key-frame registers fewer than
-        ``keyframe_min_inliers``, the key-frame is kept until its inliers fall below
-        this fraction of its first count (or the camera has moved or turned far
-        enough), instead of re-keying at every frame: chaining key-frames frame to
-        frame adds each frame's error, and a small motion measured against a
-        noise floor drifts most.
+        Start a new key-frame when fewer inliers than this remain.
     keyframe_translation_m : float
         Start a new key-frame after this camera translation [m] from the last.
     keyframe_rotation_rad : float
@@ -156,7 +147,6 @@ class VOParams:
     icp_max_iters: int = 20
     icp_tol_m: float = 1e-5
     keyframe_min_inliers: int = 60
-    keyframe_inlier_fraction: float = 0.5
     keyframe_translation_m: float = 0.25
     keyframe_rotation_rad: float = float(np.deg2rad(15.0))
     depth_min_m: float = 0.5
@@ -193,10 +183,6 @@ class VOParams:
             raise ValueError(f"gtm_k must be ≥ 1 or None, got {self.gtm_k}")
         if not 0.0 <= self.gtm_tolerance < 1.0:
             raise ValueError(f"gtm_tolerance must lie in [0, 1), got {self.gtm_tolerance}")
-        if not 0.0 < self.keyframe_inlier_fraction <= 1.0:
-            raise ValueError(
-                f"keyframe_inlier_fraction must lie in (0, 1], got {self.keyframe_inlier_fraction}"
-            )
         for name in ("ransac_threshold_m", "keyframe_translation_m", "keyframe_rotation_rad"):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
