@@ -128,8 +128,8 @@ CALIBRATED_ODOMETRY_NOISE = OdometryNoise(
     distance_var_per_m=1e-6, heading_var_per_rad=1e-5, heading_var_per_m=1e-6
 )
 """Dead-reckoning noise of wheel odometry whose geometry is the robot's own (calibrated, or the
-nominal geometry of the nominal robot): about 1 mm per metre and 0.2° per turn (``calib000``
-calibrates to this). With it the fusion keeps the odometry's smooth, accurate short-range
+nominal geometry of the nominal robot): σ ≈ 1 mm per √m and 0.2° per √rad (``calib000``
+calibrates to millimetres over metres; the ``nav8`` pipeline uses the same). With it the fusion keeps the odometry's smooth, accurate short-range
 motion and VO corrects what odometry cannot see (slip, a drifting heading) over distance;
 with the generic :class:`OdometryNoise` (1 cm per √m, 1.8° per √rad) every VO key-frame's
 error — a few millimetres and tenths of a degree in feature-poor views — pulls the pose."""
