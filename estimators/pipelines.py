@@ -16,14 +16,16 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.geometry import wrap_angle
 from realitygap.estimators.base import DiffDriveMeasurement, Estimate
-from realitygap.estimators.diffdrive_model import DiffDriveKinematics
+from realitygap.estimators.diffdrive_model import DiffDriveKinematics, OdometryNoise
 from realitygap.estimators.fusion_ekf import FusionSettings, OdomVOFusionEKF
 from realitygap.estimators.occupancy import OccupancyGrid
-from realitygap.estimators.vo import RGBDVisualOdometry, planar_motion_from_camera
+from realitygap.estimators.vo import RGBDVisualOdometry, VOResult, planar_motion_from_camera
 from realitygap.estimators.vo_params import VOParams
 
 FloatArray = npt.NDArray[np.float64]
@@ -31,10 +33,25 @@ FloatArray = npt.NDArray[np.float64]
 
 @dataclass(frozen=True)
 class VONoise:
-    """Covariance model of a VO key-frame-to-frame planar motion.
+    r"""Covariance model of a VO key-frame-to-frame planar motion of the base.
 
-    ``σ_xy = xy_floor + xy_per_m · distance`` (m) and
-    ``σ_θ = theta_floor + theta_per_rad · |Δθ| + theta_per_m · distance`` (rad).
+    With ``from_inliers`` (default) the covariance is the one the VO solver derived from
+    its own inliers (:attr:`~realitygap.estimators.vo.VOResult.motion_cov`, the
+    6-DoF camera motion), carried to the planar base motion ``z = (dx, dy, dθ)`` through
+    the mounting by the Jacobian ``J`` of
+    :func:`~realitygap.estimators.vo.planar_motion_from_camera`, plus a floor for what the
+    point-noise model does not see (rendering, keypoint localisation biases):
+
+    .. math::
+
+        \Sigma_z = J\, \Sigma_{6}\, J^\top
+        + \operatorname{diag}(\sigma_{xy,0}^2, \sigma_{xy,0}^2, \sigma_{\theta,0}^2).
+
+    A motion few or badly spread inliers support gets a large covariance and moves the
+    estimate little; a well-supported one is trusted. Without a solver covariance (the
+    PnP solver, a motion chained through the previous frame) or with
+    ``from_inliers=False``, the fixed model ``σ_xy = xy_floor + xy_per_m · distance`` (m)
+    and ``σ_θ = theta_floor + theta_per_rad · |Δθ| + theta_per_m · distance`` (rad) is used.
     """
 
     xy_floor: float = 0.004
@@ -42,12 +59,61 @@ class VONoise:
     theta_floor: float = 0.003
     theta_per_rad: float = 0.02
     theta_per_m: float = 0.01
+    from_inliers: bool = True
 
-    def covariance(self, motion: FloatArray) -> FloatArray:
+    def covariance(
+        self,
+        motion: FloatArray,
+        result: VOResult | None = None,
+        T_base_camera: FloatArray | None = None,
+    ) -> FloatArray:
+        """Covariance (3, 3) of the planar base motion ``motion`` (m², m², rad²).
+
+        Parameters
+        ----------
+        motion : (3,) planar base motion ``[dx, dy, dθ]`` (m, m, rad).
+        result : the VO result the motion came from; its ``motion_cov`` is used when
+            ``from_inliers`` and the motion was registered against the key-frame.
+        T_base_camera : (4, 4) camera mounting the motion was converted with.
+        """
+        if (
+            self.from_inliers
+            and result is not None
+            and result.motion_cov is not None
+            and result.reference == "keyframe"
+            and np.all(np.isfinite(result.motion_cov))
+        ):
+            J = planar_motion_jacobian(result.T_prev_curr, T_base_camera)
+            floor = np.diag([self.xy_floor**2, self.xy_floor**2, self.theta_floor**2])
+            cov = J @ result.motion_cov @ J.T + floor
+            return 0.5 * (cov + cov.T)
         dist = math.hypot(motion[0], motion[1])
         s_xy = self.xy_floor + self.xy_per_m * dist
         s_th = self.theta_floor + self.theta_per_rad * abs(motion[2]) + self.theta_per_m * dist
         return np.diag([s_xy**2, s_xy**2, s_th**2])
+
+
+def planar_motion_jacobian(
+    T_prev_curr: npt.ArrayLike, T_base_camera: npt.ArrayLike | None = None, step: float = 1e-6
+) -> FloatArray:
+    """Jacobian (3, 6) of :func:`~realitygap.estimators.vo.planar_motion_from_camera` with
+    respect to the camera-motion increments ``(δθ, δt)`` of ``R ← exp([δθ]×) R``,
+    ``t ← t + δt`` (rad, m), by central differences of ``step``."""
+    T = np.asarray(T_prev_curr, dtype=float)
+    J = np.empty((3, 6))
+    for k in range(6):
+        cols = []
+        for sign in (1.0, -1.0):
+            d = np.zeros(6)
+            d[k] = sign * step
+            Tk = T.copy()
+            Tk[:3, :3] = cv2.Rodrigues(d[:3])[0] @ T[:3, :3]
+            Tk[:3, 3] = T[:3, 3] + d[3:]
+            cols.append(np.array(planar_motion_from_camera(Tk, T_base_camera)))
+        diff = cols[0] - cols[1]
+        diff[2] = wrap_angle(diff[2])
+        J[:, k] = diff / (2.0 * step)
+    return J
 
 
 @dataclass(frozen=True)
@@ -58,11 +124,29 @@ class MapSettings:
     size_m: tuple[float, float] = (10.0, 10.0)
 
 
+CALIBRATED_ODOMETRY_NOISE = OdometryNoise(
+    distance_var_per_m=1e-6, heading_var_per_rad=1e-5, heading_var_per_m=1e-6
+)
+"""Dead-reckoning noise of wheel odometry whose geometry is the robot's own (calibrated, or the
+nominal geometry of the nominal robot): σ ≈ 1 mm per √m and 0.2° per √rad (``calib000``
+calibrates to millimetres over metres; the ``nav8`` pipeline uses the same). With it the fusion keeps the odometry's smooth, accurate short-range
+motion and VO corrects what odometry cannot see (slip, a drifting heading) over distance;
+with the generic :class:`OdometryNoise` (1 cm per √m, 1.8° per √rad) every VO key-frame's
+error — a few millimetres and tenths of a degree in feature-poor views — pulls the pose."""
+
+
 @dataclass(frozen=True)
 class FusedPipelineSettings:
+    """Settings of :class:`FusedOdometryVO`: VO, its noise model, the fusion (odometry noise
+    :data:`CALIBRATED_ODOMETRY_NOISE` by default), the map and the lost-track count."""
+
     vo: VOParams = field(default_factory=VOParams)
     vo_noise: VONoise = field(default_factory=VONoise)
-    fusion: FusionSettings = field(default_factory=lambda: FusionSettings(vo_timeout=math.inf))
+    fusion: FusionSettings = field(
+        default_factory=lambda: FusionSettings(
+            odometry_noise=CALIBRATED_ODOMETRY_NOISE, vo_timeout=math.inf
+        )
+    )
     map: MapSettings | None = field(default_factory=MapSettings)
     lost_after: int = 3
     """Consecutive failed VO frames after which the estimate is flagged as odometry-only."""
@@ -150,7 +234,10 @@ class FusedOdometryVO:
             if res.ok and res.keyframe:
                 motion = np.asarray(planar_motion_from_camera(res.T_prev_curr, self.T_base_camera))
                 if self.ekf.update_relative(
-                    motion, self.settings.vo_noise.covariance(motion), new_keyframe=True, t=t
+                    motion,
+                    self.settings.vo_noise.covariance(motion, res, self.T_base_camera),
+                    new_keyframe=True,
+                    t=t,
                 ):
                     self._n_vo_updates += 1
                 self._failures = 0

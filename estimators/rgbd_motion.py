@@ -15,7 +15,7 @@ from realitygap.estimators.base import CameraIntrinsics
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["point_covariance", "refine_motion_ml", "solve_pnp"]
+__all__ = ["motion_covariance_ml", "point_covariance", "refine_motion_ml", "solve_pnp"]
 
 
 def _camera_matrix(intr: CameraIntrinsics) -> FloatArray:
@@ -83,6 +83,73 @@ def point_covariance(
     return J @ D @ J.transpose(0, 2, 1)
 
 
+def _residual_jacobian(q: FloatArray) -> FloatArray:
+    """Jacobians (n, 3, 6) of ``e = P_kf − R P_cur − t`` with respect to ``(δθ, δt)`` for
+    ``R ← exp([δθ]×) R``, ``t ← t + δt``, at the rotated points ``q = R P_cur`` (n, 3)."""
+    J = np.zeros((len(q), 3, 6))
+    J[:, 0, 1], J[:, 0, 2] = -q[:, 2], q[:, 1]
+    J[:, 1, 0], J[:, 1, 2] = q[:, 2], -q[:, 0]
+    J[:, 2, 0], J[:, 2, 1] = -q[:, 1], q[:, 0]
+    J[:, :, 3:] = -np.eye(3)
+    return J
+
+
+def motion_covariance_ml(
+    P_cur: FloatArray,
+    P_kf: FloatArray,
+    R: FloatArray,
+    t: FloatArray,
+    S_cur: FloatArray,
+    S_kf: FloatArray,
+) -> FloatArray:
+    r"""Covariance (6, 6) of the motion ``P_kf ≈ R P_cur + t`` from its own inliers.
+
+        The inverse of the Gauss–Newton information of :func:`refine_motion_ml` at the
+        solution, scaled by the a-posteriori variance factor when the inliers scatter more
+        than their point covariances say:
+
+        .. math::
+
+            \Sigma = \max\!\left(1, rac{\chi^2}{3n - 6}
+    ight)
+            \Big(\sum_i J_i^	op C_i^{-1} J_i\Big)^{-1}, \qquad
+            \chi^2 = \sum_i e_i^	op C_i^{-1} e_i,
+
+        with ``Cᵢ = S_kf,i + R S_cur,i Rᵀ``. The parameters are the rotation and translation
+        increments ``(δθ, δt)`` (rad, m) of ``R ← exp([δθ]×) R``, ``t ← t + δt``.
+
+        Parameters
+        ----------
+        P_cur, P_kf : (n, 3) inlier points in the current and key-frame camera frames, m;
+            ``n ≥ 3``.
+        R, t : the motion (3, 3) and (3,) m.
+        S_cur, S_kf : (n, 3, 3) point covariances (:func:`point_covariance`), m².
+
+        Returns
+        -------
+        ndarray, shape (6, 6)
+            Covariance of ``(δθ, δt)`` in rad² and m²; ``inf`` on the diagonal when the
+            points do not constrain the motion.
+    """
+    n = len(P_cur)
+    if n < 3:
+        raise ValueError(f"motion_covariance_ml needs at least 3 point pairs, got {n}")
+    W = np.linalg.inv(S_kf + R @ S_cur @ R.T)
+    q = P_cur @ R.T
+    e = P_kf - q - t
+    J = _residual_jacobian(q)
+    H = np.einsum("nji,njk,nkl->il", J, W, J)
+    chi2 = float(np.einsum("ni,nij,nj->", e, W, e))
+    factor = max(1.0, chi2 / max(3 * n - 6, 1))
+    try:
+        cov = np.linalg.inv(H) * factor
+    except np.linalg.LinAlgError:
+        return np.diag(np.full(6, np.inf))
+    if not np.all(np.isfinite(cov)):
+        return np.diag(np.full(6, np.inf))
+    return 0.5 * (cov + cov.T)
+
+
 def refine_motion_ml(
     P_cur: FloatArray,
     P_kf: FloatArray,
@@ -112,11 +179,7 @@ def refine_motion_ml(
         q = P_cur @ R.T
         e = P_kf - q - t
         # e(δθ, δt) ≈ e + [q]× δθ − δt  for R ← exp([δθ]×) R, t ← t + δt
-        Jr = np.zeros((len(q), 3, 6))
-        Jr[:, 0, 1], Jr[:, 0, 2] = -q[:, 2], q[:, 1]
-        Jr[:, 1, 0], Jr[:, 1, 2] = q[:, 2], -q[:, 0]
-        Jr[:, 2, 0], Jr[:, 2, 1] = -q[:, 1], q[:, 0]
-        Jr[:, :, 3:] = -np.eye(3)
+        Jr = _residual_jacobian(q)
         JW = Jr.transpose(0, 2, 1) @ W
         H = np.einsum("nij,njk->ik", JW, Jr)
         g = np.einsum("nij,nj->i", JW, e)

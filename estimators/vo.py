@@ -50,7 +50,12 @@ from realitygap.estimators.registration import (
     ransac_rigid,
     rotation_angle,
 )
-from realitygap.estimators.rgbd_motion import point_covariance, refine_motion_ml, solve_pnp
+from realitygap.estimators.rgbd_motion import (
+    motion_covariance_ml,
+    point_covariance,
+    refine_motion_ml,
+    solve_pnp,
+)
 from realitygap.estimators.vo_params import Detector, VOParams, VOStatus
 
 FloatArray = npt.NDArray[np.float64]
@@ -122,6 +127,12 @@ class VOResult:
         Their pixel coordinates ``(u, v)``.
     inlier_points_prev, inlier_points_curr : ndarray, shape (n, 3)
         Their 3-D points in the key-frame and current camera frames [m].
+    motion_cov : ndarray, shape (6, 6), or None
+        Covariance of ``T_prev_curr`` from its own inliers
+        (:func:`~realitygap.estimators.rgbd_motion.motion_covariance_ml`): rotation then
+        translation increments of the camera in the reference frame (rad², m²); ``None``
+        when no motion was estimated or the solver was ``"pnp"``. It refers to the motion
+        against the reference the frame was registered to (see ``reference``).
     """
 
     t: float
@@ -144,6 +155,7 @@ class VOResult:
     inlier_pixels_curr: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
     inlier_points_prev: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
     inlier_points_curr: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    motion_cov: FloatArray | None = None
 
     def to_estimate(self) -> Estimate:
         """This result as an :class:`~realitygap.estimators.base.Estimate`.
@@ -444,18 +456,14 @@ class RGBDVisualOdometry:
                 )
             except RegistrationError:
                 return VOStatus.RANSAC_FAILED, None
+            noise = (p.pixel_sigma_px, p.depth_sigma_a_m, p.depth_sigma_b_per_m)
+            S_cur = point_covariance(P_cur[inl], intrinsics, *noise)
+            S_kf = point_covariance(P_kf[inl], intrinsics, *noise)
             if p.motion_solver == "ml":
-                noise = (p.pixel_sigma_px, p.depth_sigma_a_m, p.depth_sigma_b_per_m)
-                R, t = refine_motion_ml(
-                    P_cur[inl],
-                    P_kf[inl],
-                    R,
-                    t,
-                    point_covariance(P_cur[inl], intrinsics, *noise),
-                    point_covariance(P_kf[inl], intrinsics, *noise),
-                )
+                R, t = refine_motion_ml(P_cur[inl], P_kf[inl], R, t, S_cur, S_kf)
             elif p.use_icp:
                 R, t = self._refine(P_cur[inl], P_kf[inl], R, t, None if w is None else w[inl])
+            counts["motion_cov"] = motion_covariance_ml(P_cur[inl], P_kf[inl], R, t, S_cur, S_kf)
         res = P_cur[inl] @ R.T + t - P_kf[inl]
         counts["rms_m"] = float(np.sqrt(np.mean(np.sum(res * res, axis=1))))
         counts["n_inliers"] = int(np.count_nonzero(inl))

@@ -7,8 +7,8 @@ import pytest
 
 from realitygap.estimators.base import CameraIntrinsics, DiffDriveMeasurement, RGBDFrame, WheelTicks
 from realitygap.estimators.diffdrive_model import DiffDriveKinematics, WheelOdometry
-from realitygap.estimators.pipelines import FusedOdometryVO
-from realitygap.estimators.vo import T_BASE_CAMERA_FORWARD
+from realitygap.estimators.pipelines import FusedOdometryVO, VONoise, planar_motion_jacobian
+from realitygap.estimators.vo import T_BASE_CAMERA_FORWARD, VOResult
 
 KIN = DiffDriveKinematics(0.035, 0.035, 0.23, 2578.33)
 INTR = CameraIntrinsics(320, 240, 226.0, 208.0, 160.0, 120.0)
@@ -45,3 +45,45 @@ def test_update_none_and_wrong_type() -> None:
         fused.update(WheelTicks(0.0, 0, 0, 100.0))
     with pytest.raises(ValueError, match="4x4"):
         FusedOdometryVO(KIN, np.eye(3))
+
+
+def _result(motion_cov: np.ndarray | None, reference: str = "keyframe") -> VOResult:
+    T = np.eye(4)
+    return VOResult(
+        t=0.0,
+        T_world_camera=T,
+        T_prev_curr=T,
+        T_world_keyframe=T,
+        pose=np.zeros(3),
+        ok=True,
+        status="ok",
+        keyframe=True,
+        reference=reference,
+        motion_cov=motion_cov,
+    )
+
+
+def test_planar_jacobian_of_the_forward_mounting_at_rest() -> None:
+    """Optical z is base x, optical −x is base y, a turn about optical −y is a base yaw."""
+    J = planar_motion_jacobian(np.eye(4), T_BASE_CAMERA_FORWARD)
+    expected = np.zeros((3, 6))
+    expected[0, 5], expected[1, 3], expected[2, 1] = 1.0, -1.0, -1.0
+    np.testing.assert_allclose(J, expected, atol=1e-8)
+
+
+def test_vo_noise_uses_the_solver_covariance_of_keyframe_motions() -> None:
+    noise = VONoise()
+    C6 = np.diag([1e-6, 4e-6, 9e-6, 1e-4, 4e-4, 9e-4])
+    cov = noise.covariance(np.zeros(3), _result(C6), T_BASE_CAMERA_FORWARD)
+    floor = np.diag([noise.xy_floor**2, noise.xy_floor**2, noise.theta_floor**2])
+    np.testing.assert_allclose(cov, np.diag([9e-4, 1e-4, 4e-6]) + floor, atol=1e-12)
+    # a motion chained through the previous frame, or no solver covariance: the fixed model
+    fixed = noise.covariance(np.array([0.1, 0.0, 0.0]))
+    for res in (_result(C6, reference="previous_frame"), _result(None)):
+        np.testing.assert_allclose(
+            noise.covariance(np.array([0.1, 0.0, 0.0]), res, T_BASE_CAMERA_FORWARD), fixed
+        )
+    off = VONoise(from_inliers=False)
+    np.testing.assert_allclose(
+        off.covariance(np.array([0.1, 0.0, 0.0]), _result(C6), T_BASE_CAMERA_FORWARD), fixed
+    )

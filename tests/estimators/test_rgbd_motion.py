@@ -8,7 +8,12 @@ from scipy.spatial.transform import Rotation
 
 from realitygap.estimators.base import CameraIntrinsics
 from realitygap.estimators.registration import kabsch_umeyama
-from realitygap.estimators.rgbd_motion import point_covariance, refine_motion_ml, solve_pnp
+from realitygap.estimators.rgbd_motion import (
+    motion_covariance_ml,
+    point_covariance,
+    refine_motion_ml,
+    solve_pnp,
+)
 
 K = CameraIntrinsics(320, 240, 226.0, 226.0, 160.0, 120.0)
 A, B = 0.001, 0.002  # depth noise σ = A + B z² (m)
@@ -86,3 +91,40 @@ def test_point_covariance_is_depth_noise_along_the_ray(z: float) -> None:
     C = point_covariance(P, K, 0.5, A, B)[0]
     assert C[2, 2] == pytest.approx((A + B * z * z) ** 2)
     assert C[0, 0] == pytest.approx((0.5 * z / K.fx) ** 2)
+
+
+def test_ml_motion_covariance_matches_the_scatter_of_the_ml_motion() -> None:
+    """Monte Carlo: the predicted covariance of (δθ, δt) is the scatter of the ML motions."""
+    rng = np.random.default_rng(3)
+    P_cur, P_kf, R, t = _scene(rng, n=80)
+    deltas, covs = [], []
+    for _ in range(150):
+        Pc, Pk = _observe(P_cur, rng), _observe(P_kf, rng)
+        S_c, S_k = point_covariance(Pc, K, 0.5, A, B), point_covariance(Pk, K, 0.5, A, B)
+        R_ml, t_ml = refine_motion_ml(Pc, Pk, R, t, S_c, S_k)
+        d_rot = Rotation.from_matrix(R_ml @ R.T).as_rotvec()
+        deltas.append(np.concatenate([d_rot, t_ml - t]))
+        covs.append(motion_covariance_ml(Pc, Pk, R_ml, t_ml, S_c, S_k))
+    empirical = np.cov(np.array(deltas).T)
+    predicted = np.mean(covs, axis=0)
+    ratio = np.diag(empirical) / np.diag(predicted)
+    assert np.all((ratio > 0.6) & (ratio < 1.6)), ratio
+
+
+def test_ml_motion_covariance_grows_with_the_residual_scatter() -> None:
+    """Inliers whose noise variance is 3× what their covariances say inflate the covariance ~3×;
+    fewer inliers give a larger one."""
+    rng = np.random.default_rng(4)
+    P_cur, P_kf, R, t = _scene(rng, n=120)
+    S_c, S_k = point_covariance(P_cur, K, 0.5, A, B), point_covariance(P_kf, K, 0.5, A, B)
+    exact = motion_covariance_ml(P_cur, P_kf, R, t, S_c, S_k)
+    Pc, Pk = P_cur.copy(), P_kf.copy()
+    for _ in range(3):  # three independent draws: three times the modelled variance
+        Pc, Pk = Pc + (_observe(P_cur, rng) - P_cur), Pk + (_observe(P_kf, rng) - P_kf)
+    noisy = motion_covariance_ml(Pc, Pk, R, t, S_c, S_k)
+    ratio = np.diag(noisy) / np.diag(exact)
+    assert np.all((ratio > 1.5) & (ratio < 6.0)), ratio
+    fewer = motion_covariance_ml(P_cur[:30], P_kf[:30], R, t, S_c[:30], S_k[:30])
+    assert np.all(np.diag(fewer) > np.diag(exact))
+    with pytest.raises(ValueError, match="at least 3 point pairs"):
+        motion_covariance_ml(P_cur[:2], P_kf[:2], R, t, S_c[:2], S_k[:2])

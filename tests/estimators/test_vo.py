@@ -506,3 +506,20 @@ def test_every_motion_solver_recovers_a_small_motion(solver: str) -> None:
         assert result.ok, result.status
         err_t, err_r = relative_error(result.T_prev_curr, true_motion(ORIGIN, pose))
         assert err_t < 0.01 and err_r < np.deg2rad(0.3), (solver, pose, err_t, err_r)
+
+
+def test_every_motion_carries_its_covariance_from_its_inliers() -> None:
+    vo = make_vo(keyframe_translation_m=0.07)
+    results = [vo.update(frame_at(*pose)) for pose in SEQUENCE]
+    assert results[0].motion_cov is None  # the first frame has no motion
+    for r in results[1:]:
+        assert r.ok and r.motion_cov is not None and r.motion_cov.shape == (6, 6)
+        eig = np.linalg.eigvalsh(r.motion_cov)
+        assert np.all(eig > 0)
+        # millimetres and tenths of a degree for a textured view at 1–3 m
+        assert np.sqrt(np.max(np.diag(r.motion_cov)[3:])) < 0.01
+        assert np.sqrt(np.max(np.diag(r.motion_cov)[:3])) < np.deg2rad(0.5)
+    pnp = make_vo(motion_solver="pnp")
+    pnp.update(frame_at(*ORIGIN))
+    moved = pnp.update(frame_at(*SMALL_MOTIONS[0]))
+    assert moved.ok and moved.motion_cov is None  # PnP's motion comes without one
