@@ -91,3 +91,49 @@ def test_batched_features_reject_bad_input() -> None:
         BatchRestTimer(3, 0)
     with pytest.raises(ValueError, match="unknown obs_rest_timer"):
         BatchEpisodeFeatures(3, None, {"steps": 4})
+
+
+class _Spy(gym.vector.VectorWrapper):
+    """Keeps the raw observations of the last reset/step."""
+
+    def reset(self, **kwargs):  # type: ignore[no-untyped-def]
+        self.last = super().reset(**kwargs)
+        return self.last
+
+    def step(self, actions):  # type: ignore[no-untyped-def]
+        self.last = super().step(actions)
+        return self.last
+
+
+def test_sb3_vector_env_inputs_equal_the_policys_per_robot_inputs() -> None:
+    from realitygap.baselines import rl
+
+    n = 6
+    probe = gym.make("realitygap/WheeledNav-v0", sensor_mode="fast")
+    io = rl.PolicyIO.from_dict(
+        {
+            "obs_features": "wheeled_nav_egocentric",
+            "obs_memory": {"n_sectors": 36, "horizon": 2.0},
+            "obs_rest_timer": {"horizon_steps": 40},
+            "obs_scene_fade": 0.2,
+        }
+    ).for_env(probe)
+    probe.close()
+    spy = _Spy(gym.make_vec(VEC_ID, num_envs=n, max_episode_steps=40))
+    venv = rl.sb3_vector_env(spy, io)
+    venv.seed(5)
+    states = [io.new_episode_features() for _ in range(n)]
+    x = venv.reset()
+    np.testing.assert_array_equal(x, io.observation(spy.last[0], states))
+    rng = np.random.default_rng(0)
+    ends = 0
+    for _ in range(90):
+        x, _, done, infos = venv.step(rng.uniform(-1, 1, (n, 2)).astype(np.float32))
+        obs, _, _, _, info = spy.last
+        for i in np.flatnonzero(done):
+            last = io.observation(info["final_obs"][i : i + 1], [states[i]])[0]
+            np.testing.assert_array_equal(infos[i]["terminal_observation"], last)
+            states[i] = io.new_episode_features()
+            ends += 1
+        np.testing.assert_array_equal(x, io.observation(obs, states))
+    assert ends >= n
