@@ -160,7 +160,7 @@ class LearnedPolicy:
         self.io = PolicyIO.from_dict(self.meta)
         shape = (self.meta.get("env_observation_space") or {}).get("shape")
         self.obs_shape = tuple(shape) if shape else tuple(model.observation_space.shape)
-        self._episode_states: list[Any] = []
+        self._episode_features: Any = None
 
     def predict(
         self,
@@ -175,7 +175,7 @@ class LearnedPolicy:
                 f"{self.name} expects observations of shape {self.obs_shape} (or a batch of them), "
                 f"got {obs.shape}"
             )
-        obs = self.io.observation(obs, self._episode_features(obs, episode_start))
+        obs = self._network_input(obs, episode_start)
         if self.obs_normalizer is not None:
             obs = self.obs_normalizer(obs)
         action, state = self.model.predict(
@@ -183,28 +183,35 @@ class LearnedPolicy:
         )
         return self.io.action(action), state
 
-    def _episode_features(
+    def _network_input(
         self, obs: npt.NDArray[np.float32], episode_start: npt.ArrayLike | None
-    ) -> list[Any] | None:
-        """The episode features (obstacle memory, rest timer) of each env of the batch, reset where an
-        episode starts (a policy without them keeps none). Without ``episode_start`` a call
-        with a batch of another size starts new episodes."""
+    ) -> npt.NDArray[np.float32]:
+        """The network input of a batch, with the episode features (obstacle memory, rest
+        timer) of each env of the batch, reset where an episode starts (a policy without them
+        keeps none). Without ``episode_start`` a call with a batch of another size starts new
+        episodes."""
         if not self.io.has_episode_features:
-            return None
+            return self.io.observation(obs)
         from realitygap.baselines.common import episode_starts
+        from realitygap.baselines.rl.batch_features import BatchEpisodeFeatures
 
-        n = (
-            1
-            if obs.ndim == len(self.obs_shape)
-            else int(np.prod(obs.shape[: -len(self.obs_shape)]))
-        )
-        if len(self._episode_states) != n:
-            self._episode_states = [self.io.new_episode_features() for _ in range(n)]
+        lead = obs.shape[: obs.ndim - len(self.obs_shape)]
+        rows = obs.reshape(-1, obs.shape[-1])
+        n = rows.shape[0]
+        if self._episode_features is None or self._episode_features.n != n:
+            if not self.io.complete:
+                raise ValueError(
+                    "obs_memory lacks the scan geometry; complete it with for_env(env)"
+                )
+            self._episode_features = BatchEpisodeFeatures(
+                n, self.io.obs_memory, self.io.obs_rest_timer
+            )
         else:
-            for state, start in zip(self._episode_states, episode_starts(episode_start, n)):
-                if start:
-                    state.reset()
-        return self._episode_states
+            starts = np.flatnonzero(episode_starts(episode_start, n))
+            if starts.size:
+                self._episode_features.reset(starts)
+        x = self.io.network_input(rows, self._episode_features.update(rows))
+        return x.reshape(*lead, x.shape[-1])
 
 
 def load_policy(

@@ -155,6 +155,23 @@ class PolicyIO:
                 raise ValueError(f"{len(rows)} observations but {len(states)} episode states")
             feats = np.stack([st.update(r) for st, r in zip(states, rows)])
             x = np.concatenate([rows, feats], axis=-1).reshape(*x.shape[:-1], -1)
+        return self.network_input(x)
+
+    def network_input(
+        self, obs: npt.ArrayLike, features: npt.ArrayLike | None = None
+    ) -> npt.NDArray[np.float32]:
+        """Env observations ``(N, D)`` with their episode-feature columns ``features``
+        ``(N, F)`` appended (already appended if ``None``) → network input (before
+        normalisation): the scene fade, then the feature map."""
+        x = np.asarray(obs, dtype=np.float32)
+        if features is not None:
+            f = np.asarray(features, dtype=np.float32)
+            if f.ndim != 2 or x.ndim != 2 or f.shape[0] != x.shape[0]:
+                raise ValueError(
+                    f"features must be (N, F) beside observations (N, D), got {f.shape} "
+                    f"beside {x.shape}"
+                )
+            x = np.concatenate([x, f], axis=-1)
         x = self.fade_scene(x)
         fn = obs_feature_fn(self.obs_features)
         return fn(x) if fn is not None else x

@@ -10,6 +10,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from realitygap.baselines.rl.batch_features import BatchEpisodeFeatures
 from realitygap.baselines.rl.config import require_sb3
 from realitygap.baselines.rl.policy_io import PolicyIO
 from realitygap.baselines.rl.wrappers import (
@@ -196,9 +197,19 @@ def _make_sb3_vector_env_class() -> type:
             self.venv, self.io, self.shaping, self.docking = venv, io, shaping, docking
             self._rng = np.random.default_rng(0)
             n = venv.num_envs
-            self.states: list[Any] = [io.new_episode_features() for _ in range(n)]
+            if io.has_episode_features and not io.complete:
+                io = self.io = io.for_env(venv)
+            self.features = (
+                BatchEpisodeFeatures(n, io.obs_memory, io.obs_rest_timer)
+                if io.has_episode_features
+                else None
+            )
             space = venv.single_observation_space
-            width = self._input(np.zeros((1, *space.shape), np.float32), [None]).shape[-1]
+            n_feat = 0 if self.features is None else self.features.n_features
+            width = io.network_input(
+                np.zeros((1, *space.shape), np.float32),
+                np.zeros((1, n_feat), np.float32) if n_feat else None,
+            ).shape[-1]
             if width == space.shape[-1] and not io.obs_features:
                 obs_space = space
             else:
@@ -219,12 +230,12 @@ def _make_sb3_vector_env_class() -> type:
             self._lengths = np.zeros(n, dtype=np.int64)
             self._t0 = time.perf_counter()
 
-        def _input(self, obs: np.ndarray, states: list[Any]) -> np.ndarray:
-            if not self.io.has_episode_features:
+        def _input(self, obs: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+            """Network input of the robots ``rows`` (all if ``None``) after observations
+            ``obs``, updating their episode features."""
+            if self.features is None:
                 return self.io.observation(obs)
-            if states[0] is None:
-                states = [self.io.new_episode_features() for _ in range(obs.shape[0])]
-            return self.io.observation(obs, states)
+            return self.io.network_input(obs, self.features.update(obs, rows))
 
         def _potential(self, info: Mapping[str, Any]) -> np.ndarray:
             sh = self.shaping
@@ -270,10 +281,11 @@ def _make_sb3_vector_env_class() -> type:
             obs, info = self._dock(np.arange(self.num_envs), obs, info)
             self._returns[:] = 0.0
             self._lengths[:] = 0
-            self.states = [self.io.new_episode_features() for _ in range(self.num_envs)]
+            if self.features is not None:
+                self.features.reset()
             if self.shaping is not None:
                 self._phi = self._potential(info)
-            return self._input(obs, self.states)
+            return self._input(obs)
 
         def step_async(self, actions: np.ndarray) -> None:
             self._actions = np.asarray(actions)
@@ -296,9 +308,9 @@ def _make_sb3_vector_env_class() -> type:
             infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
             ended = np.flatnonzero(done)
             if ended.size:
-                last = self._input(info["final_obs"][ended], [self.states[i] for i in ended])
-                for i in ended:
-                    self.states[i] = self.io.new_episode_features()
+                last = self._input(info["final_obs"][ended], ended)
+                if self.features is not None:
+                    self.features.reset(ended)
             for j, i in enumerate(ended):
                 d = infos[i]
                 d["terminal_observation"] = last[j]
@@ -313,7 +325,7 @@ def _make_sb3_vector_env_class() -> type:
                 }
             self._returns[done] = 0.0
             self._lengths[done] = 0
-            x = self._input(obs, self.states)
+            x = self._input(obs)
             return x, reward.astype(np.float32), done, infos
 
         def close(self) -> None:
