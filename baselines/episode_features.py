@@ -47,6 +47,28 @@ SCAN_START = 12
 """Index of the first scan column of a WheeledNav observation."""
 
 
+def check_memory_settings(
+    scan_angles: npt.ArrayLike, range_max: float, n_sectors: int, horizon: float, cell: float
+) -> npt.NDArray[np.float64]:
+    """Check an obstacle memory's settings; return the scan angles (rad) as a flat array.
+
+    Raises
+    ------
+    ValueError
+        Naming the setting, what it must be and what came.
+    """
+    angles = np.asarray(scan_angles, dtype=float).reshape(-1)
+    if angles.size == 0 or not np.all(np.isfinite(angles)):
+        raise ValueError(f"scan_angles must be a non-empty finite list, got {scan_angles!r}")
+    if not (range_max > 0 and horizon > 0 and cell > 0):
+        raise ValueError(
+            f"range_max, horizon and cell must be > 0, got {range_max}, {horizon}, {cell}"
+        )
+    if int(n_sectors) < 4:
+        raise ValueError(f"n_sectors must be >= 4, got {n_sectors}")
+    return angles
+
+
 class ObstacleMemory:
     """Remembered scan hits of one episode, as ranges per sector around the robot.
 
@@ -67,15 +89,7 @@ class ObstacleMemory:
         horizon: float = 2.0,
         cell: float = 0.05,
     ):
-        self.scan_angles = np.asarray(scan_angles, dtype=float).reshape(-1)
-        if self.scan_angles.size == 0 or not np.all(np.isfinite(self.scan_angles)):
-            raise ValueError(f"scan_angles must be a non-empty finite list, got {scan_angles!r}")
-        if not (range_max > 0 and horizon > 0 and cell > 0):
-            raise ValueError(
-                f"range_max, horizon and cell must be > 0, got {range_max}, {horizon}, {cell}"
-            )
-        if int(n_sectors) < 4:
-            raise ValueError(f"n_sectors must be >= 4, got {n_sectors}")
+        self.scan_angles = check_memory_settings(scan_angles, range_max, n_sectors, horizon, cell)
         self.range_max = float(range_max)
         self.n_sectors = int(n_sectors)
         self.horizon = float(horizon)

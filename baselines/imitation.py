@@ -516,19 +516,21 @@ def pretrain(
         data.extend(part)
         if mirror is not None:
             data.extend(part.mirrored(*mirror))
-        if normalizer is None:
-            x = np.asarray(data.inputs, dtype=float)
-            normalizer = normalizer_cls(x.mean(axis=0), np.maximum(x.var(axis=0), 1e-3))
         motion_dims = int(model.action_space.shape[0]) - int(bool(io.action_stop_gate))
-        losses = clone(model, data, normalizer, settings, gamma, seed + k, motion_dims)
-        row = {
-            "round": float(k),
-            "beta": beta,
-            **{f"rollout_{key}": v for key, v in part.summary().items()},
-            "samples": float(len(data.rewards)),
-            **losses,
-            "wall_s": time.perf_counter() - t0,
-        }
+        normalizer, row = clone_round(
+            model,
+            data,
+            part,
+            normalizer,
+            normalizer_cls,
+            settings,
+            gamma,
+            seed,
+            k,
+            beta,
+            motion_dims,
+            t0,
+        )
         if evaluate is not None:
             row.update({f"eval_{key}": float(v) for key, v in evaluate(normalizer).items()})
         rows.append(row)
@@ -537,6 +539,41 @@ def pretrain(
             + ", ".join(f"{key} {v:.3g}" for key, v in row.items() if key not in ("round", "beta"))
         )
     return normalizer, rows
+
+
+def clone_round(
+    model: Any,
+    data: Rollouts,
+    part: Rollouts,
+    normalizer: Any,
+    normalizer_cls: Any,
+    settings: DemoSettings,
+    gamma: float,
+    seed: int,
+    k: int,
+    beta: float,
+    motion_dims: int,
+    t0: float,
+) -> tuple[Any, dict[str, float]]:
+    """One DAgger round's cloning on everything collected so far, and its log row.
+
+    The observation normaliser is fitted on the first round's data and kept after.
+    Returns the normaliser and the row: round, beta, the round's rollout summary,
+    samples, the cloning losses and the wall time since ``t0`` (s).
+    """
+    if normalizer is None:
+        x = np.asarray(data.inputs, dtype=float)
+        normalizer = normalizer_cls(x.mean(axis=0), np.maximum(x.var(axis=0), 1e-3))
+    losses = clone(model, data, normalizer, settings, gamma, seed + k, motion_dims)
+    row = {
+        "round": float(k),
+        "beta": beta,
+        **{f"rollout_{key}": v for key, v in part.summary().items()},
+        "samples": float(len(data.rewards)),
+        **losses,
+        "wall_s": time.perf_counter() - t0,
+    }
+    return normalizer, row
 
 
 def classical_wheeled_nav_expert(env: gym.Env[Any, Any]) -> Any:

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.baselines.episode_features import SCAN_START
+from realitygap.baselines.episode_features import SCAN_START, check_memory_settings
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -71,15 +71,7 @@ class BatchObstacleMemory:
     ):
         if int(n) < 1 or int(n) >= 1 << (63 - 2 * _CELL_BITS):
             raise ValueError(f"n (robots) must be in [1, {1 << (63 - 2 * _CELL_BITS)}), got {n}")
-        self.scan_angles = np.asarray(scan_angles, dtype=float).reshape(-1)
-        if self.scan_angles.size == 0 or not np.all(np.isfinite(self.scan_angles)):
-            raise ValueError(f"scan_angles must be a non-empty finite list, got {scan_angles!r}")
-        if not (range_max > 0 and horizon > 0 and cell > 0):
-            raise ValueError(
-                f"range_max, horizon and cell must be > 0, got {range_max}, {horizon}, {cell}"
-            )
-        if int(n_sectors) < 4:
-            raise ValueError(f"n_sectors must be >= 4, got {n_sectors}")
+        self.scan_angles = check_memory_settings(scan_angles, range_max, n_sectors, horizon, cell)
         self.n = int(n)
         self.range_max = float(range_max)
         self.n_sectors = int(n_sectors)

@@ -31,7 +31,12 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.baselines.imitation import DemoSettings, Rollouts, clone, expert_action_to_model
+from realitygap.baselines.imitation import (
+    DemoSettings,
+    Rollouts,
+    clone_round,
+    expert_action_to_model,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -194,18 +199,20 @@ def pretrain_vector(
             beta = settings.beta_decay**k if k > 0 else 1.0
             part = collect_vector(venv, expert, io, settings.episodes, beta, rng, model, normalizer)
             data.extend(part)
-            if normalizer is None:
-                x = np.asarray(data.inputs, dtype=float)
-                normalizer = normalizer_cls(x.mean(axis=0), np.maximum(x.var(axis=0), 1e-3))
-            losses = clone(model, data, normalizer, settings, gamma, seed + k, motion_dims)
-            row = {
-                "round": float(k),
-                "beta": beta,
-                **{f"rollout_{key}": v for key, v in part.summary().items()},
-                "samples": float(len(data.rewards)),
-                **losses,
-                "wall_s": time.perf_counter() - t0,
-            }
+            normalizer, row = clone_round(
+                model,
+                data,
+                part,
+                normalizer,
+                normalizer_cls,
+                settings,
+                gamma,
+                seed,
+                k,
+                beta,
+                motion_dims,
+                t0,
+            )
             rows.append(row)
             log(
                 f"[{time.strftime('%H:%M:%S')}] vector DAgger round {k + 1}/{settings.rounds} "
