@@ -151,13 +151,23 @@ class RGBDCamera:
             flags=p.ER_NO_SEGMENTATION_MASK,
         )
         rgb = np.asarray(rgba, dtype=np.uint8).reshape(h, w, 4)[..., :3].copy()
-        zb = np.asarray(zbuf, dtype=np.float64).reshape(h, w)
+        zb = np.asarray(zbuf, dtype=np.float32).reshape(h, w)
+        P = self.params
         n, f = self.NEAR, self.FAR
-        depth = f * n / (f - (f - n) * zb)
-        depth = depth + rng.normal(0.0, 1.0, depth.shape) * depth_sigma(depth, self.params)
-        invalid = (depth < self.params.range_min) | (depth > self.params.range_max) | (zb >= 1.0)
+        # metric depth f n / (f - (f - n) zb) and its noise a + b z², in single precision
+        # (the frame's own precision) and in place: a full frame's arithmetic costs less
+        # than a tenth of its rendering this way
+        depth = zb * np.float32(-(f - n))
+        depth += np.float32(f)
+        np.divide(np.float32(f * n), depth, out=depth)
+        sigma = depth * depth
+        sigma *= np.float32(P.depth_noise_b)
+        sigma += np.float32(P.depth_noise_a)
+        sigma *= rng.standard_normal(depth.shape, dtype=np.float32)
+        depth += sigma
+        invalid = (depth < P.range_min) | (depth > P.range_max) | (zb >= 1.0)
         depth[invalid] = np.nan
-        return RGBDFrame(t=t, rgb=rgb, depth=depth.astype(np.float32), intrinsics=intrinsics)
+        return RGBDFrame(t=t, rgb=rgb, depth=depth, intrinsics=intrinsics)
 
 
 class PlanarScanner:
