@@ -209,4 +209,4 @@ def test_image_mode_renders_camera_frames_only_at_the_camera_rate() -> None:
         env.close()
     # steps 1..8 after the reset: frames at steps 4 and 8, scans at 2, 4, 6, 8
     assert seen[1:] == [(k % 4 == 0, k % 2 == 0) for k in range(1, 9)]
-    assert sizes == [(128, 96), None, (128, 96), None]  # 2 columns per beam, 64 beams
+    assert sizes == [(128, 48), None, (128, 48), None]  # 2 columns per beam, 64 beams
