@@ -209,4 +209,32 @@ def test_image_mode_renders_camera_frames_only_at_the_camera_rate() -> None:
         env.close()
     # steps 1..8 after the reset: frames at steps 4 and 8, scans at 2, 4, 6, 8
     assert seen[1:] == [(k % 4 == 0, k % 2 == 0) for k in range(1, 9)]
-    assert sizes == [(128, 96), None, (128, 96), None]  # 2 columns per beam, 64 beams
+    assert sizes == [(128, 48), None, (128, 48), None]  # 2 columns per beam, 64 beams
+
+
+def test_default_camera_rate_renders_full_frames_every_fourth_step() -> None:
+    """The default image mode: a 5 Hz camera at 20 Hz control renders its 320 × 240 frame on
+    every fourth step only; the 10 Hz scan renders its small depth picture in between."""
+    import inspect
+
+    from realitygap.envs.wheeled_nav import WheeledNavEnv
+
+    assert inspect.signature(WheeledNavEnv).parameters["camera_hz"].default == 5.0
+    env = WheeledNavEnv(sensor_mode="image", n_obstacles=3)
+    try:
+        env.reset(seed=5)
+        sizes: list[tuple[int, int] | None] = []
+        render = env.camera.render
+
+        def spy(t, rng, size=None):
+            sizes.append(size)
+            return render(t, rng, size)
+
+        env.camera.render = spy  # type: ignore[method-assign]
+        for _ in range(12):
+            env.step(np.array([0.3, -0.1], dtype=np.float32))
+    finally:
+        env.close()
+    # steps 1..12 after the reset: full frames at 4, 8, 12; scan pictures at 2, 6, 10
+    assert sizes == [env.scanner.render_size, None] * 3
+    assert env.scanner.render_size == (128, 48)  # 2 columns per beam, half the rows
