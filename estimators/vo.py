@@ -345,7 +345,7 @@ class RGBDVisualOdometry:
         if n_kp < p.min_keypoints:
             return self._result(VOStatus.NO_FEATURES, ok=False, n_keypoints=n_kp)
         desc: Descriptors = np.asarray(raw)
-        pixels = np.array([kp.pt for kp in kps], dtype=float)
+        pixels = self._keypoint_pixels(kps, gray.shape)
         points = self._back_project(pixels, depth, frame.intrinsics)
         valid_now = np.all(np.isfinite(points), axis=1)
 
@@ -524,6 +524,35 @@ class RGBDVisualOdometry:
         pts = np.stack([(u - intr.cx) * z / intr.fx, (v - intr.cy) * z / intr.fy, z], axis=1)
         pts[~good] = np.nan
         return pts
+
+    def _keypoint_pixels(self, kps: Any, shape: tuple[int, ...]) -> FloatArray:
+        """Keypoint positions ``(n, 2)`` in full-resolution pixels (centre of the top-left
+        pixel at ``(0, 0)``).
+
+        ORB detects on a pyramid whose level ``L`` has ``round(W / s**L)`` ×
+        ``round(H / s**L)`` pixels but reports a level-``L`` position as ``x_L · s**L``.
+        The image is resized edge to edge, so the true mapping is
+        ``x + ½ = (x_L + ½) · W / W_L``: the reported positions carry a scale error of
+        up to a few tenths of a percent per level (its sign depends on the rounding),
+        which scales the image motion of those keypoints and hence the rotation. The
+        exact mapping is applied here; SIFT's octaves halve exactly and need none.
+        """
+        pixels = np.array([kp.pt for kp in kps], dtype=float).reshape(-1, 2)
+        if self.params.detector != Detector.ORB or len(pixels) == 0:
+            return pixels
+        orb = self._detector
+        s = float(orb.getScaleFactor())  # type: ignore[attr-defined]
+        level = np.array([kp.octave for kp in kps], dtype=np.intp)
+        h, w = shape[:2]
+        for L in np.unique(level):
+            if L <= 0:
+                continue
+            nominal = s ** float(L)
+            sel = level == L
+            for axis, size in ((0, w), (1, h)):
+                actual = size / float(round(size / nominal))
+                pixels[sel, axis] = (pixels[sel, axis] / nominal + 0.5) * actual - 0.5
+        return pixels
 
     def _match(self, desc_kf: Descriptors, desc: Descriptors) -> tuple[IntArray, IntArray]:
         """Ratio-test matches (key-frame index, current index), one per key-frame keypoint."""

@@ -213,18 +213,20 @@ def with_depth_noise(frame: RGBDFrame, rng: np.random.Generator) -> RGBDFrame:
 
 
 def test_depth_weighting_copes_with_depth_noise() -> None:
+    # four noise draws per motion: one pair's error is itself noisy (±2 mm)
     errors = {}
     for weighting in (False, True):
         err = []
-        for pose in SMALL_MOTIONS:
-            rng = np.random.default_rng(1)
-            vo = make_vo(depth_weighting=weighting, motion_solver="3d3d")
-            vo.update(with_depth_noise(frame_at(*ORIGIN), rng))
-            result = vo.update(with_depth_noise(frame_at(*pose), rng))
-            assert result.ok
-            err.append(relative_error(result.T_prev_curr, true_motion(ORIGIN, pose)))
+        for draw in range(1, 5):
+            for pose in SMALL_MOTIONS:
+                rng = np.random.default_rng(draw)
+                vo = make_vo(depth_weighting=weighting, motion_solver="3d3d")
+                vo.update(with_depth_noise(frame_at(*ORIGIN), rng))
+                result = vo.update(with_depth_noise(frame_at(*pose), rng))
+                assert result.ok
+                err.append(relative_error(result.T_prev_curr, true_motion(ORIGIN, pose)))
         errors[weighting] = np.array(err)
-    assert np.all(errors[True][:, 0] < 0.005)
+    assert errors[True][:, 0].mean() < 0.005 and np.all(errors[True][:, 0] < 0.01)
     assert np.all(errors[True][:, 1] < np.deg2rad(0.2))
     assert errors[True][:, 0].mean() < 0.5 * errors[False][:, 0].mean()
 
@@ -375,8 +377,9 @@ def test_large_depth_holes_are_tolerated() -> None:
     assert result.ok
     assert result.n_depth < 0.6 * result.n_gtm
     err_t, err_r = relative_error(result.T_prev_curr, true_motion(ORIGIN, SMALL_MOTIONS[0]))
-    assert err_t < 0.005
-    assert err_r < np.deg2rad(0.2)
+    # from 35 % of the depth one pair is good to a few mm (2–8 mm over hole patterns)
+    assert err_t < 0.01
+    assert err_r < np.deg2rad(0.3)
 
 
 def test_unrelated_scene_is_lost_then_reinitialised() -> None:
@@ -523,3 +526,42 @@ def test_every_motion_carries_its_covariance_from_its_inliers() -> None:
     pnp.update(frame_at(*ORIGIN))
     moved = pnp.update(frame_at(*SMALL_MOTIONS[0]))
     assert moved.ok and moved.motion_cov is None  # PnP's motion comes without one
+
+
+def _shifted_view(shift_px: float) -> np.ndarray:
+    """320 × 240 grey view of a texture moved left by ``shift_px`` (cubic resampling)."""
+    v, u = np.mgrid[0:240, 0:320].astype(float)
+    img = map_coordinates(_texture(1), [v + 100.0, u + 20.0 + shift_px], order=3, mode="grid-wrap")
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+def test_orb_pyramid_keypoints_move_with_the_image() -> None:
+    # An image moved by t pixels moves every keypoint by t. ORB's level L has
+    # round(320 / 1.2**L) columns, not 320 / 1.2**L, so a position reported as
+    # x_L·1.2**L carries a per-level scale error (+0.125 % at level 1, −0.10 % at
+    # levels 2–3, −0.21 % at level 4): over a 120 px shift, −0.15…+0.25 px. Shifts
+    # spread over 8.9 px average out each level's pixel quantisation.
+    vo = make_vo(detector="orb", max_features=1000)
+    ref = _shifted_view(0.0)
+    k_ref, d_ref = vo._detect(ref)
+    level_ref = np.array([k.octave for k in k_ref])
+    fixed: dict[int, list[float]] = {1: [], 2: [], 3: []}
+    raw: dict[int, list[float]] = {1: [], 2: [], 3: []}
+    for t in 120.0 + 0.37 * np.arange(24):
+        img = _shifted_view(t)
+        kps, desc = vo._detect(img)
+        i_ref, i_cur = vo._match(d_ref, desc)
+        same = level_ref[i_ref] == np.array([k.octave for k in kps])[i_cur]
+        for out, p_ref, p_cur in (
+            (fixed, vo._keypoint_pixels(k_ref, ref.shape), vo._keypoint_pixels(kps, img.shape)),
+            (raw, np.array([k.pt for k in k_ref]), np.array([k.pt for k in kps])),
+        ):
+            d = p_cur[i_cur] - p_ref[i_ref] + [t, 0.0]
+            ok = same & np.all(np.abs(d) < 1.5, axis=1)
+            for level, errors in out.items():
+                errors.extend(d[ok & (level_ref[i_ref] == level), 0])
+    for level in (1, 2, 3):
+        assert len(fixed[level]) > 300, level
+        assert abs(np.mean(fixed[level])) < 0.06, (level, np.mean(fixed[level]))
+    # the detector's own positions carry the bias this mapping removes
+    assert max(abs(np.mean(raw[level])) for level in (1, 2, 3)) > 0.09
