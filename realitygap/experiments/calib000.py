@@ -199,6 +199,10 @@ class CalibConfig:
         calibration; its first iteration is shared with the main loop).
     room_half_size : float
         Half the side of the room, m.
+    pool_squares : bool
+        Whether the final joint fit also takes the camera motions of the
+        UMBmark squares (straight legs and turns on the spot), besides those of
+        the figure-eights.
     """
 
     left_diameter_factor: float = 1.05
@@ -217,6 +221,7 @@ class CalibConfig:
     n_positions: int = 20
     umbmark_only_iterations: int = 3
     room_half_size: float = 2.5
+    pool_squares: bool = True
 
     @classmethod
     def quick(cls) -> CalibConfig:
@@ -323,7 +328,9 @@ def _umbmark_iteration(
     mounting: FloatArray,
     seed: int,
     vo_params: Any,
+    logs: list[DriveLog] | None = None,
 ) -> tuple[Any, list[dict[str, Any]]]:
+    """UMBmark squares both ways on odometry ``kin``; their drive logs go to ``logs`` if given."""
     from realitygap.controllers.drives import SquareDriver
     from realitygap.core.geometry import se2_between, wrap_angle
     from realitygap.estimators.umbmark import umbmark
@@ -338,6 +345,8 @@ def _umbmark_iteration(
             start = np.array([-L / 2.0 + offset, y0 + offset, 0.0])
             recorder.kinematics = kin
             log = drive(env, recorder, SquareDriver(start, L, direction), start, seed, 4000)
+            if logs is not None:
+                logs.append(log)
             odo_end = se2_between(start, log.estimate[-1])
             measured = end_pose_from_frames(log.frames, mounting, vo_params)
             eps = measured.base_motion - odo_end
@@ -495,7 +504,12 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
     pooled: list[tuple[FloatArray, list[FloatArray | None], FloatArray]] = []
     try:
         for it in range(1, cfg.iterations + 1):
-            res, rows = _umbmark_iteration(env, recorder, cfg, kin, mounting, seed, vo_params)
+            square_logs: list[DriveLog] = []
+            res, rows = _umbmark_iteration(
+                env, recorder, cfg, kin, mounting, seed, vo_params, square_logs
+            )
+            if cfg.pool_squares:  # turns on the spot: the wheelbase's most direct measurement
+                pooled.extend(_sensor_motions_of(sq, vo_params)[:3] for sq in square_logs)
             for row in rows:
                 square_rows.append({"iteration": it, **row})
             kin_umb = kin.with_umbmark(res.E_d, res.E_b)
@@ -562,9 +576,9 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
                 f"{time.perf_counter() - t_start:.0f} s"
             )
 
-        # The figure-eights of all iterations are independent measurements of the same
-        # body (raw tick increments and camera ego-motions; the steering only changes the
-        # path): one joint fit over all of them, relinearised at the last iteration's
+        # The drives of all iterations are independent measurements of the same body (raw
+        # tick increments and camera ego-motions; the steering only changes the path): one
+        # joint fit over all of them, relinearised at the last iteration's
         # estimate under the wide default prior, replaces the last iteration's estimate,
         # whose scatter is that of its own drive and of its UMBmark seed.
         fit = _pooled_fit(pooled, nominal, fit.scales, mounting)
@@ -588,7 +602,7 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
             "observable": fit.observable,
         }
         ctx.progress(
-            f"calib000 pooled fit over {len(pooled)} drives: E_d={E_d:.5f} (true "
+            f"calib000 joint fit over {len(pooled)} drives: E_d={E_d:.5f} (true "
             f"{true_E_d:.5f}), E_b={E_b:.5f} ± {fit.std[5]:.5f} (true {true_E_b:.5f}), "
             f"mount err {pooled_row['mount_err_mm']:.2f} mm"
         )
@@ -678,10 +692,13 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
             "else chained VO; converted to the base with the current mounting estimate",
             "positions_per_trajectory": cfg.n_positions,
             "umbmark_only_iterations": cfg.umbmark_only_iterations,
+            "pool_squares": cfg.pool_squares,
             "test_trajectories": f"straight {cfg.straight_length} m; semicircle of radius "
             f"{cfg.curve_radius} m; positions at equal time steps after the start",
             "load_avg_1min": load_average(),
-            "final_estimate": "joint fit over the figure-eights of all iterations",
+            "final_estimate": "joint fit over the figure-eights"
+            + (" and UMBmark squares" if cfg.pool_squares else "")
+            + " of all iterations",
             "pooled_fit": pooled_row,
             "calibrated": {
                 "wheel_radius_left": kin.wheel_radius_left,
