@@ -14,6 +14,7 @@ from realitygap.experiments import EXPERIMENTS, load_all
 from realitygap.experiments.calib000 import (
     CalibConfig,
     _make_calib_env,
+    _pooled_fit,
     _sensor_motions_of,
     end_pose_from_frames,
 )
@@ -100,3 +101,50 @@ def test_experiments_are_registered() -> None:
     assert EXPERIMENTS["umbmark-real"].data_subdir == "optiodom_diffdrive"
     quick = CalibConfig.quick()
     assert replace(quick, runs_per_direction=2).iterations == 3
+
+
+def _synthetic_drive(
+    rng: np.random.Generator, nominal: object, scales: np.ndarray, mount: np.ndarray, n: int
+) -> tuple[np.ndarray, list[np.ndarray | None], np.ndarray]:
+    """Tick increments of turns both ways, noisy sensor motions (some missing) and weights."""
+    from realitygap.estimators.diffdrive_model import arc_increment
+    from realitygap.estimators.mounting_calibration import sensor_motion
+
+    base = rng.uniform(80.0, 200.0, n)
+    turn = rng.uniform(-120.0, 120.0, n)
+    inc = np.round(np.stack([base - turn, base + turn], 1))
+    ds, dth = nominal.scaled(*scales).increment_from_ticks(inc[:, 0], inc[:, 1])  # type: ignore[attr-defined]
+    z = np.asarray(sensor_motion(mount, arc_increment(ds, dth)))
+    weights = rng.uniform(0.5, 2.0, n)
+    z = z + 1e-3 * rng.standard_normal(z.shape) / np.sqrt(weights)[:, None]
+    motions: list[np.ndarray | None] = [None if rng.random() < 0.05 else zk for zk in z]
+    return inc, motions, weights
+
+
+def test_pooled_fit_over_drives_is_more_precise_than_each_drive() -> None:
+    """Independent drives pooled in one fit: scatter of k_b below every single drive's."""
+    from realitygap.estimators.diffdrive_model import DiffDriveKinematics
+
+    nominal = DiffDriveKinematics(0.035, 0.035, 0.23, 2578.0)
+    scales = np.array([1.05, 0.98, 1.05])
+    mount = np.array([0.011, 0.008, -0.017])
+    rng = np.random.default_rng(19)
+    single: list[list[float]] = [[], [], []]
+    pooled: list[float] = []
+    for _ in range(24):
+        drives = [_synthetic_drive(rng, nominal, scales, mount, 60) for _ in range(3)]
+        for i, (inc, motions, w) in enumerate(drives):
+            fit = fit_odometry_and_mounting(
+                inc, motions, nominal, np.ones(3), np.zeros(3), sensor_weights=w
+            )
+            single[i].append(fit.scales[2])
+        fit = _pooled_fit(drives, nominal, np.ones(3), np.zeros(3))
+        pooled.append(fit.scales[2])
+        assert fit.n_updates + fit.n_outliers == sum(m is not None for d in drives for m in d[1])
+    err_single = [np.sqrt(np.mean((np.array(s) - scales[2]) ** 2)) for s in single]
+    err_pooled = np.sqrt(np.mean((np.array(pooled) - scales[2]) ** 2))
+    # three independent drives: the pooled error is about 1/sqrt(3) ≈ 0.58 of one drive's
+    assert err_pooled < 0.8 * float(np.mean(err_single))
+    assert abs(np.mean(pooled) - scales[2]) < 3.0 * err_pooled / np.sqrt(len(pooled)) + 1e-4
+    with pytest.raises(ValueError, match="at least one drive"):
+        _pooled_fit([], nominal, np.ones(3), np.zeros(3))
