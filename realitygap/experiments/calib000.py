@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.geometry import wrap_angle
 from realitygap.experiments import RunContext, experiment
 from realitygap.experiments.drive_harness import (
     DriveLog,
@@ -332,7 +333,7 @@ def _umbmark_iteration(
 ) -> tuple[Any, list[dict[str, Any]]]:
     """UMBmark squares both ways on odometry ``kin``; their drive logs go to ``logs`` if given."""
     from realitygap.controllers.drives import SquareDriver
-    from realitygap.core.geometry import se2_between, wrap_angle
+    from realitygap.core.geometry import se2_between
     from realitygap.estimators.umbmark import umbmark
 
     L = cfg.square_side
@@ -459,6 +460,33 @@ def _pooled_fit(
     )
 
 
+def _estimate_row(
+    E_d: float,
+    E_b: float,
+    mounting: npt.NDArray[np.float64],
+    std: npt.NDArray[np.float64],
+    true_E_d: float,
+    true_E_b: float,
+    true_mount: npt.NDArray[np.float64],
+) -> dict[str, Any]:
+    """A calibration estimate and its errors against the true body: UMBmark factors,
+    camera mounting (m, rad; reported in mm and degrees) and their standard deviations
+    (``std``: mounting x, y, yaw, then the three odometry scales)."""
+    return {
+        "E_d": E_d,
+        "E_b": E_b,
+        "E_d_err": abs(E_d - true_E_d),
+        "E_b_err": abs(E_b - true_E_b),
+        "mount_mm": (1e3 * mounting[:2]).tolist(),
+        "mount_deg": math.degrees(mounting[2]),
+        "mount_err_mm": 1e3 * float(np.hypot(*(mounting[:2] - true_mount[:2]))),
+        "mount_err_deg": abs(math.degrees(float(wrap_angle(mounting[2] - true_mount[2])))),
+        "std_mount_mm": (1e3 * std[:2]).tolist(),
+        "std_mount_deg": math.degrees(float(std[2])),
+        "std_scales": std[3:].tolist(),
+    }
+
+
 @experiment(
     "calib000",
     "seed 000: UMBmark + EKF odometry/camera-mount calibration in simulation, 3 iterations",
@@ -474,7 +502,6 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
     estimates. Tables: per iteration, per UMBmark run, per test drive.
     """
     from realitygap.controllers.drives import PathFollower
-    from realitygap.core.geometry import wrap_angle
     from realitygap.estimators.odometry_mounting import fit_odometry_and_mounting
     from realitygap.estimators.vo_params import VOParams
     from realitygap.robots.diffdrive import DiffDriveParams
@@ -551,17 +578,7 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
                 "ekf_k_left": fit.scales[0],
                 "ekf_k_right": fit.scales[1],
                 "ekf_k_wheelbase": fit.scales[2],
-                "E_d": E_d,
-                "E_b": E_b,
-                "E_d_err": abs(E_d - true_E_d),
-                "E_b_err": abs(E_b - true_E_b),
-                "mount_mm": (1e3 * mounting[:2]).tolist(),
-                "mount_deg": math.degrees(mounting[2]),
-                "mount_err_mm": 1e3 * float(np.hypot(*(mounting[:2] - true_mount[:2]))),
-                "mount_err_deg": abs(math.degrees(float(wrap_angle(mounting[2] - true_mount[2])))),
-                "std_mount_mm": (1e3 * fit.std[:2]).tolist(),
-                "std_mount_deg": math.degrees(float(fit.std[2])),
-                "std_scales": fit.std[3:].tolist(),
+                **_estimate_row(E_d, E_b, mounting, fit.std, true_E_d, true_E_b, true_mount),
                 "vo_frames_lost": n_lost,
                 "vo_updates": fit.n_updates,
                 "vo_outliers": fit.n_outliers,
@@ -586,17 +603,7 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
         mounting = fit.mounting
         E_d, E_b = fit.scales[1] / fit.scales[0], fit.scales[2]
         pooled_row = {
-            "E_d": E_d,
-            "E_b": E_b,
-            "E_d_err": abs(E_d - true_E_d),
-            "E_b_err": abs(E_b - true_E_b),
-            "mount_mm": (1e3 * mounting[:2]).tolist(),
-            "mount_deg": math.degrees(mounting[2]),
-            "mount_err_mm": 1e3 * float(np.hypot(*(mounting[:2] - true_mount[:2]))),
-            "mount_err_deg": abs(math.degrees(float(wrap_angle(mounting[2] - true_mount[2])))),
-            "std_mount_mm": (1e3 * fit.std[:2]).tolist(),
-            "std_mount_deg": math.degrees(float(fit.std[2])),
-            "std_scales": fit.std[3:].tolist(),
+            **_estimate_row(E_d, E_b, mounting, fit.std, true_E_d, true_E_b, true_mount),
             "vo_updates": fit.n_updates,
             "vo_outliers": fit.n_outliers,
             "observable": fit.observable,
