@@ -53,7 +53,17 @@ import numpy.typing as npt
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
 
-from realitygap.envs.tasks.nav import NavRewardWeights, NavTask
+from realitygap.envs.tasks.nav import (
+    CONTROL_HZ,
+    N_BEAMS,
+    N_OBSTACLES,
+    ROOM_HALF_SIZE,
+    SCAN_HZ,
+    SUCCESS_ANG_TOL,
+    SUCCESS_POS_TOL,
+    NavRewardWeights,
+    NavTask,
+)
 from realitygap.envs.vector_drive import (
     BatchDrive,
     BatchScenery,
@@ -158,16 +168,16 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
         reality: Reality | Mapping[str, Any] | None = None,
         randomize: Mapping[str, Any] | None = None,
         calibration: Any = None,
-        n_obstacles: int = 6,
+        n_obstacles: int = N_OBSTACLES,
         obstacles: list[Primitive] | None = None,
-        room_half_size: float = 3.5,
+        room_half_size: float = ROOM_HALF_SIZE,
         start: npt.ArrayLike | None = None,
         goal: npt.ArrayLike | None = None,
-        success_pos_tol: float = 0.03,
-        success_ang_tol: float = math.radians(5.0),
-        control_hz: float = 20.0,
-        n_beams: int = 64,
-        scan_hz: float = 10.0,
+        success_pos_tol: float = SUCCESS_POS_TOL,
+        success_ang_tol: float = SUCCESS_ANG_TOL,
+        control_hz: float = CONTROL_HZ,
+        n_beams: int = N_BEAMS,
+        scan_hz: float = SCAN_HZ,
         terminate_on_success: bool = True,
         reward_weights: NavRewardWeights = NavRewardWeights(),  # noqa: B008 (frozen)
         max_episode_steps: int = 1200,

@@ -52,7 +52,17 @@ from gymnasium import spaces
 from realitygap.core.checks import check_finite_float, check_nonnegative_int, check_positive_int
 from realitygap.envs.common import check_bool, check_rates, check_twist_action
 from realitygap.envs.layouts import MAX_ROOM_HALF_SIZE, MIN_ROOM_HALF_SIZE, obstacle_capacity
-from realitygap.envs.tasks.nav import NavRewardWeights, NavTask
+from realitygap.envs.tasks.nav import (
+    CONTROL_HZ,
+    N_BEAMS,
+    N_OBSTACLES,
+    ROOM_HALF_SIZE,
+    SCAN_HZ,
+    SUCCESS_ANG_TOL,
+    SUCCESS_POS_TOL,
+    NavRewardWeights,
+    NavTask,
+)
 from realitygap.estimators.base import DiffDriveMeasurement, Estimate, Estimator, Scan
 from realitygap.robots.diffdrive import (
     DiffDriveParams,
@@ -151,17 +161,17 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         estimator: Estimator | None = None,
         params: DiffDriveParams | None = None,
         reality: Reality | None = None,
-        n_obstacles: int = 6,
+        n_obstacles: int = N_OBSTACLES,
         obstacles: list[Primitive] | None = None,
-        room_half_size: float = 3.5,
+        room_half_size: float = ROOM_HALF_SIZE,
         start: npt.ArrayLike | None = None,
         goal: npt.ArrayLike | None = None,
-        success_pos_tol: float = 0.03,
-        success_ang_tol: float = math.radians(5.0),
+        success_pos_tol: float = SUCCESS_POS_TOL,
+        success_ang_tol: float = SUCCESS_ANG_TOL,
         physics_hz: float = 240.0,
-        control_hz: float = 20.0,
-        n_beams: int = 64,
-        scan_hz: float = 10.0,
+        control_hz: float = CONTROL_HZ,
+        n_beams: int = N_BEAMS,
+        scan_hz: float = SCAN_HZ,
         camera_hz: float = 5.0,
         terminate_on_success: bool = True,
         reward_weights: NavRewardWeights = NavRewardWeights(),  # noqa: B008 (frozen)

@@ -23,6 +23,17 @@ from realitygap.robots.world import Primitive
 FloatArray = npt.NDArray[np.float64]
 
 
+# Defaults of a WheeledNav episode, shared by the PyBullet env and its vector twin so
+# that the two build the same episodes from the same arguments.
+ROOM_HALF_SIZE = 3.5  # m, half the side of the square room
+N_OBSTACLES = 6
+SUCCESS_POS_TOL = 0.03  # m
+SUCCESS_ANG_TOL = math.radians(5.0)  # rad
+CONTROL_HZ = 20.0  # Hz, one action per control period
+N_BEAMS = 64  # beams of the planar scan
+SCAN_HZ = 10.0  # Hz
+
+
 class _HasTwist(Protocol):
     def twist(self) -> FloatArray: ...
 
@@ -84,13 +95,13 @@ class NavTask:
     def __init__(
         self,
         *,
-        room_half_size: float = 3.5,
-        n_obstacles: int = 6,
+        room_half_size: float = ROOM_HALF_SIZE,
+        n_obstacles: int = N_OBSTACLES,
         obstacles: Sequence[Primitive] | None = None,
         start: npt.ArrayLike | None = None,
         goal: npt.ArrayLike | None = None,
-        success_pos_tol: float = 0.03,
-        success_ang_tol: float = math.radians(5.0),
+        success_pos_tol: float = SUCCESS_POS_TOL,
+        success_ang_tol: float = SUCCESS_ANG_TOL,
         terminate_on_success: bool = True,
         weights: NavRewardWeights = NavRewardWeights(),
     ):
