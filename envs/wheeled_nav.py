@@ -254,7 +254,9 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             estimator if estimator is not None else default_estimator(self.params, self.sensor_mode)
         )
 
-        self.world = World(physics_hz=physics_hz, n_substeps=ratio)
+        # the robot applies no external forces: a control period's physics steps run in one
+        # call into the engine, bit for bit the steps of one call each (World.step)
+        self.world = World(physics_hz=physics_hz, n_substeps=ratio, fused_substeps=True)
         self.robot: DiffDriveRobot | None = None
         self.scanner: PlanarScanner | None = None
         self.camera: RGBDCamera | None = None
