@@ -472,11 +472,14 @@ class DiffDriveRobot:
         self._get_joint_states = c.getJointStates
         self._get_contacts = c.getContactPoints
         self._set_motors = c.setJointMotorControlArray
+        # the torque bound as the engine needs it commanded (World.motor_force: a world that
+        # runs a control period in one engine call turns it into an impulse with that period)
+        self._motor_force = world.motor_force(params.motor_max_torque)
 
     # ------------------------------------------------------------- control
     def set_wheel_speeds(self, w_left: float, w_right: float) -> None:
         """Command wheel angular speeds in rad/s (velocity motors with bounded torque)."""
-        tau = self.params.motor_max_torque
+        tau = self._motor_force  # motor_max_torque, in the form the engine needs
         self._set_motors(
             self.body,
             self.wheel_joints,

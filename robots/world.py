@@ -11,6 +11,7 @@ physics engine.
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import shutil
 import sys
@@ -326,14 +327,23 @@ class World:
     solver_iterations : constraint-solver iterations per physics step.
     fused_substeps : run a control period's ``n_substeps`` physics steps inside one call
         into the engine (Bullet's own fixed-step loop) instead of one call per physics
-        step. The physics steps are the same, bit for bit (see
-        :func:`fused_steps_are_exact`; where the time-step arithmetic is not exact the
-        world steps one call at a time), and a control period costs less: no Python call
-        and command round trip per physics step. The difference: the engine clears
-        external forces (``applyExternalForce``) after each call, so a force applied
-        before :meth:`step` acts on every physics step of a fused period but on the
-        first only otherwise; a robot that applies forces passes ``before_each`` (never
-        fused) or leaves this off.
+        step: the same physics steps, bit for bit, at less cost (no Python call and
+        command round trip per physics step). Where the time-step arithmetic is not exact
+        (:func:`fused_steps_are_exact`) the world steps one call at a time. A fused world
+        steps whole control periods only (:meth:`step` without arguments). Two engine
+        quantities follow the engine's call period rather than the physics step, and a
+        robot in a fused world must allow for them: a joint motor's force bound is
+        turned into an impulse bound with the call period when the motor is commanded
+        (command ``motor_force(force)``, :meth:`motor_force`), and external forces
+        (``applyExternalForce``) are cleared after each call, so they would act on every
+        physics step of the period (a robot that applies forces uses ``before_each``,
+        which a fused world refuses, or leaves this off).
+    rigid_scenery : create the floor, walls and obstacles as static rigid bodies (Bullet's
+        maximal coordinates) instead of fixed-base multibodies. A static body moves nothing
+        either way, and the contacts, friction and solver impulses are the same; but a
+        multibody partner makes the multibody solver build its (empty) Jacobian and
+        velocity update in every constraint row and iteration, about a fifth of the
+        wheeled robot's physics step.
     """
 
     PLAIN_FLOOR_HALF_SIZE = 15.0
@@ -345,21 +355,27 @@ class World:
         n_substeps: int = 12,
         solver_iterations: int = 10,
         fused_substeps: bool = False,
+        rigid_scenery: bool = False,
     ):
         if not (physics_hz > 0 and np.isfinite(physics_hz)):
             raise ValueError(f"physics_hz must be a positive number, got {physics_hz!r}")
         if int(n_substeps) != n_substeps or n_substeps < 1:
             raise ValueError(f"n_substeps must be a positive integer, got {n_substeps!r}")
-        if not isinstance(fused_substeps, (bool, np.bool_)):
-            raise TypeError(
-                f"fused_substeps must be True or False, got {type(fused_substeps).__name__}"
-            )
+        for flag_name, flag in (
+            ("fused_substeps", fused_substeps),
+            ("rigid_scenery", rigid_scenery),
+        ):
+            if not isinstance(flag, (bool, np.bool_)):
+                raise TypeError(f"{flag_name} must be True or False, got {type(flag).__name__}")
         self.physics_hz = float(physics_hz)
         self.n_substeps = int(n_substeps)
         self.solver_iterations = int(solver_iterations)
         self.fused_substeps = bool(fused_substeps) and fused_steps_are_exact(
             self.physics_dt, self.n_substeps
         )
+        self.rigid_scenery = bool(rigid_scenery)
+        # static scenery as a static rigid body (maximal coordinates) or a fixed-base multibody
+        self._scenery_kwargs = {"useMaximalCoordinates": True} if self.rigid_scenery else {}
         with _quiet_c_stdout():  # PyBullet's C layer prints "argv[0]=" on every connect
             self.client: bullet_client.BulletClient | None = bullet_client.BulletClient(
                 connection_mode=p.DIRECT
@@ -413,13 +429,15 @@ class World:
         if n < 0:
             raise ValueError(f"n_physics_steps must be >= 0, got {n_physics_steps!r}")
         step = self._step_simulation
-        fused = self._fused_now
+        fused = self.fused_substeps
         if fused and (before_each is not None or n != self.n_substeps):
-            self._set_fused(False)  # this call steps one physics step at a time
-            fused = False
-        elif self.fused_substeps and not fused and before_each is None and n == self.n_substeps:
-            self._set_fused(True)
-            fused = True
+            raise ValueError(
+                "a World with fused_substeps steps whole control periods only, got "
+                f"n_physics_steps={n_physics_steps!r}"
+                + (" and before_each" if before_each is not None else "")
+                + ". Fix: create the World with fused_substeps=False to step single physics "
+                "steps or to act before each of them"
+            )
         cpu0 = time.thread_time() if self.cpu_timing else 0.0
         t0 = time.perf_counter()
         if fused:
@@ -435,16 +453,40 @@ class World:
         if self.cpu_timing:
             self.physics_cpu_seconds += time.thread_time() - cpu0
 
-    def _set_fused(self, fused: bool) -> None:
-        """Switch the engine between one call per control period (``fused``: time step
-        ``dt`` cut into ``n_substeps``) and one call per physics step."""
-        if fused:
+    def motor_force(self, force: float) -> float:
+        """The force (N) or torque (N·m) bound to command a joint motor with so that each
+        physics step's impulse bound is ``force * physics_dt``.
+
+        The engine turns a motor's force bound into an impulse bound with its call period
+        when the motor is commanded: ``physics_dt`` when it is called once per physics
+        step, ``dt`` in a fused world (:attr:`fused_substeps`). There the returned value
+        ``f`` has ``f * dt == force * physics_dt`` exactly, so the motors act bit for bit
+        as in one call per physics step; if no such ``f`` exists, the world stops fusing
+        (call this before commanding any motor).
+        """
+        force = float(force)
+        if not self.fused_substeps:
+            return force
+        target = force * self.physics_dt
+        f = force / self.n_substeps
+        for _ in range(16):
+            bound = f * self.dt
+            if bound == target:
+                return f
+            f = math.nextafter(f, math.inf if bound < target else -math.inf)
+        self.fused_substeps = False
+        self._apply_step_mode()
+        return force
+
+    def _apply_step_mode(self) -> None:
+        """Set the engine's call period: ``dt`` in ``n_substeps`` fixed steps when fused,
+        else one physics step per call."""
+        if self.fused_substeps:
             self.bullet.setPhysicsEngineParameter(
                 fixedTimeStep=self.dt, numSubSteps=self.n_substeps
             )
         else:
             self.bullet.setPhysicsEngineParameter(fixedTimeStep=self.physics_dt, numSubSteps=0)
-        self._fused_now = fused
 
     def set_file_caching(self, enabled: bool) -> None:
         """Whether PyBullet reuses a mesh loaded earlier from the same file name (default on).
@@ -534,7 +576,7 @@ class World:
             deterministicOverlappingPairs=1,
             enableConeFriction=0,
         )
-        self._fused_now = False
+        self._apply_step_mode()
         self.bodies.clear()
         self.primitives.clear()
         self._texture_cache.clear()
@@ -588,7 +630,7 @@ class World:
             vis = c.createVisualShape(
                 p.GEOM_BOX, halfExtents=[half, half, thick], rgbaColor=list(rgba)
             )
-        body = c.createMultiBody(0.0, col, vis, [0, 0, 0])
+        body = c.createMultiBody(0.0, col, vis, [0, 0, 0], **self._scenery_kwargs)
         c.changeDynamics(body, -1, lateralFriction=1.0)
         self.bodies["floor"] = body
         if a > 0.0:
@@ -603,7 +645,7 @@ class World:
                 uvs=[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]],
                 normals=[[0.0, 0.0, 1.0]] * 4,
             )
-            tile = c.createMultiBody(0.0, -1, quad, [0, 0, 0])
+            tile = c.createMultiBody(0.0, -1, quad, [0, 0, 0], **self._scenery_kwargs)
             c.changeVisualShape(tile, -1, textureUniqueId=tid, rgbaColor=[1, 1, 1, 1])
             self.bodies["floor_surface"] = tile
         return body
@@ -666,7 +708,9 @@ class World:
                 p.GEOM_MESH, vertices=verts, indices=idx, uvs=uvs, normals=normals
             )
         quat = c.getQuaternionFromEuler([0.0, 0.0, prim.yaw])
-        body = c.createMultiBody(0.0, col, vis, [prim.center[0], prim.center[1], half_h], quat)
+        body = c.createMultiBody(
+            0.0, col, vis, [prim.center[0], prim.center[1], half_h], quat, **self._scenery_kwargs
+        )
         if texture_id is not None:
             c.changeVisualShape(body, -1, textureUniqueId=texture_id, rgbaColor=[1, 1, 1, 1])
         self.bodies[prim.name] = body

@@ -245,8 +245,14 @@ def _run(kwargs: dict[str, object], n_steps: int, reference: bool) -> list[tuple
         mp.setattr(diffdrive_model, "propagate_pose", reference_propagate_pose)
         mp.setattr(sensors.PlanarScanner, "scan_fast", reference_scan_fast)
         mp.setattr(WheeledNavEnv, "_observation", reference_observation)
-        # one engine call per physics step instead of the fused control period
-        mp.setattr(world, "fused_steps_are_exact", lambda physics_dt, n_substeps: False)
+        # one engine call per physics step and multibody scenery
+        plain_init = world.World.__init__
+
+        def reference_world(self, *args, **kwargs):  # type: ignore[no-untyped-def]
+            kwargs.update(fused_substeps=False, rigid_scenery=False)
+            plain_init(self, *args, **kwargs)
+
+        mp.setattr(world.World, "__init__", reference_world)
     try:
         env = gym.make("realitygap/WheeledNav-v0", sensor_mode="fast", **kwargs)
         rng = np.random.default_rng(11)

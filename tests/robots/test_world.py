@@ -64,26 +64,42 @@ def _drive(fused: bool, schedule: list[int | None]) -> np.ndarray:
 
 
 def test_fused_substeps_step_bit_for_bit_like_one_call_per_physics_step() -> None:
-    # whole control periods, and single physics steps in between (which leave the fused loop)
-    schedule: list[int | None] = [None] * 20 + [3, 1, None, None, 12, 0, None] + [None] * 10
+    schedule: list[int | None] = [None] * 30 + [12] * 10
     fused = _drive(True, schedule)
     plain = _drive(False, schedule)
     assert np.array_equal(fused, plain)
     assert np.ptp(fused[:, 0]) > 0.1  # the box did slide
 
 
-def test_fused_substeps_fall_back_where_the_time_step_arithmetic_is_not_exact() -> None:
-    from realitygap.robots.world import fused_steps_are_exact
-
-    assert fused_steps_are_exact(1.0 / 240.0, 12)
-    exact = [n for n in range(1, 40) if fused_steps_are_exact(1.0 / 240.0, n)]
-    inexact = [n for n in range(1, 40) if not fused_steps_are_exact(1.0 / 240.0, n)]
-    assert inexact  # some rates are not exact in binary floating point...
-    w = World(n_substeps=inexact[0], fused_substeps=True)
-    assert not w.fused_substeps  # ...and step one call at a time
+def test_fused_world_refuses_partial_periods_and_per_step_actions() -> None:
+    w = World(n_substeps=4, fused_substeps=True)
+    assert w.fused_substeps
+    with pytest.raises(ValueError, match=r"whole control periods only.*n_physics_steps=3"):
+        w.step(3)
+    with pytest.raises(ValueError, match=r"before_each.*fused_substeps=False"):
+        w.step(before_each=lambda: None)
+    w.step(4)  # a whole period, given explicitly
     w.close()
-    w = World(n_substeps=exact[-1], fused_substeps=True)
+
+
+def test_motor_force_gives_the_per_physics_step_impulse_bound_exactly() -> None:
+    rng = np.random.default_rng(2)
+    n_fused = 0
+    for n in (2, 5, 12, 24):
+        for force in [0.35, 1.0, *rng.uniform(1e-3, 50.0, 25)]:
+            w = World(n_substeps=n, fused_substeps=True)
+            f = w.motor_force(float(force))
+            if w.fused_substeps:
+                assert f * w.dt == float(force) * w.physics_dt
+                n_fused += 1
+            else:  # no exact command exists: the world steps one call per physics step
+                assert f == float(force)
+            w.close()
+    assert n_fused > 80  # an exact command exists for nearly every bound
+    w = World(n_substeps=12, fused_substeps=True)
+    w.motor_force(0.35)  # WheeledNav's default wheel motors
     assert w.fused_substeps
     w.close()
-    with pytest.raises(TypeError, match="fused_substeps must be True or False"):
-        World(fused_substeps="yes")  # type: ignore[arg-type]
+    plain = World(n_substeps=12)
+    assert plain.motor_force(0.35) == 0.35  # one call per physics step: the force as it is
+    plain.close()
