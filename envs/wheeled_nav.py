@@ -138,7 +138,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     success_pos_tol, success_ang_tol : success tolerances (m, rad).
     physics_hz, control_hz : physics rate and control rate (Hz); their ratio must be whole.
         The default 240 Hz is the rate the vector env's surrogate and the diagnosis replay
-        are calibrated to; 120 Hz halves the physics cost of a step (``realitygap run
+        are calibrated to; 120 Hz cuts a step's physics to about 0.6 of it (``realitygap run
         bench-speed`` measures both) but is other dynamics: opt in where that is acceptable.
     n_beams : scan beams over the camera's horizontal field of view.
     scan_hz : rate of the planar scan (Hz); steps in between re-use the last scan.

@@ -52,3 +52,18 @@ def test_cheaper_physics_is_bit_identical_through_contacts(fused: bool, rigid: b
 def test_rigid_scenery_flag_is_checked() -> None:
     with pytest.raises(TypeError, match="rigid_scenery must be True or False"):
         World(rigid_scenery=1)  # type: ignore[arg-type]
+
+
+def test_rigid_scenery_renders_the_same_pictures() -> None:
+    """Textured floor, walls and obstacles look the same as static rigid bodies."""
+    pictures = []
+    for rigid in (False, True):
+        w = World(rigid_scenery=rigid)
+        rng = np.random.default_rng(4)
+        w.add_floor(textured_half_size=1.5, rng=rng)
+        for prim in SCENERY:
+            w.add_primitive(prim, surface="wall" if prim.name == "wall" else "object", rng=rng)
+        pictures.append(w.render_rgb([-1.0, -0.5, 0.8], [1.0, 0.3, 0.3], width=96, height=72))
+        w.close()
+    assert pictures[0].std() > 5.0  # a textured scene, not a blank picture
+    assert np.array_equal(pictures[0], pictures[1])
