@@ -289,6 +289,8 @@ def _run(kwargs: dict[str, object], n_steps: int, reference: bool) -> list[tuple
         {"n_obstacles": 3, "reality": Reality((make_effect("wheel_radius_scale", scale=1.03),))},
         # a crowded small room: collisions end episodes and the next ones start afresh
         {"n_obstacles": 8, "room_half_size": 1.5},
+        # slippery tyres: the wheels slip on the floor
+        {"n_obstacles": 2, "reality": Reality((make_effect("longitudinal_slip", mu=0.08),))},
     ],
 )
 def test_fast_steps_are_bit_identical_to_the_reference(kwargs: dict[str, object]) -> None:
