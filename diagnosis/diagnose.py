@@ -63,6 +63,7 @@ from realitygap.diagnosis.attribute import (
 )
 from realitygap.diagnosis.baseline import Baseline, calibrate_baseline
 from realitygap.diagnosis.clock import ClockSettings
+from realitygap.diagnosis.coverage import Coverage, CoverageSettings, training_coverage
 from realitygap.diagnosis.features import FeatureSettings
 from realitygap.diagnosis.identifiability import identifiability
 from realitygap.diagnosis.localise import localise
@@ -124,6 +125,9 @@ class DiagnosisSettings:
     scales : ScaleSettings or None
         Revisit a verdict that fails only on the window shrink on the scale of whole
         held-out runs (:mod:`realitygap.diagnosis.scales`); ``None``: windows only.
+    coverage : CoverageSettings or None
+        How the held-out motions are compared with the training envelope
+        (:mod:`realitygap.diagnosis.coverage`); ``None`` skips the comparison.
     """
 
     robot: str = "diffdrive"
@@ -138,6 +142,7 @@ class DiagnosisSettings:
     calibrate: bool = True
     clock: ClockSettings | None = field(default_factory=ClockSettings)
     scales: ScaleSettings | None = field(default_factory=ScaleSettings)
+    coverage: CoverageSettings | None = field(default_factory=CoverageSettings)
 
 
 @dataclass
@@ -165,6 +170,7 @@ class Diagnosis:
     transients: TransientReport = field(default_factory=TransientReport)
     nominal_reference: dict[str, Any] = field(default_factory=dict)
     scales: dict[str, Any] = field(default_factory=dict)
+    coverage: Coverage | None = None
 
     @property
     def chosen(self) -> ModelFit | None:
@@ -249,6 +255,7 @@ class Diagnosis:
                 "remaining_residual": v.residual,
             },
             "verdict_scales": self.scales,
+            "coverage": self.coverage.to_json() if self.coverage is not None else None,
             "ranking": self.ranking_rows(),
             "candidates": self.candidates,
             "not_observable": self.not_observable,
@@ -500,6 +507,36 @@ def gap_report(
     return rows, gap
 
 
+def coverage_report(
+    problem: Problem, judgement: Judgement, settings: CoverageSettings | None
+) -> Coverage | None:
+    """Whether the held-out motions lie within the training's
+    (:func:`~realitygap.diagnosis.coverage.training_coverage`); when most of the gap
+    lies beyond it and no effect was named, the verdict says so and names the training
+    run that would test it (``verdict.notes["coverage"]``)."""
+    if settings is None or problem.holdout.n == 0 or problem.train.n == 0:
+        return None
+    best = judgement.best
+    cov = training_coverage(
+        problem.train,
+        problem.holdout,
+        judgement.nominal_heldout,
+        best.z_heldout,
+        judgement.gap_mask,
+        labels=getattr(problem.adapter, "motion_labels", None),
+        best=best.name,
+        settings=settings,
+    )
+    verdict = judgement.verdict
+    if cov.beyond_training and verdict.kind != "effects":
+        verdict.notes["coverage"] = {"summary": cov.summary(), "suggestion": cov.suggestion()}
+        if verdict.notes.get("verdict_text") in (None, "", verdict.kind):
+            verdict.notes["verdict_text"] = (
+                f"{verdict.kind} (the held-out gap lies in motions the training never exercised)"
+            )
+    return cov
+
+
 # --------------------------------------------------------------------------- main entry
 def diagnose(
     logs: Sequence[Log],
@@ -608,6 +645,9 @@ def diagnose(
     ident = advise(problem, verification.ranking, judgement)
     conclude(problem, verification.ranking, judgement, ident)
     rows, gap = gap_report(problem, judgement, verification.replays, baseline)
+    coverage = coverage_report(problem, judgement, s.coverage)
+    if coverage is not None:
+        say(f"coverage: {coverage.summary()}")
     timing["total"] = time.perf_counter() - t0
     say(f"verdict: {judgement.verdict.label}")
     z_nom, best = judgement.nominal_heldout, judgement.best
@@ -633,4 +673,5 @@ def diagnose(
         transients=transients,
         nominal_reference=reference,
         scales=scale_figures,
+        coverage=coverage,
     )

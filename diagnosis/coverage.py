@@ -1,0 +1,289 @@
+"""Does the training exercise the motions the held-out data are scored on?
+
+A model fitted on one set of motions says nothing about motions it never saw:
+a wheel's top speed cannot be learnt from runs that never drive fast, an arm's
+compliance at full reach not from poses that stay folded. When held-out runs
+go beyond the training, a large held-out gap may be an effect the training
+could not test rather than one outside the library — and the useful answer is
+the experiment that would test it.
+
+:func:`training_coverage` compares, variable by variable, the motion of every
+held-out window (:data:`~realitygap.diagnosis.attribute.MOTION_COLUMNS`: for a
+differential drive its speed and turn rate, their change over the window and
+their ranges; an arm's reach and holding torques; a climber's speed and
+vertical speed) with the span the training windows cover. A held-out window
+lies *outside the training envelope* when any variable leaves that span by
+more than a margin (``margin`` of the span, at least ``atol``). The report
+gives:
+
+* per variable, the training span, the held-out span and how many held-out
+  windows leave it;
+* the share of the held-out gap (the reference residual's sum of squares, in
+  the channels where the gap lives) that lies outside the envelope;
+* the best model's held-out shrink inside and outside the envelope;
+* the training run that would cover the held-out motions.
+
+The envelope is a box, one interval per variable: it flags the motions the
+training never reached, not every combination it never drove (a speed and a
+turn rate each seen alone may still be new together).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from realitygap.diagnosis.attribute import MOTION_COLUMNS, Layout
+from realitygap.diagnosis.shrink import overall_shrink
+
+FloatArray = npt.NDArray[np.float64]
+
+__all__ = [
+    "DEFAULT_MOTION_LABELS",
+    "Coverage",
+    "CoverageSettings",
+    "training_coverage",
+]
+
+DEFAULT_MOTION_LABELS: tuple[tuple[str, str], ...] = (
+    ("speed", "m/s"),
+    ("turn rate", "rad/s"),
+    ("change of speed over a window", "m/s"),
+    ("change of turn rate over a window", "rad/s"),
+    ("range of speed within a window", "m/s"),
+    ("range of turn rate within a window", "rad/s"),
+)
+"""What the six :data:`~realitygap.diagnosis.attribute.MOTION_COLUMNS` mean for a wheeled
+robot (name, SI unit); an adapter with other meanings declares ``motion_labels``."""
+
+
+@dataclass(frozen=True)
+class CoverageSettings:
+    """How the training envelope is drawn and when it enters the verdict.
+
+    Attributes
+    ----------
+    margin : float
+        A held-out value lies outside a variable's training span when it leaves
+        it by more than this fraction of the span.
+    atol : float
+        ... and by more than this much (SI units of the variable), so a
+        variable the training held constant (a turn rate of exactly 0) does
+        not flag held-out noise around it.
+    min_gap_share : float
+        The verdict states that the held-out gap lies beyond the training when
+        at least this share of it (0–1) does and no effect was named.
+    """
+
+    margin: float = 0.1
+    atol: float = 1e-3
+    min_gap_share: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("margin", "atol"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"CoverageSettings.{name} must be a finite number ≥ 0, got {v!r}")
+        if not 0.0 < self.min_gap_share <= 1.0:
+            raise ValueError(
+                f"CoverageSettings.min_gap_share must lie in (0, 1], got {self.min_gap_share!r}"
+            )
+
+
+@dataclass
+class Coverage:
+    """Where the held-out motions leave the training envelope (see the module docstring).
+
+    Attributes
+    ----------
+    rows : list of dict
+        Per variable: ``variable``, ``label``, ``unit``, ``train_min``,
+        ``train_max``, ``heldout_min``, ``heldout_max``, ``n_outside``
+        (held-out windows beyond the training span).
+    n_windows, n_outside : int
+        Held-out windows, and those outside the envelope.
+    gap_share_outside : float
+        Share (0–1) of the held-out gap in windows outside the envelope.
+    shrink_inside_pct, shrink_outside_pct : float
+        Held-out shrink of the best model inside / outside the envelope (NaN
+        where there are no windows).
+    best : str
+        Name of the model the shrink figures are for.
+    settings : CoverageSettings
+    """
+
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    n_windows: int = 0
+    n_outside: int = 0
+    gap_share_outside: float = 0.0
+    shrink_inside_pct: float = float("nan")
+    shrink_outside_pct: float = float("nan")
+    best: str = ""
+    settings: CoverageSettings = field(default_factory=CoverageSettings)
+
+    @property
+    def beyond_training(self) -> bool:
+        """Whether most of the held-out gap lies in motions the training never reached."""
+        return self.n_outside > 0 and self.gap_share_outside >= self.settings.min_gap_share
+
+    def exceeded(self) -> list[dict[str, Any]]:
+        """The variables some held-out window takes beyond the training span."""
+        return [r for r in self.rows if r["n_outside"] > 0]
+
+    def summary(self) -> str:
+        """One sentence: how much of the held-out gap lies beyond the training, and where."""
+        if self.n_windows == 0:
+            return "no held-out windows to compare with the training"
+        if self.n_outside == 0:
+            return (
+                f"every one of the {self.n_windows} held-out windows lies within the motions "
+                "the training exercised"
+            )
+        parts = [
+            f"{r['label']} {_span(r['heldout_min'], r['heldout_max'], r['unit'])} held out "
+            f"against {_span(r['train_min'], r['train_max'], r['unit'])} in training"
+            for r in self.exceeded()[:3]
+        ]
+        inside = (
+            f"; inside the envelope {self.best or 'the best model'} closes "
+            f"{self.shrink_inside_pct:.0f} % of the gap, outside {self.shrink_outside_pct:.0f} %"
+            if np.isfinite(self.shrink_inside_pct) and np.isfinite(self.shrink_outside_pct)
+            else ""
+        )
+        return (
+            f"{self.n_outside} of {self.n_windows} held-out windows "
+            f"({100 * self.n_outside / self.n_windows:.0f} %), carrying "
+            f"{100 * self.gap_share_outside:.0f} % of the held-out gap, go beyond the motions "
+            f"the training exercised ({'; '.join(parts)}){inside}"
+        )
+
+    def suggestion(self) -> str:
+        """The training run that would cover the held-out motions, or ``""``."""
+        wanted = [
+            f"{r['label']} up to {_span(r['heldout_min'], r['heldout_max'], r['unit'])}"
+            for r in self.exceeded()
+        ]
+        if not wanted:
+            return ""
+        return (
+            "record training runs that reach the held-out motions ("
+            + "; ".join(wanted[:4])
+            + "): effects that act only there (a top speed, a torque limit, slip at hard "
+            "accelerations) cannot be tested from the present training"
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "rows": self.rows,
+            "n_windows": self.n_windows,
+            "n_outside": self.n_outside,
+            "gap_share_outside": self.gap_share_outside,
+            "shrink_inside_pct": self.shrink_inside_pct,
+            "shrink_outside_pct": self.shrink_outside_pct,
+            "best": self.best,
+            "beyond_training": self.beyond_training,
+            "summary": self.summary(),
+            "suggestion": self.suggestion(),
+        }
+
+
+def _span(lo: float, hi: float, unit: str) -> str:
+    return f"{lo:.3g} … {hi:.3g} {unit}"
+
+
+def _window_motion(layout: Layout) -> tuple[npt.NDArray[np.int64], FloatArray]:
+    """Per residual entry, the index of its window among the layout's distinct windows, and
+    the (W, 6) motion of those windows."""
+    keys = layout.log.astype(np.int64) * (1 + int(layout.window.max(initial=0))) + layout.window
+    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    return inverse.reshape(-1), layout.motion[first]
+
+
+def training_coverage(
+    train: Layout,
+    holdout: Layout,
+    z_reference: FloatArray,
+    z_best: FloatArray,
+    gap_mask: npt.NDArray[np.bool_] | None = None,
+    *,
+    labels: Sequence[tuple[str, str]] | None = None,
+    best: str = "",
+    settings: CoverageSettings | None = None,
+) -> Coverage:
+    """Compare the held-out windows' motions with the training envelope.
+
+    Parameters
+    ----------
+    train, holdout : Layout
+        Training and held-out layouts of a diagnosis problem (their ``motion``
+        per residual entry).
+    z_reference, z_best : ndarray, shape (n_holdout,)
+        Normalised held-out residuals of the reference (the calibrated baseline
+        or the nominal replay) and of the best model.
+    gap_mask : ndarray of bool, optional
+        Entries of the channels where the gap lives (default: all).
+    labels : sequence of (str, str), optional
+        Name and SI unit of each motion column (default
+        :data:`DEFAULT_MOTION_LABELS`).
+    best : str
+        Name of the best model, for the words.
+    settings : CoverageSettings, optional
+
+    Returns
+    -------
+    Coverage
+    """
+    s = settings if settings is not None else CoverageSettings()
+    lab = tuple(labels) if labels is not None else DEFAULT_MOTION_LABELS
+    if len(lab) != len(MOTION_COLUMNS):
+        raise ValueError(
+            f"labels must name the {len(MOTION_COLUMNS)} motion columns {MOTION_COLUMNS}, "
+            f"got {len(lab)}"
+        )
+    z_ref = np.asarray(z_reference, dtype=float)
+    z_b = np.asarray(z_best, dtype=float)
+    if z_ref.shape != (holdout.n,) or z_b.shape != (holdout.n,):
+        raise ValueError(
+            f"z_reference and z_best must have one entry per held-out residual ({holdout.n}), "
+            f"got {z_ref.shape} and {z_b.shape}"
+        )
+    mask = np.ones(holdout.n, dtype=bool) if gap_mask is None else np.asarray(gap_mask, bool)
+    if mask.shape != (holdout.n,):
+        raise ValueError(f"gap_mask must have shape ({holdout.n},), got {mask.shape}")
+    out = Coverage(best=best, settings=s)
+    if holdout.n == 0 or train.n == 0:
+        return out
+    _, m_train = _window_motion(train)
+    which, m_ho = _window_motion(holdout)
+    lo, hi = m_train.min(axis=0), m_train.max(axis=0)
+    tol = np.maximum(s.margin * (hi - lo), s.atol)
+    beyond = (m_ho < lo - tol) | (m_ho > hi + tol)  # (W, 6)
+    outside_w = beyond.any(axis=1)
+    for j, (name, (label, unit)) in enumerate(zip(MOTION_COLUMNS, lab, strict=True)):
+        out.rows.append(
+            {
+                "variable": name,
+                "label": label,
+                "unit": unit,
+                "train_min": float(lo[j]),
+                "train_max": float(hi[j]),
+                "heldout_min": float(m_ho[:, j].min()),
+                "heldout_max": float(m_ho[:, j].max()),
+                "n_outside": int(beyond[:, j].sum()),
+            }
+        )
+    out.n_windows = int(m_ho.shape[0])
+    out.n_outside = int(outside_w.sum())
+    outside = outside_w[which] & mask
+    inside = ~outside_w[which] & mask
+    total = float(np.sum(z_ref[mask] ** 2))
+    out.gap_share_outside = float(np.sum(z_ref[outside] ** 2)) / total if total > 0 else 0.0
+    if inside.any():
+        out.shrink_inside_pct = overall_shrink(z_ref[inside], z_b[inside])
+    if outside.any():
+        out.shrink_outside_pct = overall_shrink(z_ref[outside], z_b[outside])
+    return out
