@@ -9,9 +9,12 @@ the experiment that would test it.
 
 :func:`training_coverage` compares, variable by variable, the motion of every
 held-out window (:data:`~realitygap.diagnosis.attribute.MOTION_COLUMNS`: for a
-differential drive its speed and turn rate, their change over the window and
+wheeled robot its speed and turn rate, their change over the window and
 their ranges; an arm's reach and holding torques; a climber's speed and
-vertical speed) with the span the training windows cover. A held-out window
+vertical speed) with the span the training windows cover. What counts is the
+motion the robot *made*: a wheeled robot's comes from its planar ground truth
+(:func:`planar_motion`), not from its commands, which a firmware ramp may
+never let it reach. A held-out window
 lies *outside the training envelope* when any variable leaves that span by
 more than a margin (``margin`` of the span, at least ``atol``). The report
 gives:
@@ -30,7 +33,7 @@ turn rate each seen alone may still be new together).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -46,6 +49,8 @@ __all__ = [
     "DEFAULT_MOTION_LABELS",
     "Coverage",
     "CoverageSettings",
+    "layout_windows",
+    "planar_motion",
     "training_coverage",
 ]
 
@@ -195,17 +200,85 @@ def _span(lo: float, hi: float, unit: str) -> str:
     return f"{lo:.3g} … {hi:.3g} {unit}"
 
 
-def _window_motion(layout: Layout) -> tuple[npt.NDArray[np.int64], FloatArray]:
-    """Per residual entry, the index of its window among the layout's distinct windows, and
-    the (W, 6) motion of those windows."""
+def planar_motion(
+    t: FloatArray, pose: FloatArray, bounds: npt.NDArray[np.int64], smooth_s: float = 0.25
+) -> FloatArray:
+    """Measured motion of each window of a planar pose track, in the six motion columns.
+
+    Speed (signed along the heading) and turn rate come from a Savitzky–Golay
+    derivative (quadratic, ``smooth_s`` long) of the pose, so that the
+    differencing does not turn position noise into speed; per window ``[a, b]``:
+    mean speed and turn rate, their change from the sample before the window to
+    its last sample, and their ranges.
+
+    Parameters
+    ----------
+    t : ndarray, shape (N,)
+        Regular time stamps, s.
+    pose : ndarray, shape (N, 3)
+        x, y (m), heading (rad).
+    bounds : ndarray, shape (M, 2)
+        Window start / end rows.
+    smooth_s : float
+        Length of the derivative filter, s.
+
+    Returns
+    -------
+    ndarray, shape (M, 6)
+    """
+    from scipy.signal import savgol_filter
+
+    t = np.asarray(t, dtype=float)
+    pose = np.asarray(pose, dtype=float)
+    if pose.ndim != 2 or pose.shape[1] != 3 or pose.shape[0] != t.shape[0]:
+        raise ValueError(f"pose must have shape ({t.shape[0]}, 3), got {pose.shape}")
+    n = t.shape[0]
+    dt = float(np.median(np.diff(t))) if n > 1 else 1.0
+    out = np.zeros((bounds.shape[0], len(MOTION_COLUMNS)))
+    if n < 3:
+        return out
+    win = max(3, int(round(smooth_s / dt)) | 1)
+    win = min(win, n if n % 2 else n - 1)
+    heading = np.unwrap(pose[:, 2])
+    dx = savgol_filter(pose[:, 0], win, min(2, win - 1), deriv=1, delta=dt)
+    dy = savgol_filter(pose[:, 1], win, min(2, win - 1), deriv=1, delta=dt)
+    w = savgol_filter(heading, win, min(2, win - 1), deriv=1, delta=dt)
+    v = dx * np.cos(heading) + dy * np.sin(heading)
+    for m, (a, b) in enumerate(bounds):
+        pre = max(a - 1, 0)
+        out[m] = (
+            v[a:b].mean(),
+            w[a:b].mean(),
+            v[b - 1] - v[pre],
+            w[b - 1] - w[pre],
+            np.ptp(v[pre:b]),
+            np.ptp(w[pre:b]),
+        )
+    return out
+
+
+def layout_windows(
+    layout: Layout, motion_of: Callable[[int], FloatArray]
+) -> tuple[npt.NDArray[np.int64], FloatArray]:
+    """The distinct windows of a layout: for each residual entry the index of its window,
+    and the (W, 6) motion of those windows (``motion_of(log_index)`` gives a log's (M, 6)
+    window motions)."""
     keys = layout.log.astype(np.int64) * (1 + int(layout.window.max(initial=0))) + layout.window
     _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
-    return inverse.reshape(-1), layout.motion[first]
+    cache: dict[int, FloatArray] = {}
+    rows = np.zeros((first.size, len(MOTION_COLUMNS)))
+    for j, e in enumerate(first):
+        i = int(layout.log[e])
+        if i not in cache:
+            cache[i] = np.asarray(motion_of(i), dtype=float)
+        rows[j] = cache[i][int(layout.window[e])]
+    return inverse.reshape(-1), rows
 
 
 def training_coverage(
-    train: Layout,
-    holdout: Layout,
+    train_motion: FloatArray,
+    heldout_motion: FloatArray,
+    heldout_window: npt.NDArray[np.int64],
     z_reference: FloatArray,
     z_best: FloatArray,
     gap_mask: npt.NDArray[np.bool_] | None = None,
@@ -218,13 +291,17 @@ def training_coverage(
 
     Parameters
     ----------
-    train, holdout : Layout
-        Training and held-out layouts of a diagnosis problem (their ``motion``
-        per residual entry).
-    z_reference, z_best : ndarray, shape (n_holdout,)
+    train_motion : ndarray, shape (W_train, 6)
+        Motion of every training window (:data:`MOTION_COLUMNS`).
+    heldout_motion : ndarray, shape (W, 6)
+        Motion of every held-out window.
+    heldout_window : ndarray of int, shape (n,)
+        For each held-out residual entry, the row of its window in ``heldout_motion``
+        (:func:`layout_windows`).
+    z_reference, z_best : ndarray, shape (n,)
         Normalised held-out residuals of the reference (the calibrated baseline
         or the nominal replay) and of the best model.
-    gap_mask : ndarray of bool, optional
+    gap_mask : ndarray of bool, shape (n,), optional
         Entries of the channels where the gap lives (default: all).
     labels : sequence of (str, str), optional
         Name and SI unit of each motion column (default
@@ -244,21 +321,34 @@ def training_coverage(
             f"labels must name the {len(MOTION_COLUMNS)} motion columns {MOTION_COLUMNS}, "
             f"got {len(lab)}"
         )
+    m_train = np.asarray(train_motion, dtype=float)
+    m_ho = np.asarray(heldout_motion, dtype=float)
+    which = np.asarray(heldout_window, dtype=np.int64)
+    for name, m in (("train_motion", m_train), ("heldout_motion", m_ho)):
+        if m.ndim != 2 or m.shape[1] != len(MOTION_COLUMNS) or not np.all(np.isfinite(m)):
+            raise ValueError(
+                f"{name} must be a finite (windows, {len(MOTION_COLUMNS)}) array, got shape "
+                f"{m.shape}"
+            )
+    n = which.shape[0]
+    if which.ndim != 1 or (n and (which.min() < 0 or which.max() >= m_ho.shape[0])):
+        raise ValueError(
+            f"heldout_window must index the {m_ho.shape[0]} held-out windows, got values "
+            f"{which.min() if n else '-'} … {which.max() if n else '-'}"
+        )
     z_ref = np.asarray(z_reference, dtype=float)
     z_b = np.asarray(z_best, dtype=float)
-    if z_ref.shape != (holdout.n,) or z_b.shape != (holdout.n,):
+    if z_ref.shape != (n,) or z_b.shape != (n,):
         raise ValueError(
-            f"z_reference and z_best must have one entry per held-out residual ({holdout.n}), "
+            f"z_reference and z_best must have one entry per held-out residual ({n}), "
             f"got {z_ref.shape} and {z_b.shape}"
         )
-    mask = np.ones(holdout.n, dtype=bool) if gap_mask is None else np.asarray(gap_mask, bool)
-    if mask.shape != (holdout.n,):
-        raise ValueError(f"gap_mask must have shape ({holdout.n},), got {mask.shape}")
+    mask = np.ones(n, dtype=bool) if gap_mask is None else np.asarray(gap_mask, bool)
+    if mask.shape != (n,):
+        raise ValueError(f"gap_mask must have shape ({n},), got {mask.shape}")
     out = Coverage(best=best, settings=s)
-    if holdout.n == 0 or train.n == 0:
+    if n == 0 or m_train.shape[0] == 0 or m_ho.shape[0] == 0:
         return out
-    _, m_train = _window_motion(train)
-    which, m_ho = _window_motion(holdout)
     lo, hi = m_train.min(axis=0), m_train.max(axis=0)
     tol = np.maximum(s.margin * (hi - lo), s.atol)
     beyond = (m_ho < lo - tol) | (m_ho > hi + tol)  # (W, 6)

@@ -63,7 +63,13 @@ from realitygap.diagnosis.attribute import (
 )
 from realitygap.diagnosis.baseline import Baseline, calibrate_baseline
 from realitygap.diagnosis.clock import ClockSettings
-from realitygap.diagnosis.coverage import Coverage, CoverageSettings, training_coverage
+from realitygap.diagnosis.coverage import (
+    Coverage,
+    CoverageSettings,
+    layout_windows,
+    planar_motion,
+    training_coverage,
+)
 from realitygap.diagnosis.features import FeatureSettings
 from realitygap.diagnosis.identifiability import identifiability
 from realitygap.diagnosis.localise import localise
@@ -517,9 +523,21 @@ def coverage_report(
     if settings is None or problem.holdout.n == 0 or problem.train.n == 0:
         return None
     best = judgement.best
+
+    def motion_of(i: int) -> FloatArray:
+        # the motion the robot made: a planar ground truth where the log has one
+        p = problem.logs[i]
+        if p.log.has("pose_gt") and np.shape(p.log["pose_gt"])[-1] == 3:
+            return planar_motion(p.log.t, p.log["pose_gt"], p.bounds)
+        m = p.context.window_motion(p.bounds)
+        return np.zeros((p.bounds.shape[0], 6)) if m is None else m
+
+    _, m_train = layout_windows(problem.train, motion_of)
+    which, m_ho = layout_windows(problem.holdout, motion_of)
     cov = training_coverage(
-        problem.train,
-        problem.holdout,
+        m_train,
+        m_ho,
+        which,
         judgement.nominal_heldout,
         best.z_heldout,
         judgement.gap_mask,

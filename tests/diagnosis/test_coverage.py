@@ -4,13 +4,11 @@ says so instead of naming an effect it could not test."""
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 import numpy as np
 import pytest
 
 from realitygap.diagnosis.attribute import AttributionSettings
-from realitygap.diagnosis.coverage import CoverageSettings, training_coverage
+from realitygap.diagnosis.coverage import CoverageSettings, planar_motion, training_coverage
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.manoeuvres import Manoeuvre
 from realitygap.diagnosis.replay import MeasurementNoise, simulate
@@ -20,15 +18,10 @@ from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import Reality, make_effect
 
 
-def _layout(motion: np.ndarray, per_window: int = 3) -> SimpleNamespace:
-    """A layout of W windows (one log) with ``per_window`` residual entries each."""
-    w = motion.shape[0]
-    return SimpleNamespace(
-        n=w * per_window,
-        log=np.zeros(w * per_window, dtype=np.int64),
-        window=np.repeat(np.arange(w), per_window),
-        motion=np.repeat(motion, per_window, axis=0),
-    )
+def _cover(train_motion, ho_motion, z_ref, z_best, mask=None, per_window=3, **kw):
+    """Coverage of held-out windows with ``per_window`` residual entries each."""
+    which = np.repeat(np.arange(ho_motion.shape[0]), per_window)
+    return training_coverage(train_motion, ho_motion, which, z_ref, z_best, mask, **kw)
 
 
 def _motion(v: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -39,10 +32,10 @@ def _motion(v: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 def test_held_out_motions_within_the_training_span_are_covered() -> None:
     rng = np.random.default_rng(0)
-    train = _layout(_motion(rng.uniform(0.0, 0.3, 40), rng.uniform(-1.0, 1.0, 40)))
-    ho = _layout(_motion(rng.uniform(0.05, 0.25, 20), rng.uniform(-0.8, 0.8, 20)))
-    z = rng.normal(size=ho.n)
-    cov = training_coverage(train, ho, z, 0.5 * z)  # type: ignore[arg-type]
+    train = _motion(rng.uniform(0.0, 0.3, 40), rng.uniform(-1.0, 1.0, 40))
+    ho = _motion(rng.uniform(0.05, 0.25, 20), rng.uniform(-0.8, 0.8, 20))
+    z = rng.normal(size=60)
+    cov = _cover(train, ho, z, 0.5 * z)
     assert cov.n_windows == 20 and cov.n_outside == 0
     assert cov.gap_share_outside == 0.0 and not cov.beyond_training
     assert cov.suggestion() == ""
@@ -52,13 +45,13 @@ def test_held_out_motions_within_the_training_span_are_covered() -> None:
 
 def test_gap_share_and_shrink_are_split_at_the_envelope() -> None:
     rng = np.random.default_rng(1)
-    train = _layout(_motion(rng.uniform(0.0, 0.1, 40), np.zeros(40)))
+    train = _motion(rng.uniform(0.0, 0.1, 40), np.zeros(40))
     v_ho = np.r_[np.full(6, 0.05), np.full(4, 0.4)]  # 4 of 10 windows four times faster
-    ho = _layout(_motion(v_ho, np.zeros(10)))
+    ho = _motion(v_ho, np.zeros(10))
     fast = np.repeat(v_ho > 0.2, 3)
-    z_ref = np.where(fast, 3.0, 1.0) * rng.normal(size=ho.n)
+    z_ref = np.where(fast, 3.0, 1.0) * rng.normal(size=30)
     z_best = np.where(fast, z_ref, 0.2 * z_ref)  # the model helps only where training looked
-    cov = training_coverage(train, ho, z_ref, z_best, best="m")  # type: ignore[arg-type]
+    cov = _cover(train, ho, z_ref, z_best, best="m")
     assert cov.n_outside == 4
     speed = cov.rows[0]
     assert speed["n_outside"] == 4 and speed["heldout_max"] == pytest.approx(0.4)
@@ -72,7 +65,7 @@ def test_gap_share_and_shrink_are_split_at_the_envelope() -> None:
     assert "speed up to 0.05 … 0.4 m/s" in cov.suggestion()
     # only the channels where the gap lives count
     mask = np.tile([True, True, False], 10)
-    masked = training_coverage(train, ho, z_ref, z_best, mask)  # type: ignore[arg-type]
+    masked = _cover(train, ho, z_ref, z_best, mask)
     sel = fast & mask
     assert masked.gap_share_outside == pytest.approx(
         np.sum(z_ref[sel] ** 2) / np.sum(z_ref[mask] ** 2)
@@ -80,35 +73,55 @@ def test_gap_share_and_shrink_are_split_at_the_envelope() -> None:
 
 
 def test_margin_and_tolerance_decide_what_is_beyond() -> None:
-    train = _layout(_motion(np.linspace(0.0, 0.1, 11), np.zeros(11)))
-    ho = _layout(_motion(np.array([0.105, 0.2]), np.array([5e-4, 0.0])))
-    z = np.ones(ho.n)
-    cov = training_coverage(train, ho, z, z)  # type: ignore[arg-type]
+    train = _motion(np.linspace(0.0, 0.1, 11), np.zeros(11))
+    ho = _motion(np.array([0.105, 0.2]), np.array([5e-4, 0.0]))
+    z = np.ones(6)
+    cov = _cover(train, ho, z, z)
     # 0.105 is within 10 % of the 0.1 m/s span; 5e-4 rad/s within the 1e-3 tolerance of 0
     assert [r["n_outside"] for r in cov.rows[:2]] == [1, 0]
-    strict = training_coverage(
-        train,
-        ho,
-        z,
-        z,  # type: ignore[arg-type]
-        settings=CoverageSettings(margin=0.0, atol=1e-4),
-    )
+    strict = _cover(train, ho, z, z, settings=CoverageSettings(margin=0.0, atol=1e-4))
     assert [r["n_outside"] for r in strict.rows[:2]] == [2, 1]
 
 
 def test_bad_arguments_are_refused() -> None:
-    train = _layout(_motion(np.linspace(0, 0.1, 5), np.zeros(5)))
-    ho = _layout(_motion(np.array([0.05]), np.zeros(1)))
+    train = _motion(np.linspace(0, 0.1, 5), np.zeros(5))
+    ho = _motion(np.array([0.05]), np.zeros(1))
     with pytest.raises(ValueError, match="one entry per held-out residual"):
-        training_coverage(train, ho, np.ones(2), np.ones(3))  # type: ignore[arg-type]
+        _cover(train, ho, np.ones(2), np.ones(3))
     with pytest.raises(ValueError, match="must name the 6 motion columns"):
-        training_coverage(train, ho, np.ones(3), np.ones(3), labels=[("speed", "m/s")])  # type: ignore[arg-type]
+        _cover(train, ho, np.ones(3), np.ones(3), labels=[("speed", "m/s")])
     with pytest.raises(ValueError, match="gap_mask must have shape"):
-        training_coverage(train, ho, np.ones(3), np.ones(3), np.ones(2, bool))  # type: ignore[arg-type]
+        _cover(train, ho, np.ones(3), np.ones(3), np.ones(2, bool))
+    with pytest.raises(ValueError, match="heldout_window must index the 1 held-out windows"):
+        training_coverage(train, ho, np.array([0, 1]), np.ones(2), np.ones(2))
+    with pytest.raises(ValueError, match="train_motion must be a finite"):
+        training_coverage(train[:, :2], ho, np.zeros(1, int), np.ones(1), np.ones(1))
     with pytest.raises(ValueError, match="margin must be a finite number"):
         CoverageSettings(margin=-0.1)
     with pytest.raises(ValueError, match="min_gap_share must lie in"):
         CoverageSettings(min_gap_share=0.0)
+
+
+def test_planar_motion_recovers_a_known_arc_and_a_speed_step() -> None:
+    # an arc at 0.3 m/s and 0.5 rad/s for 2 s, then straight at 0.1 m/s: closed form poses
+    dt = 0.05
+    t = np.arange(0, 4.0 + dt / 2, dt)
+    v = np.where(t < 2.0, 0.3, 0.1)
+    w = np.where(t < 2.0, 0.5, 0.0)
+    th = np.cumsum(np.r_[0.0, w[:-1] * dt])
+    x = np.cumsum(np.r_[0.0, (v * np.cos(th + 0.5 * w * dt))[:-1] * dt])
+    y = np.cumsum(np.r_[0.0, (v * np.sin(th + 0.5 * w * dt))[:-1] * dt])
+    bounds = np.array([[5, 15], [25, 35], [45, 55], [70, 80]])
+    m = planar_motion(t, np.c_[x, y, th], bounds)
+    np.testing.assert_allclose(m[:, 0], [0.3, 0.3, 0.1, 0.1], atol=2e-3)
+    np.testing.assert_allclose(m[:, 1], [0.5, 0.5, 0.0, 0.0], atol=2e-3)
+    # within steady windows neither speed nor turn rate changes
+    np.testing.assert_allclose(m[[0, 3], 2:], 0.0, atol=2e-3)
+    # the window across the step sees it
+    across = planar_motion(t, np.c_[x, y, th], np.array([[35, 45]]))[0]
+    assert across[2] == pytest.approx(-0.2, abs=0.01) and across[4] == pytest.approx(0.2, abs=0.01)
+    with pytest.raises(ValueError, match="pose must have shape"):
+        planar_motion(t, np.c_[x, y], bounds)
 
 
 # --------------------------------------------------------------------------- end to end
@@ -157,7 +170,9 @@ def test_a_top_speed_the_training_never_reached_is_reported_as_beyond_the_traini
     cov = d.coverage
     assert cov is not None and cov.beyond_training
     speed = next(r for r in cov.rows if r["variable"] == "v_mean")
-    assert speed["train_max"] < 0.15 and speed["heldout_max"] > 0.4 and speed["n_outside"] > 0
+    # the speed the robot made: capped at 0.3 m/s, not the 0.45 m/s commanded
+    assert speed["train_max"] < 0.15 and speed["n_outside"] > 0
+    assert speed["heldout_max"] == pytest.approx(0.3, abs=0.01)
     assert cov.gap_share_outside > 0.9
     js = d.to_json()
     assert js["coverage"]["beyond_training"] and js["coverage"]["n_outside"] == cov.n_outside
