@@ -47,11 +47,14 @@ FloatArray = npt.NDArray[np.float64]
 
 __all__ = [
     "DEFAULT_MOTION_LABELS",
+    "WHEEL_SPEED_VARIABLES",
     "Coverage",
     "CoverageSettings",
     "layout_windows",
+    "motion_variables",
     "planar_motion",
     "training_coverage",
+    "wheel_speeds",
 ]
 
 DEFAULT_MOTION_LABELS: tuple[tuple[str, str], ...] = (
@@ -64,6 +67,36 @@ DEFAULT_MOTION_LABELS: tuple[tuple[str, str], ...] = (
 )
 """What the six :data:`~realitygap.diagnosis.attribute.MOTION_COLUMNS` mean for a wheeled
 robot (name, SI unit); an adapter with other meanings declares ``motion_labels``."""
+
+WHEEL_SPEED_VARIABLES: tuple[tuple[str, str, str], ...] = (
+    ("v_left", "left wheel speed", "m/s"),
+    ("v_right", "right wheel speed", "m/s"),
+)
+"""Extra variables of a differential drive: the mean ground speed of each wheel over a
+window (``v ∓ ω b / 2``), what a motor's top speed or torque limit acts on."""
+
+
+def motion_variables(
+    labels: Sequence[tuple[str, str]] | None = None, wheels: bool = False
+) -> tuple[tuple[str, str, str], ...]:
+    """``(variable, label, unit)`` of the motion columns, then the wheel speeds if asked."""
+    lab = tuple(labels) if labels is not None else DEFAULT_MOTION_LABELS
+    if len(lab) != len(MOTION_COLUMNS):
+        raise ValueError(
+            f"labels must name the {len(MOTION_COLUMNS)} motion columns {MOTION_COLUMNS}, "
+            f"got {len(lab)}"
+        )
+    out = tuple((c, label, unit) for c, (label, unit) in zip(MOTION_COLUMNS, lab, strict=True))
+    return out + (WHEEL_SPEED_VARIABLES if wheels else ())
+
+
+def wheel_speeds(motion: FloatArray, wheelbase: float) -> FloatArray:
+    """Mean left and right wheel ground speeds ``v ∓ ω b / 2`` of windows, (M, 2), m/s."""
+    if not (np.isfinite(wheelbase) and wheelbase > 0):
+        raise ValueError(f"wheelbase must be a positive length in m, got {wheelbase!r}")
+    m = np.asarray(motion, dtype=float)
+    half = 0.5 * wheelbase * m[:, 1]
+    return np.stack([m[:, 0] - half, m[:, 0] + half], axis=1)
 
 
 @dataclass(frozen=True)
@@ -261,17 +294,18 @@ def layout_windows(
     layout: Layout, motion_of: Callable[[int], FloatArray]
 ) -> tuple[npt.NDArray[np.int64], FloatArray]:
     """The distinct windows of a layout: for each residual entry the index of its window,
-    and the (W, 6) motion of those windows (``motion_of(log_index)`` gives a log's (M, 6)
+    and the (W, k) motion of those windows (``motion_of(log_index)`` gives a log's (M, k)
     window motions)."""
     keys = layout.log.astype(np.int64) * (1 + int(layout.window.max(initial=0))) + layout.window
     _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
     cache: dict[int, FloatArray] = {}
-    rows = np.zeros((first.size, len(MOTION_COLUMNS)))
-    for j, e in enumerate(first):
+    picked = []
+    for e in first:
         i = int(layout.log[e])
         if i not in cache:
             cache[i] = np.asarray(motion_of(i), dtype=float)
-        rows[j] = cache[i][int(layout.window[e])]
+        picked.append(cache[i][int(layout.window[e])])
+    rows = np.asarray(picked, dtype=float).reshape(first.size, -1)
     return inverse.reshape(-1), rows
 
 
@@ -283,7 +317,7 @@ def training_coverage(
     z_best: FloatArray,
     gap_mask: npt.NDArray[np.bool_] | None = None,
     *,
-    labels: Sequence[tuple[str, str]] | None = None,
+    variables: Sequence[tuple[str, str, str]] | None = None,
     best: str = "",
     settings: CoverageSettings | None = None,
 ) -> Coverage:
@@ -291,9 +325,9 @@ def training_coverage(
 
     Parameters
     ----------
-    train_motion : ndarray, shape (W_train, 6)
-        Motion of every training window (:data:`MOTION_COLUMNS`).
-    heldout_motion : ndarray, shape (W, 6)
+    train_motion : ndarray, shape (W_train, k)
+        Motion of every training window, one column per variable.
+    heldout_motion : ndarray, shape (W, k)
         Motion of every held-out window.
     heldout_window : ndarray of int, shape (n,)
         For each held-out residual entry, the row of its window in ``heldout_motion``
@@ -303,9 +337,9 @@ def training_coverage(
         or the nominal replay) and of the best model.
     gap_mask : ndarray of bool, shape (n,), optional
         Entries of the channels where the gap lives (default: all).
-    labels : sequence of (str, str), optional
-        Name and SI unit of each motion column (default
-        :data:`DEFAULT_MOTION_LABELS`).
+    variables : sequence of (str, str, str), optional
+        Key, name and SI unit of each column (default :func:`motion_variables` ():
+        the six :data:`MOTION_COLUMNS` of a wheeled robot).
     best : str
         Name of the best model, for the words.
     settings : CoverageSettings, optional
@@ -315,20 +349,16 @@ def training_coverage(
     Coverage
     """
     s = settings if settings is not None else CoverageSettings()
-    lab = tuple(labels) if labels is not None else DEFAULT_MOTION_LABELS
-    if len(lab) != len(MOTION_COLUMNS):
-        raise ValueError(
-            f"labels must name the {len(MOTION_COLUMNS)} motion columns {MOTION_COLUMNS}, "
-            f"got {len(lab)}"
-        )
+    var = tuple(variables) if variables is not None else motion_variables()
+    k = len(var)
     m_train = np.asarray(train_motion, dtype=float)
     m_ho = np.asarray(heldout_motion, dtype=float)
     which = np.asarray(heldout_window, dtype=np.int64)
     for name, m in (("train_motion", m_train), ("heldout_motion", m_ho)):
-        if m.ndim != 2 or m.shape[1] != len(MOTION_COLUMNS) or not np.all(np.isfinite(m)):
+        if m.ndim != 2 or m.shape[1] != k or not np.all(np.isfinite(m)):
             raise ValueError(
-                f"{name} must be a finite (windows, {len(MOTION_COLUMNS)}) array, got shape "
-                f"{m.shape}"
+                f"{name} must be a finite (windows, {k}) array, one column per variable "
+                f"{[v[0] for v in var]}, got shape {m.shape}"
             )
     n = which.shape[0]
     if which.ndim != 1 or (n and (which.min() < 0 or which.max() >= m_ho.shape[0])):
@@ -353,7 +383,7 @@ def training_coverage(
     tol = np.maximum(s.margin * (hi - lo), s.atol)
     beyond = (m_ho < lo - tol) | (m_ho > hi + tol)  # (W, 6)
     outside_w = beyond.any(axis=1)
-    for j, (name, (label, unit)) in enumerate(zip(MOTION_COLUMNS, lab, strict=True)):
+    for j, (name, label, unit) in enumerate(var):
         out.rows.append(
             {
                 "variable": name,

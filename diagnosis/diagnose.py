@@ -67,8 +67,10 @@ from realitygap.diagnosis.coverage import (
     Coverage,
     CoverageSettings,
     layout_windows,
+    motion_variables,
     planar_motion,
     training_coverage,
+    wheel_speeds,
 )
 from realitygap.diagnosis.features import FeatureSettings
 from realitygap.diagnosis.identifiability import identifiability
@@ -524,13 +526,29 @@ def coverage_report(
         return None
     best = judgement.best
 
+    def planar(i: int) -> bool:
+        lg = problem.logs[i].log
+        return lg.has("pose_gt") and np.shape(lg["pose_gt"])[-1] == 3
+
+    def wheelbase(i: int) -> float | None:
+        ctx = problem.logs[i].context
+        params = getattr(ctx, "reference", None) or getattr(ctx, "params", None)
+        b = getattr(params, "wheelbase", None)
+        return float(b) if b is not None else None
+
+    used = sorted(set(problem.train.log.tolist()) | set(problem.holdout.log.tolist()))
+    wheels = all(planar(i) and wheelbase(i) is not None for i in used)
+
     def motion_of(i: int) -> FloatArray:
         # the motion the robot made: a planar ground truth where the log has one
         p = problem.logs[i]
-        if p.log.has("pose_gt") and np.shape(p.log["pose_gt"])[-1] == 3:
-            return planar_motion(p.log.t, p.log["pose_gt"], p.bounds)
-        m = p.context.window_motion(p.bounds)
-        return np.zeros((p.bounds.shape[0], 6)) if m is None else m
+        if planar(i):
+            m = planar_motion(p.log.t, p.log["pose_gt"], p.bounds)
+            if wheels:
+                m = np.hstack([m, wheel_speeds(m, float(wheelbase(i) or 0.0))])
+            return m
+        m_ctx = p.context.window_motion(p.bounds)
+        return np.zeros((p.bounds.shape[0], 6)) if m_ctx is None else m_ctx
 
     _, m_train = layout_windows(problem.train, motion_of)
     which, m_ho = layout_windows(problem.holdout, motion_of)
@@ -541,7 +559,7 @@ def coverage_report(
         judgement.nominal_heldout,
         best.z_heldout,
         judgement.gap_mask,
-        labels=getattr(problem.adapter, "motion_labels", None),
+        variables=motion_variables(getattr(problem.adapter, "motion_labels", None), wheels),
         best=best.name,
         settings=settings,
     )

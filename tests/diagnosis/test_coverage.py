@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 
 from realitygap.diagnosis.attribute import AttributionSettings
-from realitygap.diagnosis.coverage import CoverageSettings, planar_motion, training_coverage
+from realitygap.diagnosis.coverage import (
+    CoverageSettings,
+    motion_variables,
+    planar_motion,
+    training_coverage,
+    wheel_speeds,
+)
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.manoeuvres import Manoeuvre
 from realitygap.diagnosis.replay import MeasurementNoise, simulate
@@ -72,6 +78,25 @@ def test_gap_share_and_shrink_are_split_at_the_envelope() -> None:
     )
 
 
+def test_wheel_speeds_flag_a_speed_and_turn_rate_never_driven_together() -> None:
+    # training: fast straight legs and turns in place; held out: a fast arc, whose outer
+    # wheel runs faster than any wheel did in training although speed and turn rate are each
+    # within their training spans
+    train = _motion(np.r_[np.full(10, 0.3), np.zeros(10)], np.r_[np.zeros(10), np.full(10, 2.0)])
+    ho = _motion(np.array([0.3]), np.array([2.0]))
+    b = 0.23
+    both = np.hstack([train, wheel_speeds(train, b)]), np.hstack([ho, wheel_speeds(ho, b)])
+    z = np.ones(3)
+    box = _cover(train, ho, z, z)
+    assert box.n_outside == 0
+    cov = _cover(*both, z, z, variables=motion_variables(wheels=True))
+    right = next(r for r in cov.rows if r["variable"] == "v_right")
+    assert right["heldout_max"] == pytest.approx(0.3 + b) and right["train_max"] == pytest.approx(
+        0.3
+    )
+    assert cov.n_outside == 1 and cov.beyond_training
+
+
 def test_margin_and_tolerance_decide_what_is_beyond() -> None:
     train = _motion(np.linspace(0.0, 0.1, 11), np.zeros(11))
     ho = _motion(np.array([0.105, 0.2]), np.array([5e-4, 0.0]))
@@ -89,7 +114,11 @@ def test_bad_arguments_are_refused() -> None:
     with pytest.raises(ValueError, match="one entry per held-out residual"):
         _cover(train, ho, np.ones(2), np.ones(3))
     with pytest.raises(ValueError, match="must name the 6 motion columns"):
-        _cover(train, ho, np.ones(3), np.ones(3), labels=[("speed", "m/s")])
+        motion_variables([("speed", "m/s")])
+    with pytest.raises(ValueError, match=r"one column per variable \['v_mean'\]"):
+        _cover(train, ho, np.ones(3), np.ones(3), variables=[("v_mean", "speed", "m/s")])
+    with pytest.raises(ValueError, match="wheelbase must be a positive length"):
+        wheel_speeds(train, 0.0)
     with pytest.raises(ValueError, match="gap_mask must have shape"):
         _cover(train, ho, np.ones(3), np.ones(3), np.ones(2, bool))
     with pytest.raises(ValueError, match="heldout_window must index the 1 held-out windows"):
