@@ -4,6 +4,8 @@ says so instead of naming an effect it could not test."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -18,6 +20,7 @@ from realitygap.diagnosis.coverage import (
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.manoeuvres import Manoeuvre
 from realitygap.diagnosis.replay import MeasurementNoise, simulate
+from realitygap.diagnosis.report import write_report
 from realitygap.diagnosis.shrink import overall_shrink
 from realitygap.diagnosis.verdict import explain
 from realitygap.robots.diffdrive import DiffDriveParams
@@ -171,7 +174,9 @@ FAST = Manoeuvre(
 )
 
 
-def test_a_top_speed_the_training_never_reached_is_reported_as_beyond_the_training() -> None:
+def test_a_top_speed_the_training_never_reached_is_reported_as_beyond_the_training(
+    tmp_path: Path,
+) -> None:
     # the robot tops out at 0.3 m/s: the slow training runs cannot show it, the fast held-out
     # run is dominated by it
     reality = Reality((make_effect("velocity_saturation", v_limit=0.3),))
@@ -207,6 +212,8 @@ def test_a_top_speed_the_training_never_reached_is_reported_as_beyond_the_traini
     assert js["coverage"]["beyond_training"] and js["coverage"]["n_outside"] == cov.n_outside
     # the cap cannot be named from training that never reaches it
     assert d.verdict.kind != "effects" or "velocity_saturation" not in d.verdict.effects
+    md = write_report(d, tmp_path / "r").read_text(encoding="utf-8")
+    assert "## Training coverage" in md and "| left wheel speed |" in md
     if d.verdict.kind != "effects":
         lines = explain(d.verdict)
         assert "never exercised" in lines[0]
