@@ -201,10 +201,17 @@ class Coverage:
 
     def suggestion(self) -> str:
         """The training run that would cover the held-out motions, or ``""``."""
-        wanted = [
-            f"{r['label']} up to {_span(r['heldout_min'], r['heldout_max'], r['unit'])}"
-            for r in self.exceeded()
-        ]
+        wanted = []
+        for r in self.exceeded():
+            ends = []
+            if r["heldout_max"] > r["train_max"]:
+                ends.append(f"up to {r['heldout_max']:.3g} {r['unit']}")
+            if r["heldout_min"] < r["train_min"]:
+                ends.append(f"down to {r['heldout_min']:.3g} {r['unit']}")
+            wanted.append(
+                f"{r['label']} {' and '.join(ends)} (training: "
+                f"{_span(r['train_min'], r['train_max'], r['unit'])})"
+            )
         if not wanted:
             return ""
         return (
