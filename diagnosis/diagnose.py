@@ -568,7 +568,8 @@ def coverage_report(
         verdict.notes["coverage"] = {"summary": cov.summary(), "suggestion": cov.suggestion()}
         if verdict.notes.get("verdict_text") in (None, "", verdict.kind):
             verdict.notes["verdict_text"] = (
-                f"{verdict.kind} (the held-out gap lies in motions the training never exercised)"
+                f"{verdict.kind} ({100 * cov.gap_share_outside:.0f} % of the held-out gap lies "
+                "in motions the training never exercised)"
             )
     return cov
 
