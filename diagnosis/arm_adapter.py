@@ -413,6 +413,15 @@ class ArmAdapter(AdapterBase):
     channels = ARM_CHANNELS
     schema = ARM_SCHEMA
     surrogate_effects = _SURROGATE_EFFECTS
+    motion_labels = (
+        ("reach (share of full reach)", "1"),
+        ("shoulder holding torque", "100 N·m"),
+        ("elbow holding torque", "100 N·m"),
+        ("unused", "1"),
+        ("unused", "1"),
+        ("unused", "1"),
+    )
+    """Meaning of the window motion columns (:mod:`realitygap.diagnosis.coverage`)."""
 
     def __init__(self, max_windows: int = 600):
         if max_windows < 2:

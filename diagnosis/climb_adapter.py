@@ -358,6 +358,15 @@ class ClimberAdapter(AdapterBase):
     schema = CLIMBER_SCHEMA
     surrogate_effects = _SURROGATE_EFFECTS
     unobservable = _WHY_NOT
+    motion_labels = (
+        ("speed on the blade", "m/s"),
+        ("vertical speed", "m/s"),
+        ("unused", "1"),
+        ("unused", "1"),
+        ("unused", "1"),
+        ("unused", "1"),
+    )
+    """Meaning of the window motion columns (:mod:`realitygap.diagnosis.coverage`)."""
 
     def __init__(self) -> None:
         self.scenes = BladeScenes()

@@ -63,6 +63,15 @@ from realitygap.diagnosis.attribute import (
 )
 from realitygap.diagnosis.baseline import Baseline, calibrate_baseline
 from realitygap.diagnosis.clock import ClockSettings
+from realitygap.diagnosis.coverage import (
+    Coverage,
+    CoverageSettings,
+    layout_windows,
+    motion_variables,
+    planar_motion,
+    training_coverage,
+    wheel_speeds,
+)
 from realitygap.diagnosis.features import FeatureSettings
 from realitygap.diagnosis.identifiability import identifiability
 from realitygap.diagnosis.localise import localise
@@ -124,6 +133,9 @@ class DiagnosisSettings:
     scales : ScaleSettings or None
         Revisit a verdict that fails only on the window shrink on the scale of whole
         held-out runs (:mod:`realitygap.diagnosis.scales`); ``None``: windows only.
+    coverage : CoverageSettings or None
+        How the held-out motions are compared with the training envelope
+        (:mod:`realitygap.diagnosis.coverage`); ``None`` skips the comparison.
     """
 
     robot: str = "diffdrive"
@@ -138,6 +150,7 @@ class DiagnosisSettings:
     calibrate: bool = True
     clock: ClockSettings | None = field(default_factory=ClockSettings)
     scales: ScaleSettings | None = field(default_factory=ScaleSettings)
+    coverage: CoverageSettings | None = field(default_factory=CoverageSettings)
 
 
 @dataclass
@@ -165,6 +178,7 @@ class Diagnosis:
     transients: TransientReport = field(default_factory=TransientReport)
     nominal_reference: dict[str, Any] = field(default_factory=dict)
     scales: dict[str, Any] = field(default_factory=dict)
+    coverage: Coverage | None = None
 
     @property
     def chosen(self) -> ModelFit | None:
@@ -249,6 +263,7 @@ class Diagnosis:
                 "remaining_residual": v.residual,
             },
             "verdict_scales": self.scales,
+            "coverage": self.coverage.to_json() if self.coverage is not None else None,
             "ranking": self.ranking_rows(),
             "candidates": self.candidates,
             "not_observable": self.not_observable,
@@ -500,6 +515,65 @@ def gap_report(
     return rows, gap
 
 
+def coverage_report(
+    problem: Problem, judgement: Judgement, settings: CoverageSettings | None
+) -> Coverage | None:
+    """Whether the held-out motions lie within the training's
+    (:func:`~realitygap.diagnosis.coverage.training_coverage`); when most of the gap
+    lies beyond it and no effect was named, the verdict says so and names the training
+    run that would test it (``verdict.notes["coverage"]``)."""
+    if settings is None or problem.holdout.n == 0 or problem.train.n == 0:
+        return None
+    best = judgement.best
+
+    def planar(i: int) -> bool:
+        lg = problem.logs[i].log
+        return lg.has("pose_gt") and np.shape(lg["pose_gt"])[-1] == 3
+
+    def wheelbase(i: int) -> float | None:
+        ctx = problem.logs[i].context
+        params = getattr(ctx, "reference", None) or getattr(ctx, "params", None)
+        b = getattr(params, "wheelbase", None)
+        return float(b) if b is not None else None
+
+    used = sorted(set(problem.train.log.tolist()) | set(problem.holdout.log.tolist()))
+    wheels = all(planar(i) and wheelbase(i) is not None for i in used)
+
+    def motion_of(i: int) -> FloatArray:
+        # the motion the robot made: a planar ground truth where the log has one
+        p = problem.logs[i]
+        if planar(i):
+            m = planar_motion(p.log.t, p.log["pose_gt"], p.bounds)
+            if wheels:
+                m = np.hstack([m, wheel_speeds(m, float(wheelbase(i) or 0.0))])
+            return m
+        m_ctx = p.context.window_motion(p.bounds)
+        return np.zeros((p.bounds.shape[0], 6)) if m_ctx is None else m_ctx
+
+    _, m_train = layout_windows(problem.train, motion_of)
+    which, m_ho = layout_windows(problem.holdout, motion_of)
+    cov = training_coverage(
+        m_train,
+        m_ho,
+        which,
+        judgement.nominal_heldout,
+        best.z_heldout,
+        judgement.gap_mask,
+        variables=motion_variables(getattr(problem.adapter, "motion_labels", None), wheels),
+        best=best.name,
+        settings=settings,
+    )
+    verdict = judgement.verdict
+    if cov.beyond_training and verdict.kind != "effects":
+        verdict.notes["coverage"] = {"summary": cov.summary(), "suggestion": cov.suggestion()}
+        if verdict.notes.get("verdict_text") in (None, "", verdict.kind):
+            verdict.notes["verdict_text"] = (
+                f"{verdict.kind} ({100 * cov.gap_share_outside:.0f} % of the held-out gap lies "
+                "in motions the training never exercised)"
+            )
+    return cov
+
+
 # --------------------------------------------------------------------------- main entry
 def diagnose(
     logs: Sequence[Log],
@@ -608,6 +682,9 @@ def diagnose(
     ident = advise(problem, verification.ranking, judgement)
     conclude(problem, verification.ranking, judgement, ident)
     rows, gap = gap_report(problem, judgement, verification.replays, baseline)
+    coverage = coverage_report(problem, judgement, s.coverage)
+    if coverage is not None:
+        say(f"coverage: {coverage.summary()}")
     timing["total"] = time.perf_counter() - t0
     say(f"verdict: {judgement.verdict.label}")
     z_nom, best = judgement.nominal_heldout, judgement.best
@@ -633,4 +710,5 @@ def diagnose(
         transients=transients,
         nominal_reference=reference,
         scales=scale_figures,
+        coverage=coverage,
     )

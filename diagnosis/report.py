@@ -135,6 +135,27 @@ def _baseline_and_transients(d: Diagnosis) -> list[str]:
     return lines
 
 
+def _coverage_section(d: Diagnosis) -> list[str]:
+    """The "Training coverage" section: held-out motions against the training envelope."""
+    cov = d.coverage
+    if cov is None or cov.n_windows == 0:
+        return []
+    lines = ["", "## Training coverage", "", cov.summary()[:1].upper() + cov.summary()[1:] + "."]
+    if cov.suggestion():
+        lines += ["", f"To test it: {cov.suggestion()}."]
+    lines += [
+        "",
+        "| motion | training | held out | held-out windows beyond |",
+        "|---|---|---|---|",
+    ]
+    for r in cov.rows:
+        lines.append(
+            f"| {r['label']} | {r['train_min']:.3g} … {r['train_max']:.3g} {r['unit']} | "
+            f"{r['heldout_min']:.3g} … {r['heldout_max']:.3g} {r['unit']} | {r['n_outside']} |"
+        )
+    return lines
+
+
 def _markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str, note: str = "") -> str:
     js = d.to_json()
     v = d.verdict
@@ -279,6 +300,8 @@ def _markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str, note: st
                 f"{r['shrink_pct']:.1f} % |"
             )
         lines += ["", "</details>"]
+
+    lines += _coverage_section(d)
 
     lines += ["", "## Surrogate agreement", ""]
     if d.agreement:

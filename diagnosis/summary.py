@@ -289,4 +289,7 @@ def summary_sentences(d: Diagnosis) -> list[str]:
         out.append("What remains looks like measurement noise.")
     else:
         out.append("What remains: " + "; ".join(reasons[:3]) + ".")
+    cov = d.coverage
+    if cov is not None and cov.beyond_training:
+        out.append(f"Beyond the training: {cov.summary()}.")
     return out

@@ -696,6 +696,11 @@ def explain(verdict: Verdict, top_models: Sequence[str] = ()) -> list[str]:
     disc = notes.get("discovery")
     if disc is not None:
         lines.append(f"discovery: {disc['message']}")
+    cov = notes.get("coverage")
+    if cov is not None:
+        lines.append(f"beyond the training: {cov['summary']}")
+        if cov.get("suggestion"):
+            lines.append(f"experiment: {cov['suggestion']}")
     return lines
 
 

@@ -94,12 +94,16 @@ def _optiodom_groups(ctx: RunContext) -> dict[str, list[Any]]:
     return groups
 
 
-def _pick(logs: list[Any], per_session: int, max_sessions: int | None) -> list[Any]:
+def _pick(
+    logs: list[Any], per_session: int, max_sessions: int | None, skip_sessions: int = 0
+) -> list[Any]:
+    """Up to ``per_session`` runs (cw and ccw alternating) of each session, sessions in
+    name order, skipping the first ``skip_sessions`` and taking at most ``max_sessions``."""
     by_session: dict[str, list[Any]] = {}
     for lg in logs:
         by_session.setdefault(str(lg.meta.get("session")), []).append(lg)
     out = []
-    for i, (_, runs) in enumerate(sorted(by_session.items())):
+    for i, (_, runs) in enumerate(sorted(by_session.items())[skip_sessions:]):
         if max_sessions is not None and i >= max_sessions:
             break
         # balance directions: alternate cw / ccw runs where both exist
@@ -202,43 +206,52 @@ def _geometry_found(d: Any) -> dict[str, Any]:
     return out
 
 
-@experiment(
-    "diagnose-real",
-    "OptiOdom robot: where the real gap lies, which effects explain it, held-out shrink",
-    data_subdir="optiodom_diffdrive",
-)
-def diagnose_real(ctx: RunContext) -> dict[str, Any]:
-    from realitygap.core.parallel import ProcessBackend
-    from realitygap.diagnosis.cli import estimate_seconds
-    from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-    from realitygap.diagnosis.verdict import explain
+def _real_split(ctx: RunContext, extend_training: bool) -> tuple[list[Any], list[Any]]:
+    """Training and held-out OptiOdom runs of ``diagnose-real``.
 
+    Training: a cw and a ccw run of each UMBmark square session. Held out: two runs
+    of the first two sessions of every other path type (one session with ``--quick``).
+    With ``extend_training`` the training also takes two runs of the next two
+    sessions of each held-out path type (one with ``--quick``), so that it
+    exercises the speeds and turn rates of the held-out runs; the held-out runs
+    stay the same.
+    """
     groups = _optiodom_groups(ctx)
     if "square" not in groups:
         raise FileNotFoundError(
             "diagnose-real trains on the UMBmark square runs: no session under "
             "'<data>/optiodom_diffdrive/square/' was found"
         )
-    quick = ctx.quick
-    # training: UMBmark squares (a cw and a ccw run of each session); held out: other paths
-    train = _pick(groups["square"], per_session=2, max_sessions=2 if quick else None)
+    n_ho = 1 if ctx.quick else 2
+    train = _pick(groups["square"], per_session=2, max_sessions=2 if ctx.quick else None)
     holdout: list[Any] = []
     for kind in ("ivanjko", "circular", "free"):
         if kind in groups:
-            holdout += _pick(groups[kind], per_session=2, max_sessions=1 if quick else 2)
+            holdout += _pick(groups[kind], per_session=2, max_sessions=n_ho)
+            if extend_training:
+                train += _pick(groups[kind], per_session=2, max_sessions=n_ho, skip_sessions=n_ho)
     if not holdout:
         raise FileNotFoundError("diagnose-real needs held-out runs of another path type")
+    return train, holdout
+
+
+def _real_diagnoses(
+    ctx: RunContext, train: list[Any], holdout: list[Any], drives: tuple[str, ...]
+) -> dict[str, Any]:
+    """Diagnose ``train`` against ``holdout`` once per replay drive; figures, tables, notes."""
+    from realitygap.core.parallel import ProcessBackend
+    from realitygap.diagnosis.cli import estimate_seconds
+    from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
+    from realitygap.diagnosis.verdict import explain
+
     backend = ProcessBackend(ctx.options.get("workers"))
     ctx.expect(
-        sum(
-            estimate_seconds(train + holdout, DiagnosisSettings(drive=d), backend)
-            for d in ("commands", "ticks")
-        )
+        sum(estimate_seconds(train + holdout, DiagnosisSettings(drive=d), backend) for d in drives)
     )
     figures: dict[str, Any] = {}
     tables: dict[str, Any] = {}
     notes: list[str] = []
-    for drive in ("commands", "ticks"):
+    for drive in drives:
         tr = [lg for lg in train if drive == "ticks" or lg.has("cmd")]
         ho = [lg for lg in holdout if drive == "ticks" or lg.has("cmd")]
         ctx.progress(f"{drive}-driven replay: {len(tr)} training runs, {len(ho)} held-out runs")
@@ -294,6 +307,14 @@ def diagnose_real(ctx: RunContext) -> dict[str, Any]:
             notes += [
                 f"{drive}: two-scale verdict not drawn: {w}" for w in d.scales.get("why_not", [])
             ]
+        cov = d.coverage
+        if cov is not None:
+            figures[prefix + "heldout_windows_beyond_training"] = float(cov.n_outside)
+            figures[prefix + "gap_share_beyond_training_pct"] = 100.0 * cov.gap_share_outside
+            figures[prefix + "shrink_within_training_pct"] = cov.shrink_inside_pct
+            figures[prefix + "shrink_beyond_training_pct"] = cov.shrink_outside_pct
+            tables[f"{drive}_coverage"] = cov.rows
+            notes.append(f"{drive}: coverage: {cov.summary()}")
         tr_rep = d.transients
         figures[prefix + "transient_windows_set_aside"] = float(tr_rep.n_excluded)
         figures[prefix + "transient_share_pct"] = 100.0 * tr_rep.share_excluded
@@ -301,6 +322,7 @@ def diagnose_real(ctx: RunContext) -> dict[str, Any]:
         figures[prefix + "verdict"] = (
             "+".join(d.verdict.effects) if d.verdict.kind == "effects" else d.verdict.kind
         )
+        figures[prefix + "verdict_text"] = str(d.verdict.notes.get("verdict_text", d.verdict.kind))
         figures[prefix + "diagnose_seconds"] = d.timing["total"]
         js = d.to_json()
         tables[f"{drive}_ranking"] = _ranking_table(js, 10)
@@ -363,6 +385,32 @@ def diagnose_real(ctx: RunContext) -> dict[str, Any]:
             "holdout_path_types": dict(kinds),
         },
     }
+
+
+@experiment(
+    "diagnose-real",
+    "OptiOdom robot: where the real gap lies, which effects explain it, held-out shrink",
+    data_subdir="optiodom_diffdrive",
+)
+def diagnose_real(ctx: RunContext) -> dict[str, Any]:
+    """UMBmark squares train; circular, Ivanjko and free-driving runs are held out; both
+    replays (driven by the commands and by the encoder ticks)."""
+    train, holdout = _real_split(ctx, extend_training=False)
+    return _real_diagnoses(ctx, train, holdout, ("commands", "ticks"))
+
+
+@experiment(
+    "diagnose-real-covered",
+    "OptiOdom robot, command replay: the same held-out runs, with training that also drives "
+    "at their speeds",
+    data_subdir="optiodom_diffdrive",
+)
+def diagnose_real_covered(ctx: RunContext) -> dict[str, Any]:
+    """The experiment ``diagnose-real`` asks for when its held-out runs go beyond the
+    squares' motions: the same held-out runs, with runs of other sessions of each held-out
+    path type added to the training (:func:`_real_split`), command replay only."""
+    train, holdout = _real_split(ctx, extend_training=True)
+    return _real_diagnoses(ctx, train, holdout, ("commands",))
 
 
 @experiment(
