@@ -417,9 +417,7 @@ class ArmAdapter(AdapterBase):
         ("reach (share of full reach)", "1"),
         ("shoulder holding torque", "100 N·m"),
         ("elbow holding torque", "100 N·m"),
-        ("unused", "1"),
-        ("unused", "1"),
-        ("unused", "1"),
+        *((("unused", "1"),) * 3),
     )
     """Meaning of the window motion columns (:mod:`realitygap.diagnosis.coverage`)."""
 

@@ -361,10 +361,7 @@ class ClimberAdapter(AdapterBase):
     motion_labels = (
         ("speed on the blade", "m/s"),
         ("vertical speed", "m/s"),
-        ("unused", "1"),
-        ("unused", "1"),
-        ("unused", "1"),
-        ("unused", "1"),
+        *((("unused", "1"),) * 4),
     )
     """Meaning of the window motion columns (:mod:`realitygap.diagnosis.coverage`)."""
 
