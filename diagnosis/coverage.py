@@ -23,8 +23,15 @@ gives:
   windows leave it;
 * the share of the held-out gap (the reference residual's sum of squares, in
   the channels where the gap lives) that lies outside the envelope;
-* the best model's held-out shrink inside and outside the envelope;
+* the best model's held-out shrink inside and outside the envelope, and how much
+  denser what it leaves unexplained is beyond the training than within it;
 * the training run that would cover the held-out motions.
+
+When no effect is named and the unexplained rest gathers beyond the training
+(:attr:`Coverage.beyond_training`), the verdict says so: the gap may well be an
+effect the training could not test. When the rest spreads evenly — the best model
+transfers to the new motions as well as it fits the old ones — the coverage is
+reported but the verdict does not blame it.
 
 The envelope is a box, one interval per variable: it flags the motions the
 training never reached, not every combination it never drove (a speed and a
@@ -113,13 +120,24 @@ class CoverageSettings:
         variable the training held constant (a turn rate of exactly 0) does
         not flag held-out noise around it.
     min_gap_share : float
-        The verdict states that the held-out gap lies beyond the training when
-        at least this share of it (0–1) does and no effect was named.
+        The verdict states that what it leaves unexplained lies beyond the training
+        when no effect was named, at least this share (0–1) of the best model's
+        held-out residual lies there, ...
+    min_concentration : float
+        ... the residual's mean square per entry beyond the training is at least
+        this many times its mean square within it (the unexplained part gathers
+        where the training never looked, rather than spreading evenly over held-out
+        windows that happen to lie beyond it) ...
+    min_inside_windows : int
+        ... and at least this many held-out windows lie within the training, so
+        that the comparison means something.
     """
 
     margin: float = 0.1
     atol: float = 1e-3
     min_gap_share: float = 0.5
+    min_concentration: float = 2.0
+    min_inside_windows: int = 10
 
     def __post_init__(self) -> None:
         for name in ("margin", "atol"):
@@ -129,6 +147,16 @@ class CoverageSettings:
         if not 0.0 < self.min_gap_share <= 1.0:
             raise ValueError(
                 f"CoverageSettings.min_gap_share must lie in (0, 1], got {self.min_gap_share!r}"
+            )
+        if not (np.isfinite(self.min_concentration) and self.min_concentration >= 1.0):
+            raise ValueError(
+                "CoverageSettings.min_concentration must be a finite ratio ≥ 1, got "
+                f"{self.min_concentration!r}"
+            )
+        if not (isinstance(self.min_inside_windows, int) and self.min_inside_windows >= 1):
+            raise ValueError(
+                "CoverageSettings.min_inside_windows must be an integer ≥ 1, got "
+                f"{self.min_inside_windows!r}"
             )
 
 
@@ -146,6 +174,12 @@ class Coverage:
         Held-out windows, and those outside the envelope.
     gap_share_outside : float
         Share (0–1) of the held-out gap in windows outside the envelope.
+    residual_share_outside : float
+        Share (0–1) of the best model's held-out residual (what it leaves
+        unexplained) in windows outside the envelope.
+    concentration : float
+        Mean square of that residual per entry outside the envelope over its mean
+        square inside (NaN without entries on either side).
     shrink_inside_pct, shrink_outside_pct : float
         Held-out shrink of the best model inside / outside the envelope (NaN
         where there are no windows).
@@ -158,6 +192,8 @@ class Coverage:
     n_windows: int = 0
     n_outside: int = 0
     gap_share_outside: float = 0.0
+    residual_share_outside: float = 0.0
+    concentration: float = float("nan")
     shrink_inside_pct: float = float("nan")
     shrink_outside_pct: float = float("nan")
     best: str = ""
@@ -165,8 +201,15 @@ class Coverage:
 
     @property
     def beyond_training(self) -> bool:
-        """Whether most of the held-out gap lies in motions the training never reached."""
-        return self.n_outside > 0 and self.gap_share_outside >= self.settings.min_gap_share
+        """Whether what the best model leaves unexplained gathers in motions the training
+        never reached (see :class:`CoverageSettings` for the three conditions)."""
+        s = self.settings
+        return (
+            self.n_outside > 0
+            and self.n_windows - self.n_outside >= s.min_inside_windows
+            and self.residual_share_outside >= s.min_gap_share
+            and bool(self.concentration >= s.min_concentration)
+        )
 
     def exceeded(self) -> list[dict[str, Any]]:
         """The variables some held-out window takes beyond the training span."""
@@ -192,11 +235,17 @@ class Coverage:
             if np.isfinite(self.shrink_inside_pct) and np.isfinite(self.shrink_outside_pct)
             else ""
         )
+        rest = (
+            f"; what it leaves unexplained is {self.concentration:.1f}× denser (mean square per "
+            "window) beyond the training than within it"
+            if np.isfinite(self.concentration)
+            else ""
+        )
         return (
             f"{self.n_outside} of {self.n_windows} held-out windows "
             f"({100 * self.n_outside / self.n_windows:.0f} %), carrying "
             f"{100 * self.gap_share_outside:.0f} % of the held-out gap, go beyond the motions "
-            f"the training exercised ({'; '.join(parts)}){inside}"
+            f"the training exercised ({'; '.join(parts)}){inside}{rest}"
         )
 
     def suggestion(self) -> str:
@@ -227,6 +276,8 @@ class Coverage:
             "n_windows": self.n_windows,
             "n_outside": self.n_outside,
             "gap_share_outside": self.gap_share_outside,
+            "residual_share_outside": self.residual_share_outside,
+            "concentration": self.concentration,
             "shrink_inside_pct": self.shrink_inside_pct,
             "shrink_outside_pct": self.shrink_outside_pct,
             "best": self.best,
@@ -409,6 +460,12 @@ def training_coverage(
     inside = ~outside_w[which] & mask
     total = float(np.sum(z_ref[mask] ** 2))
     out.gap_share_outside = float(np.sum(z_ref[outside] ** 2)) / total if total > 0 else 0.0
+    rest = float(np.sum(z_b[mask] ** 2))
+    out.residual_share_outside = float(np.sum(z_b[outside] ** 2)) / rest if rest > 0 else 0.0
+    if inside.any() and outside.any():
+        ms_in = float(np.mean(z_b[inside] ** 2))
+        ms_out = float(np.mean(z_b[outside] ** 2))
+        out.concentration = ms_out / ms_in if ms_in > 0 else float("inf")
     if inside.any():
         out.shrink_inside_pct = overall_shrink(z_ref[inside], z_b[inside])
     if outside.any():

@@ -519,9 +519,10 @@ def coverage_report(
     problem: Problem, judgement: Judgement, settings: CoverageSettings | None
 ) -> Coverage | None:
     """Whether the held-out motions lie within the training's
-    (:func:`~realitygap.diagnosis.coverage.training_coverage`); when most of the gap
-    lies beyond it and no effect was named, the verdict says so and names the training
-    run that would test it (``verdict.notes["coverage"]``)."""
+    (:func:`~realitygap.diagnosis.coverage.training_coverage`); when no effect was named
+    and what remains gathers beyond the training (:attr:`Coverage.beyond_training`), the
+    verdict says so and names the training run that would test it
+    (``verdict.notes["coverage"]``)."""
     if settings is None or problem.holdout.n == 0 or problem.train.n == 0:
         return None
     best = judgement.best
@@ -568,7 +569,7 @@ def coverage_report(
         verdict.notes["coverage"] = {"summary": cov.summary(), "suggestion": cov.suggestion()}
         if verdict.notes.get("verdict_text") in (None, "", verdict.kind):
             verdict.notes["verdict_text"] = (
-                f"{verdict.kind} ({100 * cov.gap_share_outside:.0f} % of the held-out gap lies "
+                f"{verdict.kind} ({100 * cov.residual_share_outside:.0f} % of what remains lies "
                 "in motions the training never exercised)"
             )
     return cov

@@ -55,10 +55,10 @@ def test_held_out_motions_within_the_training_span_are_covered() -> None:
 def test_gap_share_and_shrink_are_split_at_the_envelope() -> None:
     rng = np.random.default_rng(1)
     train = _motion(rng.uniform(0.0, 0.1, 40), np.zeros(40))
-    v_ho = np.r_[np.full(6, 0.05), np.full(4, 0.4)]  # 4 of 10 windows four times faster
-    ho = _motion(v_ho, np.zeros(10))
+    v_ho = np.r_[np.full(12, 0.05), np.full(4, 0.4)]  # 4 of 16 windows four times faster
+    ho = _motion(v_ho, np.zeros(16))
     fast = np.repeat(v_ho > 0.2, 3)
-    z_ref = np.where(fast, 3.0, 1.0) * rng.normal(size=30)
+    z_ref = np.where(fast, 3.0, 1.0) * rng.choice([-1.0, 1.0], size=48)
     z_best = np.where(fast, z_ref, 0.2 * z_ref)  # the model helps only where training looked
     cov = _cover(train, ho, z_ref, z_best, best="m")
     assert cov.n_outside == 4
@@ -66,19 +66,41 @@ def test_gap_share_and_shrink_are_split_at_the_envelope() -> None:
     assert speed["n_outside"] == 4 and speed["heldout_max"] == pytest.approx(0.4)
     assert speed["train_max"] <= 0.1
     assert cov.rows[1]["n_outside"] == 0  # a turn rate held at exactly 0 both times
-    share = np.sum(z_ref[fast] ** 2) / np.sum(z_ref**2)
-    assert cov.gap_share_outside == pytest.approx(share)
-    assert cov.beyond_training == (share >= 0.5)
+    # 12 entries of 9 beyond, 36 of 1 within: the gap is 108 / 144 beyond the training
+    assert cov.gap_share_outside == pytest.approx(108 / 144)
+    # what the model leaves: 108 beyond, 36 · 0.04 within; 9 / 0.04 denser beyond
+    assert cov.residual_share_outside == pytest.approx(108 / (108 + 1.44))
+    assert cov.concentration == pytest.approx(9 / 0.04)
+    assert cov.beyond_training
     assert cov.shrink_inside_pct == pytest.approx(overall_shrink(z_ref[~fast], z_best[~fast]))
     assert cov.shrink_outside_pct == pytest.approx(0.0)
     assert "speed up to 0.4 m/s (training: " in cov.suggestion()
     # only the channels where the gap lives count
-    mask = np.tile([True, True, False], 10)
+    mask = np.tile([True, True, False], 16)
     masked = _cover(train, ho, z_ref, z_best, mask)
     sel = fast & mask
     assert masked.gap_share_outside == pytest.approx(
         np.sum(z_ref[sel] ** 2) / np.sum(z_ref[mask] ** 2)
     )
+
+
+def test_a_model_that_transfers_is_not_blamed_on_coverage() -> None:
+    # most held-out windows lie beyond the training, but the model leaves the same rest
+    # everywhere: the unexplained part does not gather beyond the training
+    rng = np.random.default_rng(2)
+    train = _motion(rng.uniform(0.0, 0.1, 40), np.zeros(40))
+    v_ho = np.r_[np.full(12, 0.05), np.full(30, 0.4)]
+    ho = _motion(v_ho, np.zeros(42))
+    fast = np.repeat(v_ho > 0.2, 3)
+    z_ref = np.where(fast, 3.0, 1.0) * rng.choice([-1.0, 1.0], size=126)
+    z_best = 0.15 * rng.choice([-1.0, 1.0], size=126)
+    cov = _cover(train, ho, z_ref, z_best)
+    assert cov.gap_share_outside > 0.9 and cov.residual_share_outside > 0.5
+    assert cov.concentration == pytest.approx(1.0)
+    assert not cov.beyond_training
+    # nor is a held-out set with too few windows within the training to compare
+    few = _cover(train, ho[9:], z_ref[27:], np.where(fast[27:], 1.0, 0.1))
+    assert few.concentration > 2 and not few.beyond_training
 
 
 def test_wheel_speeds_flag_a_speed_and_turn_rate_never_driven_together() -> None:
@@ -97,7 +119,7 @@ def test_wheel_speeds_flag_a_speed_and_turn_rate_never_driven_together() -> None
     assert right["heldout_max"] == pytest.approx(0.3 + b) and right["train_max"] == pytest.approx(
         0.3
     )
-    assert cov.n_outside == 1 and cov.beyond_training
+    assert cov.n_outside == 1
 
 
 def test_margin_and_tolerance_decide_what_is_beyond() -> None:
@@ -132,6 +154,10 @@ def test_bad_arguments_are_refused() -> None:
         CoverageSettings(margin=-0.1)
     with pytest.raises(ValueError, match="min_gap_share must lie in"):
         CoverageSettings(min_gap_share=0.0)
+    with pytest.raises(ValueError, match="min_concentration must be a finite ratio"):
+        CoverageSettings(min_concentration=0.5)
+    with pytest.raises(ValueError, match="min_inside_windows must be an integer"):
+        CoverageSettings(min_inside_windows=0)
 
 
 def test_planar_motion_recovers_a_known_arc_and_a_speed_step() -> None:
@@ -169,8 +195,15 @@ SLOW_ARCS = Manoeuvre(
 )
 FAST = Manoeuvre(
     "fast",
-    "fast straight legs and arcs",
-    ((3.0, 0.45, 0.0), (2.0, 0.4, 0.5), (3.0, 0.45, 0.0), (2.0, 0.4, -0.5), (0.5, 0, 0)),
+    "a slow leg, then fast straight legs and arcs",
+    (
+        (12.0, 0.1, 0.0),
+        (3.0, 0.45, 0.0),
+        (2.0, 0.4, 0.5),
+        (3.0, 0.45, 0.0),
+        (2.0, 0.4, -0.5),
+        (0.5, 0, 0),
+    ),
 )
 
 
