@@ -254,9 +254,9 @@ class Coverage:
         for r in self.exceeded():
             ends = []
             if r["heldout_max"] > r["train_max"]:
-                ends.append(f"up to {r['heldout_max']:.3g} {r['unit']}")
+                ends.append(f"up to {_value(r['heldout_max'], r['unit'])}")
             if r["heldout_min"] < r["train_min"]:
-                ends.append(f"down to {r['heldout_min']:.3g} {r['unit']}")
+                ends.append(f"down to {_value(r['heldout_min'], r['unit'])}")
             wanted.append(
                 f"{r['label']} {' and '.join(ends)} (training: "
                 f"{_span(r['train_min'], r['train_max'], r['unit'])})"
@@ -287,8 +287,12 @@ class Coverage:
         }
 
 
+def _value(x: float, unit: str) -> str:
+    return f"{x:.3g}" + (f" {unit}" if unit != "1" else "")
+
+
 def _span(lo: float, hi: float, unit: str) -> str:
-    return f"{lo:.3g} … {hi:.3g} {unit}"
+    return f"{lo:.3g} … {_value(hi, unit)}"
 
 
 def planar_motion(
