@@ -391,10 +391,10 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._t = self._steps * self.dt
 
         rng = self.np_random
-        measurement = self._measure(rng)
+        pose = self.robot.pose2d()  # the true pose, read once for the scan, task and info
+        measurement = self._measure(rng, pose)
         self._estimate = self.estimator.update(measurement)
 
-        pose = self.robot.pose2d()
         dist, ang = self.task.pose_error(pose)
         collision = self.robot.in_contact_with_scenery()
         success = self.task.is_success(dist, ang, self.robot)
@@ -461,7 +461,11 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         )
         return robot
 
-    def _measure(self, rng: np.random.Generator) -> DiffDriveMeasurement:
+    def _measure(
+        self, rng: np.random.Generator, pose: FloatArray | None = None
+    ) -> DiffDriveMeasurement:
+        """The sensors' measurement at this step; ``pose`` is the robot's true pose when the
+        caller has read it since the last physics step (the fast scan needs it)."""
         assert self.robot is not None and self.scanner is not None
         angles = self.robot.encoder_angles()
         ticks = encoder_ticks(self._t, angles, self.params.ticks_per_rev)
@@ -477,7 +481,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             elif self.camera is not None:
                 scan = self.scanner.scan_rendered(self.camera, self._t, rng)
             else:
-                scan = self.scanner.scan_fast(self._t, rng)
+                scan = self.scanner.scan_fast(self._t, rng, None if pose is None else pose.tolist())
             self._scan = scan
         return DiffDriveMeasurement(t=self._t, ticks=ticks, scan=scan, rgbd=frame)
 

@@ -542,8 +542,9 @@ class DiffDriveRobot:
         act on those and the wheel motors take them. The world is not stepped.
         """
         if self.firmware_limits is not None:
+            v_prev, w_prev = self.command.tolist()  # plain floats: cheaper scalar arithmetic
             v, omega = self.firmware_limits.step(
-                v, omega, self.command[0], self.command[1], self.control_dt, self.nominal.wheelbase
+                v, omega, v_prev, w_prev, self.control_dt, self.nominal.wheelbase
             )
         self.command[0], self.command[1] = v, omega
         applied = (v, omega)

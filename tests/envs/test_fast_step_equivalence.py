@@ -105,8 +105,8 @@ def reference_ray_cast_xy(arrays, ox, oy, dx, dy, range_max):  # type: ignore[no
     return best
 
 
-def reference_scan_fast(self, t, rng):  # type: ignore[no-untyped-def]
-    x, y, th = (float(v) for v in self.robot.pose2d())
+def reference_scan_fast(self, t, rng, pose=None):  # type: ignore[no-untyped-def]
+    x, y, th = (float(v) for v in self.robot.pose2d())  # the engine's pose, whatever is passed
     c, s = math.cos(th), math.sin(th)
     dx = c * self._cos - s * self._sin
     dy = s * self._cos + c * self._sin
