@@ -37,6 +37,7 @@ class PrimitiveArrays:
         self.cyl_center = np.array([c.center for c in cyls], dtype=float).reshape(-1, 2)
         self.cyl_r2 = np.array([c.radius**2 for c in cyls], dtype=float).reshape(-1, 1)
         nb, nc = len(boxes), len(cyls)
+        self._nb, self._nc = nb, nc
         # the two slabs of every box stacked on a leading axis (x slab, y slab), so that one
         # ufunc call does the arithmetic of both: rows of the box-frame rotation and half sizes
         self._slab_cos = np.stack([self.box_cos, -self.box_sin])  # (2, n_boxes, 1)
@@ -44,17 +45,29 @@ class PrimitiveArrays:
         slab_half = np.stack([self.box_half[:, :1], self.box_half[:, 1:]])
         # both faces of both slabs: (face -/+, slab, n_boxes, 1)
         self._slab_faces = np.stack([-slab_half, slab_half])
-        # Every ray's two direction components enter the box slabs and the cylinders in one
-        # form, a·dx + b·dy per row: a box slab's row of the box-frame rotation, a cylinder's
-        # offset (x, y) from the origin. One (2, rows, 1) coefficient array holds both (rows:
-        # x slabs, y slabs, cylinders); the cylinder rows are written per cast.
-        self._coef = np.zeros((2, 2 * nb + nc, 1))
+        # Rows: the boxes' x slabs, their y slabs, the cylinders. Each row's formulas share
+        # one form, a·X + b·Y with (a, b) a coefficient pair (a box slab's row of the
+        # box-frame rotation; a cylinder's offset from the ray origin, written per cast):
+        # (X, Y) = the ray direction gives a box slab's direction component and a
+        # cylinder's b; (X, Y) = the row's offset from the ray origin gives a box slab's
+        # origin coordinate and a cylinder's squared distance. So one call per step of the
+        # arithmetic serves all rows.
+        rows = 2 * nb + nc
+        self._coef = np.zeros((2, rows, 1))
         self._coef[0, : 2 * nb] = self._slab_cos.reshape(-1, 1)
         self._coef[1, : 2 * nb] = self._slab_sin.reshape(-1, 1)
-        # centres as (axis, primitive, 1), so that origin - centre is one call per kind
-        self._box_center_t = self.box_center.T.reshape(2, nb, 1).copy()
-        self._cyl_center_t = self.cyl_center.T.reshape(2, nc, 1).copy()
+        centers = np.concatenate([self.box_center, self.box_center, self.cyl_center])
+        self._row_center = centers.T.reshape(2, rows, 1).copy()  # (axis, row, 1)
         self._origin = np.zeros((2, 1, 1))
+        self._offset = np.empty((2, rows, 1))  # origin - row centre
+        self._offset_cyl = self._offset[:, 2 * nb :]
+        self._coef_cyl = self._coef[:, 2 * nb :]
+        self._prod = np.empty((2, rows, 1))
+        self._prod_x, self._prod_y = self._prod[0], self._prod[1]
+        self._sum = np.empty((rows, 1))  # a box slab's origin coordinate, a cylinder's |offset|²
+        self._o_local = self._sum[: 2 * nb].reshape(2, nb, 1)  # origin in the box frames
+        self._dist2 = self._sum[2 * nb :]
+        self._cc = np.empty((nc, 1))
         self._buffers: dict[int, tuple[FloatArray, ...]] = {}
 
     def ray_cast(
@@ -70,17 +83,20 @@ class PrimitiveArrays:
         """Work arrays (and views of them) of a cast of ``n`` rays, made once per ray count."""
         bufs = self._buffers.get(n)
         if bufs is None:
-            nb, nc = len(self.box_center), len(self.cyl_center)
-            lin = np.empty((2 * nb + nc, n))  # a·dx + b·dy per row, see __init__
-            lin_dy = np.empty((2 * nb + nc, n))
+            nb, nc = self._nb, self._nc
+            rows = 2 * nb + nc
+            terms = np.empty((2, rows, n))  # a·dx and b·dy per row
+            lin = np.empty((rows, n))  # a·dx + b·dy per row, see __init__
             t_face = np.empty((2, 2, nb, n))  # slab distances to both faces
             t_far = np.empty((2, nb, n))
             cand = np.empty((nb + nc, n))  # each primitive's entry distance per ray
             valid = np.empty((nb + nc, n), dtype=bool)  # ... where the ray hits it
             d_local = lin[: 2 * nb].reshape(2, nb, n)  # ray directions in the box frames
             bufs = self._buffers[n] = (
+                terms,
+                terms[0],
+                terms[1],
                 lin,
-                lin_dy,
                 t_face,
                 t_face[0],
                 t_face[1],
@@ -97,7 +113,7 @@ class PrimitiveArrays:
                 valid[:nb],
                 valid[nb:],
                 lin[2 * nb :],  # a cylinder's b = offset · direction
-                lin_dy[2 * nb :],  # its discriminant
+                terms[0, 2 * nb :],  # its discriminant
             )
         return bufs
 
@@ -105,14 +121,25 @@ class PrimitiveArrays:
         self, ox: float, oy: float, dx: FloatArray, dy: FloatArray, range_max: float
     ) -> FloatArray:
         """:meth:`ray_cast` from ``(ox, oy)`` (m) along unit directions given as their x and
-        y components ``dx``, ``dy`` (n,) (the per-step form of the fast scan)."""
-        n = dx.shape[0]
-        nb, nc = len(self.box_center), len(self.cyl_center)
+        y components ``dx``, ``dy`` (n,)."""
+        d = np.stack([np.asarray(dx, dtype=float), np.asarray(dy, dtype=float)])
+        return self.cast_directions(ox, oy, d[:, None, :], range_max)
+
+    def cast_directions(
+        self, ox: float, oy: float, directions: FloatArray, range_max: float
+    ) -> FloatArray:
+        """:meth:`ray_cast` from ``(ox, oy)`` (m) along unit directions ``directions``
+        (2, 1, n): their x components in ``[0, 0]``, y in ``[1, 0]`` (the per-step form of
+        the fast scan, which keeps its directions in that layout)."""
+        n = directions.shape[-1]
+        nb, nc = self._nb, self._nc
         if nb + nc == 0:
             return np.full(n, np.inf)
         (
+            terms,
+            term_x,
+            term_y,
             lin,
-            lin_dy,
             t_face,
             t_lo,
             t_hi,
@@ -131,26 +158,23 @@ class PrimitiveArrays:
             b,
             disc,
         ) = self._work_arrays(n)
-        minimum, maximum, multiply, subtract = np.minimum, np.maximum, np.multiply, np.subtract
+        minimum, maximum, multiply = np.minimum, np.maximum, np.multiply
         origin, coef = self._origin, self._coef
         origin[0, 0, 0], origin[1, 0, 0] = ox, oy
-        cc = None
         with np.errstate(divide="ignore", invalid="ignore"):
+            # every row's offset from the origin; a cylinder's is its coefficient pair
+            np.subtract(origin, self._row_center, out=self._offset)
             if nc:
-                r = subtract(origin, self._cyl_center_t, out=coef[:, 2 * nb :])
-                cc = r[0] * r[0]
-                cc += r[1] * r[1]
-                cc -= self.cyl_r2
-            # directions in the box frames (x slabs, y slabs) and cylinder b, in one pass
-            multiply(coef[0], dx, out=lin)
-            multiply(coef[1], dy, out=lin_dy)
-            lin += lin_dy
+                np.copyto(self._coef_cyl, self._offset_cyl)
+            # boxes: c·rx + s·ry, the origin in the box frame; cylinders: rx·rx + ry·ry
+            multiply(coef, self._offset, out=self._prod)
+            np.add(self._prod_x, self._prod_y, out=self._sum)
+            # boxes: directions in the box frames; cylinders: b = r · direction
+            multiply(coef, directions, out=terms)
+            np.add(term_x, term_y, out=lin)
             if nb:
                 # slab method in each box's frame; [0] is the x slab, [1] the y slab
-                r = subtract(origin, self._box_center_t)
-                o_local = self._slab_cos * r[0]
-                o_local += self._slab_sin * r[1]  # (2, n_boxes, 1): origin in the box frame
-                np.divide(self._slab_faces - o_local, d_local, out=t_face)
+                np.divide(self._slab_faces - self._o_local, d_local, out=t_face)
                 minimum(t_lo, t_hi, out=d_local)  # near faces
                 maximum(t_lo, t_hi, out=t_far)
                 tmin = maximum(near_x, near_y, out=cand_box)
@@ -159,6 +183,7 @@ class PrimitiveArrays:
                 # a NaN bound (a ray along a face) compares False: no hit, never NaN
                 np.greater_equal(tmax, tmin, out=valid_box)
             if nc:
+                cc = np.subtract(self._dist2, self.cyl_r2, out=self._cc)
                 multiply(b, b, out=disc)
                 disc -= cc
                 np.sqrt(disc, out=disc)  # NaN where the ray's line misses the circle

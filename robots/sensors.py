@@ -187,13 +187,14 @@ class PlanarScanner:
         self._sin = np.sin(self.angles)
         mx, my = params.mount_xyz[0], params.mount_xyz[1]
         self._along_beam_offset = mx * self._cos + my * self._sin
-        self._cos_cos = np.stack([self._cos, self._cos])  # (2, n_beams)
-        self._sin_sin = np.stack([self._sin, self._sin])
-        self._rot_cs = np.zeros((2, 1))  # (cos θ, sin θ) of the base's heading
-        self._rot_sc = np.zeros((2, 1))  # (-sin θ, cos θ)
+        # (2, 1, n_beams): the layout of PrimitiveArrays.cast_directions
+        self._cos_cos = np.stack([self._cos, self._cos])[:, None, :]
+        self._sin_sin = np.stack([self._sin, self._sin])[:, None, :]
+        self._rot_cs = np.zeros((2, 1, 1))  # (cos θ, sin θ) of the base's heading
+        self._rot_sc = np.zeros((2, 1, 1))  # (-sin θ, cos θ)
         self._mount_xy = (float(params.mount_xyz[0]), float(params.mount_xyz[1]))
-        self._dirs = np.empty((2, self.n_beams))  # work arrays of scan_fast
-        self._dirs_sin = np.empty((2, self.n_beams))
+        self._dirs = np.empty((2, 1, self.n_beams))  # work arrays of scan_fast
+        self._dirs_sin = np.empty((2, 1, self.n_beams))
         self._sigma = np.empty(self.n_beams)
 
     def scan_fast(
@@ -213,13 +214,13 @@ class PlanarScanner:
         # world-frame beam directions, both components in one pass: rows (dx, dy) of
         # (c·cos, s·cos) + (-s·sin, c·sin)
         cs, sc = self._rot_cs, self._rot_sc
-        cs[0, 0], cs[1, 0], sc[0, 0], sc[1, 0] = c, s, -s, c
+        cs[0, 0, 0], cs[1, 0, 0], sc[0, 0, 0], sc[1, 0, 0] = c, s, -s, c
         d = np.multiply(self._cos_cos, cs, out=self._dirs)
         d += np.multiply(self._sin_sin, sc, out=self._dirs_sin)
         mx, my = self._mount_xy
         # beams leave the camera's optical centre; ranges are reported from the base origin
-        ranges = self.robot.world.scenery_arrays.ray_cast_xy(
-            x + c * mx - s * my, y + s * mx + c * my, d[0], d[1], P.range_max
+        ranges = self.robot.world.scenery_arrays.cast_directions(
+            x + c * mx - s * my, y + s * mx + c * my, d, P.range_max
         )
         ranges += self._along_beam_offset
         sigma = np.multiply(ranges, P.depth_noise_b, out=self._sigma)
