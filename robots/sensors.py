@@ -196,6 +196,8 @@ class PlanarScanner:
         self._dirs = np.empty((2, 1, self.n_beams))  # work arrays of scan_fast
         self._dirs_sin = np.empty((2, 1, self.n_beams))
         self._sigma = np.empty(self.n_beams)
+        self._noise = np.empty(self.n_beams)
+        self._seen = np.empty(self.n_beams, dtype=bool)
 
     def scan_fast(
         self,
@@ -226,10 +228,10 @@ class PlanarScanner:
         sigma = np.multiply(ranges, P.depth_noise_b, out=self._sigma)
         sigma *= ranges
         sigma += P.depth_noise_a
-        noise = rng.standard_normal(self.n_beams)
+        noise = rng.standard_normal(out=self._noise)
         # where nothing was seen (inf) the range stays inf: its noise is left unscaled there
         # (inf + finite noise is inf, as inf + 0)
-        noise = np.multiply(noise, sigma, out=noise, where=np.isfinite(sigma))
+        np.multiply(noise, sigma, out=noise, where=np.isfinite(sigma, out=self._seen))
         ranges += noise
         np.maximum(ranges, P.range_min, out=ranges)
         return Scan(t, self.angles.copy(), ranges, P.range_min, P.range_max)
