@@ -396,7 +396,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._estimate = self.estimator.update(measurement)
 
         dist, ang = self.task.pose_error(pose)
-        collision = self.robot.in_contact_with_scenery()
+        collision = self.robot.in_contact_with_scenery(pose)
         success = self.task.is_success(dist, ang, self.robot)
         reward, terms = self.task.get_reward(dist, ang, (a0, a1), collision, success)
         terminated = self.task.is_terminated(collision, success)

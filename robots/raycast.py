@@ -8,6 +8,7 @@ beams against all of them in a fixed, small number of numpy calls.
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -69,6 +70,24 @@ class PrimitiveArrays:
         self._dist2 = self._sum[2 * nb :]
         self._cc = np.empty((nc, 1))
         self._buffers: dict[int, tuple[FloatArray, ...]] = {}
+
+    def clearance(self, x: float, y: float) -> float:
+        """Smallest distance (m) in the plane from the point ``(x, y)`` (m) to any footprint
+        (negative inside one); ``inf`` without primitives. A point this far from every
+        footprint is at least as far from the primitives, whatever its height."""
+        best = math.inf
+        if len(self.box_center):
+            rx = x - self.box_center[:, 0]
+            ry = y - self.box_center[:, 1]
+            c, s = self.box_cos[:, 0], self.box_sin[:, 0]
+            q = np.abs(np.stack([c * rx + s * ry, -s * rx + c * ry], axis=-1)) - self.box_half
+            outside = np.hypot(*np.maximum(q, 0.0).T)
+            inside = np.minimum(q.max(axis=-1), 0.0)
+            best = min(best, float((outside + inside).min()))
+        if len(self.cyl_center):
+            d = np.hypot(x - self.cyl_center[:, 0], y - self.cyl_center[:, 1])
+            best = min(best, float((d - np.sqrt(self.cyl_r2[:, 0])).min()))
+        return best
 
     def ray_cast(
         self, origin_xy: npt.ArrayLike, directions: FloatArray, range_max: float

@@ -230,6 +230,55 @@ def test_twist_action_fast_path_still_rejects_non_finite_values() -> None:
         check_twist_action(np.array([0.0, np.inf]))
 
 
+def test_clearance_is_the_nearest_footprint_distance() -> None:
+    rng = np.random.default_rng(6)
+    for _ in range(30):
+        prims = [
+            world.Primitive(
+                f"b{k}",
+                world.Shape.BOX,
+                (float(rng.uniform(-3, 3)), float(rng.uniform(-3, 3))),
+                0.5,
+                yaw=float(rng.uniform(-3, 3)),
+                half_extents=(float(rng.uniform(0.05, 1.0)), float(rng.uniform(0.05, 1.0))),
+            )
+            for k in range(int(rng.integers(0, 4)))
+        ] + [
+            world.Primitive(
+                f"c{k}",
+                world.Shape.CYLINDER,
+                (float(rng.uniform(-3, 3)), float(rng.uniform(-3, 3))),
+                0.5,
+                radius=float(rng.uniform(0.05, 0.6)),
+            )
+            for k in range(int(rng.integers(0, 4)))
+        ]
+        arrays = world.PrimitiveArrays(prims)
+        for x, y in rng.uniform(-4, 4, size=(10, 2)):
+            want = min((float(q.footprint_distance([x, y])) for q in prims), default=math.inf)
+            assert arrays.clearance(float(x), float(y)) == pytest.approx(want, abs=1e-12)
+
+
+def test_contact_query_skipped_only_far_from_scenery() -> None:
+    """With the pose, the contact check skips the engine only where no contact can be: it
+    agrees with the engine's answer at every step of crowded episodes with collisions."""
+    env = gym.make("realitygap/WheeledNav-v0", n_obstacles=8, room_half_size=1.5)
+    u = env.unwrapped
+    rng = np.random.default_rng(2)
+    env.reset(seed=3)
+    n_contacts = n_skipped = 0
+    for _ in range(600):
+        env.step(rng.uniform(-1, 1, 2).astype(np.float32))
+        robot = u.robot
+        pose = robot.pose2d()
+        engine = robot.in_contact_with_scenery()
+        assert robot.in_contact_with_scenery(pose) == engine
+        n_contacts += engine
+        n_skipped += robot._clear_of_scenery(float(pose[0]), float(pose[1]))
+    env.close()
+    assert n_contacts > 0 and n_skipped > 0  # both cases were met
+
+
 def test_ray_cast_matches_the_reference_on_random_scenes() -> None:
     rng = np.random.default_rng(5)
     for _ in range(50):
@@ -281,6 +330,13 @@ def _run(kwargs: dict[str, object], n_steps: int, reference: bool) -> list[tuple
         mp.setattr(WheeledNavEnv, "_observation", reference_observation)
         mp.setattr(NavTask, "pose_error", reference_pose_error)
         mp.setattr(DiffDriveRobot, "command_twist", reference_command_twist)
+        # the engine's contact query at every step
+        engine_contacts = DiffDriveRobot.in_contact_with_scenery
+        mp.setattr(
+            DiffDriveRobot,
+            "in_contact_with_scenery",
+            lambda self, pose=None: engine_contacts(self),
+        )
         # one engine call per physics step and multibody scenery
         plain_init = world.World.__init__
 
