@@ -343,6 +343,9 @@ def ramp_step(
     return float(prev + min(step, max(-step, d)))
 
 
+_NOT_SCENERY = frozenset({"robot", "floor", "floor_surface"})
+"""World bodies that have no scenery footprint: this robot and the floor."""
+
 CONTACT_QUERY_MARGIN = 0.2
 """Distance (m) added to :func:`collision_reach` beyond which
 :meth:`DiffDriveRobot.in_contact_with_scenery` does not ask the engine: well above the
@@ -663,8 +666,12 @@ class DiffDriveRobot:
 
     def _clear_of_scenery(self, x: float, y: float) -> bool:
         """Whether the base link's origin at ``(x, y)`` (m) is farther than :attr:`_reach`
-        from every scenery footprint; a lower bound from the last computed distance."""
-        arrays = self.world.scenery_arrays
+        from every scenery footprint (a lower bound from the last computed distance), and the
+        world holds no other body the robot could touch."""
+        world = self.world
+        if not world.bodies.keys() - world.primitives.keys() <= _NOT_SCENERY:
+            return False  # a body without a footprint: ask the engine
+        arrays = world.scenery_arrays
         ref = self._clearance_ref
         if ref is not None and ref[0] is arrays:
             _, rx, ry, dist = ref

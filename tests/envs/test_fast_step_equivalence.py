@@ -274,9 +274,22 @@ def test_contact_query_skipped_only_far_from_scenery() -> None:
         engine = robot.in_contact_with_scenery()
         assert robot.in_contact_with_scenery(pose) == engine
         n_contacts += engine
-        n_skipped += robot._clear_of_scenery(float(pose[0]), float(pose[1]))
-    env.close()
+        if robot._clear_of_scenery(float(pose[0]), float(pose[1])):
+            n_skipped += 1
+            clear_xy = (float(pose[0]), float(pose[1]))
     assert n_contacts > 0 and n_skipped > 0  # both cases were met
+    # a body that is no scenery primitive: the engine is always asked
+    assert u.robot._clear_of_scenery(*clear_xy)
+    u.world.load_urdf("crate", CRATE_URDF, [0.0, 0.0, 3.0], [0, 0, 0, 1])
+    assert not u.robot._clear_of_scenery(*clear_xy)
+    env.close()
+
+
+CRATE_URDF = """<?xml version="1.0"?>
+<robot name="crate"><link name="base"><inertial><mass value="1"/>
+<inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial>
+<collision><geometry><box size="0.2 0.2 0.2"/></geometry></collision></link></robot>
+"""
 
 
 def test_ray_cast_matches_the_reference_on_random_scenes() -> None:
