@@ -646,7 +646,7 @@ class DiffDriveRobot:
         th = self.pose2d()[2]
         return np.array([math.cos(th) * lin[0] + math.sin(th) * lin[1], ang[2]])
 
-    def in_contact_with_scenery(self, pose: npt.ArrayLike | None = None) -> bool:
+    def in_contact_with_scenery(self, pose: FloatArray | None = None) -> bool:
         """Whether the body touches anything but the floor (a collision).
 
         ``pose``: the current :meth:`pose2d` when the caller has read it. Then the engine is
