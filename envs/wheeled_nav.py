@@ -285,8 +285,9 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._scan: Scan | None = None
         self._estimate: Estimate | None = None
         self._obstacles: tuple[Primitive, ...] = ()
-        self._obs_buf = np.zeros(12, dtype=np.float64)  # the 12 entries before the scan
         self._obs_out = np.zeros(12 + self.n_beams, dtype=np.float32)
+        self._obs_head, self._obs_tail = self._obs_out[:12], self._obs_out[12:]
+        self._obs_low_head, self._obs_high_head = low[:12].copy(), high[:12].copy()
         self._obs_scan: Scan | None = None  # the scan whose values are in _obs_out[12:]
 
     # ------------------------------------------------------------------ properties
@@ -494,8 +495,19 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         cmd_v, cmd_w = self.robot.command.tolist()
         c, s = math.cos(th), math.sin(th)
         dx, dy = gx - x, gy - y
-        head = self._obs_buf
-        head[:] = (
+        out = self._obs_out
+        # = np.clip to the observation space, without its Python wrapper: the scan part when
+        # the scan is new, the 12 entries before it at every step
+        if self._obs_scan is not self._scan:  # the scan part changes only with a new scan
+            scaled = np.divide(self._scan.ranges, self._scan.range_max)
+            np.minimum(scaled, 1.0, out=scaled)  # inf (nothing seen) -> 1
+            tail = self._obs_tail
+            tail[:] = scaled  # float64 -> float32, as astype
+            np.minimum(tail, self._obs_high[12:], out=tail)
+            np.maximum(tail, self._obs_low[12:], out=tail)
+            self._obs_scan = self._scan
+        head = self._obs_head
+        head[:] = (  # Python floats -> float32, as astype
             x,
             y,
             c,
@@ -509,16 +521,8 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             cmd_v / self.v_max,
             cmd_w / self.w_max,
         )
-        out = self._obs_out
-        if self._obs_scan is not self._scan:  # the scan part changes only with a new scan
-            scaled = np.divide(self._scan.ranges, self._scan.range_max)
-            np.minimum(scaled, 1.0, out=scaled)  # inf (nothing seen) -> 1
-            out[12:] = scaled  # float64 -> float32, as astype
-            self._obs_scan = self._scan
-        out[:12] = head
-        # = np.clip to the observation space, without its Python wrapper
-        np.minimum(out, self._obs_high, out=out)
-        np.maximum(out, self._obs_low, out=out)
+        np.minimum(head, self._obs_high_head, out=head)
+        np.maximum(head, self._obs_low_head, out=head)
         return out.copy()
 
     def _info(
