@@ -285,8 +285,9 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._scan: Scan | None = None
         self._estimate: Estimate | None = None
         self._obstacles: tuple[Primitive, ...] = ()
-        self._obs_buf = np.zeros(12, dtype=np.float64)  # the 12 entries before the scan
         self._obs_out = np.zeros(12 + self.n_beams, dtype=np.float32)
+        self._obs_head, self._obs_tail = self._obs_out[:12], self._obs_out[12:]
+        self._obs_low_head, self._obs_high_head = low[:12].copy(), high[:12].copy()
         self._obs_scan: Scan | None = None  # the scan whose values are in _obs_out[12:]
 
     # ------------------------------------------------------------------ properties
@@ -391,12 +392,12 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._t = self._steps * self.dt
 
         rng = self.np_random
-        measurement = self._measure(rng)
+        pose = self.robot.pose2d()  # the true pose, read once for the scan, task and info
+        measurement = self._measure(rng, pose)
         self._estimate = self.estimator.update(measurement)
 
-        pose = self.robot.pose2d()
         dist, ang = self.task.pose_error(pose)
-        collision = self.robot.in_contact_with_scenery()
+        collision = self.robot.in_contact_with_scenery(pose)
         success = self.task.is_success(dist, ang, self.robot)
         reward, terms = self.task.get_reward(dist, ang, (a0, a1), collision, success)
         terminated = self.task.is_terminated(collision, success)
@@ -461,7 +462,11 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         )
         return robot
 
-    def _measure(self, rng: np.random.Generator) -> DiffDriveMeasurement:
+    def _measure(
+        self, rng: np.random.Generator, pose: FloatArray | None = None
+    ) -> DiffDriveMeasurement:
+        """The sensors' measurement at this step; ``pose`` is the robot's true pose when the
+        caller has read it since the last physics step (the fast scan needs it)."""
         assert self.robot is not None and self.scanner is not None
         angles = self.robot.encoder_angles()
         ticks = encoder_ticks(self._t, angles, self.params.ticks_per_rev)
@@ -477,7 +482,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             elif self.camera is not None:
                 scan = self.scanner.scan_rendered(self.camera, self._t, rng)
             else:
-                scan = self.scanner.scan_fast(self._t, rng)
+                scan = self.scanner.scan_fast(self._t, rng, None if pose is None else pose.tolist())
             self._scan = scan
         return DiffDriveMeasurement(t=self._t, ticks=ticks, scan=scan, rgbd=frame)
 
@@ -490,8 +495,19 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         cmd_v, cmd_w = self.robot.command.tolist()
         c, s = math.cos(th), math.sin(th)
         dx, dy = gx - x, gy - y
-        head = self._obs_buf
-        head[:] = (
+        out = self._obs_out
+        # = np.clip to the observation space, without its Python wrapper: the scan part when
+        # the scan is new, the 12 entries before it at every step
+        if self._obs_scan is not self._scan:  # the scan part changes only with a new scan
+            scaled = np.divide(self._scan.ranges, self._scan.range_max)
+            np.minimum(scaled, 1.0, out=scaled)  # inf (nothing seen) -> 1
+            tail = self._obs_tail
+            tail[:] = scaled  # float64 -> float32, as astype
+            np.minimum(tail, self._obs_high[12:], out=tail)
+            np.maximum(tail, self._obs_low[12:], out=tail)
+            self._obs_scan = self._scan
+        head = self._obs_head
+        head[:] = (  # Python floats -> float32, as astype
             x,
             y,
             c,
@@ -505,16 +521,8 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             cmd_v / self.v_max,
             cmd_w / self.w_max,
         )
-        out = self._obs_out
-        if self._obs_scan is not self._scan:  # the scan part changes only with a new scan
-            scaled = np.divide(self._scan.ranges, self._scan.range_max)
-            np.minimum(scaled, 1.0, out=scaled)  # inf (nothing seen) -> 1
-            out[12:] = scaled  # float64 -> float32, as astype
-            self._obs_scan = self._scan
-        out[:12] = head
-        # = np.clip to the observation space, without its Python wrapper
-        np.minimum(out, self._obs_high, out=out)
-        np.maximum(out, self._obs_low, out=out)
+        np.minimum(head, self._obs_high_head, out=head)
+        np.maximum(head, self._obs_low_head, out=head)
         return out.copy()
 
     def _info(
@@ -526,9 +534,11 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         collision: bool,
         success: bool,
     ) -> dict[str, Any]:
+        """The step's ``info``. ``pose`` and ``terms`` are the caller's fresh objects, kept by
+        nothing else: they go in as they are."""
         assert self._estimate is not None
         return {
-            "true_pose": pose.copy(),
+            "true_pose": pose,
             "estimated_pose": np.array(self._estimate.pose, dtype=float),
             "estimate_ok": bool(self._estimate.ok),
             "estimate_status": self._estimate.status,
@@ -537,6 +547,6 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             "heading_error": ang,
             "collision": collision,
             "is_success": success,
-            "reward_terms": dict(terms),
+            "reward_terms": terms,
             "t": self._t,
         }

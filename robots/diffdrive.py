@@ -343,6 +343,29 @@ def ramp_step(
     return float(prev + min(step, max(-step, d)))
 
 
+_NOT_SCENERY = frozenset({"robot", "floor", "floor_surface"})
+"""World bodies that have no scenery footprint: this robot and the floor."""
+
+CONTACT_QUERY_MARGIN = 0.2
+"""Distance (m) added to :func:`collision_reach` beyond which
+:meth:`DiffDriveRobot.in_contact_with_scenery` does not ask the engine: well above the
+engine's collision margins (0.04 m per convex shape) and its contact breaking threshold
+(0.02 m) together."""
+
+
+def collision_reach(params: DiffDriveParams) -> float:
+    """Radius (m) of a sphere about the base link's origin (the body cylinder's centre, see
+    :func:`urdf_from_params`) that holds every collision shape of the robot: the body
+    cylinder, the two caster spheres and the two wheel spheres."""
+    P = params
+    r_max = max(P.wheel_radius_left, P.wheel_radius_right)
+    body_z = r_max + 0.01 + P.body_height / 2.0
+    body = math.hypot(P.body_radius, P.body_height / 2.0)
+    wheels = math.hypot(P.wheelbase / 2.0, r_max - body_z) + r_max
+    casters = math.hypot(P.caster_offset, P.caster_radius - body_z) + P.caster_radius
+    return max(body, wheels, casters)
+
+
 def _inertia_cylinder(m: float, r: float, h: float) -> tuple[float, float, float]:
     ixx = m * (3 * r * r + h * h) / 12.0
     return ixx, ixx, m * r * r / 2.0
@@ -475,6 +498,9 @@ class DiffDriveRobot:
         # the torque bound as the engine needs it commanded (World.motor_force: a world that
         # runs a control period in one engine call turns it into an impulse with that period)
         self._motor_force = world.motor_force(params.motor_max_torque)
+        # the contact query is skipped where no scenery is near (in_contact_with_scenery)
+        self._reach = collision_reach(params) + CONTACT_QUERY_MARGIN
+        self._clearance_ref: tuple[object, float, float, float] | None = None
 
     # ------------------------------------------------------------- control
     def set_wheel_speeds(self, w_left: float, w_right: float) -> None:
@@ -542,8 +568,9 @@ class DiffDriveRobot:
         act on those and the wheel motors take them. The world is not stepped.
         """
         if self.firmware_limits is not None:
+            v_prev, w_prev = self.command.tolist()  # plain floats: cheaper scalar arithmetic
             v, omega = self.firmware_limits.step(
-                v, omega, self.command[0], self.command[1], self.control_dt, self.nominal.wheelbase
+                v, omega, v_prev, w_prev, self.control_dt, self.nominal.wheelbase
             )
         self.command[0], self.command[1] = v, omega
         applied = (v, omega)
@@ -619,13 +646,40 @@ class DiffDriveRobot:
         th = self.pose2d()[2]
         return np.array([math.cos(th) * lin[0] + math.sin(th) * lin[1], ang[2]])
 
-    def in_contact_with_scenery(self) -> bool:
-        """Whether the body touches anything but the floor (a collision)."""
+    def in_contact_with_scenery(self, pose: FloatArray | None = None) -> bool:
+        """Whether the body touches anything but the floor (a collision).
+
+        ``pose``: the current :meth:`pose2d` when the caller has read it. Then the engine is
+        asked only when some scenery is near: if the distance in the plane from the base
+        link's origin to every scenery footprint exceeds the robot's :func:`collision_reach`
+        plus :data:`CONTACT_QUERY_MARGIN`, no contact point can exist, whatever the robot's
+        attitude. The distance is computed when needed and bounded in between by the
+        distance moved since (it changes by at most that).
+        """
+        if pose is not None and self._clear_of_scenery(float(pose[0]), float(pose[1])):
+            return False
         floor = self.world.bodies.get("floor", -1)
         for contact in self._get_contacts(bodyA=self.body):
             if contact[2] != floor:
                 return True
         return False
+
+    def _clear_of_scenery(self, x: float, y: float) -> bool:
+        """Whether the base link's origin at ``(x, y)`` (m) is farther than :attr:`_reach`
+        from every scenery footprint (a lower bound from the last computed distance), and the
+        world holds no other body the robot could touch."""
+        world = self.world
+        if not world.bodies.keys() - world.primitives.keys() <= _NOT_SCENERY:
+            return False  # a body without a footprint: ask the engine
+        arrays = world.scenery_arrays
+        ref = self._clearance_ref
+        if ref is not None and ref[0] is arrays:
+            _, rx, ry, dist = ref
+            if dist - math.hypot(x - rx, y - ry) > self._reach:
+                return True
+        dist = arrays.clearance(x, y)
+        self._clearance_ref = (arrays, x, y, dist)
+        return dist > self._reach
 
     def wheel_angles(self) -> tuple[float, float]:
         """Wheel rotation angles (rad) since reset, positive driving forward."""

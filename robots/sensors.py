@@ -15,6 +15,7 @@ All noise is drawn from a ``numpy.random.Generator`` handed down by the env.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import replace
 from enum import Enum
 
@@ -186,33 +187,51 @@ class PlanarScanner:
         self._sin = np.sin(self.angles)
         mx, my = params.mount_xyz[0], params.mount_xyz[1]
         self._along_beam_offset = mx * self._cos + my * self._sin
-        self._cos_cos = np.stack([self._cos, self._cos])  # (2, n_beams)
-        self._sin_sin = np.stack([self._sin, self._sin])
-        self._rot_cs = np.zeros((2, 1))  # (cos θ, sin θ) of the base's heading
-        self._rot_sc = np.zeros((2, 1))  # (-sin θ, cos θ)
+        # (2, 1, n_beams): the layout of PrimitiveArrays.cast_directions
+        self._cos_cos = np.stack([self._cos, self._cos])[:, None, :]
+        self._sin_sin = np.stack([self._sin, self._sin])[:, None, :]
+        self._rot_cs = np.zeros((2, 1, 1))  # (cos θ, sin θ) of the base's heading
+        self._rot_sc = np.zeros((2, 1, 1))  # (-sin θ, cos θ)
+        self._mount_xy = (float(params.mount_xyz[0]), float(params.mount_xyz[1]))
+        self._dirs = np.empty((2, 1, self.n_beams))  # work arrays of scan_fast
+        self._dirs_sin = np.empty((2, 1, self.n_beams))
+        self._sigma = np.empty(self.n_beams)
+        self._noise = np.empty(self.n_beams)
+        self._seen = np.empty(self.n_beams, dtype=bool)
 
-    def scan_fast(self, t: float, rng: np.random.Generator) -> Scan:
-        """Analytic ray cast against the world's primitives, with depth noise."""
-        x, y, th = self.robot.pose2d().tolist()
+    def scan_fast(
+        self,
+        t: float,
+        rng: np.random.Generator,
+        pose: Sequence[float] | None = None,
+    ) -> Scan:
+        """Analytic ray cast against the world's primitives, with depth noise.
+
+        ``pose`` is the base's true planar pose ``(x, y, θ)`` (m, m, rad) when the caller
+        has just read it (:meth:`DiffDriveRobot.pose2d`); default: read here.
+        """
+        x, y, th = self.robot.pose2d().tolist() if pose is None else pose
         c, s = math.cos(th), math.sin(th)
         P = self.params
         # world-frame beam directions, both components in one pass: rows (dx, dy) of
         # (c·cos, s·cos) + (-s·sin, c·sin)
         cs, sc = self._rot_cs, self._rot_sc
-        cs[0, 0], cs[1, 0], sc[0, 0], sc[1, 0] = c, s, -s, c
-        d = self._cos_cos * cs
-        d += self._sin_sin * sc
-        mx, my = P.mount_xyz[0], P.mount_xyz[1]
+        cs[0, 0, 0], cs[1, 0, 0], sc[0, 0, 0], sc[1, 0, 0] = c, s, -s, c
+        d = np.multiply(self._cos_cos, cs, out=self._dirs)
+        d += np.multiply(self._sin_sin, sc, out=self._dirs_sin)
+        mx, my = self._mount_xy
         # beams leave the camera's optical centre; ranges are reported from the base origin
-        ranges = self.robot.world.scenery_arrays.ray_cast_xy(
-            x + c * mx - s * my, y + s * mx + c * my, d[0], d[1], P.range_max
+        ranges = self.robot.world.scenery_arrays.cast_directions(
+            x + c * mx - s * my, y + s * mx + c * my, d, P.range_max
         )
         ranges += self._along_beam_offset
-        sigma = ranges * P.depth_noise_b
+        sigma = np.multiply(ranges, P.depth_noise_b, out=self._sigma)
         sigma *= ranges
         sigma += P.depth_noise_a
-        noise = rng.standard_normal(self.n_beams)
-        noise *= np.where(np.isfinite(sigma), sigma, 0.0)
+        noise = rng.standard_normal(out=self._noise)
+        # where nothing was seen (inf) the range stays inf: its noise is left unscaled there
+        # (inf + finite noise is inf, as inf + 0)
+        np.multiply(noise, sigma, out=noise, where=np.isfinite(sigma, out=self._seen))
         ranges += noise
         np.maximum(ranges, P.range_min, out=ranges)
         return Scan(t, self.angles.copy(), ranges, P.range_min, P.range_max)

@@ -27,6 +27,7 @@ import numpy.typing as npt
 import pybullet as p
 from pybullet_utils import bullet_client
 
+from realitygap.robots.raycast import PrimitiveArrays
 from realitygap.robots.textures import SurfaceKind, surface_texture
 
 FloatArray = npt.NDArray[np.float64]
@@ -68,97 +69,6 @@ class Primitive:
         outside = np.linalg.norm(np.maximum(q, 0.0), axis=-1)
         inside = np.minimum(np.max(q, axis=-1), 0.0)
         return outside + inside
-
-
-class PrimitiveArrays:
-    """The primitives of a scene packed into arrays for vectorised ray casting.
-
-    Built once per scene; :meth:`ray_cast` then costs a few numpy operations on
-    ``(n_primitives, n_rays)`` arrays, written into work arrays kept per ray count (one
-    caster per thread).
-    """
-
-    def __init__(self, primitives: list[Primitive]):
-        boxes = [q for q in primitives if q.shape is Shape.BOX]
-        cyls = [q for q in primitives if q.shape is Shape.CYLINDER]
-        self.box_center = np.array([b.center for b in boxes], dtype=float).reshape(-1, 2)
-        self.box_cos = np.cos([b.yaw for b in boxes]).reshape(-1, 1)
-        self.box_sin = np.sin([b.yaw for b in boxes]).reshape(-1, 1)
-        self.box_half = np.array([b.half_extents for b in boxes], dtype=float).reshape(-1, 2)
-        self.cyl_center = np.array([c.center for c in cyls], dtype=float).reshape(-1, 2)
-        self.cyl_r2 = np.array([c.radius**2 for c in cyls], dtype=float).reshape(-1, 1)
-        # the two slabs of every box stacked on a leading axis (x slab, y slab), so that one
-        # ufunc call does the arithmetic of both: rows of the box-frame rotation and half sizes
-        self._slab_cos = np.stack([self.box_cos, -self.box_sin])  # (2, n_boxes, 1)
-        self._slab_sin = np.stack([self.box_sin, self.box_cos])
-        self._slab_half = np.stack([self.box_half[:, :1], self.box_half[:, 1:]])
-        # both faces of both slabs: (face -/+, slab, n_boxes, 1)
-        self._slab_faces = np.stack([-self._slab_half, self._slab_half])
-        self._buffers: dict[int, tuple[FloatArray, ...]] = {}
-
-    def ray_cast(
-        self, origin_xy: npt.ArrayLike, directions: FloatArray, range_max: float
-    ) -> FloatArray:
-        """Distance along each planar ray (n, 2 unit directions) to the first hit; ``inf`` beyond
-        ``range_max``."""
-        ox, oy = (float(v) for v in np.asarray(origin_xy, dtype=float)[:2])
-        d = np.asarray(directions, dtype=float)
-        return self.ray_cast_xy(ox, oy, d[:, 0], d[:, 1], range_max)
-
-    def ray_cast_xy(
-        self, ox: float, oy: float, dx: FloatArray, dy: FloatArray, range_max: float
-    ) -> FloatArray:
-        """:meth:`ray_cast` from ``(ox, oy)`` (m) along unit directions given as their x and
-        y components ``dx``, ``dy`` (n,) (the per-step form of the fast scan)."""
-        n = dx.shape[0]
-        best = np.full(n, np.inf)
-        bufs = self._buffers.get(n)
-        if bufs is None:
-            nb, nc = len(self.box_center), len(self.cyl_center)
-            bufs = self._buffers[n] = (
-                np.empty((2, 2, nb, n)),  # slab distances to both faces
-                np.empty((2, nb, n)),  # ray directions in the box frames, then near faces
-                np.empty((2, nb, n)),  # far faces
-                np.empty((nb, n)),
-                np.empty((nc, n)),
-                np.empty((nc, n)),
-            )
-        t_face, d_local, t_far, tmax, b, disc = bufs
-        minimum, maximum = np.minimum, np.maximum
-        with np.errstate(divide="ignore", invalid="ignore"):
-            if len(self.box_center):
-                # slab method in each box's frame; [0] is the x slab, [1] the y slab
-                r = np.subtract((ox, oy), self.box_center)
-                rx, ry = r[:, :1], r[:, 1:]
-                c, s = self._slab_cos, self._slab_sin
-                o_local = c * rx + s * ry  # (2, n_boxes, 1): origin in the box frame
-                np.multiply(c, dx, out=d_local)  # (2, n_boxes, n): directions in the box frame
-                d_local += s * dy
-                np.divide(self._slab_faces - o_local, d_local, out=t_face)
-                t_near = minimum(t_face[0], t_face[1], out=d_local)
-                maximum(t_face[0], t_face[1], out=t_far)
-                tmin = maximum(t_near[0], t_near[1], out=t_near[0])
-                maximum(tmin, 0.0, out=tmin)
-                minimum(t_far[0], t_far[1], out=tmax)
-                # a NaN bound (a ray along a face) compares False: no hit, never NaN
-                minimum.reduce(tmin, axis=0, initial=np.inf, where=tmax >= tmin, out=best)
-            if len(self.cyl_center):
-                r = np.subtract((ox, oy), self.cyl_center)
-                rx, ry = r[:, :1], r[:, 1:]
-                np.multiply(rx, dx, out=b)
-                b += ry * dy
-                cc = rx * rx + ry * ry - self.cyl_r2
-                np.multiply(b, b, out=disc)
-                disc -= cc
-                np.sqrt(disc, out=disc)  # NaN where the ray's line misses the circle
-                t = np.negative(b, out=b)
-                t -= disc
-                t[cc[:, 0] < 0] = 0.0  # the origin inside: hit at once
-                # t >= 0 is False for NaN: a miss, like a circle behind the origin
-                hit = minimum.reduce(t, axis=0, initial=np.inf, where=t >= 0.0)
-                minimum(best, hit, out=best)
-        best[best > range_max] = np.inf
-        return best
 
 
 def ray_cast_primitives(

@@ -210,9 +210,12 @@ class NavTask:
     # ------------------------------------------------------------------ scoring
     def pose_error(self, pose: FloatArray) -> tuple[float, float]:
         """True distance (m) and absolute heading error (rad) of ``pose`` to the goal pose."""
-        gx, gy, gth = self.goal
-        d_th = (float(pose[2]) - gth + math.pi) % (2.0 * math.pi) - math.pi
-        return math.hypot(float(pose[0]) - gx, float(pose[1]) - gy), abs(d_th)
+        # plain floats: cheaper scalar arithmetic, the same values
+        goal = self.goal
+        gx, gy, gth = goal.tolist() if type(goal) is np.ndarray else (float(v) for v in goal)
+        x, y, th = pose.tolist()[:3] if type(pose) is np.ndarray else (float(v) for v in pose[:3])
+        d_th = (th - gth + math.pi) % (2.0 * math.pi) - math.pi
+        return math.hypot(x - gx, y - gy), abs(d_th)
 
     def is_success(self, dist: float, ang: float, robot: _HasTwist) -> bool:
         """Within the tolerances of the goal pose and at rest (``|v| < 0.01`` m/s,
