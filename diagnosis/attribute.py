@@ -66,6 +66,7 @@ __all__ = [
     "fit_model",
     "model_keys",
     "profile_score",
+    "range_position",
 ]
 
 
@@ -168,11 +169,19 @@ def _to_x(key: str, u: FloatArray) -> FloatArray:
     return s.low + u * (s.high - s.low)
 
 
-def _to_u(key: str, x: float) -> float:
+def range_position(key: str, x: float) -> float:
+    """Where ``x`` sits in the physical range of ``"effect.param"``: 0 at the low bound, 1 at
+    the high one, in the coordinates the fit searches (logarithmic for a parameter that spans
+    decades, so that a speed limit of 0.085 m/s in 0.05 … 10 m/s is a tenth of the way up,
+    not at the low end)."""
     s = param_spec(key)
     if s.log_scale:
         return float((math.log(x) - math.log(s.low)) / (math.log(s.high) - math.log(s.low)))
     return float((x - s.low) / (s.high - s.low))
+
+
+def _to_u(key: str, x: float) -> float:
+    return range_position(key, x)
 
 
 def _dx_du(key: str, x: float) -> float:
