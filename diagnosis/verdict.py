@@ -416,9 +416,21 @@ def parameter_status(problem: Problem, fit: ModelFit, step: float = 0.25) -> dic
     changes anything (the logs bound it on one side only: a speed limit just
     above the fastest command). Parameters the fit held at nominal because the
     training data cannot identify them (:attr:`ModelFit.held`) are *not
-    identifiable*. None of these gets an error bar.
+    identifiable*. A calibrated-baseline nuisance refined with the model
+    (``problem.baseline_ranges``) that ends at an edge of its nuisance range,
+    other than its "no effect" value, is a *nuisance at range bound*: the
+    baseline is absorbing part of a gap the model leaves. None of these gets an
+    error bar.
     """
     held = {k: "not identifiable" for k in fit.held}
+    # calibrated-baseline nuisances refined with the model, pinned at an end of their range
+    for k, (a, b) in getattr(problem, "baseline_ranges", {}).items():
+        if k in fit.keys or k not in fit.values:
+            continue
+        lo, hi = min(a, b), max(a, b)
+        v, nominal, near = fit.values[k], param_spec(k).nominal, 0.005 * (hi - lo)
+        if hi > lo and any(abs(v - e) < near and abs(nominal - e) >= near for e in (lo, hi)):
+            held[k] = "nuisance at range bound"
     if not fit.keys:
         return held
     keys = list(fit.keys)
@@ -713,6 +725,8 @@ def explain(verdict: Verdict, top_models: Sequence[str] = ()) -> list[str]:
                 "one-sided": "is bounded on one side only by the logged motions",
                 "not identifiable": "cannot be identified from the training data and was "
                 "held at nominal",
+                "nuisance at range bound": "(a calibrated-baseline nuisance) ends at the edge "
+                "of its nuisance range: the baseline absorbs part of a gap the model leaves",
             }.get(why, why)
             lines.append(f"not a finding: {key} of {model} {what} (no error bar)")
     disc = notes.get("discovery")

@@ -193,3 +193,29 @@ def test_adjacent_windows_that_cancel_are_not_structure() -> None:
     alt = np.tile(np.array([3.0, -1.0]), n // 2) + rng.normal(0.0, 0.5, n)
     out = describe_residual(alt, lay, AttributionSettings(), FeatureSettings())
     assert out["structured"], out["groups"]["pose_gt"]
+
+
+def test_a_baseline_nuisance_at_the_edge_of_its_range_is_reported() -> None:
+    n = 50
+    lay = _layout(n, 1)
+
+    def surrogate(layout, batch, B):
+        return np.repeat((100.0 * (batch["wheelbase_error.E_b"] - 1.0))[:, None], layout.n, axis=1)
+
+    problem = _problem(lay, np.zeros(n), surrogate)
+    problem.baseline_ranges = {
+        "command_latency.delay": (0.0, 0.05),
+        "timestamp_offset.offset": (-0.025, 0.025),
+    }
+    values = {"wheelbase_error.E_b": 1.03}
+    pinned = _fit(("wheelbase_error",), np.zeros(n), values)
+    pinned.values.update({"command_latency.delay": 0.05, "timestamp_offset.offset": 0.001})
+    assert parameter_status(problem, pinned) == {  # type: ignore[arg-type]
+        "command_latency.delay": "nuisance at range bound"
+    }
+    # a latency of 0 s is the nominal end of its range: no response delay, not pinned
+    absent = _fit(("wheelbase_error",), np.zeros(n), values)
+    absent.values.update({"command_latency.delay": 0.0, "timestamp_offset.offset": -0.025})
+    assert parameter_status(problem, absent) == {  # type: ignore[arg-type]
+        "timestamp_offset.offset": "nuisance at range bound"
+    }
