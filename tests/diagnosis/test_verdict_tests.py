@@ -219,3 +219,28 @@ def test_a_baseline_nuisance_at_the_edge_of_its_range_is_reported() -> None:
     assert parameter_status(problem, absent) == {  # type: ignore[arg-type]
         "timestamp_offset.offset": "nuisance at range bound"
     }
+
+
+# --------------------------------------------------------------------------- plateaus
+def test_a_parameter_on_a_plateau_of_the_training_cost_takes_the_end_nearest_nominal() -> None:
+    """A dead band between the commanded speeds: the training data bound it to an interval;
+    the fit reports the smallest band they support, and a smooth parameter stays put."""
+    from realitygap.diagnosis.attribute import _toward_nominal
+
+    commands = np.array([0.02, 0.04, 0.07])  # wheel speeds the training logs hold, m/s
+    truth = 0.05  # a dead band: the first two stop, the third moves
+
+    def cost(U: np.ndarray) -> np.ndarray:
+        band = U[:, 0] * 0.08  # position in 0 … 0.08 m/s
+        wrong = (commands[None, :] < band[:, None]) != (commands[None, :] < truth)
+        smooth = (U[:, 1] - 0.3) ** 2
+        return wrong.sum(axis=1).astype(float) + smooth
+
+    u = np.array([0.066 / 0.08, 0.3])
+    out = _toward_nominal(cost, u, np.array([0.0, 0.5]), 2)
+    assert out[0] * 0.08 == pytest.approx(0.04, abs=0.0005)
+    assert out[0] * 0.08 > 0.04  # still stops the 0.04 m/s command
+    assert out[1] == 0.3  # any step raises the cost: not moved
+    # a fit already at the nominal end of its plateau is left alone
+    again = _toward_nominal(cost, out, np.array([0.0, 0.5]), 2)
+    assert again[0] == pytest.approx(out[0], abs=1e-3)
