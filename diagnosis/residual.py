@@ -228,7 +228,6 @@ def describe_residual(
         lag1 = _lag1(z, layout, sel)
         # residual concentrated in one column or one regime (heteroscedastic structure)
         worst_ratio, worst_ratio_where = 0.0, ""
-        worst_sel, worst_level = sel, level
         for c in cols:
             mc = sel & (layout.column == c)
             if mc.sum() < 6:
@@ -257,7 +256,6 @@ def describe_residual(
                 if r_rms > settings.floor and r_rms / lvl_r > worst_ratio:
                     worst_ratio = r_rms / lvl_r
                     worst_ratio_where = c if r == "all" else f"{c} while {r}"
-                    worst_sel, worst_level = m, lvl_r
         regime_means: dict[str, dict[str, float]] = {}
         worst_t, worst_where = 0.0, ""
         for r in regimes:
@@ -341,18 +339,7 @@ def describe_residual(
                 f"{'stated by the logs' if noise is not None and g in noise else 'window to window'}"
                 f"; lag-1 autocorrelation {lag1:.2f})"
             )
-        block_w = (
-            _boundary_error(z, layout, worst_sel, worst_level, settings.excess_ratio)
-            if worst_ratio > settings.excess_ratio
-            else None
-        )
-        if block_w is not None:
-            out.setdefault("notes", []).append(
-                f"{g}: the residual of {worst_ratio_where} is {worst_ratio:.1f}× the noise "
-                f"level, but adjacent windows cancel (summed over {_BLOCK} windows "
-                f"{block_w:.1f}×): errors at the window boundaries, not a missing effect"
-            )
-        elif worst_ratio > settings.excess_ratio:
+        if worst_ratio > settings.excess_ratio:
             out["reasons"].append(
                 f"{g}: the residual of {worst_ratio_where} is {worst_ratio:.1f}× the noise level"
             )

@@ -182,13 +182,14 @@ def test_adjacent_windows_that_cancel_are_not_structure() -> None:
     g = out["groups"]["pose_gt"]
     assert g["lag1_autocorrelation"] < -0.3
     assert g["excess_ratio"] > AttributionSettings().excess_ratio  # large against the level
-    assert not out["structured"], out["reasons"]
+    # the group's excess is set aside; a column or regime that concentrates it still counts
+    assert not any(r.startswith("pose_gt: residual RMS is") for r in out["reasons"])
     assert any("adjacent windows cancel" in s for s in out["notes"])
     # the same size as a slow drift is structure
     z_d = np.sqrt(np.mean(z_b**2)) * _slow_drift(n, logs, rng) + rng.normal(0.0, 0.5, n)
     out = describe_residual(z_d, lay, AttributionSettings(), FeatureSettings())
     assert out["structured"]
-    assert any("× its noise level" in r for r in out["reasons"])
+    assert any(r.startswith("pose_gt: residual RMS is") for r in out["reasons"])
     # anti-correlated but not telescoping (alternating sign that accumulates) stays structure
     alt = np.tile(np.array([3.0, -1.0]), n // 2) + rng.normal(0.0, 0.5, n)
     out = describe_residual(alt, lay, AttributionSettings(), FeatureSettings())
