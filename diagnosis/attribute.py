@@ -66,6 +66,7 @@ __all__ = [
     "fit_model",
     "model_keys",
     "profile_score",
+    "range_position",
 ]
 
 
@@ -168,11 +169,19 @@ def _to_x(key: str, u: FloatArray) -> FloatArray:
     return s.low + u * (s.high - s.low)
 
 
-def _to_u(key: str, x: float) -> float:
+def range_position(key: str, x: float) -> float:
+    """Where ``x`` sits in the physical range of ``"effect.param"``: 0 at the low bound, 1 at
+    the high one, in the coordinates the fit searches (logarithmic for a parameter that spans
+    decades, so that a speed limit of 0.085 m/s in 0.05 … 10 m/s is a tenth of the way up,
+    not at the low end)."""
     s = param_spec(key)
     if s.log_scale:
         return float((math.log(x) - math.log(s.low)) / (math.log(s.high) - math.log(s.low)))
     return float((x - s.low) / (s.high - s.low))
+
+
+def _to_u(key: str, x: float) -> float:
+    return range_position(key, x)
 
 
 def _dx_du(key: str, x: float) -> float:
@@ -644,7 +653,12 @@ def fit_model(
         if best is None or res.cost < best.cost:
             best = res
     assert best is not None
-    u_all = best.x
+    u_all = _toward_nominal(
+        lambda U: np.sum(_rho(residual_batch(U, tr) ** 2, loss, c), axis=1),
+        best.x,
+        np.concatenate([u_nom, best.x[p:]]),
+        p,
+    )
     z_tr = fun(u_all)
     J = jac(u_all)[:, :p]
     z_ho = residual_batch(u_all[None], ho)[0] if ho.n else np.zeros(0)
@@ -652,6 +666,48 @@ def fit_model(
     return _finish(
         problem, tuple(effects), keys, u_all[:p], z_tr, z_ho, J, nuisance=nuisance, held=held
     )
+
+
+def _toward_nominal(
+    cost: Callable[[FloatArray], FloatArray], u: FloatArray, u_nom: FloatArray, p: int
+) -> FloatArray:
+    """Move each of the first ``p`` parameters towards nominal while the training cost
+    stays where it is.
+
+    A parameter on a plateau of the training cost (a dead band or dead zone between the
+    commanded speeds the training logs hold, a speed limit above all of them) is
+    identified only up to an interval; of that interval the training data support the
+    smallest effect, the end nearest "no effect", and nothing more (the other end is a
+    guess the held-out data may refute). Smooth parameters do not move: any step raises
+    the cost.
+    """
+    u = u.copy()
+    c0 = float(cost(u[None])[0])
+    tol = 1e-9 * (1.0 + abs(c0))
+    for j in range(p):
+        d = u_nom[j] - u[j]
+        if abs(d) < 1e-9:
+            continue
+        steps = np.linspace(1.0, 0.0, 17)[:-1]  # nominal first, the fitted value excluded
+        U = np.repeat(u[None], steps.size, axis=0)
+        U[:, j] = u[j] + steps * d
+        ok = cost(U) <= c0 + tol
+        if not ok.any():
+            continue
+        lo = float(steps[np.flatnonzero(ok)[0]])  # furthest step that keeps the cost
+        hi = float(steps[np.flatnonzero(ok)[0] - 1]) if np.flatnonzero(ok)[0] > 0 else lo
+        for _ in range(8):  # bisect between the last good and the first bad step
+            if hi <= lo:
+                break
+            mid = 0.5 * (lo + hi)
+            v = u.copy()
+            v[j] = u[j] + mid * d
+            if float(cost(v[None])[0]) <= c0 + tol:
+                lo = mid
+            else:
+                hi = mid
+        u[j] = u[j] + lo * d
+    return u
 
 
 def _finish(

@@ -1,7 +1,8 @@
 """The verdict: which effects explain the held-out gap, or why none does.
 
 An effect (or pair) is named only if it improves on the nominal replay, closes
-enough of the held-out gap in the channels where the gap lives, is not
+enough of the held-out gap above the noise floor in the channels where the gap
+lives, is not
 stretched to the edge of its plausible range, and leaves an unstructured
 residual; otherwise the verdict is ``"unexplained"`` (or ``"none"`` when the
 nominal replay's residual already looks like noise). A combination of two
@@ -28,8 +29,9 @@ from realitygap.diagnosis.attribute import (
     Problem,
     Verdict,
     param_spec,
+    range_position,
 )
-from realitygap.diagnosis.residual import describe_residual, white_level
+from realitygap.diagnosis.residual import describe_residual, shrink_above_noise, white_level
 from realitygap.diagnosis.shrink import overall_shrink
 
 FloatArray = npt.NDArray[np.float64]
@@ -64,6 +66,10 @@ class Judgement:
         Entries of the channels where the gap lives (nominal RMS above twice the floor).
     shrink_pct_best : float
         Held-out shrink of the best model in those channels, %.
+    shrink_pct_above_noise : float
+        The same, of the gap above the noise floor
+        (:func:`~realitygap.diagnosis.residual.shrink_above_noise`), %: the share the
+        verdict's shrink test compares with ``min_shrink``.
     """
 
     verdict: Verdict
@@ -71,6 +77,7 @@ class Judgement:
     nominal_heldout: FloatArray
     gap_mask: npt.NDArray[np.bool_]
     shrink_pct_best: float
+    shrink_pct_above_noise: float = math.nan
 
 
 def gap_channels(z_nom: FloatArray, problem: Problem) -> npt.NDArray[np.bool_]:
@@ -129,6 +136,8 @@ def judge(
     margin = (runner.rank_score - best.rank_score) if runner is not None else math.inf
     gap_mask = gap_channels(z_nom, problem)
     shrink_all = overall_shrink(z_nom[gap_mask], best.z_heldout[gap_mask])
+    # the noise in the held-out gap is closed by no effect: the test counts the gap above it
+    shrink_gap = shrink_above_noise(z_nom, best.z_heldout, problem.holdout, gap_mask, noise)
     best_desc = describe_residual(best.z_heldout, problem.holdout, st, scales, noise)
     if structure is not None and best.effects:
         best_desc = structure(problem, best.values, best_desc)
@@ -151,12 +160,13 @@ def judge(
             "n/a",
             best_desc,
         )
-    elif shrink_all < 100.0 * st.min_shrink:
+    elif shrink_gap < 100.0 * st.min_shrink:
         verdict = Verdict(
             "unexplained",
             (),
-            f"the best candidate ({best.name}) closes only {shrink_all:.0f} % of the held-out "
-            f"gap (needs {100 * st.min_shrink:.0f} %)",
+            f"the best candidate ({best.name}) closes only {shrink_gap:.0f} % of the held-out "
+            f"gap above the noise floor ({shrink_all:.0f} % of the raw gap; needs "
+            f"{100 * st.min_shrink:.0f} %)",
             margin,
             "n/a",
             best_desc,
@@ -197,14 +207,17 @@ def judge(
             _confidence(margin, st),
             best_desc,
         )
-    return Judgement(verdict, best, z_nom, gap_mask, shrink_all)
+    return Judgement(verdict, best, z_nom, gap_mask, shrink_all, shrink_gap)
 
 
 def _pinned(problem: Problem, fit: ModelFit) -> list[str]:
     """Parameters of ``fit`` that sit at the far edge of their plausible range and matter.
 
     An effect fitted at the bound of its plausible range (the end away from "no
-    effect") is being stretched to absorb a gap it does not cause. Parameters
+    effect") is being stretched to absorb a gap it does not cause. "At the
+    bound" is within 0.5 % of the range in the coordinates the fit searches
+    (:func:`~realitygap.diagnosis.attribute.range_position`: logarithmic for a
+    parameter spanning decades, such as a speed limit). Parameters
     the logs cannot see (moving them back to nominal changes the training
     residual by less than the floor) are ignored.
     """
@@ -213,9 +226,12 @@ def _pinned(problem: Problem, fit: ModelFit) -> list[str]:
     base: FloatArray | None = None
     for key, value in fit.values.items():
         spec = param_spec(key)
-        span = spec.high - spec.low
-        at_low = spec.low != spec.nominal and value - spec.low < 0.005 * span
-        at_high = spec.high != spec.nominal and spec.high - value < 0.005 * span
+        if not (math.isfinite(spec.low) and math.isfinite(spec.high)):
+            continue
+        # in the coordinates the fit searches (log units for a range of decades)
+        u = range_position(key, value)
+        at_low = spec.low != spec.nominal and u < 0.005
+        at_high = spec.high != spec.nominal and u > 0.995
         if not (at_low or at_high):
             continue
         if base is None:
@@ -388,8 +404,9 @@ def combination_check(
 def parameter_status(problem: Problem, fit: ModelFit, step: float = 0.25) -> dict[str, str]:
     """Which fitted parameters are not findings: ``"at bound"`` or ``"untestable"``.
 
-    A parameter sits *at a bound* when it lies within 0.5 % of its span from
-    either end of its physical range, unless that end is its nominal value
+    A parameter sits *at a bound* when it lies within 0.5 % of its range from
+    either end of its physical range (in the coordinates the fit searches:
+    logarithmic for a parameter spanning decades), unless that end is its nominal value
     (a lag of 0 s, a dead zone of 0 m/s: the part of the effect is absent, not
     stretched to a limit). It is *untestable* when the training data
     are flat around it: moving it towards either bound by ``step`` of the
@@ -399,9 +416,21 @@ def parameter_status(problem: Problem, fit: ModelFit, step: float = 0.25) -> dic
     changes anything (the logs bound it on one side only: a speed limit just
     above the fastest command). Parameters the fit held at nominal because the
     training data cannot identify them (:attr:`ModelFit.held`) are *not
-    identifiable*. None of these gets an error bar.
+    identifiable*. A calibrated-baseline nuisance refined with the model
+    (``problem.baseline_ranges``) that ends at an edge of its nuisance range,
+    other than its "no effect" value, is a *nuisance at range bound*: the
+    baseline is absorbing part of a gap the model leaves. None of these gets an
+    error bar.
     """
     held = {k: "not identifiable" for k in fit.held}
+    # calibrated-baseline nuisances refined with the model, pinned at an end of their range
+    for k, (a, b) in getattr(problem, "baseline_ranges", {}).items():
+        if k in fit.keys or k not in fit.values:
+            continue
+        lo, hi = min(a, b), max(a, b)
+        v, nominal, near = fit.values[k], param_spec(k).nominal, 0.005 * (hi - lo)
+        if hi > lo and any(abs(v - e) < near and abs(nominal - e) >= near for e in (lo, hi)):
+            held[k] = "nuisance at range bound"
     if not fit.keys:
         return held
     keys = list(fit.keys)
@@ -420,11 +449,15 @@ def parameter_status(problem: Problem, fit: ModelFit, step: float = 0.25) -> dic
         span = spec.high - spec.low
         v = fit.values[k]
         change = [float(np.max(np.abs(z[1 + 2 * j + e] - z[0]))) for e in (0, 1)]
-        near = 0.005 * span
+        near = 0.005
+        finite = math.isfinite(span)
+        # positions in the range, in the coordinates the fit searches (log units for decades)
+        u = range_position(k, v) if finite else 0.5
+        u_nom = range_position(k, spec.nominal) if finite else 0.5
         # "no effect" may sit at a bound (a lag of 0 s): there the fit is absent, not pinned
-        nominal_is_bound = min(spec.nominal - spec.low, spec.high - spec.nominal) < near
-        at_nominal_end = nominal_is_bound and abs(v - spec.nominal) < near
-        if math.isfinite(span) and min(v - spec.low, spec.high - v) < near and not at_nominal_end:
+        nominal_is_bound = min(u_nom, 1.0 - u_nom) < near
+        at_nominal_end = nominal_is_bound and abs(u - u_nom) < near
+        if finite and min(u, 1.0 - u) < near and not at_nominal_end:
             out[k] = "at bound"
         elif at_nominal_end:  # only the move away from nominal can show anything
             if max(change) < problem.settings.floor:
@@ -635,6 +668,7 @@ def conclude(
         "regime_consistency": consistency,
         "parameter_status": status,
         "discovery": disc.to_json() if disc is not None else None,
+        "heldout_shrink_pct_above_noise": judgement.shrink_pct_above_noise,
     }
     if combo is not None:
         notes["combination_check"] = combo
@@ -691,6 +725,8 @@ def explain(verdict: Verdict, top_models: Sequence[str] = ()) -> list[str]:
                 "one-sided": "is bounded on one side only by the logged motions",
                 "not identifiable": "cannot be identified from the training data and was "
                 "held at nominal",
+                "nuisance at range bound": "(a calibrated-baseline nuisance) ends at the edge "
+                "of its nuisance range: the baseline absorbs part of a gap the model leaves",
             }.get(why, why)
             lines.append(f"not a finding: {key} of {model} {what} (no error bar)")
     disc = notes.get("discovery")

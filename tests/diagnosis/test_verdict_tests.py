@@ -1,0 +1,247 @@
+"""The verdict's own tests on planted residuals: the shrink of the gap above the noise
+floor, the plausible-range edge of a parameter spanning decades, and a residual whose
+adjacent windows cancel (an error at the window boundaries)."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from realitygap.diagnosis.attribute import (
+    AttributionSettings,
+    Layout,
+    ModelFit,
+    range_position,
+)
+from realitygap.diagnosis.features import FeatureGroup, FeatureSchema, FeatureSettings
+from realitygap.diagnosis.residual import describe_residual, shrink_above_noise
+from realitygap.diagnosis.verdict import _pinned, judge, parameter_status
+
+SCHEMA = FeatureSchema(
+    groups=(FeatureGroup("pose_gt", ("dtheta",), ("rad",), (0.002,)),), regimes=("all_of_it",)
+)
+
+
+def _layout(n: int, logs: int = 4) -> Layout:
+    per = n // logs
+    return Layout(
+        blocks=[(i, "pose_gt", np.arange(per)) for i in range(logs)],
+        group=np.full(n, "pose_gt"),
+        column=np.full(n, "dtheta"),
+        regime=np.full(n, "all_of_it"),
+        log=np.repeat(np.arange(logs), per).astype(np.int64),
+        window=np.tile(np.arange(per), logs).astype(np.int64),
+        motion=np.zeros((n, 6)),
+        schema=SCHEMA,
+    )
+
+
+def _fit(effects: tuple[str, ...], z: np.ndarray, values: dict[str, float]) -> ModelFit:
+    return ModelFit(
+        effects,
+        tuple(values),
+        dict(values),
+        {k: 0.01 for k in values},
+        np.eye(len(values)),
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        float(np.sqrt(np.mean(z**2))),
+        z,
+    )
+
+
+def _slow_drift(n: int, logs: int, rng: np.random.Generator) -> np.ndarray:
+    """A residual that drifts slowly from window to window (an effect), unit RMS."""
+    per = n // logs
+    t = np.linspace(0.0, 1.0, per)
+    d = np.concatenate([np.sin(2 * np.pi * t + rng.uniform(0, 6)) for _ in range(logs)])
+    return d / np.sqrt(np.mean(d**2))
+
+
+# --------------------------------------------------------------------------- shrink above noise
+def test_shrink_above_noise_recovers_the_planted_share_of_the_gap() -> None:
+    rng = np.random.default_rng(0)
+    n, sigma = 4000, 1.0
+    lay = _layout(n)
+    drift = _slow_drift(n, 4, rng)
+    before = 1.5 * drift + rng.normal(0.0, sigma, n)
+    after = 0.75 * drift + rng.normal(0.0, sigma, n)  # half the effect closed
+    mask = np.ones(n, dtype=bool)
+    stated = shrink_above_noise(before, after, lay, mask, {"pose_gt": sigma})
+    assert stated == pytest.approx(50.0, abs=3.0)
+    # the window-to-window level finds the same noise without being told
+    measured = shrink_above_noise(before, after, lay, mask)
+    assert measured == pytest.approx(50.0, abs=4.0)
+    raw = 100.0 * (1.0 - np.sqrt(np.mean(after**2) / np.mean(before**2)))
+    assert raw < 40.0  # the raw share counts the noise no effect can close
+
+
+def test_shrink_above_noise_without_a_gap_is_the_raw_shrink() -> None:
+    rng = np.random.default_rng(1)
+    n = 400
+    lay = _layout(n)
+    before, after = rng.normal(0.0, 1.0, n), rng.normal(0.0, 0.9, n)
+    mask = np.ones(n, dtype=bool)
+    got = shrink_above_noise(before, after, lay, mask, {"pose_gt": 2.0})
+    raw = 100.0 * (1.0 - np.sqrt(np.mean(after**2) / np.mean(before**2)))
+    assert got == pytest.approx(raw)
+
+
+def test_shrink_above_noise_refuses_misaligned_residuals() -> None:
+    lay = _layout(40)
+    with pytest.raises(ValueError, match="shrink_above_noise: residuals and mask must have"):
+        shrink_above_noise(np.zeros(40), np.zeros(39), lay, np.ones(40, dtype=bool))
+
+
+def _problem(lay: Layout, z_nom: np.ndarray, surrogate=None) -> SimpleNamespace:
+    return SimpleNamespace(
+        settings=AttributionSettings(),
+        features=FeatureSettings(),
+        holdout=lay,
+        train=lay,
+        adapter=object(),
+        nominal_residuals=lambda layout: z_nom,
+        surrogate_residuals=surrogate or (lambda layout, batch, B: np.zeros((B, layout.n))),
+    )
+
+
+def test_a_small_true_effect_is_judged_on_the_gap_above_noise() -> None:
+    """A true effect comparable with the noise closes less than half of the raw gap but
+    all of the gap above noise: the verdict names it."""
+    rng = np.random.default_rng(2)
+    n, sigma = 2000, 1.0
+    lay = _layout(n)
+    noise = rng.normal(0.0, sigma, n)
+    z_nom = 1.2 * _slow_drift(n, 4, rng) + noise
+    z_best = noise.copy()
+    best = _fit(("wheel_diameter_ratio",), z_best, {"wheel_diameter_ratio.E_d": 1.01})
+    nominal = _fit((), z_nom, {})
+    nominal.rank_score = 500.0
+    problem = _problem(lay, z_nom)
+    j = judge(problem, [best, nominal], nominal, {"pose_gt": sigma})  # type: ignore[arg-type]
+    assert j.shrink_pct_best < 50.0
+    assert j.shrink_pct_above_noise > 90.0
+    assert j.verdict.kind == "effects", j.verdict.reason
+    # a model that closes only a fifth of the gap above noise is still refused, saying so
+    z_part = 0.8 * (z_nom - noise) + noise
+    part = _fit(("wheel_diameter_ratio",), z_part, {"wheel_diameter_ratio.E_d": 1.01})
+    j = judge(problem, [part, nominal], nominal, {"pose_gt": sigma})  # type: ignore[arg-type]
+    assert j.verdict.kind == "unexplained"
+    assert "of the held-out gap above the noise floor" in j.verdict.reason
+
+
+# --------------------------------------------------------------------------- plausible range edge
+def test_range_position_is_logarithmic_for_a_parameter_spanning_decades() -> None:
+    # velocity_saturation.v_limit: 0.05 … 10 m/s, searched in log units
+    assert range_position("velocity_saturation.v_limit", 0.05) == pytest.approx(0.0)
+    assert range_position("velocity_saturation.v_limit", 10.0) == pytest.approx(1.0)
+    u = range_position("velocity_saturation.v_limit", 0.085)
+    assert u == pytest.approx(math.log(0.085 / 0.05) / math.log(200.0))
+    assert 0.09 < u < 0.11
+    assert range_position("wheelbase_error.E_b", 1.05) == pytest.approx(0.75)
+
+
+def test_a_speed_limit_well_inside_its_range_is_not_pinned() -> None:
+    n = 50
+    lay = _layout(n, 1)
+
+    def surrogate(layout, batch, B):
+        v = batch["velocity_saturation.v_limit"]
+        return np.repeat((100.0 * np.maximum(0.3 - v, 0.0))[:, None], layout.n, axis=1)
+
+    problem = _problem(lay, np.zeros(n), surrogate)
+    slow = _fit(("velocity_saturation",), np.zeros(n), {"velocity_saturation.v_limit": 0.085})
+    assert _pinned(problem, slow) == []  # type: ignore[arg-type]
+    assert parameter_status(problem, slow) == {}  # type: ignore[arg-type]
+    at_low = _fit(("velocity_saturation",), np.zeros(n), {"velocity_saturation.v_limit": 0.0501})
+    assert _pinned(problem, at_low) == ["velocity_saturation.v_limit"]  # type: ignore[arg-type]
+    assert parameter_status(problem, at_low) == {  # type: ignore[arg-type]
+        "velocity_saturation.v_limit": "at bound"
+    }
+
+
+# --------------------------------------------------------------------------- boundary errors
+def test_adjacent_windows_that_cancel_are_not_structure() -> None:
+    """A few mis-stamped samples move displacement from one window into the next
+    (e_k = b_{k+1} − b_k): large against the window-to-window level, but no effect."""
+    rng = np.random.default_rng(4)
+    n, logs = 800, 4
+    lay = _layout(n, logs)
+    per = n // logs
+    z = []
+    for _ in range(logs):
+        b = np.where(rng.random(per + 1) < 0.15, rng.normal(0.0, 4.0, per + 1), 0.0)
+        z.append(np.diff(b) + rng.normal(0.0, 0.5, per))
+    z_b = np.concatenate(z)
+    out = describe_residual(z_b, lay, AttributionSettings(), FeatureSettings())
+    g = out["groups"]["pose_gt"]
+    assert g["lag1_autocorrelation"] < -0.3
+    assert g["excess_ratio"] > AttributionSettings().excess_ratio  # large against the level
+    # the group's excess is set aside; a column or regime that concentrates it still counts
+    assert not any(r.startswith("pose_gt: residual RMS is") for r in out["reasons"])
+    assert any("adjacent windows cancel" in s for s in out["notes"])
+    # the same size as a slow drift is structure
+    z_d = np.sqrt(np.mean(z_b**2)) * _slow_drift(n, logs, rng) + rng.normal(0.0, 0.5, n)
+    out = describe_residual(z_d, lay, AttributionSettings(), FeatureSettings())
+    assert out["structured"]
+    assert any(r.startswith("pose_gt: residual RMS is") for r in out["reasons"])
+    # anti-correlated but not telescoping (alternating sign that accumulates) stays structure
+    alt = np.tile(np.array([3.0, -1.0]), n // 2) + rng.normal(0.0, 0.5, n)
+    out = describe_residual(alt, lay, AttributionSettings(), FeatureSettings())
+    assert out["structured"], out["groups"]["pose_gt"]
+
+
+def test_a_baseline_nuisance_at_the_edge_of_its_range_is_reported() -> None:
+    n = 50
+    lay = _layout(n, 1)
+
+    def surrogate(layout, batch, B):
+        return np.repeat((100.0 * (batch["wheelbase_error.E_b"] - 1.0))[:, None], layout.n, axis=1)
+
+    problem = _problem(lay, np.zeros(n), surrogate)
+    problem.baseline_ranges = {
+        "command_latency.delay": (0.0, 0.05),
+        "timestamp_offset.offset": (-0.025, 0.025),
+    }
+    values = {"wheelbase_error.E_b": 1.03}
+    pinned = _fit(("wheelbase_error",), np.zeros(n), values)
+    pinned.values.update({"command_latency.delay": 0.05, "timestamp_offset.offset": 0.001})
+    assert parameter_status(problem, pinned) == {  # type: ignore[arg-type]
+        "command_latency.delay": "nuisance at range bound"
+    }
+    # a latency of 0 s is the nominal end of its range: no response delay, not pinned
+    absent = _fit(("wheelbase_error",), np.zeros(n), values)
+    absent.values.update({"command_latency.delay": 0.0, "timestamp_offset.offset": -0.025})
+    assert parameter_status(problem, absent) == {  # type: ignore[arg-type]
+        "timestamp_offset.offset": "nuisance at range bound"
+    }
+
+
+# --------------------------------------------------------------------------- plateaus
+def test_a_parameter_on_a_plateau_of_the_training_cost_takes_the_end_nearest_nominal() -> None:
+    """A dead band between the commanded speeds: the training data bound it to an interval;
+    the fit reports the smallest band they support, and a smooth parameter stays put."""
+    from realitygap.diagnosis.attribute import _toward_nominal
+
+    commands = np.array([0.02, 0.04, 0.07])  # wheel speeds the training logs hold, m/s
+    truth = 0.05  # a dead band: the first two stop, the third moves
+
+    def cost(U: np.ndarray) -> np.ndarray:
+        band = U[:, 0] * 0.08  # position in 0 … 0.08 m/s
+        wrong = (commands[None, :] < band[:, None]) != (commands[None, :] < truth)
+        smooth = (U[:, 1] - 0.3) ** 2
+        return wrong.sum(axis=1).astype(float) + smooth
+
+    u = np.array([0.066 / 0.08, 0.3])
+    out = _toward_nominal(cost, u, np.array([0.0, 0.5]), 2)
+    assert out[0] * 0.08 == pytest.approx(0.04, abs=0.0005)
+    assert out[0] * 0.08 > 0.04  # still stops the 0.04 m/s command
+    assert out[1] == 0.3  # any step raises the cost: not moved
+    # a fit already at the nominal end of its plateau is left alone
+    again = _toward_nominal(cost, out, np.array([0.0, 0.5]), 2)
+    assert again[0] == pytest.approx(out[0], abs=1e-3)
