@@ -182,7 +182,8 @@ class CalibConfig:
     camera_offset : tuple of 3 floats
         True camera mounting minus nominal ``(dx, dy, dyaw)`` in m, m, rad.
     iterations : int
-        Fewest calibration iterations (UMBmark + EKF each).
+        Fewest calibration iterations (UMBmark + EKF each); further ones drive
+        the figure-eights only.
     max_iterations : int
         Most calibration iterations: the calibration stops here when the
         target precision is still not predicted.
@@ -228,7 +229,7 @@ class CalibConfig:
     wheelbase_factor: float = 1.05
     camera_offset: tuple[float, float, float] = (0.011, 0.008, math.radians(-1.0))
     iterations: int = 3
-    max_iterations: int = 6
+    max_iterations: int = 5
     target_error_m: float = 0.005
     n_sigma: float = 2.0
     square_side: float = 1.0
@@ -243,6 +244,18 @@ class CalibConfig:
     umbmark_only_iterations: int = 3
     room_half_size: float = 2.5
     pool_squares: bool = True
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.iterations <= self.max_iterations:
+            raise ValueError(
+                f"CalibConfig needs 1 <= iterations <= max_iterations, got iterations="
+                f"{self.iterations}, max_iterations={self.max_iterations}"
+            )
+        if not (self.target_error_m > 0 and self.n_sigma > 0):
+            raise ValueError(
+                f"CalibConfig target_error_m (m) and n_sigma must be > 0, got "
+                f"{self.target_error_m} and {self.n_sigma}"
+            )
 
     @classmethod
     def quick(cls) -> CalibConfig:
@@ -352,6 +365,61 @@ def _sensor_motions_of(
         else:
             motions.append(None)
     return inc, motions, weights, int(np.count_nonzero(~ok))
+
+
+def _loop_closures(
+    log: DriveLog,
+    params: Any,
+    radius: float = 0.05,
+    max_yaw: float = math.radians(10.0),
+    min_travel: float = 1.0,
+    min_inliers: int = 40,
+) -> tuple[FloatArray, FloatArray]:
+    """Loop closures of a drive: summed tick increments (L, 2) and sensor motions (L, 3).
+
+    Whenever the robot's own odometry says it is back within ``radius`` m and
+    ``max_yaw`` of the last anchor frame (at first the first frame) after at
+    least ``min_travel`` m, the closest frame of that visit is registered
+    directly against the anchor; an accepted registration (``min_inliers``)
+    becomes the next anchor.
+    """
+    from realitygap.estimators.vo import RGBDVisualOdometry
+
+    fi = log.frame_index
+    est = log.estimate[fi]
+    travel = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(est[:, :2], axis=0).T))])
+    incs: list[FloatArray] = []
+    motions: list[FloatArray] = []
+    anchor, j = 0, 1
+    while j < len(fi):
+        near = (
+            np.hypot(*(est[j, :2] - est[anchor, :2])) < radius
+            and abs(float(wrap_angle(est[j, 2] - est[anchor, 2]))) < max_yaw
+            and travel[j] - travel[anchor] > min_travel
+        )
+        if not near:
+            j += 1
+            continue
+        visit = j
+        while visit + 1 < len(fi) and np.hypot(*(est[visit + 1, :2] - est[anchor, :2])) < radius:
+            visit += 1
+        best = j + int(np.argmin(np.hypot(*(est[j : visit + 1, :2] - est[anchor, :2]).T)))
+        vo = RGBDVisualOdometry(params)
+        vo.reset(np.eye(4))
+        vo.update(log.frames[anchor])
+        res = vo.update(log.frames[best])
+        if res.ok and res.n_inliers >= min_inliers:
+            incs.append(log.ticks[fi[best]] - log.ticks[fi[anchor]])
+            motions.append(_sensor_motion_from_camera(res.T_prev_curr))
+            anchor = best
+        j = visit + 1
+    return np.array(incs, dtype=float).reshape(-1, 2), np.array(motions).reshape(-1, 3)
+
+
+def _drive_samples(log: DriveLog, params: Any) -> tuple[tuple[Any, ...], int]:
+    """Frame-to-frame samples and loop closures of a drive (as pooled), and the lost frames."""
+    inc, motions, weights, n_lost = _sensor_motions_of(log, params)
+    return (inc, motions, weights, _loop_closures(log, params)), n_lost
 
 
 def _umbmark_iteration(
@@ -547,27 +615,40 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
     drive_seconds = 0.0
 
     def collect_round(it: int) -> tuple[list[Any], FloatArray, FloatArray]:
-        """One iteration: UMBmark squares, then figure-eights fitted on the UMBmark seed."""
+        """One iteration: UMBmark squares, then figure-eights fitted on the UMBmark seed.
+
+        Iterations beyond ``cfg.iterations`` drive the figure-eights only, on the current
+        estimate: per second of driving they inform the scales about 2.5 times more than
+        the squares do."""
         nonlocal kin, mounting, prior_cov, umb_only_kin, n_pooled, drive_seconds
         drives: list[Any] = []
-        square_logs: list[DriveLog] = []
-        res, rows = _umbmark_iteration(
-            env, recorder, cfg, kin, mounting, seed, vo_params, square_logs
-        )
-        if cfg.pool_squares:  # turns on the spot: the wheelbase's most direct measurement
-            drives.extend(_sensor_motions_of(sq, vo_params)[:3] for sq in square_logs)
-            drive_seconds += sum(float(sq.t[-1] - sq.t[0]) for sq in square_logs)
-        for row in rows:
-            square_rows.append({"iteration": it, **row})
-        kin_umb = kin.with_umbmark(res.E_d, res.E_b)
-        if umb_only_kin is None:
-            umb_only_kin = kin_umb
-        f_umb = _factors(kin_umb, nominal)
-        ctx.progress(
-            f"calib000 iteration {it}: UMBmark E_d={f_umb[1] / f_umb[0]:.4f} "
-            f"E_b={f_umb[2]:.4f} (E_max,syst {1e3 * res.E_max_syst:.1f} mm, "
-            f"{rows[0]['absolute_source']})"
-        )
+        umb: dict[str, Any] = {}
+        if it <= cfg.iterations:
+            square_logs: list[DriveLog] = []
+            res, rows = _umbmark_iteration(
+                env, recorder, cfg, kin, mounting, seed, vo_params, square_logs
+            )
+            if cfg.pool_squares:  # turns on the spot: the wheelbase's most direct measurement
+                drives.extend(_drive_samples(sq, vo_params)[0] for sq in square_logs)
+                drive_seconds += sum(float(sq.t[-1] - sq.t[0]) for sq in square_logs)
+            for row in rows:
+                square_rows.append({"iteration": it, **row})
+            kin_umb = kin.with_umbmark(res.E_d, res.E_b)
+            if umb_only_kin is None:
+                umb_only_kin = kin_umb
+            f_umb = _factors(kin_umb, nominal)
+            umb = {
+                "umbmark_E_d": f_umb[1] / f_umb[0],
+                "umbmark_E_b": f_umb[2],
+                "umbmark_E_max_syst_mm": 1e3 * res.E_max_syst,
+            }
+            ctx.progress(
+                f"calib000 iteration {it}: UMBmark E_d={f_umb[1] / f_umb[0]:.4f} "
+                f"E_b={f_umb[2]:.4f} (E_max,syst {1e3 * res.E_max_syst:.1f} mm, "
+                f"{rows[0]['absolute_source']})"
+            )
+        else:
+            kin_umb, f_umb = kin, _factors(kin, nominal)
         recorder.kinematics = kin_umb
         start = np.array([0.0, 0.0, 0.0])
         laps = cfg.first_excitation if it == 1 else cfg.excitation
@@ -580,11 +661,19 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
             20_000,
         )
         drive_seconds += float(log.t[-1] - log.t[0])
-        inc, motions, weights, n_lost = _sensor_motions_of(log, vo_params)
-        drives.append((inc, motions, weights))
+        samples, n_lost = _drive_samples(log, vo_params)
+        inc, motions, weights, loops = samples
+        drives.append(samples)
         n_pooled += len(drives)
         fit = fit_odometry_and_mounting(
-            inc, motions, nominal, f_umb, mounting, prior_cov=prior_cov, sensor_weights=weights
+            inc,
+            motions,
+            nominal,
+            f_umb,
+            mounting,
+            prior_cov=prior_cov,
+            sensor_weights=weights,
+            loop_closures=loops if len(loops[0]) else None,
         )
         # the next iteration starts from this posterior, widened so that its UMBmark seed
         # (and any error of this linearisation) can still move the estimate
@@ -594,9 +683,7 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
         E_d, E_b = fit.scales[1] / fit.scales[0], fit.scales[2]
         row = {
             "iteration": it,
-            "umbmark_E_d": f_umb[1] / f_umb[0],
-            "umbmark_E_b": f_umb[2],
-            "umbmark_E_max_syst_mm": 1e3 * res.E_max_syst,
+            **umb,
             "ekf_k_left": fit.scales[0],
             "ekf_k_right": fit.scales[1],
             "ekf_k_wheelbase": fit.scales[2],
@@ -607,6 +694,7 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
             "observable": fit.observable,
             "excitation_collision": log.collided,
             "drives_pooled": n_pooled,
+            "loop_closures": int(sum(len(d[3][0]) for d in drives)),
             "drive_time_s": drive_seconds,
         }
         iteration_rows.append(row)
@@ -650,7 +738,7 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
         E_d, E_b = fit.scales[1] / fit.scales[0], fit.scales[2]
         predicted_mm = {
             name: 1e3
-            * predicted_position_error(path, nominal, fit.scales, fit.cov[3:, 3:], cfg.n_sigma)
+            * predicted_position_error(path, nominal, fit.scales, seq.scales_cov, cfg.n_sigma)
             for name, path in references.items()
         }
         pooled_row = {
@@ -658,7 +746,10 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
             "vo_updates": fit.n_updates,
             "vo_outliers": fit.n_outliers,
             "observable": fit.observable,
+            "loop_closures": fit.n_loops,
+            "loop_heading_std_mrad": 1e3 * fit.loop_heading_std,
             "drives": seq.n_drives,
+            "dispersion_per_iteration": list(seq.dispersion),
             "iterations": seq.rounds,
             "target_reached": seq.reached,
             "predicted_err_mm_per_iteration": [1e3 * e for e in seq.predicted_error_m],

@@ -10,6 +10,7 @@ from realitygap.estimators.mounting_calibration import sensor_motion
 from realitygap.estimators.odometry_mounting import (
     calibrate_until_precise,
     dead_reckoning_covariance,
+    dispersion_ratio,
     fit_odometry_and_mounting,
     fit_pooled_drives,
     predicted_position_error,
@@ -159,3 +160,70 @@ def test_sequential_calibration_stops_once_the_prediction_meets_the_target() -> 
         calibrate_until_precise(one_drive, NOMINAL, [path], 1e-3, min_rounds=3, max_rounds=2)
     with pytest.raises(ValueError, match="at least one"):
         calibrate_until_precise(one_drive, NOMINAL, [], 1e-3)
+
+
+def test_dispersion_widens_the_prediction_when_drives_share_an_error() -> None:
+    """Each drive's sensor motions carry a scale error of their own (1 %): samples are no
+    longer independent, the pooled covariance is too small, and the dispersion of the rounds'
+    estimates restores the predicted error to the observed scatter."""
+    rng = np.random.default_rng(5)
+    path = _semicircle()
+
+    def biased_drive(r: int) -> tuple[list, np.ndarray, np.ndarray]:
+        inc, z, w = _drive(rng)
+        scale = 1.0 + 0.01 * rng.standard_normal()
+        return [(inc, [scale * zk for zk in z], w)], np.ones(3), np.zeros(3)
+
+    sq_err, naive, widened, ratios = [], [], [], []
+    for _ in range(16):
+        seq = calibrate_until_precise(biased_drive, NOMINAL, [path], 1e-9, max_rounds=4)
+        k = seq.fit.scales
+        naive.append(predicted_position_error(path, NOMINAL, k, seq.fit.cov[3:, 3:], 1.0))
+        widened.append(predicted_position_error(path, NOMINAL, k, seq.scales_cov, 1.0))
+        ratios.append(seq.dispersion[-1])
+        inc = ticks_for_path(NOMINAL.scaled(*k), *path)
+        true = NOMINAL.scaled(*SCALES).integrate(np.zeros(3), inc[:, 0], inc[:, 1], wrap=False)
+        sq_err.append(np.sum((true[:, :2] - _believed_positions(inc, k)) ** 2, axis=1))
+    empirical = float(np.sqrt(np.mean(sq_err, axis=0)).max())
+    assert np.isnan(seq.dispersion[0]) and np.median(ratios) > 1.3
+    assert empirical / np.mean(naive) > 1.5  # the independent-sample covariance is too small
+    assert 0.7 < empirical / np.mean(widened) < 1.4
+    with pytest.raises(ValueError, match="one covariance per estimate"):
+        dispersion_ratio([np.ones(3)], [], np.ones(3))
+
+
+def _believed_positions(inc: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """Positions (N, 2) the estimate ``k`` believes for the tick increments."""
+    return NOMINAL.scaled(*k).integrate(np.zeros(3), inc[:, 0], inc[:, 1], wrap=False)[:, :2]
+
+
+def test_loop_closures_remove_a_rotation_scale_error_of_the_frames() -> None:
+    """Frame-to-frame motions that under-read rotation by 0.5 % bias the wheelbase scale;
+    loop closures (net heading of whole circles, registered directly) recover it."""
+    rng = np.random.default_rng(3)
+    drives = []
+    true = NOMINAL.scaled(*SCALES)
+    for sign in (1.0, -1.0, 1.0, -1.0):
+        inc, z, w = _drive(rng, n=80)
+        z = [zk * np.array([1.0, 1.0, 0.995]) for zk in z]
+        # a circle of radius 0.5 m driven both ways: net heading ±2π, measured to 0.3 mrad
+        circle = ticks_for_path(
+            true, np.full(200, np.pi / 200), np.full(200, sign * 2 * np.pi / 200)
+        )
+        z_loop = np.array([0.0, 0.0, 3e-4 * rng.standard_normal()])
+        drives.append((inc, z, w, (circle.sum(0, keepdims=True), z_loop[None])))
+    plain = fit_pooled_drives([d[:3] for d in drives], NOMINAL, np.ones(3), np.zeros(3))
+    looped = fit_pooled_drives(drives, NOMINAL, np.ones(3), np.zeros(3))
+    assert looped.n_loops == 4 and plain.n_loops == 0 and np.isnan(plain.loop_heading_std)
+    assert abs(plain.scales[2] - SCALES[2]) > 3e-3  # the frames' rotation error shows in k_b
+    assert abs(looped.scales[2] - SCALES[2]) < 1e-3
+    assert looped.std[5] < plain.std[5]
+    with pytest.raises(ValueError, match="loop_closures must be finite"):
+        fit_odometry_and_mounting(
+            drives[0][0],
+            drives[0][1],
+            NOMINAL,
+            np.ones(3),
+            np.zeros(3),
+            loop_closures=(np.zeros((2, 2)), np.zeros((1, 3))),
+        )

@@ -101,6 +101,22 @@ def test_experiments_are_registered() -> None:
     assert EXPERIMENTS["umbmark-real"].data_subdir == "optiodom_diffdrive"
     quick = CalibConfig.quick()
     assert replace(quick, runs_per_direction=2).iterations == 3
+    assert quick.max_iterations == quick.iterations  # the quick run adds no iterations
+    with pytest.raises(ValueError, match="iterations <= max_iterations"):
+        CalibConfig(iterations=4, max_iterations=3)
+    with pytest.raises(ValueError, match="target_error_m"):
+        CalibConfig(target_error_m=0.0)
+
+
+def test_reference_drives_have_the_test_drives_shapes() -> None:
+    from realitygap.estimators.diffdrive_model import integrate_arcs
+
+    cfg = CalibConfig()
+    refs = cfg.reference_paths()
+    ends = {name: integrate_arcs(np.zeros(3), *path, wrap=False)[-1] for name, path in refs.items()}
+    np.testing.assert_allclose(ends["straight"], [cfg.straight_length, 0.0, 0.0], atol=1e-9)
+    r = cfg.curve_radius
+    np.testing.assert_allclose(ends["curve"], [0.0, 2.0 * r, math.pi], atol=1e-9)
 
 
 def _synthetic_drive(
