@@ -275,8 +275,8 @@ def fit_odometry_and_mounting(
             else:
                 ekf.step(inc[k])
         R_loop = np.diag([loop_position_std**2, loop_position_std**2, loop_var])
-        for k in np.flatnonzero(loop_use):
-            ekf.step(L_inc[k], L_z[k], R_loop)
+        for i in np.flatnonzero(loop_use):
+            ekf.step(L_inc[i], L_z[i], R_loop)
         scales, mounting = ekf.odometry_scales, ekf.mounting
     assert ekf is not None
     # judged against the filter's default prior, so that a carried-over (already small)
@@ -323,7 +323,7 @@ def fit_pooled_drives(
     inc = np.concatenate([np.asarray(d[0], dtype=float).reshape(-1, 2) for d in drives])
     motions = [m for d in drives for m in d[1]]
     weights = np.concatenate([np.asarray(d[2], dtype=float) for d in drives])
-    loops = [d[3] for d in drives if len(d) > 3 and len(d[3][0])]  # type: ignore[misc]
+    loops = [d[3] for d in drives if len(d) > 3 and len(d[3][0])]
     return fit_odometry_and_mounting(
         inc,
         motions,

@@ -15,9 +15,9 @@ from realitygap.experiments.calib000 import (
     CalibConfig,
     _make_calib_env,
     _pooled_fit,
-    _sensor_motions_of,
     end_pose_from_frames,
 )
+from realitygap.experiments.calib_camera import _loop_closures, _sensor_motions_of
 from realitygap.experiments.drive_harness import (
     DriveLog,
     RecordingOdometry,
@@ -83,6 +83,25 @@ def test_online_calibration_recovers_wheelbase_and_diameter_ratio(
     # the dead-reckoned drive with the fitted scales stays within a few centimetres
     odo = log.dead_reckon(nominal.scaled(*fit.scales))
     assert np.max(np.hypot(*(odo[:, :2] - log.gt[:, :2]).T)) < 0.03
+
+
+def test_loop_closures_of_a_figure_eight_match_the_true_heading(
+    excitation_log: DriveLog,
+) -> None:
+    """The drive comes back to its start after each circle: every loop closure's net
+    wheel heading is ±2π (true body) and its registered heading the true residual turn."""
+    from realitygap.estimators.vo_params import VOParams
+    from realitygap.robots.diffdrive import DiffDriveParams
+
+    log = excitation_log
+    incs, motions = _loop_closures(log, VOParams(seed=3))
+    assert 1 <= len(incs) == len(motions) <= 2
+    true_kin = nominal_kinematics(DiffDriveParams()).scaled(1.05, 0.98, 1.05)
+    _, dtheta = true_kin.increment_from_ticks(incs[:, 0], incs[:, 1])
+    turns = np.round(np.asarray(dtheta) / (2 * math.pi))
+    assert np.all(np.abs(turns) == 1)
+    np.testing.assert_allclose(np.asarray(dtheta) - 2 * math.pi * turns, motions[:, 2], atol=3e-3)
+    np.testing.assert_allclose(motions[:, :2], 0.0, atol=0.05)
 
 
 def test_camera_loop_closure_of_a_frame_on_itself(excitation_log: DriveLog) -> None:
