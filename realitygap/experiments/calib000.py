@@ -3,8 +3,8 @@ r"""The ``calib000`` experiment: odometry and camera-mounting calibration in sim
 Seed 000's calibration in simulation. The "real" robot is another body: its
 left/right wheel diameters are 1.05 / 0.98 × nominal, its wheelbase
 1.05 × nominal and its RGB-D camera is mounted off by (1.1 cm, 0.8 cm, −1°);
-the firmware still converts ``(v, ω)`` with the nominal geometry. Each of
-three calibration iterations runs
+the firmware still converts ``(v, ω)`` with the nominal geometry. Each
+calibration iteration runs
 
 1. **UMBmark** (Borenstein): squares driven clockwise and counter-clockwise
    by a closed-loop controller
@@ -26,6 +26,14 @@ three calibration iterations runs
    translating
    (:func:`~realitygap.estimators.odometry_mounting.fit_odometry_and_mounting`).
 
+The calibration is sequential: after each iteration one joint fit over every
+drive so far gives the scale factors and their covariance, which is
+propagated to the predicted 2-σ position error of a straight and a
+semicircular reference drive (the test drives' shapes; first-order
+propagation, :func:`~realitygap.estimators.odometry_mounting.calibrate_until_precise`).
+Iterations go on until that prediction is within the target precision
+(``CalibConfig.target_error_m``, 5 mm) or ``max_iterations`` ran.
+
 Then a straight and a semicircular trajectory are driven on the calibrated
 odometry, and its estimate (and the estimate fused with VO) is compared
 with ground truth at 20 positions each; the same drives dead-reckoned with
@@ -45,6 +53,12 @@ import numpy.typing as npt
 
 from realitygap.core.geometry import wrap_angle
 from realitygap.experiments import RunContext, experiment
+from realitygap.experiments.calib_camera import (
+    EndPose,
+    _drive_samples,
+    _T_base_camera_planar,
+    end_pose_from_frames,
+)
 from realitygap.experiments.drive_harness import (
     DriveLog,
     RecordingOdometry,
@@ -62,105 +76,6 @@ FloatArray = npt.NDArray[np.float64]
 __all__ = ["CalibConfig", "EndPose", "calib000", "end_pose_from_frames"]
 
 
-def _T_base_camera_planar(mounting: npt.ArrayLike, height: float = 0.30) -> FloatArray:
-    """4×4 optical-frame pose in the base for a level camera at planar mounting ``[x, y, θ]``."""
-    from realitygap.core.geometry import rot_z
-    from realitygap.estimators.vo import T_BASE_CAMERA_FORWARD
-
-    l = np.asarray(mounting, dtype=float)
-    T = np.eye(4)
-    T[:3, :3] = rot_z(float(l[2])) @ T_BASE_CAMERA_FORWARD[:3, :3]
-    T[:3, 3] = (l[0], l[1], height)
-    return T
-
-
-def _sensor_motion_from_camera(T_prev_curr: FloatArray) -> FloatArray:
-    """Planar ego-motion ``[x, y, θ]`` of the sensor frame (optical axis on the floor plane)."""
-    from realitygap.estimators.vo import planar_motion_from_camera
-
-    return np.array(planar_motion_from_camera(T_prev_curr))
-
-
-def _vo_chain(
-    frames: Sequence[Any], params: Any
-) -> tuple[FloatArray, npt.NDArray[np.bool_], list[Any]]:
-    """Camera poses (M, 4, 4) relative to the first frame, per-frame success and the results."""
-    from realitygap.estimators.vo import RGBDVisualOdometry
-
-    vo = RGBDVisualOdometry(params)
-    vo.reset(np.eye(4))
-    results = [vo.update(f) for f in frames]
-    poses = np.array([r.T_world_camera for r in results])
-    ok = np.array([r.ok for r in results], dtype=bool)
-    return poses, ok, results
-
-
-@dataclass(frozen=True)
-class EndPose:
-    """End pose of a run relative to its start, measured by the camera.
-
-    Attributes
-    ----------
-    base_motion : ndarray, shape (3,)
-        ``⊖q_start ⊕ q_end`` of the base (m, m, rad).
-    source : str
-        ``"loop closure"`` (last frame registered against the first) or
-        ``"chained VO"``.
-    n_inliers : int
-        Inliers of the loop-closure registration (0 if it failed).
-    """
-
-    base_motion: FloatArray
-    source: str
-    n_inliers: int
-
-
-def end_pose_from_frames(
-    frames: Sequence[Any], mounting: npt.ArrayLike, params: Any = None, min_inliers: int = 40
-) -> EndPose:
-    """Absolute end pose of a run from its camera frames (the "map" reference of UMBmark).
-
-    The last frame is registered directly against the first one; when the
-    robot came back close to its start pose the two views overlap and this
-    loop closure is accurate to millimetres. Otherwise the frame-to-frame
-    visual-odometry chain is used. The sensor motion is carried to the base
-    with the planar mounting ``l``: ``⊖q_0 ⊕ q_N = l ⊕ z ⊕ ⊖l``.
-
-    Parameters
-    ----------
-    frames : sequence of RGBDFrame
-        Frames of the run, the first at the start pose.
-    mounting : array_like, shape (3,)
-        Current estimate of the camera mounting ``[l_x, l_y, l_θ]`` (m, m, rad).
-    params : VOParams, optional
-    min_inliers : int
-        Fewest inliers for the loop closure to be trusted.
-
-    Returns
-    -------
-    EndPose
-    """
-    from realitygap.core.geometry import se2_compose, se2_inverse
-    from realitygap.estimators.vo import RGBDVisualOdometry
-    from realitygap.estimators.vo_params import VOParams
-
-    params = params if params is not None else VOParams()
-    if len(frames) < 2:
-        raise ValueError(f"need at least two frames (start and end), got {len(frames)}")
-    l = np.asarray(mounting, dtype=float)
-    vo = RGBDVisualOdometry(params)
-    vo.reset(np.eye(4))
-    vo.update(frames[0])
-    res = vo.update(frames[-1])
-    if res.ok and res.n_inliers >= min_inliers:
-        T, source, n_in = res.T_prev_curr, "loop closure", int(res.n_inliers)
-    else:
-        poses, _, _ = _vo_chain(frames, params)
-        T, source, n_in = poses[-1], "chained VO", 0
-    z = _sensor_motion_from_camera(T)
-    return EndPose(se2_compose(se2_compose(l, z), se2_inverse(l)), source, n_in)
-
-
 @dataclass(frozen=True)
 class CalibConfig:
     """Settings of ``calib000``.
@@ -174,7 +89,17 @@ class CalibConfig:
     camera_offset : tuple of 3 floats
         True camera mounting minus nominal ``(dx, dy, dyaw)`` in m, m, rad.
     iterations : int
-        Calibration iterations (UMBmark + EKF each).
+        Fewest calibration iterations (UMBmark + EKF each); further ones drive
+        the figure-eights only.
+    max_iterations : int
+        Most calibration iterations: the calibration stops here when the
+        target precision is still not predicted.
+    target_error_m : float
+        Required precision: the predicted ``n_sigma`` position error of the
+        calibrated odometry on reference drives of the test drives' shapes
+        (straight ``straight_length``, semicircle of ``curve_radius``), m.
+    n_sigma : float
+        Multiple of the predicted RMS position error held against the target.
     square_side : float
         UMBmark square side, m.
     runs_per_direction : int
@@ -211,6 +136,9 @@ class CalibConfig:
     wheelbase_factor: float = 1.05
     camera_offset: tuple[float, float, float] = (0.011, 0.008, math.radians(-1.0))
     iterations: int = 3
+    max_iterations: int = 5
+    target_error_m: float = 0.005
+    n_sigma: float = 2.0
     square_side: float = 1.0
     runs_per_direction: int = 2
     excitation: tuple[tuple[float, int], ...] = ((0.5, 2), (0.8, 2))
@@ -224,6 +152,18 @@ class CalibConfig:
     room_half_size: float = 2.5
     pool_squares: bool = True
 
+    def __post_init__(self) -> None:
+        if not 1 <= self.iterations <= self.max_iterations:
+            raise ValueError(
+                f"CalibConfig needs 1 <= iterations <= max_iterations, got iterations="
+                f"{self.iterations}, max_iterations={self.max_iterations}"
+            )
+        if not (self.target_error_m > 0 and self.n_sigma > 0):
+            raise ValueError(
+                f"CalibConfig target_error_m (m) and n_sigma must be > 0, got "
+                f"{self.target_error_m} and {self.n_sigma}"
+            )
+
     @classmethod
     def quick(cls) -> CalibConfig:
         """A shorter run (one square per direction, one figure-eight per iteration)."""
@@ -232,7 +172,20 @@ class CalibConfig:
             square_side=0.8,
             excitation=((0.5, 1), (0.8, 1)),
             umbmark_only_iterations=1,
+            max_iterations=3,
         )
+
+    def reference_paths(self, spacing: float = 0.01) -> dict[str, tuple[FloatArray, FloatArray]]:
+        """Arc increments ``(Δs, Δθ)`` (m, rad) of the straight and semicircular reference drives."""
+        out = {}
+        for name, length, curvature in (
+            ("straight", self.straight_length, 0.0),
+            ("curve", math.pi * self.curve_radius, 1.0 / self.curve_radius),
+        ):
+            n = max(2, int(math.ceil(length / spacing)))
+            ds = np.full(n, length / n)
+            out[name] = (ds, curvature * ds)
+        return out
 
     def reality(self) -> Any:
         """The "real" robot: effects built into the body and the camera link."""
@@ -290,35 +243,6 @@ def _make_calib_env(cfg: CalibConfig, recorder: RecordingOdometry, frame_hz: flo
         terminate_on_success=False,
         max_episode_steps=100_000,
     )
-
-
-_REFERENCE_INLIERS = 50
-"""Inlier count that gives a visual-odometry motion the weight 1 in the calibration."""
-
-
-def _sensor_motions_of(
-    log: DriveLog, params: Any
-) -> tuple[FloatArray, list[FloatArray | None], FloatArray, int]:
-    """Tick increments, VO sensor motions and their weights between consecutive frames.
-
-    The weight of a frame pair is ``min(n_inliers) / 50`` over its two
-    registrations (clipped to ``[0.1, 2]``): information grows with the number
-    of independent point pairs.
-    """
-    poses, ok, results = _vo_chain(log.frames, params)
-    fi = log.frame_index
-    inc = log.ticks[fi[1:]] - log.ticks[fi[:-1]]
-    n_in = np.array([r.n_inliers if r.status == "ok" else np.inf for r in results], dtype=float)
-    motions: list[FloatArray | None] = []
-    weights = np.ones(len(fi) - 1)
-    for k in range(1, len(fi)):
-        if ok[k] and ok[k - 1]:
-            motions.append(_sensor_motion_from_camera(np.linalg.inv(poses[k - 1]) @ poses[k]))
-            n = min(n_in[k - 1], n_in[k])
-            weights[k - 1] = float(np.clip(n / _REFERENCE_INLIERS, 0.1, 2.0))
-        else:
-            motions.append(None)
-    return inc, motions, weights, int(np.count_nonzero(~ok))
 
 
 def _umbmark_iteration(
@@ -431,33 +355,11 @@ def _pooled_fit(
     scales0: FloatArray,
     mounting0: FloatArray,
 ) -> Any:
-    """One joint odometry/mounting fit over the samples of several drives.
+    """One joint odometry/mounting fit over several drives (see
+    :func:`~realitygap.estimators.odometry_mounting.fit_pooled_drives`)."""
+    from realitygap.estimators.odometry_mounting import fit_pooled_drives
 
-    Parameters
-    ----------
-    drives : sequence of (tick increments (K, 2), K sensor motions or None, K weights)
-        Samples of each drive, as :func:`_sensor_motions_of` returns them.
-    nominal : DiffDriveKinematics
-        Nominal kinematics the scales refer to.
-    scales0, mounting0 : ndarray, shape (3,)
-        Linearisation point (e.g. the last iteration's estimate).
-
-    Returns
-    -------
-    OdometryMountingFit
-        Under the filter's wide default prior, so that the result rests on the
-        data of all drives rather than on any one iteration's posterior.
-    """
-    from realitygap.estimators.odometry_mounting import fit_odometry_and_mounting
-
-    if not drives:
-        raise ValueError("drives must hold at least one drive's samples, got none")
-    inc = np.concatenate([d[0] for d in drives])
-    motions = [m for d in drives for m in d[1]]
-    weights = np.concatenate([d[2] for d in drives])
-    return fit_odometry_and_mounting(
-        inc, motions, nominal, scales0, mounting0, sensor_weights=weights
-    )
+    return fit_pooled_drives(drives, nominal, scales0, mounting0)
 
 
 def _estimate_row(
@@ -502,7 +404,11 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
     estimates. Tables: per iteration, per UMBmark run, per test drive.
     """
     from realitygap.controllers.drives import PathFollower
-    from realitygap.estimators.odometry_mounting import fit_odometry_and_mounting
+    from realitygap.estimators.odometry_mounting import (
+        calibrate_until_precise,
+        fit_odometry_and_mounting,
+        predicted_position_error,
+    )
     from realitygap.estimators.vo_params import VOParams
     from realitygap.robots.diffdrive import DiffDriveParams
 
@@ -528,90 +434,156 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
     square_rows: list[dict[str, Any]] = []
     umb_only_kin = None
     prior_cov = None
-    pooled: list[tuple[FloatArray, list[FloatArray | None], FloatArray]] = []
-    try:
-        for it in range(1, cfg.iterations + 1):
+    n_pooled = 0
+    drive_seconds = 0.0
+
+    def collect_round(it: int) -> tuple[list[Any], FloatArray, FloatArray]:
+        """One iteration: UMBmark squares, then figure-eights fitted on the UMBmark seed.
+
+        Iterations beyond ``cfg.iterations`` drive the figure-eights only, on the current
+        estimate: per second of driving they inform the scales about 2.5 times more than
+        the squares do."""
+        nonlocal kin, mounting, prior_cov, umb_only_kin, n_pooled, drive_seconds
+        drives: list[Any] = []
+        umb: dict[str, Any] = {}
+        if it <= cfg.iterations:
             square_logs: list[DriveLog] = []
             res, rows = _umbmark_iteration(
                 env, recorder, cfg, kin, mounting, seed, vo_params, square_logs
             )
             if cfg.pool_squares:  # turns on the spot: the wheelbase's most direct measurement
-                pooled.extend(_sensor_motions_of(sq, vo_params)[:3] for sq in square_logs)
+                drives.extend(_drive_samples(sq, vo_params)[0] for sq in square_logs)
+                drive_seconds += sum(float(sq.t[-1] - sq.t[0]) for sq in square_logs)
             for row in rows:
                 square_rows.append({"iteration": it, **row})
             kin_umb = kin.with_umbmark(res.E_d, res.E_b)
             if umb_only_kin is None:
                 umb_only_kin = kin_umb
             f_umb = _factors(kin_umb, nominal)
+            umb = {
+                "umbmark_E_d": f_umb[1] / f_umb[0],
+                "umbmark_E_b": f_umb[2],
+                "umbmark_E_max_syst_mm": 1e3 * res.E_max_syst,
+            }
             ctx.progress(
                 f"calib000 iteration {it}: UMBmark E_d={f_umb[1] / f_umb[0]:.4f} "
                 f"E_b={f_umb[2]:.4f} (E_max,syst {1e3 * res.E_max_syst:.1f} mm, "
                 f"{rows[0]['absolute_source']})"
             )
-            recorder.kinematics = kin_umb
-            start = np.array([0.0, 0.0, 0.0])
-            laps = cfg.first_excitation if it == 1 else cfg.excitation
-            log = drive(
-                env,
-                recorder,
-                PathFollower(timed_reference(figure_eight(start, laps), cfg.excitation_speed)),
-                start,
-                seed,
-                20_000,
-            )
-            inc, motions, weights, n_lost = _sensor_motions_of(log, vo_params)
-            pooled.append((inc, motions, weights))
-            fit = fit_odometry_and_mounting(
-                inc, motions, nominal, f_umb, mounting, prior_cov=prior_cov, sensor_weights=weights
-            )
-            # the next iteration starts from this posterior, widened so that its UMBmark seed
-            # (and any error of this linearisation) can still move the estimate
-            prior_cov = np.diag(np.diag(fit.cov) + np.square(_PRIOR_FLOOR))
-            kin = nominal.scaled(*fit.scales)
-            mounting = fit.mounting
-            E_d, E_b = fit.scales[1] / fit.scales[0], fit.scales[2]
-            row = {
-                "iteration": it,
-                "umbmark_E_d": f_umb[1] / f_umb[0],
-                "umbmark_E_b": f_umb[2],
-                "umbmark_E_max_syst_mm": 1e3 * res.E_max_syst,
-                "ekf_k_left": fit.scales[0],
-                "ekf_k_right": fit.scales[1],
-                "ekf_k_wheelbase": fit.scales[2],
-                **_estimate_row(E_d, E_b, mounting, fit.std, true_E_d, true_E_b, true_mount),
-                "vo_frames_lost": n_lost,
-                "vo_updates": fit.n_updates,
-                "vo_outliers": fit.n_outliers,
-                "observable": fit.observable,
-                "excitation_collision": log.collided,
-            }
-            iteration_rows.append(row)
-            ctx.progress(
-                f"calib000 iteration {it}: EKF E_d={E_d:.5f} (true {true_E_d:.5f}), "
-                f"E_b={E_b:.5f} (true {true_E_b:.5f}), mount err {row['mount_err_mm']:.2f} mm / "
-                f"{row['mount_err_deg']:.3f}°, k=({fit.scales[0]:.4f}, {fit.scales[1]:.4f}), "
-                f"{time.perf_counter() - t_start:.0f} s"
-            )
-
-        # The drives of all iterations are independent measurements of the same body (raw
-        # tick increments and camera ego-motions; the steering only changes the path): one
-        # joint fit over all of them, relinearised at the last iteration's
-        # estimate under the wide default prior, replaces the last iteration's estimate,
-        # whose scatter is that of its own drive and of its UMBmark seed.
-        fit = _pooled_fit(pooled, nominal, fit.scales, mounting)
+        else:
+            kin_umb, f_umb = kin, _factors(kin, nominal)
+        recorder.kinematics = kin_umb
+        start = np.array([0.0, 0.0, 0.0])
+        laps = cfg.first_excitation if it == 1 else cfg.excitation
+        log = drive(
+            env,
+            recorder,
+            PathFollower(timed_reference(figure_eight(start, laps), cfg.excitation_speed)),
+            start,
+            seed,
+            20_000,
+        )
+        drive_seconds += float(log.t[-1] - log.t[0])
+        samples, n_lost = _drive_samples(log, vo_params)
+        inc, motions, weights, loops = samples
+        drives.append(samples)
+        n_pooled += len(drives)
+        fit = fit_odometry_and_mounting(
+            inc,
+            motions,
+            nominal,
+            f_umb,
+            mounting,
+            prior_cov=prior_cov,
+            sensor_weights=weights,
+            loop_closures=loops if len(loops[0]) else None,
+        )
+        # the next iteration starts from this posterior, widened so that its UMBmark seed
+        # (and any error of this linearisation) can still move the estimate
+        prior_cov = np.diag(np.diag(fit.cov) + np.square(_PRIOR_FLOOR))
         kin = nominal.scaled(*fit.scales)
         mounting = fit.mounting
         E_d, E_b = fit.scales[1] / fit.scales[0], fit.scales[2]
+        row = {
+            "iteration": it,
+            **umb,
+            "ekf_k_left": fit.scales[0],
+            "ekf_k_right": fit.scales[1],
+            "ekf_k_wheelbase": fit.scales[2],
+            **_estimate_row(E_d, E_b, mounting, fit.std, true_E_d, true_E_b, true_mount),
+            "vo_frames_lost": n_lost,
+            "vo_updates": fit.n_updates,
+            "vo_outliers": fit.n_outliers,
+            "observable": fit.observable,
+            "excitation_collision": log.collided,
+            "drives_pooled": n_pooled,
+            "loop_closures": int(sum(len(d[3][0]) for d in drives)),
+            "drive_time_s": drive_seconds,
+        }
+        iteration_rows.append(row)
+        ctx.progress(
+            f"calib000 iteration {it}: EKF E_d={E_d:.5f} (true {true_E_d:.5f}), "
+            f"E_b={E_b:.5f} (true {true_E_b:.5f}), mount err {row['mount_err_mm']:.2f} mm / "
+            f"{row['mount_err_deg']:.3f}°, k=({fit.scales[0]:.4f}, {fit.scales[1]:.4f}), "
+            f"{time.perf_counter() - t_start:.0f} s"
+        )
+        return drives, fit.scales, fit.mounting
+
+    references = cfg.reference_paths()
+    try:
+        # The drives of all iterations are independent measurements of the same body (raw
+        # tick increments and camera ego-motions; the steering only changes the path): one
+        # joint fit over all of them, relinearised at the last iteration's estimate under
+        # the wide default prior, is the estimate after each iteration. Its scale
+        # covariance, propagated to the reference drives, decides whether to go on.
+        def report_round(it: int, pooled_fit: Any, predicted: float) -> None:
+            ctx.progress(
+                f"calib000 after iteration {it}: joint fit E_b={pooled_fit.scales[2]:.5f} ± "
+                f"{pooled_fit.std[5]:.5f}, predicted {cfg.n_sigma:g}-σ error "
+                f"{1e3 * predicted:.1f} mm (target {1e3 * cfg.target_error_m:g} mm)"
+            )
+
+        seq = calibrate_until_precise(
+            collect_round,
+            nominal,
+            list(references.values()),
+            cfg.target_error_m,
+            min_rounds=cfg.iterations,
+            max_rounds=cfg.max_iterations,
+            n_sigma=cfg.n_sigma,
+            on_round=report_round,
+        )
+        for row, predicted in zip(iteration_rows, seq.predicted_error_m):
+            row["predicted_err_mm_pooled"] = 1e3 * predicted
+        fit = seq.fit
+        kin = nominal.scaled(*fit.scales)
+        mounting = fit.mounting
+        E_d, E_b = fit.scales[1] / fit.scales[0], fit.scales[2]
+        predicted_mm = {
+            name: 1e3
+            * predicted_position_error(path, nominal, fit.scales, seq.scales_cov, cfg.n_sigma)
+            for name, path in references.items()
+        }
         pooled_row = {
             **_estimate_row(E_d, E_b, mounting, fit.std, true_E_d, true_E_b, true_mount),
             "vo_updates": fit.n_updates,
             "vo_outliers": fit.n_outliers,
             "observable": fit.observable,
+            "loop_closures": fit.n_loops,
+            "loop_heading_std_mrad": 1e3 * fit.loop_heading_std,
+            "drives": seq.n_drives,
+            "dispersion_per_iteration": list(seq.dispersion),
+            "iterations": seq.rounds,
+            "target_reached": seq.reached,
+            "predicted_err_mm_per_iteration": [1e3 * e for e in seq.predicted_error_m],
         }
         ctx.progress(
-            f"calib000 joint fit over {len(pooled)} drives: E_d={E_d:.5f} (true "
-            f"{true_E_d:.5f}), E_b={E_b:.5f} ± {fit.std[5]:.5f} (true {true_E_b:.5f}), "
-            f"mount err {pooled_row['mount_err_mm']:.2f} mm"
+            f"calib000 joint fit over {seq.n_drives} drives of {seq.rounds} iterations: "
+            f"E_d={E_d:.5f} (true {true_E_d:.5f}), E_b={E_b:.5f} ± {fit.std[5]:.5f} (true "
+            f"{true_E_b:.5f}), mount err {pooled_row['mount_err_mm']:.2f} mm; predicted "
+            f"{cfg.n_sigma:g}-σ error straight {predicted_mm['straight']:.1f} mm, curve "
+            f"{predicted_mm['curve']:.1f} mm (target {1e3 * cfg.target_error_m:g} mm "
+            + ("reached)" if seq.reached else f"not reached in {cfg.max_iterations} iterations)")
         )
 
         # contrast: UMBmark alone, iterated on its own result (camera mounting left nominal)
@@ -667,6 +639,10 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
         "mount_err_deg": pooled_row["mount_err_deg"],
         "max_err_mm_straight": figures_err["calibrated_straight"],
         "max_err_mm_curve": figures_err["calibrated_curve"],
+        "predicted_err_mm_straight": predicted_mm["straight"],
+        "predicted_err_mm_curve": predicted_mm["curve"],
+        "calibration_iterations": float(seq.rounds),
+        "calibration_drive_time_s": last["drive_time_s"],
         "max_err_mm_straight_fused": figures_err["fused_straight"],
         "max_err_mm_curve_fused": figures_err["fused_curve"],
         "max_err_mm_straight_umbmark_only": figures_err["umbmark_only_straight"],
@@ -688,6 +664,10 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
                 math.degrees(cfg.camera_offset[2]),
             ],
             "iterations": cfg.iterations,
+            "max_iterations": cfg.max_iterations,
+            "target_error_mm": 1e3 * cfg.target_error_m,
+            "n_sigma": cfg.n_sigma,
+            "target_reached": seq.reached,
             "square_side_m": cfg.square_side,
             "runs_per_direction": cfg.runs_per_direction,
             "excitation_figure_eights": [list(e) for e in cfg.excitation],
@@ -722,5 +702,10 @@ def calib000(ctx: RunContext) -> dict[str, Any]:
             "(config umbmark_only_iterations), which cannot see the mean wheel size; the test "
             "table's *_true_geometry (odometry with the true body, sim-only) is the floor that "
             "wheel slip and contact dynamics leave",
+            "predicted_err_mm_* is the calibration's own n_sigma (config) position error on "
+            "reference drives of the test drives' shapes, from the joint fit's scale covariance "
+            "propagated through dead reckoning (first order); the iterations stop when both are "
+            "within target_error_mm or at max_iterations (config target_reached); the test "
+            "drives themselves take no part in it",
         ],
     }

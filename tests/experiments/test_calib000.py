@@ -15,9 +15,9 @@ from realitygap.experiments.calib000 import (
     CalibConfig,
     _make_calib_env,
     _pooled_fit,
-    _sensor_motions_of,
     end_pose_from_frames,
 )
+from realitygap.experiments.calib_camera import _loop_closures, _sensor_motions_of
 from realitygap.experiments.drive_harness import (
     DriveLog,
     RecordingOdometry,
@@ -85,6 +85,25 @@ def test_online_calibration_recovers_wheelbase_and_diameter_ratio(
     assert np.max(np.hypot(*(odo[:, :2] - log.gt[:, :2]).T)) < 0.03
 
 
+def test_loop_closures_of_a_figure_eight_match_the_true_heading(
+    excitation_log: DriveLog,
+) -> None:
+    """The drive comes back to its start after each circle: every loop closure's net
+    wheel heading is ±2π (true body) and its registered heading the true residual turn."""
+    from realitygap.estimators.vo_params import VOParams
+    from realitygap.robots.diffdrive import DiffDriveParams
+
+    log = excitation_log
+    incs, motions = _loop_closures(log, VOParams(seed=3))
+    assert 1 <= len(incs) == len(motions) <= 2
+    true_kin = nominal_kinematics(DiffDriveParams()).scaled(1.05, 0.98, 1.05)
+    _, dtheta = true_kin.increment_from_ticks(incs[:, 0], incs[:, 1])
+    turns = np.round(np.asarray(dtheta) / (2 * math.pi))
+    assert np.all(np.abs(turns) == 1)
+    np.testing.assert_allclose(np.asarray(dtheta) - 2 * math.pi * turns, motions[:, 2], atol=3e-3)
+    np.testing.assert_allclose(motions[:, :2], 0.0, atol=0.05)
+
+
 def test_camera_loop_closure_of_a_frame_on_itself(excitation_log: DriveLog) -> None:
     f0 = excitation_log.frames[0]
     end = end_pose_from_frames([f0, f0], np.array([0.011, 0.008, -0.02]))
@@ -101,6 +120,22 @@ def test_experiments_are_registered() -> None:
     assert EXPERIMENTS["umbmark-real"].data_subdir == "optiodom_diffdrive"
     quick = CalibConfig.quick()
     assert replace(quick, runs_per_direction=2).iterations == 3
+    assert quick.max_iterations == quick.iterations  # the quick run adds no iterations
+    with pytest.raises(ValueError, match="iterations <= max_iterations"):
+        CalibConfig(iterations=4, max_iterations=3)
+    with pytest.raises(ValueError, match="target_error_m"):
+        CalibConfig(target_error_m=0.0)
+
+
+def test_reference_drives_have_the_test_drives_shapes() -> None:
+    from realitygap.estimators.diffdrive_model import integrate_arcs
+
+    cfg = CalibConfig()
+    refs = cfg.reference_paths()
+    ends = {name: integrate_arcs(np.zeros(3), *path, wrap=False)[-1] for name, path in refs.items()}
+    np.testing.assert_allclose(ends["straight"], [cfg.straight_length, 0.0, 0.0], atol=1e-9)
+    r = cfg.curve_radius
+    np.testing.assert_allclose(ends["curve"], [0.0, 2.0 * r, math.pi], atol=1e-9)
 
 
 def _synthetic_drive(
