@@ -169,7 +169,8 @@ class Coverage:
     rows : list of dict
         Per variable: ``variable``, ``label``, ``unit``, ``train_min``,
         ``train_max``, ``heldout_min``, ``heldout_max``, ``n_outside``
-        (held-out windows beyond the training span).
+        (held-out windows beyond the training span), ``n_above`` and ``n_below``
+        (beyond its upper and its lower end).
     n_windows, n_outside : int
         Held-out windows, and those outside the envelope.
     gap_share_outside : float
@@ -253,9 +254,9 @@ class Coverage:
         wanted = []
         for r in self.exceeded():
             ends = []
-            if r["heldout_max"] > r["train_max"]:
+            if r["n_above"]:
                 ends.append(f"up to {_value(r['heldout_max'], r['unit'])}")
-            if r["heldout_min"] < r["train_min"]:
+            if r["n_below"]:
                 ends.append(f"down to {_value(r['heldout_min'], r['unit'])}")
             wanted.append(
                 f"{r['label']} {' and '.join(ends)} (training: "
@@ -443,7 +444,8 @@ def training_coverage(
         return out
     lo, hi = m_train.min(axis=0), m_train.max(axis=0)
     tol = np.maximum(s.margin * (hi - lo), s.atol)
-    beyond = (m_ho < lo - tol) | (m_ho > hi + tol)  # (W, 6)
+    above, below = m_ho > hi + tol, m_ho < lo - tol  # (W, k)
+    beyond = above | below
     outside_w = beyond.any(axis=1)
     for j, (name, label, unit) in enumerate(var):
         out.rows.append(
@@ -456,6 +458,8 @@ def training_coverage(
                 "heldout_min": float(m_ho[:, j].min()),
                 "heldout_max": float(m_ho[:, j].max()),
                 "n_outside": int(beyond[:, j].sum()),
+                "n_above": int(above[:, j].sum()),
+                "n_below": int(below[:, j].sum()),
             }
         )
     out.n_windows = int(m_ho.shape[0])

@@ -75,6 +75,7 @@ def test_gap_share_and_shrink_are_split_at_the_envelope() -> None:
     assert cov.shrink_inside_pct == pytest.approx(overall_shrink(z_ref[~fast], z_best[~fast]))
     assert cov.shrink_outside_pct == pytest.approx(0.0)
     assert "speed up to 0.4 m/s (training: " in cov.suggestion()
+    assert speed["n_above"] == 4 and speed["n_below"] == 0 and "down to" not in cov.suggestion()
     # only the channels where the gap lives count
     mask = np.tile([True, True, False], 16)
     masked = _cover(train, ho, z_ref, z_best, mask)
