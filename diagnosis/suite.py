@@ -29,10 +29,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from realitygap.core.parallel import Backend, SerialBackend
 from realitygap.diagnosis.adapters import HiddenTable, get_adapter, known_robots
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
+from realitygap.diagnosis.log import Log
 from realitygap.diagnosis.replay import MeasurementNoise
 from realitygap.diagnosis.verdict import verdict_alternatives
 from realitygap.robots.effects import EFFECTS, Reality, make_effect
@@ -43,7 +45,10 @@ __all__ = [
     "draw_cases",
     "run_case",
     "summarise",
+    "withheld_exercised",
 ]
+
+FloatArray = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -160,12 +165,63 @@ def draw_cases(n: int, seed: int, settings: SuiteSettings | None = None) -> list
     return cases
 
 
+def _measurement_tolerance(settings: SuiteSettings) -> dict[str, FloatArray]:
+    """Per channel and column, the measurement noise of the suite's recorded logs: the
+    size below which a difference between two recordings is not a measurable one."""
+    if settings.robot == "diffdrive":
+        noise = settings.noise
+        if noise is None:
+            noise = get_adapter("diffdrive").blind_noise  # type: ignore[attr-defined]
+        return {"pose_gt": np.array([noise.truth_xy, noise.truth_xy, noise.truth_theta])}
+    if settings.robot == "arm":
+        return {"tool_pos": np.full(3, settings.arm_tracker_noise)}
+    return {}
+
+
+def withheld_exercised(
+    settings: SuiteSettings, case: BlindCase, train: Sequence[Log], holdout: Sequence[Log]
+) -> bool:
+    """Whether a case's withheld effect changes any recorded measurement beyond its noise.
+
+    The case's logs are recorded again, with the same seed, without the withheld
+    effect; where no ground-truth sample of any log moves by more than the
+    measurement noise (:func:`_measurement_tolerance`), the withheld effect never
+    acted on these motions (a slip limit the manoeuvres never reach), and the case
+    is not an open-set case: the effects left in the library are the whole truth.
+    Robots without a stated tolerance, recordings that differ in shape, and cases
+    whose every effect is withheld count as exercised.
+    """
+    tol = _measurement_tolerance(settings)
+    kept = tuple((n, v) for n, v in case.truth if n not in case.withheld)
+    if not case.withheld or not kept or not tol:
+        return True
+    rng = np.random.default_rng(case.seed)
+    reality = Reality(tuple(make_effect(n, **dict(v)) for n, v in kept))
+    again = get_adapter(settings.robot).record_blind_logs(reality, rng, settings)
+    for ours, theirs in zip((*train, *holdout), (*again[0], *again[1]), strict=False):
+        for channel, limit in tol.items():
+            if not (ours.has(channel) and theirs.has(channel)):
+                return True
+            a, b = np.asarray(ours[channel], float), np.asarray(theirs[channel], float)
+            if a.shape != b.shape or a.shape[-1] != limit.size:
+                return True
+            if np.any(np.abs(a - b) > limit):
+                return True
+    return len(train) + len(holdout) != len(again[0]) + len(again[1])
+
+
 def run_case(settings: SuiteSettings, case: BlindCase) -> dict[str, Any]:
-    """Record and diagnose one blind case; the outcome as a JSON-able dict."""
+    """Record and diagnose one blind case; the outcome as a JSON-able dict.
+
+    An open-set case whose withheld effect never acts on the recorded motions
+    (:func:`withheld_exercised`) is scored as an in-library case of the effects
+    left in the library (``withheld_exercised`` is ``False`` in the outcome).
+    """
     t0 = time.perf_counter()
     rng = np.random.default_rng(case.seed)
     reality = case.reality()
     train, holdout = get_adapter(settings.robot).record_blind_logs(reality, rng, settings)
+    exercised = withheld_exercised(settings, case, train, holdout) if case.open_set else True
     t_rec = time.perf_counter() - t0
     library = tuple(n for n in settings.hidden_effects if n not in case.withheld)
     dset = settings.diagnosis
@@ -180,21 +236,24 @@ def run_case(settings: SuiteSettings, case: BlindCase) -> dict[str, Any]:
     d = diagnose(train, holdout, settings=dset)
     rows = d.ranking_rows()
     verdict = d.verdict.label
-    truth = case.truth_names
+    open_set = case.open_set and exercised
+    truth = tuple(n for n in case.truth_names if open_set or n not in case.withheld)
     named = tuple(sorted(verdict)) if isinstance(verdict, list) else None
     top = [tuple(sorted(r["effects"])) for r in rows if r["effects"]]
     alternatives = [tuple(sorted(a)) for a in verdict_alternatives(d.verdict)]
-    if case.open_set:
+    if open_set:
         correct = verdict == "unexplained"
         alias_aware = correct
     else:
         correct = named == truth
         alias_aware = truth in alternatives
     param_err: dict[str, float] = {}
-    if not case.open_set and named == truth:
+    if not open_set and named == truth:
         fit = next(r for r in rows if tuple(sorted(r["effects"])) == truth)
         for key, x in case.truth_values().items():
             effect, _, pname = key.partition(".")
+            if effect not in truth:
+                continue
             nominal = EFFECTS[effect]().spec(pname).nominal
             dev = abs(x - nominal)
             est = fit["params"][key]["value"]
@@ -205,15 +264,16 @@ def run_case(settings: SuiteSettings, case: BlindCase) -> dict[str, Any]:
         "truth": {n: dict(v) for n, v in case.truth},
         "truth_names": list(truth),
         "withheld": list(case.withheld),
-        "open_set": case.open_set,
+        "withheld_exercised": exercised,
+        "open_set": open_set,
         "verdict": verdict,
         "reason": d.verdict.reason,
         "confidence": d.verdict.confidence,
         "correct": bool(correct),
         "correct_alias_aware": bool(alias_aware),
         "verdict_alternatives": [list(a) for a in alternatives],
-        "top1": (not case.open_set) and bool(top and top[0] == truth),
-        "top2": (not case.open_set) and truth in top[:2],
+        "top1": (not open_set) and bool(top and top[0] == truth),
+        "top2": (not open_set) and truth in top[:2],
         "best": best["name"],
         "best_params": {k: v["value"] for k, v in best["params"].items()},
         "param_rel_err": param_err,
@@ -248,9 +308,13 @@ def run_suite(
     out = be.map(_case_task, list(cases), s)
     for r in out:
         mark = "ok " if r["correct"] else "BAD"
+        held = ""
+        if r["withheld"]:
+            held = f" (withheld {r['withheld'][0]}" + (
+                ")" if r["open_set"] else ", which never acted on these motions)"
+            )
         say(
-            f"case {r['index']:2d} {mark} truth={'+'.join(r['truth_names'])}"
-            f"{' (withheld ' + r['withheld'][0] + ')' if r['open_set'] else ''} → {r['verdict']}"
+            f"case {r['index']:2d} {mark} truth={'+'.join(r['truth_names'])}{held} → {r['verdict']}"
         )
     return out
 

@@ -2,9 +2,18 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
-from realitygap.diagnosis.suite import draw_cases, run_suite, summarise
+from realitygap.diagnosis.adapters import get_adapter
+from realitygap.diagnosis.suite import (
+    BlindCase,
+    SuiteSettings,
+    draw_cases,
+    run_suite,
+    summarise,
+    withheld_exercised,
+)
 from realitygap.robots.effects import blind_ranges
 
 
@@ -106,3 +115,25 @@ def test_a_partially_explained_verdict_is_scored_as_unexplained() -> None:
     figures, _ = summarise([partial_open, confident_wrong])
     assert figures["open_set_unexplained_rate"] == 0.5
     assert figures["false_attribution_rate"] == 0.5
+
+
+def test_a_withheld_effect_that_never_acts_is_not_an_open_set_case() -> None:
+    settings = SuiteSettings()
+    adapter = get_adapter("diffdrive")
+    base = ("wheelbase_error", (("E_b", 1.03),))
+
+    def exercised(v_limit: float) -> bool:
+        cap = ("velocity_saturation", (("v_limit", v_limit),))
+        case = BlindCase(0, (base, cap), ("velocity_saturation",), 11)
+        rng = np.random.default_rng(11)
+        train, holdout = adapter.record_blind_logs(case.reality(), rng, settings)
+        return withheld_exercised(settings, case, train, holdout)
+
+    # a speed cap far above every commanded speed never acts; one below them does
+    assert not exercised(5.0)
+    assert exercised(0.2)
+    # a case whose only effect is withheld stays an open-set case
+    only = BlindCase(
+        0, (("velocity_saturation", (("v_limit", 5.0),)),), ("velocity_saturation",), 11
+    )
+    assert withheld_exercised(settings, only, [], [])
