@@ -4,6 +4,7 @@ and probe manoeuvres that stay within the robot's limits."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from types import SimpleNamespace
 
 import numpy as np
@@ -39,23 +40,6 @@ def _layout(n: int, logs: int, regimes: list[str] | None = None) -> SimpleNamesp
         regime=np.array(regimes if regimes is not None else ["straight"] * n),
         log=np.repeat(np.arange(logs), per),
         window=np.tile(np.arange(per), logs),
-    )
-
-
-def _fit(effects: tuple[str, ...], z: np.ndarray, values: dict[str, float] | None = None):
-    values = values or {}
-    return ModelFit(
-        effects,
-        tuple(values),
-        values,
-        {k: 0.01 for k in values},
-        np.eye(len(values)),
-        0.0,
-        0.0,
-        0.0,
-        0.0,
-        float(np.sqrt(np.mean(z**2))),
-        z,
     )
 
 
@@ -124,9 +108,9 @@ def test_discovery_rejects_misaligned_residuals() -> None:
         discover(problem, np.zeros(3), np.zeros(problem.holdout.n))
 
 
-def test_discovery_never_runs_on_a_named_verdict() -> None:
+def test_discovery_never_runs_on_a_named_verdict(model_fit: Callable[..., ModelFit]) -> None:
     verdict = Verdict("effects", ("wheelbase_error",), "ok", 20.0, "strong", {})
-    best = _fit(("wheelbase_error",), np.zeros(4))
+    best = model_fit(("wheelbase_error",), np.zeros(4))
     j = Judgement(verdict, best, np.zeros(4), np.ones(4, dtype=bool), 90.0)
     # the problem is never consulted: a named verdict is left as it is
     assert run_discovery(None, j) is None  # type: ignore[arg-type]
@@ -159,13 +143,15 @@ def _adapter_knowing(*pairs: tuple[str, str]) -> SimpleNamespace:
     )
 
 
-def test_two_perfectly_correlated_candidates_are_aliases() -> None:
+def test_two_perfectly_correlated_candidates_are_aliases(
+    model_fit: Callable[..., ModelFit],
+) -> None:
     rng = np.random.default_rng(3)
     n = 200
     z_nom = rng.normal(0, 1, n) + 4.0
     z = rng.normal(0, 1, n)
-    a, b = _fit(("scale_a",), z), _fit(("scale_b",), z.copy())
-    other = _fit(("other",), z_nom * 0.9)
+    a, b = model_fit(("scale_a",), z), model_fit(("scale_b",), z.copy())
+    other = model_fit(("other",), z_nom * 0.9)
     verdict = Verdict("effects", a.effects, "", 20.0, "strong", {})
     j = Judgement(verdict, a, z_nom, np.ones(n, dtype=bool), 80.0)
     notes = alias_notes(_alias_problem(n), [a, b, other], j, [])
@@ -175,12 +161,14 @@ def test_two_perfectly_correlated_candidates_are_aliases() -> None:
     assert "other" not in [x["model"] for x in notes]
 
 
-def test_alias_from_parameter_correlation_and_known_groups() -> None:
+def test_alias_from_parameter_correlation_and_known_groups(
+    model_fit: Callable[..., ModelFit],
+) -> None:
     rng = np.random.default_rng(4)
     n = 200
     z_nom = rng.normal(0, 1, n) + 4.0
-    a = _fit(("tool_offset",), rng.normal(0, 1, n))
-    b = _fit(("link_lengths",), rng.normal(0, 1, n) * 1.3)  # worse on held-out data
+    a = model_fit(("tool_offset",), rng.normal(0, 1, n))
+    b = model_fit(("link_lengths",), rng.normal(0, 1, n) * 1.3)  # worse on held-out data
     verdict = Verdict("effects", a.effects, "", 20.0, "strong", {})
     j = Judgement(verdict, a, z_nom, np.ones(n, dtype=bool), 80.0)
     assert alias_notes(_alias_problem(n), [a, b], j, []) == []
@@ -202,16 +190,18 @@ def test_alias_from_parameter_correlation_and_known_groups() -> None:
 
 
 # --------------------------------------------------------------------------- compensators
-def test_candidate_that_helps_one_regime_and_hurts_another_is_a_compensator() -> None:
+def test_candidate_that_helps_one_regime_and_hurts_another_is_a_compensator(
+    model_fit: Callable[..., ModelFit],
+) -> None:
     rng = np.random.default_rng(5)
     n = 400
     regimes = ["turning"] * 200 + ["straight"] * 200
     problem = SimpleNamespace(holdout=_layout(n, 1, regimes))
     z_nom = np.concatenate([rng.normal(3, 1, 200), rng.normal(0, 1, 200)])
-    comp = _fit(
+    comp = model_fit(
         ("wheel_radius_scale",), np.concatenate([rng.normal(0, 1, 200), rng.normal(2, 1, 200)])
     )
-    good = _fit(("dead_zone",), rng.normal(0, 1, n))
+    good = model_fit(("dead_zone",), rng.normal(0, 1, n))
     c = regime_consistency(problem, comp, z_nom)
     assert c["compensator"] and c["improved"] == ["turning"] and c["worsened"] == ["straight"]
     g = regime_consistency(problem, good, z_nom)
@@ -220,7 +210,9 @@ def test_candidate_that_helps_one_regime_and_hurts_another_is_a_compensator() ->
         regime_consistency(problem, good, z_nom[:10])
 
 
-def test_parameters_at_a_bound_or_untested_get_no_error_bar() -> None:
+def test_parameters_at_a_bound_or_untested_get_no_error_bar(
+    model_fit: Callable[..., ModelFit],
+) -> None:
     n = 50
 
     def surrogate_residuals(layout, batch, B):
@@ -234,7 +226,7 @@ def test_parameters_at_a_bound_or_untested_get_no_error_bar() -> None:
         settings=AttributionSettings(),
         surrogate_residuals=surrogate_residuals,
     )
-    fit = _fit(
+    fit = model_fit(
         ("wheelbase_error", "velocity_saturation"),
         np.zeros(n),
         {"wheelbase_error.E_b": 1.0999, "velocity_saturation.v_limit": 0.65},
@@ -244,14 +236,14 @@ def test_parameters_at_a_bound_or_untested_get_no_error_bar() -> None:
         "wheelbase_error.E_b": "at bound",
         "velocity_saturation.v_limit": "untestable",
     }
-    inner = _fit(
+    inner = model_fit(
         ("wheelbase_error", "velocity_saturation"),
         np.zeros(n),
         {"wheelbase_error.E_b": 1.03, "velocity_saturation.v_limit": 0.45},
     )
     assert parameter_status(problem, inner) == {}  # type: ignore[arg-type]
     # just above the fastest command: the logs say only "above 0.5 m/s"
-    near = _fit(
+    near = model_fit(
         ("wheelbase_error", "velocity_saturation"),
         np.zeros(n),
         {"wheelbase_error.E_b": 1.03, "velocity_saturation.v_limit": 0.52},
@@ -261,7 +253,9 @@ def test_parameters_at_a_bound_or_untested_get_no_error_bar() -> None:
     }
 
 
-def test_a_parameter_at_its_nominal_bound_is_absent_not_pinned() -> None:
+def test_a_parameter_at_its_nominal_bound_is_absent_not_pinned(
+    model_fit: Callable[..., ModelFit],
+) -> None:
     n = 50
 
     def surrogate_residuals(layout, batch, B):
@@ -272,7 +266,7 @@ def test_a_parameter_at_its_nominal_bound_is_absent_not_pinned() -> None:
         train=_layout(n, 1), settings=AttributionSettings(), surrogate_residuals=surrogate_residuals
     )
     # tau_left = 0 is the nominal end of [0, 0.5] s: no lag on that wheel, not a pinned fit
-    fit = _fit(
+    fit = model_fit(
         ("wheel_velocity_lag",),
         np.zeros(n),
         {"wheel_velocity_lag.tau_left": 0.0, "wheel_velocity_lag.tau_right": 0.4999},
@@ -453,7 +447,9 @@ def _two_channel_layout(m: int) -> SimpleNamespace:
     )
 
 
-def test_a_combination_must_leave_noise_wherever_it_acts() -> None:
+def test_a_combination_must_leave_noise_wherever_it_acts(
+    model_fit: Callable[..., ModelFit],
+) -> None:
     from realitygap.diagnosis.verdict import combination_check
 
     rng = np.random.default_rng(8)
@@ -464,7 +460,7 @@ def test_a_combination_must_leave_noise_wherever_it_acts() -> None:
     acc = lay.regime == "accelerating"
     gap = np.where(acc, 4.0, 0.0) * np.where(lay.group == "ticks", 1.5, 1.0)
     z_nom = noise + gap
-    exact = _fit(("velocity_saturation", "acceleration_limits"), noise.copy())
+    exact = model_fit(("velocity_saturation", "acceleration_limits"), noise.copy())
     ok = combination_check(problem, exact, z_nom)
     assert ok["passed"]
     # only where a gap lived and the model acted: both groups while accelerating
@@ -478,7 +474,7 @@ def test_a_combination_must_leave_noise_wherever_it_acts() -> None:
     drift = np.sqrt(2.0) * 0.5 * np.sin(np.linspace(0.0, 2.0 * np.pi, m - m // 2))
     drift = np.concatenate([np.zeros(m // 2), drift])
     partial = noise + np.where(lay.group == "ticks", np.tile(drift, 2), 0.0)
-    bad = combination_check(problem, _fit(("a", "b"), partial), z_nom)
+    bad = combination_check(problem, model_fit(("a", "b"), partial), z_nom)
     assert not bad["passed"]
     worst = bad["failed"][0]
     assert (worst["group"], worst["regime"]) == ("ticks", "accelerating")
@@ -486,6 +482,6 @@ def test_a_combination_must_leave_noise_wherever_it_acts() -> None:
     assert 0.3 < worst["rms_model"] < 0.75
     # the same shape ten times smaller is below what the logs resolve: accepted
     small = noise + np.where(lay.group == "ticks", np.tile(0.1 * drift, 2), 0.0)
-    assert combination_check(problem, _fit(("a", "b"), small), z_nom)["passed"]
+    assert combination_check(problem, model_fit(("a", "b"), small), z_nom)["passed"]
     with pytest.raises(ValueError, match="held-out layout's length"):
         combination_check(problem, exact, z_nom[:-1])

@@ -5,6 +5,7 @@ adjacent windows cancel (an error at the window boundaries)."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from types import SimpleNamespace
 
 import numpy as np
@@ -36,22 +37,6 @@ def _layout(n: int, logs: int = 4) -> Layout:
         window=np.tile(np.arange(per), logs).astype(np.int64),
         motion=np.zeros((n, 6)),
         schema=SCHEMA,
-    )
-
-
-def _fit(effects: tuple[str, ...], z: np.ndarray, values: dict[str, float]) -> ModelFit:
-    return ModelFit(
-        effects,
-        tuple(values),
-        dict(values),
-        {k: 0.01 for k in values},
-        np.eye(len(values)),
-        0.0,
-        0.0,
-        0.0,
-        0.0,
-        float(np.sqrt(np.mean(z**2))),
-        z,
     )
 
 
@@ -110,7 +95,9 @@ def _problem(lay: Layout, z_nom: np.ndarray, surrogate=None) -> SimpleNamespace:
     )
 
 
-def test_a_small_true_effect_is_judged_on_the_gap_above_noise() -> None:
+def test_a_small_true_effect_is_judged_on_the_gap_above_noise(
+    model_fit: Callable[..., ModelFit],
+) -> None:
     """A true effect comparable with the noise closes less than half of the raw gap but
     all of the gap above noise: the verdict names it."""
     rng = np.random.default_rng(2)
@@ -119,8 +106,8 @@ def test_a_small_true_effect_is_judged_on_the_gap_above_noise() -> None:
     noise = rng.normal(0.0, sigma, n)
     z_nom = 1.2 * _slow_drift(n, 4, rng) + noise
     z_best = noise.copy()
-    best = _fit(("wheel_diameter_ratio",), z_best, {"wheel_diameter_ratio.E_d": 1.01})
-    nominal = _fit((), z_nom, {})
+    best = model_fit(("wheel_diameter_ratio",), z_best, {"wheel_diameter_ratio.E_d": 1.01})
+    nominal = model_fit((), z_nom, {})
     nominal.rank_score = 500.0
     problem = _problem(lay, z_nom)
     j = judge(problem, [best, nominal], nominal, {"pose_gt": sigma})  # type: ignore[arg-type]
@@ -129,7 +116,7 @@ def test_a_small_true_effect_is_judged_on_the_gap_above_noise() -> None:
     assert j.verdict.kind == "effects", j.verdict.reason
     # a model that closes only a fifth of the gap above noise is still refused, saying so
     z_part = 0.8 * (z_nom - noise) + noise
-    part = _fit(("wheel_diameter_ratio",), z_part, {"wheel_diameter_ratio.E_d": 1.01})
+    part = model_fit(("wheel_diameter_ratio",), z_part, {"wheel_diameter_ratio.E_d": 1.01})
     j = judge(problem, [part, nominal], nominal, {"pose_gt": sigma})  # type: ignore[arg-type]
     assert j.verdict.kind == "unexplained"
     assert "of the held-out gap above the noise floor" in j.verdict.reason
@@ -146,7 +133,9 @@ def test_range_position_is_logarithmic_for_a_parameter_spanning_decades() -> Non
     assert range_position("wheelbase_error.E_b", 1.05) == pytest.approx(0.75)
 
 
-def test_a_speed_limit_well_inside_its_range_is_not_pinned() -> None:
+def test_a_speed_limit_well_inside_its_range_is_not_pinned(
+    model_fit: Callable[..., ModelFit],
+) -> None:
     n = 50
     lay = _layout(n, 1)
 
@@ -155,10 +144,12 @@ def test_a_speed_limit_well_inside_its_range_is_not_pinned() -> None:
         return np.repeat((100.0 * np.maximum(0.3 - v, 0.0))[:, None], layout.n, axis=1)
 
     problem = _problem(lay, np.zeros(n), surrogate)
-    slow = _fit(("velocity_saturation",), np.zeros(n), {"velocity_saturation.v_limit": 0.085})
+    slow = model_fit(("velocity_saturation",), np.zeros(n), {"velocity_saturation.v_limit": 0.085})
     assert _pinned(problem, slow) == []  # type: ignore[arg-type]
     assert parameter_status(problem, slow) == {}  # type: ignore[arg-type]
-    at_low = _fit(("velocity_saturation",), np.zeros(n), {"velocity_saturation.v_limit": 0.0501})
+    at_low = model_fit(
+        ("velocity_saturation",), np.zeros(n), {"velocity_saturation.v_limit": 0.0501}
+    )
     assert _pinned(problem, at_low) == ["velocity_saturation.v_limit"]  # type: ignore[arg-type]
     assert parameter_status(problem, at_low) == {  # type: ignore[arg-type]
         "velocity_saturation.v_limit": "at bound"
@@ -196,7 +187,9 @@ def test_adjacent_windows_that_cancel_are_not_structure() -> None:
     assert out["structured"], out["groups"]["pose_gt"]
 
 
-def test_a_baseline_nuisance_at_the_edge_of_its_range_is_reported() -> None:
+def test_a_baseline_nuisance_at_the_edge_of_its_range_is_reported(
+    model_fit: Callable[..., ModelFit],
+) -> None:
     n = 50
     lay = _layout(n, 1)
 
@@ -209,13 +202,13 @@ def test_a_baseline_nuisance_at_the_edge_of_its_range_is_reported() -> None:
         "timestamp_offset.offset": (-0.025, 0.025),
     }
     values = {"wheelbase_error.E_b": 1.03}
-    pinned = _fit(("wheelbase_error",), np.zeros(n), values)
+    pinned = model_fit(("wheelbase_error",), np.zeros(n), values)
     pinned.values.update({"command_latency.delay": 0.05, "timestamp_offset.offset": 0.001})
     assert parameter_status(problem, pinned) == {  # type: ignore[arg-type]
         "command_latency.delay": "nuisance at range bound"
     }
     # a latency of 0 s is the nominal end of its range: no response delay, not pinned
-    absent = _fit(("wheelbase_error",), np.zeros(n), values)
+    absent = model_fit(("wheelbase_error",), np.zeros(n), values)
     absent.values.update({"command_latency.delay": 0.0, "timestamp_offset.offset": -0.025})
     assert parameter_status(problem, absent) == {  # type: ignore[arg-type]
         "timestamp_offset.offset": "nuisance at range bound"
