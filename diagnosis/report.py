@@ -149,9 +149,10 @@ def _coverage_section(d: Diagnosis) -> list[str]:
         "|---|---|---|---|",
     ]
     for r in cov.rows:
+        unit = "" if r["unit"] == "1" else f" {r['unit']}"
         lines.append(
-            f"| {r['label']} | {r['train_min']:.3g} … {r['train_max']:.3g} {r['unit']} | "
-            f"{r['heldout_min']:.3g} … {r['heldout_max']:.3g} {r['unit']} | {r['n_outside']} |"
+            f"| {r['label']} | {r['train_min']:.3g} … {r['train_max']:.3g}{unit} | "
+            f"{r['heldout_min']:.3g} … {r['heldout_max']:.3g}{unit} | {r['n_outside']} |"
         )
     return lines
 
