@@ -51,9 +51,15 @@ from scipy.optimize import least_squares
 
 from realitygap.diagnosis.adapters import PreparedLog, RobotAdapter
 from realitygap.diagnosis.features import FeatureSchema, FeatureSettings
+from realitygap.diagnosis.parameters import (
+    from_range_position,
+    model_keys,
+    param_spec,
+    range_derivative,
+    range_position,
+)
 from realitygap.diagnosis.replay import Drive, SimSettings
 from realitygap.diagnosis.residual import white_level
-from realitygap.robots.effects import EFFECTS
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -64,9 +70,7 @@ __all__ = [
     "Problem",
     "Verdict",
     "fit_model",
-    "model_keys",
     "profile_score",
-    "range_position",
 ]
 
 
@@ -145,50 +149,6 @@ class AttributionSettings:
                 "AttributionSettings.robust_scale: expected a positive finite number of noise "
                 f"levels, got {self.robust_scale!r}"
             )
-
-
-# --------------------------------------------------------------------------- parameters
-def model_keys(effects: Sequence[str]) -> tuple[str, ...]:
-    """``"effect.param"`` keys of a model's parameters, in effect order."""
-    return tuple(f"{e}.{s.name}" for e in effects for s in EFFECTS[e].specs)
-
-
-def param_spec(key: str) -> Any:
-    """The :class:`~realitygap.robots.effects.ParamSpec` of ``"effect.param"``."""
-    effect, _, param = key.partition(".")
-    for s in EFFECTS[effect].specs:
-        if s.name == param:
-            return s
-    raise KeyError(key)
-
-
-def _to_x(key: str, u: FloatArray) -> FloatArray:
-    s = param_spec(key)
-    if s.log_scale:
-        return np.exp(np.log(s.low) + u * (np.log(s.high) - np.log(s.low)))
-    return s.low + u * (s.high - s.low)
-
-
-def range_position(key: str, x: float) -> float:
-    """Where ``x`` sits in the physical range of ``"effect.param"``: 0 at the low bound, 1 at
-    the high one, in the coordinates the fit searches (logarithmic for a parameter that spans
-    decades, so that a speed limit of 0.085 m/s in 0.05 … 10 m/s is a tenth of the way up,
-    not at the low end)."""
-    s = param_spec(key)
-    if s.log_scale:
-        return float((math.log(x) - math.log(s.low)) / (math.log(s.high) - math.log(s.low)))
-    return float((x - s.low) / (s.high - s.low))
-
-
-def _to_u(key: str, x: float) -> float:
-    return range_position(key, x)
-
-
-def _dx_du(key: str, x: float) -> float:
-    s = param_spec(key)
-    if s.log_scale:
-        return x * (math.log(s.high) - math.log(s.low))
-    return s.high - s.low
 
 
 # --------------------------------------------------------------------------- layout
@@ -494,7 +454,7 @@ def _grid(
 
 
 def _values(keys: Sequence[str], U: FloatArray) -> dict[str, FloatArray]:
-    return {k: _to_x(k, U[:, j]) for j, k in enumerate(keys)}
+    return {k: from_range_position(k, U[:, j]) for j, k in enumerate(keys)}
 
 
 def _rho(q: FloatArray, loss: str, c: float) -> FloatArray:
@@ -558,7 +518,7 @@ def fit_model(
     lo_u, hi_u = np.zeros(p), np.ones(p)
     for j, k in enumerate(keys):
         if box and k in box:
-            a, b = sorted((_to_u(k, box[k][0]), _to_u(k, box[k][1])))
+            a, b = sorted((range_position(k, box[k][0]), range_position(k, box[k][1])))
             lo_u[j], hi_u[j] = max(a, 0.0), min(b, 1.0)
             if hi_u[j] <= lo_u[j]:
                 raise ValueError(
@@ -572,13 +532,13 @@ def fit_model(
     )
     q = len(nuis)
     all_keys = keys + nuis
-    lo_n = np.array([_to_u(k, problem.baseline_ranges[k][0]) for k in nuis])
-    hi_n = np.array([_to_u(k, problem.baseline_ranges[k][1]) for k in nuis])
+    lo_n = np.array([range_position(k, problem.baseline_ranges[k][0]) for k in nuis])
+    hi_n = np.array([range_position(k, problem.baseline_ranges[k][1]) for k in nuis])
     lo_n, hi_n = np.minimum(lo_n, hi_n), np.maximum(lo_n, hi_n)
-    u_base = np.array([_to_u(k, problem.baseline_values[k]) for k in nuis])
+    u_base = np.array([range_position(k, problem.baseline_values[k]) for k in nuis])
     for st in starts:
         if all(k in st for k in nuis):
-            u_base = np.array([_to_u(k, float(st[k])) for k in nuis])
+            u_base = np.array([range_position(k, float(st[k])) for k in nuis])
     u_base = np.clip(u_base, lo_n, hi_n)
 
     def residual_batch(U: FloatArray, layout: Any) -> FloatArray:
@@ -590,9 +550,9 @@ def fit_model(
     rng = np.random.default_rng(seed)
     cand: list[FloatArray] = []
     for st in starts:
-        u = np.array([_to_u(k, float(st.get(k, param_spec(k).nominal))) for k in keys])
+        u = np.array([range_position(k, float(st.get(k, param_spec(k).nominal))) for k in keys])
         cand.append(np.clip(u, lo_u, hi_u))
-    u_nom = np.clip(np.array([_to_u(k, param_spec(k).nominal) for k in keys]), lo_u, hi_u)
+    u_nom = np.clip(np.array([range_position(k, param_spec(k).nominal) for k in keys]), lo_u, hi_u)
     if not local_only:
         U = lo_u + _grid(keys, settings, rng) * (hi_u - lo_u)
         U = np.vstack([U, u_nom[None], *cand])
@@ -662,7 +622,9 @@ def fit_model(
     z_tr = fun(u_all)
     J = jac(u_all)[:, :p]
     z_ho = residual_batch(u_all[None], ho)[0] if ho.n else np.zeros(0)
-    nuisance = {k: float(_to_x(k, np.array([u_all[p + j]]))[0]) for j, k in enumerate(nuis)}
+    nuisance = {
+        k: float(from_range_position(k, np.array([u_all[p + j]]))[0]) for j, k in enumerate(nuis)
+    }
     return _finish(
         problem, tuple(effects), keys, u_all[:p], z_tr, z_ho, J, nuisance=nuisance, held=held
     )
@@ -725,13 +687,13 @@ def _finish(
     settings = problem.settings
     p = len(keys)
     n = max(z_tr.shape[0], 1)
-    values = {k: float(_to_x(k, np.array([u_hat[j]]))[0]) for j, k in enumerate(keys)}
+    values = {k: float(from_range_position(k, np.array([u_hat[j]]))[0]) for j, k in enumerate(keys)}
     # parameters the training data cannot identify stay at nominal (not findings)
     values.update({k: float(param_spec(k).nominal) for k in held or {}})
     stderr: dict[str, float] = {}
     corr = np.eye(p)
     if p and J_u.shape[-1] == p:
-        scale = np.array([_dx_du(k, values[k]) for k in keys])
+        scale = np.array([range_derivative(k, values[k]) for k in keys])
         J = J_u / scale[None, :]
         dof = max(n - p, 1)
         s2 = float(np.sum(z_tr**2)) / dof

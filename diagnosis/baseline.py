@@ -59,9 +59,10 @@ import numpy.typing as npt
 
 from realitygap.core.parallel import Backend
 from realitygap.diagnosis.adapters import PreparedLog
-from realitygap.diagnosis.attribute import Problem, _rho, fit_model, model_keys, param_spec
+from realitygap.diagnosis.attribute import Problem, _rho, fit_model
 from realitygap.diagnosis.clock import ClockAlignment, ClockSettings, align_clocks, timing_channel
 from realitygap.diagnosis.log import Log
+from realitygap.diagnosis.parameters import model_keys, param_spec
 from realitygap.diagnosis.replay import Drive
 from realitygap.diagnosis.shrink import overall_shrink
 

@@ -54,8 +54,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.diagnosis.attribute import Problem, _rho, param_spec
+from realitygap.diagnosis.attribute import Problem, _rho
 from realitygap.diagnosis.log import Log
+from realitygap.diagnosis.parameters import param_spec
 from realitygap.robots.effects import make_effect
 
 FloatArray = npt.NDArray[np.float64]

@@ -14,7 +14,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.diagnosis.attribute import ModelFit, Problem, model_keys, param_spec
+from realitygap.diagnosis.attribute import ModelFit, Problem
+from realitygap.diagnosis.parameters import model_keys, param_spec
 from realitygap.estimators.arm.identifiability import analyse_identifiability
 
 FloatArray = npt.NDArray[np.float64]

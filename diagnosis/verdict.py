@@ -23,14 +23,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.diagnosis.attribute import (
-    AttributionSettings,
-    ModelFit,
-    Problem,
-    Verdict,
-    param_spec,
-    range_position,
-)
+from realitygap.diagnosis.attribute import AttributionSettings, ModelFit, Problem, Verdict
+from realitygap.diagnosis.parameters import param_spec, range_position
 from realitygap.diagnosis.residual import describe_residual, shrink_above_noise, white_level
 from realitygap.diagnosis.shrink import overall_shrink
 
@@ -216,7 +210,7 @@ def _pinned(problem: Problem, fit: ModelFit) -> list[str]:
     An effect fitted at the bound of its plausible range (the end away from "no
     effect") is being stretched to absorb a gap it does not cause. "At the
     bound" is within 0.5 % of the range in the coordinates the fit searches
-    (:func:`~realitygap.diagnosis.attribute.range_position`: logarithmic for a
+    (:func:`~realitygap.diagnosis.parameters.range_position`: logarithmic for a
     parameter spanning decades, such as a speed limit). Parameters
     the logs cannot see (moving them back to nominal changes the training
     residual by less than the floor) are ignored.

@@ -21,8 +21,9 @@ import numpy.typing as npt
 
 from realitygap.core.parallel import Backend
 from realitygap.diagnosis.adapters import PreparedLog
-from realitygap.diagnosis.attribute import ModelFit, Problem, _finish, _to_u, fit_model
+from realitygap.diagnosis.attribute import ModelFit, Problem, _finish, fit_model
 from realitygap.diagnosis.log import Log
+from realitygap.diagnosis.parameters import range_position
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -44,7 +45,7 @@ def _replay_task(
 
 
 def _rescore(problem: Problem, fit: ModelFit, z_tr: FloatArray, z_ho: FloatArray) -> ModelFit:
-    u = np.array([_to_u(k, fit.values[k]) for k in fit.keys])
+    u = np.array([range_position(k, fit.values[k]) for k in fit.keys])
     new = _finish(
         problem,
         fit.effects,

@@ -7,10 +7,11 @@ import pytest
 
 from realitygap.diagnosis.adapters import get_adapter
 from realitygap.diagnosis.arm_adapter import record_arm_log
-from realitygap.diagnosis.attribute import AttributionSettings, Problem, fit_model, model_keys
+from realitygap.diagnosis.attribute import AttributionSettings, Problem, fit_model
 from realitygap.diagnosis.features import FeatureSettings
 from realitygap.diagnosis.identifiability import dependent_parameters
 from realitygap.diagnosis.log import Log
+from realitygap.diagnosis.parameters import model_keys
 from realitygap.diagnosis.replay import Drive
 from realitygap.diagnosis.verdict import parameter_status
 from realitygap.estimators.arm.identification import IdentificationSettings, identify

@@ -11,13 +11,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.attribute import (
-    AttributionSettings,
-    Layout,
-    ModelFit,
-    range_position,
-)
+from realitygap.diagnosis.attribute import AttributionSettings, Layout, ModelFit
 from realitygap.diagnosis.features import FeatureGroup, FeatureSchema, FeatureSettings
+from realitygap.diagnosis.parameters import range_position
 from realitygap.diagnosis.residual import describe_residual, shrink_above_noise
 from realitygap.diagnosis.verdict import _pinned, judge, parameter_status
 
