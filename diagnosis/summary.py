@@ -268,13 +268,19 @@ def summary_sentences(d: Diagnosis) -> list[str]:
     rest, where = _rest_over_noise(v.residual)
     rule = (
         f"An effect is named only if it closes ≥ {100 * st.min_shrink:.0f} % of the held-out gap "
-        f"and the rest is noise-like (≤ {st.excess_ratio:g}× its noise level, no regime or "
-        "motion dependence)"
+        "above the noise floor (the part any model could close) and the rest is noise-like "
+        f"(≤ {st.excess_ratio:g}× its noise level, no regime or motion dependence)"
     )
     if best_row is not None and best_row["effects"]:
-        here = (
-            f"here it closes {float(g.get('heldout_shrink_pct_best', 0.0)):.0f} % and the rest is "
-            f"{rest:.1f}× noise" + (f" ({where})" if where else "")
+        above = v.notes.get("heldout_shrink_pct_above_noise")
+        closes = (
+            f"{float(above):.0f} % of the gap above noise "
+            f"({float(g.get('heldout_shrink_pct_best', 0.0)):.0f} % of the raw gap)"
+            if above is not None and math.isfinite(float(above))
+            else f"{float(g.get('heldout_shrink_pct_best', 0.0)):.0f} %"
+        )
+        here = f"here it closes {closes} and the rest is {rest:.1f}× noise" + (
+            f" ({where})" if where else ""
         )
     else:
         here = f"here no candidate improves on the nominal replay; the rest is {rest:.1f}× noise"

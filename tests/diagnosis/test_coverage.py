@@ -22,6 +22,7 @@ from realitygap.diagnosis.manoeuvres import Manoeuvre
 from realitygap.diagnosis.replay import MeasurementNoise, simulate
 from realitygap.diagnosis.report import write_report
 from realitygap.diagnosis.shrink import overall_shrink
+from realitygap.diagnosis.summary import summary_sentences
 from realitygap.diagnosis.verdict import explain
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import Reality, make_effect
@@ -246,6 +247,9 @@ def test_a_top_speed_the_training_never_reached_is_reported_as_beyond_the_traini
     assert js["coverage"]["beyond_training"] and js["coverage"]["n_outside"] == cov.n_outside
     # the cap cannot be named from training that never reaches it
     assert d.verdict.kind != "effects" or "velocity_saturation" not in d.verdict.effects
+    # the summary states the rule the verdict applies: the share of the gap above noise
+    text = " ".join(summary_sentences(d))
+    assert "above the noise floor" in text
     md = write_report(d, tmp_path / "r").read_text(encoding="utf-8")
     assert "## Training coverage" in md and "| left wheel speed |" in md
     if d.verdict.kind != "effects":
