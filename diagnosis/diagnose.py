@@ -526,30 +526,29 @@ def coverage_report(
     if settings is None or problem.holdout.n == 0 or problem.train.n == 0:
         return None
     best = judgement.best
-
-    def planar(i: int) -> bool:
-        lg = problem.logs[i].log
-        return lg.has("pose_gt") and np.shape(lg["pose_gt"])[-1] == 3
-
-    def wheelbase(i: int) -> float | None:
-        ctx = problem.logs[i].context
-        params = getattr(ctx, "reference", None) or getattr(ctx, "params", None)
-        b = getattr(params, "wheelbase", None)
-        return float(b) if b is not None else None
-
     used = sorted(set(problem.train.log.tolist()) | set(problem.holdout.log.tolist()))
-    wheels = all(planar(i) and wheelbase(i) is not None for i in used)
-
-    def motion_of(i: int) -> FloatArray:
-        # the motion the robot made: a planar ground truth where the log has one
+    # the motion the robot made: a planar ground truth where the log has one, with each
+    # wheel's speed where every log also states its wheelbase
+    planar: dict[int, FloatArray] = {}
+    wheelbase: dict[int, float] = {}
+    for i in used:
         p = problem.logs[i]
-        if planar(i):
-            m = planar_motion(p.log.t, p.log["pose_gt"], p.bounds)
-            if wheels:
-                m = np.hstack([m, wheel_speeds(m, float(wheelbase(i) or 0.0))])
-            return m
-        m_ctx = p.context.window_motion(p.bounds)
-        return np.zeros((p.bounds.shape[0], 6)) if m_ctx is None else m_ctx
+        if p.log.has("pose_gt") and np.shape(p.log["pose_gt"])[-1] == 3:
+            planar[i] = planar_motion(p.log.t, p.log["pose_gt"], p.bounds)
+        params = getattr(p.context, "reference", None) or getattr(p.context, "params", None)
+        if getattr(params, "wheelbase", None) is not None:
+            wheelbase[i] = float(params.wheelbase)
+    wheels = all(i in planar and i in wheelbase for i in used)
+    motions: dict[int, FloatArray] = {}
+    for i in used:
+        if i in planar:
+            m = planar[i]
+            motions[i] = np.hstack([m, wheel_speeds(m, wheelbase[i])]) if wheels else m
+        else:
+            bounds = problem.logs[i].bounds
+            m_ctx = problem.logs[i].context.window_motion(bounds)
+            motions[i] = np.zeros((bounds.shape[0], 6)) if m_ctx is None else m_ctx
+    motion_of = motions.__getitem__
 
     _, m_train = layout_windows(problem.train, motion_of)
     which, m_ho = layout_windows(problem.holdout, motion_of)

@@ -198,7 +198,9 @@ def withheld_exercised(
     rng = np.random.default_rng(case.seed)
     reality = Reality(tuple(make_effect(n, **dict(v)) for n, v in kept))
     again = get_adapter(settings.robot).record_blind_logs(reality, rng, settings)
-    for ours, theirs in zip((*train, *holdout), (*again[0], *again[1]), strict=False):
+    if len(train) + len(holdout) != len(again[0]) + len(again[1]):
+        return True
+    for ours, theirs in zip((*train, *holdout), (*again[0], *again[1]), strict=True):
         for channel, limit in tol.items():
             if not (ours.has(channel) and theirs.has(channel)):
                 return True
@@ -207,7 +209,7 @@ def withheld_exercised(
                 return True
             if np.any(np.abs(a - b) > limit):
                 return True
-    return len(train) + len(holdout) != len(again[0]) + len(again[1])
+    return False
 
 
 def run_case(settings: SuiteSettings, case: BlindCase) -> dict[str, Any]:

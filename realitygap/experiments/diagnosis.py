@@ -314,7 +314,8 @@ def _real_diagnoses(
             figures[prefix + "shrink_within_training_pct"] = cov.shrink_inside_pct
             figures[prefix + "shrink_beyond_training_pct"] = cov.shrink_outside_pct
             tables[f"{drive}_coverage"] = cov.rows
-            notes.append(f"{drive}: coverage: {cov.summary()}")
+            if "coverage" not in d.verdict.notes:  # else the verdict's own lines state it
+                notes.append(f"{drive}: coverage: {cov.summary()}")
         tr_rep = d.transients
         figures[prefix + "transient_windows_set_aside"] = float(tr_rep.n_excluded)
         figures[prefix + "transient_share_pct"] = 100.0 * tr_rep.share_excluded
