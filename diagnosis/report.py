@@ -200,7 +200,7 @@ def _markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str, note: st
             f"{100 * g['heldout_trajectory_gap_m_baseline']:.2f} cm; window figures above are "
             f"measured against the {g.get('reference', 'nominal replay')}."
         )
-    if v.kind != "effects" and v.residual.get("reasons"):
+    if (v.kind != "effects" or v.notes.get("whole_runs")) and v.residual.get("reasons"):
         lines += ["", "What remains unexplained:", ""]
         lines += [f"- {r}" for r in v.residual["reasons"]]
     lines += _baseline_and_transients(d)

@@ -284,14 +284,27 @@ def summary_sentences(d: Diagnosis) -> list[str]:
         )
     else:
         here = f"here no candidate improves on the nominal replay; the rest is {rest:.1f}× noise"
-    if v.kind == "effects":
+    whole = v.notes.get("whole_runs") if v.kind == "effects" else None
+    if whole:
+        out.append(
+            f"Verdict: {' + '.join(v.effects)} on whole runs ({v.confidence} confidence). At the "
+            f"1-s window scale it closes {float(whole['window_shrink_pct']):.0f} % of the gap; "
+            f"over whole held-out runs {float(whole['run_shrink_pct']):.0f} %, run after run, and "
+            "what it leaves in the windows does not add up along the runs: it names the drift, "
+            "not the window residual."
+        )
+    elif v.kind == "effects":
         out.append(f"Verdict: {' + '.join(v.effects)} ({v.confidence} confidence). {rule}: {here}.")
     elif v.kind == "none":
         out.append(f"Verdict: no significant gap — {v.reason}.")
     else:
         out.append(f"Verdict: unexplained — no effect is named. {rule}: {here}.")
     reasons = v.residual.get("reasons", []) if v.kind != "none" else []
-    if v.kind == "effects" or not reasons:
+    if whole and whole["remainder"]:
+        out.append(
+            "What remains in the windows is unexplained: " + "; ".join(whole["remainder"][:3]) + "."
+        )
+    elif v.kind == "effects" or not reasons:
         out.append("What remains looks like measurement noise.")
     else:
         out.append("What remains: " + "; ".join(reasons[:3]) + ".")

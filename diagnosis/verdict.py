@@ -564,15 +564,19 @@ def verdict_alternatives(verdict: Any) -> list[tuple[str, ...]]:
 
 
 def run_discovery(problem: Problem, judgement: Judgement) -> Any:
-    """Discovery on the residual the verdict leaves, only when it is unexplained.
+    """Discovery on the residual the verdict leaves, when it is unexplained or when a
+    model named on whole runs leaves a structured window residual.
 
     The residual is that of the best model on the bias-corrected surrogate
     (training and held-out alike), or of the nominal replay when no model
-    improves on it. A named verdict is never touched: ``None`` is returned.
+    improves on it. Otherwise (a named verdict whose rest is noise, or no gap)
+    ``None`` is returned; discovery never changes a verdict.
     """
     from realitygap.diagnosis.discovery import discover
 
-    if judgement.verdict.kind != "unexplained":
+    verdict = judgement.verdict
+    whole = verdict.notes.get("whole_runs") or {}
+    if verdict.kind != "unexplained" and not (verdict.kind == "effects" and whole.get("remainder")):
         return None
     best = judgement.best
     if best.effects:
@@ -646,6 +650,8 @@ def conclude(
     if verdict.kind == "effects":
         text = " or ".join([best.name, *(a["model"] for a in aliases)])
         text += " (aliases on this data)" if aliases else ""
+        if verdict.notes.get("whole_runs"):
+            text += " (on whole runs; the 1-s window residual it leaves is unexplained)"
     elif combo is not None and not combo["passed"]:
         text = (
             f"unexplained (partially explained by {best.name}: "
@@ -723,6 +729,14 @@ def explain(verdict: Verdict, top_models: Sequence[str] = ()) -> list[str]:
                 "of its nuisance range: the baseline absorbs part of a gap the model leaves",
             }.get(why, why)
             lines.append(f"not a finding: {key} of {model} {what} (no error bar)")
+    whole = notes.get("whole_runs")
+    if whole and verdict.kind == "effects":
+        rest = "; ".join(whole["remainder"]) or "noise-like"
+        lines.append(
+            f"window scale: {whole['window_shrink_pct']:.0f} % of the 1-s window gap closed "
+            f"against {whole['run_shrink_pct']:.0f} % of the whole-run gap; the rest of the "
+            f"window residual is unexplained ({rest})"
+        )
     disc = notes.get("discovery")
     if disc is not None:
         lines.append(f"discovery: {disc['message']}")

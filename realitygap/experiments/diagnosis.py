@@ -301,7 +301,12 @@ def _real_diagnoses(
                 for r in clock.rows
             ]
         if d.scales:
-            for k in ("run_shrink_pct", "timing_share_pct", "timing_share_pct_permuted_max"):
+            for k in (
+                "run_shrink_pct",
+                "run_bias_max_se",
+                "timing_share_pct",
+                "timing_share_pct_permuted_max",
+            ):
                 figures[prefix + "scales_" + k] = d.scales[k]
             figures[prefix + "named_on_whole_runs"] = float(d.scales["named"])
             notes += [

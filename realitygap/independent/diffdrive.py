@@ -150,6 +150,9 @@ class Hidden:
     stiction : wheel set-points below this rim speed do not turn the wheel [m/s]
     cpr_right, cpr_left : counted / declared edges per wheel revolution [1]
     clock_skew : motion-capture stamp minus true time [s]
+    clock_wander : standard deviation of a slow wander of that stamp error [s]: the sum
+        of two sinusoids of random phase and period (2–10 s), amplitude ``clock_wander``
+        each, drawn per run
     creep : constant fraction of rim speed lost at the contact [1]
     grip : traction limit of each wheel, ground acceleration ≤ grip·g [1] (inf: none)
     tau_true : motor time constant when it differs from the declared one [s] (None: same)
@@ -171,6 +174,7 @@ class Hidden:
     cpr_right: float = 1.0
     cpr_left: float = 1.0
     clock_skew: float = 0.0
+    clock_wander: float = 0.0
     creep: float = 0.0
     grip: float = math.inf
     tau_true: float | None = None
@@ -199,6 +203,11 @@ class Hidden:
             raise ValueError(
                 f"Hidden.battery_sag must lie in [0, 0.9) and .creep in [0, 0.5); "
                 f"got {self.battery_sag}, {self.creep}"
+            )
+        if not 0.0 <= self.clock_wander <= 0.1:
+            raise ValueError(
+                "Hidden.clock_wander must lie in [0, 0.1] s (a wander that keeps the stamps "
+                f"in order), got {self.clock_wander!r}"
             )
 
 
@@ -396,6 +405,11 @@ def simulate_run(
     mocap_t: list[float] = []
     mocap_pose: list[FloatArray] = []
     next_mocap = 0.0
+    wander = (
+        (rng.uniform(2.0, 10.0, size=2), rng.uniform(0.0, 2.0 * math.pi, size=2))
+        if hidden.clock_wander > 0
+        else None
+    )
 
     rows_t, rows_req, rows_tl, rows_tr, rows_odo, rows_truth = [], [], [], [], [], []
     k = 0
@@ -461,7 +475,13 @@ def simulate_run(
                         pose[2],
                     ]
                 )
-                mocap_t.append(next_mocap + robot.mocap_latency + hidden.clock_skew)
+                stamp = next_mocap + robot.mocap_latency + hidden.clock_skew
+                if wander is not None:
+                    periods, phases = wander
+                    stamp += hidden.clock_wander * float(
+                        np.sum(np.sin(2.0 * math.pi * next_mocap / periods + phases))
+                    )
+                mocap_t.append(stamp)
                 mocap_pose.append(marker)
                 next_mocap += mocap_period
         wobble = np.array([hidden.enc_wobble * math.sin(phi[0]), 0.0])
