@@ -169,7 +169,9 @@ class Baseline:
         parts = [x for x in (conv, clock) if x]
         for k, v in self.values.items():
             unit = self.units.get(k, "")
-            scale, shown = (1e3, "ms") if unit == "s" else (1.0, unit)
+            scale, shown = {"s": (1e3, "ms"), "m": (1e3, "mm"), "rad": (1e3, "mrad")}.get(
+                unit, (1.0, unit)
+            )
             parts.append(f"{self.ranges[k][2]} {scale * v:+.1f} {shown}".rstrip())
         return (
             "baseline calibration: "
@@ -365,7 +367,14 @@ def calibrate_baseline(
     ranges: dict[str, NuisanceRange] = dict(
         problem.adapter.baseline_nuisances(problem.logs, problem.drive)
     )
-    ranges = {k: r for k, r in ranges.items() if k.partition(".")[0] in candidates}
+    # a nuisance of a library effect counts only where that effect is observable; an
+    # effect outside the default library is a nuisance only (never a candidate)
+    default = set(problem.adapter.effect_names())
+    ranges = {
+        k: r
+        for k, r in ranges.items()
+        if k.partition(".")[0] in candidates or k.partition(".")[0] not in default
+    }
     check_nuisances(ranges)
     if not ranges or problem.train.n == 0:
         return Baseline()

@@ -139,6 +139,11 @@ ground truth; 2 mm per wheel; 2 mm, 2 mm, 3 mrad for the camera) and its regimes
 TRAIN_MANOEUVRES = ("straight_runs", "turns_in_place", "arcs", "accelerations")
 """Manoeuvres of a blind case's training logs."""
 HOLDOUT_MANOEUVRES = ("square_cw", "square_ccw", "tour", "hard_starts")
+
+TRUTH_FRAME_RANGE = 0.02
+"""m: how far from the axle centre a hand-defined ground-truth body origin is a convention."""
+TRUTH_YAW_RANGE = 0.035
+"""rad (2°): how far from the rolling direction a hand-defined ground-truth heading is a convention."""
 """Manoeuvres of a blind case's held-out logs."""
 
 
@@ -220,12 +225,33 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         actuator response, not a finding. Longer delays remain candidates of the
         effect library. The firmware's ramp convention is chosen beside them
         (:meth:`actuator_conventions`).
+
+        Beside the clocks, the body frame the ground truth tracks
+        (``truth_frame_offset``): a motion-capture rigid body defined by hand
+        puts its origin within :data:`TRUTH_FRAME_RANGE` metres of the axle
+        centre and its heading within :data:`TRUTH_YAW_RANGE` rad of the rolling
+        direction; that is the setup's convention, not the robot's physics.
         """
         if not prepared:
             return {}
         dt = min(p.log.dt for p in prepared)
         half = 0.5 * dt
         out = {"timestamp_offset.offset": (-half, half, "ground-truth time alignment")}
+        out["truth_frame_offset.x"] = (
+            -TRUTH_FRAME_RANGE,
+            TRUTH_FRAME_RANGE,
+            "ground-truth body origin ahead of the axle centre",
+        )
+        out["truth_frame_offset.y"] = (
+            -TRUTH_FRAME_RANGE,
+            TRUTH_FRAME_RANGE,
+            "ground-truth body origin left of the axle centre",
+        )
+        out["truth_frame_offset.yaw"] = (
+            -TRUTH_YAW_RANGE,
+            TRUTH_YAW_RANGE,
+            "ground-truth body heading against the rolling direction",
+        )
         if drive is Drive.COMMANDS:
             requests = bool(self.actuator_conventions(prepared, drive))
             out["command_latency.delay"] = (

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.geometry import reframe_track
 from realitygap.diagnosis.firmware import firmware_from_meta
 from realitygap.diagnosis.log import Log, LogError
 from realitygap.estimators.diffdrive_model import DiffDriveKinematics
@@ -351,6 +352,11 @@ def simulate(
     cams[:, 2] = _unwrap_continuous(cams[:, 2], float(cams[0, 2]))
     ticks_out = np.floor(angles * k_ticks) if tk is None else tk.copy()
     true_gt = poses.copy()
+    for channel, frame in reality.channel_frames().items():
+        if channel == "pose_gt":
+            poses = reframe_track(poses, frame, start_arr)
+        else:
+            raise ValueError(f"the recorder cannot reframe channel {channel!r}")
     for channel, offset in reality.channel_time_offsets().items():
         if channel == "pose_gt":
             poses = shift_channel(t, poses, offset)

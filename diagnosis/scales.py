@@ -22,10 +22,12 @@ the window shrink. The best model is named, with both figures stated, when
 2. its whole-run held-out trajectory gap (PyBullet replays) shrinks by at least
    :attr:`AttributionSettings.min_shrink`, consistently across runs (every
    held-out run improves, or a one-sided sign test over runs at 5 %);
-3. what it leaves at the window scale does not add up along the runs: in every
-   held-out run and feature column the mean window residual is within
-   :attr:`ScaleSettings.max_run_bias` standard errors of zero (standard errors
-   widened for lag-1 autocorrelation, :func:`run_bias`). A drift the model
+3. what it leaves at the window scale does not add up along the runs: no
+   held-out run and feature column has a mean window residual away from zero
+   at the family-wise level :attr:`ScaleSettings.run_bias_alpha` (Student's t
+   on the run's windows, standard errors and degrees of freedom corrected for
+   lag-1 autocorrelation, Bonferroni over runs and columns: :func:`run_bias`).
+   A drift the model
    leaves — a second mechanism that integrates — keeps a mean, run after run;
    a residual that only moves windows about (a clock wandering between the
    channels, the body lagging the wheels in a turn, a bump) does not.
@@ -59,6 +61,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 from scipy.stats import binomtest
+from scipy.stats import t as student_t
 
 from realitygap.diagnosis.attribute import Layout, ModelFit, Problem, Verdict
 from realitygap.diagnosis.clock import timing_channel
@@ -87,16 +90,16 @@ class ScaleSettings:
         Fits with permuted signatures the true fit is compared with.
     step : float
         Finite-difference step of the timing signature, s.
-    max_run_bias : float
-        Largest mean window residual of a held-out run and column, in standard
-        errors, for the residual left to count as not adding up along the runs.
+    run_bias_alpha : float
+        Family-wise significance level (over held-out runs and feature columns)
+        at which a mean window residual left along a run counts as a drift.
     """
 
     bound: float = 0.05
     min_timing_share: float = 0.5
     permutations: int = 20
     step: float = 0.005
-    max_run_bias: float = 3.0
+    run_bias_alpha: float = 0.01
 
     def __post_init__(self) -> None:
         for name in ("bound", "step"):
@@ -109,10 +112,10 @@ class ScaleSettings:
             raise ValueError(
                 f"ScaleSettings.min_timing_share: expected a share in (0, 1), got {self.min_timing_share!r}"
             )
-        if not (math.isfinite(self.max_run_bias) and self.max_run_bias > 0):
+        if not 0.0 < self.run_bias_alpha < 1.0:
             raise ValueError(
-                "ScaleSettings.max_run_bias: expected a positive number of standard errors, "
-                f"got {self.max_run_bias!r}"
+                "ScaleSettings.run_bias_alpha: expected a significance level in (0, 1), "
+                f"got {self.run_bias_alpha!r}"
             )
         if self.permutations < 1:
             raise ValueError(f"ScaleSettings.permutations: expected ≥ 1, got {self.permutations!r}")
@@ -171,14 +174,16 @@ def run_bias(
 
     The standard error of a mean of ``n`` windows with spread ``s`` and lag-1
     autocorrelation ``ρ`` (clipped to ``[0, max_autocorrelation]``) is
-    :math:`s/\sqrt n \cdot \sqrt{(1+ρ)/(1-ρ)}`. Runs with fewer than four
-    windows in a column are left out.
+    :math:`s/\sqrt n \cdot \sqrt{(1+ρ)/(1-ρ)}`, and the two-sided p-value of
+    ``t = mean / se`` is Student's with :math:`n(1-ρ)/(1+ρ) - 1` degrees of
+    freedom (at least 1). Runs with fewer than four windows in a column are
+    left out.
 
     Returns
     -------
     list of dict
-        ``log`` (index), ``group``, ``column``, ``windows``, ``mean``, ``se`` and
-        ``t`` (mean / se), largest ``|t|`` first.
+        ``log`` (index), ``group``, ``column``, ``windows``, ``mean``, ``se``,
+        ``t`` (mean / se), ``df`` and ``p``, smallest ``p`` first.
     """
     if z.shape != (layout.n,):
         raise ValueError(f"run_bias: z has shape {z.shape}, the layout {layout.n} entries")
@@ -197,7 +202,9 @@ def run_bias(
             rho = float(d[1:] @ d[:-1]) / den if den > 0 else 0.0
             rho = min(max(rho, 0.0), max_autocorrelation)
             se = spread / math.sqrt(x.size) * math.sqrt((1.0 + rho) / (1.0 - rho))
+            df = max(x.size * (1.0 - rho) / (1.0 + rho) - 1.0, 1.0)
             mean = float(x.mean())
+            t = mean / se if se > 0 else (0.0 if mean == 0 else math.inf)
             group, column = str(key).split("/", 1)
             out.append(
                 {
@@ -207,10 +214,12 @@ def run_bias(
                     "windows": int(x.size),
                     "mean": mean,
                     "se": se,
-                    "t": mean / se if se > 0 else (0.0 if mean == 0 else math.inf),
+                    "t": t,
+                    "df": df,
+                    "p": float(2.0 * student_t.sf(abs(t), df)),
                 }
             )
-    out.sort(key=lambda r: -abs(r["t"]))
+    out.sort(key=lambda r: (r["p"], -abs(r["t"])))
     return out
 
 
@@ -316,6 +325,7 @@ def judge_scales(
     bias = run_bias(z, problem.holdout)
     worst = bias[0] if bias else None
     worst_t = abs(float(worst["t"])) if worst is not None else 0.0
+    p_family = min(1.0, len(bias) * float(worst["p"])) if worst is not None else 1.0
     figures: dict[str, Any] = {
         "window_shrink_pct": shrink_pct_best,
         "run_gap_m_nominal": nom,
@@ -325,6 +335,7 @@ def judge_scales(
         "runs": [{"log": n, "gap_m_nominal": a, "gap_m_best": b} for n, a, b in runs],
         "window_gain": gain,
         "run_bias_max_se": worst_t,
+        "run_bias_p_family": p_family,
         "run_bias_worst": (
             {**worst, "log": problem.logs[int(worst["log"])].name} if worst is not None else None
         ),
@@ -341,8 +352,9 @@ def judge_scales(
     drift_msg = (
         f"what it leaves still adds up along held-out run "
         f"{problem.logs[int(worst['log'])].name} ({worst['group']} {worst['column']}: mean window "
-        f"residual {worst_t:.1f} standard errors from zero, at most {settings.max_run_bias:g} "
-        "allowed): a second mechanism that drifts"
+        f"residual {worst_t:.1f} standard errors from zero over {worst['windows']} windows, "
+        f"p = {p_family:.2g} over {len(bias)} runs and columns, against "
+        f"{settings.run_bias_alpha:g}): a second mechanism that drifts"
         if worst is not None
         else ""
     )
@@ -352,7 +364,7 @@ def judge_scales(
         f"the whole-run gap shrinks only {run_shrink:.0f} % (needs {100 * st.min_shrink:.0f} %)": run_shrink
         >= 100.0 * st.min_shrink,
         f"only {better} of {len(runs)} held-out runs improve": consistent,
-        drift_msg: worst_t <= settings.max_run_bias,
+        drift_msg: p_family >= settings.run_bias_alpha,
     }
     failed = [msg for msg, ok in checks.items() if not ok]
     if failed:
@@ -377,8 +389,8 @@ def judge_scales(
         f"{best.name} closes {run_shrink:.0f} % of the held-out whole-run trajectory gap "
         f"({100 * nom:.2f} → {100 * aft:.2f} cm, {better} of {len(runs)} runs better) but only "
         f"{shrink_pct_best:.0f} % at the 1-s window scale; what it leaves there does not add up "
-        f"along the runs (every run's mean window residual within {worst_t:.1f} standard errors "
-        f"of zero) and {rest_words}; {timing_words}"
+        f"along the runs (no run's mean window residual is away from zero: p = {p_family:.2g} over "
+        f"{len(bias)} runs and columns) and {rest_words}; {timing_words}"
     )
     named = Verdict(
         "effects",

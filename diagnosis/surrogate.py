@@ -53,7 +53,7 @@ import numpy.typing as npt
 
 from realitygap.core.io import atomic_write_text
 from realitygap.robots.diffdrive import DiffDriveParams
-from realitygap.robots.effects import EFFECTS, Effect, library
+from realitygap.robots.effects import EFFECTS, Effect
 from realitygap.robots.effects.diffdrive import SurrogateContext, SurrogateSlot
 
 FloatArray = npt.NDArray[np.float64]
@@ -66,9 +66,9 @@ __all__ = [
 ]
 
 SURROGATE_EFFECTS: tuple[str, ...] = tuple(
-    n for n in library("diffdrive") if EFFECTS[n].surrogate_slot is not None
+    n for n, c in EFFECTS.items() if c.robot == "diffdrive" and c.surrogate_slot is not None
 )
-"""Effects with a term in the surrogate (registration order)."""
+"""Effects with a term in the surrogate (registration order), in the default library or not."""
 
 _TERMS: dict[SurrogateSlot, tuple[type[Effect], ...]] = {
     slot: tuple(

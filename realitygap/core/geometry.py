@@ -53,6 +53,50 @@ def se2_between(a: npt.ArrayLike, b: npt.ArrayLike) -> FloatArray:
     return se2_compose(se2_inverse(a), b)
 
 
+def reframe_track(
+    track: npt.ArrayLike, frame: npt.ArrayLike, start: npt.ArrayLike | None = None
+) -> FloatArray:
+    """The track a body frame offset by ``frame`` records, from a track started at its record.
+
+    A pose channel that tracks a frame ``F = (x, y, yaw)`` fixed to the body
+    (a motion-capture rigid body defined a little off the axle centre) records
+    ``A_k ⊕ F`` for body poses ``A_k``. A replay that starts the body at the
+    first *recorded* pose ``R_0`` and moves it as the body moved produces
+    ``A'_k = R_0 ⊕ A_0^{-1} ⊕ A_k``; the recorded track is then
+
+    .. math::  R_k = (R_0 ⊕ F^{-1} ⊕ R_0^{-1}) ⊕ A'_k ⊕ F .
+
+    Headings stay continuous (the rotation parts cancel).
+
+    Parameters
+    ----------
+    track : array_like, shape (..., N, 3)
+        ``A'_k``: x, y (m) and continuous heading (rad).
+    frame : array_like, shape (..., 3)
+        ``F`` per batch entry: x, y (m), yaw (rad).
+    start : array_like, shape (..., 3), optional
+        ``R_0``; default the track's first pose.
+
+    Returns
+    -------
+    ndarray, shape (..., N, 3)
+    """
+    a = np.asarray(track, dtype=float)
+    f = np.asarray(frame, dtype=float)
+    r0 = a[..., 0, :] if start is None else np.broadcast_to(np.asarray(start, dtype=float), f.shape)
+    left = se2_compose(se2_compose(r0, se2_inverse(f)), se2_inverse(r0))
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    mx, my = f[..., 0, None], f[..., 1, None]
+    px = a[..., 0] + c * mx - s * my
+    py = a[..., 1] + s * mx + c * my
+    cl, sl = np.cos(left[..., 2])[..., None], np.sin(left[..., 2])[..., None]
+    out = np.empty(np.broadcast_shapes(a.shape, f.shape[:-1] + a.shape[-2:]))
+    out[..., 0] = left[..., 0, None] + cl * px - sl * py
+    out[..., 1] = left[..., 1, None] + sl * px + cl * py
+    out[..., 2] = a[..., 2]
+    return out
+
+
 def yaw_from_quat_xyzw(quat_xyzw: npt.ArrayLike) -> float:
     """Heading (rotation about world z) in rad of a quaternion in PyBullet's xyzw order."""
     x, y, z, w = np.asarray(quat_xyzw, dtype=float)

@@ -304,6 +304,7 @@ def _real_diagnoses(
             for k in (
                 "run_shrink_pct",
                 "run_bias_max_se",
+                "run_bias_p_family",
                 "timing_share_pct",
                 "timing_share_pct_permuted_max",
             ):

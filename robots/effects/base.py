@@ -13,7 +13,8 @@ from its model. One effect class holds, side by side:
   before the body is built (:meth:`Effect.apply_params`), by a runtime hook
   between the controller and the body (:meth:`Effect.make_command_hook`) or
   between a sensor and its reader (:meth:`Effect.make_ticks_hook`), or by a
-  clock error of a recorded channel (:meth:`Effect.channel_time_offsets`);
+  clock error of a recorded channel (:meth:`Effect.channel_time_offsets`), or by
+  the body frame a recorded pose channel tracks (:meth:`Effect.channel_frames`);
 * optionally its term in its robot's fast surrogate model
   (:attr:`Effect.surrogate_slot`, :meth:`Effect.surrogate_term`).
 
@@ -284,6 +285,15 @@ class Effect:
         """
         return {}
 
+    def channel_frames(self) -> dict[str, tuple[float, float, float]]:
+        """Body frames that recorded pose channels track, ``{channel: (x, y, yaw)}``.
+
+        A channel with frame ``F`` (m, m, rad, in the body frame) records the
+        pose of that frame, not of the body origin
+        (:func:`~realitygap.core.geometry.reframe_track`).
+        """
+        return {}
+
     # surrogate -----------------------------------------------------------------
     @classmethod
     def surrogate_term(cls, x: Any, p: Mapping[str, Any], ctx: Any) -> Any:
@@ -436,6 +446,18 @@ class Reality:
         for e in self.effects:
             for channel, offset in e.channel_time_offsets().items():
                 out[channel] = out.get(channel, 0.0) + float(offset)
+        return out
+
+    def channel_frames(self) -> dict[str, tuple[float, float, float]]:
+        """Composed body frame per recorded pose channel (see :meth:`Effect.channel_frames`)."""
+        from realitygap.core.geometry import se2_compose
+
+        out: dict[str, tuple[float, float, float]] = {}
+        for e in self.effects:
+            for channel, frame in e.channel_frames().items():
+                prev = out.get(channel, (0.0, 0.0, 0.0))
+                x, y, _ = (float(v) for v in se2_compose(prev, frame))
+                out[channel] = (x, y, float(prev[2]) + float(frame[2]))
         return out
 
     @property

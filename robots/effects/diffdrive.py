@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.geometry import reframe_track
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects.base import (
     BlindRange,
@@ -46,6 +47,7 @@ __all__ = [
     "SurrogateContext",
     "SurrogateSlot",
     "TimestampOffset",
+    "TruthFrameOffset",
     "VelocitySaturation",
     "WheelDiameterRatio",
     "WheelRadiusScale",
@@ -587,3 +589,50 @@ class EncoderRatio(Effect):
             return cl, cr
         gl, gr = _wheel_gains(e)
         return cl * gl, cr * gr
+
+
+@register_effect
+class TruthFrameOffset(Effect):
+    r"""The ground truth tracks a frame a little off the axle centre and the forward axis.
+
+    A motion-capture rigid body is defined by hand on the robot: its origin
+    lands some millimetres from the centre of the axle and its heading some
+    milliradians from the direction the wheels roll. The channel then records
+    :math:`A_k ⊕ F` for the axle poses :math:`A_k` and :math:`F = (x, y, ψ)`:
+    on every straight leg the recorded motion crabs sideways by :math:`ψ` per
+    metre, and on every turn in place the recorded origin circles the axle.
+    Realised by the recorder; the surrogate transforms its stamped track the
+    same way (:func:`~realitygap.core.geometry.reframe_track`, one definition).
+    Outside the default library: the calibrated baseline fits it as a
+    convention of the ground-truth setup.
+    """
+
+    name = "truth_frame_offset"
+    robot = "diffdrive"
+    stage = Stage.SENSOR
+    observed_in = (Channel.POSE_GT,)
+    description = (
+        "The ground-truth channel tracks a body frame offset from the axle centre by (x, y) "
+        "and turned by yaw from the forward axis (a motion-capture rigid body defined by hand). "
+        "Realised by the recorder."
+    )
+    specs = (
+        ParamSpec("x", "m", 0.0, -0.1, 0.1, "tracked origin ahead of the axle centre"),
+        ParamSpec("y", "m", 0.0, -0.1, 0.1, "tracked origin left of the axle centre"),
+        ParamSpec("yaw", "rad", 0.0, -0.2, 0.2, "tracked heading minus the rolling direction"),
+    )
+    since = 3
+    surrogate_slot = SurrogateSlot.STAMPS
+    surrogate_order = -1
+    surrogate_example = (("x", 0.03), ("y", -0.02), ("yaw", 0.05))
+
+    def channel_frames(self) -> dict[str, tuple[float, float, float]]:
+        frame = (self["x"], self["y"], self["yaw"])
+        return {Channel.POSE_GT.value: frame} if any(frame) else {}
+
+    @classmethod
+    def surrogate_term(cls, x: Any, p: Mapping[str, FloatArray], ctx: SurrogateContext) -> Any:
+        frame = np.stack(np.broadcast_arrays(p["x"], p["y"], p["yaw"]), axis=-1)
+        if not np.any(frame):
+            return x
+        return reframe_track(x, frame)

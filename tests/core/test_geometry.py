@@ -128,3 +128,30 @@ def test_batched_so3_maps_match_the_scalar_ones() -> None:
 def test_rotation_2d_is_the_upper_block_of_rot_z(theta: float) -> None:
     np.testing.assert_allclose(rotation_2d(theta), rot_z(theta)[:2, :2], atol=1e-15)
     np.testing.assert_allclose(rotation_2d(theta) @ rotation_2d(-theta), np.eye(2), atol=1e-15)
+
+
+def test_reframe_track_records_the_offset_frame_of_a_replay_started_at_the_record() -> None:
+    from realitygap.core.geometry import reframe_track, se2_compose, se2_inverse
+
+    rng = np.random.default_rng(3)
+    heading = np.cumsum(rng.normal(0.0, 0.3, 40))
+    body = np.column_stack([np.cumsum(rng.normal(0.0, 0.1, (40, 2)), axis=0), heading])
+    frame = np.array([0.03, -0.02, 0.05])
+    recorded = se2_compose(body, frame)
+    recorded[:, 2] = heading + frame[2]  # continuous, as a channel records it
+    # a replay starts the body at the first record and moves it as the body moved
+    replay = se2_compose(se2_compose(recorded[0], se2_inverse(body[0])), body)
+    replay[:, 2] = recorded[0, 2] + heading - heading[0]
+    np.testing.assert_allclose(reframe_track(replay, frame), recorded, atol=1e-12)
+    # batched: one frame per batch entry, the neutral frame changes nothing
+    both = reframe_track(np.stack([replay, replay]), np.stack([frame, np.zeros(3)]))
+    np.testing.assert_allclose(both[0], recorded, atol=1e-12)
+    np.testing.assert_allclose(both[1], replay, atol=1e-15)
+    # a heading offset alone: driving straight along the wheels' axis records a crab by yaw
+    straight = np.column_stack([np.arange(5.0) * np.cos(0.1), np.arange(5.0) * np.sin(0.1)])
+    track = np.column_stack([straight, np.full(5, 0.1)])
+    np.testing.assert_allclose(
+        reframe_track(track, [0.0, 0.0, 0.1]),
+        np.column_stack([np.arange(5.0), np.zeros(5), np.full(5, 0.1)]),
+        atol=1e-12,
+    )

@@ -170,6 +170,31 @@ def test_robot_held_in_the_air_has_not_enough_clean_data() -> None:
 
 
 # --------------------------------------------------------------------------- baseline
+def test_the_ground_truths_body_frame_goes_to_the_baseline_and_the_drift_is_named() -> None:
+    rng = np.random.default_rng(6)
+    frame = {"x": 0.012, "y": -0.008, "yaw": 0.02}
+    reality = Reality(
+        (make_effect("wheelbase_error", E_b=1.04), make_effect("truth_frame_offset", **frame))
+    )
+    train = [record(LOOP, reality, rng), record(ARCS, reality, rng)]
+    hold = [record(LOOP, reality, rng)]
+    d = diagnose(train, hold, settings=DiagnosisSettings(effects=LIBRARY, attribution=FAST))
+    for k, v in frame.items():
+        assert d.baseline.values[f"truth_frame_offset.{k}"] == pytest.approx(v, abs=2e-3), k
+    assert d.verdict.label == ["wheelbase_error"], d.verdict.reason
+    assert d.chosen is not None
+    assert d.chosen.values["wheelbase_error.E_b"] == pytest.approx(1.04, abs=0.004)
+    # a frame offset beyond the convention's range is not absorbed: it is left as a gap
+    far = Reality((make_effect("truth_frame_offset", x=0.06, y=0.0, yaw=0.0),))
+    d = diagnose(
+        [record(LOOP, far, rng), record(ARCS, far, rng)],
+        [record(LOOP, far, rng)],
+        settings=DiagnosisSettings(effects=LIBRARY, attribution=FAST),
+    )
+    assert d.baseline.values["truth_frame_offset.x"] == pytest.approx(0.02, abs=1e-6)
+    assert d.verdict.kind != "none"
+
+
 def test_sub_sample_time_alignment_goes_to_the_baseline_not_the_findings() -> None:
     rng = np.random.default_rng(5)
     reality = Reality(
@@ -179,7 +204,11 @@ def test_sub_sample_time_alignment_goes_to_the_baseline_not_the_findings() -> No
     hold = [record(LOOP, reality, rng)]
     d = diagnose(train, hold, settings=DiagnosisSettings(effects=LIBRARY, attribution=FAST))
     assert d.baseline.values["timestamp_offset.offset"] == pytest.approx(0.015, abs=0.006)
-    assert set(d.baseline.values) == {"timestamp_offset.offset"}  # no command_latency candidate
+    # no command_latency candidate; the ground truth's body frame is always a nuisance, and
+    # here (none planted) it stays at the axle
+    frame = ("truth_frame_offset.x", "truth_frame_offset.y", "truth_frame_offset.yaw")
+    assert set(d.baseline.values) == {"timestamp_offset.offset", *frame}
+    assert all(abs(d.baseline.values[k]) < 2e-3 for k in frame), d.baseline.values
     assert d.verdict.label == ["wheelbase_error"]
     js = d.to_json()
     rows = js["baseline_calibration"]["nuisances"]

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.stats import t as student_t
 
 from realitygap.diagnosis.attribute import Layout
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
@@ -51,9 +52,12 @@ def test_run_bias_is_the_mean_in_standard_errors_per_run_and_column() -> None:
     se = x.std(ddof=1) / math.sqrt(x.size) * math.sqrt((1 + rho) / (1 - rho))
     assert top["t"] == pytest.approx(x.mean() / se, rel=1e-12)
     assert top["windows"] == 40
+    df = 40 * (1 - rho) / (1 + rho) - 1
+    assert top["p"] == pytest.approx(2 * student_t.sf(abs(top["t"]), df), rel=1e-9)
+    assert top["p"] < 1e-6
     # every other run and column is within a few standard errors of zero
     assert all(abs(r["t"]) < 3.5 for r in rows[1:])
-    assert [abs(r["t"]) for r in rows] == sorted((abs(r["t"]) for r in rows), reverse=True)
+    assert [r["p"] for r in rows] == sorted(r["p"] for r in rows)
 
 
 def test_run_bias_widens_the_standard_error_of_a_correlated_residual() -> None:
@@ -75,8 +79,8 @@ def test_run_bias_leaves_out_short_runs_and_checks_its_input() -> None:
     assert run_bias(np.ones(lay.n), lay) == []
     with pytest.raises(ValueError, match=r"run_bias: z has shape"):
         run_bias(np.ones(lay.n + 1), lay)
-    with pytest.raises(ValueError, match=r"ScaleSettings\.max_run_bias"):
-        ScaleSettings(max_run_bias=0.0)
+    with pytest.raises(ValueError, match=r"ScaleSettings\.run_bias_alpha"):
+        ScaleSettings(run_bias_alpha=0.0)
 
 
 def _wandering_clock_sessions(root: Path, seed: int, **hidden: float) -> None:
@@ -128,7 +132,7 @@ def test_a_drift_under_a_wandering_clock_is_named_on_whole_runs(tmp_path: Path) 
     sc = d.scales
     # the window scale hides the drift; whole runs show it
     assert sc["window_shrink_pct"] < 50.0 <= sc["run_shrink_pct"], sc
-    assert sc["named"] and sc["run_bias_max_se"] <= ScaleSettings().max_run_bias
+    assert sc["named"] and sc["run_bias_p_family"] >= ScaleSettings().run_bias_alpha
     assert d.verdict.kind == "effects" and "wheelbase_error" in d.verdict.effects
     assert d.chosen is not None
     # a wider axle (planted 1.2 %); the window fit under a 30 ms wander is loose
