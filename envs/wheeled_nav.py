@@ -290,6 +290,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._obs_head, self._obs_tail = self._obs_out[:12], self._obs_out[12:]
         self._obs_low_head, self._obs_high_head = low[:12].copy(), high[:12].copy()
         self._obs_scan: Scan | None = None  # the scan whose values are in _obs_out[12:]
+        self._episode_consts = (self.dt, self.v_max, self.w_max)  # control period, v_max, w_max
 
     # ------------------------------------------------------------------ properties
     @property
@@ -373,6 +374,8 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         )
 
         self._t, self._steps = 0.0, 0
+        # the episode's constants, read once (the step's hot path uses them as plain floats)
+        self._episode_consts = (self.dt, self.v_max, self.w_max)
         self._estimate = self.estimator.reset(start.copy())
         measurement = self._measure(rng)
         self._estimate = self.estimator.update(measurement)
@@ -387,10 +390,11 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         if self.robot is None:
             raise RuntimeError("call reset() before step()")
         a0, a1 = check_twist_action(action)
-        self.robot.command_twist(a0 * self.v_max, a1 * self.w_max)
+        dt, v_max, w_max = self._episode_consts
+        self.robot.command_twist(a0 * v_max, a1 * w_max)
         self.world.step()
         self._steps += 1
-        self._t = self._steps * self.dt
+        self._t = self._steps * dt
 
         rng = self.np_random
         pose = self.robot.pose2d()  # the true pose, read once for the scan, task and info
@@ -485,7 +489,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             else:
                 scan = self.scanner.scan_fast(self._t, rng, None if pose is None else pose.tolist())
             self._scan = scan
-        return DiffDriveMeasurement(t=self._t, ticks=ticks, scan=scan, rgbd=frame)
+        return DiffDriveMeasurement(self._t, ticks, scan, frame)  # (positional: cheaper)
 
     def _observation(self) -> npt.NDArray[np.float32]:
         assert self._estimate is not None and self._scan is not None
@@ -494,6 +498,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         x, y, th = pose.tolist() if type(pose) is np.ndarray else (float(v) for v in pose)
         gx, gy, gth = self.task.goal.tolist()
         cmd_v, cmd_w = self.robot.command.tolist()
+        _, v_max, w_max = self._episode_consts
         out = self._obs_out
         new_scan = self._obs_scan is not self._scan  # the scan part changes only with a new scan
         if _fill_observation_compiled is not None and use_compiled():
@@ -504,8 +509,8 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
                 gx,
                 gy,
                 gth,
-                cmd_v / self.v_max,
-                cmd_w / self.w_max,
+                cmd_v / v_max,
+                cmd_w / w_max,
                 self._scan.ranges,
                 self._scan.range_max,
                 new_scan,
@@ -539,8 +544,8 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             math.sin(gth),
             c * dx + s * dy,
             -s * dx + c * dy,
-            cmd_v / self.v_max,
-            cmd_w / self.w_max,
+            cmd_v / v_max,
+            cmd_w / w_max,
         )
         np.minimum(head, self._obs_high_head, out=head)
         np.maximum(head, self._obs_low_head, out=head)
@@ -558,9 +563,14 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         """The step's ``info``. ``pose`` and ``terms`` are the caller's fresh objects, kept by
         nothing else: they go in as they are."""
         assert self._estimate is not None
+        est_pose = self._estimate.pose
         return {
             "true_pose": pose,
-            "estimated_pose": np.array(self._estimate.pose, dtype=float),
+            "estimated_pose": (
+                est_pose.copy()
+                if type(est_pose) is np.ndarray and est_pose.dtype == np.float64
+                else np.array(est_pose, dtype=float)
+            ),
             "estimate_ok": bool(self._estimate.ok),
             "estimate_status": self._estimate.status,
             "goal": self.task.goal.copy(),
