@@ -28,16 +28,19 @@ F = TypeVar("F", bound=Callable[..., Any])
 DISABLE_JIT_ENV = "REALITYGAP_DISABLE_JIT"
 """Environment variable: set to ``1`` to keep every kernel on its NumPy path."""
 
-try:  # the optional ``fast`` extra
-    import numba as _numba
-except ImportError:  # pragma: no cover - exercised where numba is absent
-    _numba = None
+_numba: Any = None
+if os.environ.get(DISABLE_JIT_ENV, "0") in ("", "0"):
+    try:  # the optional ``fast`` extra
+        import numba as _numba
+    except ImportError:  # pragma: no cover - exercised where numba is absent
+        _numba = None
 
-_state = {"on": _numba is not None and os.environ.get(DISABLE_JIT_ENV, "0") in ("", "0")}
+_state = {"on": _numba is not None}
 
 
 def numba_available() -> bool:
-    """Whether Numba is installed (``pip install realitygap[fast]``)."""
+    """Whether Numba is installed (``pip install realitygap[fast]``) and not disabled by
+    :data:`DISABLE_JIT_ENV` (which keeps it from being imported at all)."""
     return _numba is not None
 
 

@@ -16,7 +16,9 @@ from realitygap.envs import wheeled_nav
 from realitygap.estimators import diffdrive_model as dm
 from realitygap.robots import raycast, sensors, world
 
-needs_numba = pytest.mark.skipif(not jit.numba_available(), reason="numba is not installed")
+needs_numba = pytest.mark.skipif(
+    not jit.numba_available(), reason="numba is not installed (or REALITYGAP_DISABLE_JIT is set)"
+)
 
 
 def _random_scene(rng: np.random.Generator) -> raycast.PrimitiveArrays:
