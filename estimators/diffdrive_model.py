@@ -742,11 +742,12 @@ class WheelOdometry:
         return self._estimate
 
     def _make_estimate(self, status: str) -> Estimate:
+        # positional (t, pose, cov, ok, status, extras): cheaper than keywords, once per step
         return Estimate(
-            t=self._t,
-            pose=self._pose.copy(),
-            cov=self._cov.copy(),
-            ok=True,
-            status=status,
-            extras={"n_rejected": self._n_rejected, "distance": self._distance},
+            self._t,
+            self._pose.copy(),
+            self._cov.copy(),
+            True,
+            status,
+            {"n_rejected": self._n_rejected, "distance": self._distance},
         )
