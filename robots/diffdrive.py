@@ -205,6 +205,13 @@ class FirmwareLimits:
                 f"one of {[d.value for d in Deceleration]}, got ramp {self.ramp!r}, "
                 f"deceleration {self.deceleration!r}"
             ) from None
+        # (stop at a zero request, free deceleration, wheel ramp): step() reads them per call
+        flags = (
+            self.deceleration is Deceleration.STOP,
+            self.deceleration is Deceleration.FREE,
+            self.ramp is Ramp.WHEELS,
+        )
+        object.__setattr__(self, "_convention_flags", flags)
 
     @property
     def convention(self) -> str:
@@ -222,10 +229,10 @@ class FirmwareLimits:
         deceleration when ``deceleration`` is :attr:`Deceleration.FREE`.
         ``dt`` is the control period in s.
         """
-        if self.deceleration is Deceleration.STOP and v == 0.0 and w == 0.0:
+        stop, free, wheels = self._convention_flags
+        if stop and v == 0.0 and w == 0.0:
             return 0.0, 0.0
-        free = self.deceleration is Deceleration.FREE
-        if self.ramp is Ramp.WHEELS:
+        if wheels:
             return self.limit_wheels(v, w, v_prev, w_prev, dt, wheelbase, free_deceleration=free)
         return self.limit(v, w, v_prev, w_prev, dt, free_deceleration=free)
 
