@@ -188,6 +188,8 @@ class FirmwareLimits:
     ramp: Ramp = Ramp.BODY
     deceleration: Deceleration = Deceleration.LIMITED
     decel_factor: float = 1.0
+    if TYPE_CHECKING:  # set in __post_init__, not a field
+        _convention_flags: tuple[bool, bool, bool]
 
     def __post_init__(self) -> None:
         for name in ("v_max", "w_max", "a_max", "alpha_max", "decel_factor"):

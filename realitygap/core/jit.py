@@ -66,4 +66,4 @@ def compiled(fn: F) -> F | None:
     when Numba is not installed. ``fn`` itself is left unchanged."""
     if _numba is None:
         return None
-    return _numba.njit(cache=True, error_model="numpy", nogil=True)(fn)  # type: ignore[no-any-return]
+    return _numba.njit(cache=True, error_model="numpy", nogil=True)(fn)
