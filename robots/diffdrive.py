@@ -188,8 +188,6 @@ class FirmwareLimits:
     ramp: Ramp = Ramp.BODY
     deceleration: Deceleration = Deceleration.LIMITED
     decel_factor: float = 1.0
-    if TYPE_CHECKING:  # set in __post_init__, not a field
-        _convention_flags: tuple[bool, bool, bool]
 
     def __post_init__(self) -> None:
         for name in ("v_max", "w_max", "a_max", "alpha_max", "decel_factor"):
@@ -207,13 +205,6 @@ class FirmwareLimits:
                 f"one of {[d.value for d in Deceleration]}, got ramp {self.ramp!r}, "
                 f"deceleration {self.deceleration!r}"
             ) from None
-        # (stop at a zero request, free deceleration, wheel ramp): step() reads them per call
-        flags = (
-            self.deceleration is Deceleration.STOP,
-            self.deceleration is Deceleration.FREE,
-            self.ramp is Ramp.WHEELS,
-        )
-        object.__setattr__(self, "_convention_flags", flags)
 
     @property
     def convention(self) -> str:
@@ -231,10 +222,12 @@ class FirmwareLimits:
         deceleration when ``deceleration`` is :attr:`Deceleration.FREE`.
         ``dt`` is the control period in s.
         """
-        stop, free, wheels = self._convention_flags
-        if stop and v == 0.0 and w == 0.0:
+        # module constants: cheaper than the Enum classes' attribute lookups, once per step
+        deceleration = self.deceleration
+        if deceleration is _STOP and v == 0.0 and w == 0.0:
             return 0.0, 0.0
-        if wheels:
+        free = deceleration is _FREE
+        if self.ramp is _WHEELS:
             return self.limit_wheels(v, w, v_prev, w_prev, dt, wheelbase, free_deceleration=free)
         return self.limit(v, w, v_prev, w_prev, dt, free_deceleration=free)
 
@@ -325,6 +318,9 @@ class FirmwareLimits:
         sl = ramp_step(v_prev - w_prev * half, v - w * half, ds, free_deceleration, dd)
         sr = ramp_step(v_prev + w_prev * half, v + w * half, ds, free_deceleration, dd)
         return float(0.5 * (sl + sr)), float((sr - sl) / wheelbase)
+
+
+_STOP, _FREE, _WHEELS = Deceleration.STOP, Deceleration.FREE, Ramp.WHEELS
 
 
 def ramp_step(
