@@ -343,7 +343,6 @@ def _run(
     """The rows of a seeded run: the env's own paths (compiled kernels where Numba is
     installed and ``compiled``), or the reference formulations (NumPy only)."""
     mp = pytest.MonkeyPatch()
-    context = jit.numpy_only() if reference or not compiled else contextlib.nullcontext()
     if reference:
         mp.setattr(diffdrive_model, "propagate_pose", reference_propagate_pose)
         mp.setattr(sensors.PlanarScanner, "scan_fast", reference_scan_fast)
@@ -366,21 +365,20 @@ def _run(
 
         mp.setattr(world.World, "__init__", reference_world)
     try:
-        context.__enter__()
-        env = gym.make("realitygap/WheeledNav-v0", sensor_mode="fast", **kwargs)
-        rng = np.random.default_rng(11)
-        obs, info = env.reset(seed=7)
-        rows: list[tuple] = [(obs, *_info_row(info))]
-        for k in range(n_steps):
-            a = rng.uniform(-1.2, 1.2, 2).astype(np.float32 if k % 3 else np.float64)
-            obs, reward, terminated, truncated, info = env.step(a)
-            rows.append((obs, reward, terminated, truncated, *_info_row(info)))
-            if terminated or truncated:
-                obs, info = env.reset()
-                rows.append((obs, *_info_row(info)))
-        env.close()
+        with jit.numpy_only() if reference or not compiled else contextlib.nullcontext():
+            env = gym.make("realitygap/WheeledNav-v0", sensor_mode="fast", **kwargs)
+            rng = np.random.default_rng(11)
+            obs, info = env.reset(seed=7)
+            rows: list[tuple] = [(obs, *_info_row(info))]
+            for k in range(n_steps):
+                a = rng.uniform(-1.2, 1.2, 2).astype(np.float32 if k % 3 else np.float64)
+                obs, reward, terminated, truncated, info = env.step(a)
+                rows.append((obs, reward, terminated, truncated, *_info_row(info)))
+                if terminated or truncated:
+                    obs, info = env.reset()
+                    rows.append((obs, *_info_row(info)))
+            env.close()
     finally:
-        context.__exit__(None, None, None)
         mp.undo()
     return rows
 
