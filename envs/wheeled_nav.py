@@ -605,6 +605,8 @@ def fill_observation(
     ``ranges`` (m) over ``range_max`` (m); each entry cast to float32 and clipped to
     ``[low, high]`` (``np.minimum`` then ``np.maximum``: NaN stays NaN). The same
     operations as the NumPy form: compiled, the same bits."""
+    x, y, th, gx, gy, gth = float(x), float(y), float(th), float(gx), float(gy), float(gth)
+    cmd_v, cmd_w = float(cmd_v), float(cmd_w)
     c, s = math.cos(th), math.sin(th)
     dx, dy = gx - x, gy - y
     head = (
