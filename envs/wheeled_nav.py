@@ -50,6 +50,7 @@ import numpy.typing as npt
 from gymnasium import spaces
 
 from realitygap.core.checks import check_finite_float, check_nonnegative_int, check_positive_int
+from realitygap.core.jit import compiled, use_compiled
 from realitygap.envs.common import check_bool, check_rates, check_twist_action
 from realitygap.envs.layouts import MAX_ROOM_HALF_SIZE, MIN_ROOM_HALF_SIZE, obstacle_capacity
 from realitygap.envs.tasks.nav import (
@@ -289,6 +290,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._obs_head, self._obs_tail = self._obs_out[:12], self._obs_out[12:]
         self._obs_low_head, self._obs_high_head = low[:12].copy(), high[:12].copy()
         self._obs_scan: Scan | None = None  # the scan whose values are in _obs_out[12:]
+        self._episode_consts = (self.dt, self.v_max, self.w_max)  # control period, v_max, w_max
 
     # ------------------------------------------------------------------ properties
     @property
@@ -372,6 +374,8 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         )
 
         self._t, self._steps = 0.0, 0
+        # the episode's constants, read once (the step's hot path uses them as plain floats)
+        self._episode_consts = (self.dt, self.v_max, self.w_max)
         self._estimate = self.estimator.reset(start.copy())
         measurement = self._measure(rng)
         self._estimate = self.estimator.update(measurement)
@@ -386,10 +390,11 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         if self.robot is None:
             raise RuntimeError("call reset() before step()")
         a0, a1 = check_twist_action(action)
-        self.robot.command_twist(a0 * self.v_max, a1 * self.w_max)
+        dt, v_max, w_max = self._episode_consts
+        self.robot.command_twist(a0 * v_max, a1 * w_max)
         self.world.step()
         self._steps += 1
-        self._t = self._steps * self.dt
+        self._t = self._steps * dt
 
         rng = self.np_random
         pose = self.robot.pose2d()  # the true pose, read once for the scan, task and info
@@ -484,7 +489,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             else:
                 scan = self.scanner.scan_fast(self._t, rng, None if pose is None else pose.tolist())
             self._scan = scan
-        return DiffDriveMeasurement(t=self._t, ticks=ticks, scan=scan, rgbd=frame)
+        return DiffDriveMeasurement(self._t, ticks, scan, frame)  # (positional: cheaper)
 
     def _observation(self) -> npt.NDArray[np.float32]:
         assert self._estimate is not None and self._scan is not None
@@ -493,12 +498,33 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         x, y, th = pose.tolist() if type(pose) is np.ndarray else (float(v) for v in pose)
         gx, gy, gth = self.task.goal.tolist()
         cmd_v, cmd_w = self.robot.command.tolist()
+        _, v_max, w_max = self._episode_consts
+        out = self._obs_out
+        new_scan = self._obs_scan is not self._scan  # the scan part changes only with a new scan
+        if _fill_observation_compiled is not None and use_compiled():
+            _fill_observation_compiled(
+                x,
+                y,
+                th,
+                gx,
+                gy,
+                gth,
+                cmd_v / v_max,
+                cmd_w / w_max,
+                self._scan.ranges,
+                self._scan.range_max,
+                new_scan,
+                self._obs_low,
+                self._obs_high,
+                out,
+            )
+            self._obs_scan = self._scan
+            return out.copy()
         c, s = math.cos(th), math.sin(th)
         dx, dy = gx - x, gy - y
-        out = self._obs_out
         # = np.clip to the observation space, without its Python wrapper: the scan part when
         # the scan is new, the 12 entries before it at every step
-        if self._obs_scan is not self._scan:  # the scan part changes only with a new scan
+        if new_scan:
             scaled = np.divide(self._scan.ranges, self._scan.range_max)
             np.minimum(scaled, 1.0, out=scaled)  # inf (nothing seen) -> 1
             tail = self._obs_tail
@@ -518,8 +544,8 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             math.sin(gth),
             c * dx + s * dy,
             -s * dx + c * dy,
-            cmd_v / self.v_max,
-            cmd_w / self.w_max,
+            cmd_v / v_max,
+            cmd_w / w_max,
         )
         np.minimum(head, self._obs_high_head, out=head)
         np.maximum(head, self._obs_low_head, out=head)
@@ -537,9 +563,14 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         """The step's ``info``. ``pose`` and ``terms`` are the caller's fresh objects, kept by
         nothing else: they go in as they are."""
         assert self._estimate is not None
+        est_pose = self._estimate.pose
         return {
             "true_pose": pose,
-            "estimated_pose": np.array(self._estimate.pose, dtype=float),
+            "estimated_pose": (
+                est_pose.copy()
+                if type(est_pose) is np.ndarray and est_pose.dtype == np.float64
+                else np.array(est_pose, dtype=float)
+            ),
             "estimate_ok": bool(self._estimate.ok),
             "estimate_status": self._estimate.status,
             "goal": self.task.goal.copy(),
@@ -550,3 +581,61 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             "reward_terms": terms,
             "t": self._t,
         }
+
+
+def fill_observation(
+    x: float,
+    y: float,
+    th: float,
+    gx: float,
+    gy: float,
+    gth: float,
+    cmd_v: float,
+    cmd_w: float,
+    ranges: FloatArray,
+    range_max: float,
+    new_scan: bool,
+    low: npt.NDArray[np.float32],
+    high: npt.NDArray[np.float32],
+    out: npt.NDArray[np.float32],
+) -> None:
+    """Loop form of :meth:`WheeledNavEnv._observation`'s arithmetic into ``out``
+    (``12 + n_beams``,): estimated pose ``(x, y, th)``, goal pose ``(gx, gy, gth)``
+    (m, m, rad), normalised command ``(cmd_v, cmd_w)``, and with ``new_scan`` the scan
+    ``ranges`` (m) over ``range_max`` (m); each entry cast to float32 and clipped to
+    ``[low, high]`` (``np.minimum`` then ``np.maximum``: NaN stays NaN). The same
+    operations as the NumPy form: compiled, the same bits."""
+    x, y, th, gx, gy, gth = float(x), float(y), float(th), float(gx), float(gy), float(gth)
+    cmd_v, cmd_w = float(cmd_v), float(cmd_w)
+    c, s = math.cos(th), math.sin(th)
+    dx, dy = gx - x, gy - y
+    head = (
+        x,
+        y,
+        c,
+        s,
+        gx,
+        gy,
+        math.cos(gth),
+        math.sin(gth),
+        c * dx + s * dy,
+        -s * dx + c * dy,
+        cmd_v,
+        cmd_w,
+    )
+    for i in range(12):
+        v = np.float32(head[i])
+        v = v if (v <= high[i] or v != v) else high[i]
+        out[i] = v if (v >= low[i] or v != v) else low[i]
+    if new_scan:
+        for j in range(ranges.shape[0]):
+            r = ranges[j] / range_max
+            r = r if (r <= 1.0 or r != r) else 1.0  # inf (nothing seen) -> 1
+            v = np.float32(r)
+            k = 12 + j
+            v = v if (v <= high[k] or v != v) else high[k]
+            out[k] = v if (v >= low[k] or v != v) else low[k]
+
+
+_fill_observation_compiled = compiled(fill_observation)
+""":func:`fill_observation` compiled by Numba; ``None`` without Numba."""

@@ -48,7 +48,8 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.core.geometry import check_finite, wrap_angle
-from realitygap.estimators.base import Estimate, WheelTicks
+from realitygap.core.jit import compiled, use_compiled
+from realitygap.estimators.base import DiffDriveMeasurement, Estimate, WheelTicks
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -451,13 +452,18 @@ class OdometryNoise:
 
     def variances(self, ds: float, dtheta: float) -> tuple[float, float]:
         """Variances ``(σ_s², σ_θ²)`` (m², rad²) of ``(Δs, Δθ)`` for one step."""
-        var_s = self.distance_var_per_m * abs(ds) + self.distance_var_floor
-        var_th = (
-            self.heading_var_per_rad * abs(dtheta)
-            + self.heading_var_per_m * abs(ds)
-            + self.heading_var_floor
+        return _increment_variances(*self.coefficients, ds, dtheta)
+
+    @property
+    def coefficients(self) -> tuple[float, float, float, float, float]:
+        """``(k_s, k_θ, k_θs, σ_{s,0}², σ_{θ,0}²)`` as plain floats."""
+        return (
+            float(self.distance_var_per_m),
+            float(self.heading_var_per_rad),
+            float(self.heading_var_per_m),
+            float(self.distance_var_floor),
+            float(self.heading_var_floor),
         )
-        return var_s, var_th
 
     def covariance(self, ds: float, dtheta: float) -> FloatArray:
         """2×2 covariance of ``(Δs, Δθ)`` for one step (diagonal: :meth:`variances`)."""
@@ -476,6 +482,43 @@ def propagate_pose(
     """
     # scalar arithmetic throughout: this runs once per control step inside the envs
     ds, dtheta = float(ds), float(dtheta)
+    q_s, q_th = noise.variances(ds, dtheta)
+    (p00, p01, p02), (p10, p11, p12), (p20, p21, p22) = cov.tolist()
+    x, y, th0 = pose.tolist()
+    nx, ny, nth, n00, s01, s02, n11, s12, n22 = _propagate_scalars(
+        x, y, th0, p00, p01, p02, p10, p11, p12, p20, p21, p22, ds, dtheta, q_s, q_th
+    )
+    return np.array([nx, ny, nth]), np.array([[n00, s01, s02], [s01, n11, s12], [s02, s12, n22]])
+
+
+def _increment_variances(
+    k_s: float, k_th: float, k_ths: float, floor_s: float, floor_th: float, ds: float, dtheta: float
+) -> tuple[float, float]:
+    """:meth:`OdometryNoise.variances` from its :attr:`~OdometryNoise.coefficients`."""
+    return k_s * abs(ds) + floor_s, k_th * abs(dtheta) + k_ths * abs(ds) + floor_th
+
+
+def _propagate_scalars(
+    x: float,
+    y: float,
+    th0: float,
+    p00: float,
+    p01: float,
+    p02: float,
+    p10: float,
+    p11: float,
+    p12: float,
+    p20: float,
+    p21: float,
+    p22: float,
+    ds: float,
+    dtheta: float,
+    q_s: float,
+    q_th: float,
+) -> tuple[float, float, float, float, float, float, float, float, float]:
+    """:func:`propagate_pose` on floats: the new pose ``(x, y, θ)`` and the upper triangle of
+    the new covariance ``(P00, P01, P02, P11, P12, P22)``, with the increment's variances
+    ``q_s``, ``q_th``. One definition for the Python and the compiled path."""
     th = dtheta
     if abs(th) < _SERIES_LIMIT:
         th2 = th * th
@@ -489,22 +532,15 @@ def propagate_pose(
         df1 = (th * ct - st) / (th * th)
         df2 = (th * st - 1.0 + ct) / (th * th)
     dx, dy = ds * f1, ds * f2
-    x, y, th0 = pose.tolist()
     c, s = math.cos(th0), math.sin(th0)
-    new = np.array(
-        [
-            x + c * dx - s * dy,
-            y + s * dx + c * dy,
-            (th0 + dtheta + math.pi) % (2.0 * math.pi) - math.pi,
-        ]
-    )
+    nx = x + c * dx - s * dy
+    ny = y + s * dx + c * dy
+    nth = (th0 + dtheta + math.pi) % (2.0 * math.pi) - math.pi
     # J_a = ∂(a ⊕ δ)/∂a is the identity but for its last column (a, b, 1);
     # G = ∂(a ⊕ δ)/∂δ · ∂δ/∂(Δs, Δθ) has the rows (g00, g01), (g10, g11), (0, 1)
     a, b = -s * dx - c * dy, c * dx - s * dy
     g00, g01 = c * f1 - s * f2, ds * (c * df1 - s * df2)
     g10, g11 = s * f1 + c * f2, ds * (s * df1 + c * df2)
-    q_s, q_th = noise.variances(ds, dtheta)
-    (p00, p01, p02), (p10, p11, p12), (p20, p21, p22) = cov.tolist()
     # J_a P J_a^T, row by row: r_i = (J_a P)_i, then r_i J_a^T
     r00, r01, r02 = p00 + a * p20, p01 + a * p21, p02 + a * p22
     r10, r11, r12 = p10 + b * p20, p11 + b * p21, p12 + b * p22
@@ -525,7 +561,54 @@ def propagate_pose(
     n22 = m22 + q_th
     # symmetric by construction up to rounding: average the two triangles
     s01, s02, s12 = 0.5 * (n01 + n10), 0.5 * (n02 + n20), 0.5 * (n12 + n21)
-    return new, np.array([[n00, s01, s02], [s01, n11, s12], [s02, s12, n22]])
+    return nx, ny, nth, n00, s01, s02, n11, s12, n22
+
+
+_variances_kernel = compiled(_increment_variances) or _increment_variances
+_propagate_kernel = compiled(_propagate_scalars) or _propagate_scalars
+
+
+def propagate_pose_in_place(
+    pose: FloatArray,
+    cov: FloatArray,
+    ds: float,
+    dtheta: float,
+    k_s: float,
+    k_th: float,
+    k_ths: float,
+    floor_s: float,
+    floor_th: float,
+) -> None:
+    """:func:`propagate_pose` writing into ``pose`` (3,) and ``cov`` (3, 3), with the
+    noise given by :attr:`OdometryNoise.coefficients`; compiled as
+    :data:`propagate_pose_in_place_compiled` (the same bits)."""
+    q_s, q_th = _variances_kernel(k_s, k_th, k_ths, floor_s, floor_th, ds, dtheta)
+    nx, ny, nth, n00, s01, s02, n11, s12, n22 = _propagate_kernel(
+        pose[0],
+        pose[1],
+        pose[2],
+        cov[0, 0],
+        cov[0, 1],
+        cov[0, 2],
+        cov[1, 0],
+        cov[1, 1],
+        cov[1, 2],
+        cov[2, 0],
+        cov[2, 1],
+        cov[2, 2],
+        ds,
+        dtheta,
+        q_s,
+        q_th,
+    )
+    pose[0], pose[1], pose[2] = nx, ny, nth
+    cov[0, 0], cov[0, 1], cov[0, 2] = n00, s01, s02
+    cov[1, 0], cov[1, 1], cov[1, 2] = s01, n11, s12
+    cov[2, 0], cov[2, 1], cov[2, 2] = s02, s12, n22
+
+
+propagate_pose_in_place_compiled = compiled(propagate_pose_in_place)
+""":func:`propagate_pose_in_place` compiled by Numba; ``None`` without Numba."""
 
 
 class WheelOdometry:
@@ -566,6 +649,7 @@ class WheelOdometry:
             )
         self.kinematics = kinematics
         self.noise = noise if noise is not None else OdometryNoise()
+        self._noise_coefficients = (self.noise, *self.noise.coefficients)
         self._pose = np.zeros(3)
         self._cov = np.zeros((3, 3))
         self._last: WheelTicks | None = None
@@ -606,7 +690,9 @@ class WheelOdometry:
         """Integrate the ticks since the previous measurement; ``None`` returns the last estimate."""
         if measurement is None:
             return self._estimate
-        if not isinstance(measurement, WheelTicks) and isinstance(
+        if type(measurement) is DiffDriveMeasurement:
+            measurement = measurement.ticks
+        elif not isinstance(measurement, WheelTicks) and isinstance(
             getattr(measurement, "ticks", None), WheelTicks
         ):
             measurement = measurement.ticks  # a sensor bundle such as DiffDriveMeasurement
@@ -636,7 +722,19 @@ class WheelOdometry:
             d_left = (measurement.left - self._last.left) * scale
             d_right = (measurement.right - self._last.right) * scale
             ds, dtheta = self.kinematics.increment_from_ticks(d_left, d_right)
-            self._pose, self._cov = propagate_pose(self._pose, self._cov, ds, dtheta, self.noise)
+            if propagate_pose_in_place_compiled is not None and use_compiled():
+                # self._pose and self._cov are this estimator's own: updated in place
+                noise, k_s, k_th, k_ths, floor_s, floor_th = self._noise_coefficients
+                if noise is not self.noise:  # the noise model was replaced
+                    self._noise_coefficients = (self.noise, *self.noise.coefficients)
+                    _, k_s, k_th, k_ths, floor_s, floor_th = self._noise_coefficients
+                propagate_pose_in_place_compiled(
+                    self._pose, self._cov, ds, dtheta, k_s, k_th, k_ths, floor_s, floor_th
+                )
+            else:
+                self._pose, self._cov = propagate_pose(
+                    self._pose, self._cov, ds, dtheta, self.noise
+                )
             self._distance += abs(ds)
         self._last = measurement
         self._t = float(measurement.t)
@@ -644,11 +742,12 @@ class WheelOdometry:
         return self._estimate
 
     def _make_estimate(self, status: str) -> Estimate:
+        # positional (t, pose, cov, ok, status, extras): cheaper than keywords, once per step
         return Estimate(
-            t=self._t,
-            pose=self._pose.copy(),
-            cov=self._cov.copy(),
-            ok=True,
-            status=status,
-            extras={"n_rejected": self._n_rejected, "distance": self._distance},
+            self._t,
+            self._pose.copy(),
+            self._cov.copy(),
+            True,
+            status,
+            {"n_rejected": self._n_rejected, "distance": self._distance},
         )

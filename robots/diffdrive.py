@@ -222,10 +222,12 @@ class FirmwareLimits:
         deceleration when ``deceleration`` is :attr:`Deceleration.FREE`.
         ``dt`` is the control period in s.
         """
-        if self.deceleration is Deceleration.STOP and v == 0.0 and w == 0.0:
+        # module constants: cheaper than the Enum classes' attribute lookups, once per step
+        deceleration = self.deceleration
+        if deceleration is _STOP and v == 0.0 and w == 0.0:
             return 0.0, 0.0
-        free = self.deceleration is Deceleration.FREE
-        if self.ramp is Ramp.WHEELS:
+        free = deceleration is _FREE
+        if self.ramp is _WHEELS:
             return self.limit_wheels(v, w, v_prev, w_prev, dt, wheelbase, free_deceleration=free)
         return self.limit(v, w, v_prev, w_prev, dt, free_deceleration=free)
 
@@ -316,6 +318,9 @@ class FirmwareLimits:
         sl = ramp_step(v_prev - w_prev * half, v - w * half, ds, free_deceleration, dd)
         sr = ramp_step(v_prev + w_prev * half, v + w * half, ds, free_deceleration, dd)
         return float(0.5 * (sl + sr)), float((sr - sl) / wheelbase)
+
+
+_STOP, _FREE, _WHEELS = Deceleration.STOP, Deceleration.FREE, Ramp.WHEELS
 
 
 def ramp_step(
@@ -701,9 +706,5 @@ class DiffDriveRobot:
 def encoder_ticks(t: float, angles: tuple[float, float], ticks_per_rev: float) -> WheelTicks:
     """Quantise wheel angles (rad) to cumulative encoder counts."""
     k = ticks_per_rev / (2.0 * math.pi)
-    return WheelTicks(
-        t=t,
-        left=math.floor(angles[0] * k),
-        right=math.floor(angles[1] * k),
-        ticks_per_rev=ticks_per_rev,
-    )
+    # positional (t, left, right, ticks_per_rev): cheaper than keywords, once per step
+    return WheelTicks(t, math.floor(angles[0] * k), math.floor(angles[1] * k), ticks_per_rev)

@@ -23,8 +23,10 @@ import numpy as np
 import numpy.typing as npt
 import pybullet as p
 
+from realitygap.core.jit import compiled, use_compiled
 from realitygap.estimators.base import CameraIntrinsics, RGBDFrame, Scan
 from realitygap.robots.diffdrive import DiffDriveRobot, RGBDCameraParams
+from realitygap.robots.raycast import cast_rotated_beams, cast_rotated_beams_compiled
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -213,13 +215,36 @@ class PlanarScanner:
         x, y, th = self.robot.pose2d().tolist() if pose is None else pose
         c, s = math.cos(th), math.sin(th)
         P = self.params
+        mx, my = self._mount_xy
+        if _noisy_scan_compiled is not None and use_compiled():
+            # one compiled call: the same operations as below, beam by beam
+            arrays = self.robot.world.scenery_arrays
+            noise = rng.standard_normal(out=self._noise)
+            ranges = np.empty(self.n_beams)
+            _noisy_scan_compiled(
+                x + c * mx - s * my,
+                y + s * mx + c * my,
+                c,
+                s,
+                self._cos,
+                self._sin,
+                arrays.box_rows,
+                arrays.cyl_rows,
+                P.range_max,
+                self._along_beam_offset,
+                noise,
+                P.depth_noise_a,
+                P.depth_noise_b,
+                P.range_min,
+                ranges,
+            )
+            return Scan(t, self.angles.copy(), ranges, P.range_min, P.range_max)
         # world-frame beam directions, both components in one pass: rows (dx, dy) of
         # (c·cos, s·cos) + (-s·sin, c·sin)
         cs, sc = self._rot_cs, self._rot_sc
         cs[0, 0, 0], cs[1, 0, 0], sc[0, 0, 0], sc[1, 0, 0] = c, s, -s, c
         d = np.multiply(self._cos_cos, cs, out=self._dirs)
         d += np.multiply(self._sin_sin, sc, out=self._dirs_sin)
-        mx, my = self._mount_xy
         # beams leave the camera's optical centre; ranges are reported from the base origin
         ranges = self.robot.world.scenery_arrays.cast_directions(
             x + c * mx - s * my, y + s * mx + c * my, d, P.range_max
@@ -266,3 +291,43 @@ class PlanarScanner:
             range_max=self.params.range_max,
             t=frame.t,
         )
+
+
+_cast = (
+    cast_rotated_beams_compiled if cast_rotated_beams_compiled is not None else cast_rotated_beams
+)
+
+
+def noisy_scan(
+    ox: float,
+    oy: float,
+    c: float,
+    s: float,
+    beam_cos: FloatArray,
+    beam_sin: FloatArray,
+    box_rows: FloatArray,
+    cyl_rows: FloatArray,
+    range_max: float,
+    along_beam_offset: FloatArray,
+    noise: FloatArray,
+    noise_a: float,
+    noise_b: float,
+    range_min: float,
+    out: FloatArray,
+) -> None:
+    """Loop form of :meth:`PlanarScanner.scan_fast`'s arithmetic, into ``out`` (n,) (m).
+
+    :func:`~realitygap.robots.raycast.cast_rotated_beams` from the optical centre
+    ``(ox, oy)`` (m), plus ``along_beam_offset`` (n,) (m, ranges from the base origin),
+    plus standard normal draws ``noise`` (n,) scaled by the depth noise
+    ``noise_a + noise_b · r²`` (m) where that is finite, clamped below at ``range_min`` (m).
+    """
+    _cast(ox, oy, c, s, beam_cos, beam_sin, box_rows, cyl_rows, range_max, out)
+    for j in range(out.shape[0]):
+        r = out[j] + along_beam_offset[j]
+        sigma = r * noise_b * r + noise_a
+        r = r + (noise[j] * sigma if math.isfinite(sigma) else noise[j])
+        out[j] = r if (r >= range_min or r != r) else range_min
+
+
+_noisy_scan_compiled = compiled(noisy_scan)

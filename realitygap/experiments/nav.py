@@ -9,6 +9,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from realitygap.core.jit import use_compiled
 from realitygap.experiments import RunContext, experiment
 
 
@@ -205,6 +206,8 @@ def bench_speed(ctx: RunContext) -> dict[str, Any]:
             "n_obstacles": 6,
             "camera_hz": camera_hz,
             "scan_hz": 10,
+            # the fast mode's kernels compiled by Numba (the ``fast`` extra), else NumPy
+            "compiled_kernels": use_compiled(),
         },
     }
 

@@ -4,6 +4,7 @@ fast path is checked against a reference kept here."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 
 import gymnasium as gym
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 
 import realitygap  # noqa: F401  (registers the envs)
+from realitygap.core import jit
 from realitygap.envs.common import check_action_array, check_twist_action
 from realitygap.envs.tasks.nav import NavTask
 from realitygap.envs.wheeled_nav import WheeledNavEnv
@@ -335,7 +337,11 @@ def _info_row(info: dict[str, object]) -> tuple:
     )
 
 
-def _run(kwargs: dict[str, object], n_steps: int, reference: bool) -> list[tuple]:
+def _run(
+    kwargs: dict[str, object], n_steps: int, reference: bool, compiled: bool = True
+) -> list[tuple]:
+    """The rows of a seeded run: the env's own paths (compiled kernels where Numba is
+    installed and ``compiled``), or the reference formulations (NumPy only)."""
     mp = pytest.MonkeyPatch()
     if reference:
         mp.setattr(diffdrive_model, "propagate_pose", reference_propagate_pose)
@@ -359,18 +365,19 @@ def _run(kwargs: dict[str, object], n_steps: int, reference: bool) -> list[tuple
 
         mp.setattr(world.World, "__init__", reference_world)
     try:
-        env = gym.make("realitygap/WheeledNav-v0", sensor_mode="fast", **kwargs)
-        rng = np.random.default_rng(11)
-        obs, info = env.reset(seed=7)
-        rows: list[tuple] = [(obs, *_info_row(info))]
-        for k in range(n_steps):
-            a = rng.uniform(-1.2, 1.2, 2).astype(np.float32 if k % 3 else np.float64)
-            obs, reward, terminated, truncated, info = env.step(a)
-            rows.append((obs, reward, terminated, truncated, *_info_row(info)))
-            if terminated or truncated:
-                obs, info = env.reset()
-                rows.append((obs, *_info_row(info)))
-        env.close()
+        with jit.numpy_only() if reference or not compiled else contextlib.nullcontext():
+            env = gym.make("realitygap/WheeledNav-v0", sensor_mode="fast", **kwargs)
+            rng = np.random.default_rng(11)
+            obs, info = env.reset(seed=7)
+            rows: list[tuple] = [(obs, *_info_row(info))]
+            for k in range(n_steps):
+                a = rng.uniform(-1.2, 1.2, 2).astype(np.float32 if k % 3 else np.float64)
+                obs, reward, terminated, truncated, info = env.step(a)
+                rows.append((obs, reward, terminated, truncated, *_info_row(info)))
+                if terminated or truncated:
+                    obs, info = env.reset()
+                    rows.append((obs, *_info_row(info)))
+            env.close()
     finally:
         mp.undo()
     return rows
@@ -388,11 +395,13 @@ def _run(kwargs: dict[str, object], n_steps: int, reference: bool) -> list[tuple
     ],
 )
 def test_fast_steps_are_bit_identical_to_the_reference(kwargs: dict[str, object]) -> None:
-    fast = _run(kwargs, 300, reference=False)
     ref = _run(kwargs, 300, reference=True)
-    assert len(fast) == len(ref)
-    for k, (got, want) in enumerate(zip(fast, ref, strict=True)):
-        assert _same_bits(got, want), f"row {k} differs: {got} != {want}"
+    # the compiled kernels (where Numba is installed) and the NumPy paths, each to the bit
+    for compiled in (True, False) if jit.numba_available() else (False,):
+        fast = _run(kwargs, 300, reference=False, compiled=compiled)
+        assert len(fast) == len(ref)
+        for k, (got, want) in enumerate(zip(fast, ref, strict=True)):
+            assert _same_bits(got, want), f"row {k} differs (compiled={compiled}): {got} != {want}"
 
 
 def _same_bits(got: object, want: object) -> bool:
