@@ -650,8 +650,13 @@ def conclude(
     if verdict.kind == "effects":
         text = " or ".join([best.name, *(a["model"] for a in aliases)])
         text += " (aliases on this data)" if aliases else ""
-        if verdict.notes.get("whole_runs"):
-            text += " (on whole runs; the 1-s window residual it leaves is unexplained)"
+        whole = verdict.notes.get("whole_runs")
+        if whole:
+            text += (
+                " (on whole runs; the 1-s window residual it leaves is unexplained)"
+                if whole["remainder"]
+                else " (on whole runs)"
+            )
     elif combo is not None and not combo["passed"]:
         text = (
             f"unexplained (partially explained by {best.name}: "
@@ -731,11 +736,15 @@ def explain(verdict: Verdict, top_models: Sequence[str] = ()) -> list[str]:
             lines.append(f"not a finding: {key} of {model} {what} (no error bar)")
     whole = notes.get("whole_runs")
     if whole and verdict.kind == "effects":
-        rest = "; ".join(whole["remainder"]) or "noise-like"
+        rest = (
+            f"is unexplained ({'; '.join(whole['remainder'])})"
+            if whole["remainder"]
+            else "looks like noise at that scale"
+        )
         lines.append(
             f"window scale: {whole['window_shrink_pct']:.0f} % of the 1-s window gap closed "
             f"against {whole['run_shrink_pct']:.0f} % of the whole-run gap; the rest of the "
-            f"window residual is unexplained ({rest})"
+            f"window residual {rest}"
         )
     disc = notes.get("discovery")
     if disc is not None:

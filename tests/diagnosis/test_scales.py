@@ -124,7 +124,7 @@ def test_a_wandering_clock_generator_keeps_its_stamps_in_order() -> None:
 def test_a_drift_under_a_wandering_clock_is_named_on_whole_runs(tmp_path: Path) -> None:
     from realitygap.diagnosis.io import logs_from_optiodom
 
-    _wandering_clock_sessions(tmp_path, seed=5, b_true=1.012)
+    _wandering_clock_sessions(tmp_path, seed=5, b_true=1.02)
     logs = logs_from_optiodom(tmp_path)
     train = [lg for lg in logs if lg.meta.get("path_type") == "square"]
     held = [lg for lg in logs if lg.meta.get("path_type") != "square"]
@@ -135,9 +135,11 @@ def test_a_drift_under_a_wandering_clock_is_named_on_whole_runs(tmp_path: Path) 
     assert sc["named"] and sc["run_bias_p_family"] >= ScaleSettings().run_bias_alpha
     assert d.verdict.kind == "effects" and "wheelbase_error" in d.verdict.effects
     assert d.chosen is not None
-    # a wider axle (planted 1.2 %); the window fit under a 30 ms wander is loose
-    assert 1.003 < d.chosen.values["wheelbase_error.E_b"] < 1.02
+    # a wider axle (planted 2 %); the window fit under a 30 ms wander is loose
+    assert 1.005 < d.chosen.values["wheelbase_error.E_b"] < 1.03
     text = d.verdict.notes["verdict_text"]
-    assert "on whole runs" in text and "unexplained" in text
+    assert "on whole runs" in text
+    whole = d.verdict.notes["whole_runs"]
+    assert ("unexplained" in text) == bool(whole["remainder"])
     assert any(line.startswith("window scale:") for line in explain(d.verdict))
     assert any("on whole runs" in s for s in summary_sentences(d))
