@@ -520,8 +520,6 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             )
             self._obs_scan = self._scan
             return out.copy()
-        c, s = math.cos(th), math.sin(th)
-        dx, dy = gx - x, gy - y
         # = np.clip to the observation space, without its Python wrapper: the scan part when
         # the scan is new, the 12 entries before it at every step
         if new_scan:
@@ -533,20 +531,8 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             np.maximum(tail, self._obs_low[12:], out=tail)
             self._obs_scan = self._scan
         head = self._obs_head
-        head[:] = (  # Python floats -> float32, as astype
-            x,
-            y,
-            c,
-            s,
-            gx,
-            gy,
-            math.cos(gth),
-            math.sin(gth),
-            c * dx + s * dy,
-            -s * dx + c * dy,
-            cmd_v / v_max,
-            cmd_w / w_max,
-        )
+        # Python floats -> float32, as astype
+        head[:] = observation_head(x, y, th, gx, gy, gth, cmd_v / v_max, cmd_w / w_max)
         np.minimum(head, self._obs_high_head, out=head)
         np.maximum(head, self._obs_low_head, out=head)
         return out.copy()
@@ -583,6 +569,35 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         }
 
 
+def observation_head(
+    x: float, y: float, th: float, gx: float, gy: float, gth: float, cmd_v: float, cmd_w: float
+) -> tuple[float, float, float, float, float, float, float, float, float, float, float, float]:
+    """The 12 entries before the scan: estimated pose ``(x, y, cos th, sin th)``, goal
+    ``(gx, gy, cos gth, sin gth)``, the goal in the robot's frame, and the normalised
+    command ``(cmd_v, cmd_w)`` (m, rad, 1)."""
+    c, s = math.cos(th), math.sin(th)
+    dx, dy = gx - x, gy - y
+    return (
+        x,
+        y,
+        c,
+        s,
+        gx,
+        gy,
+        math.cos(gth),
+        math.sin(gth),
+        c * dx + s * dy,
+        -s * dx + c * dy,
+        cmd_v,
+        cmd_w,
+    )
+
+
+_observation_head = compiled(observation_head) or observation_head
+"""The compiled twin that :func:`fill_observation` calls (a compiled kernel calls only
+compiled functions); :func:`observation_head` itself without Numba."""
+
+
 def fill_observation(
     x: float,
     y: float,
@@ -607,22 +622,7 @@ def fill_observation(
     operations as the NumPy form: compiled, the same bits."""
     x, y, th, gx, gy, gth = float(x), float(y), float(th), float(gx), float(gy), float(gth)
     cmd_v, cmd_w = float(cmd_v), float(cmd_w)
-    c, s = math.cos(th), math.sin(th)
-    dx, dy = gx - x, gy - y
-    head = (
-        x,
-        y,
-        c,
-        s,
-        gx,
-        gy,
-        math.cos(gth),
-        math.sin(gth),
-        c * dx + s * dy,
-        -s * dx + c * dy,
-        cmd_v,
-        cmd_w,
-    )
+    head = _observation_head(x, y, th, gx, gy, gth, cmd_v, cmd_w)
     for i in range(12):
         v = np.float32(head[i])
         v = v if (v <= high[i] or v != v) else high[i]
