@@ -702,26 +702,24 @@ class WheelOdometry:
             )
         reason = None
         isfinite = math.isfinite
-        if not (
-            isfinite(measurement.t)
-            and isfinite(measurement.left)
-            and isfinite(measurement.right)
-            and isfinite(measurement.ticks_per_rev)
-        ):
+        t, left, right = measurement.t, measurement.left, measurement.right
+        ticks_per_rev, last = measurement.ticks_per_rev, self._last
+        if not (isfinite(t) and isfinite(left) and isfinite(right) and isfinite(ticks_per_rev)):
             reason = "non-finite wheel ticks"
-        elif measurement.ticks_per_rev <= 0:
-            reason = f"ticks_per_rev must be > 0, got {measurement.ticks_per_rev}"
-        elif self._last is not None and measurement.t < self._last.t:
-            reason = f"time went backwards ({measurement.t} s < {self._last.t} s)"
+        elif ticks_per_rev <= 0:
+            reason = f"ticks_per_rev must be > 0, got {ticks_per_rev}"
+        elif last is not None and t < last.t:
+            reason = f"time went backwards ({t} s < {last.t} s)"
         if reason is not None:
             self._n_rejected += 1
             self._estimate = self._make_estimate(f"rejected: {reason}")
             return self._estimate
-        if self._last is not None:
-            scale = self.kinematics.ticks_per_rev / float(measurement.ticks_per_rev)
-            d_left = (measurement.left - self._last.left) * scale
-            d_right = (measurement.right - self._last.right) * scale
-            ds, dtheta = self.kinematics.increment_from_ticks(d_left, d_right)
+        if last is not None:
+            kin = self.kinematics
+            scale = kin.ticks_per_rev / float(ticks_per_rev)
+            d_left = (left - last.left) * scale
+            d_right = (right - last.right) * scale
+            ds, dtheta = kin.increment_from_ticks(d_left, d_right)
             if propagate_pose_in_place_compiled is not None and use_compiled():
                 # self._pose and self._cov are this estimator's own: updated in place
                 noise, k_s, k_th, k_ths, floor_s, floor_th = self._noise_coefficients
@@ -737,7 +735,7 @@ class WheelOdometry:
                 )
             self._distance += abs(ds)
         self._last = measurement
-        self._t = float(measurement.t)
+        self._t = float(t)
         self._estimate = self._make_estimate("ok")
         return self._estimate
 
