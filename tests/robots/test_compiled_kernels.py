@@ -83,6 +83,36 @@ def test_compiled_cast_matches_the_numpy_cast_bit_for_bit() -> None:
     assert n_hits > 1000  # the scenes were hit, not only missed
 
 
+def test_loop_cast_in_a_walled_room_matches_the_numpy_cast() -> None:
+    """Inside a room of walls, beams along the axes (direction components of exactly
+    ±0.0) and origins on wall faces, in corners and outside: the loop cast's bounding-circle
+    skips and slab arithmetic give the NumPy cast's bits."""
+    from realitygap.envs.layouts import room_walls
+
+    rng = np.random.default_rng(8)
+    arrays = raycast.PrimitiveArrays(
+        [*room_walls(2.0), world.Primitive("b", world.Shape.BOX, (0.5, 0.5), 0.5, 0.3, (0.2, 0.4))]
+    )
+    kernels = [raycast.cast_rotated_beams]
+    if jit.numba_available():
+        kernels.append(raycast.cast_rotated_beams_compiled)
+    ang = np.concatenate([np.linspace(-math.pi, math.pi, 9), rng.uniform(-math.pi, math.pi, 40)])
+    cos, sin = np.cos(ang), np.sin(ang)
+    origins = [(0.0, 0.0), (2.0, 0.0), (-2.0, 2.0), (1.9999, -2.0), (2.05, 0.3), (2.3, 2.3)]
+    origins += [tuple(float(v) for v in rng.uniform(-2.0, 2.0, 2)) for _ in range(20)]
+    n_hits = 0
+    for (ox, oy), th in [(o, t) for o in origins for t in (0.0, math.pi / 2, -math.pi, 1.0)]:
+        c, s = math.cos(th), math.sin(th)
+        want = arrays.cast_directions(ox, oy, _rotated_directions(c, s, cos, sin), 6.0)
+        for kernel in kernels:
+            got = np.empty_like(want)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                kernel(ox, oy, c, s, cos, sin, arrays.box_rows, arrays.cyl_rows, 6.0, got)
+            assert got.tobytes() == want.tobytes(), (ox, oy, th)
+        n_hits += int(np.isfinite(want).sum())
+    assert n_hits > 1000
+
+
 @needs_numba
 def test_compiled_noisy_scan_matches_the_numpy_scan() -> None:
     """The compiled scan and the NumPy scan of one scanner, from generators in one state."""
