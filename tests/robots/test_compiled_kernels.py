@@ -158,6 +158,47 @@ def test_in_place_propagation_matches_propagate_pose_bit_for_bit(compiled: bool)
         assert got_cov.tobytes() == want_cov.tobytes()
 
 
+@pytest.mark.parametrize("compiled", [False, pytest.param(True, marks=needs_numba)])
+def test_odometry_step_matches_increment_then_propagation_bit_for_bit(compiled: bool) -> None:
+    """The one-call odometry step gives the bits of the kinematics' increment followed by
+    :func:`propagate_pose`, and returns the increment's distance."""
+    noise = dm.OdometryNoise(distance_var_floor=1e-6, heading_var_floor=2e-6)
+    kin = dm.DiffDriveKinematics(0.0352, 0.0349, 0.231, 2578.33)
+    fn = dm.odometry_step_in_place_compiled if compiled else dm.odometry_step_in_place
+    rng = np.random.default_rng(12)
+    for pose, cov, _, _ in _propagation_cases(200):
+        d_left, d_right = (float(v) for v in rng.integers(-300, 300, 2) * 0.997)
+        if rng.random() < 0.2:
+            d_right = d_left  # straight: Δθ = 0
+        ds, dth = kin.increment_from_ticks(d_left, d_right)
+        want_pose, want_cov = dm.propagate_pose(pose, cov, ds, dth, noise)
+        got_pose, got_cov = pose.copy(), cov.copy()
+        got_ds = fn(
+            got_pose,
+            got_cov,
+            d_left,
+            d_right,
+            kin.meters_per_tick_left,
+            kin.meters_per_tick_right,
+            kin.wheelbase,
+            *noise.coefficients,
+        )
+        assert np.float64(got_ds).tobytes() == np.float64(ds).tobytes()
+        assert got_pose.tobytes() == want_pose.tobytes()
+        assert got_cov.tobytes() == want_cov.tobytes()
+
+
+def test_wheel_odometry_follows_replaced_kinematics() -> None:
+    """The odometry's cached per-tick travels follow ``kinematics`` when it is replaced."""
+    odo = dm.WheelOdometry(dm.DiffDriveKinematics(0.035, 0.035, 0.23, 1000.0))
+    odo.reset()
+    odo.update(dm.WheelTicks(0.0, 0, 0, 1000.0))
+    odo.kinematics = dm.DiffDriveKinematics(0.07, 0.07, 0.23, 1000.0)
+    est = odo.update(dm.WheelTicks(0.1, 1000, 1000, 1000.0))
+    assert est.pose[0] == pytest.approx(2.0 * math.pi * 0.07)  # one revolution, new radius
+    assert est.extras["distance"] == pytest.approx(2.0 * math.pi * 0.07)
+
+
 def test_wheel_odometry_follows_a_replaced_noise_model() -> None:
     """The odometry's cached noise coefficients follow ``noise`` when it is replaced."""
     kin = dm.DiffDriveKinematics(0.035, 0.035, 0.23, 1000.0)
