@@ -619,7 +619,8 @@ class DiffDriveRobot:
         """Wheel angles (rad) as the encoders report them: :meth:`wheel_angles` (the rolling
         angles) through the effects' per-wheel hooks (wheels that turned more than they
         rolled) and encoder hooks."""
-        angles = self.wheel_angles()
+        states = self._get_joint_states(self.body, self.wheel_joints)  # = wheel_angles()
+        angles = states[0][0], states[1][0]
         for wheel_hook in self._wheel_hooks:
             angles = wheel_hook.encoder(*angles)
         for hook in self._ticks_hooks:
@@ -689,8 +690,10 @@ class DiffDriveRobot:
         attitude. The distance is computed when needed and bounded in between by the
         distance moved since (it changes by at most that).
         """
-        if pose is not None and self._clear_of_scenery(float(pose[0]), float(pose[1])):
-            return False
+        if pose is not None:
+            x, y = pose.tolist()[:2] if type(pose) is np.ndarray else (pose[0], pose[1])
+            if self._clear_of_scenery(float(x), float(y)):
+                return False
         floor = self.world.bodies.get("floor", -1)
         for contact in self._get_contacts(bodyA=self.body):
             if contact[2] != floor:
