@@ -477,7 +477,7 @@ class DiffDriveRobot:
         self.control_dt = world.dt
         self.command = np.zeros(2)
         # FirmwareLimits.bound for the attached limits, control period and nominal wheelbase
-        self._bound_limits: FirmwareLimits | None = None
+        self._bound_to: tuple[object, ...] = ()  # (limits, control period, nominal) bound
         self._limit_twist: Callable[[float, float, float, float], tuple[float, float]] | None = None
         self._reality: Reality | None = None
         self._command_hooks: list[Callable[[float, float, float], tuple[float, float]]] = []
@@ -569,7 +569,7 @@ class DiffDriveRobot:
         self.control_dt = float(dt)
         self.nominal = nominal if nominal is not None else self.params
         self.firmware_limits = limits
-        self._bound_limits = self._limit_twist = None  # bound afresh at the first command
+        self._bound_to, self._limit_twist = (), None  # bound afresh at the first command
         self.command = np.zeros(2)
         self._reality = reality
         self._command_hooks = reality.command_hooks(dt, self.nominal) if reality is not None else []
@@ -600,8 +600,9 @@ class DiffDriveRobot:
         """
         limits = self.firmware_limits
         if limits is not None:
-            if limits is not self._bound_limits:  # attached, or replaced since
-                self._bound_limits = limits
+            bound_to = (limits, self.control_dt, self.nominal)
+            if bound_to != self._bound_to:  # attached, or any of the three replaced since
+                self._bound_to = bound_to
                 self._limit_twist = limits.bound(self.control_dt, self.nominal.wheelbase)
             v_prev, w_prev = self.command.tolist()  # plain floats: cheaper scalar arithmetic
             v, omega = self._limit_twist(v, omega, v_prev, w_prev)

@@ -69,6 +69,8 @@ def test_command_twist_follows_limits_replaced_after_attaching() -> None:
         robot.attach_firmware(0.1, limits=FirmwareLimits(1.0, 1.0, 2.0, 2.0))
         robot.command = np.zeros(2)
         assert robot.command_twist(1.0, 1.0) == pytest.approx((0.2, 0.2))  # the new period
+        robot.control_dt = 0.2  # a period set on the robot itself
+        assert robot.command_twist(1.0, 1.0) == pytest.approx((0.6, 0.6))
         robot.firmware_limits = None  # no firmware: as commanded
         assert robot.command_twist(3.0, -3.0) == (3.0, -3.0)
     finally:
