@@ -84,6 +84,8 @@ def check_twist_action(action: npt.ArrayLike) -> tuple[float, float]:
     if type(action) is np.ndarray and action.shape == (2,) and action.dtype.char in "fde":
         # the hot path (a policy's float array): the same checks on two floats
         a0, a1 = action.tolist()
+        if -1.0 <= a0 <= 1.0 and -1.0 <= a1 <= 1.0:  # within the box (NaN is not): as is
+            return a0, a1
         if math.isfinite(a0) and math.isfinite(a1):
             return min(1.0, max(-1.0, a0)), min(1.0, max(-1.0, a1))
     a = check_action_array(action, (2,))  # any other form, and the errors

@@ -76,6 +76,8 @@ from realitygap.robots.sensors import PlanarScanner, RGBDCamera, SensorMode, che
 from realitygap.robots.textures import SurfaceKind
 from realitygap.robots.world import Primitive, World
 
+_FLOAT64 = np.dtype(np.float64)
+
 MAX_BEAMS = 4096
 """Most range beams per scan an env accepts."""
 
@@ -377,8 +379,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         # the episode's constants, read once (the step's hot path uses them as plain floats)
         self._episode_consts = (self.dt, self.v_max, self.w_max)
         self._estimate = self.estimator.reset(start.copy())
-        measurement = self._measure(rng)
-        self._estimate = self.estimator.update(measurement)
+        self._estimate = self.estimator.update(self._measure())
         pose = robot.pose2d()
         dist, ang = self.task.reset(goal, pose)
         info = self._info(pose, dist, ang, {}, collision=False, success=False)
@@ -396,10 +397,8 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._steps += 1
         self._t = self._steps * dt
 
-        rng = self.np_random
         pose = self.robot.pose2d()  # the true pose, read once for the scan, task and info
-        measurement = self._measure(rng, pose)
-        self._estimate = self.estimator.update(measurement)
+        self._estimate = self.estimator.update(self._measure(pose))
 
         dist, ang = self.task.pose_error(pose)
         collision = self.robot.in_contact_with_scenery(pose)
@@ -467,21 +466,21 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         )
         return robot
 
-    def _measure(
-        self, rng: np.random.Generator, pose: FloatArray | None = None
-    ) -> DiffDriveMeasurement:
-        """The sensors' measurement at this step; ``pose`` is the robot's true pose when the
-        caller has read it since the last physics step (the fast scan needs it)."""
+    def _measure(self, pose: FloatArray | None = None) -> DiffDriveMeasurement:
+        """The sensors' measurement at this step, their noise drawn from the episode's
+        generator; ``pose`` is the robot's true pose when the caller has read it since the
+        last physics step (the fast scan needs it)."""
         assert self.robot is not None and self.scanner is not None
-        angles = self.robot.encoder_angles()
-        ticks = encoder_ticks(self._t, angles, self.params.ticks_per_rev)
+        t, steps = self._t, self._steps
+        ticks = encoder_ticks(t, self.robot.encoder_angles(), self.params.ticks_per_rev)
         frame = None
         scan = None
         # the camera renders only when its own frame is due; a scan due between frames
         # renders the small depth picture it needs (PlanarScanner.render_size)
-        if self.camera is not None and self._steps % self._camera_every == 0:
-            frame = self.camera.render(self._t, rng)
-        if self._steps % self._scan_every == 0:
+        if self.camera is not None and steps % self._camera_every == 0:
+            frame = self.camera.render(t, self.np_random)
+        if steps % self._scan_every == 0:
+            rng = self.np_random
             if frame is not None:
                 scan = self.scanner.scan_from_frame(frame)
             elif self.camera is not None:
@@ -489,7 +488,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             else:
                 scan = self.scanner.scan_fast(self._t, rng, None if pose is None else pose.tolist())
             self._scan = scan
-        return DiffDriveMeasurement(self._t, ticks, scan, frame)  # (positional: cheaper)
+        return DiffDriveMeasurement(t, ticks, scan, frame)  # (positional: cheaper)
 
     def _observation(self) -> npt.NDArray[np.float32]:
         assert self._estimate is not None and self._scan is not None
@@ -554,7 +553,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             "true_pose": pose,
             "estimated_pose": (
                 est_pose.copy()
-                if type(est_pose) is np.ndarray and est_pose.dtype == np.float64
+                if type(est_pose) is np.ndarray and est_pose.dtype is _FLOAT64
                 else np.array(est_pose, dtype=float)
             ),
             "estimate_ok": bool(self._estimate.ok),

@@ -323,9 +323,13 @@ class DiffDriveKinematics:
             \Delta\theta = (m_R n_R - m_L n_L) / b .
         """
         if type(d_left) is float and type(d_right) is float:  # one step: plain float math
-            s_l = self.meters_per_tick_left * d_left
-            s_r = self.meters_per_tick_right * d_right
-            return 0.5 * (s_r + s_l), (s_r - s_l) / self.wheelbase
+            return tick_increment(
+                self.meters_per_tick_left,
+                self.meters_per_tick_right,
+                self.wheelbase,
+                d_left,
+                d_right,
+            )
         s_left = self.meters_per_tick_left * np.asarray(d_left, dtype=float)
         s_right = self.meters_per_tick_right * np.asarray(d_right, dtype=float)
         ds = 0.5 * (s_right + s_left)
@@ -611,6 +615,49 @@ propagate_pose_in_place_compiled = compiled(propagate_pose_in_place)
 """:func:`propagate_pose_in_place` compiled by Numba; ``None`` without Numba."""
 
 
+def tick_increment(
+    m_left: float, m_right: float, wheelbase: float, d_left: float, d_right: float
+) -> tuple[float, float]:
+    """Base motion ``(Δs, Δθ)`` (m, rad) of tick increments ``d_left``, ``d_right`` for
+    travels per tick ``m_left``, ``m_right`` (m) and ``wheelbase`` (m): the float form of
+    :meth:`DiffDriveKinematics.increment_from_ticks`."""
+    s_l = m_left * d_left
+    s_r = m_right * d_right
+    return 0.5 * (s_r + s_l), (s_r - s_l) / wheelbase
+
+
+_tick_increment = compiled(tick_increment) or tick_increment
+_propagate_pose_in_place = propagate_pose_in_place_compiled or propagate_pose_in_place
+"""The compiled twins :func:`odometry_step_in_place` calls (a compiled kernel calls only
+compiled functions); the functions themselves without Numba."""
+
+
+def odometry_step_in_place(
+    pose: FloatArray,
+    cov: FloatArray,
+    d_left: float,
+    d_right: float,
+    m_left: float,
+    m_right: float,
+    wheelbase: float,
+    k_s: float,
+    k_th: float,
+    k_ths: float,
+    floor_s: float,
+    floor_th: float,
+) -> float:
+    """One wheel-odometry step: :func:`tick_increment` of the tick increments, then
+    :func:`propagate_pose_in_place` of ``pose`` (3,) and ``cov`` (3, 3); returns ``Δs``
+    (m). Compiled as :data:`odometry_step_in_place_compiled` (the same bits)."""
+    ds, dtheta = _tick_increment(m_left, m_right, wheelbase, d_left, d_right)
+    _propagate_pose_in_place(pose, cov, ds, dtheta, k_s, k_th, k_ths, floor_s, floor_th)
+    return ds
+
+
+odometry_step_in_place_compiled = compiled(odometry_step_in_place)
+""":func:`odometry_step_in_place` compiled by Numba; ``None`` without Numba."""
+
+
 class WheelOdometry:
     """Dead reckoning from cumulative wheel ticks (an :class:`Estimator`).
 
@@ -649,7 +696,7 @@ class WheelOdometry:
             )
         self.kinematics = kinematics
         self.noise = noise if noise is not None else OdometryNoise()
-        self._noise_coefficients = (self.noise, *self.noise.coefficients)
+        self._step_constants = self._constants()
         self._pose = np.zeros(3)
         self._cov = np.zeros((3, 3))
         self._last: WheelTicks | None = None
@@ -702,44 +749,54 @@ class WheelOdometry:
             )
         reason = None
         isfinite = math.isfinite
-        if not (
-            isfinite(measurement.t)
-            and isfinite(measurement.left)
-            and isfinite(measurement.right)
-            and isfinite(measurement.ticks_per_rev)
-        ):
+        t, left, right = measurement.t, measurement.left, measurement.right
+        ticks_per_rev, last = measurement.ticks_per_rev, self._last
+        if not (isfinite(t) and isfinite(left) and isfinite(right) and isfinite(ticks_per_rev)):
             reason = "non-finite wheel ticks"
-        elif measurement.ticks_per_rev <= 0:
-            reason = f"ticks_per_rev must be > 0, got {measurement.ticks_per_rev}"
-        elif self._last is not None and measurement.t < self._last.t:
-            reason = f"time went backwards ({measurement.t} s < {self._last.t} s)"
+        elif ticks_per_rev <= 0:
+            reason = f"ticks_per_rev must be > 0, got {ticks_per_rev}"
+        elif last is not None and t < last.t:
+            reason = f"time went backwards ({t} s < {last.t} s)"
         if reason is not None:
             self._n_rejected += 1
             self._estimate = self._make_estimate(f"rejected: {reason}")
             return self._estimate
-        if self._last is not None:
-            scale = self.kinematics.ticks_per_rev / float(measurement.ticks_per_rev)
-            d_left = (measurement.left - self._last.left) * scale
-            d_right = (measurement.right - self._last.right) * scale
-            ds, dtheta = self.kinematics.increment_from_ticks(d_left, d_right)
-            if propagate_pose_in_place_compiled is not None and use_compiled():
+        if last is not None:
+            kin = self.kinematics
+            scale = kin.ticks_per_rev / float(ticks_per_rev)
+            d_left = (left - last.left) * scale
+            d_right = (right - last.right) * scale
+            if odometry_step_in_place_compiled is not None and use_compiled():
                 # self._pose and self._cov are this estimator's own: updated in place
-                noise, k_s, k_th, k_ths, floor_s, floor_th = self._noise_coefficients
-                if noise is not self.noise:  # the noise model was replaced
-                    self._noise_coefficients = (self.noise, *self.noise.coefficients)
-                    _, k_s, k_th, k_ths, floor_s, floor_th = self._noise_coefficients
-                propagate_pose_in_place_compiled(
-                    self._pose, self._cov, ds, dtheta, k_s, k_th, k_ths, floor_s, floor_th
+                consts = self._step_constants
+                if consts[0] is not kin or consts[1] is not self.noise:  # replaced
+                    consts = self._step_constants = self._constants()
+                ds = odometry_step_in_place_compiled(
+                    self._pose, self._cov, d_left, d_right, *consts[2:]
                 )
             else:
+                ds, dtheta = kin.increment_from_ticks(d_left, d_right)
                 self._pose, self._cov = propagate_pose(
                     self._pose, self._cov, ds, dtheta, self.noise
                 )
             self._distance += abs(ds)
         self._last = measurement
-        self._t = float(measurement.t)
+        self._t = float(t)
         self._estimate = self._make_estimate("ok")
         return self._estimate
+
+    def _constants(self) -> tuple[Any, ...]:
+        """The kinematics and noise model, then the constants
+        :func:`odometry_step_in_place` takes from them (read once, not at every step)."""
+        kin, noise = self.kinematics, self.noise
+        return (
+            kin,
+            noise,
+            kin.meters_per_tick_left,
+            kin.meters_per_tick_right,
+            kin.wheelbase,
+            *noise.coefficients,
+        )
 
     def _make_estimate(self, status: str) -> Estimate:
         # positional (t, pose, cov, ok, status, extras): cheaper than keywords, once per step

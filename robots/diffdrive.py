@@ -231,6 +231,27 @@ class FirmwareLimits:
             return self.limit_wheels(v, w, v_prev, w_prev, dt, wheelbase, free_deceleration=free)
         return self.limit(v, w, v_prev, w_prev, dt, free_deceleration=free)
 
+    def bound(
+        self, dt: float, wheelbase: float
+    ) -> Callable[[float, float, float, float], tuple[float, float]]:
+        """:meth:`step` for the control period ``dt`` (s) and nominal ``wheelbase`` (m) of an
+        episode, as a function of ``(v, w, v_prev, w_prev)``: the body ramp's steps are
+        computed once, the same values as :meth:`limit` computes at every call."""
+        if self.ramp is _WHEELS or self.deceleration is _STOP:
+            step = self.step
+            return lambda v, w, v_prev, w_prev: step(v, w, v_prev, w_prev, dt, wheelbase)
+        free = self.deceleration is _FREE
+        v_max, w_max, f = self.v_max, self.w_max, self.decel_factor
+        dv, dv_slow = self.a_max * dt, f * self.a_max * dt
+        dw, dw_slow = self.alpha_max * dt, f * self.alpha_max * dt
+
+        def body_ramp(v: float, w: float, v_prev: float, w_prev: float) -> tuple[float, float]:
+            v = min(v_max, max(-v_max, v))
+            w = min(w_max, max(-w_max, w))
+            return ramp_step(v_prev, v, dv, free, dv_slow), ramp_step(w_prev, w, dw, free, dw_slow)
+
+        return body_ramp
+
     @classmethod
     def from_params(cls, params: DiffDriveParams) -> FirmwareLimits:
         """The limits stated in ``params`` (``v_max``, ``w_max``, ``a_max``, ``alpha_max``)."""
@@ -321,6 +342,7 @@ class FirmwareLimits:
 
 
 _STOP, _FREE, _WHEELS = Deceleration.STOP, Deceleration.FREE, Ramp.WHEELS
+_VELOCITY_CONTROL = p.VELOCITY_CONTROL
 
 
 def ramp_step(
@@ -454,6 +476,9 @@ class DiffDriveRobot:
         self.firmware_limits: FirmwareLimits | None = None
         self.control_dt = world.dt
         self.command = np.zeros(2)
+        # FirmwareLimits.bound for the attached limits, control period and nominal wheelbase
+        self._bound_to: tuple[object, ...] = ()  # (limits, control period, nominal) bound
+        self._limit_twist: Callable[[float, float, float, float], tuple[float, float]] | None = None
         self._reality: Reality | None = None
         self._command_hooks: list[Callable[[float, float, float], tuple[float, float]]] = []
         self._ticks_hooks: list[Callable[[float, float], tuple[float, float]]] = []
@@ -502,7 +527,8 @@ class DiffDriveRobot:
         self._set_motors = c.setJointMotorControlArray
         # the torque bound as the engine needs it commanded (World.motor_force: a world that
         # runs a control period in one engine call turns it into an impulse with that period)
-        self._motor_force = world.motor_force(params.motor_max_torque)
+        tau = world.motor_force(params.motor_max_torque)
+        self._motor_forces = [tau, tau]  # each wheel's
         # the contact query is skipped where no scenery is near (in_contact_with_scenery)
         self._reach = collision_reach(params) + CONTACT_QUERY_MARGIN
         self._clearance_ref: tuple[object, float, float, float] | None = None
@@ -510,13 +536,12 @@ class DiffDriveRobot:
     # ------------------------------------------------------------- control
     def set_wheel_speeds(self, w_left: float, w_right: float) -> None:
         """Command wheel angular speeds in rad/s (velocity motors with bounded torque)."""
-        tau = self._motor_force  # motor_max_torque, in the form the engine needs
         self._set_motors(
             self.body,
             self.wheel_joints,
-            p.VELOCITY_CONTROL,
+            _VELOCITY_CONTROL,
             targetVelocities=[w_left, w_right],
-            forces=[tau, tau],
+            forces=self._motor_forces,  # read by the engine, not kept
         )
 
     def attach_firmware(
@@ -544,6 +569,7 @@ class DiffDriveRobot:
         self.control_dt = float(dt)
         self.nominal = nominal if nominal is not None else self.params
         self.firmware_limits = limits
+        self._bound_to, self._limit_twist = (), None  # bound afresh at the first command
         self.command = np.zeros(2)
         self._reality = reality
         self._command_hooks = reality.command_hooks(dt, self.nominal) if reality is not None else []
@@ -572,11 +598,14 @@ class DiffDriveRobot:
         it, the inverse kinematics gives the wheel speeds, the per-wheel hooks
         act on those and the wheel motors take them. The world is not stepped.
         """
-        if self.firmware_limits is not None:
+        limits = self.firmware_limits
+        if limits is not None:
+            bound_to = (limits, self.control_dt, self.nominal)
+            if bound_to != self._bound_to:  # attached, or any of the three replaced since
+                self._bound_to = bound_to
+                self._limit_twist = limits.bound(self.control_dt, self.nominal.wheelbase)
             v_prev, w_prev = self.command.tolist()  # plain floats: cheaper scalar arithmetic
-            v, omega = self.firmware_limits.step(
-                v, omega, v_prev, w_prev, self.control_dt, self.nominal.wheelbase
-            )
+            v, omega = self._limit_twist(v, omega, v_prev, w_prev)
         self.command[0], self.command[1] = v, omega
         applied = (v, omega)
         for hook in self._command_hooks:
@@ -591,7 +620,8 @@ class DiffDriveRobot:
         """Wheel angles (rad) as the encoders report them: :meth:`wheel_angles` (the rolling
         angles) through the effects' per-wheel hooks (wheels that turned more than they
         rolled) and encoder hooks."""
-        angles = self.wheel_angles()
+        states = self._get_joint_states(self.body, self.wheel_joints)  # = wheel_angles()
+        angles = states[0][0], states[1][0]
         for wheel_hook in self._wheel_hooks:
             angles = wheel_hook.encoder(*angles)
         for hook in self._ticks_hooks:
@@ -661,8 +691,10 @@ class DiffDriveRobot:
         attitude. The distance is computed when needed and bounded in between by the
         distance moved since (it changes by at most that).
         """
-        if pose is not None and self._clear_of_scenery(float(pose[0]), float(pose[1])):
-            return False
+        if pose is not None:
+            x, y = pose.tolist()[:2] if type(pose) is np.ndarray else (pose[0], pose[1])
+            if self._clear_of_scenery(float(x), float(y)):
+                return False
         floor = self.world.bodies.get("floor", -1)
         for contact in self._get_contacts(bodyA=self.body):
             if contact[2] != floor:

@@ -180,6 +180,7 @@ class PlanarScanner:
         if n_beams < 2:
             raise ValueError(f"n_beams must be at least 2, got {n_beams}")
         self.robot = robot
+        self._world = robot.world
         self.params = params
         self.n_beams = int(n_beams)
         self.z_band = z_band
@@ -218,7 +219,7 @@ class PlanarScanner:
         mx, my = self._mount_xy
         if _noisy_scan_compiled is not None and use_compiled():
             # one compiled call: the same operations as below, beam by beam
-            arrays = self.robot.world.scenery_arrays
+            arrays = self._world.scenery_arrays
             noise = rng.standard_normal(out=self._noise)
             ranges = np.empty(self.n_beams)
             _noisy_scan_compiled(

@@ -83,6 +83,36 @@ def test_compiled_cast_matches_the_numpy_cast_bit_for_bit() -> None:
     assert n_hits > 1000  # the scenes were hit, not only missed
 
 
+def test_loop_cast_in_a_walled_room_matches_the_numpy_cast() -> None:
+    """Inside a room of walls, beams along the axes (direction components of exactly
+    ±0.0) and origins on wall faces, in corners and outside: the loop cast's bounding-circle
+    skips and slab arithmetic give the NumPy cast's bits."""
+    from realitygap.envs.layouts import room_walls
+
+    rng = np.random.default_rng(8)
+    arrays = raycast.PrimitiveArrays(
+        [*room_walls(2.0), world.Primitive("b", world.Shape.BOX, (0.5, 0.5), 0.5, 0.3, (0.2, 0.4))]
+    )
+    kernels = [raycast.cast_rotated_beams]
+    if jit.numba_available():
+        kernels.append(raycast.cast_rotated_beams_compiled)
+    ang = np.concatenate([np.linspace(-math.pi, math.pi, 9), rng.uniform(-math.pi, math.pi, 40)])
+    cos, sin = np.cos(ang), np.sin(ang)
+    origins = [(0.0, 0.0), (2.0, 0.0), (-2.0, 2.0), (1.9999, -2.0), (2.05, 0.3), (2.3, 2.3)]
+    origins += [tuple(float(v) for v in rng.uniform(-2.0, 2.0, 2)) for _ in range(20)]
+    n_hits = 0
+    for (ox, oy), th in [(o, t) for o in origins for t in (0.0, math.pi / 2, -math.pi, 1.0)]:
+        c, s = math.cos(th), math.sin(th)
+        want = arrays.cast_directions(ox, oy, _rotated_directions(c, s, cos, sin), 6.0)
+        for kernel in kernels:
+            got = np.empty_like(want)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                kernel(ox, oy, c, s, cos, sin, arrays.box_rows, arrays.cyl_rows, 6.0, got)
+            assert got.tobytes() == want.tobytes(), (ox, oy, th)
+        n_hits += int(np.isfinite(want).sum())
+    assert n_hits > 1000
+
+
 @needs_numba
 def test_compiled_noisy_scan_matches_the_numpy_scan() -> None:
     """The compiled scan and the NumPy scan of one scanner, from generators in one state."""
@@ -126,6 +156,47 @@ def test_in_place_propagation_matches_propagate_pose_bit_for_bit(compiled: bool)
         fn(got_pose, got_cov, ds, dth, *noise.coefficients)
         assert got_pose.tobytes() == want_pose.tobytes()
         assert got_cov.tobytes() == want_cov.tobytes()
+
+
+@pytest.mark.parametrize("compiled", [False, pytest.param(True, marks=needs_numba)])
+def test_odometry_step_matches_increment_then_propagation_bit_for_bit(compiled: bool) -> None:
+    """The one-call odometry step gives the bits of the kinematics' increment followed by
+    :func:`propagate_pose`, and returns the increment's distance."""
+    noise = dm.OdometryNoise(distance_var_floor=1e-6, heading_var_floor=2e-6)
+    kin = dm.DiffDriveKinematics(0.0352, 0.0349, 0.231, 2578.33)
+    fn = dm.odometry_step_in_place_compiled if compiled else dm.odometry_step_in_place
+    rng = np.random.default_rng(12)
+    for pose, cov, _, _ in _propagation_cases(200):
+        d_left, d_right = (float(v) for v in rng.integers(-300, 300, 2) * 0.997)
+        if rng.random() < 0.2:
+            d_right = d_left  # straight: Δθ = 0
+        ds, dth = kin.increment_from_ticks(d_left, d_right)
+        want_pose, want_cov = dm.propagate_pose(pose, cov, ds, dth, noise)
+        got_pose, got_cov = pose.copy(), cov.copy()
+        got_ds = fn(
+            got_pose,
+            got_cov,
+            d_left,
+            d_right,
+            kin.meters_per_tick_left,
+            kin.meters_per_tick_right,
+            kin.wheelbase,
+            *noise.coefficients,
+        )
+        assert np.float64(got_ds).tobytes() == np.float64(ds).tobytes()
+        assert got_pose.tobytes() == want_pose.tobytes()
+        assert got_cov.tobytes() == want_cov.tobytes()
+
+
+def test_wheel_odometry_follows_replaced_kinematics() -> None:
+    """The odometry's cached per-tick travels follow ``kinematics`` when it is replaced."""
+    odo = dm.WheelOdometry(dm.DiffDriveKinematics(0.035, 0.035, 0.23, 1000.0))
+    odo.reset()
+    odo.update(dm.WheelTicks(0.0, 0, 0, 1000.0))
+    odo.kinematics = dm.DiffDriveKinematics(0.07, 0.07, 0.23, 1000.0)
+    est = odo.update(dm.WheelTicks(0.1, 1000, 1000, 1000.0))
+    assert est.pose[0] == pytest.approx(2.0 * math.pi * 0.07)  # one revolution, new radius
+    assert est.extras["distance"] == pytest.approx(2.0 * math.pi * 0.07)
 
 
 def test_wheel_odometry_follows_a_replaced_noise_model() -> None:
