@@ -170,6 +170,8 @@ def _markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str, note: st
     )
     lines += ["", "## Verdict", ""]
     label = ", ".join(v.effects) if v.kind == "effects" else v.kind.upper()
+    if v.kind == "effects" and v.notes.get("whole_runs"):
+        label = str(v.notes.get("verdict_text") or label)
     lines.append(f"**{label}** — {v.reason}.  ")
     lines += explain_markdown(v, [f.name for f in d.ranking[:5]])
     if v.kind == "effects":

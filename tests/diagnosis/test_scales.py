@@ -13,6 +13,7 @@ from scipy.stats import t as student_t
 
 from realitygap.diagnosis.attribute import Layout
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
+from realitygap.diagnosis.report import write_report
 from realitygap.diagnosis.scales import ScaleSettings, run_bias
 from realitygap.diagnosis.summary import summary_sentences
 from realitygap.diagnosis.verdict import explain
@@ -143,3 +144,6 @@ def test_a_drift_under_a_wandering_clock_is_named_on_whole_runs(tmp_path: Path) 
     assert ("unexplained" in text) == bool(whole["remainder"])
     assert any(line.startswith("window scale:") for line in explain(d.verdict))
     assert any("on whole runs" in s for s in summary_sentences(d))
+    write_report(d, tmp_path / "report")
+    md = (tmp_path / "report" / "report.md").read_text()
+    assert f"**{text}**" in md
