@@ -320,7 +320,8 @@ def judge_scales(
         for _ in range(settings.permutations)
     )
     left_desc = describe_residual(z_left, problem.holdout, st, problem.features, noise)
-    rest_desc = describe_residual(z, problem.holdout, st, problem.features, noise)
+    # what the best model leaves on the held-out windows: the verdict already described it
+    rest_desc = verdict.residual
     clock_like = share >= settings.min_timing_share and share > null
     bias = run_bias(z, problem.holdout)
     worst = bias[0] if bias else None

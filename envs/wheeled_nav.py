@@ -484,9 +484,9 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             if frame is not None:
                 scan = self.scanner.scan_from_frame(frame)
             elif self.camera is not None:
-                scan = self.scanner.scan_rendered(self.camera, self._t, rng)
+                scan = self.scanner.scan_rendered(self.camera, t, rng)
             else:
-                scan = self.scanner.scan_fast(self._t, rng, None if pose is None else pose.tolist())
+                scan = self.scanner.scan_fast(t, rng, None if pose is None else pose.tolist())
             self._scan = scan
         return DiffDriveMeasurement(t, ticks, scan, frame)  # (positional: cheaper)
 

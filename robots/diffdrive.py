@@ -246,9 +246,7 @@ class FirmwareLimits:
         dw, dw_slow = self.alpha_max * dt, f * self.alpha_max * dt
 
         def body_ramp(v: float, w: float, v_prev: float, w_prev: float) -> tuple[float, float]:
-            v = min(v_max, max(-v_max, v))
-            w = min(w_max, max(-w_max, w))
-            return ramp_step(v_prev, v, dv, free, dv_slow), ramp_step(w_prev, w, dw, free, dw_slow)
+            return _body_ramp(v, w, v_prev, w_prev, v_max, w_max, dv, dv_slow, dw, dw_slow, free)
 
         return body_ramp
 
@@ -294,12 +292,20 @@ class FirmwareLimits:
         limited (:func:`ramp_step`): slowing down, and a reversal through
         standstill, pass at once, as in a firmware that brakes without a ramp.
         """
-        v = min(self.v_max, max(-self.v_max, v))
-        w = min(self.w_max, max(-self.w_max, w))
         f = self.decel_factor
-        v = ramp_step(v_prev, v, self.a_max * dt, free_deceleration, f * self.a_max * dt)
-        w = ramp_step(w_prev, w, self.alpha_max * dt, free_deceleration, f * self.alpha_max * dt)
-        return float(v), float(w)
+        return _body_ramp(
+            v,
+            w,
+            v_prev,
+            w_prev,
+            self.v_max,
+            self.w_max,
+            self.a_max * dt,
+            f * self.a_max * dt,
+            self.alpha_max * dt,
+            f * self.alpha_max * dt,
+            free_deceleration,
+        )
 
     def limit_wheels(
         self,
@@ -368,6 +374,27 @@ def ramp_step(
         if decel_step is not None:
             step = decel_step
     return float(prev + min(step, max(-step, d)))
+
+
+def _body_ramp(
+    v: float,
+    w: float,
+    v_prev: float,
+    w_prev: float,
+    v_max: float,
+    w_max: float,
+    dv: float,
+    dv_slow: float,
+    dw: float,
+    dw_slow: float,
+    free: bool,
+) -> tuple[float, float]:
+    """The body-twist ramp of :meth:`FirmwareLimits.limit` with its per-period steps given:
+    the request clipped to ``±v_max``, ``±w_max``, then :func:`ramp_step` of each part
+    (speeding up by at most ``dv`` / ``dw``, slowing down by ``dv_slow`` / ``dw_slow``)."""
+    v = min(v_max, max(-v_max, v))
+    w = min(w_max, max(-w_max, w))
+    return ramp_step(v_prev, v, dv, free, dv_slow), ramp_step(w_prev, w, dw, free, dw_slow)
 
 
 _NOT_SCENERY = frozenset({"robot", "floor", "floor_surface"})
@@ -620,8 +647,7 @@ class DiffDriveRobot:
         """Wheel angles (rad) as the encoders report them: :meth:`wheel_angles` (the rolling
         angles) through the effects' per-wheel hooks (wheels that turned more than they
         rolled) and encoder hooks."""
-        states = self._get_joint_states(self.body, self.wheel_joints)  # = wheel_angles()
-        angles = states[0][0], states[1][0]
+        angles = self.wheel_angles()
         for wheel_hook in self._wheel_hooks:
             angles = wheel_hook.encoder(*angles)
         for hook in self._ticks_hooks:

@@ -217,14 +217,16 @@ class PlanarScanner:
         c, s = math.cos(th), math.sin(th)
         P = self.params
         mx, my = self._mount_xy
+        # beams leave the camera's optical centre; ranges are reported from the base origin
+        ox, oy = x + c * mx - s * my, y + s * mx + c * my
         if _noisy_scan_compiled is not None and use_compiled():
             # one compiled call: the same operations as below, beam by beam
             arrays = self._world.scenery_arrays
             noise = rng.standard_normal(out=self._noise)
             ranges = np.empty(self.n_beams)
             _noisy_scan_compiled(
-                x + c * mx - s * my,
-                y + s * mx + c * my,
+                ox,
+                oy,
                 c,
                 s,
                 self._cos,
@@ -246,10 +248,7 @@ class PlanarScanner:
         cs[0, 0, 0], cs[1, 0, 0], sc[0, 0, 0], sc[1, 0, 0] = c, s, -s, c
         d = np.multiply(self._cos_cos, cs, out=self._dirs)
         d += np.multiply(self._sin_sin, sc, out=self._dirs_sin)
-        # beams leave the camera's optical centre; ranges are reported from the base origin
-        ranges = self.robot.world.scenery_arrays.cast_directions(
-            x + c * mx - s * my, y + s * mx + c * my, d, P.range_max
-        )
+        ranges = self._world.scenery_arrays.cast_directions(ox, oy, d, P.range_max)
         ranges += self._along_beam_offset
         sigma = np.multiply(ranges, P.depth_noise_b, out=self._sigma)
         sigma *= ranges

@@ -335,15 +335,6 @@ class World:
         :attr:`physics_cpu_seconds` too (what one core spends, whatever else the
         machine runs; a system call per step, so off by default).
         """
-        if n_physics_steps is None and before_each is None and self.fused_substeps:
-            # the hot path: one control period in one engine call
-            cpu0 = time.thread_time() if self.cpu_timing else 0.0
-            t0 = time.perf_counter()
-            self._step_simulation()
-            self.physics_seconds += time.perf_counter() - t0
-            if self.cpu_timing:
-                self.physics_cpu_seconds += time.thread_time() - cpu0
-            return
         n = self.n_substeps if n_physics_steps is None else int(n_physics_steps)
         if n < 0:
             raise ValueError(f"n_physics_steps must be >= 0, got {n_physics_steps!r}")

@@ -103,7 +103,7 @@ def _wandering_clock_sessions(root: Path, seed: int, **hidden: float) -> None:
     dd.write_session(root, "010320241220", circles, robot, "circular", rng=rng)
 
 
-def test_a_wandering_clock_generator_keeps_its_stamps_in_order() -> None:
+def test_a_wandering_clock_moves_only_the_motion_capture() -> None:
     import realitygap.independent.diffdrive as dd
 
     with pytest.raises(ValueError, match=r"Hidden\.clock_wander"):
