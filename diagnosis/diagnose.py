@@ -519,10 +519,10 @@ def coverage_report(
     problem: Problem, judgement: Judgement, settings: CoverageSettings | None
 ) -> Coverage | None:
     """Whether the held-out motions lie within the training's
-    (:func:`~realitygap.diagnosis.coverage.training_coverage`); when no effect was named
-    and what remains gathers beyond the training (:attr:`Coverage.beyond_training`), the
-    verdict says so and names the training run that would test it
-    (``verdict.notes["coverage"]``)."""
+    (:func:`~realitygap.diagnosis.coverage.training_coverage`), for the best model of
+    ``judgement``. :func:`~realitygap.diagnosis.verdict.conclude` puts it in the verdict's
+    words when no effect is named and what remains gathers beyond the training
+    (:attr:`Coverage.beyond_training`)."""
     if settings is None or problem.holdout.n == 0 or problem.train.n == 0:
         return None
     best = judgement.best
@@ -563,14 +563,6 @@ def coverage_report(
         best=best.name,
         settings=settings,
     )
-    verdict = judgement.verdict
-    if cov.beyond_training and verdict.kind != "effects":
-        verdict.notes["coverage"] = {"summary": cov.summary(), "suggestion": cov.suggestion()}
-        if verdict.notes.get("verdict_text") in (None, "", verdict.kind):
-            verdict.notes["verdict_text"] = (
-                f"{verdict.kind} ({100 * cov.residual_share_outside:.0f} % of what remains lies "
-                "in motions the training never exercised)"
-            )
     return cov
 
 
@@ -680,9 +672,9 @@ def diagnose(
             s.scales,
         )
     ident = advise(problem, verification.ranking, judgement)
-    conclude(problem, verification.ranking, judgement, ident)
-    rows, gap = gap_report(problem, judgement, verification.replays, baseline)
     coverage = coverage_report(problem, judgement, s.coverage)
+    conclude(problem, verification.ranking, judgement, ident, coverage)
+    rows, gap = gap_report(problem, judgement, verification.replays, baseline)
     if coverage is not None:
         say(f"coverage: {coverage.summary()}")
     timing["total"] = time.perf_counter() - t0

@@ -18,12 +18,15 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 
 from realitygap.diagnosis.attribute import AttributionSettings, ModelFit, Problem, Verdict
+
+if TYPE_CHECKING:
+    from realitygap.diagnosis.coverage import Coverage
 from realitygap.diagnosis.parameters import param_spec, range_position
 from realitygap.diagnosis.residual import describe_residual, shrink_above_noise, white_level
 from realitygap.diagnosis.shrink import overall_shrink
@@ -594,9 +597,13 @@ def conclude(
     ranking: Sequence[ModelFit],
     judgement: Judgement,
     ident: Sequence[Mapping[str, Any]],
+    coverage: Coverage | None = None,
 ) -> dict[str, Any]:
     """What the verdict adds after identifiability: aliases, compensators, honest
-    parameters and, for an unexplained gap, what the residual looks like.
+    parameters and, for an unexplained gap, what the residual looks like and, with
+    ``coverage`` (:func:`~realitygap.diagnosis.coverage.training_coverage`), whether it
+    gathers in motions the training never exercised (then the verdict's words say so and
+    ``notes["coverage"]`` names the training run that would test it).
 
     A verdict whose model worsens a regime it touches becomes ``"unexplained"``
     (a likely compensator, not a cause). Parameters at a bound or untestable
@@ -675,6 +682,13 @@ def conclude(
         "discovery": disc.to_json() if disc is not None else None,
         "heldout_shrink_pct_above_noise": judgement.shrink_pct_above_noise,
     }
+    if coverage is not None and coverage.beyond_training and verdict.kind != "effects":
+        notes["coverage"] = {"summary": coverage.summary(), "suggestion": coverage.suggestion()}
+        if text == verdict.kind:
+            notes["verdict_text"] = (
+                f"{verdict.kind} ({100 * coverage.residual_share_outside:.0f} % of what remains "
+                "lies in motions the training never exercised)"
+            )
     if combo is not None:
         notes["combination_check"] = combo
         if not combo["passed"]:
