@@ -61,6 +61,7 @@ from realitygap.core.parallel import Backend
 from realitygap.diagnosis.adapters import PreparedLog
 from realitygap.diagnosis.attribute import Problem, _rho, fit_model
 from realitygap.diagnosis.clock import ClockAlignment, ClockSettings, align_clocks, timing_channel
+from realitygap.diagnosis.frames import FrameAlignment, align_frames, frame_channel
 from realitygap.diagnosis.log import Log
 from realitygap.diagnosis.parameters import model_keys, param_spec
 from realitygap.diagnosis.replay import Drive
@@ -110,6 +111,10 @@ class Baseline:
         Each log's own clock offset, fitted before the nuisances: the deviations
         from the common offset that were applied by re-stamping the log
         (:mod:`~realitygap.diagnosis.clock`).
+    frames : FrameAlignment
+        Each log's own ground-truth frame, fitted after the clocks: the deviations
+        from the common frame that were applied by re-framing the log
+        (:mod:`~realitygap.diagnosis.frames`).
     convention_limits : dict
         The chosen convention's continuous limits fitted on the training logs
         (the adapter's :meth:`fit_actuator_limits`, JSON form; empty when the
@@ -127,6 +132,7 @@ class Baseline:
     convention_costs: dict[str, float] = field(default_factory=dict)
     clock: ClockAlignment = field(default_factory=ClockAlignment)
     convention_limits: dict[str, Any] = field(default_factory=dict)
+    frames: FrameAlignment = field(default_factory=FrameAlignment)
 
     def to_json(self) -> dict[str, Any]:
         """JSON form: one row per nuisance and the training shrink of the baseline."""
@@ -151,12 +157,13 @@ class Baseline:
             if self.convention
             else None,
             "clock_alignment": self.clock.to_json() if self.clock.rows else None,
+            "frame_alignment": self.frames.to_json() if self.frames.rows else None,
         }
 
     def summary(self) -> str:
         """One line for the terminal and the report."""
         conv = f"actuator response: {self.convention_what}" if self.convention else ""
-        clock = self.clock.summary()
+        clock = "; ".join(x for x in (self.clock.summary(), self.frames.summary()) if x)
         lim = self.convention_limits
         if conv and "accel_scale" in lim:
             conv += (
@@ -338,6 +345,7 @@ def calibrate_baseline(
     backend: Backend,
     say: Callable[[str], None] = lambda msg: None,
     clock: ClockSettings | None = None,
+    frames: bool = False,
 ) -> Baseline:
     """Fit the adapter's nuisances and make the baseline the reference of ``problem``.
 
@@ -359,6 +367,14 @@ def calibrate_baseline(
         a replay driven by the measured wheel motion (``Drive.TICKS``) is aligned:
         with a command-driven one, each log's manoeuvres meet the drive train's
         response differently, and a per-log time shift would absorb part of it.
+    frames : bool
+        Fit each log's own ground-truth frame after the clocks and re-frame the
+        logs whose deviation from the common frame is their own
+        (:func:`~realitygap.diagnosis.frames.align_frames`, on the three parameters
+        of a nuisance effect that re-frames one channel). Like the clocks, only with
+        a replay driven by the measured wheel motion: a command-driven reference
+        leaves the drive train's response in every window, and a per-log frame
+        would absorb part of it.
 
     Returns
     -------
@@ -386,6 +402,11 @@ def calibrate_baseline(
     if clock is not None and timing and problem.drive is Drive.TICKS:
         say(f"aligning each log's clock ({timing[0]})")
         aligned = align_clocks(problem, timing[0], clock, say)
+    framed = FrameAlignment()
+    frame_keys = [k for k in ranges if frame_channel(k.partition(".")[0]) is not None]
+    if frames and len(frame_keys) == 3 and problem.drive is Drive.TICKS:
+        say(f"aligning each log's ground-truth frame ({', '.join(frame_keys)})")
+        framed = align_frames(problem, frame_keys, [ranges[k][:2] for k in frame_keys], say)
     effects = tuple(dict.fromkeys(k.partition(".")[0] for k in ranges))
     box = {k: (r[0], r[1]) for k, r in ranges.items()}
     # parameters of a nuisance effect that are not nuisances stay at nominal
@@ -438,6 +459,7 @@ def calibrate_baseline(
             convention_costs=conv_costs,
             clock=aligned,
             convention_limits=conv_limits,
+            frames=framed,
         )
     problem.f_scale = problem.noise_scale()
     return Baseline(
@@ -451,4 +473,5 @@ def calibrate_baseline(
         convention_costs=conv_costs,
         clock=aligned,
         convention_limits=conv_limits,
+        frames=framed,
     )

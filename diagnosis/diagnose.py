@@ -130,6 +130,10 @@ class DiagnosisSettings:
         With ``calibrate``: fit each log's own clock offset first and re-stamp the
         logs whose deviation from the common offset is a synchronisation error
         (:mod:`realitygap.diagnosis.clock`); ``None`` leaves every log's clock alone.
+    frames : bool
+        With ``calibrate`` and a tick-driven replay: fit each log's own ground-truth
+        frame (where the adapter states one as a nuisance) and re-frame the logs whose deviation from the
+        common frame is their own (:mod:`realitygap.diagnosis.frames`).
     scales : ScaleSettings or None
         Revisit a verdict that fails only on the window shrink on the scale of whole
         held-out runs (:mod:`realitygap.diagnosis.scales`); ``None``: windows only.
@@ -149,6 +153,7 @@ class DiagnosisSettings:
     transients: TransientSettings | None = field(default_factory=TransientSettings)
     calibrate: bool = True
     clock: ClockSettings | None = field(default_factory=ClockSettings)
+    frames: bool = True
     scales: ScaleSettings | None = field(default_factory=ScaleSettings)
     coverage: CoverageSettings | None = field(default_factory=CoverageSettings)
 
@@ -642,7 +647,7 @@ def diagnose(
     baseline = Baseline()
     if s.calibrate:
         t_b = time.perf_counter()
-        baseline = calibrate_baseline(problem, candidates, be, say, clock=s.clock)
+        baseline = calibrate_baseline(problem, candidates, be, say, clock=s.clock, frames=s.frames)
         timing["baseline"] = time.perf_counter() - t_b
         if baseline.values:
             say(baseline.summary())

@@ -161,6 +161,7 @@ class Hidden:
     slope : floor tilt [rad]; ``slope_dir`` its downhill direction in the world frame [rad]
     battery_sag : fraction of motor speed lost by the end of the session [1]
     marker_dx, marker_dy : motion-capture body origin in the robot frame [m]
+    marker_yaw : motion-capture body heading minus the robot's [rad]
     skid : lateral skid speed per unit v·ω [s]
     enc_wobble : periodic count error amplitude of the left encoder [rad of wheel angle]
     """
@@ -185,6 +186,7 @@ class Hidden:
     battery_sag: float = 0.0
     marker_dx: float = 0.0
     marker_dy: float = 0.0
+    marker_yaw: float = 0.0
     skid: float = 0.0
     enc_wobble: float = 0.0
 
@@ -472,7 +474,7 @@ def simulate_run(
                     [
                         pose[0] + c * hidden.marker_dx - s * hidden.marker_dy,
                         pose[1] + s * hidden.marker_dx + c * hidden.marker_dy,
-                        pose[2],
+                        pose[2] + hidden.marker_yaw,
                     ]
                 )
                 stamp = next_mocap + robot.mocap_latency + hidden.clock_skew

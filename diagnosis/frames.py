@@ -1,0 +1,341 @@
+r"""Per-log frame alignment: the body frame each recording's ground truth tracks.
+
+A motion-capture system tracks a rigid body that someone defined by hand on
+the robot — its origin a few millimetres off the axle centre, its heading a few
+milliradians off the direction the wheels roll. A rigid body is defined again
+whenever markers are moved or a session is set up anew, so the frame is a
+property of the *recording*, like its clock synchronisation
+(:mod:`~realitygap.diagnosis.clock`), and differs from session to session. A
+frame :math:`F = (x, y, ψ)` shows in every window as
+
+.. math::  e_y \approx ψ\,Δs + x\,Δθ
+
+(sideways motion along each metre driven, and the origin circling the axle in
+each turn): a common frame is the calibrated baseline's nuisance
+(``truth_frame_offset``), but sessions that differ by a few millimetres leave a
+sideways residual that no robot effect explains and that adds up along a run.
+
+:func:`align_frames` fits, before any effect, each log's own frame
+:math:`F_i` on its own windows with the reference model, robustly (the same
+loss and scale as the attribution), within the nuisance's stated range. A
+robot effect barely biases the fit — geometric and drive-train errors change
+how far and how much a window turns, a frame changes where sideways the
+tracked origin goes — and what bias it leaves is common to the logs. The common
+part, the per-component median :math:`F_c`, is *not* removed (it belongs to the
+baseline), only each log's deviation from it, and only where
+
+* the fitted frame lies inside the nuisance range (a frame at its edge is a
+  gap the frame cannot close, not a convention; the log keeps the common one), and
+* the deviation lowers the log's robust cost by more than a BIC penalty,
+  :math:`Δχ^2 > k_i \log n_i` (:math:`k_i` components the log's motion tests,
+  :math:`n_i` residual entries, in units of the noise level), so that noise does
+  not move a log's frame. A component the log's motion does not test (the
+  heading of the frame in a turn on the spot) keeps the common value.
+
+A deviation is applied by re-framing the log's channel: the recorded track
+:math:`R_k` is taken back to the body poses it implies under :math:`F_i`
+and recorded again under :math:`F_c` (:func:`reframe_recorded`; headings
+are unchanged). Held-out logs are aligned too, from their own windows and the
+reference model only, as their clocks are.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from scipy.optimize import least_squares
+
+from realitygap.core.geometry import reframe_track, se2_compose, se2_inverse
+from realitygap.diagnosis.attribute import Problem, _rho
+from realitygap.diagnosis.log import Log
+from realitygap.diagnosis.parameters import param_spec
+from realitygap.robots.effects import make_effect
+
+FloatArray = npt.NDArray[np.float64]
+
+__all__ = ["TESTED", "FrameAlignment", "align_frames", "frame_channel", "reframe_recorded"]
+
+TESTED = 0.05
+"""A frame component moves a log's residuals over its whole range by less than this
+fraction of what the most telling component does: the log's motion does not test it."""
+
+
+@dataclass
+class FrameAlignment:
+    """Result of :func:`align_frames`.
+
+    Attributes
+    ----------
+    keys : tuple of str
+        The frame parameters (``"effect.x"``, ``"effect.y"``, ``"effect.yaw"``).
+    channel : str
+        The channel that was re-framed.
+    common : tuple of float
+        Per-component median of the logs' fitted frames (m, m, rad), left to the baseline.
+    rows : list of dict
+        Per log: ``log``, ``split``, ``frame`` (fitted x, y, yaw), ``deviation``
+        (from ``common``), ``applied``, ``chi2_drop`` (cost reduction in noise
+        units) and ``why`` when not applied.
+    """
+
+    keys: tuple[str, ...] = ()
+    channel: str = ""
+    common: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rows: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def applied(self) -> list[tuple[float, float, float]]:
+        """Deviations (x m, y m, yaw rad) of the logs that were re-framed, in log order."""
+        return [tuple(r["deviation"]) for r in self.rows if r["applied"]]
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "parameters": list(self.keys),
+            "channel": self.channel,
+            "common_frame": list(self.common),
+            "logs": [dict(r) for r in self.rows],
+        }
+
+    def summary(self) -> str:
+        """One line: how many logs were re-framed and by how much at most."""
+        if not self.rows:
+            return ""
+        dev = np.array(self.applied).reshape(-1, 3)
+        head = f"per-log frame alignment of {self.channel}: "
+        if dev.shape[0] == 0:
+            return head + f"none of {len(self.rows)} logs re-framed"
+        xy = 1e3 * float(np.max(np.hypot(dev[:, 0], dev[:, 1])))
+        yaw = 1e3 * float(np.max(np.abs(dev[:, 2])))
+        cx, cy, cyaw = self.common
+        return head + (
+            f"{dev.shape[0]} of {len(self.rows)} logs re-framed by up to {xy:.1f} mm and "
+            f"{yaw:.1f} mrad from the common frame ({1e3 * cx:+.1f} mm, {1e3 * cy:+.1f} mm, "
+            f"{1e3 * cyaw:+.1f} mrad)"
+        )
+
+
+def frame_channel(effect: str) -> str | None:
+    """The channel whose recorded frame the effect ``effect`` moves, or ``None``.
+
+    Read from the effect itself (:meth:`~realitygap.robots.effects.Effect.channel_frames`
+    at a non-zero frame): an effect with parameters ``x``, ``y``, ``yaw`` that
+    re-frames exactly one channel.
+    """
+    try:
+        probe = make_effect(effect, x=0.01, y=0.01, yaw=0.01)
+    except (KeyError, TypeError, ValueError):
+        return None
+    frames = probe.channel_frames() if hasattr(probe, "channel_frames") else {}
+    return next(iter(frames)) if len(frames) == 1 else None
+
+
+def reframe_recorded(
+    track: npt.ArrayLike, frame_from: npt.ArrayLike, frame_to: npt.ArrayLike
+) -> FloatArray:
+    """A track recorded under the body frame ``frame_from``, as ``frame_to`` would record it.
+
+    The inverse of :func:`~realitygap.core.geometry.reframe_track` followed by
+    it: the body poses the record implies (started at its first recorded pose)
+    are recorded again under ``frame_to``. Headings are returned as given
+    (a frame change leaves them unchanged).
+
+    Parameters
+    ----------
+    track : array_like, shape (N, 3)
+        Recorded x, y (m) and heading (rad).
+    frame_from, frame_to : array_like, shape (3,)
+        Body frames x, y (m), yaw (rad).
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+    """
+    r = np.asarray(track, dtype=float)
+    f = np.asarray(frame_from, dtype=float)
+    if r.ndim != 2 or r.shape[1] != 3 or f.shape != (3,) or np.shape(frame_to) != (3,):
+        raise ValueError(
+            f"reframe_recorded: expected a track (N, 3) and frames (3,), got {r.shape}, "
+            f"{f.shape} and {np.shape(frame_to)}"
+        )
+    r0 = r[0]
+    # R_k = L ⊕ A_k ⊕ F with L = R_0 ⊕ F⁻¹ ⊕ R_0⁻¹, so A_k = L⁻¹ ⊕ R_k ⊕ F⁻¹
+    left_inv = se2_compose(se2_compose(r0, f), se2_inverse(r0))
+    body = se2_compose(se2_compose(left_inv, r), se2_inverse(f))
+    body[:, 2] = r[:, 2]
+    out = reframe_track(body, np.asarray(frame_to, dtype=float), start=r0)
+    out[:, 2] = r[:, 2]
+    return out
+
+
+def _residuals(problem: Problem, i: int, keys: Sequence[str], frames: FloatArray) -> FloatArray:
+    """Normalised residuals (B, n) of log ``i`` (windows not set aside) at each frame (B, 3)."""
+    p = problem.logs[i]
+    use = ~problem.excluded.get(i, np.zeros(p.bounds.shape[0], dtype=bool))
+    values = problem.with_baseline({k: frames[:, j] for j, k in enumerate(keys)}, frames.shape[0])
+    sur = problem.adapter.surrogate_features(p, values, problem.drive)
+    parts = []
+    for g in p.groups:
+        pred = sur[g][:, use] + p.bias[g][use][None]
+        z = (p.real[g][use][None] - pred) / problem.features.scale(g)
+        parts.append(z.reshape(frames.shape[0], -1))
+    return np.concatenate(parts, axis=1)
+
+
+def _fit_log(
+    problem: Problem, i: int, keys: Sequence[str], low: FloatArray, high: FloatArray
+) -> tuple[FloatArray, FloatArray, int]:
+    """Robust fit of log ``i``'s frame inside ``[low, high]``.
+
+    Returns the frame, which of its components the log's motion tests (a turn in
+    place moves no distance, so it cannot test the heading of the frame; a
+    straight run cannot test its origin along the axis): a component whose
+    Jacobian column is below :data:`TESTED` of the largest, over its range, is
+    held at zero and reported untested), and the residual count.
+    """
+    st = problem.settings
+    span = high - low
+    h = 1e-4 * span
+
+    def jac_at(x: FloatArray, free: FloatArray) -> FloatArray:
+        pts = np.repeat(x[None], 4, axis=0)
+        step = np.where(x + h <= high, h, -h)
+        pts[1:] += np.diag(step)
+        z = _residuals(problem, i, keys, pts)
+        return ((z[1:] - z[0]) / step[:, None]).T[:, free]
+
+    x0 = np.clip(np.zeros(3), low, high)
+    everything = np.ones(3, dtype=bool)
+    j0 = jac_at(x0, everything)
+    n = int(j0.shape[0])
+    reach = np.linalg.norm(j0, axis=0) * span
+    tested = reach > TESTED * max(float(reach.max()), 1e-300)
+    if n < 6 or not tested.any():
+        return x0, np.zeros(3, dtype=bool), n
+
+    def full(y: FloatArray) -> FloatArray:
+        x = x0.copy()
+        x[tested] = y
+        return x
+
+    res = least_squares(
+        lambda y: _residuals(problem, i, keys, full(y)[None])[0],
+        x0[tested],
+        jac=lambda y: jac_at(full(y), tested),
+        bounds=(low[tested], high[tested]),
+        loss=st.loss,
+        f_scale=problem.f_scale,
+        x_scale=span[tested],
+        max_nfev=50,
+    )
+    return full(np.asarray(res.x, dtype=float)), tested, n
+
+
+def align_frames(
+    problem: Problem,
+    keys: Sequence[str],
+    ranges: Sequence[tuple[float, float]],
+    say: Callable[[str], None] = lambda msg: None,
+) -> FrameAlignment:
+    """Fit each log's ground-truth frame and re-frame the logs whose deviation is their own.
+
+    Parameters
+    ----------
+    problem : Problem
+        Its logs are modified in place: ``log`` re-framed and ``real`` features
+        recomputed for every log whose deviation is applied; the layouts are rebuilt.
+    keys : sequence of str
+        The frame parameters ``("effect.x", "effect.y", "effect.yaw")`` of one
+        effect that re-frames one channel (:func:`frame_channel`).
+    ranges : sequence of (low, high)
+        The nuisance range of each parameter (natural units).
+    say : callable
+
+    Returns
+    -------
+    FrameAlignment
+        Empty when fewer than two logs are given or the keys re-frame no single channel.
+    """
+    order = {"x": 0, "y": 1, "yaw": 2}
+    pairs = sorted(zip(keys, ranges), key=lambda kr: order.get(kr[0].partition(".")[2], 3))
+    keys = tuple(k for k, _ in pairs)
+    ranges = [r for _, r in pairs]
+    effects = {k.partition(".")[0] for k in keys}
+    suffixes = [k.partition(".")[2] for k in keys]
+    if suffixes != ["x", "y", "yaw"] or len(effects) != 1 or len(ranges) != 3:
+        raise ValueError(
+            f"align_frames: expected the x, y and yaw parameters of one effect with a range "
+            f"each, got {keys} and {len(ranges)} range(s)"
+        )
+    channel = frame_channel(next(iter(effects)))
+    logs: Sequence[Any] = problem.logs
+    if channel is None or len(logs) < 2:
+        return FrameAlignment()
+    for k in keys:
+        param_spec(k)  # a clear error for an unknown parameter
+    low = np.array([float(r[0]) for r in ranges])
+    high = np.array([float(r[1]) for r in ranges])
+    noise = problem.f_scale / problem.settings.robust_scale
+    fitted: list[FloatArray] = []
+    tested: list[FloatArray] = []
+    sizes: list[int] = []
+    for i in range(len(logs)):
+        x, ok, n = _fit_log(problem, i, keys, low, high)
+        fitted.append(x)
+        tested.append(ok)
+        sizes.append(n)
+    # the common frame: per component, the median over the logs whose motion tests it
+    fx, ok_all = np.array(fitted), np.array(tested)
+    common = np.array(
+        [float(np.median(fx[ok_all[:, j], j])) if ok_all[:, j].any() else 0.0 for j in range(3)]
+    )
+    out = FrameAlignment(
+        keys=keys, channel=channel, common=(float(common[0]), float(common[1]), float(common[2]))
+    )
+    edge = 1e-3 * (high - low)
+    st = problem.settings
+    for i, p in enumerate(logs):
+        # an untested component keeps the common value: the log says nothing about it
+        x = np.where(tested[i], fitted[i], common)
+        dev = x - common
+        row: dict[str, Any] = {
+            "log": p.name,
+            "split": p.split,
+            "frame": [float(v) for v in x],
+            "tested": [bool(v) for v in tested[i]],
+            "deviation": [float(v) for v in dev],
+            "applied": False,
+            "chi2_drop": 0.0,
+            "why": "",
+        }
+        z = _residuals(problem, i, keys, np.stack([common, x]))
+        cost = np.sum(_rho(z**2, st.loss, problem.f_scale), axis=1)
+        drop = float(cost[0] - cost[1]) / noise**2
+        row["chi2_drop"] = drop
+        at_edge = (x <= low + edge) | (x >= high - edge)
+        if np.any(at_edge & tested[i]):
+            row["why"] = (
+                "the fitted frame ends at the edge of its range: a gap the frame cannot "
+                "close, not the recording's convention; the log keeps the common frame"
+            )
+        elif not drop > int(tested[i].sum()) * math.log(max(sizes[i], 2)):
+            row["why"] = "the deviation does not lower the log's cost beyond noise"
+        else:
+            row["applied"] = True
+            p.log = _reframe_log(p.log, channel, x, common)
+            feats = problem.adapter.log_features(p, p.log)
+            p.real = {g: feats[g] for g in p.real}
+        out.rows.append(row)
+    if out.applied:
+        problem.exclude(problem.excluded)
+    say(out.summary())
+    return out
+
+
+def _reframe_log(log: Log, channel: str, frame_from: FloatArray, frame_to: FloatArray) -> Log:
+    """``log`` with ``channel`` recorded under ``frame_to`` instead of ``frame_from``."""
+    return log.with_channels(**{channel: reframe_recorded(log[channel], frame_from, frame_to)})
