@@ -541,11 +541,17 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         """Residuals of the pipeline stages inside the real log, per window.
 
         ``command → motion``: real ground truth minus the nominal replay's;
+        ``command → wheels`` (a command-driven replay of a log with encoders):
+        the motion nominal odometry makes of the logged ticks minus the motion it
+        makes of the nominal replay's ticks — what the wheels did beyond what the
+        commands, through the nominal drive train, asked of them;
         ``motion → sensor``: encoder travel minus the travel the nominal
-        geometry predicts from the ground-truth motion; ``sensor → estimate``:
-        the logged estimate's motion minus nominal odometry of the logged ticks.
+        geometry predicts from the ground-truth motion (the wheels → body stage);
+        ``sensor → estimate``: the logged estimate's motion minus nominal
+        odometry of the logged ticks.
         """
-        params = self._context(prepared).params
+        ctx = self._context(prepared)
+        params = ctx.params
         log = prepared.log
         out: dict[str, FloatArray] = {}
         if "pose_gt" in prepared.real and "pose_gt" in prepared.nominal:
@@ -554,6 +560,11 @@ class DiffDriveAdapter(WheelDrivenAdapter):
             mpt = self.meters_per_tick(params)
             odo = nominal_odometry(np.asarray(log["ticks"]), params, log["pose_gt"][0])
             f_odo = features({"pose_gt": odo}, prepared.bounds, mpt)["pose_gt"]
+            rep = prepared.replay_log
+            if ctx.inputs.commands is not None and rep.has("ticks"):
+                odo_rep = nominal_odometry(np.asarray(rep["ticks"]), params, log["pose_gt"][0])
+                f_rep = features({"pose_gt": odo_rep}, prepared.bounds, mpt)["pose_gt"]
+                out["command → wheels"] = f_odo - f_rep
             out["motion → sensor"] = f_odo - prepared.real["pose_gt"]
             if log.has("pose_est"):
                 f_est = features({"pose_gt": log["pose_est"]}, prepared.bounds, mpt)["pose_gt"]

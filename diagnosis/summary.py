@@ -29,6 +29,7 @@ __all__ = [
     "quantity",
     "ranking_by_shrink",
     "regime_name",
+    "stage_split",
     "summary_sentences",
     "value_words",
 ]
@@ -209,6 +210,19 @@ def where_rows(d: Diagnosis, n: int = 3) -> list[dict[str, Any]]:
     return sorted(table, key=lambda r: -float(r.get("share", 0.0)))[:n]
 
 
+def stage_split(d: Diagnosis) -> tuple[float, float] | None:
+    """Shares (%) of the command → wheels and wheels → body stages in what both carry
+    (normalised sums of squares over every window), or ``None`` without both stages."""
+    ss: dict[str, float] = {}
+    for r in d.localisation.get("overall", []):
+        if r["kind"] == "stage":
+            ss[r["where"]] = ss.get(r["where"], 0.0) + float(r["normalised_ss"])
+    a, b = ss.get("command → wheels"), ss.get("motion → sensor")
+    if a is None or b is None or a + b <= 0:
+        return None
+    return 100.0 * a / (a + b), 100.0 * b / (a + b)
+
+
 def summary_sentences(d: Diagnosis) -> list[str]:
     """The opening sentences of a diagnosis report (see the module docstring)."""
     js_logs = {
@@ -237,6 +251,14 @@ def summary_sentences(d: Diagnosis) -> list[str]:
             for c in cells
         ]
         out.append("The gap lies mostly in " + "; then ".join(parts) + ".")
+    split = stage_split(d)
+    if split is not None:
+        out.append(
+            f"By pipeline stage, {split[0]:.0f} % of it lies between the commands and the wheels "
+            "(what the encoders counted against what the commands asked of the nominal drive "
+            f"train) and {split[1]:.0f} % between the wheels and the body (the ground truth "
+            "against the encoders)."
+        )
     rows = d.ranking_rows()
     g = d.gap
     best_row = rows[0] if rows else None

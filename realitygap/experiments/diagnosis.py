@@ -242,6 +242,7 @@ def _real_diagnoses(
     from realitygap.core.parallel import ProcessBackend
     from realitygap.diagnosis.cli import estimate_seconds
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
+    from realitygap.diagnosis.summary import stage_split
     from realitygap.diagnosis.verdict import explain
 
     backend = ProcessBackend(ctx.options.get("workers"))
@@ -281,6 +282,28 @@ def _real_diagnoses(
             figures[prefix + "trajectory_shrink_pct"] = 100.0 * (
                 1.0 - g["heldout_trajectory_gap_m_best"] / g["heldout_trajectory_gap_m_nominal"]
             )
+        split = stage_split(d)
+        if split is not None:
+            figures[prefix + "stage_command_to_wheels_pct"] = split[0]
+            figures[prefix + "stage_wheels_to_body_pct"] = split[1]
+        frames = d.baseline.frames
+        if frames.rows:
+            moved = [r for r in frames.rows if r["applied"]]
+            figures[prefix + "frame_logs_reframed"] = float(len(moved))
+            figures[prefix + "frame_common_yaw_mrad"] = 1e3 * frames.common[2]
+            tables[f"{drive}_frame_alignment"] = [
+                {
+                    "log": r["log"],
+                    "split": r["split"],
+                    "x_mm": round(1e3 * r["frame"][0], 2),
+                    "y_mm": round(1e3 * r["frame"][1], 2),
+                    "yaw_mrad": round(1e3 * r["frame"][2], 2),
+                    "tested": "".join("xyψ"[j] for j, t in enumerate(r["tested"]) if t),
+                    "applied": r["applied"],
+                    "chi2_drop": round(r["chi2_drop"], 1),
+                }
+                for r in frames.rows
+            ]
         clock = d.baseline.clock
         if clock.rows:
             devs = [1e3 * r["deviation_s"] for r in clock.rows if r["applied"]]

@@ -1,0 +1,55 @@
+"""Where a command-driven gap lies: between the commands and the wheels, or between the
+wheels and the body (logs of the package's independent generator)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
+from realitygap.diagnosis.summary import stage_split, summary_sentences
+
+
+def _split(root: Path, drive: str, **hidden: float) -> tuple[float, float] | None:
+    import realitygap.independent.diffdrive as dd
+    from realitygap.diagnosis.io import logs_from_optiodom
+
+    rng = np.random.default_rng(11)
+    robot = dd.DriveRobot()
+    h = dd.Hidden(**hidden)
+    squares = [dd.simulate_run(dd.square_path(robot, 1.0, d), robot, h, rng) for d in ("cw", "ccw")]
+    dd.write_session(root, "010320241010", squares, robot, "square", side=1.0, rng=rng)
+    circles = [dd.simulate_run(dd.circle_path(robot, 0.5, "cw"), robot, h, rng)]
+    dd.write_session(root, "010320241220", circles, robot, "circular", rng=rng)
+    logs = logs_from_optiodom(root)
+    train = [lg for lg in logs if lg.meta.get("path_type") == "square"]
+    held = [lg for lg in logs if lg.meta.get("path_type") != "square"]
+    d = diagnose(
+        train,
+        held,
+        settings=DiagnosisSettings(drive=drive, effects=("wheelbase_error",), scales=None),
+    )
+    split = stage_split(d)
+    if split is not None:
+        assert any(s.startswith("By pipeline stage, ") for s in summary_sentences(d))
+    return split
+
+
+@pytest.mark.parametrize(
+    ("hidden", "stage"),
+    [({"stiction": 0.03, "delay": 0.12}, 0), ({"b_true": 1.03}, 1)],
+    ids=["drive train", "wheelbase"],
+)
+def test_the_stage_that_carries_the_gap_is_the_one_the_effect_acts_in(
+    tmp_path: Path, hidden: dict[str, float], stage: int
+) -> None:
+    split = _split(tmp_path, "commands", **hidden)
+    assert split is not None
+    assert sum(split) == pytest.approx(100.0)
+    assert split[stage] > 60.0, split
+
+
+def test_a_tick_driven_replay_has_no_command_stage(tmp_path: Path) -> None:
+    assert _split(tmp_path, "ticks", b_true=1.03) is None
