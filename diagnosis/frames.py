@@ -191,11 +191,11 @@ def _fit_log(
 ) -> tuple[FloatArray, FloatArray, int]:
     """Robust fit of log ``i``'s frame inside ``[low, high]``.
 
-    Returns the frame, which of its components the log's motion tests (a turn in
-    place moves no distance, so it cannot test the heading of the frame; a
-    straight run cannot test its origin along the axis): a component whose
-    Jacobian column is below :data:`TESTED` of the largest, over its range, is
-    held at zero and reported untested), and the residual count.
+    Returns the frame, which of its components the log's motion tests, and the
+    residual count. A turn on the spot moves no distance, so it cannot test the
+    heading of the frame; a straight run cannot test its origin along the axis: a
+    component whose Jacobian column, over its range, is below :data:`TESTED` of
+    the largest is held at zero and reported untested.
     """
     st = problem.settings
     span = high - low
