@@ -406,7 +406,10 @@ def calibrate_baseline(
     frame_keys = [k for k in ranges if frame_channel(k.partition(".")[0]) is not None]
     if frames and len(frame_keys) == 3 and problem.drive is Drive.TICKS:
         say(f"aligning each log's ground-truth frame ({', '.join(frame_keys)})")
-        framed = align_frames(problem, frame_keys, [ranges[k][:2] for k in frame_keys], say)
+        own = [e for e in candidates if e in default and frame_channel(e) is None]
+        framed = align_frames(
+            problem, frame_keys, [ranges[k][:2] for k in frame_keys], say, effects=own
+        )
     effects = tuple(dict.fromkeys(k.partition(".")[0] for k in ranges))
     box = {k: (r[0], r[1]) for k, r in ranges.items()}
     # parameters of a nuisance effect that are not nuisances stay at nominal

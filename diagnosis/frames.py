@@ -53,7 +53,7 @@ from scipy.optimize import least_squares
 from realitygap.core.geometry import reframe_track, se2_compose, se2_inverse
 from realitygap.diagnosis.attribute import Problem, _rho
 from realitygap.diagnosis.log import Log
-from realitygap.diagnosis.parameters import param_spec
+from realitygap.diagnosis.parameters import model_keys, param_spec
 from realitygap.robots.effects import make_effect
 
 FloatArray = npt.NDArray[np.float64]
@@ -172,67 +172,127 @@ def reframe_recorded(
     return out
 
 
-def _residuals(problem: Problem, i: int, keys: Sequence[str], frames: FloatArray) -> FloatArray:
-    """Normalised residuals (B, n) of log ``i`` (windows not set aside) at each frame (B, 3)."""
+def _residuals(problem: Problem, i: int, keys: Sequence[str], points: FloatArray) -> FloatArray:
+    """Normalised residuals (B, n) of log ``i`` (windows not set aside) at each point (B, K)
+    of the parameters ``keys``."""
     p = problem.logs[i]
     use = ~problem.excluded.get(i, np.zeros(p.bounds.shape[0], dtype=bool))
-    values = problem.with_baseline({k: frames[:, j] for j, k in enumerate(keys)}, frames.shape[0])
+    values = problem.with_baseline({k: points[:, j] for j, k in enumerate(keys)}, points.shape[0])
     sur = problem.adapter.surrogate_features(p, values, problem.drive)
     parts = []
     for g in p.groups:
         pred = sur[g][:, use] + p.bias[g][use][None]
         z = (p.real[g][use][None] - pred) / problem.features.scale(g)
-        parts.append(z.reshape(frames.shape[0], -1))
+        parts.append(z.reshape(points.shape[0], -1))
     return np.concatenate(parts, axis=1)
 
 
-def _fit_log(
-    problem: Problem, i: int, keys: Sequence[str], low: FloatArray, high: FloatArray
-) -> tuple[FloatArray, FloatArray, int]:
-    """Robust fit of log ``i``'s frame inside ``[low, high]``.
+@dataclass
+class _LogFit:
+    """One log's frame fit: the space it searches and what it found."""
 
-    Returns the frame, which of its components the log's motion tests, and the
-    residual count. A turn on the spot moves no distance, so it cannot test the
-    heading of the frame; a straight run cannot test its origin along the axis: a
-    component whose Jacobian column, over its range, is below :data:`TESTED` of
-    the largest is held at zero and reported untested.
+    keys: tuple[str, ...]  # the three frame parameters, then the robot's own
+    low: FloatArray
+    high: FloatArray
+    start: FloatArray  # frame zero, the robot's parameters at nominal
+    free: FloatArray  # which parameters the fit moves
+    tested: FloatArray  # which frame components the log's motion tests
+    n: int  # residual entries
+
+
+def _jacobian(problem: Problem, i: int, fit: _LogFit, x: FloatArray) -> FloatArray:
+    """Forward-difference Jacobian (n, K) of log ``i``'s residuals at ``x``, one batch."""
+    h = 1e-4 * (fit.high - fit.low)
+    step = np.where(x + h <= fit.high, h, -h)
+    pts = np.repeat(x[None], x.size + 1, axis=0)
+    pts[1:] += np.diag(step)
+    z = _residuals(problem, i, fit.keys, pts)
+    return ((z[1:] - z[0]) / step[:, None]).T
+
+
+def _setup(
+    problem: Problem,
+    i: int,
+    keys: Sequence[str],
+    low: FloatArray,
+    high: FloatArray,
+    effects: Sequence[str],
+) -> _LogFit:
+    r"""The parameters of log ``i``'s fit and the frame components its motion tests.
+
+    A frame component is tested when it moves the residuals, over its range, by
+    :data:`TESTED` of what the most telling component does, and the part of its
+    signature the robot's own effects (``effects``' parameters) cannot make is at
+    least :math:`\sqrt{1 - ρ_c^2}` of it (:math:`ρ_c` the attribution's
+    ``confound_corr``: a correlation beyond it with the effects' best combination
+    is an alias). A turn on the spot
+    moves no distance and so cannot test the heading of the frame; on a circle, a
+    sideways origin changes the tracked radius exactly as a wheel-radius error
+    changes the distance, and is left to the effect.
     """
+    robot = [k for k in model_keys(effects) if k not in keys]
+    all_keys = (*keys, *robot)
+    lo = np.concatenate([low, [param_spec(k).low for k in robot]])
+    hi = np.concatenate([high, [param_spec(k).high for k in robot]])
+    x0 = np.concatenate([np.clip(np.zeros(3), low, high), [param_spec(k).nominal for k in robot]])
+    fit = _LogFit(all_keys, lo, hi, x0, np.ones(len(all_keys), bool), np.zeros(3, bool), 0)
+    jac = _jacobian(problem, i, fit, x0)
+    fit.n = int(jac.shape[0])
+    span = hi - lo
+    cols = jac * span[None]
+    moves = np.linalg.norm(cols, axis=0)
+    fit.free = moves > 1e-9 * max(float(moves.max()), 1e-300)
+    reach = np.zeros(3)
+    for j in range(3):
+        others = [c for c in np.flatnonzero(fit.free) if c >= 3]
+        col = cols[:, j]
+        if others:
+            coef, *_ = np.linalg.lstsq(cols[:, others], col, rcond=None)
+            col = col - cols[:, others] @ coef
+        reach[j] = float(np.linalg.norm(col))
+    # its own part: what is left once the effects have made what they can (a correlation
+    # with their best combination beyond the attribution's confound level leaves too little)
+    own = math.sqrt(1.0 - problem.settings.confound_corr**2)
+    fit.tested = (moves[:3] > TESTED * max(float(moves[:3].max()), 1e-300)) & (
+        reach > own * moves[:3]
+    )
+    fit.free[:3] = fit.tested
+    return fit
+
+
+def _fit(
+    problem: Problem, i: int, fit: _LogFit, frame: FloatArray | None = None
+) -> tuple[FloatArray, float]:
+    """Robust fit of log ``i``: the robot's parameters, and the tested frame components
+    unless ``frame`` fixes them. Returns the parameter vector and its robust cost."""
     st = problem.settings
-    span = high - low
-    h = 1e-4 * span
-
-    def jac_at(x: FloatArray, free: FloatArray) -> FloatArray:
-        pts = np.repeat(x[None], 4, axis=0)
-        step = np.where(x + h <= high, h, -h)
-        pts[1:] += np.diag(step)
-        z = _residuals(problem, i, keys, pts)
-        return ((z[1:] - z[0]) / step[:, None]).T[:, free]
-
-    x0 = np.clip(np.zeros(3), low, high)
-    everything = np.ones(3, dtype=bool)
-    j0 = jac_at(x0, everything)
-    n = int(j0.shape[0])
-    reach = np.linalg.norm(j0, axis=0) * span
-    tested = reach > TESTED * max(float(reach.max()), 1e-300)
-    if n < 6 or not tested.any():
-        return x0, np.zeros(3, dtype=bool), n
+    free = fit.free.copy()
+    x0 = fit.start.copy()
+    if frame is not None:
+        x0[:3] = frame
+        free[:3] = False
+    if not free.any() or fit.n < 6:
+        z = _residuals(problem, i, fit.keys, x0[None])
+        return x0, float(np.sum(_rho(z**2, st.loss, problem.f_scale)))
 
     def full(y: FloatArray) -> FloatArray:
         x = x0.copy()
-        x[tested] = y
+        x[free] = y
         return x
 
     res = least_squares(
-        lambda y: _residuals(problem, i, keys, full(y)[None])[0],
-        x0[tested],
-        jac=lambda y: jac_at(full(y), tested),
-        bounds=(low[tested], high[tested]),
+        lambda y: _residuals(problem, i, fit.keys, full(y)[None])[0],
+        np.clip(x0[free], fit.low[free], fit.high[free]),
+        jac=lambda y: _jacobian(problem, i, fit, full(y))[:, free],
+        bounds=(fit.low[free], fit.high[free]),
         loss=st.loss,
         f_scale=problem.f_scale,
-        x_scale=span[tested],
+        x_scale=(fit.high - fit.low)[free],
         max_nfev=50,
     )
-    return full(np.asarray(res.x, dtype=float)), tested, n
+    x = full(np.asarray(res.x, dtype=float))
+    z = _residuals(problem, i, fit.keys, x[None])
+    return x, float(np.sum(_rho(z**2, st.loss, problem.f_scale)))
 
 
 def align_frames(
@@ -240,6 +300,7 @@ def align_frames(
     keys: Sequence[str],
     ranges: Sequence[tuple[float, float]],
     say: Callable[[str], None] = lambda msg: None,
+    effects: Sequence[str] = (),
 ) -> FrameAlignment:
     """Fit each log's ground-truth frame and re-frame the logs whose deviation is their own.
 
@@ -254,6 +315,10 @@ def align_frames(
     ranges : sequence of (low, high)
         The nuisance range of each parameter (natural units).
     say : callable
+    effects : sequence of str
+        The robot's own candidate effects: fitted per log beside the frame (and
+        discarded), so that a frame does not take up what an effect does, and a
+        frame component only they could equally explain is left untested.
 
     Returns
     -------
@@ -264,14 +329,14 @@ def align_frames(
     pairs = sorted(zip(keys, ranges), key=lambda kr: order.get(kr[0].partition(".")[2], 3))
     keys = tuple(k for k, _ in pairs)
     ranges = [r for _, r in pairs]
-    effects = {k.partition(".")[0] for k in keys}
+    owners = {k.partition(".")[0] for k in keys}
     suffixes = [k.partition(".")[2] for k in keys]
-    if suffixes != ["x", "y", "yaw"] or len(effects) != 1 or len(ranges) != 3:
+    if suffixes != ["x", "y", "yaw"] or len(owners) != 1 or len(ranges) != 3:
         raise ValueError(
             f"align_frames: expected the x, y and yaw parameters of one effect with a range "
             f"each, got {keys} and {len(ranges)} range(s)"
         )
-    channel = frame_channel(next(iter(effects)))
+    channel = frame_channel(next(iter(owners)))
     logs: Sequence[Any] = problem.logs
     if channel is None or len(logs) < 2:
         return FrameAlignment()
@@ -280,14 +345,11 @@ def align_frames(
     low = np.array([float(r[0]) for r in ranges])
     high = np.array([float(r[1]) for r in ranges])
     noise = problem.f_scale / problem.settings.robust_scale
-    fitted: list[FloatArray] = []
-    tested: list[FloatArray] = []
-    sizes: list[int] = []
-    for i in range(len(logs)):
-        x, ok, n = _fit_log(problem, i, keys, low, high)
-        fitted.append(x)
-        tested.append(ok)
-        sizes.append(n)
+    fits = [_setup(problem, i, keys, low, high, effects) for i in range(len(logs))]
+    solved = [_fit(problem, i, f) for i, f in enumerate(fits)]
+    fitted = [x[:3] for x, _ in solved]
+    tested = [f.tested for f in fits]
+    sizes = [f.n for f in fits]
     # the common frame: per component, the median over the logs whose motion tests it
     fx, ok_all = np.array(fitted), np.array(tested)
     common = np.array(
@@ -297,7 +359,6 @@ def align_frames(
         keys=keys, channel=channel, common=(float(common[0]), float(common[1]), float(common[2]))
     )
     edge = 1e-3 * (high - low)
-    st = problem.settings
     for i, p in enumerate(logs):
         # an untested component keeps the common value: the log says nothing about it
         x = np.where(tested[i], fitted[i], common)
@@ -312,9 +373,10 @@ def align_frames(
             "chi2_drop": 0.0,
             "why": "",
         }
-        z = _residuals(problem, i, keys, np.stack([common, x]))
-        cost = np.sum(_rho(z**2, st.loss, problem.f_scale), axis=1)
-        drop = float(cost[0] - cost[1]) / noise**2
+        # both sides with the robot's own parameters fitted: only the frame's part counts
+        cost_own = solved[i][1] if np.array_equal(x, fitted[i]) else _fit(problem, i, fits[i], x)[1]
+        cost_common = _fit(problem, i, fits[i], common)[1]
+        drop = (cost_common - cost_own) / noise**2
         row["chi2_drop"] = drop
         at_edge = (x <= low + edge) | (x >= high - edge)
         if np.any(at_edge & tested[i]):
