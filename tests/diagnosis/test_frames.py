@@ -9,7 +9,7 @@ import pytest
 
 from realitygap.core.geometry import reframe_track
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-from realitygap.diagnosis.frames import frame_channel, reframe_recorded
+from realitygap.diagnosis.frames import align_frames, frame_channel, reframe_recorded
 
 
 def _track() -> np.ndarray:
@@ -38,6 +38,14 @@ def test_the_frame_effect_names_the_ground_truth_channel() -> None:
     assert frame_channel("truth_frame_offset") == "pose_gt"
     assert frame_channel("wheelbase_error") is None
     assert frame_channel("no_such_effect") is None
+
+
+def test_align_frames_wants_the_three_frame_parameters_of_one_effect() -> None:
+    box = [(-0.02, 0.02)] * 3
+    with pytest.raises(ValueError, match="align_frames: expected the x, y and yaw"):
+        align_frames(None, ("truth_frame_offset.x", "truth_frame_offset.y"), box[:2])  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="align_frames: expected the x, y and yaw"):
+        align_frames(None, ("truth_frame_offset.x", "truth_frame_offset.y", "a.yaw"), box)  # type: ignore[arg-type]
 
 
 def _sessions(root: Path, seed: int) -> dict[str, np.ndarray]:
