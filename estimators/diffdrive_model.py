@@ -743,7 +743,7 @@ class WheelOdometry:
             getattr(measurement, "ticks", None), WheelTicks
         ):
             measurement = measurement.ticks  # a sensor bundle such as DiffDriveMeasurement
-        if not isinstance(measurement, WheelTicks):
+        if type(measurement) is not WheelTicks and not isinstance(measurement, WheelTicks):
             raise TypeError(
                 f"WheelOdometry.update expects WheelTicks or None, got {type(measurement).__name__}"
             )
@@ -771,8 +771,20 @@ class WheelOdometry:
                 consts = self._step_constants
                 if consts[0] is not kin or consts[1] is not self.noise:  # replaced
                     consts = self._step_constants = self._constants()
+                _, _, m_left, m_right, wheelbase, k_s, k_th, k_ths, floor_s, floor_th = consts
                 ds = odometry_step_in_place_compiled(
-                    self._pose, self._cov, d_left, d_right, *consts[2:]
+                    self._pose,
+                    self._cov,
+                    d_left,
+                    d_right,
+                    m_left,
+                    m_right,
+                    wheelbase,
+                    k_s,
+                    k_th,
+                    k_ths,
+                    floor_s,
+                    floor_th,
                 )
             else:
                 ds, dtheta = kin.increment_from_ticks(d_left, d_right)

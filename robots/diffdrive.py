@@ -12,6 +12,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
 from enum import Enum
+from functools import partial
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -244,11 +245,8 @@ class FirmwareLimits:
         v_max, w_max, f = self.v_max, self.w_max, self.decel_factor
         dv, dv_slow = self.a_max * dt, f * self.a_max * dt
         dw, dw_slow = self.alpha_max * dt, f * self.alpha_max * dt
-
-        def body_ramp(v: float, w: float, v_prev: float, w_prev: float) -> tuple[float, float]:
-            return _body_ramp(v, w, v_prev, w_prev, v_max, w_max, dv, dv_slow, dw, dw_slow, free)
-
-        return body_ramp
+        # the episode's constants bound in front (a C-level partial: no Python frame of its own)
+        return partial(_body_ramp, v_max, w_max, dv, dv_slow, dw, dw_slow, free)
 
     @classmethod
     def from_params(cls, params: DiffDriveParams) -> FirmwareLimits:
@@ -294,10 +292,6 @@ class FirmwareLimits:
         """
         f = self.decel_factor
         return _body_ramp(
-            v,
-            w,
-            v_prev,
-            w_prev,
             self.v_max,
             self.w_max,
             self.a_max * dt,
@@ -305,6 +299,10 @@ class FirmwareLimits:
             self.alpha_max * dt,
             f * self.alpha_max * dt,
             free_deceleration,
+            v,
+            w,
+            v_prev,
+            w_prev,
         )
 
     def limit_wheels(
@@ -377,10 +375,6 @@ def ramp_step(
 
 
 def _body_ramp(
-    v: float,
-    w: float,
-    v_prev: float,
-    w_prev: float,
     v_max: float,
     w_max: float,
     dv: float,
@@ -388,10 +382,16 @@ def _body_ramp(
     dw: float,
     dw_slow: float,
     free: bool,
+    v: float,
+    w: float,
+    v_prev: float,
+    w_prev: float,
 ) -> tuple[float, float]:
     """The body-twist ramp of :meth:`FirmwareLimits.limit` with its per-period steps given:
-    the request clipped to ``±v_max``, ``±w_max``, then :func:`ramp_step` of each part
-    (speeding up by at most ``dv`` / ``dw``, slowing down by ``dv_slow`` / ``dw_slow``)."""
+    the request ``(v, w)`` after ``(v_prev, w_prev)`` clipped to ``±v_max``, ``±w_max``, then
+    :func:`ramp_step` of each part (speeding up by at most ``dv`` / ``dw``, slowing down by
+    ``dv_slow`` / ``dw_slow``). The constants come first, so that
+    :meth:`FirmwareLimits.bound` binds them."""
     v = min(v_max, max(-v_max, v))
     w = min(w_max, max(-w_max, w))
     return ramp_step(v_prev, v, dv, free, dv_slow), ramp_step(w_prev, w, dw, free, dw_slow)
@@ -625,15 +625,15 @@ class DiffDriveRobot:
         it, the inverse kinematics gives the wheel speeds, the per-wheel hooks
         act on those and the wheel motors take them. The world is not stepped.
         """
-        limits = self.firmware_limits
+        limits, command = self.firmware_limits, self.command
         if limits is not None:
             bound_to = (limits, self.control_dt, self.nominal)
             if bound_to != self._bound_to:  # attached, or any of the three replaced since
                 self._bound_to = bound_to
                 self._limit_twist = limits.bound(self.control_dt, self.nominal.wheelbase)
-            v_prev, w_prev = self.command.tolist()  # plain floats: cheaper scalar arithmetic
+            v_prev, w_prev = command.tolist()  # plain floats: cheaper scalar arithmetic
             v, omega = self._limit_twist(v, omega, v_prev, w_prev)
-        self.command[0], self.command[1] = v, omega
+        command[0], command[1] = v, omega
         applied = (v, omega)
         for hook in self._command_hooks:
             v, omega = hook(v, omega, self.control_dt)
