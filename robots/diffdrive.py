@@ -20,6 +20,7 @@ import numpy.typing as npt
 import pybullet as p
 
 from realitygap.core.geometry import check_finite
+from realitygap.core.jit import compiled, use_compiled
 from realitygap.estimators.base import CameraIntrinsics, WheelTicks
 from realitygap.robots.world import World
 
@@ -245,8 +246,14 @@ class FirmwareLimits:
         v_max, w_max, f = self.v_max, self.w_max, self.decel_factor
         dv, dv_slow = self.a_max * dt, f * self.a_max * dt
         dw, dw_slow = self.alpha_max * dt, f * self.alpha_max * dt
-        # the episode's constants bound in front (a C-level partial: no Python frame of its own)
-        return partial(_body_ramp, v_max, w_max, dv, dv_slow, dw, dw_slow, free)
+        # the episode's constants bound in front (a C-level partial: no Python frame of its
+        # own), to the compiled twin where the compiled kernels are in use (the same bits)
+        ramp = (
+            _body_ramp_compiled
+            if _body_ramp_compiled is not None and use_compiled()
+            else _body_ramp
+        )
+        return partial(ramp, v_max, w_max, dv, dv_slow, dw, dw_slow, free)
 
     @classmethod
     def from_params(cls, params: DiffDriveParams) -> FirmwareLimits:
@@ -374,6 +381,11 @@ def ramp_step(
     return float(prev + min(step, max(-step, d)))
 
 
+_ramp_step = compiled(ramp_step) or ramp_step
+"""The compiled twin of :func:`ramp_step` that :func:`_body_ramp` calls (a compiled kernel
+calls only compiled functions); :func:`ramp_step` itself without Numba."""
+
+
 def _body_ramp(
     v_max: float,
     w_max: float,
@@ -394,7 +406,12 @@ def _body_ramp(
     :meth:`FirmwareLimits.bound` binds them."""
     v = min(v_max, max(-v_max, v))
     w = min(w_max, max(-w_max, w))
-    return ramp_step(v_prev, v, dv, free, dv_slow), ramp_step(w_prev, w, dw, free, dw_slow)
+    return _ramp_step(v_prev, v, dv, free, dv_slow), _ramp_step(w_prev, w, dw, free, dw_slow)
+
+
+_body_ramp_compiled = compiled(_body_ramp)
+""":func:`_body_ramp` compiled by Numba (the same bits: IEEE arithmetic, the same
+comparisons); ``None`` without Numba."""
 
 
 _NOT_SCENERY = frozenset({"robot", "floor", "floor_surface"})
@@ -504,7 +521,7 @@ class DiffDriveRobot:
         self.control_dt = world.dt
         self.command = np.zeros(2)
         # FirmwareLimits.bound for the attached limits, control period and nominal wheelbase
-        self._bound_to: tuple[object, ...] = ()  # (limits, control period, nominal) bound
+        self._bound_to: tuple[object, ...] = ()  # (limits, control period, nominal, compiled) bound
         self._limit_twist: Callable[[float, float, float, float], tuple[float, float]] | None = None
         self._reality: Reality | None = None
         self._command_hooks: list[Callable[[float, float, float], tuple[float, float]]] = []
@@ -627,8 +644,8 @@ class DiffDriveRobot:
         """
         limits, command = self.firmware_limits, self.command
         if limits is not None:
-            bound_to = (limits, self.control_dt, self.nominal)
-            if bound_to != self._bound_to:  # attached, or any of the three replaced since
+            bound_to = (limits, self.control_dt, self.nominal, use_compiled())
+            if bound_to != self._bound_to:  # attached, or any of the four changed since
                 self._bound_to = bound_to
                 self._limit_twist = limits.bound(self.control_dt, self.nominal.wheelbase)
             v_prev, w_prev = command.tolist()  # plain floats: cheaper scalar arithmetic

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.core.jit import compiled
+from realitygap.core.jit import compiled, use_compiled
 
 if TYPE_CHECKING:
     from realitygap.robots.world import Primitive
@@ -93,6 +93,8 @@ class PrimitiveArrays:
         """Smallest distance (m) in the plane from the point ``(x, y)`` (m) to any footprint
         (negative inside one); ``inf`` without primitives. A point this far from every
         footprint is at least as far from the primitives, whatever its height."""
+        if _clearance_rows_compiled is not None and use_compiled():
+            return _clearance_rows_compiled(float(x), float(y), self.box_rows, self.cyl_rows)
         best = math.inf
         if len(self.box_center):
             rx = x - self.box_center[:, 0]
@@ -234,6 +236,33 @@ class PrimitiveArrays:
             best = minimum.reduce(np.where(valid, cand, np.inf), axis=0)
         best[best > range_max] = np.inf
         return best
+
+
+def clearance_rows(x: float, y: float, box_rows: FloatArray, cyl_rows: FloatArray) -> float:
+    """Loop form of :meth:`PrimitiveArrays.clearance`: smallest signed distance (m) from
+    ``(x, y)`` (m) to the boxes ``box_rows`` and cylinders ``cyl_rows``
+    (:attr:`PrimitiveArrays.box_rows`, :attr:`PrimitiveArrays.cyl_rows`), ``inf`` without
+    any; per box the rounded-box distance ``|max(q, 0)| + min(max(q_x, q_y), 0)`` of
+    ``q = |p_box| - half``, per cylinder ``|p - c| - r``. The same operations as the NumPy
+    form, primitive by primitive."""
+    best = np.inf
+    for i in range(box_rows.shape[0]):
+        rx, ry = x - box_rows[i, 0], y - box_rows[i, 1]
+        c, s = box_rows[i, 2], box_rows[i, 3]
+        qx = abs(c * rx + s * ry) - box_rows[i, 4]
+        qy = abs(-s * rx + c * ry) - box_rows[i, 5]
+        d = np.hypot(max(qx, 0.0), max(qy, 0.0)) + min(max(qx, qy), 0.0)
+        if d < best:
+            best = d
+    for i in range(cyl_rows.shape[0]):
+        d = np.hypot(x - cyl_rows[i, 0], y - cyl_rows[i, 1]) - np.sqrt(cyl_rows[i, 2])
+        if d < best:
+            best = d
+    return best
+
+
+_clearance_rows_compiled = compiled(clearance_rows)
+""":func:`clearance_rows` compiled by Numba; ``None`` without Numba."""
 
 
 def cast_rotated_beams(
