@@ -66,4 +66,6 @@ def compiled(fn: F) -> F | None:
     when Numba is not installed. ``fn`` itself is left unchanged."""
     if _numba is None:
         return None
-    return _numba.njit(cache=True, error_model="numpy", nogil=True)(fn)
+    # the GIL is kept: the kernels take microseconds in the thread that calls them, where
+    # releasing and taking it back again would cost a noticeable share of the call
+    return _numba.njit(cache=True, error_model="numpy")(fn)
