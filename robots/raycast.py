@@ -315,6 +315,15 @@ def cast_rotated_beams(
             bc, bs, hx, hy = box_rows[i, 2], box_rows[i, 3], box_rows[i, 4], box_rows[i, 5]
             o_x, o_y = box_ox[i], box_oy[i]  # origin in the box frame
             d_x, d_y = bc * dx + bs * dy, -bs * dx + bc * dy  # direction in the box frame
+            # Skipped too, without the divisions: an origin beyond a slab's face with the
+            # beam not pointing back (most beams and a room's walls). Both distances to
+            # that slab's faces are then negative (far < 0: tmax < 0 <= tmin), or both
+            # +inf for a direction of -0.0 (tmin = inf, not below best), or NaN: the slab
+            # method below would not take the box either, so the result is the same bits.
+            if (o_x > hx and d_x >= 0.0) or (o_x < -hx and d_x <= 0.0):
+                continue
+            if (o_y > hy and d_y >= 0.0) or (o_y < -hy and d_y <= 0.0):
+                continue
             lo_x, hi_x = (-hx - o_x) / d_x, (hx - o_x) / d_x
             lo_y, hi_y = (-hy - o_y) / d_y, (hy - o_y) / d_y
             # np.minimum / np.maximum on two floats, NaN when either is NaN (a ray along
