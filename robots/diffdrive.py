@@ -414,6 +414,8 @@ _body_ramp_compiled = compiled(_body_ramp)
 comparisons); ``None`` without Numba."""
 
 
+_FLOAT64 = np.dtype(np.float64)
+
 _NOT_SCENERY = frozenset({"robot", "floor", "floor_surface"})
 """World bodies that have no scenery footprint: this robot and the floor."""
 
@@ -735,8 +737,11 @@ class DiffDriveRobot:
         distance moved since (it changes by at most that).
         """
         if pose is not None:
-            x, y = pose.tolist()[:2] if type(pose) is np.ndarray else (pose[0], pose[1])
-            if self._clear_of_scenery(float(x), float(y)):
+            if type(pose) is np.ndarray and pose.dtype is _FLOAT64:
+                x, y = pose.tolist()[:2]  # Python floats already
+            else:
+                x, y = float(pose[0]), float(pose[1])
+            if self._clear_of_scenery(x, y):
                 return False
         floor = self.world.bodies.get("floor", -1)
         for contact in self._get_contacts(bodyA=self.body):
