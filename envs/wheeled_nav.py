@@ -477,8 +477,9 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         if camera is None:  # fast fidelity: the analytic scan when due, no frame
             if steps % self._scan_every:
                 return DiffDriveMeasurement(t, ticks, None, None)  # (positional: cheaper)
+            rng = self._np_random  # the episode's generator (np_random, without its property)
             self._scan = scan = scanner.scan_fast(
-                t, self.np_random, None if pose is None else pose.tolist()
+                t, self.np_random if rng is None else rng, None if pose is None else pose.tolist()
             )
             return DiffDriveMeasurement(t, ticks, scan, None)
         frame = None
