@@ -50,7 +50,7 @@ import numpy.typing as npt
 from gymnasium import spaces
 
 from realitygap.core.checks import check_finite_float, check_nonnegative_int, check_positive_int
-from realitygap.core.jit import compiled, use_compiled
+from realitygap.core.jit import KERNELS, compiled
 from realitygap.envs.common import check_bool, check_rates, check_twist_action
 from realitygap.envs.layouts import MAX_ROOM_HALF_SIZE, MIN_ROOM_HALF_SIZE, obstacle_capacity
 from realitygap.envs.tasks.nav import (
@@ -506,7 +506,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         _, v_max, w_max = self._episode_consts
         out = self._obs_out
         new_scan = self._obs_scan is not self._scan  # the scan part changes only with a new scan
-        if _fill_observation_compiled is not None and use_compiled():
+        if _fill_observation_compiled is not None and KERNELS.on:
             _fill_observation_compiled(
                 x,
                 y,

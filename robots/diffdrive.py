@@ -20,7 +20,7 @@ import numpy.typing as npt
 import pybullet as p
 
 from realitygap.core.geometry import check_finite
-from realitygap.core.jit import compiled, use_compiled
+from realitygap.core.jit import KERNELS, compiled, use_compiled
 from realitygap.estimators.base import CameraIntrinsics, WheelTicks
 from realitygap.robots.world import World
 
@@ -646,7 +646,7 @@ class DiffDriveRobot:
         """
         limits, command = self.firmware_limits, self.command
         if limits is not None:
-            bound_to = (limits, self.control_dt, self.nominal, use_compiled())
+            bound_to = (limits, self.control_dt, self.nominal, KERNELS.on)
             if bound_to != self._bound_to:  # attached, or any of the four changed since
                 self._bound_to = bound_to
                 self._limit_twist = limits.bound(self.control_dt, self.nominal.wheelbase)
