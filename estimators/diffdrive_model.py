@@ -771,20 +771,8 @@ class WheelOdometry:
                 consts = self._step_constants
                 if consts[0] is not kin or consts[1] is not self.noise:  # replaced
                     consts = self._step_constants = self._constants()
-                _, _, m_left, m_right, wheelbase, k_s, k_th, k_ths, floor_s, floor_th = consts
                 ds = odometry_step_in_place_compiled(
-                    self._pose,
-                    self._cov,
-                    d_left,
-                    d_right,
-                    m_left,
-                    m_right,
-                    wheelbase,
-                    k_s,
-                    k_th,
-                    k_ths,
-                    floor_s,
-                    floor_th,
+                    self._pose, self._cov, d_left, d_right, *consts[2:]
                 )
             else:
                 ds, dtheta = kin.increment_from_ticks(d_left, d_right)
