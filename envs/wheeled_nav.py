@@ -50,7 +50,7 @@ import numpy.typing as npt
 from gymnasium import spaces
 
 from realitygap.core.checks import check_finite_float, check_nonnegative_int, check_positive_int
-from realitygap.core.jit import compiled, use_compiled
+from realitygap.core.jit import KERNELS, compiled
 from realitygap.envs.common import check_bool, check_rates, check_twist_action
 from realitygap.envs.layouts import MAX_ROOM_HALF_SIZE, MIN_ROOM_HALF_SIZE, obstacle_capacity
 from realitygap.envs.tasks.nav import (
@@ -388,27 +388,27 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     def step(
         self, action: npt.ArrayLike
     ) -> tuple[npt.NDArray[np.float32], float, bool, bool, dict[str, Any]]:
-        if self.robot is None:
+        robot, task = self.robot, self.task  # read once: the step's hot path
+        if robot is None:
             raise RuntimeError("call reset() before step()")
         a0, a1 = check_twist_action(action)
         dt, v_max, w_max = self._episode_consts
-        self.robot.command_twist(a0 * v_max, a1 * w_max)
+        robot.command_twist(a0 * v_max, a1 * w_max)
         self.world.step()
-        self._steps += 1
-        self._t = self._steps * dt
+        self._steps = steps = self._steps + 1
+        self._t = steps * dt
 
-        pose = self.robot.pose2d()  # the true pose, read once for the scan, task and info
+        pose = robot.pose2d()  # the true pose, read once for the scan, task and info
         self._estimate = self.estimator.update(self._measure(pose))
 
-        dist, ang = self.task.pose_error(pose)
-        collision = self.robot.in_contact_with_scenery(pose)
-        success = self.task.is_success(dist, ang, self.robot)
-        reward, terms = self.task.get_reward(dist, ang, (a0, a1), collision, success)
-        terminated = self.task.is_terminated(collision, success)
+        dist, ang = task.pose_error(pose)
+        collision = robot.in_contact_with_scenery(pose)
+        success = task.is_success(dist, ang, robot)
+        reward, terms = task.get_reward(dist, ang, (a0, a1), collision, success)
         return (
             self._observation(),
             reward,
-            terminated,
+            task.is_terminated(collision, success),
             False,
             self._info(pose, dist, ang, terms, collision, success),
         )
@@ -470,25 +470,31 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         """The sensors' measurement at this step, their noise drawn from the episode's
         generator; ``pose`` is the robot's true pose when the caller has read it since the
         last physics step (the fast scan needs it)."""
-        assert self.robot is not None and self.scanner is not None
+        robot, scanner, camera = self.robot, self.scanner, self.camera
+        assert robot is not None and scanner is not None
         t, steps = self._t, self._steps
-        ticks = encoder_ticks(t, self.robot.encoder_angles(), self.params.ticks_per_rev)
+        ticks = encoder_ticks(t, robot.encoder_angles(), self.params.ticks_per_rev)
+        if camera is None:  # fast fidelity: the analytic scan when due, no frame
+            if steps % self._scan_every:
+                return DiffDriveMeasurement(t, ticks, None, None)  # (positional: cheaper)
+            rng = self._np_random  # the episode's generator (np_random, without its property)
+            self._scan = scan = scanner.scan_fast(
+                t, self.np_random if rng is None else rng, None if pose is None else pose.tolist()
+            )
+            return DiffDriveMeasurement(t, ticks, scan, None)
         frame = None
         scan = None
         # the camera renders only when its own frame is due; a scan due between frames
         # renders the small depth picture it needs (PlanarScanner.render_size)
-        if self.camera is not None and steps % self._camera_every == 0:
-            frame = self.camera.render(t, self.np_random)
+        if steps % self._camera_every == 0:
+            frame = camera.render(t, self.np_random)
         if steps % self._scan_every == 0:
-            rng = self.np_random
             if frame is not None:
-                scan = self.scanner.scan_from_frame(frame)
-            elif self.camera is not None:
-                scan = self.scanner.scan_rendered(self.camera, t, rng)
+                scan = scanner.scan_from_frame(frame)
             else:
-                scan = self.scanner.scan_fast(t, rng, None if pose is None else pose.tolist())
+                scan = scanner.scan_rendered(camera, t, self.np_random)
             self._scan = scan
-        return DiffDriveMeasurement(t, ticks, scan, frame)  # (positional: cheaper)
+        return DiffDriveMeasurement(t, ticks, scan, frame)
 
     def _observation(self) -> npt.NDArray[np.float32]:
         assert self._estimate is not None and self._scan is not None
@@ -500,7 +506,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         _, v_max, w_max = self._episode_consts
         out = self._obs_out
         new_scan = self._obs_scan is not self._scan  # the scan part changes only with a new scan
-        if _fill_observation_compiled is not None and use_compiled():
+        if _fill_observation_compiled is not None and KERNELS.on:
             _fill_observation_compiled(
                 x,
                 y,

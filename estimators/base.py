@@ -20,7 +20,7 @@ import numpy.typing as npt
 FloatArray = npt.NDArray[np.float64]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False)
 class WheelTicks:
     """Cumulative encoder counts of a differential drive at time ``t`` (s).
 
@@ -33,8 +33,14 @@ class WheelTicks:
     right: int
     ticks_per_rev: float
 
+    def __init__(self, t: float, left: int, right: int, ticks_per_rev: float) -> None:
+        # frozen: the fields go into the instance's dict directly (what the generated
+        # __init__ does with one object.__setattr__ per field, at twice the cost)
+        d = self.__dict__
+        d["t"], d["left"], d["right"], d["ticks_per_rev"] = t, left, right, ticks_per_rev
 
-@dataclass(frozen=True)
+
+@dataclass(frozen=True, init=False)
 class Scan:
     """Planar range scan in the base frame.
 
@@ -47,6 +53,13 @@ class Scan:
     ranges: FloatArray
     range_min: float
     range_max: float
+
+    def __init__(
+        self, t: float, angles: FloatArray, ranges: FloatArray, range_min: float, range_max: float
+    ) -> None:
+        d = self.__dict__  # frozen: as WheelTicks
+        d["t"], d["angles"], d["ranges"] = t, angles, ranges
+        d["range_min"], d["range_max"] = range_min, range_max
 
 
 @dataclass(frozen=True)
@@ -80,7 +93,7 @@ class RGBDFrame:
     intrinsics: CameraIntrinsics
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False)
 class DiffDriveMeasurement:
     """Everything a differential-drive robot's sensors report at one control step.
 
@@ -91,6 +104,16 @@ class DiffDriveMeasurement:
     ticks: WheelTicks
     scan: Scan | None = None
     rgbd: RGBDFrame | None = None
+
+    def __init__(
+        self,
+        t: float,
+        ticks: WheelTicks,
+        scan: Scan | None = None,
+        rgbd: RGBDFrame | None = None,
+    ) -> None:
+        d = self.__dict__  # frozen: as WheelTicks
+        d["t"], d["ticks"], d["scan"], d["rgbd"] = t, ticks, scan, rgbd
 
 
 @dataclass

@@ -48,7 +48,7 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.core.geometry import check_finite, wrap_angle
-from realitygap.core.jit import compiled, use_compiled
+from realitygap.core.jit import KERNELS, compiled
 from realitygap.estimators.base import DiffDriveMeasurement, Estimate, WheelTicks
 
 FloatArray = npt.NDArray[np.float64]
@@ -743,7 +743,7 @@ class WheelOdometry:
             getattr(measurement, "ticks", None), WheelTicks
         ):
             measurement = measurement.ticks  # a sensor bundle such as DiffDriveMeasurement
-        if not isinstance(measurement, WheelTicks):
+        if type(measurement) is not WheelTicks and not isinstance(measurement, WheelTicks):
             raise TypeError(
                 f"WheelOdometry.update expects WheelTicks or None, got {type(measurement).__name__}"
             )
@@ -766,7 +766,7 @@ class WheelOdometry:
             scale = kin.ticks_per_rev / float(ticks_per_rev)
             d_left = (left - last.left) * scale
             d_right = (right - last.right) * scale
-            if odometry_step_in_place_compiled is not None and use_compiled():
+            if odometry_step_in_place_compiled is not None and KERNELS.on:
                 # self._pose and self._cov are this estimator's own: updated in place
                 consts = self._step_constants
                 if consts[0] is not kin or consts[1] is not self.noise:  # replaced

@@ -12,6 +12,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
 from enum import Enum
+from functools import partial
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -19,6 +20,7 @@ import numpy.typing as npt
 import pybullet as p
 
 from realitygap.core.geometry import check_finite
+from realitygap.core.jit import KERNELS, compiled, use_compiled
 from realitygap.estimators.base import CameraIntrinsics, WheelTicks
 from realitygap.robots.world import World
 
@@ -244,11 +246,14 @@ class FirmwareLimits:
         v_max, w_max, f = self.v_max, self.w_max, self.decel_factor
         dv, dv_slow = self.a_max * dt, f * self.a_max * dt
         dw, dw_slow = self.alpha_max * dt, f * self.alpha_max * dt
-
-        def body_ramp(v: float, w: float, v_prev: float, w_prev: float) -> tuple[float, float]:
-            return _body_ramp(v, w, v_prev, w_prev, v_max, w_max, dv, dv_slow, dw, dw_slow, free)
-
-        return body_ramp
+        # the episode's constants bound in front (a C-level partial: no Python frame of its
+        # own), to the compiled twin where the compiled kernels are in use (the same bits)
+        ramp = (
+            _body_ramp_compiled
+            if _body_ramp_compiled is not None and use_compiled()
+            else _body_ramp
+        )
+        return partial(ramp, v_max, w_max, dv, dv_slow, dw, dw_slow, free)
 
     @classmethod
     def from_params(cls, params: DiffDriveParams) -> FirmwareLimits:
@@ -294,10 +299,6 @@ class FirmwareLimits:
         """
         f = self.decel_factor
         return _body_ramp(
-            v,
-            w,
-            v_prev,
-            w_prev,
             self.v_max,
             self.w_max,
             self.a_max * dt,
@@ -305,6 +306,10 @@ class FirmwareLimits:
             self.alpha_max * dt,
             f * self.alpha_max * dt,
             free_deceleration,
+            v,
+            w,
+            v_prev,
+            w_prev,
         )
 
     def limit_wheels(
@@ -376,11 +381,12 @@ def ramp_step(
     return float(prev + min(step, max(-step, d)))
 
 
+_ramp_step = compiled(ramp_step) or ramp_step
+"""The compiled twin of :func:`ramp_step` that :func:`_body_ramp` calls (a compiled kernel
+calls only compiled functions); :func:`ramp_step` itself without Numba."""
+
+
 def _body_ramp(
-    v: float,
-    w: float,
-    v_prev: float,
-    w_prev: float,
     v_max: float,
     w_max: float,
     dv: float,
@@ -388,14 +394,27 @@ def _body_ramp(
     dw: float,
     dw_slow: float,
     free: bool,
+    v: float,
+    w: float,
+    v_prev: float,
+    w_prev: float,
 ) -> tuple[float, float]:
     """The body-twist ramp of :meth:`FirmwareLimits.limit` with its per-period steps given:
-    the request clipped to ``±v_max``, ``±w_max``, then :func:`ramp_step` of each part
-    (speeding up by at most ``dv`` / ``dw``, slowing down by ``dv_slow`` / ``dw_slow``)."""
+    the request ``(v, w)`` after ``(v_prev, w_prev)`` clipped to ``±v_max``, ``±w_max``, then
+    :func:`ramp_step` of each part (speeding up by at most ``dv`` / ``dw``, slowing down by
+    ``dv_slow`` / ``dw_slow``). The constants come first, so that
+    :meth:`FirmwareLimits.bound` binds them."""
     v = min(v_max, max(-v_max, v))
     w = min(w_max, max(-w_max, w))
-    return ramp_step(v_prev, v, dv, free, dv_slow), ramp_step(w_prev, w, dw, free, dw_slow)
+    return _ramp_step(v_prev, v, dv, free, dv_slow), _ramp_step(w_prev, w, dw, free, dw_slow)
 
+
+_body_ramp_compiled = compiled(_body_ramp)
+""":func:`_body_ramp` compiled by Numba (the same bits: IEEE arithmetic, the same
+comparisons); ``None`` without Numba."""
+
+
+_FLOAT64 = np.dtype(np.float64)
 
 _NOT_SCENERY = frozenset({"robot", "floor", "floor_surface"})
 """World bodies that have no scenery footprint: this robot and the floor."""
@@ -504,7 +523,7 @@ class DiffDriveRobot:
         self.control_dt = world.dt
         self.command = np.zeros(2)
         # FirmwareLimits.bound for the attached limits, control period and nominal wheelbase
-        self._bound_to: tuple[object, ...] = ()  # (limits, control period, nominal) bound
+        self._bound_to: tuple[object, ...] = ()  # (limits, control period, nominal, compiled) bound
         self._limit_twist: Callable[[float, float, float, float], tuple[float, float]] | None = None
         self._reality: Reality | None = None
         self._command_hooks: list[Callable[[float, float, float], tuple[float, float]]] = []
@@ -625,15 +644,15 @@ class DiffDriveRobot:
         it, the inverse kinematics gives the wheel speeds, the per-wheel hooks
         act on those and the wheel motors take them. The world is not stepped.
         """
-        limits = self.firmware_limits
+        limits, command = self.firmware_limits, self.command
         if limits is not None:
-            bound_to = (limits, self.control_dt, self.nominal)
-            if bound_to != self._bound_to:  # attached, or any of the three replaced since
+            bound_to = (limits, self.control_dt, self.nominal, KERNELS.on)
+            if bound_to != self._bound_to:  # attached, or any of the four changed since
                 self._bound_to = bound_to
                 self._limit_twist = limits.bound(self.control_dt, self.nominal.wheelbase)
-            v_prev, w_prev = self.command.tolist()  # plain floats: cheaper scalar arithmetic
+            v_prev, w_prev = command.tolist()  # plain floats: cheaper scalar arithmetic
             v, omega = self._limit_twist(v, omega, v_prev, w_prev)
-        self.command[0], self.command[1] = v, omega
+        command[0], command[1] = v, omega
         applied = (v, omega)
         for hook in self._command_hooks:
             v, omega = hook(v, omega, self.control_dt)
@@ -718,8 +737,11 @@ class DiffDriveRobot:
         distance moved since (it changes by at most that).
         """
         if pose is not None:
-            x, y = pose.tolist()[:2] if type(pose) is np.ndarray else (pose[0], pose[1])
-            if self._clear_of_scenery(float(x), float(y)):
+            if type(pose) is np.ndarray and pose.dtype is _FLOAT64:
+                x, y = pose.tolist()[:2]  # Python floats already
+            else:
+                x, y = float(pose[0]), float(pose[1])
+            if self._clear_of_scenery(x, y):
                 return False
         floor = self.world.bodies.get("floor", -1)
         for contact in self._get_contacts(bodyA=self.body):

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.core.jit import compiled
+from realitygap.core.jit import compiled, use_compiled
 
 if TYPE_CHECKING:
     from realitygap.robots.world import Primitive
@@ -93,6 +93,8 @@ class PrimitiveArrays:
         """Smallest distance (m) in the plane from the point ``(x, y)`` (m) to any footprint
         (negative inside one); ``inf`` without primitives. A point this far from every
         footprint is at least as far from the primitives, whatever its height."""
+        if _clearance_rows_compiled is not None and use_compiled():
+            return _clearance_rows_compiled(float(x), float(y), self.box_rows, self.cyl_rows)
         best = math.inf
         if len(self.box_center):
             rx = x - self.box_center[:, 0]
@@ -236,6 +238,33 @@ class PrimitiveArrays:
         return best
 
 
+def clearance_rows(x: float, y: float, box_rows: FloatArray, cyl_rows: FloatArray) -> float:
+    """Loop form of :meth:`PrimitiveArrays.clearance`: smallest signed distance (m) from
+    ``(x, y)`` (m) to the boxes ``box_rows`` and cylinders ``cyl_rows``
+    (:attr:`PrimitiveArrays.box_rows`, :attr:`PrimitiveArrays.cyl_rows`), ``inf`` without
+    any; per box the rounded-box distance ``|max(q, 0)| + min(max(q_x, q_y), 0)`` of
+    ``q = |p_box| - half``, per cylinder ``|p - c| - r``. The same operations as the NumPy
+    form, primitive by primitive."""
+    best = np.inf
+    for i in range(box_rows.shape[0]):
+        rx, ry = x - box_rows[i, 0], y - box_rows[i, 1]
+        c, s = box_rows[i, 2], box_rows[i, 3]
+        qx = abs(c * rx + s * ry) - box_rows[i, 4]
+        qy = abs(-s * rx + c * ry) - box_rows[i, 5]
+        d = np.hypot(max(qx, 0.0), max(qy, 0.0)) + min(max(qx, qy), 0.0)
+        if d < best:
+            best = d
+    for i in range(cyl_rows.shape[0]):
+        d = np.hypot(x - cyl_rows[i, 0], y - cyl_rows[i, 1]) - np.sqrt(cyl_rows[i, 2])
+        if d < best:
+            best = d
+    return best
+
+
+_clearance_rows_compiled = compiled(clearance_rows)
+""":func:`clearance_rows` compiled by Numba; ``None`` without Numba."""
+
+
 def cast_rotated_beams(
     ox: float,
     oy: float,
@@ -286,6 +315,15 @@ def cast_rotated_beams(
             bc, bs, hx, hy = box_rows[i, 2], box_rows[i, 3], box_rows[i, 4], box_rows[i, 5]
             o_x, o_y = box_ox[i], box_oy[i]  # origin in the box frame
             d_x, d_y = bc * dx + bs * dy, -bs * dx + bc * dy  # direction in the box frame
+            # Skipped too, without the divisions: an origin beyond a slab's face with the
+            # beam not pointing back (most beams and a room's walls). Both distances to
+            # that slab's faces are then negative (far < 0: tmax < 0 <= tmin), or both
+            # +inf for a direction of -0.0 (tmin = inf, not below best), or NaN: the slab
+            # method below would not take the box either, so the result is the same bits.
+            if (o_x > hx and d_x >= 0.0) or (o_x < -hx and d_x <= 0.0):
+                continue
+            if (o_y > hy and d_y >= 0.0) or (o_y < -hy and d_y <= 0.0):
+                continue
             lo_x, hi_x = (-hx - o_x) / d_x, (hx - o_x) / d_x
             lo_y, hi_y = (-hy - o_y) / d_y, (hy - o_y) / d_y
             # np.minimum / np.maximum on two floats, NaN when either is NaN (a ray along

@@ -23,7 +23,7 @@ import numpy as np
 import numpy.typing as npt
 import pybullet as p
 
-from realitygap.core.jit import compiled, use_compiled
+from realitygap.core.jit import KERNELS, compiled
 from realitygap.estimators.base import CameraIntrinsics, RGBDFrame, Scan
 from realitygap.robots.diffdrive import DiffDriveRobot, RGBDCameraParams
 from realitygap.robots.raycast import cast_rotated_beams, cast_rotated_beams_compiled
@@ -219,7 +219,7 @@ class PlanarScanner:
         mx, my = self._mount_xy
         # beams leave the camera's optical centre; ranges are reported from the base origin
         ox, oy = x + c * mx - s * my, y + s * mx + c * my
-        if _noisy_scan_compiled is not None and use_compiled():
+        if _noisy_scan_compiled is not None and KERNELS.on:
             # one compiled call: the same operations as below, beam by beam
             arrays = self._world.scenery_arrays
             noise = rng.standard_normal(out=self._noise)

@@ -335,19 +335,22 @@ class World:
         :attr:`physics_cpu_seconds` too (what one core spends, whatever else the
         machine runs; a system call per step, so off by default).
         """
-        n = self.n_substeps if n_physics_steps is None else int(n_physics_steps)
-        if n < 0:
-            raise ValueError(f"n_physics_steps must be >= 0, got {n_physics_steps!r}")
         step = self._step_simulation
         fused = self.fused_substeps
-        if fused and (before_each is not None or n != self.n_substeps):
-            raise ValueError(
-                "a World with fused_substeps steps whole control periods only, got "
-                f"n_physics_steps={n_physics_steps!r}"
-                + (" and before_each" if before_each is not None else "")
-                + ". Fix: create the World with fused_substeps=False to step single physics "
-                "steps or to act before each of them"
-            )
+        if n_physics_steps is None and before_each is None:
+            n = self.n_substeps  # a whole control period: what every World steps
+        else:
+            n = self.n_substeps if n_physics_steps is None else int(n_physics_steps)
+            if n < 0:
+                raise ValueError(f"n_physics_steps must be >= 0, got {n_physics_steps!r}")
+            if fused and (before_each is not None or n != self.n_substeps):
+                raise ValueError(
+                    "a World with fused_substeps steps whole control periods only, got "
+                    f"n_physics_steps={n_physics_steps!r}"
+                    + (" and before_each" if before_each is not None else "")
+                    + ". Fix: create the World with fused_substeps=False to step single physics "
+                    "steps or to act before each of them"
+                )
         cpu0 = time.thread_time() if self.cpu_timing else 0.0
         t0 = time.perf_counter()
         if fused:

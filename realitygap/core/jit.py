@@ -21,7 +21,14 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
-__all__ = ["DISABLE_JIT_ENV", "compiled", "numba_available", "numpy_only", "use_compiled"]
+__all__ = [
+    "DISABLE_JIT_ENV",
+    "KERNELS",
+    "compiled",
+    "numba_available",
+    "numpy_only",
+    "use_compiled",
+]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -35,7 +42,19 @@ if os.environ.get(DISABLE_JIT_ENV, "0") in ("", "0"):
     except ImportError:  # pragma: no cover - exercised where numba is absent
         _numba = None
 
-_state = {"on": _numba is not None}
+
+class KernelSwitch:
+    """Whether callers take the compiled kernels, as the attribute :attr:`on`: hot paths read
+    ``KERNELS.on`` (an attribute, no call), elsewhere :func:`use_compiled` says the same."""
+
+    __slots__ = ("on",)
+
+    def __init__(self, on: bool) -> None:
+        self.on = on
+
+
+KERNELS = KernelSwitch(_numba is not None)
+"""The one switch: on where Numba is installed and not disabled, off inside :func:`numpy_only`."""
 
 
 def numba_available() -> bool:
@@ -47,18 +66,18 @@ def numba_available() -> bool:
 def use_compiled() -> bool:
     """Whether callers take the compiled kernels: Numba is installed, not disabled by
     :data:`DISABLE_JIT_ENV` and not inside :func:`numpy_only`."""
-    return _state["on"]
+    return KERNELS.on
 
 
 @contextmanager
 def numpy_only() -> Iterator[None]:
     """Within the block every caller takes its NumPy path (to compare the two)."""
-    before = _state["on"]
-    _state["on"] = False
+    before = KERNELS.on
+    KERNELS.on = False
     try:
         yield
     finally:
-        _state["on"] = before
+        KERNELS.on = before
 
 
 def compiled(fn: F) -> F | None:
@@ -66,4 +85,6 @@ def compiled(fn: F) -> F | None:
     when Numba is not installed. ``fn`` itself is left unchanged."""
     if _numba is None:
         return None
-    return _numba.njit(cache=True, error_model="numpy", nogil=True)(fn)
+    # the GIL is kept: the kernels take microseconds in the thread that calls them, where
+    # releasing and taking it back again would cost a noticeable share of the call
+    return _numba.njit(cache=True, error_model="numpy")(fn)
