@@ -81,6 +81,10 @@ if TYPE_CHECKING:
     from realitygap.diagnosis.suite import SuiteSettings
 
 FloatArray = npt.NDArray[np.float64]
+
+TURN_WINDOW_RAD = 0.05
+"""A window turns when what the commands asked of it turns by more than this (rad): the
+windows :meth:`DiffDriveAdapter.command_wheel_gains` compares turn rates on."""
 Features = dict[str, FloatArray]
 
 __all__ = [
@@ -550,8 +554,7 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         ``sensor → estimate``: the logged estimate's motion minus nominal
         odometry of the logged ticks.
         """
-        ctx = self._context(prepared)
-        params = ctx.params
+        params = self._context(prepared).params
         log = prepared.log
         out: dict[str, FloatArray] = {}
         if "pose_gt" in prepared.real and "pose_gt" in prepared.nominal:
@@ -560,16 +563,53 @@ class DiffDriveAdapter(WheelDrivenAdapter):
             mpt = self.meters_per_tick(params)
             odo = nominal_odometry(np.asarray(log["ticks"]), params, log["pose_gt"][0])
             f_odo = features({"pose_gt": odo}, prepared.bounds, mpt)["pose_gt"]
-            rep = prepared.replay_log
-            if ctx.inputs.commands is not None and rep.has("ticks"):
-                odo_rep = nominal_odometry(np.asarray(rep["ticks"]), params, log["pose_gt"][0])
-                f_rep = features({"pose_gt": odo_rep}, prepared.bounds, mpt)["pose_gt"]
-                out["command → wheels"] = f_odo - f_rep
+            wheels = self.wheel_motion(prepared)
+            if wheels is not None:
+                out["command → wheels"] = wheels[0] - wheels[1]
             out["motion → sensor"] = f_odo - prepared.real["pose_gt"]
             if log.has("pose_est"):
                 f_est = features({"pose_gt": log["pose_est"]}, prepared.bounds, mpt)["pose_gt"]
                 out["sensor → estimate"] = f_est - f_odo
         return out
+
+    def wheel_motion(self, prepared: PreparedLog) -> tuple[FloatArray, FloatArray] | None:
+        """Per window, the motion nominal odometry makes of the logged ticks and of the
+        nominal replay's ticks (M, 3 each: dx, dy m, dθ rad), for a command-driven replay
+        of a log with encoders; ``None`` otherwise."""
+        ctx = self._context(prepared)
+        log, rep = prepared.log, prepared.replay_log
+        if ctx.inputs.commands is None or not (log.has("ticks") and rep.has("ticks")):
+            return None
+        mpt = self.meters_per_tick(ctx.params)
+        start = log["pose_gt"][0] if log.has("pose_gt") else np.zeros(3)
+        real = nominal_odometry(np.asarray(log["ticks"]), ctx.params, start)
+        asked = nominal_odometry(np.asarray(rep["ticks"]), ctx.params, start)
+        f = features({"pose_gt": np.stack([real, asked])}, prepared.bounds, mpt)["pose_gt"]
+        return f[0], f[1]
+
+    def command_wheel_gains(self, prepared: PreparedLog) -> dict[str, float] | None:
+        """How far and how much the wheels turned against what the commands asked of the
+        nominal drive train, over a command-driven log with encoders (``None`` otherwise).
+
+        ``distance_gain``: logged over asked wheel travel (means of the two wheels);
+        ``turn_gain``: least-squares slope of the logged heading change per window on
+        the asked one, over the windows that turn (NaN when none does, or the log
+        does not turn).
+        """
+        wheels = self.wheel_motion(prepared)
+        if wheels is None:
+            return None
+        real, asked = wheels
+        s_real, s_asked = np.hypot(real[:, 0], real[:, 1]), np.hypot(asked[:, 0], asked[:, 1])
+        dist = float(s_real.sum() / s_asked.sum()) if s_asked.sum() > 0 else math.nan
+        a, r = asked[:, 2], real[:, 2]
+        turning = np.abs(a) > TURN_WINDOW_RAD
+        turn = (
+            float(r[turning] @ a[turning] / (a[turning] @ a[turning]))
+            if turning.any()
+            else math.nan
+        )
+        return {"distance_gain": dist, "turn_gain": turn, "turning_windows": int(turning.sum())}
 
     # ------------------------------------------------------------------ blind suite
     def record_blind_logs(

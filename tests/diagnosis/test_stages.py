@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
+from realitygap.diagnosis.diagnose import Diagnosis, DiagnosisSettings, diagnose
 from realitygap.diagnosis.summary import stage_split, summary_sentences
 
 
-def _split(root: Path, drive: str, **hidden: float) -> tuple[float, float] | None:
+def _diagnose(root: Path, drive: str, **hidden: float) -> Diagnosis:
     import realitygap.independent.diffdrive as dd
     from realitygap.diagnosis.io import logs_from_optiodom
 
@@ -31,6 +31,11 @@ def _split(root: Path, drive: str, **hidden: float) -> tuple[float, float] | Non
         held,
         settings=DiagnosisSettings(drive=drive, effects=("wheelbase_error",), scales=None),
     )
+    return d
+
+
+def _split(root: Path, drive: str, **hidden: float) -> tuple[float, float] | None:
+    d = _diagnose(root, drive, **hidden)
     split = stage_split(d)
     if split is not None:
         assert any(s.startswith("By pipeline stage, ") for s in summary_sentences(d))
@@ -53,3 +58,24 @@ def test_the_stage_that_carries_the_gap_is_the_one_the_effect_acts_in(
 
 def test_a_tick_driven_replay_has_no_command_stage(tmp_path: Path) -> None:
     assert _split(tmp_path, "ticks", b_true=1.03) is None
+
+
+@pytest.mark.parametrize(
+    ("hidden", "slower"), [({"b_true": 1.03}, False), ({"speed_cap": 0.1}, True)]
+)
+def test_wheel_gains_say_whether_the_wheels_did_what_the_commands_asked(
+    tmp_path: Path, hidden: dict[str, float], slower: bool
+) -> None:
+    from realitygap.diagnosis.adapters import get_adapter
+
+    d = _diagnose(tmp_path, "commands", **hidden)
+    adapter = get_adapter("diffdrive")
+    gains = [adapter.command_wheel_gains(p) for p in d.prepared]
+    assert all(g is not None for g in gains)
+    dist = np.array([g["distance_gain"] for g in gains])
+    if slower:  # wheels capped below the commanded speed travel less than asked
+        assert np.all(dist < 0.97), dist
+    else:  # a wider axle acts after the wheels: they travel and turn as asked
+        turn = np.array([g["turn_gain"] for g in gains])
+        assert np.all(np.abs(dist - 1.0) < 0.02), dist
+        assert np.all(np.abs(turn - 1.0) < 0.03), turn
