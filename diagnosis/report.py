@@ -109,6 +109,28 @@ def _baseline_and_transients(d: Diagnosis) -> list[str]:
         )
     else:
         lines.append("None applied (no nuisances stated, or they did not improve the replay).")
+    for aligned in (b.clock, b.frames):
+        if aligned.rows:
+            lines += ["", aligned.summary()[:1].upper() + aligned.summary()[1:] + "."]
+    if b.frames.rows:
+        lines += [
+            "",
+            "Each log's own ground-truth frame (fitted beside the robot's effects; a component "
+            "the log's motion does not test keeps the common value):",
+            "",
+            "| log | split | x | y | yaw | tested | re-framed | χ² drop |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        for r in b.frames.rows[:30]:
+            x, y, yaw = r["frame"]
+            tested = "".join(c for c, t in zip("xyψ", r["tested"]) if t) or "none"
+            lines.append(
+                f"| {r['log']} | {r['split']} | {_si(x, 'm')} | {_si(y, 'm')} | "
+                f"{_si(yaw, 'rad')} | {tested} | {'yes' if r['applied'] else 'no'} | "
+                f"{r['chi2_drop']:.1f} |"
+            )
+        if len(b.frames.rows) > 30:
+            lines.append(f"\n({len(b.frames.rows) - 30} more in the JSON.)")
     tr = d.transients
     lines += ["", "## Transient events", ""]
     lines.append(

@@ -104,6 +104,12 @@ def test_each_session_keeps_its_own_rigid_body(tmp_path: Path) -> None:
         assert after < min(0.003, 0.4 * before), (name, before, after)
     assert "per-log frame alignment of pose_gt: 2 of" in d.baseline.summary()
     assert d.baseline.to_json()["frame_alignment"]["channel"] == "pose_gt"
+    from realitygap.diagnosis.report import write_report
+
+    write_report(d, tmp_path / "report")
+    md = (tmp_path / "report" / "report.md").read_text()
+    assert "Per-log frame alignment of pose_gt: 2 of" in md
+    assert md.count("| yes |") >= 2  # the two circles' rows, re-framed
     # the robot's own error is still what the diagnosis finds
     assert d.ranking[0].effects[0] == "wheelbase_error"
     assert d.ranking[0].values["wheelbase_error.E_b"] == pytest.approx(1.02, abs=0.006)
