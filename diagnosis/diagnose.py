@@ -53,6 +53,7 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.core.parallel import Backend, SerialBackend
+from realitygap.diagnosis.actuation import actuation_spread, command_wheel_gains
 from realitygap.diagnosis.adapters import PreparedLog, RobotAdapter, get_adapter
 from realitygap.diagnosis.attribute import (
     AttributionSettings,
@@ -679,6 +680,11 @@ def diagnose(
     ident = advise(problem, verification.ranking, judgement)
     coverage = coverage_report(problem, judgement, s.coverage)
     conclude(problem, verification.ranking, judgement, ident, coverage)
+    if drive is Drive.COMMANDS:
+        spread = actuation_spread(command_wheel_gains(adapter, prepared))
+        if spread is not None and spread["differs"]:
+            judgement.verdict.notes["actuation"] = spread
+            say(f"drive train: {spread['message']}")
     rows, gap = gap_report(problem, judgement, verification.replays, baseline)
     if coverage is not None:
         say(f"coverage: {coverage.summary()}")

@@ -68,6 +68,7 @@ from realitygap.diagnosis.replay import (
     replay,
     simulate,
 )
+from realitygap.diagnosis.scales import autocorrelation_widening
 from realitygap.diagnosis.surrogate import (
     SURROGATE_EFFECTS,
     DiffDriveSurrogate,
@@ -593,8 +594,10 @@ class DiffDriveAdapter(WheelDrivenAdapter):
 
         ``distance_gain``: logged over asked wheel travel (means of the two wheels);
         ``turn_gain``: least-squares slope of the logged heading change per window on
-        the asked one, over the windows that turn (NaN when none does, or the log
-        does not turn).
+        the asked one, over the windows that turn, and ``turn_gain_se`` its standard
+        error from the windows' scatter about it, widened for their lag-1
+        autocorrelation (:func:`~realitygap.diagnosis.scales.autocorrelation_widening`);
+        NaN with fewer than three turning windows.
         """
         wheels = self.wheel_motion(prepared)
         if wheels is None:
@@ -604,12 +607,15 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         dist = float(s_real.sum() / s_asked.sum()) if s_asked.sum() > 0 else math.nan
         a, r = asked[:, 2], real[:, 2]
         turning = np.abs(a) > TURN_WINDOW_RAD
-        turn = (
-            float(r[turning] @ a[turning] / (a[turning] @ a[turning]))
-            if turning.any()
-            else math.nan
-        )
-        return {"distance_gain": dist, "turn_gain": turn, "turning_windows": int(turning.sum())}
+        n = int(turning.sum())
+        turn = se = math.nan
+        if n >= 3:
+            a, r = a[turning], r[turning]
+            turn = float(r @ a / (a @ a))
+            res = r - turn * a
+            _, widen = autocorrelation_widening(res)
+            se = math.sqrt(float(res @ res) / (n - 1) / float(a @ a)) * widen
+        return {"distance_gain": dist, "turn_gain": turn, "turn_gain_se": se, "turning_windows": n}
 
     # ------------------------------------------------------------------ blind suite
     def record_blind_logs(

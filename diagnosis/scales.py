@@ -167,6 +167,19 @@ def window_timing(
     return z - off[inverse] * signature, off[np.argsort(first)]
 
 
+def autocorrelation_widening(
+    d: FloatArray, max_autocorrelation: float = 0.9
+) -> tuple[float, float]:
+    r"""Lag-1 autocorrelation :math:`ρ` of deviations ``d`` (in order, clipped to
+    ``[0, max_autocorrelation]``) and the factor :math:`\sqrt{(1+ρ)/(1-ρ)}` by which it
+    widens the standard error of a mean or a slope over them."""
+    d = np.asarray(d, dtype=float)
+    den = float(d @ d)
+    rho = float(d[1:] @ d[:-1]) / den if den > 0 else 0.0
+    rho = min(max(rho, 0.0), max_autocorrelation)
+    return rho, math.sqrt((1.0 + rho) / (1.0 - rho))
+
+
 def run_bias(
     z: FloatArray, layout: Layout, max_autocorrelation: float = 0.9
 ) -> list[dict[str, Any]]:
@@ -197,11 +210,8 @@ def run_bias(
             if x.size < 4:
                 continue
             spread = float(np.std(x, ddof=1))
-            d = x - x.mean()
-            den = float(d @ d)
-            rho = float(d[1:] @ d[:-1]) / den if den > 0 else 0.0
-            rho = min(max(rho, 0.0), max_autocorrelation)
-            se = spread / math.sqrt(x.size) * math.sqrt((1.0 + rho) / (1.0 - rho))
+            rho, widen = autocorrelation_widening(x - x.mean(), max_autocorrelation)
+            se = spread / math.sqrt(x.size) * widen
             df = max(x.size * (1.0 - rho) / (1.0 + rho) - 1.0, 1.0)
             mean = float(x.mean())
             t = mean / se if se > 0 else (0.0 if mean == 0 else math.inf)

@@ -760,6 +760,9 @@ def explain(verdict: Verdict, top_models: Sequence[str] = ()) -> list[str]:
             f"against {whole['run_shrink_pct']:.0f} % of the whole-run gap; the rest of the "
             f"window residual {rest}"
         )
+    act = notes.get("actuation")
+    if act is not None:
+        lines.append(f"drive train: {act['message']}")
     disc = notes.get("discovery")
     if disc is not None:
         lines.append(f"discovery: {disc['message']}")

@@ -235,27 +235,13 @@ def _real_split(ctx: RunContext, extend_training: bool) -> tuple[list[Any], list
     return train, holdout
 
 
-def _command_wheel_gains(d: Any) -> list[dict[str, Any]]:
-    """Per log of a command-driven diagnosis: the wheels' travel and turn against what the
-    commands asked of the nominal drive train (the adapter's ``command_wheel_gains``)."""
-    from realitygap.diagnosis.adapters import get_adapter
-
-    adapter = get_adapter(d.settings.robot)
-    if not hasattr(adapter, "command_wheel_gains"):
-        return []
-    rows = []
-    for p in d.prepared:
-        g = adapter.command_wheel_gains(p)
-        if g is not None:
-            rows.append({"log": p.name, "split": p.split, **g})
-    return rows
-
-
 def _real_diagnoses(
     ctx: RunContext, train: list[Any], holdout: list[Any], drives: tuple[str, ...]
 ) -> dict[str, Any]:
     """Diagnose ``train`` against ``holdout`` once per replay drive; figures, tables, notes."""
     from realitygap.core.parallel import ProcessBackend
+    from realitygap.diagnosis.actuation import command_wheel_gains
+    from realitygap.diagnosis.adapters import get_adapter
     from realitygap.diagnosis.cli import estimate_seconds
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
     from realitygap.diagnosis.summary import stage_split
@@ -302,7 +288,7 @@ def _real_diagnoses(
         if split is not None:
             figures[prefix + "stage_command_to_wheels_pct"] = split[0]
             figures[prefix + "stage_wheels_to_body_pct"] = split[1]
-        gains = _command_wheel_gains(d)
+        gains = command_wheel_gains(get_adapter(d.settings.robot), d.prepared)
         if gains:
             tables[f"{drive}_command_wheel_gains"] = gains
             for split_name in ("train", "holdout"):

@@ -79,3 +79,38 @@ def test_wheel_gains_say_whether_the_wheels_did_what_the_commands_asked(
         turn = np.array([g["turn_gain"] for g in gains])
         assert np.all(np.abs(dist - 1.0) < 0.02), dist
         assert np.all(np.abs(turn - 1.0) < 0.03), turn
+        assert "actuation" not in d.verdict.notes  # one robot, one drive train
+
+
+def test_actuation_spread_is_cochrans_q() -> None:
+    from scipy.stats import chi2
+
+    from realitygap.diagnosis.actuation import actuation_spread
+
+    rows = [
+        {"log": "a", "turn_gain": 0.986, "turn_gain_se": 0.002},
+        {"log": "b", "turn_gain": 1.025, "turn_gain_se": 0.004},
+        {"log": "c", "turn_gain": 1.001, "turn_gain_se": 0.003},
+        {"log": "d", "turn_gain": float("nan"), "turn_gain_se": 0.003},  # left out
+    ]
+    out = actuation_spread(rows)
+    assert out is not None and out["logs"] == ["a", "b", "c"]
+    g, se = np.array([0.986, 1.025, 1.001]), np.array([0.002, 0.004, 0.003])
+    w = se**-2
+    mean = w @ g / w.sum()
+    q = w @ (g - mean) ** 2
+    assert out["mean"] == pytest.approx(mean, rel=1e-12)
+    assert out["q"] == pytest.approx(q, rel=1e-12)
+    assert out["p"] == pytest.approx(chi2.sf(q, 2), rel=1e-9)
+    assert out["differs"] and "0.986 in a … 1.025 in b" in out["message"]
+    # gains that scatter as their errors say are one drive train
+    rng = np.random.default_rng(4)
+    same = [
+        {"log": str(i), "turn_gain": 1.0 + 0.003 * rng.normal(), "turn_gain_se": 0.003}
+        for i in range(8)
+    ]
+    one = actuation_spread(same)
+    assert one is not None and not one["differs"]
+    assert actuation_spread(rows[:1]) is None
+    with pytest.raises(ValueError, match="alpha must lie in"):
+        actuation_spread(rows, alpha=1.5)
