@@ -133,8 +133,9 @@ class DiagnosisSettings:
         (:mod:`realitygap.diagnosis.clock`); ``None`` leaves every log's clock alone.
     frames : bool
         With ``calibrate`` and a tick-driven replay: fit each log's own ground-truth
-        frame (where the adapter states one as a nuisance) and re-frame the logs whose deviation from the
-        common frame is their own (:mod:`realitygap.diagnosis.frames`).
+        frame (where the adapter states one as a nuisance) and re-frame the logs
+        whose deviation from the common frame is their own
+        (:mod:`realitygap.diagnosis.frames`).
     scales : ScaleSettings or None
         Revisit a verdict that fails only on the window shrink on the scale of whole
         held-out runs (:mod:`realitygap.diagnosis.scales`); ``None``: windows only.
