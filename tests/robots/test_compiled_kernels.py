@@ -13,6 +13,7 @@ import pytest
 import realitygap  # noqa: F401  (registers the envs)
 from realitygap.core import jit
 from realitygap.envs import wheeled_nav
+from realitygap.envs.layouts import room_walls
 from realitygap.estimators import diffdrive_model as dm
 from realitygap.robots import raycast, sensors, world
 
@@ -21,8 +22,10 @@ needs_numba = pytest.mark.skipif(
 )
 
 
-def _random_scene(rng: np.random.Generator) -> raycast.PrimitiveArrays:
-    prims = []
+def _random_scene(rng: np.random.Generator, walls: float | None = None) -> raycast.PrimitiveArrays:
+    """Up to eight random boxes and cylinders, overlapping freely, inside a square room of
+    half-size ``walls`` (m) when given."""
+    prims = list(room_walls(walls)) if walls is not None else []
     for k in range(int(rng.integers(0, 9))):
         centre = (float(rng.uniform(-3, 3)), float(rng.uniform(-3, 3)))
         if rng.random() < 0.6:
@@ -262,3 +265,21 @@ def test_the_sensor_module_names_its_kernels() -> None:
     """The scan's compiled kernel exists exactly when Numba does."""
     assert (sensors._noisy_scan_compiled is not None) == jit.numba_available()
     assert (raycast.cast_rotated_beams_compiled is not None) == jit.numba_available()
+
+
+@needs_numba
+def test_compiled_clearance_gives_the_numpy_clearance_bits() -> None:
+    rng = np.random.default_rng(3)
+    n_inside = 0
+    for _ in range(40):
+        arrays = _random_scene(rng, walls=3.0)
+        for x, y in rng.uniform(-3.5, 3.5, size=(25, 2)):
+            got = arrays.clearance(float(x), float(y))
+            with jit.numpy_only():
+                want = arrays.clearance(float(x), float(y))
+            assert type(got) is float
+            assert np.float64(got).tobytes() == np.float64(want).tobytes(), (x, y)
+            n_inside += want < 0.0
+    assert n_inside > 10  # points inside footprints (negative distances) were among them
+    empty = raycast.PrimitiveArrays([])
+    assert empty.clearance(0.3, -0.2) == math.inf

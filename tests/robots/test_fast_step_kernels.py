@@ -1,5 +1,4 @@
-"""The fast step's smaller kernels give the bits of their reference forms: the scenery
-clearance (compiled against NumPy), the bound body ramp (compiled against Python), the ray
+"""The fast step's smaller kernels give the bits of their reference forms: the bound body ramp (compiled against Python), the ray
 cast's skips of boxes behind the origin (beams with direction components of exactly ±0.0),
 and the measurement records built without the generated frozen ``__init__`` keep the
 dataclass behaviour (frozen, equality, ``replace``, keywords, defaults)."""
@@ -21,38 +20,6 @@ from realitygap.robots.diffdrive import Deceleration, FirmwareLimits
 needs_numba = pytest.mark.skipif(
     not jit.numba_available(), reason="numba is not installed (or REALITYGAP_DISABLE_JIT is set)"
 )
-
-
-def _scene(rng: np.random.Generator) -> raycast.PrimitiveArrays:
-    prims = list(room_walls(3.0))
-    for k in range(int(rng.integers(0, 7))):
-        centre = (float(rng.uniform(-2.5, 2.5)), float(rng.uniform(-2.5, 2.5)))
-        if rng.random() < 0.6:
-            half = (float(rng.uniform(0.05, 0.8)), float(rng.uniform(0.05, 0.8)))
-            yaw = float(rng.choice([0.0, math.pi / 2, rng.uniform(-3, 3)]))
-            prims.append(world.Primitive(f"b{k}", world.Shape.BOX, centre, 0.5, yaw, half))
-        else:
-            r = float(rng.uniform(0.05, 0.6))
-            prims.append(world.Primitive(f"c{k}", world.Shape.CYLINDER, centre, 0.5, radius=r))
-    return raycast.PrimitiveArrays(prims)
-
-
-@needs_numba
-def test_compiled_clearance_gives_the_numpy_clearance_bits() -> None:
-    rng = np.random.default_rng(3)
-    n_inside = 0
-    for _ in range(40):
-        arrays = _scene(rng)
-        for x, y in rng.uniform(-3.5, 3.5, size=(25, 2)):
-            got = arrays.clearance(float(x), float(y))
-            with jit.numpy_only():
-                want = arrays.clearance(float(x), float(y))
-            assert type(got) is float
-            assert np.float64(got).tobytes() == np.float64(want).tobytes(), (x, y)
-            n_inside += want < 0.0
-    assert n_inside > 10  # points inside footprints (negative distances) were among them
-    empty = raycast.PrimitiveArrays([])
-    assert empty.clearance(0.3, -0.2) == math.inf
 
 
 @pytest.mark.parametrize("deceleration", list(Deceleration))
