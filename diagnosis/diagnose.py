@@ -186,6 +186,10 @@ class Diagnosis:
     nominal_reference: dict[str, Any] = field(default_factory=dict)
     scales: dict[str, Any] = field(default_factory=dict)
     coverage: Coverage | None = None
+    actuation: dict[str, Any] = field(default_factory=dict)
+    """A command-driven replay of logs with encoders: ``gains`` (per log, the adapter's
+    ``command_wheel_gains``) and ``spread``
+    (:func:`~realitygap.diagnosis.actuation.actuation_spread`, or ``None``); else empty."""
 
     @property
     def chosen(self) -> ModelFit | None:
@@ -271,6 +275,7 @@ class Diagnosis:
             },
             "verdict_scales": self.scales,
             "coverage": self.coverage.to_json() if self.coverage is not None else None,
+            "actuation": self.actuation or None,
             "ranking": self.ranking_rows(),
             "candidates": self.candidates,
             "not_observable": self.not_observable,
@@ -681,8 +686,11 @@ def diagnose(
     ident = advise(problem, verification.ranking, judgement)
     coverage = coverage_report(problem, judgement, s.coverage)
     conclude(problem, verification.ranking, judgement, ident, coverage)
-    if drive is Drive.COMMANDS:
-        spread = actuation_spread(command_wheel_gains(adapter, prepared))
+    actuation: dict[str, Any] = {}
+    gains = command_wheel_gains(adapter, prepared) if drive is Drive.COMMANDS else []
+    if gains:
+        spread = actuation_spread(gains)
+        actuation = {"gains": gains, "spread": spread}
         if spread is not None and spread["differs"]:
             judgement.verdict.notes["actuation"] = spread
             say(f"drive train: {spread['message']}")
@@ -715,4 +723,5 @@ def diagnose(
         nominal_reference=reference,
         scales=scale_figures,
         coverage=coverage,
+        actuation=actuation,
     )

@@ -562,11 +562,12 @@ class DiffDriveAdapter(WheelDrivenAdapter):
             out["command → motion"] = prepared.real["pose_gt"] - prepared.nominal["pose_gt"]
         if log.has("ticks") and log.has("pose_gt"):
             mpt = self.meters_per_tick(params)
-            odo = nominal_odometry(np.asarray(log["ticks"]), params, log["pose_gt"][0])
-            f_odo = features({"pose_gt": odo}, prepared.bounds, mpt)["pose_gt"]
             wheels = self.wheel_motion(prepared)
             if wheels is not None:
+                f_odo = wheels[0]
                 out["command → wheels"] = wheels[0] - wheels[1]
+            else:
+                f_odo = self._tick_motion(prepared, log["ticks"])[0]
             out["motion → sensor"] = f_odo - prepared.real["pose_gt"]
             if log.has("pose_est"):
                 f_est = features({"pose_gt": log["pose_est"]}, prepared.bounds, mpt)["pose_gt"]
@@ -577,16 +578,22 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         """Per window, the motion nominal odometry makes of the logged ticks and of the
         nominal replay's ticks (M, 3 each: dx, dy m, dθ rad), for a command-driven replay
         of a log with encoders; ``None`` otherwise."""
-        ctx = self._context(prepared)
         log, rep = prepared.log, prepared.replay_log
-        if ctx.inputs.commands is None or not (log.has("ticks") and rep.has("ticks")):
+        if self._context(prepared).inputs.commands is None or not (
+            log.has("ticks") and rep.has("ticks")
+        ):
             return None
-        mpt = self.meters_per_tick(ctx.params)
-        start = log["pose_gt"][0] if log.has("pose_gt") else np.zeros(3)
-        real = nominal_odometry(np.asarray(log["ticks"]), ctx.params, start)
-        asked = nominal_odometry(np.asarray(rep["ticks"]), ctx.params, start)
-        f = features({"pose_gt": np.stack([real, asked])}, prepared.bounds, mpt)["pose_gt"]
-        return f[0], f[1]
+        real, asked = self._tick_motion(prepared, log["ticks"], rep["ticks"])
+        return real, asked
+
+    def _tick_motion(self, prepared: PreparedLog, *ticks: FloatArray) -> FloatArray:
+        """Per window, the motion (dx, dy m, dθ rad) nominal odometry makes of each tick
+        series (N, 2) of the log, (len(ticks), M, 3); window motions do not depend on the
+        start pose."""
+        params = self._context(prepared).params
+        odo = [nominal_odometry(np.asarray(tk), params, np.zeros(3)) for tk in ticks]
+        mpt = self.meters_per_tick(params)
+        return features({"pose_gt": np.stack(odo)}, prepared.bounds, mpt)["pose_gt"]
 
     def command_wheel_gains(self, prepared: PreparedLog) -> dict[str, float] | None:
         """How far and how much the wheels turned against what the commands asked of the

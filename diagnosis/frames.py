@@ -187,7 +187,7 @@ def _residuals(problem: Problem, i: int, keys: Sequence[str], points: FloatArray
     return np.concatenate(parts, axis=1)
 
 
-@dataclass
+@dataclass(frozen=True)
 class _LogFit:
     """One log's frame fit: the space it searches and what it found."""
 
@@ -200,13 +200,21 @@ class _LogFit:
     n: int  # residual entries
 
 
-def _jacobian(problem: Problem, i: int, fit: _LogFit, x: FloatArray) -> FloatArray:
-    """Forward-difference Jacobian (n, K) of log ``i``'s residuals at ``x``, one batch."""
-    h = 1e-4 * (fit.high - fit.low)
-    step = np.where(x + h <= fit.high, h, -h)
+def _jacobian(
+    problem: Problem,
+    i: int,
+    keys: Sequence[str],
+    low: FloatArray,
+    high: FloatArray,
+    x: FloatArray,
+) -> FloatArray:
+    """Forward-difference Jacobian (n, K) of log ``i``'s residuals in the parameters
+    ``keys`` (ranges ``[low, high]``) at ``x``, one batch."""
+    h = 1e-4 * (high - low)
+    step = np.where(x + h <= high, h, -h)
     pts = np.repeat(x[None], x.size + 1, axis=0)
     pts[1:] += np.diag(step)
-    z = _residuals(problem, i, fit.keys, pts)
+    z = _residuals(problem, i, keys, pts)
     return ((z[1:] - z[0]) / step[:, None]).T
 
 
@@ -225,39 +233,32 @@ def _setup(
     signature the robot's own effects (``effects``' parameters) cannot make is at
     least :math:`\sqrt{1 - ρ_c^2}` of it (:math:`ρ_c` the attribution's
     ``confound_corr``: a correlation beyond it with the effects' best combination
-    is an alias). A turn on the spot
-    moves no distance and so cannot test the heading of the frame; on a circle, a
-    sideways origin changes the tracked radius exactly as a wheel-radius error
-    changes the distance, and is left to the effect.
+    is an alias). A turn on the spot moves no distance and so cannot test the
+    heading of the frame; on a circle, a sideways origin changes the tracked radius
+    exactly as a wheel-radius error changes the distance, and is left to the effect.
     """
     robot = [k for k in model_keys(effects) if k not in keys]
     all_keys = (*keys, *robot)
     lo = np.concatenate([low, [param_spec(k).low for k in robot]])
     hi = np.concatenate([high, [param_spec(k).high for k in robot]])
     x0 = np.concatenate([np.clip(np.zeros(3), low, high), [param_spec(k).nominal for k in robot]])
-    fit = _LogFit(all_keys, lo, hi, x0, np.ones(len(all_keys), bool), np.zeros(3, bool), 0)
-    jac = _jacobian(problem, i, fit, x0)
-    fit.n = int(jac.shape[0])
-    span = hi - lo
-    cols = jac * span[None]
+    cols = _jacobian(problem, i, all_keys, lo, hi, x0) * (hi - lo)[None]  # over each range
     moves = np.linalg.norm(cols, axis=0)
-    fit.free = moves > 1e-9 * max(float(moves.max()), 1e-300)
+    free = moves > 1e-9 * max(float(moves.max()), 1e-300)
+    effect_cols = cols[:, [c for c in np.flatnonzero(free) if c >= 3]]
     reach = np.zeros(3)
     for j in range(3):
-        others = [c for c in np.flatnonzero(fit.free) if c >= 3]
         col = cols[:, j]
-        if others:
-            coef, *_ = np.linalg.lstsq(cols[:, others], col, rcond=None)
-            col = col - cols[:, others] @ coef
+        if effect_cols.shape[1]:
+            coef, *_ = np.linalg.lstsq(effect_cols, col, rcond=None)
+            col = col - effect_cols @ coef
         reach[j] = float(np.linalg.norm(col))
     # its own part: what is left once the effects have made what they can (a correlation
     # with their best combination beyond the attribution's confound level leaves too little)
     own = math.sqrt(1.0 - problem.settings.confound_corr**2)
-    fit.tested = (moves[:3] > TESTED * max(float(moves[:3].max()), 1e-300)) & (
-        reach > own * moves[:3]
-    )
-    fit.free[:3] = fit.tested
-    return fit
+    tested = (moves[:3] > TESTED * max(float(moves[:3].max()), 1e-300)) & (reach > own * moves[:3])
+    free[:3] = tested
+    return _LogFit(all_keys, lo, hi, x0, free, tested, int(cols.shape[0]))
 
 
 def _fit(
@@ -283,7 +284,7 @@ def _fit(
     res = least_squares(
         lambda y: _residuals(problem, i, fit.keys, full(y)[None])[0],
         np.clip(x0[free], fit.low[free], fit.high[free]),
-        jac=lambda y: _jacobian(problem, i, fit, full(y))[:, free],
+        jac=lambda y: _jacobian(problem, i, fit.keys, fit.low, fit.high, full(y))[:, free],
         bounds=(fit.low[free], fit.high[free]),
         loss=st.loss,
         f_scale=problem.f_scale,

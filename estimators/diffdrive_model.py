@@ -743,7 +743,7 @@ class WheelOdometry:
             getattr(measurement, "ticks", None), WheelTicks
         ):
             measurement = measurement.ticks  # a sensor bundle such as DiffDriveMeasurement
-        if type(measurement) is not WheelTicks and not isinstance(measurement, WheelTicks):
+        if not isinstance(measurement, WheelTicks):
             raise TypeError(
                 f"WheelOdometry.update expects WheelTicks or None, got {type(measurement).__name__}"
             )

@@ -240,8 +240,6 @@ def _real_diagnoses(
 ) -> dict[str, Any]:
     """Diagnose ``train`` against ``holdout`` once per replay drive; figures, tables, notes."""
     from realitygap.core.parallel import ProcessBackend
-    from realitygap.diagnosis.actuation import command_wheel_gains
-    from realitygap.diagnosis.adapters import get_adapter
     from realitygap.diagnosis.cli import estimate_seconds
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
     from realitygap.diagnosis.summary import stage_split
@@ -288,7 +286,7 @@ def _real_diagnoses(
         if split is not None:
             figures[prefix + "stage_command_to_wheels_pct"] = split[0]
             figures[prefix + "stage_wheels_to_body_pct"] = split[1]
-        gains = command_wheel_gains(get_adapter(d.settings.robot), d.prepared)
+        gains = d.actuation.get("gains", [])
         if gains:
             tables[f"{drive}_command_wheel_gains"] = gains
             for split_name in ("train", "holdout"):
