@@ -34,7 +34,7 @@ baseline), only each log's deviation from it, and only where
 
 A deviation is applied by re-framing the log's channel: the recorded track
 :math:`R_k` is taken back to the body poses it implies under :math:`F_i`
-and recorded again under :math:`F_c` (:func:`reframe_recorded`; headings
+and recorded again under :math:`F_c` (:func:`~realitygap.core.geometry.reframe_recorded`; headings
 are unchanged). Held-out logs are aligned too, from their own windows and the
 reference model only, as their clocks are.
 """
@@ -50,7 +50,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import least_squares
 
-from realitygap.core.geometry import reframe_track, se2_compose, se2_inverse
+from realitygap.core.geometry import reframe_recorded
 from realitygap.diagnosis.attribute import Problem, _rho
 from realitygap.diagnosis.log import Log
 from realitygap.diagnosis.parameters import model_keys, param_spec
@@ -58,7 +58,7 @@ from realitygap.robots.effects import make_effect
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["TESTED", "FrameAlignment", "align_frames", "frame_channel", "reframe_recorded"]
+__all__ = ["TESTED", "FrameAlignment", "align_frames", "frame_channel"]
 
 TESTED = 0.05
 """A frame component moves a log's residuals over its whole range by less than this
@@ -132,44 +132,6 @@ def frame_channel(effect: str) -> str | None:
         return None
     frames = probe.channel_frames() if hasattr(probe, "channel_frames") else {}
     return next(iter(frames)) if len(frames) == 1 else None
-
-
-def reframe_recorded(
-    track: npt.ArrayLike, frame_from: npt.ArrayLike, frame_to: npt.ArrayLike
-) -> FloatArray:
-    """A track recorded under the body frame ``frame_from``, as ``frame_to`` would record it.
-
-    The inverse of :func:`~realitygap.core.geometry.reframe_track` followed by
-    it: the body poses the record implies (started at its first recorded pose)
-    are recorded again under ``frame_to``. Headings are returned as given
-    (a frame change leaves them unchanged).
-
-    Parameters
-    ----------
-    track : array_like, shape (N, 3)
-        Recorded x, y (m) and heading (rad).
-    frame_from, frame_to : array_like, shape (3,)
-        Body frames x, y (m), yaw (rad).
-
-    Returns
-    -------
-    ndarray, shape (N, 3)
-    """
-    r = np.asarray(track, dtype=float)
-    f = np.asarray(frame_from, dtype=float)
-    if r.ndim != 2 or r.shape[1] != 3 or f.shape != (3,) or np.shape(frame_to) != (3,):
-        raise ValueError(
-            f"reframe_recorded: expected a track (N, 3) and frames (3,), got {r.shape}, "
-            f"{f.shape} and {np.shape(frame_to)}"
-        )
-    r0 = r[0]
-    # R_k = L ⊕ A_k ⊕ F with L = R_0 ⊕ F⁻¹ ⊕ R_0⁻¹, so A_k = L⁻¹ ⊕ R_k ⊕ F⁻¹
-    left_inv = se2_compose(se2_compose(r0, f), se2_inverse(r0))
-    body = se2_compose(se2_compose(left_inv, r), se2_inverse(f))
-    body[:, 2] = r[:, 2]
-    out = reframe_track(body, np.asarray(frame_to, dtype=float), start=r0)
-    out[:, 2] = r[:, 2]
-    return out
 
 
 def _residuals(problem: Problem, i: int, keys: Sequence[str], points: FloatArray) -> FloatArray:

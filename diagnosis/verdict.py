@@ -24,12 +24,12 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.diagnosis.attribute import AttributionSettings, ModelFit, Problem, Verdict
-
-if TYPE_CHECKING:
-    from realitygap.diagnosis.coverage import Coverage
 from realitygap.diagnosis.parameters import param_spec, range_position
 from realitygap.diagnosis.residual import describe_residual, shrink_above_noise, white_level
 from realitygap.diagnosis.shrink import overall_shrink
+
+if TYPE_CHECKING:
+    from realitygap.diagnosis.coverage import Coverage
 
 FloatArray = npt.NDArray[np.float64]
 

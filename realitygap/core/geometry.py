@@ -97,6 +97,43 @@ def reframe_track(
     return out
 
 
+def reframe_recorded(
+    track: npt.ArrayLike, frame_from: npt.ArrayLike, frame_to: npt.ArrayLike
+) -> FloatArray:
+    """A track recorded under the body frame ``frame_from``, as ``frame_to`` would record it.
+
+    The inverse of :func:`reframe_track` followed by it: the body poses the record
+    implies (started at its first recorded pose) are recorded again under
+    ``frame_to``. Headings are returned as given (a frame change leaves them unchanged).
+
+    Parameters
+    ----------
+    track : array_like, shape (N, 3)
+        Recorded x, y (m) and heading (rad).
+    frame_from, frame_to : array_like, shape (3,)
+        Body frames x, y (m), yaw (rad).
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+    """
+    r = np.asarray(track, dtype=float)
+    f = np.asarray(frame_from, dtype=float)
+    if r.ndim != 2 or r.shape[1] != 3 or f.shape != (3,) or np.shape(frame_to) != (3,):
+        raise ValueError(
+            f"reframe_recorded: expected a track (N, 3) and frames (3,), got {r.shape}, "
+            f"{f.shape} and {np.shape(frame_to)}"
+        )
+    r0 = r[0]
+    # R_k = L ⊕ A_k ⊕ F with L = R_0 ⊕ F⁻¹ ⊕ R_0⁻¹, so A_k = L⁻¹ ⊕ R_k ⊕ F⁻¹
+    left_inv = se2_compose(se2_compose(r0, f), se2_inverse(r0))
+    body = se2_compose(se2_compose(left_inv, r), se2_inverse(f))
+    body[:, 2] = r[:, 2]
+    out = reframe_track(body, np.asarray(frame_to, dtype=float), start=r0)
+    out[:, 2] = r[:, 2]
+    return out
+
+
 def yaw_from_quat_xyzw(quat_xyzw: npt.ArrayLike) -> float:
     """Heading (rotation about world z) in rad of a quaternion in PyBullet's xyzw order."""
     x, y, z, w = np.asarray(quat_xyzw, dtype=float)

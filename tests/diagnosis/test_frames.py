@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from realitygap.core.geometry import reframe_track
+from realitygap.core.geometry import reframe_recorded, reframe_track
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-from realitygap.diagnosis.frames import align_frames, frame_channel, reframe_recorded
+from realitygap.diagnosis.frames import align_frames, frame_channel
 
 
 def _track() -> np.ndarray:
