@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.core.jit import compiled, use_compiled
+from realitygap.core.jit import KERNELS, compiled
 
 if TYPE_CHECKING:
     from realitygap.robots.world import Primitive
@@ -93,7 +93,7 @@ class PrimitiveArrays:
         """Smallest distance (m) in the plane from the point ``(x, y)`` (m) to any footprint
         (negative inside one); ``inf`` without primitives. A point this far from every
         footprint is at least as far from the primitives, whatever its height."""
-        if _clearance_rows_compiled is not None and use_compiled():
+        if _clearance_rows_compiled is not None and KERNELS.on:
             return _clearance_rows_compiled(float(x), float(y), self.box_rows, self.cyl_rows)
         best = math.inf
         if len(self.box_center):
