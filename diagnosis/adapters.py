@@ -181,6 +181,7 @@ class RobotAdapter(Protocol):
     channels: tuple[ChannelSpec, ...]
     schema: FeatureSchema
     stage_group: str
+    drive_stages: tuple[str, str] | None
     transient_detection: bool
 
     def effect_names(self) -> tuple[str, ...]: ...
@@ -262,7 +263,8 @@ class AdapterBase:
     (effects the fast surrogate models) and may give :attr:`unobservable`
     (effect → why these channels cannot show it, whatever the log) and
     :attr:`stage_group` (the feature group whose columns its
-    :meth:`stage_residuals` use).
+    :meth:`stage_residuals` use) and :attr:`drive_stages` (the two of those stages
+    a command-driven gap splits into: up to the actuators, and after them).
     """
 
     robot: str = ""
@@ -271,6 +273,7 @@ class AdapterBase:
     surrogate_effects: tuple[str, ...] = ()
     unobservable: Mapping[str, str] = {}
     stage_group: str = ""
+    drive_stages: tuple[str, str] | None = None
 
     def stage_residuals(self, prepared: PreparedLog) -> dict[str, FloatArray]:
         """Residuals of the pipeline stages inside the real log, per window, in the columns of

@@ -202,6 +202,7 @@ class DiffDriveAdapter(WheelDrivenAdapter):
     channels = DIFFDRIVE_CHANNELS
     schema = DIFFDRIVE_SCHEMA
     stage_group = "pose_gt"
+    drive_stages = ("command → wheels", "motion → sensor")
     surrogate_effects = tuple(SURROGATE_EFFECTS)
     blind_noise = MeasurementNoise(
         truth_xy=0.0005, truth_theta=0.001, camera_xy=0.001, camera_theta=0.002

@@ -211,13 +211,19 @@ def where_rows(d: Diagnosis, n: int = 3) -> list[dict[str, Any]]:
 
 
 def stage_split(d: Diagnosis) -> tuple[float, float] | None:
-    """Shares (%) of the command → wheels and wheels → body stages in what both carry
-    (normalised sums of squares over every window), or ``None`` without both stages."""
+    """Shares (%) of the adapter's two :attr:`drive_stages` (up to the actuators, after
+    them) in what both carry (normalised sums of squares over every window), or ``None``
+    where the adapter names none or the diagnosis holds not both."""
+    from realitygap.diagnosis.adapters import get_adapter
+
+    names = get_adapter(d.settings.robot).drive_stages
+    if names is None:
+        return None
     ss: dict[str, float] = {}
     for r in d.localisation.get("overall", []):
         if r["kind"] == "stage":
             ss[r["where"]] = ss.get(r["where"], 0.0) + float(r["normalised_ss"])
-    a, b = ss.get("command → wheels"), ss.get("motion → sensor")
+    a, b = ss.get(names[0]), ss.get(names[1])
     if a is None or b is None or a + b <= 0:
         return None
     return 100.0 * a / (a + b), 100.0 * b / (a + b)
