@@ -79,7 +79,12 @@ from realitygap.diagnosis.localise import localise
 from realitygap.diagnosis.log import Log, LogError
 from realitygap.diagnosis.replay import Drive, SimSettings
 from realitygap.diagnosis.scales import ScaleSettings, judge_scales
-from realitygap.diagnosis.shrink import overall_shrink, shrink_table, trajectory_gap
+from realitygap.diagnosis.shrink import (
+    overall_shrink,
+    shrink_table,
+    trajectory_gap,
+    trajectory_runs,
+)
 from realitygap.diagnosis.transients import TransientReport, TransientSettings, detect_transients
 from realitygap.diagnosis.verdict import Judgement, conclude, judge
 from realitygap.diagnosis.verify import Verification, verify_ranking
@@ -478,7 +483,8 @@ def gap_report(
 
     Window figures are measured against the reference (the calibrated baseline
     when there is one) on the windows left after transient events are set
-    aside; trajectory gaps are whole replays (nominal, baseline, best model).
+    aside; trajectory gaps are whole replays (nominal, baseline, best model), pooled
+    and run by run (``heldout_trajectory_runs``).
     """
     best, verdict = judgement.best, judgement.verdict
     z_nom, gap_mask = judgement.nominal_heldout, judgement.gap_mask
@@ -518,6 +524,12 @@ def gap_report(
             gap["heldout_trajectory_shrink_pct_best"] = 100.0 * (
                 1.0 - gap["heldout_trajectory_gap_m_best"] / nom
             )
+    runs = {"nominal": nominal_ho}
+    if baseline is not None and baseline.replays:
+        runs["baseline"] = [baseline.replays[i] for i in ho_idx]
+    if reps_best is not None:
+        runs["best"] = [reps_best[i] for i in ho_idx]
+    gap["heldout_trajectory_runs"] = trajectory_runs(real_ho, runs)
     gt_sel = problem.holdout.group == "pose_gt"
     if gt_sel.any():
         scale = scales.scale("pose_gt")[0]

@@ -157,6 +157,28 @@ def _baseline_and_transients(d: Diagnosis) -> list[str]:
     return lines
 
 
+def _run_gaps(runs: list[dict[str, Any]]) -> list[str]:
+    """The held-out trajectory gap per run, largest share first."""
+    if len(runs) < 2:
+        return []
+    cols = [k for k in ("nominal", "baseline", "best") if f"{k}_m" in runs[0]]
+    lines = [
+        "",
+        "Per held-out run (RMS position error of the whole replay; share: the run's part of "
+        "the pooled squared error of the nominal replay):",
+        "",
+        "| run | samples | " + " | ".join(cols) + " | share |",
+        "|---|---|" + "---|" * len(cols) + "---|",
+    ]
+    shown = sorted(runs, key=lambda r: -r["share_pct"])[:30]
+    for r in shown:
+        vals = " | ".join(_si(r[f"{k}_m"], "m") for k in cols)
+        lines.append(f"| {r['log']} | {r['samples']} | {vals} | {r['share_pct']:.1f} % |")
+    if len(runs) > len(shown):
+        lines.append(f"\n({len(runs) - len(shown)} more in the JSON.)")
+    return lines
+
+
 def _coverage_section(d: Diagnosis) -> list[str]:
     """The "Training coverage" section: held-out motions against the training envelope."""
     cov = d.coverage
@@ -224,6 +246,7 @@ def _markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str, note: st
             f"{100 * g['heldout_trajectory_gap_m_baseline']:.2f} cm; window figures above are "
             f"measured against the {g.get('reference', 'nominal replay')}."
         )
+    lines += _run_gaps(g.get("heldout_trajectory_runs", []))
     if (v.kind != "effects" or v.notes.get("whole_runs")) and v.residual.get("reasons"):
         lines += ["", "What remains unexplained:", ""]
         lines += [f"- {r}" for r in v.residual["reasons"]]

@@ -20,6 +20,8 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
+from realitygap.diagnosis.shrink import concentrated_gap
+
 if TYPE_CHECKING:
     from realitygap.diagnosis.diagnose import Diagnosis
 
@@ -291,6 +293,18 @@ def summary_sentences(d: Diagnosis) -> list[str]:
                 f"({widest['name']}), not enough to outscore it on held-out data"
             )
         out.append(sentence + ".")
+    conc = concentrated_gap(g.get("heldout_trajectory_runs", []))
+    if conc is not None:
+        own = quantity(conc["before_m"], "m") + " nominal"
+        rest = quantity(conc["rest_before_m"], "m") + " nominal"
+        if "after_m" in conc:
+            own += f", {quantity(conc['after_m'], 'm')} with the best candidate"
+            rest += f" → {quantity(conc['rest_after_m'], 'm')}"
+        out.append(
+            f"One held-out run, {conc['log']}, carries {conc['share_pct']:.0f} % of the whole-run "
+            f"gap (its squared position error; its own RMS error is {own}); over the other "
+            f"{conc['runs']} runs the gap is {rest}."
+        )
     v = d.verdict
     st = d.settings.attribution
     rest, where = _rest_over_noise(v.residual)

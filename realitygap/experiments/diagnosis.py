@@ -242,6 +242,7 @@ def _real_diagnoses(
     from realitygap.core.parallel import ProcessBackend
     from realitygap.diagnosis.cli import estimate_seconds
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
+    from realitygap.diagnosis.shrink import concentrated_gap
     from realitygap.diagnosis.summary import stage_split
     from realitygap.diagnosis.verdict import explain
 
@@ -282,6 +283,20 @@ def _real_diagnoses(
             figures[prefix + "trajectory_shrink_pct"] = 100.0 * (
                 1.0 - g["heldout_trajectory_gap_m_best"] / g["heldout_trajectory_gap_m_nominal"]
             )
+        runs = g.get("heldout_trajectory_runs", [])
+        if runs:
+            tables[f"{drive}_heldout_runs"] = [
+                {k: (round(v, 4) if isinstance(v, float) else v) for k, v in r.items()}
+                for r in runs
+            ]
+        conc = concentrated_gap(runs)
+        if conc is not None:
+            figures[prefix + "top_run_share_pct"] = conc["share_pct"]
+            figures[prefix + "heldout_gap_cm_other_runs_nominal"] = 100.0 * conc["rest_before_m"]
+            if "rest_after_m" in conc:
+                figures[prefix + "heldout_gap_cm_other_runs_corrected"] = (
+                    100.0 * conc["rest_after_m"]
+                )
         split = stage_split(d)
         if split is not None:
             figures[prefix + "stage_command_to_wheels_pct"] = split[0]

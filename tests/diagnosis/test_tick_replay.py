@@ -104,6 +104,14 @@ def test_tick_replay_agrees_with_umbmark_on_the_same_squares(tmp_path: Path) -> 
     assert g["heldout_trajectory_shrink_pct_best"] == pytest.approx(
         100.0 * (1.0 - g["heldout_trajectory_gap_m_best"] / g["heldout_trajectory_gap_m_nominal"])
     )
+    # the per-run rows pool back to the whole-run figures, and their shares add up
+    runs = g["heldout_trajectory_runs"]
+    assert [r["log"] for r in runs] == [lg.name for lg in held]
+    n = sum(r["samples"] for r in runs)
+    for key in ("nominal", "best"):
+        pooled = np.sqrt(sum(r["samples"] * r[f"{key}_m"] ** 2 for r in runs) / n)
+        assert pooled == pytest.approx(g[f"heldout_trajectory_gap_m_{key}"], rel=1e-12)
+    assert sum(r["share_pct"] for r in runs) == pytest.approx(100.0)
 
 
 @pytest.mark.slow
