@@ -126,10 +126,14 @@ def quantity(value: float, unit: str, stderr: float | None = None) -> str:
     '1.70 ± 0.21 ms'
     >>> quantity(1.008, "1")
     '1.01'
+    >>> quantity(1.0712, "m")
+    '1.07 m'
     """
     if not math.isfinite(value):
         return f"{value} {unit}".strip()
     shown_unit, factor = _ENGINEERING.get(unit, ("" if unit == "1" else unit, 1.0))
+    if factor > 1.0 and abs(value * factor) >= 1e3:
+        shown_unit, factor = unit, 1.0  # 1.07 m, not 1.07e+03 mm
     v = value * factor
     if stderr is not None and math.isfinite(stderr) and stderr > 0:
         e = stderr * factor

@@ -75,6 +75,10 @@ def test_quantity_uses_engineering_units_at_the_precision_of_the_uncertainty() -
     assert quantity(1.7233e-21, "s", 0.021) == "0 ± 21 ms"  # not a raw 1.7e-21
     assert quantity(0.2066, "m", 0.0004) == "206.60 ± 0.40 mm"
     assert quantity(np.pi / 2, "rad") == "90°"
+    # a thousand engineering units or more go back to the SI unit, not to an exponent
+    assert quantity(1.0712, "m") == "1.07 m"
+    assert quantity(-2.5, "m", 0.01) == "-2.500 ± 0.010 m"
+    assert quantity(0.999, "m") == "999 mm"
     assert quantity(1.2, "1", 931.0) == "1 ± 931"
     assert quantity(0.012, "N") == "0.012 N"
 
