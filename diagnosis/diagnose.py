@@ -504,32 +504,34 @@ def gap_report(
         "heldout_shrink_pct_all_channels": overall_shrink(z_nom, z_after),
         "heldout_shrink_pct_best_all_channels": overall_shrink(z_nom, best.z_heldout),
         "gap_channels": sorted({str(g) for g in problem.holdout.group[gap_mask]}),
-        "heldout_trajectory_gap_m_nominal": trajectory_gap(real_ho, nominal_ho),
         "reference": "calibrated baseline"
         if baseline is not None and baseline.values
         else "nominal replay",
     }
-    if baseline is not None and baseline.replays:
-        gap["heldout_trajectory_gap_m_baseline"] = trajectory_gap(
-            real_ho, [baseline.replays[i] for i in ho_idx]
-        )
-    reps_best = replays.get(best.effects)
-    if reps_best is not None:
-        gap["heldout_trajectory_gap_m_best"] = trajectory_gap(
-            real_ho, [reps_best[i] for i in ho_idx]
-        )
-        nom = gap["heldout_trajectory_gap_m_nominal"]
-        if nom > 0:
-            # whole replays: what a drift-type effect integrates into, next to the window figures
-            gap["heldout_trajectory_shrink_pct_best"] = 100.0 * (
-                1.0 - gap["heldout_trajectory_gap_m_best"] / nom
+    traj_nominal = trajectory_gap(real_ho, nominal_ho)
+    if math.isfinite(traj_nominal):  # held-out logs with a planar ground truth
+        gap["heldout_trajectory_gap_m_nominal"] = traj_nominal
+        if baseline is not None and baseline.replays:
+            gap["heldout_trajectory_gap_m_baseline"] = trajectory_gap(
+                real_ho, [baseline.replays[i] for i in ho_idx]
             )
-    runs = {"nominal": nominal_ho}
-    if baseline is not None and baseline.replays:
-        runs["baseline"] = [baseline.replays[i] for i in ho_idx]
-    if reps_best is not None:
-        runs["best"] = [reps_best[i] for i in ho_idx]
-    gap["heldout_trajectory_runs"] = trajectory_runs(real_ho, runs)
+        reps_best = replays.get(best.effects)
+        if reps_best is not None:
+            gap["heldout_trajectory_gap_m_best"] = trajectory_gap(
+                real_ho, [reps_best[i] for i in ho_idx]
+            )
+            nom = gap["heldout_trajectory_gap_m_nominal"]
+            if nom > 0:
+                # whole replays: what a drift-type effect integrates into, next to the window figures
+                gap["heldout_trajectory_shrink_pct_best"] = 100.0 * (
+                    1.0 - gap["heldout_trajectory_gap_m_best"] / nom
+                )
+        runs = {"nominal": nominal_ho}
+        if baseline is not None and baseline.replays:
+            runs["baseline"] = [baseline.replays[i] for i in ho_idx]
+        if reps_best is not None:
+            runs["best"] = [reps_best[i] for i in ho_idx]
+        gap["heldout_trajectory_runs"] = trajectory_runs(real_ho, runs)
     gt_sel = problem.holdout.group == "pose_gt"
     if gt_sel.any():
         scale = scales.scale("pose_gt")[0]

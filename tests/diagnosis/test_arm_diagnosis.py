@@ -25,6 +25,7 @@ from realitygap.diagnosis.io import read_logs
 from realitygap.diagnosis.log import Log, LogError
 from realitygap.diagnosis.replay import Drive
 from realitygap.diagnosis.suite import SuiteSettings, draw_cases
+from realitygap.diagnosis.summary import summary_sentences
 from realitygap.estimators.arm.mdh import MDHTable, tool_positions
 from realitygap.robots.arm import ArmParams
 from realitygap.robots.effects import Reality, make_effect
@@ -137,6 +138,9 @@ def test_a_hidden_compliance_is_named_and_closes_the_gap() -> None:
     assert fit["arm_joint_compliance.c2"] == pytest.approx(3e-5, rel=0.1)
     # the camera effects cannot be seen by a tracker, and the diagnosis says so
     assert "arm_handeye_error" in d.not_observable
+    # a tracker's distances have no planar ground truth: no whole-run trajectory figures
+    assert not any(k.startswith("heldout_trajectory") for k in d.gap)
+    assert "nan" not in " ".join(summary_sentences(d))
 
 
 def test_a_withheld_effect_is_left_unexplained() -> None:
