@@ -68,7 +68,7 @@ from realitygap.diagnosis.clock import timing_channel
 from realitygap.diagnosis.log import Log
 from realitygap.diagnosis.replay import Drive
 from realitygap.diagnosis.residual import describe_residual
-from realitygap.diagnosis.shrink import trajectory_gap
+from realitygap.diagnosis.shrink import trajectory_runs
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -300,12 +300,11 @@ def judge_scales(
     if key is None or reps is None:
         return verdict, {}
     ho = [i for i, p in enumerate(problem.logs) if p.holdout_windows.any() and i in reps]
-    runs = []
-    for i in ho:
-        p = problem.logs[i]
-        runs.append(
-            (p.name, trajectory_gap([p.log], [p.replay_log]), trajectory_gap([p.log], [reps[i]]))
-        )
+    rows = trajectory_runs(
+        [problem.logs[i].log for i in ho],
+        {"nominal": [problem.logs[i].replay_log for i in ho], "best": [reps[i] for i in ho]},
+    )
+    runs = [(r["log"], r["nominal_m"], r["best_m"]) for r in rows]
     nom = math.sqrt(sum(r[1] ** 2 for r in runs) / len(runs)) if runs else 0.0
     aft = math.sqrt(sum(r[2] ** 2 for r in runs) / len(runs)) if runs else 0.0
     run_shrink = 100.0 * (1.0 - aft / nom) if nom > 0 else 0.0
