@@ -186,6 +186,35 @@ def _umbmark_on_logs(logs: list[Any], reference: dict[str, float]) -> dict[str, 
     return out
 
 
+def _umbmark_heldout(d: Any, e_b: float, e_d: float) -> dict[str, float]:
+    """The held-out trajectory gap of a tick-driven diagnosis ``d`` when the replay
+    carries UMBmark's ``E_b`` and ``E_d`` instead of the diagnosis's best model: the same
+    calibrated baseline (clocks, frames), the same PyBullet replays, the classical
+    calibration's two factors (``wheelbase_error.E_b``, ``wheel_diameter_ratio.E_d``;
+    UMBmark keeps the mean wheel diameter, as the diameter ratio does)."""
+    from realitygap.diagnosis.shrink import trajectory_gap
+
+    problem = d.problem
+    values = {
+        **d.baseline.values,
+        "wheelbase_error.E_b": float(e_b),
+        "wheel_diameter_ratio.E_d": float(e_d),
+    }
+    real, reps = [], []
+    for p in problem.logs:
+        if not p.holdout_windows.any():
+            continue
+        sim = problem.sim if problem.sim is not None else p.context.sim
+        real.append(p.log)
+        reps.append(problem.adapter.replay_features(p, values, problem.drive, sim)[1])
+    gap = trajectory_gap(real, reps)
+    nominal = d.gap["heldout_trajectory_gap_m_nominal"]
+    return {
+        "umbmark_heldout_gap_cm": 100.0 * gap,
+        "umbmark_trajectory_shrink_pct": 100.0 * (1.0 - gap / nominal) if nominal > 0 else 0.0,
+    }
+
+
 def _geometry_found(d: Any) -> dict[str, Any]:
     """Wheelbase and diameter factors the diagnosis found, as UMBmark defines them.
 
@@ -416,12 +445,19 @@ def _real_diagnoses(
                         figures[f"umbmark_{label}_{k}"] = umb[f"umbmark_{label}_{k}"]
             if "E_b" in found and "umbmark_same_runs_E_b" in umb:
                 figures["ticks_E_b_minus_umbmark"] = found["E_b"] - umb["umbmark_same_runs_E_b"]
+            if "umbmark_same_runs_E_b" in umb and "umbmark_same_runs_E_d" in umb:
+                ctx.progress("replaying the held-out runs with UMBmark's factors")
+                figures.update(
+                    _umbmark_heldout(d, umb["umbmark_same_runs_E_b"], umb["umbmark_same_runs_E_d"])
+                )
             notes.append(
                 "ticks: E_b (b / D̄ over the reference's, as UMBmark defines it) from "
                 f"{found.get('E_b_model', 'no model with wheelbase_error')}, E_d from "
                 f"{found.get('E_d_model', 'no model with wheel_diameter_ratio')}; umbmark_same_runs_*: "
                 "UMBmark on exactly the training square runs, umbmark_same_sessions_*: on all runs "
-                "of their sessions (both pooled as umbmark-real pools)"
+                "of their sessions (both pooled as umbmark-real pools); umbmark_heldout_gap_cm: "
+                "the held-out runs replayed with UMBmark's same-run E_b and E_d on the same "
+                "calibrated baseline, for the comparison with ticks_heldout_gap_cm_corrected"
             )
         for info in d.identifiability:
             if not info.get("separable"):

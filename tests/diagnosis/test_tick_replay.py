@@ -112,6 +112,13 @@ def test_tick_replay_agrees_with_umbmark_on_the_same_squares(tmp_path: Path) -> 
         pooled = np.sqrt(sum(r["samples"] * r[f"{key}_m"] ** 2 for r in runs) / n)
         assert pooled == pytest.approx(g[f"heldout_trajectory_gap_m_{key}"], rel=1e-12)
     assert sum(r["share_pct"] for r in runs) == pytest.approx(100.0)
+    # diagnose-real's classical comparison replays the same calibrated baseline: with
+    # neutral factors it is the baseline's gap, with UMBmark's it closes the drift
+    from realitygap.experiments.diagnosis import _umbmark_heldout
+
+    neutral = _umbmark_heldout(d, 1.0, 1.0)["umbmark_heldout_gap_cm"]
+    assert neutral == pytest.approx(100.0 * g["heldout_trajectory_gap_m_baseline"], rel=1e-9)
+    assert _umbmark_heldout(d, umb_e_b, umb.E_d)["umbmark_trajectory_shrink_pct"] > 50.0
 
 
 @pytest.mark.slow
