@@ -228,8 +228,11 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         hold requests to the robot's firmware (``meta["firmware"]``) — whether
         the firmware takes a request in the period it is issued or the next one,
         and a velocity loop that settles within a period, are the robot's
-        actuator response, not a finding. Longer delays remain candidates of the
-        effect library. The firmware's ramp convention is chosen beside them
+        actuator response, not a finding — and, in the same range, the time
+        constant of both wheels' velocity loops (``motor_response.tau``, a
+        first-order lag common to the two wheels: the delay's smooth form). Longer
+        delays and lags, and wheels that lag differently (``wheel_velocity_lag``),
+        remain candidates of the effect library. The firmware's ramp convention is chosen beside them
         (:meth:`actuator_conventions`).
 
         Beside the clocks, the body frame the ground truth tracks
@@ -264,6 +267,11 @@ class DiffDriveAdapter(WheelDrivenAdapter):
                 0.0,
                 dt if requests else half,
                 "response time of the replayed commands",
+            )
+            out["motor_response.tau"] = (
+                0.0,
+                dt if requests else half,
+                "time constant of both wheels' velocity loops",
             )
         return out
 

@@ -38,6 +38,7 @@ FloatArray = npt.NDArray[np.float64]
 
 __all__ = [
     "AccelerationLimits",
+    "MotorResponse",
     "TorqueSpeedSaturation",
     "TractionSlip",
     "WheelDeadZone",
@@ -162,6 +163,35 @@ def _lag(x: FloatArray, k: FloatArray) -> FloatArray:
     return y
 
 
+def _lag_hook(
+    nominal: DiffDriveParams | None, dt: float, tau_l: float, tau_r: float
+) -> CommandHook:
+    """The PyBullet command hook of first-order lags with time constants ``tau_l``,
+    ``tau_r`` (s) on the left and right wheel-speed commands, from rest."""
+    kl, kr = float(_lag_gain(tau_l, dt)), float(_lag_gain(tau_r, dt))
+    state = [0.0, 0.0]
+
+    def step(sl: float, sr: float, dt_: float) -> tuple[float, float]:
+        state[0] += kl * (sl - state[0])
+        state[1] += kr * (sr - state[1])
+        return state[0], state[1]
+
+    return _wheel_command_hook(nominal, step)
+
+
+def _lag_term(x: Any, tau_l: FloatArray, tau_r: FloatArray, dt: float) -> Any:
+    """The surrogate's term of the same lags: wheel speeds ``x = (s_L, s_R)`` (N,) or
+    (B, N) and time constants (B,) → lagged wheel speeds (B, N) each."""
+    sl, sr = x
+    if not (np.any(tau_l > 0) or np.any(tau_r > 0)):
+        return sl, sr
+    out = []
+    for s, tau in ((sl, tau_l), (sr, tau_r)):
+        kk = _lag_gain(tau, dt)
+        out.append(_lag(np.broadcast_to(s, (kk.shape[0], np.shape(s)[-1])), kk))
+    return out[0], out[1]
+
+
 @register_effect
 class WheelVelocityLag(Effect):
     r"""Each wheel's velocity loop follows its command as a first-order lag.
@@ -206,27 +236,58 @@ class WheelVelocityLag(Effect):
     ) -> CommandHook | None:
         if self.is_nominal():
             return None
-        kl, kr = float(_lag_gain(self["tau_left"], dt)), float(_lag_gain(self["tau_right"], dt))
-        state = [0.0, 0.0]
-
-        def step(sl: float, sr: float, dt_: float) -> tuple[float, float]:
-            state[0] += kl * (sl - state[0])
-            state[1] += kr * (sr - state[1])
-            return state[0], state[1]
-
-        return _wheel_command_hook(nominal, step)
+        return _lag_hook(nominal, dt, self["tau_left"], self["tau_right"])
 
     @classmethod
     def surrogate_term(cls, x: Any, p: Mapping[str, FloatArray], ctx: SurrogateContext) -> Any:
-        sl, sr = x
-        tl, tr = p["tau_left"], p["tau_right"]
-        if not (np.any(tl > 0) or np.any(tr > 0)):
-            return sl, sr
-        out = []
-        for s, tau in ((sl, tl), (sr, tr)):
-            kk = _lag_gain(tau, ctx.dt)
-            out.append(_lag(np.broadcast_to(s, (kk.shape[0], np.shape(s)[-1])), kk))
-        return out[0], out[1]
+        return _lag_term(x, p["tau_left"], p["tau_right"], ctx.dt)
+
+
+@register_effect
+class MotorResponse(Effect):
+    r"""Both wheels' velocity loops follow their commands as one first-order lag.
+
+    The drive's speed controller, motor and gearbox take some time to reach a
+    new wheel-speed command; the nominal robot does not know how long. With one
+    time constant :math:`τ` for both wheels,
+
+    .. math::
+
+        s_k = s_{k-1} + (1 - e^{-dt/τ})\,(s^{cmd}_k - s_{k-1})
+
+    per wheel: every start and stop is softened alike and the robot does not
+    yaw. It is the actuator response of the nominal that every real drive has,
+    so it stays outside the default library: the calibrated baseline fits it as
+    a convention of the drive (:meth:`~realitygap.diagnosis.diffdrive_adapter.DiffDriveAdapter.baseline_nuisances`).
+    Wheels that answer with *different* time constants are the effect
+    ``wheel_velocity_lag``. The same law as that effect (one recursion).
+    """
+
+    name = "motor_response"
+    robot = "diffdrive"
+    stage = Stage.COMMAND
+    observed_in = (Channel.POSE_GT, Channel.TICKS, Channel.POSE_CAM)
+    description = (
+        "Both wheels' velocity loops follow their speed commands as one first-order lag (s): "
+        "the drive's response, which the nominal robot does not know. Realised on the "
+        "firmware's wheel-speed commands (nominal geometry)."
+    )
+    specs = (ParamSpec("tau", "s", 0.0, 0.0, 0.5, "time constant of both wheels' velocity loops"),)
+    since = 3
+    surrogate_slot = SurrogateSlot.WHEEL_SPEED
+    surrogate_order = 3  # with the per-wheel lags: linear lags commute
+    surrogate_example = (("tau", 0.12),)
+
+    def make_command_hook(
+        self, dt: float, nominal: DiffDriveParams | None = None
+    ) -> CommandHook | None:
+        if self.is_nominal():
+            return None
+        return _lag_hook(nominal, dt, self["tau"], self["tau"])
+
+    @classmethod
+    def surrogate_term(cls, x: Any, p: Mapping[str, FloatArray], ctx: SurrogateContext) -> Any:
+        return _lag_term(x, p["tau"], p["tau"], ctx.dt)
 
 
 @register_effect

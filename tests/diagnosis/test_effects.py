@@ -305,6 +305,43 @@ def test_unequal_wheel_lags_yaw_the_robot_on_a_start_and_back_on_the_stop() -> N
     assert abs(log["pose_gt"][-1, 2]) < 0.1 * expected
 
 
+def test_motor_response_lags_both_wheels_alike_and_stays_a_baseline_nuisance() -> None:
+    from realitygap.diagnosis.diffdrive_adapter import DiffDriveAdapter
+    from realitygap.diagnosis.replay import Drive
+    from realitygap.robots.effects.diffdrive_drivetrain import _lag_gain
+
+    plan = [(2.0, 0.3, 0.4), (2.0, 0.0, 0.0)]
+    common = run(plan, ("motor_response", {"tau": 0.15}))
+    per_wheel = run(plan, ("wheel_velocity_lag", {"tau_left": 0.15, "tau_right": 0.15}))
+    # one law: the common lag is the per-wheel lag with equal time constants
+    np.testing.assert_array_equal(common["pose_gt"], per_wheel["pose_gt"])
+    # settled, a drive trails its command by dt·(1 − k)/k seconds: in travel on a straight,
+    # in heading on a turn in place, and without turning the straight
+    lag_s = DT * (1.0 - _lag_gain(0.15, DT)) / _lag_gain(0.15, DT)
+    for v, w in ((0.3, 0.0), (0.0, 0.4)):
+        plan = [(2.0, v, w), (2.0, 0.0, 0.0)]
+        behind = (
+            run(plan)["pose_gt"][38] - run(plan, ("motor_response", {"tau": 0.15}))["pose_gt"][38]
+        )
+        assert behind[0] == pytest.approx(v * lag_s, rel=0.1, abs=1e-4)
+        assert behind[2] == pytest.approx(w * lag_s, rel=0.05, abs=3e-4)
+    # never a candidate: outside the default library, fitted by the baseline within a period
+    adapter = DiffDriveAdapter()
+    assert "motor_response" not in adapter.effect_names()
+    assert "wheel_velocity_lag" in adapter.effect_names()
+    prepared = [_Prepared(common)]
+    low, high, _ = adapter.baseline_nuisances(prepared, Drive.COMMANDS)["motor_response.tau"]
+    assert low == 0.0 and high == pytest.approx(0.5 * common.dt)
+    assert "motor_response.tau" not in adapter.baseline_nuisances(prepared, Drive.TICKS)
+
+
+class _Prepared:
+    """The part of a prepared log the baseline's ranges read."""
+
+    def __init__(self, log) -> None:
+        self.log = log
+
+
 def test_wheel_dead_zone_pivots_slow_turns_on_the_stuck_wheel() -> None:
     # 0.26 rad/s in place: both wheels commanded 0.03 m/s; the left one's threshold is 0.05
     nominal = run([(2.0, 0.0, 0.26)])
