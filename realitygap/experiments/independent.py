@@ -59,6 +59,7 @@ from __future__ import annotations
 import math
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -129,10 +130,13 @@ def diagnose_case(
     progress: Any = None,
     drives: tuple[str, ...] | None = None,
     variant: str = "default",
+    keep_miss: Callable[[str, Any], None] | None = None,
 ) -> list[dict[str, Any]]:
     """Generate on ``variant``, read back, diagnose and score one case: one row per replay drive.
 
-    ``drives`` defaults to the case's own (:attr:`~realitygap.independent.cases.Case.drives`).
+    ``drives`` defaults to the case's own (:attr:`~realitygap.independent.cases.Case.drives`);
+    ``keep_miss(label, diagnosis)`` receives each diagnosis scored wrong (an in-library case
+    not named, an out-of-library case not called unexplained).
     """
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 
@@ -158,6 +162,15 @@ def diagnose_case(
                 case, d, drive=drive, seconds=time.perf_counter() - t1, seconds_generate=t_gen
             )
             row["plausibility_refused"] = [m.replace(str(tmp), "<data>") for m in refused]
+            row["runners_up"] = [
+                {"model": "+".join(m.effects), "params": {k: float(x) for k, x in m.values.items()}}
+                for m in d.ranking[1:3]
+            ]
+            row["verdict_notes"] = {
+                k: x for k, x in d.verdict.notes.items() if isinstance(x, (str, int, float))
+            }
+            if keep_miss is not None and _missed(row):
+                keep_miss(f"{case.name} ({drive}, {variant})", d)
             rows.append(
                 {
                     "drive": drive if case.robot == "diffdrive" else "joints",
@@ -166,6 +179,13 @@ def diagnose_case(
                 }
             )
     return rows
+
+
+def _missed(row: dict[str, Any]) -> bool:
+    """True when a scored row is wrong: not named (in library) or not unexplained (outside)."""
+    if row["in_library"]:
+        return not row["correct"]
+    return not row["open_set_strict"]
 
 
 def _read(path: Path, refused: list[str]) -> list[Any]:
@@ -264,7 +284,9 @@ def diagnose_independent(ctx: RunContext) -> dict[str, Any]:
     t0 = time.perf_counter()
     try:
         for i, case in enumerate(cases):
-            for row in diagnose_case(case, ctx.seed + 1000 * i, backend, variant=variant):
+            for row in diagnose_case(
+                case, ctx.seed + 1000 * i, backend, variant=variant, keep_miss=ctx.add_diagnosis
+            ):
                 rows.append(row)
                 mark = (
                     ("right" if row["correct"] else "WRONG")
@@ -328,9 +350,7 @@ def diagnose_independent(ctx: RunContext) -> dict[str, Any]:
             f"--no-plausibility-check; first: {refused[0]}"
         )
     for r in rows:
-        if (r["in_library"] and not r["correct"]) or (
-            not r["in_library"] and not r["open_set_strict"]
-        ):
+        if _missed(r):
             notes.append(
                 f"{r['case']} ({r['drive']}, {variant}): verdict {r['verdict']} "
                 f"({r['confidence']}), top {r['top_model']} — {r['reason']}"
