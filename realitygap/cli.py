@@ -136,6 +136,21 @@ def _cmd_run(args: argparse.Namespace) -> int:
             )
             return 2
         options["robot"] = args.robot
+    if args.variant is not None:
+        try:
+            spec = experiments.get(args.experiment)
+        except KeyError as exc:
+            print(f"error: {exc.args[0]}", file=sys.stderr)
+            return 2
+        if args.variant not in spec.variants:
+            can = f"one of {', '.join(spec.variants)}" if spec.variants else "no --variant option"
+            print(
+                f"error: experiment {args.experiment!r} takes {can}, "
+                f"got --variant {args.variant!r}",
+                file=sys.stderr,
+            )
+            return 2
+        options["variant"] = args.variant
     if args.backend is not None:
         options["backend"] = args.backend
     if args.workers is not None:
@@ -290,6 +305,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p_run.add_argument(
         "--robot", help="robot, for experiments that run for several (e.g. diagnose-suite)"
+    )
+    p_run.add_argument(
+        "--variant",
+        help="named robot and conventions, for experiments that run on several worlds "
+        "(e.g. diagnose-independent: default, large, fast_noisy)",
     )
     p_run.add_argument(
         "--backend",

@@ -126,20 +126,29 @@ class Experiment:
     data_subdir: str | None = None
     robots: tuple[str, ...] = ()
     """Robots the experiment can run for (``realitygap run NAME --robot R``); empty: one."""
+    variants: tuple[str, ...] = ()
+    """Named worlds the experiment can run on (``realitygap run NAME --variant V``); empty: one."""
 
 
 EXPERIMENTS: dict[str, Experiment] = {}
 
 
 def experiment(
-    name: str, description: str, data_subdir: str | None = None, robots: tuple[str, ...] = ()
+    name: str,
+    description: str,
+    data_subdir: str | None = None,
+    robots: tuple[str, ...] = (),
+    variants: tuple[str, ...] = (),
 ) -> Callable[[ExperimentFunc], ExperimentFunc]:
-    """Decorator registering an experiment under ``name`` (``robots``: see :class:`Experiment`)."""
+    """Decorator registering an experiment under ``name`` (``robots``, ``variants``: see
+    :class:`Experiment`)."""
 
     def register(func: ExperimentFunc) -> ExperimentFunc:
         if name in EXPERIMENTS and EXPERIMENTS[name].func is not func:
             raise ValueError(f"experiment {name!r} is registered twice")
-        EXPERIMENTS[name] = Experiment(name, func, description, data_subdir, tuple(robots))
+        EXPERIMENTS[name] = Experiment(
+            name, func, description, data_subdir, tuple(robots), tuple(variants)
+        )
         return func
 
     return register

@@ -42,6 +42,16 @@ once) and per group: ``diffdrive_commands_``, ``diffdrive_ticks_``, ``arm_``.
 
 Training data: two UMBmark squares (cw, ccw) for the drive, 90 random poses for
 the arm; held out: a circle and a free path, and a 90-pose grid series.
+
+Variants
+--------
+``--variant NAME`` (default ``default``) writes every case on one named robot and
+set of conventions of :mod:`realitygap.independent.variants` — another robot's
+size, encoder, control cycle, firmware ramp, motion-capture rate, latency and
+noise; another tracker pose, noise and probe — with the square and circle sized
+to that robot and the cases' speed values scaled to its cruise
+(:func:`~realitygap.independent.variants.hidden_values`). The variant is in the
+result's ``config`` and in every row of the ``cases`` table.
 """
 
 from __future__ import annotations
@@ -49,28 +59,38 @@ from __future__ import annotations
 import math
 import tempfile
 import time
+from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from realitygap.experiments import RunContext, experiment
+from realitygap.independent.variants import VARIANTS
 
 __all__ = ["diagnose_case", "generate_case", "score"]
 
 
-def generate_case(case: Any, folder: Path, seed: int) -> tuple[list[Path], list[Path]]:
-    """Write the training and held-out data of ``case`` below ``folder``; return their paths."""
+def generate_case(
+    case: Any, folder: Path, seed: int, variant: str = "default"
+) -> tuple[list[Path], list[Path]]:
+    """Write the training and held-out data of ``case`` on ``variant`` below ``folder``;
+    return their paths."""
     from realitygap.independent import diffdrive as dd
     from realitygap.independent import ur10
+    from realitygap.independent.variants import hidden_values, variant_by_name
 
+    world = variant_by_name(variant)
     rng = np.random.default_rng(seed)
+    values = hidden_values(case.values, world)
     if case.robot == "diffdrive":
-        robot = dd.DriveRobot()
-        hidden = dd.Hidden(**case.values)
+        robot = world.drive
+        hidden = dd.Hidden(**values)
+        side = world.square_side
         plans = [
-            ("square", [dd.square_path(robot, 0.6, "cw"), dd.square_path(robot, 0.6, "ccw")]),
-            ("circular", [dd.circle_path(robot, 0.45, "ccw")]),
+            ("square", [dd.square_path(robot, side, "cw"), dd.square_path(robot, side, "ccw")]),
+            ("circular", [dd.circle_path(robot, world.circle_radius, "ccw")]),
             ("free", [dd.free_path(robot, rng, 8)]),
         ]
         clock = 0.0
@@ -84,41 +104,51 @@ def generate_case(case: Any, folder: Path, seed: int) -> tuple[list[Path], list[
                 clock += float(run.time[-1]) + 10.0
                 runs.append(run)
             sid = f"0103202409{10 + k:02d}"
-            side = 0.6 if kind == "square" else None
-            paths[kind] = dd.write_session(folder, sid, runs, robot, kind, side=side, rng=rng)
+            paths[kind] = dd.write_session(
+                folder, sid, runs, robot, kind, side=side if kind == "square" else None, rng=rng
+            )
         return [paths["square"]], [paths["circular"], paths["free"]]
     if case.robot == "arm":
-        hidden_arm = ur10.ArmHidden(**case.values)
-        tr = ur10.Tracker()
+        hidden_arm = ur10.ArmHidden(**values)
+        tr = world.tracker
+        probe = world.probe
         q_a = ur10.random_poses(90, rng)
         q_b = ur10.grid_poses(90, rng)
-        s_a = ur10.measure_series(q_a, hidden_arm, tr, rng)
-        tr_b = ur10.Tracker(temperature_start=tr.temperature_start + tr.temperature_rise)
-        s_b = ur10.measure_series(q_b, hidden_arm, tr_b, rng)
-        a = ur10.write_series(folder, "A", s_a, file_stem="random")
-        b = ur10.write_series(folder, "B", s_b, file_stem="grid", start_hour=14)
+        s_a = ur10.measure_series(q_a, hidden_arm, tr, rng, probe=probe)
+        tr_b = replace(tr, temperature_start=tr.temperature_start + tr.temperature_rise)
+        s_b = ur10.measure_series(q_b, hidden_arm, tr_b, rng, probe=probe)
+        a = ur10.write_series(folder, "A", s_a, file_stem="random", probe=probe)
+        b = ur10.write_series(folder, "B", s_b, file_stem="grid", start_hour=14, probe=probe)
         return [a], [b]
     raise ValueError(f"case {case.name}: robot must be 'diffdrive' or 'arm', got {case.robot!r}")
 
 
 def diagnose_case(
-    case: Any, seed: int, backend: Any, progress: Any = None, drives: tuple[str, ...] | None = None
+    case: Any,
+    seed: int,
+    backend: Any,
+    progress: Any = None,
+    drives: tuple[str, ...] | None = None,
+    variant: str = "default",
+    keep_miss: Callable[[str, Any], None] | None = None,
 ) -> list[dict[str, Any]]:
-    """Generate, read back, diagnose and score one case: one row per replay drive.
+    """Generate on ``variant``, read back, diagnose and score one case: one row per replay drive.
 
-    ``drives`` defaults to the case's own (:attr:`~realitygap.independent.cases.Case.drives`).
+    ``drives`` defaults to the case's own (:attr:`~realitygap.independent.cases.Case.drives`);
+    ``keep_miss(label, diagnosis)`` receives each diagnosis scored wrong (an in-library case
+    not named, an out-of-library case not called unexplained).
     """
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-    from realitygap.diagnosis.io import read_logs
 
     drives = case.drives if drives is None else drives
     rows = []
     t0 = time.perf_counter()
+    refused: list[str] = []
     with tempfile.TemporaryDirectory(prefix="rg-indep-") as tmp:
-        train_p, hold_p = generate_case(case, Path(tmp), seed)
+        train_p, hold_p = generate_case(case, Path(tmp), seed, variant)
         t_gen = time.perf_counter() - t0
-        train = [lg for p in train_p for lg in read_logs(p)]
-        hold = [lg for p in hold_p for lg in read_logs(p)]
+        train = [lg for p in train_p for lg in _read(p, refused)]
+        hold = [lg for p in hold_p for lg in _read(p, refused)]
         for drive in drives:
             t1 = time.perf_counter()
             d = diagnose(
@@ -131,8 +161,51 @@ def diagnose_case(
             row = score(
                 case, d, drive=drive, seconds=time.perf_counter() - t1, seconds_generate=t_gen
             )
-            rows.append({"drive": drive if case.robot == "diffdrive" else "joints", **row})
+            row["plausibility_refused"] = [m.replace(str(tmp), "<data>") for m in refused]
+            row["runners_up"] = [
+                {"model": "+".join(m.effects), "params": {k: float(x) for k, x in m.values.items()}}
+                for m in d.ranking[1:3]
+            ]
+            row["verdict_notes"] = {
+                k: x for k, x in d.verdict.notes.items() if isinstance(x, (str, int, float))
+            }
+            if keep_miss is not None and _missed(row):
+                keep_miss(f"{case.name} ({drive}, {variant})", d)
+            rows.append(
+                {
+                    "drive": drive if case.robot == "diffdrive" else "joints",
+                    "variant": variant,
+                    **row,
+                }
+            )
     return rows
+
+
+def _missed(row: dict[str, Any]) -> bool:
+    """True when a scored row is wrong: not named (in library) or not unexplained (outside)."""
+    if row["in_library"]:
+        return not row["correct"]
+    return not row["open_set_strict"]
+
+
+def _read(path: Path, refused: list[str]) -> list[Any]:
+    """The logs of ``path``, read as ``realitygap diagnose`` reads them.
+
+    The importer's plausibility check (:func:`~realitygap.diagnosis.io.check_plausible`) is
+    run on each log; a log it refuses is kept (the files are written in their declared
+    units) and the refusal is appended to ``refused`` — what a user would read before
+    passing ``--no-plausibility-check``.
+    """
+    from realitygap.diagnosis.io import ReadOptions, check_plausible, read_logs
+    from realitygap.diagnosis.log import LogError
+
+    logs = read_logs(path, ReadOptions(check_plausible=False))
+    for lg in logs:
+        try:
+            check_plausible(lg)
+        except LogError as exc:
+            refused.append(str(exc))
+    return logs
 
 
 def score(case: Any, d: Any, drive: str = "commands", **extra: float) -> dict[str, Any]:
@@ -183,14 +256,19 @@ def _median(xs: list[float]) -> float:
     "diagnose-independent",
     "the diagnosis on OptiOdom and UR10 data written by an independent simulator "
     "(its own kinematics, actuators, timing and noise; cases in and out of the library; "
-    "--robot diffdrive|arm runs one robot's cases)",
+    "--robot diffdrive|arm runs one robot's cases; --variant NAME another robot and conventions: "
+    + ", ".join(VARIANTS)
+    + ")",
     robots=("diffdrive", "arm"),
+    variants=tuple(VARIANTS),
 )
 def diagnose_independent(ctx: RunContext) -> dict[str, Any]:
     from realitygap.core.parallel import ProcessBackend
     from realitygap.diagnosis.adapters import close_adapters
     from realitygap.independent.cases import CASES, QUICK, case_by_name
+    from realitygap.independent.variants import variant_by_name
 
+    variant = variant_by_name(ctx.options.get("variant", "default")).name
     only = ctx.options.get("cases")
     if only:
         cases = [case_by_name(n.strip()) for n in str(only).split(",") if n.strip()]
@@ -206,7 +284,9 @@ def diagnose_independent(ctx: RunContext) -> dict[str, Any]:
     t0 = time.perf_counter()
     try:
         for i, case in enumerate(cases):
-            for row in diagnose_case(case, ctx.seed + 1000 * i, backend):
+            for row in diagnose_case(
+                case, ctx.seed + 1000 * i, backend, variant=variant, keep_miss=ctx.add_diagnosis
+            ):
                 rows.append(row)
                 mark = (
                     ("right" if row["correct"] else "WRONG")
@@ -214,7 +294,7 @@ def diagnose_independent(ctx: RunContext) -> dict[str, Any]:
                     else ("named effects" if row["false_attribution"] else str(row["verdict"]))
                 )
                 ctx.progress(
-                    f"{i + 1}/{len(cases)} {case.name} ({row['drive']}): verdict "
+                    f"{variant}: {i + 1}/{len(cases)} {case.name} ({row['drive']}): verdict "
                     f"{row['verdict']} ({row['confidence']}), top {row['top_model']}, shrink "
                     f"{row['heldout_shrink_pct']:.1f} % → {mark} [{time.perf_counter() - t0:.0f} s]"
                 )
@@ -261,16 +341,27 @@ def diagnose_independent(ctx: RunContext) -> dict[str, Any]:
         "open set strict: verdict 'unexplained'; lenient: 'unexplained' or weak confidence; "
         "shrink: median held-out shrink of the best model over in-library cases"
     ]
+    refused = [m for r in rows for m in r.get("plausibility_refused", [])]
+    if refused:
+        hit = sum(bool(r.get("plausibility_refused")) for r in rows)
+        notes.append(
+            f"the importer's plausibility check refused a log {len(refused)} time(s) over {hit} "
+            f"of {len(rows)} diagnoses ({variant}); the logs were diagnosed as read, as after "
+            f"--no-plausibility-check; first: {refused[0]}"
+        )
     for r in rows:
-        if (r["in_library"] and not r["correct"]) or (
-            not r["in_library"] and not r["open_set_strict"]
-        ):
+        if _missed(r):
             notes.append(
-                f"{r['case']} ({r['drive']}): verdict {r['verdict']} ({r['confidence']}) — {r['reason']}"
+                f"{r['case']} ({r['drive']}, {variant}): verdict {r['verdict']} "
+                f"({r['confidence']}), top {r['top_model']} — {r['reason']}"
             )
     return {
         "figures": figures,
         "tables": {"cases": rows},
         "notes": notes,
-        "config": {"cases": [c.name for c in cases], "workers": backend.workers},
+        "config": {
+            "variant": variant,
+            "cases": [c.name for c in cases],
+            "workers": backend.workers,
+        },
     }

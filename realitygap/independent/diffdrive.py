@@ -7,16 +7,19 @@ the OptiOdom on-disk format (Sousa et al., J. Intell. Robot. Syst. 105:39, 2022)
 
 The simulated robot
 -------------------
-A path planner issues a request ``(v, ω)`` every control cycle ``Δ`` (50 ms),
-in the robot's own units (ticks/cycle, rad/cycle). The firmware turns it into
-wheel-speed set-points
+A path planner issues a request ``(v, ω)`` every control cycle ``Δ`` (50 ms by
+default, :attr:`DriveRobot.cycle`), in the robot's own units (ticks/cycle,
+rad/cycle). The firmware turns it into wheel-speed set-points
 
 .. math:: s_{R,L} = v \\pm \\frac{\\omega\\, b_0}{2\\, m_0}
 
-(``b_0`` nominal wheelbase, ``m_0`` nominal metres per tick) and rate-limits each
-*wheel* set-point by ``DV`` ticks/cycle² — its ramp acts on the wheels, not on
-the body twist; the ``DWMAX`` written to the header is the equivalent limit of a
-turn in place, :math:`2\\,DV\\,m_0/b_0`. Each wheel motor follows its set-point
+(``b_0`` nominal wheelbase, ``m_0`` nominal metres per tick). By default
+(``ramp="wheels"``) it rate-limits each *wheel* set-point by ``DV`` ticks/cycle² —
+its ramp acts on the wheels, not on the body twist; the ``DWMAX`` written to the
+header is the equivalent limit of a turn in place, :math:`2\\,DV\\,m_0/b_0`. With
+``ramp="body"`` it rate-limits the requested ``v`` by ``DV`` and ``ω`` by its own
+``DWMAX`` (:attr:`DriveRobot.angular_ramp`) before splitting them into wheel
+set-points, as a twist-level speed limiter does. Each wheel motor follows its set-point
 with a first-order lag,
 
 .. math:: \\tau\\, \\dot\\varphi = \\varphi^* - \\dot\\varphi ,
@@ -32,9 +35,11 @@ a square's side ends when the odometry has covered it (less the braking
 distance), and each corner waits until the encoders have been still for 0.4 s.
 
 Encoders count ``floor(φ · cpr / 2π)`` edges (quantised); the run files hold the
-per-cycle increments. Motion capture samples the pose of its marker body at
-100 Hz with Gaussian noise and a fixed latency; each 20 Hz row holds the most
-recent sample (zero-order hold).
+per-cycle increments. Motion capture samples the pose of its marker body at its
+own rate (100 Hz by default, first sample ``mocap_phase`` s after the run start)
+with Gaussian noise and a fixed latency; each row of the cycle rate holds the most
+recent sample (zero-order hold). Named sets of these conventions (robot size,
+rates, noise) are in :mod:`realitygap.independent.variants`.
 
 Hidden effects are the fields of :class:`Hidden`; every one is neutral by default.
 """
@@ -95,6 +100,15 @@ class DriveRobot:
         Age of a motion-capture sample when it is stamped, s.
     mocap_pos_sigma, mocap_yaw_sigma : float
         Motion-capture noise, m and rad (one standard deviation).
+    mocap_phase : float
+        Time of the first motion-capture sample after the run start, s, in
+        ``[0, 1/mocap_rate)``: the camera clock is not locked to the control cycle.
+    ramp : {"wheels", "body"}
+        What the firmware rate-limits: each wheel set-point by ``dv_max``, or the body
+        twist — ``v`` by ``dv_max`` and ``ω`` by :attr:`dw_max`.
+    angular_ramp : float or None
+        ``ramp="body"``: limit of ``ω``'s change, rad/cycle²; None: the wheel ramp's
+        equivalent for a turn in place (and always so with ``ramp="wheels"``).
     """
 
     diameter: float = 0.084
@@ -111,11 +125,38 @@ class DriveRobot:
     mocap_latency: float = 0.003
     mocap_pos_sigma: float = 3e-4
     mocap_yaw_sigma: float = 1.5e-3
+    mocap_phase: float = 0.0
+    ramp: str = "wheels"
+    angular_ramp: float | None = None
 
     def __post_init__(self) -> None:
-        for name in ("diameter", "wheelbase", "gear", "enc_res", "cycle", "v_nom", "dv_max"):
+        for name in (
+            "diameter",
+            "wheelbase",
+            "gear",
+            "enc_res",
+            "cycle",
+            "v_nom",
+            "dv_max",
+            "mocap_rate",
+        ):
             if not getattr(self, name) > 0:
                 raise ValueError(f"DriveRobot.{name} must be > 0, got {getattr(self, name)!r}")
+        for name in ("mocap_latency", "mocap_pos_sigma", "mocap_yaw_sigma"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"DriveRobot.{name} must be >= 0, got {getattr(self, name)!r}")
+        if not 0.0 <= self.mocap_phase < 1.0 / self.mocap_rate:
+            raise ValueError(
+                f"DriveRobot.mocap_phase must lie in [0, 1/mocap_rate = {1.0 / self.mocap_rate:g}) "
+                f"s, got {self.mocap_phase!r}"
+            )
+        if self.ramp not in ("wheels", "body"):
+            raise ValueError(f"DriveRobot.ramp must be 'wheels' or 'body', got {self.ramp!r}")
+        if self.angular_ramp is not None and (self.ramp != "body" or not self.angular_ramp > 0):
+            raise ValueError(
+                "DriveRobot.angular_ramp is a limit > 0 rad/cycle² of a body ramp "
+                f"(ramp='body'); got angular_ramp={self.angular_ramp!r} with ramp={self.ramp!r}"
+            )
         if not 0 < self.substep <= self.cycle:
             raise ValueError(
                 f"DriveRobot.substep must lie in (0, cycle={self.cycle}], got {self.substep!r}"
@@ -133,8 +174,16 @@ class DriveRobot:
 
     @property
     def dw_max(self) -> float:
-        """Header's angular ramp (rad/cycle²): a turn in place under the wheel ramp."""
+        """Header's angular ramp (rad/cycle²): :attr:`angular_ramp`, else a turn in place
+        under the wheel ramp."""
+        if self.angular_ramp is not None:
+            return self.angular_ramp
         return 2.0 * self.dv_max * self.m_per_tick / self.wheelbase
+
+    @property
+    def cruise_speed(self) -> float:
+        """Cruise request in m/s (``v_nom`` ticks/cycle on the nominal wheels)."""
+        return self.v_nom * self.m_per_tick / self.cycle
 
 
 @dataclass(frozen=True)
@@ -396,6 +445,7 @@ def simulate_run(
     rad_per_tick_nom = 2 * math.pi / robot.ticks_per_rev  # set-point ticks/cycle → rad of wheel
 
     setpoint = np.zeros(2)  # ramped wheel set-points, ticks/cycle
+    body = np.zeros(2)  # ramped (v, ω) request of a body ramp, ticks/cycle and rad/cycle
     history: list[FloatArray] = []  # set-points by cycle (delay line)
     wheel_rate = np.zeros(2)  # rad/s
     ground = np.zeros(2)  # m/s
@@ -406,7 +456,7 @@ def simulate_run(
     mocap_period = 1.0 / robot.mocap_rate
     mocap_t: list[float] = []
     mocap_pose: list[FloatArray] = []
-    next_mocap = 0.0
+    next_mocap = robot.mocap_phase
     wander = (
         (rng.uniform(2.0, 10.0, size=2), rng.uniform(0.0, 2.0 * math.pi, size=2))
         if hidden.clock_wander > 0
@@ -426,8 +476,18 @@ def simulate_run(
         if idle_after > 2 or t > max_seconds:
             break
         v_req, w_req = req
-        target = np.array([v_req - w_req * half_b_ticks, v_req + w_req * half_b_ticks])
-        setpoint = setpoint + np.clip(target - setpoint, -robot.dv_max, robot.dv_max)
+        if robot.ramp == "wheels":
+            target = np.array([v_req - w_req * half_b_ticks, v_req + w_req * half_b_ticks])
+            setpoint = setpoint + np.clip(target - setpoint, -robot.dv_max, robot.dv_max)
+        else:
+            body = body + np.clip(
+                np.array([v_req, w_req]) - body,
+                [-robot.dv_max, -robot.dw_max],
+                [robot.dv_max, robot.dw_max],
+            )
+            setpoint = np.array(
+                [body[0] - body[1] * half_b_ticks, body[0] + body[1] * half_b_ticks]
+            )
         history.append(setpoint.copy())
         for j in range(n_sub):
             ts = t + j * h

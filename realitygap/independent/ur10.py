@@ -88,13 +88,27 @@ def forward(
     return frames
 
 
-def gravity_torques(q: FloatArray) -> FloatArray:
-    """Holding torque of each joint (N·m) under gravity (−z): link masses at link mid-points."""
+def _probe(probe: npt.ArrayLike | None) -> FloatArray:
+    """The declared probe point in the flange frame (3,), m; ``None``: :data:`PROBE`."""
+    if probe is None:
+        return PROBE
+    p = np.asarray(probe, dtype=float)
+    if p.shape != (3,) or not np.all(np.isfinite(p)) or not 0.0 < np.linalg.norm(p) < 0.5:
+        raise ValueError(
+            f"probe must be a point (3,) in the flange frame within 0.5 m of the flange, m; "
+            f"got {probe!r}"
+        )
+    return p
+
+
+def gravity_torques(q: FloatArray, probe: npt.ArrayLike | None = None) -> FloatArray:
+    """Holding torque of each joint (N·m) under gravity (−z): link masses at link mid-points,
+    the probe mass at ``probe`` (flange frame, m; default :data:`PROBE`)."""
     frames = forward(q)
     origins = [f[:3, 3] for f in frames]
     points = [0.5 * (origins[i] + origins[i + 1]) for i in range(6)]
     masses = list(_MASSES)
-    points.append((frames[6] @ np.append(PROBE, 1.0))[:3])
+    points.append((frames[6] @ np.append(_probe(probe), 1.0))[:3])
     masses.append(_PROBE_MASS)
     tau = np.zeros(6)
     force = np.array([0.0, 0.0, -9.81])
@@ -148,13 +162,31 @@ class ArmHidden:
 
 @dataclass(frozen=True)
 class Tracker:
-    """Laser-tracker pose in the robot base (rotation about z, then position) and its noise."""
+    """Laser-tracker pose in the robot base (rotation about z, then position) and its noise.
+
+    Attributes
+    ----------
+    position : (3,) tracker origin in the robot base, m
+    yaw : tracker heading about the base z axis, rad
+    sigma : measurement noise per coordinate, m (one standard deviation)
+    temperature_start : cell temperature at the first pose, °C
+    temperature_rise : warming of the cell over a series, K
+    """
 
     position: tuple[float, float, float] = (2.3, -1.6, -0.4)
     yaw: float = 0.55
     sigma: float = 1.5e-5
     temperature_start: float = 22.0
     temperature_rise: float = 3.0
+
+    def __post_init__(self) -> None:
+        if len(self.position) != 3 or not np.all(np.isfinite(self.position)):
+            raise ValueError(f"Tracker.position needs 3 finite values (m), got {self.position!r}")
+        if not 0.0 <= self.sigma < 1e-3:
+            raise ValueError(
+                f"Tracker.sigma is a laser tracker's noise in m, expected [0, 1e-3), "
+                f"got {self.sigma!r}"
+            )
 
     def base_to_tracker(self) -> FloatArray:
         """``T_tracker,base`` (4×4)."""
@@ -199,8 +231,11 @@ class Series:
     extra: dict[str, float] = field(default_factory=dict)
 
 
-def _true_joints(q: FloatArray, hidden: ArmHidden) -> FloatArray:
-    """True joint angles behind readings ``q`` (N, 6) in visiting order."""
+def _true_joints(
+    q: FloatArray, hidden: ArmHidden, probe: npt.ArrayLike | None = None
+) -> FloatArray:
+    """True joint angles behind readings ``q`` (N, 6) in visiting order (``probe``: the
+    declared probe point whose mass loads the joints, m)."""
     q = np.asarray(q, dtype=float)
     out = q * (1.0 + np.asarray(hidden.ratio_err)) + np.asarray(hidden.zero_err)
     out = out + np.asarray(hidden.eccentric) * np.sin(2.0 * q)
@@ -217,25 +252,35 @@ def _true_joints(q: FloatArray, hidden: ArmHidden) -> FloatArray:
     if np.any(flex):
         # a compliant joint gives way to gravity: it deflects against its holding torque
         for i in range(q.shape[0]):
-            out[i] -= flex * gravity_torques(out[i])
+            out[i] -= flex * gravity_torques(out[i], probe)
     return out
 
 
 def measure_series(
-    q_read: FloatArray, hidden: ArmHidden, tracker: Tracker, rng: np.random.Generator
+    q_read: FloatArray,
+    hidden: ArmHidden,
+    tracker: Tracker,
+    rng: np.random.Generator,
+    *,
+    probe: npt.ArrayLike | None = None,
 ) -> Series:
-    """Probe positions and orientations the tracker reports for readings ``q_read`` (N, 6)."""
+    """Probe positions and orientations the tracker reports for readings ``q_read`` (N, 6).
+
+    ``probe``: the declared probe point in the flange frame (m; default :data:`PROBE`);
+    the hidden ``probe_err`` is added to it.
+    """
     if not isinstance(rng, np.random.Generator):
         raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
     q_read = np.asarray(q_read, dtype=float)
     n = q_read.shape[0]
-    q_true = _true_joints(q_read, hidden)
+    q_true = _true_joints(q_read, hidden, probe)
     temp = tracker.temperature_start + tracker.temperature_rise * np.linspace(0.0, 1.0, n)
     T_tb = tracker.base_to_tracker()
     d = UR10_DH["d"] + np.asarray(hidden.dd)
     a = UR10_DH["a"] + np.asarray(hidden.da)
     alpha = UR10_DH["alpha"] + np.asarray(hidden.dalpha)
-    probe = PROBE + np.asarray(hidden.probe_err)
+    declared = _probe(probe)
+    probe_true = declared + np.asarray(hidden.probe_err)
     pos = np.zeros((n, 3))
     rot = np.zeros((n, 3, 3))
     goal = np.zeros((n, 3))
@@ -243,7 +288,7 @@ def measure_series(
     for i in range(n):
         scale = 1.0 + hidden.thermal * (temp[i] - 20.0)
         T = forward(q_true[i], d, a, alpha, scale)[-1]
-        p_base = T @ np.append(scale * probe, 1.0)
+        p_base = T @ np.append(scale * probe_true, 1.0)
         p = (T_tb @ p_base)[:3]
         if hidden.tracker_cyclic:
             r = float(np.linalg.norm(p))
@@ -251,7 +296,7 @@ def measure_series(
         pos[i] = p + rng.normal(0.0, tracker.sigma, 3)
         rot[i] = T_tb[:3, :3] @ T[:3, :3]
         Tn = forward(q_read[i])[-1]
-        goal[i] = (Tn @ np.append(PROBE, 1.0))[:3]
+        goal[i] = (Tn @ np.append(declared, 1.0))[:3]
         rpy[i] = _rpy(Tn[:3, :3])
     return Series(q_read, pos, rot, temp, goal, rpy)
 
@@ -274,9 +319,18 @@ def _cell(x: float, digits: int = 9) -> str:
 
 
 def write_series(
-    root: str | Path, name: str, series: Series, *, file_stem: str = "grid", start_hour: int = 9
+    root: str | Path,
+    name: str,
+    series: Series,
+    *,
+    file_stem: str = "grid",
+    start_hour: int = 9,
+    probe: npt.ArrayLike | None = None,
 ) -> Path:
     """Write ``series`` as ``<root>/Series_<name>/measurements_<file_stem>.csv`` plus the probe transform.
+
+    ``probe``: the declared probe point in the flange frame written to
+    ``Trafo_TM_F_init.txt`` (m; default :data:`PROBE`), the one the series was measured with.
 
     Returns
     -------
@@ -292,7 +346,7 @@ def write_series(
     Rz = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     T_fp = np.eye(4)
     T_fp[:3, :3] = Rz.T
-    T_fp[:3, 3] = PROBE * 1000.0
+    T_fp[:3, 3] = _probe(probe) * 1000.0
     T_pf = np.linalg.inv(T_fp)
     text = "\n".join(" ".join(f"{v:.8f}" for v in row) for row in T_pf) + "\n"
     (folder / "Trafo_TM_F_init.txt").write_text(text, encoding="utf-8")
