@@ -144,12 +144,16 @@ ground truth; 2 mm per wheel; 2 mm, 2 mm, 3 mrad for the camera) and its regimes
 TRAIN_MANOEUVRES = ("straight_runs", "turns_in_place", "arcs", "accelerations")
 """Manoeuvres of a blind case's training logs."""
 HOLDOUT_MANOEUVRES = ("square_cw", "square_ccw", "tour", "hard_starts")
+"""Manoeuvres of a blind case's held-out logs."""
 
 TRUTH_FRAME_RANGE = 0.02
 """m: how far from the axle centre a hand-defined ground-truth body origin is a convention."""
 TRUTH_YAW_RANGE = 0.035
 """rad (2°): how far from the rolling direction a hand-defined ground-truth heading is a convention."""
-"""Manoeuvres of a blind case's held-out logs."""
+DRIVE_RESPONSE_FLOOR = 0.05
+"""s: the time constant of a DC wheel drive's speed loop that is its own response, not a
+finding, however fast the commands come (a speed loop settles in some tens of
+milliseconds; the command period bounds it only where it is longer)."""
 
 
 @dataclass
@@ -228,11 +232,12 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         hold requests to the robot's firmware (``meta["firmware"]``) — whether
         the firmware takes a request in the period it is issued or the next one,
         and a velocity loop that settles within a period, are the robot's
-        actuator response, not a finding — and, in the same range, the time
-        constant of both wheels' velocity loops (``motor_response.tau``, a
-        first-order lag common to the two wheels: the delay's smooth form). Longer
-        delays and lags, and wheels that lag differently (``wheel_velocity_lag``),
-        remain candidates of the effect library. The firmware's ramp convention is chosen beside them
+        actuator response, not a finding — and, in the same range but at least
+        :data:`DRIVE_RESPONSE_FLOOR` (a speed loop's time constant does not shrink
+        with the command period), the time constant of both wheels' velocity loops
+        (``motor_response.tau``, a first-order lag common to the two wheels).
+        Longer delays and lags, and wheels that lag differently
+        (``wheel_velocity_lag``), remain candidates of the effect library. The firmware's ramp convention is chosen beside them
         (:meth:`actuator_conventions`).
 
         Beside the clocks, the body frame the ground truth tracks
@@ -270,7 +275,7 @@ class DiffDriveAdapter(WheelDrivenAdapter):
             )
             out["motor_response.tau"] = (
                 0.0,
-                dt if requests else half,
+                max(dt if requests else half, DRIVE_RESPONSE_FLOOR),
                 "time constant of both wheels' velocity loops",
             )
         return out

@@ -306,7 +306,7 @@ def test_unequal_wheel_lags_yaw_the_robot_on_a_start_and_back_on_the_stop() -> N
 
 
 def test_motor_response_lags_both_wheels_alike_and_stays_a_baseline_nuisance() -> None:
-    from realitygap.diagnosis.diffdrive_adapter import DiffDriveAdapter
+    from realitygap.diagnosis.diffdrive_adapter import DRIVE_RESPONSE_FLOOR, DiffDriveAdapter
     from realitygap.diagnosis.replay import Drive
     from realitygap.robots.effects.diffdrive_drivetrain import _lag_gain
 
@@ -331,7 +331,12 @@ def test_motor_response_lags_both_wheels_alike_and_stays_a_baseline_nuisance() -
     assert "wheel_velocity_lag" in adapter.effect_names()
     prepared = [_Prepared(common)]
     low, high, _ = adapter.baseline_nuisances(prepared, Drive.COMMANDS)["motor_response.tau"]
-    assert low == 0.0 and high == pytest.approx(0.5 * common.dt)
+    # the log holds the twist the drive received: half a period, but never under the floor
+    assert low == 0.0 and high == pytest.approx(max(0.5 * common.dt, DRIVE_RESPONSE_FLOOR))
+    fast = common.replace(t=0.2 * common.t)  # a 100 Hz log: a period of 10 ms
+    assert adapter.baseline_nuisances([_Prepared(fast)], Drive.COMMANDS)["motor_response.tau"][
+        1
+    ] == pytest.approx(DRIVE_RESPONSE_FLOOR)
     assert "motor_response.tau" not in adapter.baseline_nuisances(prepared, Drive.TICKS)
 
 
