@@ -156,6 +156,28 @@ def test_implausible_units_are_refused_with_the_unit() -> None:
         check_plausible(good.with_channels(ticks=3000 * ticks))
 
 
+def test_a_fast_noisy_ground_truth_is_not_taken_for_a_unit_error() -> None:
+    # 50 Hz rows, 0.1 m/s for 30 s, motion capture with 2.5 mm of noise per axis: row to
+    # row the noise is larger than the motion, and summing rows would more than double the path
+    rng = np.random.default_rng(4)
+    t = 0.02 * np.arange(1500)
+    x = 0.1 * t
+    truth = np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+    noisy = truth + np.column_stack([rng.normal(0, 2.5e-3, (t.size, 2)), np.zeros(t.size)])
+    tpr, r = 2000.0, 0.035
+    ticks = np.column_stack([x, x]) / (2 * np.pi * r) * tpr
+    params = {"wheel_radius_left": r, "wheel_radius_right": r, "ticks_per_rev": tpr}
+    log = Log(
+        t=t,
+        channels={"pose_gt": noisy, "ticks": ticks},
+        meta={"robot": "diffdrive", "name": "noisy", "params": params},
+    )
+    check_plausible(log)
+    # a real unit error in the same log is still refused
+    with pytest.raises(LogError, match=r"wheels travelled (3\.9\d|4) × the true path"):
+        check_plausible(log.with_channels(ticks=4 * ticks))
+
+
 def test_cut_last_line_is_flagged(tmp_path: Path) -> None:
     f = write_csv(tmp_path / "run.csv")
     text = f.read_text().rstrip("\n")
