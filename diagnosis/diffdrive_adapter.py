@@ -150,6 +150,10 @@ TRUTH_FRAME_RANGE = 0.02
 """m: how far from the axle centre a hand-defined ground-truth body origin is a convention."""
 TRUTH_YAW_RANGE = 0.035
 """rad (2°): how far from the rolling direction a hand-defined ground-truth heading is a convention."""
+TRUTH_LATENCY_FLOOR = 0.02
+"""s: how far the ground truth's stamps may trail or lead the rows as a convention, however
+short the row period: a capture system stamps a pose its latency and sample hold after the
+motion (some to twenty milliseconds), and the rows hold the latest sample."""
 DRIVE_RESPONSE_FLOOR = 0.05
 """s: the time constant of a DC wheel drive's speed loop that is its own response, not a
 finding, however fast the commands come (a speed loop settles in some tens of
@@ -226,7 +230,8 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         The ground truth's time alignment (``timestamp_offset.offset``) within
         half the shortest sample period of the logs (stamps are quantised to the
         sample period, so offsets that small are a sampling convention, not a
-        finding) and, with a command-driven replay, the response time of the
+        finding), and at least :data:`TRUTH_LATENCY_FLOOR` (a capture system's
+        latency and sample hold do not shrink with the row period) and, with a command-driven replay, the response time of the
         replayed commands (``command_latency.delay``): within half a period when
         the logs hold the twist the drive received, within one period when they
         hold requests to the robot's firmware (``meta["firmware"]``) — whether
@@ -250,7 +255,8 @@ class DiffDriveAdapter(WheelDrivenAdapter):
             return {}
         dt = min(p.log.dt for p in prepared)
         half = 0.5 * dt
-        out = {"timestamp_offset.offset": (-half, half, "ground-truth time alignment")}
+        align = max(half, TRUTH_LATENCY_FLOOR)
+        out = {"timestamp_offset.offset": (-align, align, "ground-truth time alignment")}
         out["truth_frame_offset.x"] = (
             -TRUTH_FRAME_RANGE,
             TRUTH_FRAME_RANGE,

@@ -306,7 +306,11 @@ def test_unequal_wheel_lags_yaw_the_robot_on_a_start_and_back_on_the_stop() -> N
 
 
 def test_motor_response_lags_both_wheels_alike_and_stays_a_baseline_nuisance() -> None:
-    from realitygap.diagnosis.diffdrive_adapter import DRIVE_RESPONSE_FLOOR, DiffDriveAdapter
+    from realitygap.diagnosis.diffdrive_adapter import (
+        DRIVE_RESPONSE_FLOOR,
+        TRUTH_LATENCY_FLOOR,
+        DiffDriveAdapter,
+    )
     from realitygap.diagnosis.replay import Drive
     from realitygap.robots.effects.diffdrive_drivetrain import _lag_gain
 
@@ -338,6 +342,13 @@ def test_motor_response_lags_both_wheels_alike_and_stays_a_baseline_nuisance() -
         1
     ] == pytest.approx(DRIVE_RESPONSE_FLOOR)
     assert "motor_response.tau" not in adapter.baseline_nuisances(prepared, Drive.TICKS)
+    # the ground truth's time alignment: half a row, but a capture latency on fast rows
+    for log, half in ((common, 0.5 * common.dt), (fast, 0.5 * fast.dt)):
+        lo, hi, _ = adapter.baseline_nuisances([_Prepared(log)], Drive.TICKS)[
+            "timestamp_offset.offset"
+        ]
+        assert hi == -lo == pytest.approx(max(half, TRUTH_LATENCY_FLOOR))
+    assert 0.5 * fast.dt < TRUTH_LATENCY_FLOOR < 0.5 * common.dt
 
 
 class _Prepared:
