@@ -122,35 +122,25 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print(f"error: --data {args.data!r} is not a folder", file=sys.stderr)
         return 2
     options: dict[str, object] = {}
-    if args.robot is not None:
+    # options an experiment declares it takes (``Experiment.robots`` / ``.variants``)
+    for option, declared in (("robot", "robots"), ("variant", "variants")):
+        value = getattr(args, option)
+        if value is None:
+            continue
         try:
             spec = experiments.get(args.experiment)
         except KeyError as exc:
             print(f"error: {exc.args[0]}", file=sys.stderr)
             return 2
-        if args.robot not in spec.robots:
-            can = f"one of {', '.join(spec.robots)}" if spec.robots else "no --robot option"
+        choices = getattr(spec, declared)
+        if value not in choices:
+            can = f"one of {', '.join(choices)}" if choices else f"no --{option} option"
             print(
-                f"error: experiment {args.experiment!r} takes {can}, got --robot {args.robot!r}",
+                f"error: experiment {args.experiment!r} takes {can}, got --{option} {value!r}",
                 file=sys.stderr,
             )
             return 2
-        options["robot"] = args.robot
-    if args.variant is not None:
-        try:
-            spec = experiments.get(args.experiment)
-        except KeyError as exc:
-            print(f"error: {exc.args[0]}", file=sys.stderr)
-            return 2
-        if args.variant not in spec.variants:
-            can = f"one of {', '.join(spec.variants)}" if spec.variants else "no --variant option"
-            print(
-                f"error: experiment {args.experiment!r} takes {can}, "
-                f"got --variant {args.variant!r}",
-                file=sys.stderr,
-            )
-            return 2
-        options["variant"] = args.variant
+        options[option] = value
     if args.backend is not None:
         options["backend"] = args.backend
     if args.workers is not None:

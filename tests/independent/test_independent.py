@@ -196,6 +196,19 @@ def test_scoring_rules() -> None:
     assert score(drag, _fake("none", ()))["open_set_strict"] == 0.0
 
 
+def test_a_miss_is_what_the_scoring_counts_wrong() -> None:
+    from realitygap.experiments.independent import _missed, score
+
+    wb = case_by_name("wheelbase_plus3")
+    assert not _missed(score(wb, _fake("effects", ("wheelbase_error",))))
+    assert _missed(score(wb, _fake("effects", ("wheelbase_error", "wheel_velocity_lag"))))
+    assert _missed(score(wb, _fake("unexplained", ())))
+    drag = case_by_name("caster_drag")
+    assert not _missed(score(drag, _fake("unexplained", ())))
+    assert _missed(score(drag, _fake("effects", ("wheelbase_error",), "weak")))
+    assert _missed(score(drag, _fake("none", ())))
+
+
 def test_a_compliant_shoulder_sags_under_gravity() -> None:
     """Joint flexibility lowers an outstretched tool; it never lifts it."""
     q = np.array([[0.0, -0.3, 0.2, 0.0, 0.5, 0.0], [0.4, -1.2, 0.8, -0.6, 1.1, 0.2]])
