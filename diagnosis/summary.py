@@ -300,14 +300,14 @@ def summary_sentences(d: Diagnosis) -> list[str]:
     conc = concentrated_gap(g.get("heldout_trajectory_runs", []))
     if conc is not None:
         own = quantity(conc["before_m"], "m") + " nominal"
-        rest = quantity(conc["rest_before_m"], "m") + " nominal"
+        others = quantity(conc["rest_before_m"], "m") + " nominal"
         if "after_m" in conc:
             own += f", {quantity(conc['after_m'], 'm')} with the best candidate"
-            rest += f" → {quantity(conc['rest_after_m'], 'm')}"
+            others += f" → {quantity(conc['rest_after_m'], 'm')}"
         out.append(
             f"One held-out run, {conc['log']}, carries {conc['share_pct']:.0f} % of the whole-run "
             f"gap (its squared position error; its own RMS error is {own}); over the other "
-            f"{conc['runs']} runs the gap is {rest}."
+            f"{conc['runs']} runs the gap is {others}."
         )
     v = d.verdict
     st = d.settings.attribution
