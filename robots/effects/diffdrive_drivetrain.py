@@ -158,8 +158,11 @@ def _lag(x: FloatArray, k: FloatArray) -> FloatArray:
     x = np.asarray(x, dtype=float)
     kk = np.broadcast_to(np.asarray(k, dtype=float), (x.shape[0],))
     y = np.empty_like(x)
-    for row, gain in enumerate(kk):
-        y[row] = x[row] if gain >= 1.0 else lfilter([gain], [1.0, gain - 1.0], x[row])
+    # one filter call per distinct gain: a batch that shares its lag (a baseline value
+    # every parameter set carries) is filtered at once
+    for gain in np.unique(kk):
+        rows = kk == gain
+        y[rows] = x[rows] if gain >= 1.0 else lfilter([gain], [1.0, gain - 1.0], x[rows], axis=1)
     return y
 
 

@@ -474,3 +474,23 @@ def test_skipping_recursion_equals_the_step_by_step_one() -> None:
     np.testing.assert_array_equal(
         _recurse(x, lambda y0, xk: speed_limiter_step(y0, xk, up, down))[0], x[0]
     )
+
+
+def test_the_lag_recursion_is_the_same_for_shared_and_distinct_gains() -> None:
+    from realitygap.robots.effects.diffdrive_drivetrain import _lag
+
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(6, 40))
+    gains = np.array([0.3, 0.3, 0.7, 1.0, 0.3, 0.05])  # repeated, distinct and pass-through
+
+    def by_hand(row: np.ndarray, k: float) -> np.ndarray:
+        y, out = 0.0, []
+        for v in row:
+            y += k * (v - y)
+            out.append(y)
+        return np.array(out)
+
+    expected = np.stack([by_hand(x[i], g) for i, g in enumerate(gains)])
+    np.testing.assert_allclose(_lag(x, gains), expected, rtol=1e-12, atol=1e-12)
+    # a batch that shares its gain is filtered alike, row by row
+    np.testing.assert_array_equal(_lag(x, np.full(6, 0.3))[0], _lag(x[:1], np.array([0.3]))[0])
