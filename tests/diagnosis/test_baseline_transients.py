@@ -204,11 +204,12 @@ def test_sub_sample_time_alignment_goes_to_the_baseline_not_the_findings() -> No
     hold = [record(LOOP, reality, rng)]
     d = diagnose(train, hold, settings=DiagnosisSettings(effects=LIBRARY, attribution=FAST))
     assert d.baseline.values["timestamp_offset.offset"] == pytest.approx(0.015, abs=0.006)
-    # no command_latency candidate; the ground truth's body frame is always a nuisance, and
-    # here (none planted) it stays at the axle
+    # no command_latency candidate; the ground truth's body frame and the drive's common
+    # velocity-loop lag are always nuisances, and here (none planted) they stay at none
     frame = ("truth_frame_offset.x", "truth_frame_offset.y", "truth_frame_offset.yaw")
-    assert set(d.baseline.values) == {"timestamp_offset.offset", *frame}
+    assert set(d.baseline.values) == {"timestamp_offset.offset", "motor_response.tau", *frame}
     assert all(abs(d.baseline.values[k]) < 2e-3 for k in frame), d.baseline.values
+    assert d.baseline.values["motor_response.tau"] < 0.01, d.baseline.values
     assert d.verdict.label == ["wheelbase_error"]
     js = d.to_json()
     rows = js["baseline_calibration"]["nuisances"]
