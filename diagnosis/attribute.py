@@ -51,6 +51,7 @@ from scipy.optimize import least_squares
 
 from realitygap.diagnosis.adapters import PreparedLog, RobotAdapter
 from realitygap.diagnosis.features import FeatureSchema, FeatureSettings
+from realitygap.diagnosis.log import Log
 from realitygap.diagnosis.parameters import (
     from_range_position,
     model_keys,
@@ -71,6 +72,7 @@ __all__ = [
     "Verdict",
     "fit_model",
     "profile_score",
+    "replay_task",
 ]
 
 
@@ -339,6 +341,13 @@ class Problem:
             cache[keys] = dict(hook(self, keys))
         return dict(cache[keys])
 
+    def replay(self, i: int, values: Mapping[str, float]) -> tuple[Any, Log]:
+        """PyBullet replay of log ``i`` with the effect ``values``: its features and its log
+        (the problem's replay fidelity, else the log's own)."""
+        p = self.logs[i]
+        sim = self.sim if self.sim is not None else p.context.sim
+        return self.adapter.replay_features(p, values, self.drive, sim)
+
     def with_baseline(self, values: Mapping[str, FloatArray], batch: int) -> dict[str, FloatArray]:
         """``values`` plus the calibrated baseline for every parameter they do not set."""
         out = dict(values)
@@ -471,6 +480,11 @@ def _rho(q: FloatArray, loss: str, c: float) -> FloatArray:
     else:
         return q
     return c**2 * r
+
+
+def replay_task(problem: Problem, item: tuple[int, Mapping[str, float]]) -> tuple[Any, Log]:
+    """:meth:`Problem.replay` of ``item = (log index, values)``, as a backend maps it."""
+    return problem.replay(*item)
 
 
 def fit_model(

@@ -59,7 +59,7 @@ import numpy.typing as npt
 
 from realitygap.core.parallel import Backend
 from realitygap.diagnosis.adapters import PreparedLog
-from realitygap.diagnosis.attribute import Problem, _rho, fit_model
+from realitygap.diagnosis.attribute import Problem, _rho, fit_model, replay_task
 from realitygap.diagnosis.clock import ClockAlignment, ClockSettings, align_clocks, timing_channel
 from realitygap.diagnosis.frames import FrameAlignment, align_frames, frame_channel
 from realitygap.diagnosis.log import Log
@@ -200,13 +200,6 @@ def check_nuisances(ranges: Mapping[str, NuisanceRange]) -> None:
                 f"baseline nuisance {key!r}: range {low:g} … {high:g} leaves the physical bounds "
                 f"{spec.low:g} … {spec.high:g} of the parameter"
             )
-
-
-def _replay_task(problem: Problem, item: tuple[int, dict[str, float]]) -> tuple[Any, Log]:
-    i, values = item
-    p = problem.logs[i]
-    sim = problem.sim if problem.sim is not None else p.context.sim
-    return problem.adapter.replay_features(p, values, problem.drive, sim)
 
 
 def _prepare_task(problem: Problem, item: tuple[int, Log]) -> PreparedLog:
@@ -427,7 +420,7 @@ def calibrate_baseline(
     fit = fit_model(problem, effects, box=box)
     values = {k: fit.values[k] for k in ranges}
     idx = list(range(len(problem.logs)))
-    reps = backend.map(_replay_task, [(i, values) for i in idx], problem)
+    reps = backend.map(replay_task, [(i, values) for i in idx], problem)
     z_before = problem.nominal_residuals(problem.train)
     features: dict[int, dict[str, FloatArray]] = {}
     replays: dict[int, Log] = {}

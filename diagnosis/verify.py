@@ -21,7 +21,7 @@ import numpy.typing as npt
 
 from realitygap.core.parallel import Backend
 from realitygap.diagnosis.adapters import PreparedLog
-from realitygap.diagnosis.attribute import ModelFit, Problem, _finish, fit_model
+from realitygap.diagnosis.attribute import ModelFit, Problem, _finish, fit_model, replay_task
 from realitygap.diagnosis.log import Log
 from realitygap.diagnosis.parameters import range_position
 
@@ -33,15 +33,6 @@ HELDOUT_GAIN_SIGMAS = 2.0
 """How many standard errors a held-out gain must reach to count whatever its size."""
 HELDOUT_GAIN_MIN_SHARE = 0.05
 """Share of the held-out mean square a gain must remove to count whatever its noise."""
-
-
-def _replay_task(
-    problem: Problem, item: tuple[int, dict[str, float]]
-) -> tuple[dict[str, FloatArray], Log]:
-    i, values = item
-    p = problem.logs[i]
-    sim = problem.sim if problem.sim is not None else p.context.sim
-    return problem.adapter.replay_features(p, values, problem.drive, sim)
 
 
 def _rescore(problem: Problem, fit: ModelFit, z_tr: FloatArray, z_ho: FloatArray) -> ModelFit:
@@ -72,7 +63,7 @@ def verify_model(
     values = dict(fit.values)
     train_idx = [i for i, p in enumerate(problem.logs) if (~p.holdout_windows).any()]
     for _ in range(problem.settings.defect_iterations):
-        reps = backend.map(_replay_task, [(i, values) for i in train_idx], problem)
+        reps = backend.map(replay_task, [(i, values) for i in train_idx], problem)
         bias = {}
         for i, (feats, _) in zip(train_idx, reps):
             p = problem.logs[i]
@@ -81,7 +72,7 @@ def verify_model(
         fit = fit_model(problem, fit.effects, starts=[values], bias=bias, local_only=True)
         values = dict(fit.values)
     all_idx = list(range(len(problem.logs)))
-    reps = backend.map(_replay_task, [(i, values) for i in all_idx], problem)
+    reps = backend.map(replay_task, [(i, values) for i in all_idx], problem)
     pb = {i: feats for i, (feats, _) in zip(all_idx, reps)}
     logs = {i: lg for i, (_, lg) in zip(all_idx, reps)}
 

@@ -200,14 +200,10 @@ def _umbmark_heldout(d: Any, e_b: float, e_d: float) -> dict[str, float]:
         "wheelbase_error.E_b": float(e_b),
         "wheel_diameter_ratio.E_d": float(e_d),
     }
-    real, reps = [], []
-    for p in problem.logs:
-        if not p.holdout_windows.any():
-            continue
-        sim = problem.sim if problem.sim is not None else p.context.sim
-        real.append(p.log)
-        reps.append(problem.adapter.replay_features(p, values, problem.drive, sim)[1])
-    gap = trajectory_gap(real, reps)
+    held = [i for i, p in enumerate(problem.logs) if p.holdout_windows.any()]
+    gap = trajectory_gap(
+        [problem.logs[i].log for i in held], [problem.replay(i, values)[1] for i in held]
+    )
     nominal = d.gap["heldout_trajectory_gap_m_nominal"]
     return {
         "umbmark_heldout_gap_cm": 100.0 * gap,
