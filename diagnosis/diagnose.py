@@ -508,29 +508,21 @@ def gap_report(
         if baseline is not None and baseline.values
         else "nominal replay",
     }
-    traj_nominal = trajectory_gap(real_ho, nominal_ho)
-    if math.isfinite(traj_nominal):  # held-out logs with a planar ground truth
-        gap["heldout_trajectory_gap_m_nominal"] = traj_nominal
-        if baseline is not None and baseline.replays:
-            gap["heldout_trajectory_gap_m_baseline"] = trajectory_gap(
-                real_ho, [baseline.replays[i] for i in ho_idx]
-            )
-        reps_best = replays.get(best.effects)
-        if reps_best is not None:
-            gap["heldout_trajectory_gap_m_best"] = trajectory_gap(
-                real_ho, [reps_best[i] for i in ho_idx]
-            )
-            nom = gap["heldout_trajectory_gap_m_nominal"]
-            if nom > 0:
-                # whole replays: what a drift-type effect integrates into, next to the window figures
-                gap["heldout_trajectory_shrink_pct_best"] = 100.0 * (
-                    1.0 - gap["heldout_trajectory_gap_m_best"] / nom
-                )
+    if math.isfinite(trajectory_gap(real_ho, nominal_ho)):  # a planar ground truth
         runs = {"nominal": nominal_ho}
         if baseline is not None and baseline.replays:
             runs["baseline"] = [baseline.replays[i] for i in ho_idx]
+        reps_best = replays.get(best.effects)
         if reps_best is not None:
             runs["best"] = [reps_best[i] for i in ho_idx]
+        for name, sims in runs.items():
+            gap[f"heldout_trajectory_gap_m_{name}"] = trajectory_gap(real_ho, sims)
+        nom = gap["heldout_trajectory_gap_m_nominal"]
+        if "best" in runs and nom > 0:
+            # whole replays: what a drift-type effect integrates into, next to the window figures
+            gap["heldout_trajectory_shrink_pct_best"] = 100.0 * (
+                1.0 - gap["heldout_trajectory_gap_m_best"] / nom
+            )
         gap["heldout_trajectory_runs"] = trajectory_runs(real_ho, runs)
     gt_sel = problem.holdout.group == "pose_gt"
     if gt_sel.any():

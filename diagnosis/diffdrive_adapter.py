@@ -274,14 +274,11 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         )
         if drive is Drive.COMMANDS:
             requests = bool(self.actuator_conventions(prepared, drive))
-            out["command_latency.delay"] = (
-                0.0,
-                dt if requests else half,
-                "response time of the replayed commands",
-            )
+            response = dt if requests else half
+            out["command_latency.delay"] = (0.0, response, "response time of the replayed commands")
             out["motor_response.tau"] = (
                 0.0,
-                max(dt if requests else half, DRIVE_RESPONSE_FLOOR),
+                max(response, DRIVE_RESPONSE_FLOOR),
                 "time constant of both wheels' velocity loops",
             )
         return out
