@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import difflib
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any, ClassVar, NamedTuple, Protocol
@@ -44,6 +44,7 @@ __all__ = [
     "TicksHook",
     "WheelHook",
     "make_effect",
+    "pipeline_order",
     "register_effect",
 ]
 
@@ -375,13 +376,35 @@ def make_effect(name: str, **values: float) -> Effect:
     return EFFECTS[name](**values)
 
 
+def pipeline_order(effects: Sequence[Effect]) -> tuple[Effect, ...]:
+    """``effects`` in the order they act along the robot's pipeline.
+
+    The order is the surrogate model's: by :attr:`Effect.surrogate_slot` (in the
+    order its enum lists the slots), then :attr:`Effect.surrogate_order`. The
+    sort is stable, so effects without a slot, and effects whose terms commute
+    (equal keys), keep the order they were given in. The order matters where
+    hooks do not commute: a dead zone or a speed limit before a lag is not the
+    same drive as after it.
+    """
+
+    def key(e: Effect) -> tuple[int, int]:
+        slot = type(e).surrogate_slot
+        if slot is None:
+            return (-1, 0)
+        return (list(type(slot)).index(slot), type(e).surrogate_order)
+
+    return tuple(sorted(effects, key=key))
+
+
 @dataclass
 class Reality:
     """Nominal parameters plus effects: the description of a "real" robot.
 
-    ``Reality()`` is the nominal robot. Effects apply in order; hooks that act
-    on the firmware's commands see the *nominal* geometry, handed to
-    :meth:`command_hooks`.
+    ``Reality()`` is the nominal robot. Effects act in the order of the robot's
+    pipeline, whatever order they are given in (:func:`pipeline_order`): a motor's
+    dead zone acts on the set-point before the motor's lag smooths it, as it does
+    in the surrogate model. Hooks that act on the firmware's commands see the
+    *nominal* geometry, handed to :meth:`command_hooks`.
     """
 
     effects: tuple[Effect, ...] = ()
@@ -389,10 +412,10 @@ class Reality:
     meta: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        self.effects = tuple(self.effects)
         for e in self.effects:
             if not isinstance(e, Effect):
                 raise TypeError(f"Reality.effects must hold Effect objects, got {type(e).__name__}")
+        self.effects = pipeline_order(self.effects)
 
     def apply_params(self, params: Any) -> Any:
         """The physical parameters of the real robot, built from the nominal ``params``."""
