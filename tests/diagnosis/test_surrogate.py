@@ -169,3 +169,30 @@ def test_drive_train_effects_compose_with_command_latency(base, effect) -> None:
                 den += float(np.sum(d_pb**2))
         assert den > 1.0
         assert np.sqrt(num / den) < bound, order
+
+
+@pytest.mark.parametrize(
+    "effect", ("motor_deadband", "velocity_saturation", "wheel_dead_zone", "torque_speed_saturation")
+)
+def test_static_wheel_limits_act_before_the_drive_lag_in_either_order(base, effect) -> None:
+    # a dead zone or a speed limit on the set-point, then the motor's lag: PyBullet composes
+    # them in the surrogate's order whatever order the reality lists them in (the calibrated
+    # baseline's motor lag comes first in a model's values)
+    sur, scales, out = base
+    values = {"motor_response": {"tau": 0.12}, effect: dict(EFFECTS[effect].surrogate_example)}
+    flat = {f"{e}.{k}": v for e, vals in values.items() for k, v in vals.items()}
+    bound = max(EFFECTS[effect].surrogate_tolerance, EFFECTS["motor_response"].surrogate_tolerance)
+    for order in (("motor_response", effect), (effect, "motor_response")):
+        reality = Reality(tuple(make_effect(n, **values[n]) for n in order))
+        assert [e.name for e in reality.effects] == [effect, "motor_response"]
+        num = den = 0.0
+        for t, cmd, b, pb0, s0 in out.values():
+            pb = features(simulate(t, params=P, commands=cmd, reality=reality).channels, b, MPT)
+            s = features(sur.simulate(SurrogateInputs(DT, np.zeros(3), commands=cmd), flat), b, MPT)
+            for g in pb:
+                d_pb = (pb[g] - pb0[g]) / scales.scale(g)
+                d_s = (s[g][0] - s0[g]) / scales.scale(g)
+                num += float(np.sum((d_s - d_pb) ** 2))
+                den += float(np.sum(d_pb**2))
+        assert den > 1.0
+        assert np.sqrt(num / den) < bound, order
