@@ -226,7 +226,6 @@ def test_sub_sample_time_alignment_goes_to_the_baseline_not_the_findings() -> No
     assert "timestamp_offset" not in d.verdict.effects
 
 
-
 def test_a_nuisance_the_residual_cannot_feel_is_held_and_one_it_feels_is_refined(
     monkeypatch,
 ) -> None:

@@ -172,7 +172,8 @@ def test_drive_train_effects_compose_with_command_latency(base, effect) -> None:
 
 
 @pytest.mark.parametrize(
-    "effect", ("motor_deadband", "velocity_saturation", "wheel_dead_zone", "torque_speed_saturation")
+    "effect",
+    ("motor_deadband", "velocity_saturation", "wheel_dead_zone", "torque_speed_saturation"),
 )
 def test_static_wheel_limits_act_before_the_drive_lag_in_either_order(base, effect) -> None:
     # a dead zone or a speed limit on the set-point, then the motor's lag: PyBullet composes
