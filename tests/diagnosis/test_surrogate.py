@@ -148,27 +148,35 @@ DRIVE_TRAIN = (
 )
 
 
+def _composed_error(base, values: dict[str, dict[str, float]], order: tuple[str, ...]):
+    """The surrogate's error of the change of the features that ``values`` make, relative to
+    PyBullet's with the effects listed in ``order``, and the size of that change (the
+    reality, for its order of effects)."""
+    sur, scales, out = base
+    flat = {f"{e}.{k}": v for e, vals in values.items() for k, v in vals.items()}
+    reality = Reality(tuple(make_effect(n, **values[n]) for n in order))
+    num = den = 0.0
+    for t, cmd, b, pb0, s0 in out.values():
+        pb = features(simulate(t, params=P, commands=cmd, reality=reality).channels, b, MPT)
+        s = features(sur.simulate(SurrogateInputs(DT, np.zeros(3), commands=cmd), flat), b, MPT)
+        for g in pb:
+            d_pb = (pb[g] - pb0[g]) / scales.scale(g)
+            d_s = (s[g][0] - s0[g]) / scales.scale(g)
+            num += float(np.sum((d_s - d_pb) ** 2))
+            den += float(np.sum(d_pb**2))
+    return np.sqrt(num / den), den, reality
+
+
 @pytest.mark.parametrize("effect", DRIVE_TRAIN)
 def test_drive_train_effects_compose_with_command_latency(base, effect) -> None:
     # a bus delay in front of each drive-train effect: the surrogate's change of the features
     # agrees with PyBullet as well as the effect's own, whatever order the effects are given in
-    sur, scales, out = base
     values = {"command_latency": {"delay": 0.1}, effect: dict(EFFECTS[effect].surrogate_example)}
-    flat = {f"{e}.{k}": v for e, vals in values.items() for k, v in vals.items()}
     bound = max(EFFECTS[effect].surrogate_tolerance, EFFECTS["command_latency"].surrogate_tolerance)
     for order in (("command_latency", effect), (effect, "command_latency")):
-        reality = Reality(tuple(make_effect(n, **values[n]) for n in order))
-        num = den = 0.0
-        for t, cmd, b, pb0, s0 in out.values():
-            pb = features(simulate(t, params=P, commands=cmd, reality=reality).channels, b, MPT)
-            s = features(sur.simulate(SurrogateInputs(DT, np.zeros(3), commands=cmd), flat), b, MPT)
-            for g in pb:
-                d_pb = (pb[g] - pb0[g]) / scales.scale(g)
-                d_s = (s[g][0] - s0[g]) / scales.scale(g)
-                num += float(np.sum((d_s - d_pb) ** 2))
-                den += float(np.sum(d_pb**2))
-        assert den > 1.0
-        assert np.sqrt(num / den) < bound, order
+        err, size, _ = _composed_error(base, values, order)
+        assert size > 1.0
+        assert err < bound, order
 
 
 @pytest.mark.parametrize(
@@ -179,21 +187,10 @@ def test_static_wheel_limits_act_before_the_drive_lag_in_either_order(base, effe
     # a dead zone or a speed limit on the set-point, then the motor's lag: PyBullet composes
     # them in the surrogate's order whatever order the reality lists them in (the calibrated
     # baseline's motor lag comes first in a model's values)
-    sur, scales, out = base
     values = {"motor_response": {"tau": 0.12}, effect: dict(EFFECTS[effect].surrogate_example)}
-    flat = {f"{e}.{k}": v for e, vals in values.items() for k, v in vals.items()}
     bound = max(EFFECTS[effect].surrogate_tolerance, EFFECTS["motor_response"].surrogate_tolerance)
     for order in (("motor_response", effect), (effect, "motor_response")):
-        reality = Reality(tuple(make_effect(n, **values[n]) for n in order))
+        err, size, reality = _composed_error(base, values, order)
         assert [e.name for e in reality.effects] == [effect, "motor_response"]
-        num = den = 0.0
-        for t, cmd, b, pb0, s0 in out.values():
-            pb = features(simulate(t, params=P, commands=cmd, reality=reality).channels, b, MPT)
-            s = features(sur.simulate(SurrogateInputs(DT, np.zeros(3), commands=cmd), flat), b, MPT)
-            for g in pb:
-                d_pb = (pb[g] - pb0[g]) / scales.scale(g)
-                d_s = (s[g][0] - s0[g]) / scales.scale(g)
-                num += float(np.sum((d_s - d_pb) ** 2))
-                den += float(np.sum(d_pb**2))
-        assert den > 1.0
-        assert np.sqrt(num / den) < bound, order
+        assert size > 1.0
+        assert err < bound, order
