@@ -166,50 +166,32 @@ def _lag(x: FloatArray, k: FloatArray) -> FloatArray:
     return y
 
 
-def _lag_mean(tau: Any, dt: float) -> Any:
-    r"""Weight :math:`a = (τ/dt)(1 - e^{-dt/τ})` of the speed at the start of a period in the
-    period's mean speed of a first-order lag whose set-point is held over the period:
-    :math:`\bar s_k = s^{cmd}_k + a\,(s_{k-1} - s^{cmd}_k)`; 0 at :math:`τ = 0`."""
-    tau = np.asarray(tau, dtype=float)
-    return np.where(tau > 0.0, tau / dt * _lag_gain(tau, dt), 0.0)
-
-
 def _lag_hook(
     nominal: DiffDriveParams | None, dt: float, tau_l: float, tau_r: float
 ) -> CommandHook:
     """The PyBullet command hook of first-order lags with time constants ``tau_l``,
-    ``tau_r`` (s) on the left and right wheel-speed commands, from rest: each period's
-    wheel-speed target is the lag's mean speed over that period (:func:`_lag_mean`), so
-    that the wheel covers what a continuous velocity loop covers."""
+    ``tau_r`` (s) on the left and right wheel-speed commands, from rest."""
     kl, kr = float(_lag_gain(tau_l, dt)), float(_lag_gain(tau_r, dt))
-    al, ar = float(_lag_mean(tau_l, dt)), float(_lag_mean(tau_r, dt))
     state = [0.0, 0.0]
 
     def step(sl: float, sr: float, dt_: float) -> tuple[float, float]:
-        ml = sl + al * (state[0] - sl)
-        mr = sr + ar * (state[1] - sr)
         state[0] += kl * (sl - state[0])
         state[1] += kr * (sr - state[1])
-        return ml, mr
+        return state[0], state[1]
 
     return _wheel_command_hook(nominal, step)
 
 
 def _lag_term(x: Any, tau_l: FloatArray, tau_r: FloatArray, dt: float) -> Any:
     """The surrogate's term of the same lags: wheel speeds ``x = (s_L, s_R)`` (N,) or
-    (B, N) and time constants (B,) → each period's mean lagged wheel speeds (B, N) each."""
+    (B, N) and time constants (B,) → lagged wheel speeds (B, N) each."""
     sl, sr = x
     if not (np.any(tau_l > 0) or np.any(tau_r > 0)):
         return sl, sr
     out = []
     for s, tau in ((sl, tau_l), (sr, tau_r)):
         kk = _lag_gain(tau, dt)
-        s = np.broadcast_to(s, (kk.shape[0], np.shape(s)[-1]))
-        end = _lag(s, kk)  # the lag's speed at the end of each period
-        start = np.zeros_like(end)
-        start[:, 1:] = end[:, :-1]
-        a = _lag_mean(tau, dt)[:, None]
-        out.append(s + a * (start - s))
+        out.append(_lag(np.broadcast_to(s, (kk.shape[0], np.shape(s)[-1])), kk))
     return out[0], out[1]
 
 
@@ -219,16 +201,13 @@ class WheelVelocityLag(Effect):
 
     A wheel's speed controller (PI loop, motor and gear inertia) does not
     reach a new wheel-speed command at once: with time constant
-    :math:`τ` per wheel, the wheel's speed at the end of period ``k`` is
+    :math:`τ` per wheel the speed applied over period ``k`` is
 
     .. math::
 
-        s_k = s_{k-1} + (1 - e^{-dt/τ})\,(s^{cmd}_k - s_{k-1}),
+        s_k = s_{k-1} + (1 - e^{-dt/τ})\,(s^{cmd}_k - s_{k-1}).
 
-    and the speed applied over the period is the continuous lag's mean over it,
-    :math:`\bar s_k = s^{cmd}_k + (τ/dt)(1 - e^{-dt/τ})\,(s_{k-1} - s^{cmd}_k)`:
-    settled, a wheel trails its command by exactly :math:`τ` seconds, as a
-    continuous velocity loop does, whatever the control period. Unequal time constants (one motor or gearbox stiffer than the other) make
+    Unequal time constants (one motor or gearbox stiffer than the other) make
     the robot yaw on every start and stop. Realised on the firmware's
     wheel-speed commands; the surrogate runs the same recursion.
     """
@@ -279,7 +258,7 @@ class MotorResponse(Effect):
 
         s_k = s_{k-1} + (1 - e^{-dt/τ})\,(s^{cmd}_k - s_{k-1})
 
-    per wheel, applied as its mean over each period (as ``wheel_velocity_lag``): every start and stop is softened alike and the robot does not
+    per wheel: every start and stop is softened alike and the robot does not
     yaw. It is the actuator response of the nominal that every real drive has,
     so it stays outside the default library: the calibrated baseline fits it as
     a convention of the drive (:meth:`~realitygap.diagnosis.diffdrive_adapter.DiffDriveAdapter.baseline_nuisances`).
