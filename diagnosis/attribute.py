@@ -586,21 +586,6 @@ def fit_model(
         cand = [u_nom]
 
     h = 1e-3
-    if q:
-        # a nuisance the training residual does not feel at all around its value (a lag far
-        # below the period: the filter's gain is exactly 1) cannot be refined; the local fit
-        # would wander along it to its evaluation limit, so it is held where the baseline put it
-        u0 = np.concatenate([cand[0], u_base])
-        steps = np.where(u_base + h <= hi_n, h, -h)
-        U = np.repeat(u0[None], q + 1, axis=0)
-        U[np.arange(1, q + 1), p + np.arange(q)] += steps
-        z = residual_batch(U, tr)
-        felt = np.any(z[1:] != z[0], axis=1)
-        if not felt.all():
-            nuis = tuple(k for k, f in zip(nuis, felt) if f)
-            lo_n, hi_n, u_base = lo_n[felt], hi_n[felt], u_base[felt]
-            q = len(nuis)
-            all_keys = keys + nuis
     cache: dict[bytes, FloatArray] = {}
     # the local refinement runs over the model's parameters and the baseline nuisances
     lo_u, hi_u = np.concatenate([lo_u, lo_n]), np.concatenate([hi_u, hi_n])

@@ -224,39 +224,3 @@ def test_sub_sample_time_alignment_goes_to_the_baseline_not_the_findings() -> No
     )
     # the baseline stays a nuisance: the calibration switched off names it nowhere
     assert "timestamp_offset" not in d.verdict.effects
-
-
-def test_a_nuisance_the_residual_cannot_feel_is_held_and_one_it_feels_is_refined(
-    monkeypatch,
-) -> None:
-    # each candidate's fit refines the baseline's nuisances beside its own parameters, except
-    # one whose every step leaves the training residual bit-identical (a lag far below the
-    # period: the filter's gain is exactly 1): the fit could only wander along it
-    import realitygap.diagnosis.diagnose as diagnose_module
-    from realitygap.diagnosis.attribute import fit_model
-
-    seen = []
-    calibrate_baseline = diagnose_module.calibrate_baseline
-
-    def calibrate(problem, *args, **kwargs):
-        seen.append(problem)  # the problem the diagnosis built, for fits of our own
-        return calibrate_baseline(problem, *args, **kwargs)
-
-    monkeypatch.setattr(diagnose_module, "calibrate_baseline", calibrate)
-    rng = np.random.default_rng(8)
-    reality = Reality(
-        (make_effect("wheelbase_error", E_b=1.04), make_effect("motor_response", tau=0.04))
-    )
-    train = [record(LOOP, reality, rng), record(ARCS, reality, rng)]
-    diagnose(
-        train,
-        [record(LOOP, reality, rng)],
-        settings=DiagnosisSettings(effects=LIBRARY, attribution=FAST),
-    )
-    problem = seen[0]
-    assert problem.baseline_values["motor_response.tau"] == pytest.approx(0.04, abs=0.01)
-    for tau, refined in ((0.0, False), (1e-4, False), (0.03, True)):
-        problem.baseline_values["motor_response.tau"] = tau
-        fit = fit_model(problem, ("wheelbase_error",))
-        assert (fit.values["motor_response.tau"] != tau) is refined, tau
-        assert fit.values["wheelbase_error.E_b"] == pytest.approx(1.04, abs=0.01)
