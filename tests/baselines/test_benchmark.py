@@ -246,19 +246,20 @@ def test_reality_profiles_build_and_json_profiles_load(tmp_path: Path) -> None:
         assert reality.name == name and reality.effects
     path = tmp_path / "mine.json"
     path.write_text(json.dumps(bm.reality_from_profile("kobuki-worn").to_dict()))
+    # the effects in the pipeline's order: the command's latency before the body's geometry
     assert bm.reality_from_profile(str(path)).effect_names == (
+        "command_latency",
         "wheel_diameter_ratio",
         "wheelbase_error",
-        "command_latency",
     )
 
 
 def test_env_specific_realities_and_sensor_modes() -> None:
     assert bm.reality_for(ENV_ID, "nominal") is None  # the env's default
     assert bm.reality_for(ENV_ID, "kobuki-worn").effect_names == (
+        "command_latency",
         "wheel_diameter_ratio",
         "wheelbase_error",
-        "command_latency",
     )
     assert bm.env_sensor_mode(ENV_ID, "fast") == "fast"
     assert bm.env_sensor_mode("realitygap/ArmCalib-v0", "fast") == "geometric"
