@@ -53,7 +53,7 @@ import numpy.typing as npt
 
 from realitygap.core.io import atomic_write_text
 from realitygap.robots.diffdrive import DiffDriveParams
-from realitygap.robots.effects import EFFECTS, Effect
+from realitygap.robots.effects import EFFECTS, Effect, pipeline_key
 from realitygap.robots.effects.diffdrive import SurrogateContext, SurrogateSlot
 
 FloatArray = npt.NDArray[np.float64]
@@ -74,7 +74,7 @@ _TERMS: dict[SurrogateSlot, tuple[type[Effect], ...]] = {
     slot: tuple(
         sorted(
             (EFFECTS[n] for n in SURROGATE_EFFECTS if EFFECTS[n].surrogate_slot is slot),
-            key=lambda c: c.surrogate_order,
+            key=pipeline_key,
         )
     )
     for slot in SurrogateSlot

@@ -30,7 +30,7 @@ import numpy.typing as npt
 
 from realitygap.envs.layouts import room_walls
 from realitygap.robots.diffdrive import DiffDriveParams
-from realitygap.robots.effects import EFFECTS, Effect, Reality
+from realitygap.robots.effects import EFFECTS, Effect, Reality, pipeline_key
 from realitygap.robots.effects.diffdrive import SurrogateContext, SurrogateSlot
 from realitygap.robots.world import Primitive, Shape
 
@@ -75,11 +75,7 @@ def vector_effects() -> tuple[str, ...]:
 def _terms(names: Sequence[str]) -> dict[SurrogateSlot, tuple[type[Effect], ...]]:
     classes = [EFFECTS[n] for n in names]
     return {
-        slot: tuple(
-            sorted(
-                (c for c in classes if c.surrogate_slot is slot), key=lambda c: c.surrogate_order
-            )
-        )
+        slot: tuple(sorted((c for c in classes if c.surrogate_slot is slot), key=pipeline_key))
         for slot in SurrogateSlot
     }
 

@@ -36,6 +36,7 @@ from realitygap.robots.effects.base import (
     TicksHook,
     WheelHook,
     make_effect,
+    pipeline_key,
     pipeline_order,
     register_effect,
 )
@@ -58,6 +59,7 @@ __all__ = [
     "blind_ranges",
     "library",
     "make_effect",
+    "pipeline_key",
     "pipeline_order",
     "register_effect",
 ]

@@ -44,6 +44,7 @@ __all__ = [
     "TicksHook",
     "WheelHook",
     "make_effect",
+    "pipeline_key",
     "pipeline_order",
     "register_effect",
 ]
@@ -376,24 +377,27 @@ def make_effect(name: str, **values: float) -> Effect:
     return EFFECTS[name](**values)
 
 
+def pipeline_key(cls: type[Effect]) -> tuple[int, int]:
+    """Where an effect class acts along its robot's pipeline: its
+    :attr:`Effect.surrogate_slot` (in the order its enum lists the slots), then its
+    :attr:`Effect.surrogate_order`; ``(-1, 0)`` for a class without a slot. The
+    surrogate applies its terms in this order, and :func:`pipeline_order` puts a
+    reality's effects in it."""
+    slot = cls.surrogate_slot
+    if slot is None:
+        return (-1, 0)
+    return (list(type(slot)).index(slot), cls.surrogate_order)
+
+
 def pipeline_order(effects: Sequence[Effect]) -> tuple[Effect, ...]:
-    """``effects`` in the order they act along the robot's pipeline.
+    """``effects`` in the order they act along the robot's pipeline (:func:`pipeline_key`).
 
-    The order is the surrogate model's: by :attr:`Effect.surrogate_slot` (in the
-    order its enum lists the slots), then :attr:`Effect.surrogate_order`. The
-    sort is stable, so effects without a slot, and effects whose terms commute
-    (equal keys), keep the order they were given in. The order matters where
-    hooks do not commute: a dead zone or a speed limit before a lag is not the
-    same drive as after it.
+    The sort is stable, so effects without a slot, and effects whose terms commute
+    (equal keys), keep the order they were given in. The order matters where hooks do
+    not commute: a dead zone or a speed limit before a lag is not the same drive as
+    after it.
     """
-
-    def key(e: Effect) -> tuple[int, int]:
-        slot = type(e).surrogate_slot
-        if slot is None:
-            return (-1, 0)
-        return (list(type(slot)).index(slot), type(e).surrogate_order)
-
-    return tuple(sorted(effects, key=key))
+    return tuple(sorted(effects, key=lambda e: pipeline_key(type(e))))
 
 
 @dataclass
@@ -412,10 +416,11 @@ class Reality:
     meta: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        for e in self.effects:
+        effects = tuple(self.effects)  # any iterable, read once
+        for e in effects:
             if not isinstance(e, Effect):
                 raise TypeError(f"Reality.effects must hold Effect objects, got {type(e).__name__}")
-        self.effects = pipeline_order(self.effects)
+        self.effects = pipeline_order(effects)
 
     def apply_params(self, params: Any) -> Any:
         """The physical parameters of the real robot, built from the nominal ``params``."""
@@ -485,7 +490,7 @@ class Reality:
 
     @property
     def effect_names(self) -> tuple[str, ...]:
-        """Names of the effects, in order."""
+        """Names of the effects, in the pipeline's order."""
         return tuple(e.name for e in self.effects)
 
     def to_dict(self) -> dict[str, Any]:

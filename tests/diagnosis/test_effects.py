@@ -494,3 +494,20 @@ def test_the_lag_recursion_is_the_same_for_shared_and_distinct_gains() -> None:
     np.testing.assert_allclose(_lag(x, gains), expected, rtol=1e-12, atol=1e-12)
     # a batch that shares its gain is filtered alike, row by row
     np.testing.assert_array_equal(_lag(x, np.full(6, 0.3))[0], _lag(x[:1], np.array([0.3]))[0])
+
+
+def test_a_reality_reads_any_iterable_once_and_puts_it_in_the_pipelines_order() -> None:
+    from realitygap.robots.effects import pipeline_key
+
+    names = ("wheelbase_error", "motor_response", "motor_deadband", "command_latency")
+    reality = Reality(make_effect(n) for n in names)  # a generator: read once, nothing lost
+    assert reality.effect_names == (
+        "command_latency",
+        "motor_deadband",
+        "motor_response",
+        "wheelbase_error",
+    )
+    keys = [pipeline_key(type(e)) for e in reality.effects]
+    assert keys == sorted(keys)
+    with pytest.raises(TypeError, match="must hold Effect objects"):
+        Reality((make_effect("wheelbase_error"), "motor_response"))
