@@ -123,16 +123,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
         return 2
     options: dict[str, object] = {}
     # options an experiment declares it takes (``Experiment.robots`` / ``.variants``)
-    for option, declared in (("robot", "robots"), ("variant", "variants")):
-        value = getattr(args, option)
-        if value is None:
-            continue
+    declared = {"robot": "robots", "variant": "variants"}
+    given = {o: getattr(args, o) for o in declared if getattr(args, o) is not None}
+    if given:
         try:
             spec = experiments.get(args.experiment)
         except KeyError as exc:
             print(f"error: {exc.args[0]}", file=sys.stderr)
             return 2
-        choices = getattr(spec, declared)
+    for option, value in given.items():
+        choices = getattr(spec, declared[option])
         if value not in choices:
             can = f"one of {', '.join(choices)}" if choices else f"no --{option} option"
             print(
