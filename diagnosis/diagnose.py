@@ -53,7 +53,7 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.core.parallel import Backend, SerialBackend
-from realitygap.diagnosis.actuation import actuation_spread, command_wheel_gains
+from realitygap.diagnosis.actuation import actuation_spread, command_wheel_gains, wheel_tracking
 from realitygap.diagnosis.adapters import PreparedLog, RobotAdapter, get_adapter
 from realitygap.diagnosis.attribute import (
     AttributionSettings,
@@ -193,8 +193,9 @@ class Diagnosis:
     coverage: Coverage | None = None
     actuation: dict[str, Any] = field(default_factory=dict)
     """A command-driven replay of logs with encoders: ``gains`` (per log, the adapter's
-    ``command_wheel_gains``) and ``spread``
-    (:func:`~realitygap.diagnosis.actuation.actuation_spread`, or ``None``); else empty."""
+    ``command_wheel_gains``), ``spread``
+    (:func:`~realitygap.diagnosis.actuation.actuation_spread`, or ``None``) and
+    ``tracking`` (:func:`~realitygap.diagnosis.actuation.wheel_tracking`); else empty."""
 
     @property
     def chosen(self) -> ModelFit | None:
@@ -700,6 +701,12 @@ def diagnose(
         if spread is not None and spread["differs"]:
             judgement.verdict.notes["actuation"] = spread
             say(f"drive train: {spread['message']}")
+    tracking = wheel_tracking(adapter, prepared) if drive is Drive.COMMANDS else None
+    if tracking is not None:
+        actuation["tracking"] = tracking
+        if tracking["beyond"]:
+            judgement.verdict.notes["tracking"] = tracking
+            say(f"wheels: {tracking['message']}")
     rows, gap = gap_report(problem, judgement, verification.replays, baseline)
     if coverage is not None:
         say(f"coverage: {coverage.summary()}")

@@ -68,7 +68,7 @@ from realitygap.diagnosis.replay import (
     replay,
     simulate,
 )
-from realitygap.diagnosis.scales import autocorrelation_widening
+from realitygap.diagnosis.scales import gain_through_origin
 from realitygap.diagnosis.surrogate import (
     SURROGATE_EFFECTS,
     DiffDriveSurrogate,
@@ -603,6 +603,26 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         real, asked = self._tick_motion(prepared, log["ticks"], rep["ticks"])
         return real, asked
 
+    def wheel_travel(
+        self, prepared: PreparedLog
+    ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+        """Per window, each wheel's ground travel by the logged encoders and by the nominal
+        replay's (what the nominal drive train makes of the commands), (M, 2) each, m, and
+        the windows' durations (M,), s, for a command-driven replay of a log with encoders;
+        ``None`` otherwise."""
+        log, rep = prepared.log, prepared.replay_log
+        if self._context(prepared).inputs.commands is None or not (
+            log.has("ticks") and rep.has("ticks")
+        ):
+            return None
+        mpt = np.asarray(self.meters_per_tick(self._context(prepared).params))
+        a, b = prepared.bounds[:, 0], prepared.bounds[:, 1]
+        real, asked = (
+            (np.asarray(tk, dtype=float)[b] - np.asarray(tk, dtype=float)[a]) * mpt
+            for tk in (log["ticks"], rep["ticks"])
+        )
+        return real, asked, np.asarray(log.t)[b] - np.asarray(log.t)[a]
+
     def _tick_motion(self, prepared: PreparedLog, *ticks: FloatArray) -> FloatArray:
         """Per window, the motion (dx, dy m, dθ rad) nominal odometry makes of each tick
         series (N, 2) of the log, (len(ticks), M, 3); window motions do not depend on the
@@ -619,8 +639,7 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         ``distance_gain``: logged over asked wheel travel (means of the two wheels);
         ``turn_gain``: least-squares slope of the logged heading change per window on
         the asked one, over the windows that turn, and ``turn_gain_se`` its standard
-        error from the windows' scatter about it, widened for their lag-1
-        autocorrelation (:func:`~realitygap.diagnosis.scales.autocorrelation_widening`);
+        error (:func:`~realitygap.diagnosis.scales.gain_through_origin`);
         NaN with fewer than three turning windows.
         """
         wheels = self.wheel_motion(prepared)
@@ -634,11 +653,7 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         n = int(turning.sum())
         turn = se = math.nan
         if n >= 3:
-            a, r = a[turning], r[turning]
-            turn = float(r @ a / (a @ a))
-            res = r - turn * a
-            _, widen = autocorrelation_widening(res)
-            se = math.sqrt(float(res @ res) / (n - 1) / float(a @ a)) * widen
+            turn, se = gain_through_origin(r[turning], a[turning])
         return {"distance_gain": dist, "turn_gain": turn, "turn_gain_se": se, "turning_windows": n}
 
     # ------------------------------------------------------------------ blind suite

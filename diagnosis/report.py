@@ -187,6 +187,25 @@ def _coverage_section(d: Diagnosis) -> list[str]:
     lines = ["", "## Training coverage", "", cov.summary()[:1].upper() + cov.summary()[1:] + "."]
     if cov.suggestion():
         lines += ["", f"To test it: {cov.suggestion()}."]
+    track = d.actuation.get("tracking")
+    if track is not None and track["beyond"]:
+        lines += ["", f"What the encoders show: {track['message']}.", ""]
+        lines += [
+            "| wheel | training: fastest asked | training gain | held-out windows beyond | "
+            "gain there | fastest asked / reached there | windows asking above the reached |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for r in track["wheels"]:
+            there = (
+                f"{r['beyond_gain']:.3f} ± {r['beyond_gain_se']:.3f} | "
+                f"{r['asked_max']:.3g} / {r['reached_max']:.3g} m/s | {r['n_capped']}"
+                if "beyond_gain" in r
+                else "– | – | –"
+            )
+            lines.append(
+                f"| {r['wheel']} | {r['train_top_speed']:.3g} m/s | {r['train_gain']:.3f} ± "
+                f"{r['train_gain_se']:.3f} | {r['n_beyond']} | {there} |"
+            )
     lines += [
         "",
         "| motion | training | held out | held-out windows beyond |",

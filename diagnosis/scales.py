@@ -73,7 +73,14 @@ from realitygap.diagnosis.shrink import trajectory_runs
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["ScaleSettings", "judge_scales", "run_bias", "timing_signature", "window_timing"]
+__all__ = [
+    "ScaleSettings",
+    "gain_through_origin",
+    "judge_scales",
+    "run_bias",
+    "timing_signature",
+    "window_timing",
+]
 
 
 @dataclass(frozen=True)
@@ -179,6 +186,23 @@ def autocorrelation_widening(
     rho = float(d[1:] @ d[:-1]) / den if den > 0 else 0.0
     rho = min(max(rho, 0.0), max_autocorrelation)
     return rho, math.sqrt((1.0 + rho) / (1.0 - rho))
+
+
+def gain_through_origin(real: FloatArray, asked: FloatArray) -> tuple[float, float]:
+    r"""Least-squares slope :math:`g = r·a / a·a` of ``real`` on ``asked`` through the
+    origin, and its standard error from the scatter about it, widened for the scatter's
+    lag-1 autocorrelation (:func:`autocorrelation_widening`); NaN error with fewer than
+    three points, NaN slope when nothing was asked."""
+    r, a = np.asarray(real, dtype=float), np.asarray(asked, dtype=float)
+    aa = float(a @ a)
+    if aa <= 0.0:
+        return math.nan, math.nan
+    g = float(r @ a) / aa
+    if a.size < 3:
+        return g, math.nan
+    res = r - g * a
+    _, widen = autocorrelation_widening(res)
+    return g, math.sqrt(float(res @ res) / (a.size - 1) / aa) * widen
 
 
 def run_bias(

@@ -763,6 +763,9 @@ def explain(verdict: Verdict, top_models: Sequence[str] = ()) -> list[str]:
     act = notes.get("actuation")
     if act is not None:
         lines.append(f"drive train: {act['message']}")
+    track = notes.get("tracking")
+    if track is not None:
+        lines.append(f"wheels: {track['message']}")
     disc = notes.get("discovery")
     if disc is not None:
         lines.append(f"discovery: {disc['message']}")

@@ -394,6 +394,17 @@ def _real_diagnoses(
             tables[f"{drive}_coverage"] = cov.rows
             if "coverage" not in d.verdict.notes:  # else the verdict's own lines state it
                 notes.append(f"{drive}: coverage: {cov.summary()}")
+        track = d.actuation.get("tracking")
+        if track is not None:
+            tables[f"{drive}_wheel_tracking"] = track["wheels"]
+            for r in track["wheels"]:
+                w = f"{prefix}{r['wheel']}_wheel_"
+                figures[w + "train_gain"] = r["train_gain"]
+                figures[w + "train_top_speed"] = r["train_top_speed"]
+                if "beyond_gain" in r:
+                    figures[w + "beyond_training_gain"] = r["beyond_gain"]
+                    figures[w + "beyond_training_reached_max"] = r["reached_max"]
+                    figures[w + "beyond_training_capped_windows"] = float(r["n_capped"])
         tr_rep = d.transients
         figures[prefix + "transient_windows_set_aside"] = float(tr_rep.n_excluded)
         figures[prefix + "transient_share_pct"] = 100.0 * tr_rep.share_excluded

@@ -114,3 +114,128 @@ def test_actuation_spread_is_cochrans_q() -> None:
     assert actuation_spread(rows[:1]) is None
     with pytest.raises(ValueError, match="alpha must lie in"):
         actuation_spread(rows, alpha=1.5)
+
+
+class _Travel:
+    """An adapter stand-in whose logs hold given wheel travels."""
+
+    def __init__(self, travel: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]) -> None:
+        self.travel = travel
+
+    def wheel_travel(self, p: object) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        return self.travel.get(p.name)  # type: ignore[attr-defined]
+
+
+def _prepared(name: str, split: str, n: int, v_max: float = 0.5) -> object:
+    from types import SimpleNamespace
+
+    return SimpleNamespace(
+        name=name,
+        split=split,
+        holdout_windows=np.full(n, split == "holdout"),
+        context=SimpleNamespace(params=SimpleNamespace(v_max=v_max)),
+    )
+
+
+def test_wheel_tracking_compares_the_gain_beyond_the_training_with_the_training() -> None:
+    from realitygap.diagnosis.actuation import wheel_tracking
+
+    rng = np.random.default_rng(3)
+    dur = np.ones(40)
+    slow = np.column_stack([rng.uniform(0.05, 0.15, 40), rng.uniform(0.05, 0.15, 40)])
+    fast = np.column_stack([rng.uniform(0.2, 0.3, 40), rng.uniform(0.2, 0.3, 40)])
+    noise = 1e-3 * rng.normal(size=(2, 40, 2))
+    cap = 0.21  # the left wheel tops out at 0.21 m/s; the right follows
+    real_fast = np.column_stack([np.minimum(fast[:, 0], cap), fast[:, 1]])
+    adapter = _Travel(
+        {"sq": (slow + noise[0], slow, dur), "free": (real_fast + noise[1], fast, dur)}
+    )
+    prepared = [_prepared("sq", "train", 40), _prepared("free", "holdout", 40)]
+    out = wheel_tracking(adapter, prepared)
+    assert out is not None and out["beyond"] and out["departs"]
+    left, right = out["wheels"]
+    assert left["train_top_speed"] == pytest.approx(slow[:, 0].max())
+    r, a = real_fast[:, 0] + noise[1][:, 0], fast[:, 0]
+    assert left["beyond_gain"] == pytest.approx(r @ a / (a @ a), rel=1e-12)
+    assert left["departs"] and not right["departs"]
+    assert left["reached_max"] == pytest.approx(np.max(r), rel=1e-12)
+    assert left["logs"] == ["free"] and left["n_beyond"] == 40
+    # the left wheel never exceeds the cap although most windows ask for more than it
+    asked_over = int(np.sum(a > (1.1 * np.max(r))))
+    assert left["n_capped"] == asked_over > 3 and right["n_capped"] == 0
+    assert left["capped_logs"] == ["free"] and "(in free)" in out["message"]
+    assert "the left wheel" in out["message"] and "within the robot's 0.50 m/s" in out["message"]
+    # the same held-out run with both wheels following: beyond, but nothing departs
+    follow = _Travel({"sq": (slow + noise[0], slow, dur), "free": (fast + noise[1], fast, dur)})
+    calm = wheel_tracking(follow, prepared)
+    assert calm is not None and calm["beyond"] and not calm["departs"]
+    assert "following the commands as in training" in calm["message"]
+    # one held-out run whose drive train turns 10 % less, among six that follow: the pooled
+    # gain stays within tolerance, the run's own gain departs
+    logs = {"sq": (slow + noise[0], slow, dur)}
+    runs = [_prepared("sq", "train", 40)]
+    for k in range(7):
+        gain = 0.9 if k == 6 else 1.0
+        part = slice(6 * k, 6 * k + 6) if k < 6 else slice(0, 6)
+        logs[f"run{k}"] = (gain * fast[part] + noise[1][part], fast[part], dur[part])
+        runs.append(_prepared(f"run{k}", "holdout", 6))
+    mixed = wheel_tracking(_Travel(logs), runs)
+    assert mixed is not None and mixed["departs"]
+    for w in mixed["wheels"]:
+        assert abs(w["beyond_gain"] - w["train_gain"]) < 0.05 and w["n_capped"] == 0
+        assert [b["log"] for b in w["by_log"] if b["departs"]] == ["run6"]
+    assert "in run6" in mixed["message"]
+    # held-out runs no faster than the training: nothing beyond it
+    same = _Travel({"sq": (slow + noise[0], slow, dur), "free": (slow + noise[1], slow, dur)})
+    within = wheel_tracking(same, prepared)
+    assert within is not None and not within["beyond"]
+    # no training windows, or no adapter support: no answer
+    assert wheel_tracking(adapter, prepared[1:]) is None
+    assert wheel_tracking(object(), prepared) is None
+    with pytest.raises(ValueError, match="min_windows"):
+        wheel_tracking(adapter, prepared, min_windows=1)
+
+
+def test_a_wheel_capped_beyond_the_training_speeds_is_found_by_the_encoders(
+    tmp_path: Path,
+) -> None:
+    """Independent generator: squares at the cruise speed train, a circle at twice it is
+    held out; a top wheel speed between the two is invisible to the training."""
+    import dataclasses
+
+    import realitygap.independent.diffdrive as dd
+    from realitygap.diagnosis.io import logs_from_optiodom
+
+    rng = np.random.default_rng(5)
+    robot = dd.DriveRobot()
+    fast = dataclasses.replace(robot, v_nom=2.0 * robot.v_nom)
+    top = 1.5 * robot.v_nom * robot.m_per_tick / robot.cycle  # m/s, between the two
+    results = {}
+    for label, hidden in (("capped", dd.Hidden(speed_cap=top)), ("free", dd.Hidden())):
+        root = tmp_path / label
+        squares = [
+            dd.simulate_run(dd.square_path(robot, 1.0, d), robot, hidden, rng)
+            for d in ("cw", "ccw")
+        ]
+        dd.write_session(root, "010320241010", squares, robot, "square", side=1.0, rng=rng)
+        circle = [dd.simulate_run(dd.circle_path(fast, 0.6, "ccw"), fast, hidden, rng)]
+        dd.write_session(root, "010320241220", circle, fast, "circular", rng=rng)
+        logs = logs_from_optiodom(root)
+        d = diagnose(
+            [lg for lg in logs if lg.meta.get("path_type") == "square"],
+            [lg for lg in logs if lg.meta.get("path_type") != "square"],
+            settings=DiagnosisSettings(drive="commands", effects=("wheelbase_error",), scales=None),
+        )
+        results[label] = d.actuation["tracking"]
+        if label == "capped":  # the report shows what the encoders say, with its table
+            from realitygap.diagnosis.report import _coverage_section
+
+            text = "\n".join(_coverage_section(d))
+            assert "What the encoders show: beyond the training's wheel speeds" in text
+            assert "| windows asking above the reached |" in text
+    capped, free = results["capped"], results["free"]
+    assert capped["beyond"] and capped["departs"], capped["message"]
+    outer = max(capped["wheels"], key=lambda r: r.get("asked_max", 0.0))  # the circle's outer wheel
+    assert outer["departs"] and outer["reached_max"] < 1.1 * top
+    assert outer["beyond_gain"] < 0.95 * outer["train_gain"]
+    assert free["beyond"] and not free["departs"], free["message"]
