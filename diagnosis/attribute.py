@@ -71,6 +71,7 @@ __all__ = [
     "Problem",
     "Verdict",
     "fit_model",
+    "parameter_correlation",
     "profile_score",
     "replay_task",
 ]
@@ -91,6 +92,12 @@ class AttributionSettings:
         PyBullet bias updates per verified model.
     min_shrink : float
         Fraction of the held-out RMS gap the chosen model must close.
+    dominant_shrink : float
+        Fraction of the held-out gap above the noise floor from which a model is named
+        although what it leaves is structured: the effect carries the gap, and the small
+        systematic rest says its law differs in detail from the library's (a real
+        robot's effects never follow a model exactly). The verdict says so, at most
+        "moderate" confidence. 1 turns it off.
     excess_ratio : float
         A group's residual is structured if its RMS exceeds this many times
         its white, window-to-window level.
@@ -126,6 +133,7 @@ class AttributionSettings:
     verify_top: int = 2
     defect_iterations: int = 1
     min_shrink: float = 0.5
+    dominant_shrink: float = 0.9
     excess_ratio: float = 2.5
     regime_t: float = 6.0
     trend_r2: float = 0.5
@@ -140,6 +148,12 @@ class AttributionSettings:
     seed: int = 0
 
     def __post_init__(self) -> None:
+        if not (0.0 < self.min_shrink <= self.dominant_shrink <= 1.0):
+            raise ValueError(
+                "AttributionSettings: expected 0 < min_shrink <= dominant_shrink <= 1, got "
+                f"min_shrink={self.min_shrink!r}, dominant_shrink={self.dominant_shrink!r}; "
+                "fix: pass fractions such as min_shrink=0.5, dominant_shrink=0.9"
+            )
         allowed = ("soft_l1", "cauchy", "huber", "linear", "arctan")
         if self.loss not in allowed:
             raise ValueError(
@@ -487,6 +501,19 @@ def replay_task(problem: Problem, item: tuple[int, Mapping[str, float]]) -> tupl
     return problem.replay(*item)
 
 
+def parameter_correlation(cov: FloatArray) -> FloatArray:
+    """Correlation matrix of the parameter covariance ``cov`` (p, p): clipped to [-1, 1]
+    (a pseudo-inverse's rounding), NaN in the rows and columns of a parameter whose
+    variance is zero (the data do not move it: its correlation is undefined)."""
+    c = np.asarray(cov, dtype=float)
+    sd = np.sqrt(np.maximum(np.diag(c), 0.0))
+    live = sd > 1e-12 * max(float(sd.max(initial=0.0)), 1e-300)
+    out = np.full(c.shape, np.nan)
+    ix = np.ix_(live, live)
+    out[ix] = np.clip(c[ix] / np.outer(sd[live], sd[live]), -1.0, 1.0)
+    return out
+
+
 def fit_model(
     problem: Problem,
     effects: Sequence[str],
@@ -715,9 +742,7 @@ def _finish(
             cov = s2 * np.linalg.pinv(J.T @ J)
             sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
             stderr = {k: float(sd[j]) for j, k in enumerate(keys)}
-            with np.errstate(invalid="ignore", divide="ignore"):
-                corr = cov / np.outer(sd, sd)
-            corr = np.nan_to_num(corr, nan=0.0)
+            corr = np.nan_to_num(parameter_correlation(cov), nan=0.0)
         except np.linalg.LinAlgError:  # pragma: no cover - pinv does not raise in practice
             stderr = {k: math.inf for k in keys}
     effect_sizes = _effect_sizes(problem, effects, values) if p else {}

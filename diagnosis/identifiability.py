@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.diagnosis.attribute import ModelFit, Problem
+from realitygap.diagnosis.attribute import ModelFit, Problem, parameter_correlation
 from realitygap.diagnosis.parameters import model_keys, param_spec
 from realitygap.estimators.arm.identifiability import analyse_identifiability
 
@@ -64,10 +64,23 @@ def jacobian(
 
 
 def _corr(J: FloatArray) -> FloatArray:
-    info = J.T @ J
-    cov = np.linalg.pinv(info)
-    sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
-    return cov / np.outer(sd, sd)
+    """Parameter correlations of a Jacobian (n, p) (:func:`parameter_correlation`), its
+    columns scaled to unit norm first so that the pseudo-inverse's cut-off does not depend
+    on the parameters' units; NaN for a parameter the residual does not depend on."""
+    norms = np.linalg.norm(J, axis=0)
+    live = norms > 1e-12 * max(float(norms.max(initial=0.0)), 1e-300)
+    out = np.full((J.shape[1], J.shape[1]), np.nan)
+    if live.any():
+        Jn = J[:, live] / norms[live]
+        out[np.ix_(live, live)] = parameter_correlation(np.linalg.pinv(Jn.T @ Jn))
+    return out
+
+
+def _cross(C: FloatArray, a: Sequence[int], b: Sequence[int]) -> float:
+    """Largest |correlation| between a parameter of ``a`` and one of ``b`` (0 when none is
+    defined)."""
+    vals = [abs(C[i, j]) for i in a for j in b if np.isfinite(C[i, j])]
+    return float(max(vals, default=0.0))
 
 
 def identifiability(problem: Problem, a: ModelFit, b: ModelFit) -> dict[str, Any]:
@@ -88,7 +101,7 @@ def identifiability(problem: Problem, a: ModelFit, b: ModelFit) -> dict[str, Any
     C = _corr(J)
     ka = [j for j, k in enumerate(keys) if k.split(".")[0] in a.effects]
     kb = [j for j, k in enumerate(keys) if k.split(".")[0] not in a.effects]
-    cross = max((abs(C[i, j]) for i in ka for j in kb), default=0.0)
+    cross = _cross(C, ka, kb)
     out: dict[str, Any] = {
         "effects": [a.name, b.name],
         "correlation": float(cross),
@@ -111,7 +124,7 @@ def identifiability(problem: Problem, a: ModelFit, b: ModelFit) -> dict[str, Any
 
         Jm = jacobian(probe_res, keys, point)
         Cm = _corr(np.vstack([J, Jm]))
-        cross_m = max((abs(Cm[i, j]) for i in ka for j in kb), default=0.0)
+        cross_m = _cross(Cm, ka, kb)
         if best is None or cross_m < best[1]:
             best = (name, cross_m)
     assert best is not None

@@ -4,7 +4,9 @@ An effect (or pair) is named only if it improves on the nominal replay, closes
 enough of the held-out gap above the noise floor in the channels where the gap
 lives, is not
 stretched to the edge of its plausible range, and leaves an unstructured
-residual; otherwise the verdict is ``"unexplained"`` (or ``"none"`` when the
+residual — or closes nearly all of the gap (``dominant_shrink``), when a small
+structured rest says only that its law differs in detail from the library's;
+otherwise the verdict is ``"unexplained"`` (or ``"none"`` when the
 nominal replay's residual already looks like noise). A combination of two
 effects must also leave noise, at each channel's own resolution, in every
 regime where it acts (:func:`combination_check`): two effects fitted together
@@ -182,6 +184,19 @@ def judge(
             "absorb a gap it does not cause",
             margin,
             "n/a",
+            best_desc,
+        )
+    elif best_desc["structured"] and shrink_gap >= 100.0 * st.dominant_shrink:
+        confidence = _confidence(margin, st)
+        verdict = Verdict(
+            "effects",
+            best.effects,
+            f"{best.name} closes {shrink_gap:.0f} % of the held-out gap above the noise floor "
+            f"({shrink_all:.0f} % of the raw gap); what it leaves is small but structured, so "
+            "the effect's law differs in detail from the library's: "
+            + "; ".join(best_desc["reasons"]),
+            margin,
+            "moderate" if confidence == "strong" else confidence,
             best_desc,
         )
     elif best_desc["structured"]:

@@ -485,3 +485,27 @@ def test_a_combination_must_leave_noise_wherever_it_acts(
     assert combination_check(problem, model_fit(("a", "b"), small), z_nom)["passed"]
     with pytest.raises(ValueError, match="held-out layout's length"):
         combination_check(problem, exact, z_nom[:-1])
+
+
+def test_parameter_correlations_stay_within_one_whatever_the_units() -> None:
+    """Two collinear parameters in very different units correlate fully, an independent one
+    not at all, and one the residual does not depend on has no correlation (the
+    pseudo-inverse of the unscaled, nearly singular information matrix gives 1.90)."""
+    from realitygap.diagnosis.attribute import parameter_correlation
+    from realitygap.diagnosis.identifiability import _corr
+
+    rng = np.random.default_rng(8)
+    u, w, z = rng.normal(size=(3, 200))
+    # nearly collinear columns ten orders of magnitude apart, an independent one, and one
+    # the residual ignores
+    J = np.column_stack([u * 1e-3, (u + 1e-6 * z) * 1e7, w, np.zeros(200)])
+    C = _corr(J)
+    assert abs(C[0, 1]) == pytest.approx(1.0, abs=1e-6)
+    assert abs(C[0, 2]) < 0.3 and abs(C[1, 2]) < 0.3
+    assert np.all(np.isnan(C[3])) and np.all(np.isnan(C[:, 3]))
+    finite = C[np.isfinite(C)]
+    assert np.all(np.abs(finite) <= 1.0)
+    cov = np.array([[4.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 0.0]])
+    P = parameter_correlation(cov)
+    assert P[0, 1] == pytest.approx(1.0) and P[0, 0] == pytest.approx(1.0)
+    assert np.all(np.isnan(P[2]))
