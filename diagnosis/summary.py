@@ -351,6 +351,11 @@ def summary_sentences(d: Diagnosis) -> list[str]:
         out.append(
             "What remains in the windows is unexplained: " + "; ".join(whole["remainder"][:3]) + "."
         )
+    elif v.kind == "effects" and v.residual.get("structured") and reasons:
+        out.append(
+            "What remains is small but structured, so the effect's law differs in detail from "
+            "the library's: " + "; ".join(reasons[:3]) + "."
+        )
     elif v.kind == "effects" or not reasons:
         out.append("What remains looks like measurement noise.")
     else:
