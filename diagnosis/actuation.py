@@ -174,15 +174,15 @@ def wheel_tracking(
         ``message``. ``None`` when the adapter has no wheel travel or either split has
         no window with it.
     """
-    for name, value, ok in (
-        ("margin", margin, margin >= 0),
-        ("min_speed", min_speed, min_speed >= 0),
-        ("min_windows", min_windows, min_windows >= 3),
-        ("min_departure", min_departure, min_departure >= 0),
-        ("sigmas", sigmas, sigmas > 0),
+    for name, value, ok, expected in (
+        ("margin", margin, margin >= 0, "a share >= 0 (default 0.1)"),
+        ("min_speed", min_speed, min_speed >= 0, "a speed >= 0 m/s (default 0.02)"),
+        ("min_windows", min_windows, min_windows >= 3, "a count >= 3 (default 3)"),
+        ("min_departure", min_departure, min_departure >= 0, "a gain change >= 0 (default 0.05)"),
+        ("sigmas", sigmas, sigmas > 0, "a number of standard errors > 0 (default 3)"),
     ):
         if not (ok and math.isfinite(value)):
-            raise ValueError(f"wheel_tracking: {name} out of range, got {value!r}")
+            raise ValueError(f"wheel_tracking: {name} must be {expected}, got {value!r}")
     if not hasattr(adapter, "wheel_travel"):
         return None
     real, asked, dur, train, held, names = [], [], [], [], [], []
