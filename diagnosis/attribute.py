@@ -93,8 +93,8 @@ class AttributionSettings:
     min_shrink : float
         Fraction of the held-out RMS gap the chosen model must close.
     dominant_shrink : float
-        Fraction of the held-out gap above the noise floor from which a model is named
-        although what it leaves is structured: the effect carries the gap, and the small
+        Fraction of the held-out gap above the noise floor from which a single effect is
+        named although what it leaves is structured: the effect carries the gap, and the small
         systematic rest says its law differs in detail from the library's (a real
         robot's effects never follow a model exactly). The verdict says so, at most
         "moderate" confidence. 1 turns it off.

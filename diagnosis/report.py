@@ -299,7 +299,7 @@ def _markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str, note: st
         "the held-out gap each closes (# is the rank by score: profile likelihood + BIC "
         "penalty, lower is better). ✓ = verified with PyBullet replays. A model is named "
         f"only if it closes ≥ {100 * d.settings.attribution.min_shrink:.0f} % and leaves a "
-        "noise-like residual, or closes "
+        "noise-like residual, or, as a single effect, closes "
         f"≥ {100 * d.settings.attribution.dominant_shrink:.0f} % of the gap above noise (its "
         "law then differs in detail from the library's)."
     )

@@ -315,8 +315,8 @@ def summary_sentences(d: Diagnosis) -> list[str]:
     rule = (
         f"An effect is named only if it closes ≥ {100 * st.min_shrink:.0f} % of the held-out gap "
         "above the noise floor (the part any model could close) and the rest is noise-like "
-        f"(≤ {st.excess_ratio:g}× its noise level, no regime or motion dependence), or closes "
-        f"≥ {100 * st.dominant_shrink:.0f} % of it above noise"
+        f"(≤ {st.excess_ratio:g}× its noise level, no regime or motion dependence), or, alone, "
+        f"closes ≥ {100 * st.dominant_shrink:.0f} % of it above noise"
     )
     if best_row is not None and best_row["effects"]:
         above = v.notes.get("heldout_shrink_pct_above_noise")

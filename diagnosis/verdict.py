@@ -4,8 +4,10 @@ An effect (or pair) is named only if it improves on the nominal replay, closes
 enough of the held-out gap above the noise floor in the channels where the gap
 lives, is not
 stretched to the edge of its plausible range, and leaves an unstructured
-residual — or closes nearly all of the gap (``dominant_shrink``), when a small
-structured rest says only that its law differs in detail from the library's;
+residual — or, as a single effect, closes nearly all of the gap
+(``dominant_shrink``), when a small structured rest says only that its law differs
+in detail from the library's (a pair with a structured rest may be one effect and
+its compensator);
 otherwise the verdict is ``"unexplained"`` (or ``"none"`` when the
 nominal replay's residual already looks like noise). A combination of two
 effects must also leave noise, at each channel's own resolution, in every
@@ -186,7 +188,11 @@ def judge(
             "n/a",
             best_desc,
         )
-    elif best_desc["structured"] and shrink_gap >= 100.0 * st.dominant_shrink:
+    elif (
+        best_desc["structured"]
+        and len(best.effects) == 1
+        and shrink_gap >= 100.0 * st.dominant_shrink
+    ):
         confidence = _confidence(margin, st)
         verdict = Verdict(
             "effects",

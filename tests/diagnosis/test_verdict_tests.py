@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -148,6 +149,14 @@ def test_an_effect_that_carries_nearly_all_the_gap_is_named_despite_a_structured
     )
     j = judge(problem, [part, nominal], nominal, stated)  # type: ignore[arg-type]
     assert j.verdict.kind == "unexplained" and "still structured" in j.verdict.reason
+    # a pair that leaves the same structured rest may be an effect and its compensator
+    pair = model_fit(
+        ("wheel_diameter_ratio", "wheelbase_error"),
+        rest,
+        {"wheel_diameter_ratio.E_d": 1.01, "wheelbase_error.E_b": 1.01},
+    )
+    j = judge(problem, [pair, nominal], nominal, stated)  # type: ignore[arg-type]
+    assert j.verdict.kind == "unexplained"
     # with dominant_shrink = 1 the rule is off
     problem.settings = AttributionSettings(dominant_shrink=1.0)
     j = judge(problem, [best, nominal], nominal, stated)  # type: ignore[arg-type]
@@ -272,3 +281,30 @@ def test_a_parameter_on_a_plateau_of_the_training_cost_takes_the_end_nearest_nom
     # a fit already at the nominal end of its plateau is left alone
     again = _toward_nominal(cost, out, np.array([0.0, 0.5]), 2)
     assert again[0] == pytest.approx(out[0], abs=1e-3)
+
+
+def test_a_compliance_whose_law_differs_in_detail_is_named_and_the_rest_described(
+    tmp_path: Path,
+) -> None:
+    """The independent generator's shoulder flex (its own gravity-torque law, UR10 tracker
+    files): the library's joint compliance carries the gap; what it leaves is small but
+    structured, and the summary says so instead of calling it noise."""
+    from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
+    from realitygap.diagnosis.io import ReadOptions, read_logs
+    from realitygap.diagnosis.summary import summary_sentences
+    from realitygap.experiments.independent import generate_case
+    from realitygap.independent.cases import case_by_name
+
+    case = case_by_name("shoulder_flex")
+    train, held = generate_case(case, tmp_path, 1, "default")
+    opts = ReadOptions(check_plausible=False)
+    d = diagnose(
+        [lg for p in train for lg in read_logs(p, opts)],
+        [lg for p in held for lg in read_logs(p, opts)],
+        settings=DiagnosisSettings(robot=case.robot),
+    )
+    assert d.verdict.kind == "effects" and d.verdict.effects == ("arm_joint_compliance",)
+    assert d.verdict.residual["structured"]
+    assert "differs in detail from the library's" in d.verdict.reason
+    rest = [s for s in summary_sentences(d) if s.startswith("What remains")]
+    assert rest and rest[0].startswith("What remains is small but structured"), rest
