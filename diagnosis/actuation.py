@@ -225,46 +225,43 @@ def wheel_tracking(
             "n_beyond": int(beyond.sum()),
             "departs": False,
         }
-
-        if row["n_beyond"] >= min_windows:
-            g_b, se_b, off = _gain_against(
-                r_all[beyond, j], a_all[beyond, j], row, min_departure, sigmas
-            )
-            logs, counts = np.unique(names_arr[beyond], return_counts=True)
-            reached = float(speed_real[beyond, j].max())
-            # a ceiling: windows asking clearly more than the wheel ever reached beyond
-            capped = beyond & (speed_asked[:, j] > reached * (1.0 + margin))
-            n_capped = int(capped.sum())
-            by_log = []
-            for name in logs[np.argsort(-counts, kind="stable")]:
-                sel = beyond & (names_arr == name)
-                if int(sel.sum()) >= min_windows:
-                    g, se, off_log = _gain_against(
-                        r_all[sel, j], a_all[sel, j], row, min_departure, sigmas
-                    )
-                    by_log.append(
-                        {
-                            "log": str(name),
-                            "n": int(sel.sum()),
-                            "gain": g,
-                            "gain_se": se,
-                            "asked_max": float(speed_asked[sel, j].max()),
-                            "reached_max": float(speed_real[sel, j].max()),
-                            "departs": off_log,
-                        }
-                    )
-            row.update(
-                beyond_gain=g_b,
-                beyond_gain_se=se_b,
-                asked_max=float(speed_asked[beyond, j].max()),
-                reached_max=reached,
-                n_capped=n_capped,
-                capped_logs=sorted({str(x) for x in names_arr[capped]}),
-                logs=[str(x) for x in logs[np.argsort(-counts, kind="stable")]],
-                by_log=by_log,
-                departs=off or n_capped >= min_windows or any(b["departs"] for b in by_log),
-            )
         rows.append(row)
+        if row["n_beyond"] < min_windows:
+            continue
+        against = (g_t, se_t, min_departure, sigmas)
+        g_b, se_b, off = _gain_against(r_all[beyond, j], a_all[beyond, j], *against)
+        logs, counts = np.unique(names_arr[beyond], return_counts=True)
+        ordered = [str(x) for x in logs[np.argsort(-counts, kind="stable")]]
+        reached = float(speed_real[beyond, j].max())
+        # a ceiling: windows asking clearly more than the wheel ever reached beyond
+        capped = beyond & (speed_asked[:, j] > reached * (1.0 + margin))
+        by_log = []
+        for name in ordered:
+            sel = beyond & (names_arr == name)
+            if int(sel.sum()) >= min_windows:
+                g, se, off_log = _gain_against(r_all[sel, j], a_all[sel, j], *against)
+                by_log.append(
+                    {
+                        "log": name,
+                        "n": int(sel.sum()),
+                        "gain": g,
+                        "gain_se": se,
+                        "asked_max": float(speed_asked[sel, j].max()),
+                        "reached_max": float(speed_real[sel, j].max()),
+                        "departs": off_log,
+                    }
+                )
+        row.update(
+            beyond_gain=g_b,
+            beyond_gain_se=se_b,
+            asked_max=float(speed_asked[beyond, j].max()),
+            reached_max=reached,
+            n_capped=int(capped.sum()),
+            capped_logs=sorted({str(x) for x in names_arr[capped]}),
+            logs=ordered,
+            by_log=by_log,
+            departs=off or int(capped.sum()) >= min_windows or any(b["departs"] for b in by_log),
+        )
     if not rows:
         return None
     v_max = getattr(getattr(prepared[0].context, "params", None), "v_max", None)
@@ -277,13 +274,19 @@ def wheel_tracking(
 
 
 def _gain_against(
-    real: FloatArray, asked: FloatArray, row: dict[str, Any], min_departure: float, sigmas: float
+    real: FloatArray,
+    asked: FloatArray,
+    g_train: float,
+    se_train: float,
+    min_departure: float,
+    sigmas: float,
 ) -> tuple[float, float, bool]:
     """Gain of ``real`` on ``asked`` travel, its error, and whether it departs from the
-    training gain of ``row`` (by ``min_departure`` and ``sigmas`` errors of the difference)."""
+    training gain ``g_train ± se_train`` (by ``min_departure`` and ``sigmas`` errors of the
+    difference)."""
     g, se = gain_through_origin(real, asked)
-    err = math.hypot(*(x if math.isfinite(x) else 0.0 for x in (row["train_gain_se"], se)))
-    return g, se, bool(abs(g - row["train_gain"]) > max(min_departure, sigmas * err))
+    err = math.hypot(*(x if math.isfinite(x) else 0.0 for x in (se_train, se)))
+    return g, se, bool(abs(g - g_train) > max(min_departure, sigmas * err))
 
 
 def _tracking_message(rows: Sequence[dict[str, Any]], v_max: float | None) -> str:

@@ -591,16 +591,24 @@ class DiffDriveAdapter(WheelDrivenAdapter):
                 out["sensor → estimate"] = f_est - f_odo
         return out
 
-    def wheel_motion(self, prepared: PreparedLog) -> tuple[FloatArray, FloatArray] | None:
-        """Per window, the motion nominal odometry makes of the logged ticks and of the
-        nominal replay's ticks (M, 3 each: dx, dy m, dθ rad), for a command-driven replay
+    def _command_ticks(self, prepared: PreparedLog) -> tuple[FloatArray, FloatArray] | None:
+        """The logged ticks and the nominal replay's (N, 2 each) of a command-driven replay
         of a log with encoders; ``None`` otherwise."""
         log, rep = prepared.log, prepared.replay_log
         if self._context(prepared).inputs.commands is None or not (
             log.has("ticks") and rep.has("ticks")
         ):
             return None
-        real, asked = self._tick_motion(prepared, log["ticks"], rep["ticks"])
+        return log["ticks"], rep["ticks"]
+
+    def wheel_motion(self, prepared: PreparedLog) -> tuple[FloatArray, FloatArray] | None:
+        """Per window, the motion nominal odometry makes of the logged ticks and of the
+        nominal replay's ticks (M, 3 each: dx, dy m, dθ rad), for a command-driven replay
+        of a log with encoders; ``None`` otherwise."""
+        ticks = self._command_ticks(prepared)
+        if ticks is None:
+            return None
+        real, asked = self._tick_motion(prepared, *ticks)
         return real, asked
 
     def wheel_travel(
@@ -610,18 +618,16 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         replay's (what the nominal drive train makes of the commands), (M, 2) each, m, and
         the windows' durations (M,), s, for a command-driven replay of a log with encoders;
         ``None`` otherwise."""
-        log, rep = prepared.log, prepared.replay_log
-        if self._context(prepared).inputs.commands is None or not (
-            log.has("ticks") and rep.has("ticks")
-        ):
+        ticks = self._command_ticks(prepared)
+        if ticks is None:
             return None
         mpt = np.asarray(self.meters_per_tick(self._context(prepared).params))
         a, b = prepared.bounds[:, 0], prepared.bounds[:, 1]
         real, asked = (
-            (np.asarray(tk, dtype=float)[b] - np.asarray(tk, dtype=float)[a]) * mpt
-            for tk in (log["ticks"], rep["ticks"])
+            (np.asarray(tk, dtype=float)[b] - np.asarray(tk, dtype=float)[a]) * mpt for tk in ticks
         )
-        return real, asked, np.asarray(log.t)[b] - np.asarray(log.t)[a]
+        t = np.asarray(prepared.log.t)
+        return real, asked, t[b] - t[a]
 
     def _tick_motion(self, prepared: PreparedLog, *ticks: FloatArray) -> FloatArray:
         """Per window, the motion (dx, dy m, dθ rad) nominal odometry makes of each tick

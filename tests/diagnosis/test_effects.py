@@ -24,6 +24,15 @@ P = DiffDriveParams()
 DT = 0.05
 
 
+def _settled_trail(tau: float) -> float:
+    """Seconds a first-order lag of time constant ``tau``, stepped once per period ``DT``,
+    trails a steady command by once it settles: ``dt·(1 − k)/k``, ``k = 1 − e^{−dt/τ}``."""
+    from realitygap.robots.effects.diffdrive_drivetrain import _lag_gain
+
+    k = float(_lag_gain(tau, DT))
+    return DT * (1.0 - k) / k
+
+
 def run(cmd: list[tuple[float, float, float]], *effects, ramp: bool = False):
     rows = [np.zeros((1, 2))]
     for duration, v, w in cmd:
@@ -291,15 +300,12 @@ def test_acceleration_limits_ramp_starts_and_stops_at_their_own_rates(straight) 
 
 
 def test_unequal_wheel_lags_yaw_the_robot_on_a_start_and_back_on_the_stop() -> None:
-    from realitygap.robots.effects.diffdrive_drivetrain import _lag_gain
-
     log = run(
         [(2.0, 0.3, 0.0), (2.0, 0.0, 0.0)],
         ("wheel_velocity_lag", {"tau_left": 0.3, "tau_right": 0.05}),
     )
     # each wheel falls behind its command by v·dt·(1 − k)/k once it settles
-    lag = [DT * (1.0 - _lag_gain(t, DT)) / _lag_gain(t, DT) for t in (0.3, 0.05)]
-    expected = 0.3 * (lag[0] - lag[1]) / P.wheelbase
+    expected = 0.3 * (_settled_trail(0.3) - _settled_trail(0.05)) / P.wheelbase
     assert log["pose_gt"][38, 2] == pytest.approx(expected, rel=0.1)
     # the lagging wheel catches up after the stop: the heading returns
     assert abs(log["pose_gt"][-1, 2]) < 0.1 * expected
@@ -312,7 +318,6 @@ def test_motor_response_lags_both_wheels_alike_and_stays_a_baseline_nuisance() -
         DiffDriveAdapter,
     )
     from realitygap.diagnosis.replay import Drive
-    from realitygap.robots.effects.diffdrive_drivetrain import _lag_gain
 
     plan = [(2.0, 0.3, 0.4), (2.0, 0.0, 0.0)]
     common = run(plan, ("motor_response", {"tau": 0.15}))
@@ -321,7 +326,7 @@ def test_motor_response_lags_both_wheels_alike_and_stays_a_baseline_nuisance() -
     np.testing.assert_array_equal(common["pose_gt"], per_wheel["pose_gt"])
     # settled, a drive trails its command by dt·(1 − k)/k seconds: in travel on a straight,
     # in heading on a turn in place, and without turning the straight
-    lag_s = DT * (1.0 - _lag_gain(0.15, DT)) / _lag_gain(0.15, DT)
+    lag_s = _settled_trail(0.15)
     for v, w in ((0.3, 0.0), (0.0, 0.4)):
         plan = [(2.0, v, w), (2.0, 0.0, 0.0)]
         behind = (
@@ -414,17 +419,14 @@ def test_effects_expose_their_physical_bounds() -> None:
 
 
 def test_traction_slip_lags_the_body_not_the_wheels(straight) -> None:
-    from realitygap.robots.effects.diffdrive_drivetrain import _lag_gain
-
     log = run([(2.0, 0.3, 0.0), (1.5, 0.0, 0.0)], ("traction_slip", {"t_slip": 0.15}))
     nominal = run([(2.0, 0.3, 0.0), (1.5, 0.0, 0.0)])
     # the encoders count the wheels turning as commanded (after the first periods of the
     # start, in which the nominal motors spin the wheels up: about 2 mm of wheel travel)
     np.testing.assert_allclose(log["ticks"][10:41], nominal["ticks"][10:41], atol=40)
     # at constant speed the body runs v·dt·(1 − k)/k behind the wheels, and catches up after the stop
-    k = _lag_gain(0.15, DT)
     behind = nominal["pose_gt"][38, 0] - log["pose_gt"][38, 0]
-    assert behind == pytest.approx(0.3 * DT * (1 - k) / k, rel=0.1)
+    assert behind == pytest.approx(0.3 * _settled_trail(0.15), rel=0.1)
     assert _speed(log, 30, 40) == pytest.approx(0.3, rel=0.02)
     assert log["pose_gt"][-1, 0] == pytest.approx(nominal["pose_gt"][-1, 0], abs=2e-3)
     np.testing.assert_allclose(log["ticks"][-1], nominal["ticks"][-1], rtol=5e-3)
