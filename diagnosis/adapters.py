@@ -224,6 +224,10 @@ class RobotAdapter(Protocol):
 
     def hidden_effects(self) -> HiddenTable: ...
 
+    def fitted_robot(
+        self, prepared: Sequence[PreparedLog], effects: Sequence[str], values: Mapping[str, float]
+    ) -> dict[str, Any] | None: ...
+
     def baseline_nuisances(
         self, prepared: Sequence[PreparedLog], drive: Drive
     ) -> dict[str, tuple[float, float, str]]: ...
@@ -285,6 +289,13 @@ class AdapterBase:
     ) -> dict[str, float] | None:
         """Measurement noise per group in feature-scale units, or ``None``: then the
         window-to-window spread of the residual stands for the noise."""
+        return None
+
+    def fitted_robot(
+        self, prepared: Sequence[PreparedLog], effects: Sequence[str], values: Mapping[str, float]
+    ) -> dict[str, Any] | None:
+        """The robot a verdict's ``effects`` at ``values`` describe, in the robot's own
+        quantities (per wheel, per joint), or ``None`` where the adapter reads none."""
         return None
 
     def hidden_effects(self) -> HiddenTable:

@@ -693,6 +693,11 @@ def diagnose(
     ident = advise(problem, verification.ranking, judgement)
     coverage = coverage_report(problem, judgement, s.coverage)
     conclude(problem, verification.ranking, judgement, ident, coverage)
+    if judgement.verdict.kind == "effects":
+        robot = adapter.fitted_robot(prepared, judgement.verdict.effects, judgement.best.values)
+        if robot is not None:
+            judgement.verdict.notes["robot"] = robot
+            say(f"fitted robot: {robot['message']}")
     actuation: dict[str, Any] = {}
     gains = command_wheel_gains(adapter, prepared) if drive is Drive.COMMANDS else []
     if gains:

@@ -488,6 +488,53 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         prepared.bias = {g: prepared.nominal[g] - sur[g][0] for g in prepared.groups}
         return prepared
 
+    def fitted_robot(
+        self, prepared: Sequence[PreparedLog], effects: Sequence[str], values: Mapping[str, float]
+    ) -> dict[str, Any] | None:
+        """Wheel radii, wheelbase and encoder counts of the robot ``effects`` at ``values``
+        describe, as factors of the declared ones, per wheel.
+
+        The library splits a per-wheel quantity into a ratio at a kept mean and a common
+        scale (``wheel_diameter_ratio`` and ``wheel_radius_scale``, ``encoder_ratio`` and
+        ``encoder_scale``); a verdict naming both reads, per wheel, as what to change in the
+        robot's description: ``E_c = 1.030`` with ``scale = 1.0148`` is a right encoder
+        counting 3.0 % more edges than declared and a left one counting as declared. Built
+        from the effects' own definitions (their parameters and encoder hooks), so it
+        holds for any combination. ``None`` when the model leaves all of them as declared.
+        """
+        own = {k: float(v) for k, v in values.items() if k.partition(".")[0] in set(effects)}
+        if not prepared or not own:
+            return None
+        ctx = self._context(prepared[0])
+        # the values speak of the geometry all logs share (DiffDriveAdapter.link_logs)
+        declared = ctx.reference if ctx.reference is not None else ctx.params
+        reality = reality_from_values(own)
+        real = reality.apply_params(declared)
+        counts = (1.0, 1.0)
+        for hook in reality.ticks_hooks():
+            counts = hook(*counts)
+        # (quantity, factor) per wheel where it has two; a pair is shown whole
+        quantities = (
+            (
+                ("left wheel radius", real.wheel_radius_left / declared.wheel_radius_left),
+                ("right wheel radius", real.wheel_radius_right / declared.wheel_radius_right),
+            ),
+            (("wheelbase", real.wheelbase / declared.wheelbase),),
+            (
+                ("left encoder's counts per revolution", float(counts[0])),
+                ("right encoder's counts per revolution", float(counts[1])),
+            ),
+        )
+        shown = [
+            q for group in quantities if any(abs(f - 1.0) > 5e-5 for _, f in group) for q in group
+        ]
+        if not shown:
+            return None
+        message = "; ".join(
+            f"{name} {f:.4f} × the declared ({100.0 * (f - 1.0):+.2f} %)" for name, f in shown
+        )
+        return {"factors": dict(shown), "message": message}
+
     @staticmethod
     def meters_per_tick(params: DiffDriveParams) -> tuple[float, float]:
         return (

@@ -73,16 +73,20 @@ def shrink_above_noise(
     The raw shrink ``1 − RMS(after) / RMS(before)`` counts the measurement
     noise as part of the gap, and no effect can close it: a small true effect
     whose gap is comparable with the noise can never close half of it. Here
-    each group's mean square is reduced by its noise variance first::
+    each channel's mean square is reduced by its noise variance first::
 
-        gap² = Σ_g n_g · max(mean(z_g²) − σ_g², 0)
+        gap² = Σ_c n_c · max(mean(z_c²) − σ_c², 0)
         shrink = 100 · (1 − gap_after / gap_before)
 
-    with σ_g the noise the adapter states for group g, else the smaller of the
-    two residuals' window-to-window levels (:func:`white_level`), which is the
-    noise wherever an effect drifts slowly from window to window. Entries
-    outside ``mask`` are ignored. When the nominal residual is itself at the
-    noise level (no gap above it), the raw shrink is returned.
+    with σ_c the noise the adapter states for the channel's group, else the
+    smaller of the two residuals' window-to-window levels (:func:`white_level`)
+    in that column, which is the noise wherever an effect drifts slowly from
+    window to window. The level is taken per column, not per group: the columns
+    of one group come from different sensors or axes (a motion-capture heading
+    is noisier, in feature-scale units, than its position), and a pooled level
+    would count the noisier column's noise as gap. Entries outside ``mask`` are
+    ignored. When the nominal residual is itself at the noise level (no gap
+    above it), the raw shrink is returned.
 
     Parameters
     ----------
@@ -109,14 +113,16 @@ def shrink_above_noise(
         )
     gap_b = gap_a = 0.0
     for g in np.unique(layout.group[mask]):
-        sel = mask & (layout.group == g)
-        if noise is not None and g in noise:
-            sigma = float(noise[g])
-        else:
-            sigma = min(white_level(before, layout, sel), white_level(after, layout, sel))
-        n = int(sel.sum())
-        gap_b += n * max(float(np.mean(before[sel] ** 2)) - sigma**2, 0.0)
-        gap_a += n * max(float(np.mean(after[sel] ** 2)) - sigma**2, 0.0)
+        in_group = mask & (layout.group == g)
+        for col in np.unique(layout.column[in_group]):
+            sel = in_group & (layout.column == col)
+            if noise is not None and g in noise:
+                sigma = float(noise[g])
+            else:
+                sigma = min(white_level(before, layout, sel), white_level(after, layout, sel))
+            n = int(sel.sum())
+            gap_b += n * max(float(np.mean(before[sel] ** 2)) - sigma**2, 0.0)
+            gap_a += n * max(float(np.mean(after[sel] ** 2)) - sigma**2, 0.0)
     if gap_b <= 0.0:
         rb = float(np.sqrt(np.mean(before[mask] ** 2))) if mask.any() else 0.0
         ra = float(np.sqrt(np.mean(after[mask] ** 2))) if mask.any() else 0.0

@@ -781,6 +781,9 @@ def explain(verdict: Verdict, top_models: Sequence[str] = ()) -> list[str]:
             f"against {whole['run_shrink_pct']:.0f} % of the whole-run gap; the rest of the "
             f"window residual {rest}"
         )
+    robot = notes.get("robot")
+    if robot is not None:
+        lines.append(f"fitted robot: {robot['message']}")
     act = notes.get("actuation")
     if act is not None:
         lines.append(f"drive train: {act['message']}")

@@ -13,7 +13,11 @@ import numpy as np
 import pytest
 
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-from realitygap.diagnosis.diffdrive_adapter import DiffDriveContext, values_for_log
+from realitygap.diagnosis.diffdrive_adapter import (
+    DiffDriveAdapter,
+    DiffDriveContext,
+    values_for_log,
+)
 from realitygap.diagnosis.replay import SimSettings
 from realitygap.diagnosis.surrogate import DiffDriveSurrogate, SurrogateInputs
 from realitygap.robots.diffdrive import DiffDriveParams
@@ -51,6 +55,52 @@ def test_values_for_log_give_every_log_the_same_physical_geometry() -> None:
     batch = values_for_log(_context(other, ref), {"wheelbase_error.E_b": np.array([1.0, 1.02])})
     np.testing.assert_allclose(batch["wheelbase_error.E_b"], [0.2 / 0.205, 1.02 * 0.2 / 0.205])
     assert values_for_log(_context(other, None), values) == values
+
+
+class _Prepared:
+    def __init__(self, context: DiffDriveContext) -> None:
+        self.context = context
+
+
+def test_fitted_robot_reads_a_ratio_and_its_scale_per_wheel() -> None:
+    """One encoder 3 % high is, in the library's terms, a ratio at a kept mean and a common
+    scale; read per wheel it is the right encoder alone (closed form), and a wheelbase
+    verdict leaves the wheels and encoders out."""
+    adapter = DiffDriveAdapter()
+    params = DiffDriveParams(wheel_radius_left=0.042, wheel_radius_right=0.042, wheelbase=0.2)
+    prepared = [_Prepared(_context(params, None))]
+    e_c = 1.03
+    values = {
+        "encoder_ratio.E_c": e_c,
+        "encoder_scale.scale": (e_c + 1.0) / 2.0,
+        "timestamp_offset.offset": 0.004,  # a baseline nuisance: not part of the model
+    }
+    got = adapter.fitted_robot(prepared, ("encoder_ratio", "encoder_scale"), values)
+    assert got is not None
+    f = got["factors"]
+    assert f["left encoder's counts per revolution"] == pytest.approx(1.0, abs=1e-12)
+    assert f["right encoder's counts per revolution"] == pytest.approx(1.03, abs=1e-12)
+    assert set(f) == {
+        "left encoder's counts per revolution",
+        "right encoder's counts per revolution",
+    }
+    assert "+3.00 %" in got["message"]
+    # wheel sizes: E_d = 1.01 at a kept mean with a 2 % smaller mean
+    got = adapter.fitted_robot(
+        prepared,
+        ("wheel_diameter_ratio", "wheel_radius_scale"),
+        {"wheel_diameter_ratio.E_d": 1.01, "wheel_radius_scale.scale": 0.98},
+    )
+    assert got is not None
+    f = got["factors"]
+    assert f["left wheel radius"] == pytest.approx(0.98 * 2.0 / 2.01, rel=1e-12)
+    assert f["right wheel radius"] == pytest.approx(0.98 * 2.0 * 1.01 / 2.01, rel=1e-12)
+    got = adapter.fitted_robot(prepared, ("wheelbase_error",), {"wheelbase_error.E_b": 1.02})
+    assert got is not None and got["factors"] == {"wheelbase": pytest.approx(1.02)}
+    # a model that changes none of them reads as nothing
+    assert (
+        adapter.fitted_robot(prepared, ("command_latency",), {"command_latency.delay": 0.1}) is None
+    )
 
 
 def _independent_squares(root: Path, seed: int) -> tuple[list[Path], list[Path], float, float]:

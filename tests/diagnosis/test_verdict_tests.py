@@ -63,6 +63,37 @@ def test_shrink_above_noise_recovers_the_planted_share_of_the_gap() -> None:
     assert raw < 40.0  # the raw share counts the noise no effect can close
 
 
+def test_shrink_above_noise_takes_each_columns_own_noise() -> None:
+    """A group whose columns differ in noise (a motion-capture heading noisier than its
+    position): the noisy column's noise is not gap, so closing the quiet column's effect
+    closes the whole gap."""
+    rng = np.random.default_rng(2)
+    per_col, logs = 2000, 4
+    schema = FeatureSchema(
+        groups=(FeatureGroup("pose_gt", ("dx", "dtheta"), ("m", "rad"), (0.001, 0.002)),),
+        regimes=("all_of_it",),
+    )
+    n = 2 * per_col
+    per = per_col // logs
+    lay = Layout(
+        blocks=[(i, "pose_gt", np.arange(per)) for i in range(logs)],
+        group=np.full(n, "pose_gt"),
+        column=np.repeat(np.array(["dx", "dtheta"]), per_col),
+        regime=np.full(n, "all_of_it"),
+        log=np.tile(np.repeat(np.arange(logs), per), 2).astype(np.int64),
+        window=np.tile(np.arange(per), 2 * logs).astype(np.int64),
+        motion=np.zeros((n, 6)),
+        schema=schema,
+    )
+    drift = _slow_drift(per_col, logs, rng)
+    quiet = 0.1 * rng.normal(0.0, 1.0, per_col)
+    noisy = rng.normal(0.0, 1.0, per_col)
+    before = np.concatenate([drift + quiet, noisy])
+    after = np.concatenate([quiet, noisy])  # the effect in dx closed, dtheta untouched
+    got = shrink_above_noise(before, after, lay, np.ones(n, dtype=bool))
+    assert got == pytest.approx(100.0, abs=5.0)
+
+
 def test_shrink_above_noise_without_a_gap_is_the_raw_shrink() -> None:
     rng = np.random.default_rng(1)
     n = 400
