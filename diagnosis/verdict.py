@@ -219,8 +219,8 @@ def judge(
         verdict = Verdict(
             "effects",
             best.effects,
-            f"{best.name} closes {shrink_all:.0f} % of the held-out gap and leaves unstructured "
-            "residuals",
+            f"{best.name} closes {shrink_gap:.0f} % of the held-out gap above the noise floor "
+            f"({shrink_all:.0f} % of the raw gap) and leaves unstructured residuals",
             margin,
             _confidence(margin, st),
             best_desc,
