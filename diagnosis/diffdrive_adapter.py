@@ -497,7 +497,7 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         The library splits a per-wheel quantity into a ratio at a kept mean and a common
         scale (``wheel_diameter_ratio`` and ``wheel_radius_scale``, ``encoder_ratio`` and
         ``encoder_scale``); a verdict naming both reads, per wheel, as what to change in the
-        robot's description: ``E_c = 1.030`` with ``scale = 1.0148`` is a right encoder
+        robot's description: ``E_c = 1.030`` with ``scale = 1.015`` is a right encoder
         counting 3.0 % more edges than declared and a left one counting as declared. Built
         from the effects' own definitions (their parameters and encoder hooks), so it
         holds for any combination. ``None`` when the model leaves all of them as declared.
