@@ -156,6 +156,34 @@ def test_end_to_end_names_a_strong_in_library_effect() -> None:
     assert arm["top_params"]["arm_tool_offset.dz"] == pytest.approx(3e-3, abs=3e-4)
 
 
+def test_an_encoder_error_beside_a_noisy_heading_is_named() -> None:
+    """One encoder counting 3 % more, command replay: the encoders' gap closes while the
+    motion capture's heading carries only its noise, several times its position's in
+    feature units. The gap above noise is counted channel by channel, so the verdict names
+    the library's pair for it, and read per wheel it is the right encoder alone. The seed is
+    the one ``diagnose-independent`` gives this case, where a noise level pooled over the
+    pose's columns counted the heading's noise as gap and the verdict was "unexplained"."""
+    from realitygap.core.parallel import ProcessBackend
+    from realitygap.diagnosis.adapters import close_adapters
+    from realitygap.experiments.independent import diagnose_case
+
+    try:
+        (row,) = diagnose_case(
+            case_by_name("right_encoder_high"),
+            1000 * [c.name for c in CASES].index("right_encoder_high"),
+            ProcessBackend(2),
+            drives=("commands",),
+        )
+    finally:
+        close_adapters()
+    assert row["correct"], row
+    e_c = row["top_params"]["encoder_ratio.E_c"]
+    scale = row["top_params"]["encoder_scale.scale"]
+    assert e_c == pytest.approx(1.03, abs=0.003)
+    assert scale * 2.0 / (e_c + 1.0) == pytest.approx(1.0, abs=0.002)  # the left encoder
+    assert scale * 2.0 * e_c / (e_c + 1.0) == pytest.approx(1.03, abs=0.003)  # the right one
+
+
 def _fake(
     kind: str,
     effects: tuple[str, ...],
