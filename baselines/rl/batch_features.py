@@ -79,7 +79,8 @@ class BatchObstacleMemory:
         self.cell = float(cell)
         self.n_obs = SCAN_START + self.scan_angles.size
         self._keys = np.empty(0, dtype=np.int64)  # sorted; robot i's keys are one slice
-        self._points = np.empty((self.n, 64, 2))
+        # zeros, not np.empty: slots past a robot's count are masked, but never read as garbage
+        self._points = np.zeros((self.n, 64, 2))
         self.count = np.zeros(self.n, dtype=np.intp)
 
     @classmethod
@@ -168,7 +169,7 @@ class BatchObstacleMemory:
         slot = self.count[robot] + (np.arange(robot.size) - starts)
         need = int(slot.max()) + 1
         if need > self._points.shape[1]:
-            grown = np.empty((self.n, max(need, 2 * self._points.shape[1]), 2))
+            grown = np.zeros((self.n, max(need, 2 * self._points.shape[1]), 2))
             grown[:, : self._points.shape[1]] = self._points
             self._points = grown
         self._points[robot, slot, 0] = px

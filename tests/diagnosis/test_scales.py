@@ -150,7 +150,7 @@ def test_a_drift_under_a_wandering_clock_is_named_on_whole_runs(tmp_path: Path) 
 
 
 @pytest.mark.slow
-def test_a_drift_in_a_command_replay_of_a_fast_noisy_capture_is_named_on_whole_runs(
+def test_a_drift_under_a_fast_noisy_capture_is_named_in_the_windows_above_each_channels_noise(
     tmp_path: Path,
 ) -> None:
     from realitygap.diagnosis.io import read_logs
@@ -158,15 +158,17 @@ def test_a_drift_in_a_command_replay_of_a_fast_noisy_capture_is_named_on_whole_r
     from realitygap.independent.cases import case_by_name
 
     # the independent generator's robot at a 50 Hz cycle under a motion capture with three
-    # times the noise: a 3 % wider axle is a few per cent of each 1-s window's residual
+    # times the noise: a 3 % wider axle is a few per cent of each 1-s window's raw residual,
+    # most of which is the heading's noise. Counted channel by channel, the gap above the
+    # noise is the axle's: the window verdict names it, and no whole-run rule is needed
     train_p, hold_p = generate_case(case_by_name("wheelbase_plus3"), tmp_path, 0, "fast_noisy")
     # read as a user reads them: the plausibility check passes the noisy 50 Hz truth
     train = [lg for p in train_p for lg in read_logs(p)]
     held = [lg for p in hold_p for lg in read_logs(p)]
     d = diagnose(train, held, settings=DiagnosisSettings(drive="commands"))
-    sc = d.scales
-    assert sc["window_shrink_pct"] < 50.0 <= sc["run_shrink_pct"], sc
-    assert sc["named"] and d.verdict.effects == ("wheelbase_error",)
-    assert d.chosen is not None
-    assert d.chosen.values["wheelbase_error.E_b"] == pytest.approx(1.03, abs=0.006)
-    assert "on whole runs" in d.verdict.notes["verdict_text"]
+    assert d.verdict.effects == ("wheelbase_error",), d.verdict.reason
+    assert d.gap["heldout_shrink_pct_best"] < 50.0  # the raw window share: mostly noise
+    assert "above the noise floor" in d.verdict.reason
+    assert not d.scales  # named in the windows, not on whole runs
+    assert d.ranking[0].values["wheelbase_error.E_b"] == pytest.approx(1.03, abs=0.006)
+    assert d.verdict.notes["robot"]["factors"] == {"wheelbase": pytest.approx(1.03, abs=0.006)}
