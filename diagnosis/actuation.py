@@ -235,6 +235,7 @@ def wheel_tracking(
         reached = float(speed_real[beyond, j].max())
         # a ceiling: windows asking clearly more than the wheel ever reached beyond
         capped = beyond & (speed_asked[:, j] > reached * (1.0 + margin))
+        n_capped = int(capped.sum())
         by_log = []
         for name in ordered:
             sel = beyond & (names_arr == name)
@@ -256,11 +257,11 @@ def wheel_tracking(
             beyond_gain_se=se_b,
             asked_max=float(speed_asked[beyond, j].max()),
             reached_max=reached,
-            n_capped=int(capped.sum()),
+            n_capped=n_capped,
             capped_logs=sorted({str(x) for x in names_arr[capped]}),
             logs=ordered,
             by_log=by_log,
-            departs=off or int(capped.sum()) >= min_windows or any(b["departs"] for b in by_log),
+            departs=off or n_capped >= min_windows or any(b["departs"] for b in by_log),
         )
     if not rows:
         return None

@@ -502,7 +502,8 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         from the effects' own definitions (their parameters and encoder hooks), so it
         holds for any combination. ``None`` when the model leaves all of them as declared.
         """
-        own = {k: float(v) for k, v in values.items() if k.partition(".")[0] in set(effects)}
+        named = set(effects)
+        own = {k: float(v) for k, v in values.items() if k.partition(".")[0] in named}
         if not prepared or not own:
             return None
         ctx = self._context(prepared[0])

@@ -114,12 +114,14 @@ def shrink_above_noise(
     gap_b = gap_a = 0.0
     for g in np.unique(layout.group[mask]):
         in_group = mask & (layout.group == g)
+        stated = float(noise[g]) if noise is not None and g in noise else None
         for col in np.unique(layout.column[in_group]):
             sel = in_group & (layout.column == col)
-            if noise is not None and g in noise:
-                sigma = float(noise[g])
-            else:
-                sigma = min(white_level(before, layout, sel), white_level(after, layout, sel))
+            sigma = (
+                stated
+                if stated is not None
+                else min(white_level(before, layout, sel), white_level(after, layout, sel))
+            )
             n = int(sel.sum())
             gap_b += n * max(float(np.mean(before[sel] ** 2)) - sigma**2, 0.0)
             gap_a += n * max(float(np.mean(after[sel] ** 2)) - sigma**2, 0.0)
