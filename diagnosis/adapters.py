@@ -222,6 +222,10 @@ class RobotAdapter(Protocol):
         self, prepared: Sequence[PreparedLog], settings: FeatureSettings
     ) -> dict[str, float] | None: ...
 
+    def sample_noise_levels(
+        self, prepared: Sequence[PreparedLog], settings: FeatureSettings
+    ) -> dict[str, dict[str, float]] | None: ...
+
     def hidden_effects(self) -> HiddenTable: ...
 
     def fitted_robot(
@@ -289,6 +293,15 @@ class AdapterBase:
     ) -> dict[str, float] | None:
         """Measurement noise per group in feature-scale units, or ``None``: then the
         window-to-window spread of the residual stands for the noise."""
+        return None
+
+    def sample_noise_levels(
+        self, prepared: Sequence[PreparedLog], settings: FeatureSettings
+    ) -> dict[str, dict[str, float]] | None:
+        """Noise of window features that a sensor's own samples show, per group and column
+        in feature-scale units, or ``None`` (no such measurement): what the verdict asks
+        before it calls a residual that passes for white "noise"
+        (:func:`~realitygap.diagnosis.residual.above_sample_noise`)."""
         return None
 
     def fitted_robot(

@@ -587,6 +587,14 @@ def fit_model(
             return problem.surrogate_residuals(layout, _values(all_keys, U), U.shape[0], bias)
         return problem.surrogate_residuals(layout, _values(keys, U), U.shape[0], bias)
 
+    def _cost(U: FloatArray, layout: Any) -> FloatArray:
+        """Robust training cost of each row of ``U`` (model parameters only)."""
+        out = np.empty(U.shape[0])
+        for a in range(0, U.shape[0], 128):
+            z = residual_batch(U[a : a + 128], layout)
+            out[a : a + 128] = np.sum(_rho(z**2, loss, c), axis=1)
+        return out
+
     seed = settings.seed + sum(ord(c_) for c_ in "".join(effects))
     rng = np.random.default_rng(seed)
     cand: list[FloatArray] = []
@@ -597,10 +605,13 @@ def fit_model(
     if not local_only:
         U = lo_u + _grid(keys, settings, rng) * (hi_u - lo_u)
         U = np.vstack([U, u_nom[None], *cand])
-        costs = np.empty(U.shape[0])
-        for a in range(0, U.shape[0], 128):
-            z = residual_batch(U[a : a + 128], tr)
-            costs[a : a + 128] = np.sum(_rho(z**2, loss, c), axis=1)
+        costs = _cost(U, tr)
+        if p == 1:
+            # a step-like parameter (a dead zone or a speed limit among the commanded
+            # speeds) makes the training cost a staircase whose treads can be narrower
+            # than the grid's spacing, and the local refinement's gradient is zero on a
+            # tread: scan finely around the best few grid points first
+            U, costs = _refine_one(U, costs, lo_u, hi_u, lambda V: _cost(V, tr))
         order = np.argsort(costs)
         picks: list[FloatArray] = []
         for idx in order:
@@ -669,6 +680,27 @@ def fit_model(
     return _finish(
         problem, tuple(effects), keys, u_all[:p], z_tr, z_ho, J, nuisance=nuisance, held=held
     )
+
+
+def _refine_one(
+    U: FloatArray,
+    costs: FloatArray,
+    lo: FloatArray,
+    hi: FloatArray,
+    cost: Callable[[FloatArray], FloatArray],
+    n_best: int = 3,
+    n_fine: int = 33,
+) -> tuple[FloatArray, FloatArray]:
+    """A one-parameter grid ``U`` (n, 1) with its ``costs``, and a fine scan of ``n_fine``
+    points across the grid step on either side of each of its ``n_best`` lowest costs,
+    within ``lo`` … ``hi`` (the points and their costs appended)."""
+    grid = np.unique(U[:, 0])
+    step = float(np.max(np.diff(grid))) if grid.size > 1 else float(hi[0] - lo[0])
+    best = U[np.argsort(costs)[:n_best], 0]
+    fine = np.unique(
+        np.clip((best[:, None] + np.linspace(-step, step, n_fine)[None]).ravel(), lo[0], hi[0])
+    )[:, None]
+    return np.vstack([U, fine]), np.concatenate([costs, cost(fine)])
 
 
 def _toward_nominal(

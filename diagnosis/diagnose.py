@@ -676,7 +676,11 @@ def diagnose(
     timing["verify"] = time.perf_counter() - t2
 
     judgement = judge(
-        problem, verification.ranking, nominal_fit, adapter.noise_levels(prepared, s.features)
+        problem,
+        verification.ranking,
+        nominal_fit,
+        adapter.noise_levels(prepared, s.features),
+        adapter.sample_noise_levels(prepared, s.features),
     )
     scale_figures: dict[str, Any] = {}
     if s.scales is not None:

@@ -68,6 +68,7 @@ from realitygap.diagnosis.replay import (
     replay,
     simulate,
 )
+from realitygap.diagnosis.residual import robust_spread
 from realitygap.diagnosis.scales import gain_through_origin
 from realitygap.diagnosis.surrogate import (
     SURROGATE_EFFECTS,
@@ -487,6 +488,54 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         sur = self.surrogate_features(prepared, {}, drive)
         prepared.bias = {g: prepared.nominal[g] - sur[g][0] for g in prepared.groups}
         return prepared
+
+    def sample_noise_levels(
+        self, prepared: Sequence[PreparedLog], settings: FeatureSettings
+    ) -> dict[str, dict[str, float]] | None:
+        r"""Noise of each window feature that the logs' own samples show (feature-scale units).
+
+        Ground truth: a pose track sampled at the log's rate moves smoothly between
+        samples, so its second differences are noise, :math:`\sqrt 6\,σ` for
+        independent samples of noise :math:`σ` (the motion adds :math:`a\,Δt^2`, well
+        below a motion-capture system's noise at tens of hertz, and the robust spread
+        ignores the rest). A window feature is the difference of two samples:
+        :math:`\sqrt 2\,σ` (``x`` and ``y`` pooled for ``dx``, ``dy``). Encoders: a
+        count is quantised to one tick, so a window's travel in the log and in the
+        replay each carry :math:`1/\sqrt 6` tick. Pooled over all logs (one sensor);
+        ``None`` when no log has a ground truth with three samples.
+        """
+        xy: list[FloatArray] = []
+        th: list[FloatArray] = []
+        mpt = 0.0
+        for p in prepared:
+            log = p.log
+            if log.has("pose_gt"):
+                gt = np.asarray(log["pose_gt"], dtype=float)
+                if gt.shape[0] >= 3:
+                    xy.append(np.diff(gt[:, :2], n=2, axis=0).ravel())
+                    d1 = np.angle(np.exp(1j * np.diff(gt[:, 2])))  # wrapped increments
+                    th.append(np.diff(d1))
+            if log.has("ticks"):
+                mpt = max(mpt, *self.meters_per_tick(self._context(p).params))
+        if not xy:
+            return None
+        scale = dict(zip(self.schema.columns("pose_gt"), settings.scale("pose_gt"), strict=True))
+        _, s_xy = robust_spread(np.concatenate(xy))
+        _, s_th = robust_spread(np.concatenate(th))
+        sig_xy = math.sqrt(2.0) * float(s_xy) / math.sqrt(6.0)
+        sig_th = math.sqrt(2.0) * float(s_th) / math.sqrt(6.0)
+        out = {
+            "pose_gt": {
+                "dx": sig_xy / scale["dx"],
+                "dy": sig_xy / scale["dy"],
+                "dtheta": sig_th / scale["dtheta"],
+            }
+        }
+        if mpt > 0.0:
+            quant = math.sqrt(2.0) * mpt / math.sqrt(6.0)
+            ts = dict(zip(self.schema.columns("ticks"), settings.scale("ticks"), strict=True))
+            out["ticks"] = {c: quant / v for c, v in ts.items()}
+        return out
 
     def fitted_robot(
         self, prepared: Sequence[PreparedLog], effects: Sequence[str], values: Mapping[str, float]

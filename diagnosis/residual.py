@@ -4,8 +4,10 @@
 group's residual is structured when it is much larger than its noise level,
 concentrates in one column or motion regime, or follows the commanded motion
 (:data:`~realitygap.diagnosis.attribute.MOTION_COLUMNS`). The noise level is
-the robust (MAD-based) window-to-window level :func:`white_level`, or the
-measurement noise an adapter states; a regime's concentration is judged
+the robust (MAD-based) window-to-window level :func:`white_level` of each
+column — combined over a group's columns by :func:`mixture_level`, and each
+column's own for the standard error of its mean — or the measurement noise an
+adapter states; a regime's concentration is judged
 against the larger of the column's level and the regime's own
 window-to-window level, so a regime that only scatters more is not taken for
 structure, while a residual that stays put from window to window is.
@@ -26,7 +28,15 @@ if TYPE_CHECKING:
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["describe_residual", "robust_spread", "shrink_above_noise", "white_level"]
+__all__ = [
+    "above_sample_noise",
+    "column_levels",
+    "describe_residual",
+    "mixture_level",
+    "robust_spread",
+    "shrink_above_noise",
+    "white_level",
+]
 
 _MAD_TO_SD = 1.4826
 """Ratio of a normal distribution's standard deviation to its median absolute deviation."""
@@ -59,6 +69,85 @@ def white_level(z: FloatArray, layout: Layout, sel: npt.NDArray[np.bool_]) -> fl
         return 0.0
     _, spread = robust_spread(np.concatenate(diffs))
     return float(spread) / math.sqrt(2.0)
+
+
+def column_levels(z: FloatArray, layout: Layout, sel: npt.NDArray[np.bool_]) -> dict[Any, float]:
+    """:func:`white_level` of each column of ``sel`` on its own."""
+    return {
+        c: white_level(z, layout, sel & (layout.column == c)) for c in np.unique(layout.column[sel])
+    }
+
+
+def mixture_level(layout: Layout, sel: npt.NDArray[np.bool_], levels: Mapping[Any, float]) -> float:
+    r"""Noise level of a selection that spans columns, to compare with its RMS.
+
+    Each column keeps its own noise level :math:`σ_c` (``levels``, e.g.
+    :func:`column_levels`), combined as pure noise would combine in an RMS over
+    the selection's :math:`n_c` entries per column:
+
+    .. math::  σ = \sqrt{\textstyle\sum_c n_c σ_c^2 / \sum_c n_c}.
+
+    The columns of one group come from different sensors or axes (a motion-capture
+    heading is several times noisier, in feature-scale units, than its position);
+    one robust level pooled over them (:func:`white_level` of the whole selection)
+    sits near the quieter columns', and the noisier column's noise would pass for
+    structure.
+    """
+    num, den = 0.0, 0
+    for c in np.unique(layout.column[sel]):
+        n = int(np.count_nonzero(sel & (layout.column == c)))
+        num += n * float(levels[c]) ** 2
+        den += n
+    return math.sqrt(num / den) if den else 0.0
+
+
+SAMPLE_NOISE_TOLERANCE = 1.25
+"""How far (as a factor) the noise a sensor's samples show may miss the noise of a window
+feature: samples not quite independent, motion left in the differences."""
+
+
+def above_sample_noise(
+    z: FloatArray,
+    layout: Layout,
+    levels: Mapping[str, Mapping[str, float]],
+    settings: AttributionSettings,
+    alpha: float = 1e-3,
+) -> list[str]:
+    r"""Columns whose residual is larger than their sensor's own noise allows.
+
+    The window-to-window level (:func:`white_level`) takes for noise whatever changes
+    as fast as the windows: a residual that oscillates within a couple of windows (a
+    wheel that is not round, an encoder disc off centre, both once or twice per wheel
+    turn) differs from window to window as much as it is large, and passes for white.
+    A sensor's own noise, measured from its samples within the windows
+    (``levels[group][column]``, feature-scale units, e.g. the adapter's
+    ``sample_noise_levels``; never below the structure ``floor``), does not move with
+    the residual. Noise alone keeps the mean square of a column's :math:`n` entries
+    below :math:`σ^2 χ^2_{n,1-α}/n`; a column whose RMS exceeds that, times
+    :data:`SAMPLE_NOISE_TOLERANCE`, holds something the sensor did not add. Returns one
+    reason per such column, largest ratio first (empty when none is).
+    """
+    from scipy.stats import chi2
+
+    found: list[tuple[float, str]] = []
+    for g, cols in levels.items():
+        for c, sigma in cols.items():
+            m = (layout.group == g) & (layout.column == c)
+            n = int(m.sum())
+            if n < 6:
+                continue
+            ratio = float(np.sqrt(np.mean(z[m] ** 2))) / max(float(sigma), settings.floor)
+            limit = SAMPLE_NOISE_TOLERANCE * math.sqrt(float(chi2.ppf(1.0 - alpha, n)) / n)
+            if ratio > limit:
+                found.append(
+                    (
+                        ratio,
+                        f"{g}: the residual of {c} is {ratio:.1f}× the noise of the sensor's own "
+                        f"samples (noise stays within {limit:.1f}× over {n} windows): it changes "
+                        "faster than the windows, not as noise does",
+                    )
+                )
+    return [why for _, why in sorted(found, key=lambda x: -x[0])]
 
 
 def shrink_above_noise(
@@ -223,7 +312,9 @@ def describe_residual(
             continue
         zg = z[sel]
         rms = float(np.sqrt(np.mean(zg**2)))
-        white = noise[g] if noise is not None and g in noise else white_level(z, layout, sel)
+        stated = noise is not None and g in noise
+        col_white = {} if stated else column_levels(z, layout, sel)
+        white = noise[g] if stated else mixture_level(layout, sel, col_white)
         level = max(white, settings.floor)
         excess = rms / level
         cols = layout.schema.columns(g)
@@ -246,10 +337,10 @@ def describe_residual(
                 for r in regimes
                 if (mc & (layout.regime == r)).sum() >= 10
             ]
-            if noise is not None and g in noise:
+            if stated:
                 lvl_c = max(noise[g], settings.floor)
             else:
-                lvl_c = max(min([white_level(z, layout, mc), *quiet]), settings.floor)
+                lvl_c = max(min([col_white[c], *quiet]), settings.floor)
             for r in ("all", *regimes):
                 m = mc if r == "all" else mc & (layout.regime == r)
                 if m.sum() < 5:
@@ -259,7 +350,7 @@ def describe_residual(
                 # (starts and stops replay less exactly) is not structured for that; a
                 # residual that stays put from window to window is
                 lvl_r = lvl_c
-                if r != "all" and not (noise is not None and g in noise):
+                if r != "all" and not stated:
                     lvl_r = max(lvl_c, white_level(z, layout, m))
                 if r_rms > settings.floor and r_rms / lvl_r > worst_ratio:
                     worst_ratio = r_rms / lvl_r
@@ -273,7 +364,9 @@ def describe_residual(
                     continue
                 mean = float(np.mean(z[m]))
                 regime_means.setdefault(r, {})[c] = mean * float(scale[j])
-                t = abs(mean) / (level / math.sqrt(m.sum()))
+                # the standard error of a column's mean is its own noise's
+                lvl_t = level if stated else max(col_white.get(c, 0.0), settings.floor)
+                t = abs(mean) / (lvl_t / math.sqrt(m.sum()))
                 if t > worst_t and abs(mean) > settings.floor:
                     worst_t, worst_where = t, f"{c} while {r}"
         # dependence on the commanded motion (per column, least squares)

@@ -29,7 +29,13 @@ import numpy.typing as npt
 
 from realitygap.diagnosis.attribute import AttributionSettings, ModelFit, Problem, Verdict
 from realitygap.diagnosis.parameters import param_spec, range_position
-from realitygap.diagnosis.residual import describe_residual, shrink_above_noise, white_level
+from realitygap.diagnosis.residual import (
+    above_sample_noise,
+    column_levels,
+    describe_residual,
+    shrink_above_noise,
+    white_level,
+)
 from realitygap.diagnosis.shrink import overall_shrink
 
 if TYPE_CHECKING:
@@ -100,6 +106,7 @@ def judge(
     ranking: list[ModelFit],
     nominal_fit: ModelFit,
     noise: Mapping[str, float] | None,
+    sample_noise: Mapping[str, Mapping[str, float]] | None = None,
 ) -> Judgement:
     """Draw the verdict from a verified ranking (best first).
 
@@ -111,6 +118,10 @@ def judge(
         The model without effects.
     noise : mapping of group to float, optional
         Measurement noise the adapter states (feature-scale units).
+    sample_noise : mapping of group to mapping of column to float, optional
+        The noise the sensors' own samples show (the adapter's ``sample_noise_levels``):
+        a nominal residual that passes for white is called noise ("none") only within
+        it (:func:`~realitygap.diagnosis.residual.above_sample_noise`).
 
     Returns
     -------
@@ -123,6 +134,11 @@ def judge(
     structure = getattr(problem.adapter, "residual_structure", None)  # adapter's own test
     if structure is not None:
         nominal_desc = structure(problem, {}, nominal_desc)
+    if sample_noise and not nominal_desc["structured"]:
+        # white from window to window, but is it as small as the sensors' own noise?
+        fast = above_sample_noise(z_nom, problem.holdout, sample_noise, st)
+        if fast:
+            nominal_desc = {**nominal_desc, "structured": True, "reasons": fast}
     best = ranking[0]
     # the runner-up: the best model that is neither this one nor a superset rejected for it
     runner = next(
@@ -365,16 +381,19 @@ def combination_check(
     :class:`AttributionSettings` times the noise level) and that it improves,
     the residual it leaves is within ``excess_ratio`` of the noise level, or
     below the structure floor (``floor``: smaller effects are below what the logs
-    resolve). The noise level is the larger of the group's and the regime's
-    window-to-window level of that residual (:func:`white_level`), not raised to
-    the floor, so a channel that resolves far below the floor (wheel encoders)
-    is judged at its own resolution.
+    resolve). Each column of a group is judged on its own (the columns come from
+    different sensors or axes: a motion-capture heading's noise is not structure,
+    and it does not hide a drift in the quieter position) against the larger of
+    its window-to-window level of that residual over the group and within the
+    regime (:func:`~realitygap.diagnosis.residual.white_level`), not raised to the
+    floor, so a channel that resolves far below the floor (wheel encoders) is
+    judged at its own resolution.
 
     Returns
     -------
     dict
-        ``model``, ``checked`` (per group and regime: RMS before and after, noise
-        level, ratio), ``failed`` (the same rows where the ratio exceeds the
+        ``model``, ``checked`` (per group, column and regime: RMS before and after,
+        noise level, ratio), ``failed`` (the same rows where the ratio exceeds the
         limit, worst first) and ``passed``.
     """
     lay = problem.holdout
@@ -389,28 +408,30 @@ def combination_check(
     rows: list[dict[str, Any]] = []
     for g in sorted(set(lay.group[sel].tolist())):
         mg = sel & (lay.group == g)
-        group_level = white_level(z, lay, mg)
-        for r in sorted(set(lay.regime[mg].tolist())):
-            m = mg & (lay.regime == r)
-            n = int(m.sum())
-            if n < min_entries:
-                continue
-            level = max(group_level, white_level(z, lay, m), 1e-12)
-            rms = float(np.sqrt(np.mean(z[m] ** 2)))
-            rms_nom = float(np.sqrt(np.mean(z_nom[m] ** 2)))
-            if rms_nom <= limit * level or rms >= rms_nom:
-                continue  # no gap lived here, or the combination does not act on it
-            rows.append(
-                {
-                    "group": g,
-                    "regime": r,
-                    "entries": n,
-                    "rms_nominal": rms_nom,
-                    "rms_model": rms,
-                    "noise_level": level,
-                    "ratio": rms / level,
-                }
-            )
+        for c, column_level in column_levels(z, lay, mg).items():
+            mc = mg & (lay.column == c)
+            for r in sorted(set(lay.regime[mc].tolist())):
+                m = mc & (lay.regime == r)
+                n = int(m.sum())
+                if n < min_entries:
+                    continue
+                level = max(column_level, white_level(z, lay, m), 1e-12)
+                rms = float(np.sqrt(np.mean(z[m] ** 2)))
+                rms_nom = float(np.sqrt(np.mean(z_nom[m] ** 2)))
+                if rms_nom <= limit * level or rms >= rms_nom:
+                    continue  # no gap lived here, or the combination does not act on it
+                rows.append(
+                    {
+                        "group": g,
+                        "column": str(c),
+                        "regime": r,
+                        "entries": n,
+                        "rms_nominal": rms_nom,
+                        "rms_model": rms,
+                        "noise_level": level,
+                        "ratio": rms / level,
+                    }
+                )
     floor = problem.settings.floor
     failed = sorted(
         (x for x in rows if x["ratio"] > limit and x["rms_model"] > floor),
@@ -665,8 +686,8 @@ def conclude(
             verdict.reason = (
                 f"partially explained: {best.name} closes {judgement.shrink_pct_best:.0f} % of "
                 f"the held-out gap, but where it acts the residual is still structured (the "
-                f"{w['group']} residual while {w['regime']} is {w['ratio']:.1f}× its noise "
-                "level): the two effects may stand in for one mechanism outside the library "
+                f"{w['group']} {w['column']} residual while {w['regime']} is {w['ratio']:.1f}× "
+                "its noise level): the two effects may stand in for one mechanism outside the library "
                 "that couples them"
             )
     aliases = alias_notes(problem, ranking, judgement, ident, identify=identifiability)

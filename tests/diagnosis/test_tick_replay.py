@@ -18,6 +18,8 @@ from realitygap.diagnosis.diffdrive_adapter import (
     DiffDriveContext,
     values_for_log,
 )
+from realitygap.diagnosis.features import FeatureSettings
+from realitygap.diagnosis.log import Log
 from realitygap.diagnosis.replay import SimSettings
 from realitygap.diagnosis.surrogate import DiffDriveSurrogate, SurrogateInputs
 from realitygap.robots.diffdrive import DiffDriveParams
@@ -58,8 +60,9 @@ def test_values_for_log_give_every_log_the_same_physical_geometry() -> None:
 
 
 class _Prepared:
-    def __init__(self, context: DiffDriveContext) -> None:
+    def __init__(self, context: DiffDriveContext, log: Log | None = None) -> None:
         self.context = context
+        self.log = log
 
 
 def test_fitted_robot_reads_a_ratio_and_its_scale_per_wheel() -> None:
@@ -206,3 +209,38 @@ def test_tick_replay_recovers_planted_factors_of_the_projects_own_generator() ->
     for key, truth in (("wheelbase_error.E_b", 1.02), ("wheel_diameter_ratio.E_d", 1.01)):
         assert abs(fit.values[key] - truth) < max(4.0 * fit.stderr[key], 0.003), key
     assert d.gap["heldout_trajectory_shrink_pct_best"] > 50.0
+
+
+def test_sample_noise_levels_read_the_ground_truths_own_noise() -> None:
+    """A pose track on a slow arc at 20 Hz with independent noise of 0.5 mm and 2 mrad: a
+    window feature (the difference of two samples) carries √2 times that, in feature-scale
+    units; encoders quantised to one tick carry 1/√6 tick per window, log and replay each
+    (closed forms). A log without ground truth gives no level."""
+    rng = np.random.default_rng(3)
+    params = DiffDriveParams(wheel_radius_left=0.042, wheel_radius_right=0.042, wheelbase=0.2)
+    n, dt = 4000, 0.05
+    t = dt * np.arange(n)
+    th = 0.3 * t + 0.2 * np.sin(0.5 * t)  # turning, with a changing turn rate
+    x = np.cumsum(0.1 * dt * np.cos(th))
+    y = np.cumsum(0.1 * dt * np.sin(th))
+    sig_xy, sig_th = 0.0005, 0.002
+    truth = np.column_stack(
+        [x + rng.normal(0, sig_xy, n), y + rng.normal(0, sig_xy, n), th + rng.normal(0, sig_th, n)]
+    )
+    truth[:, 2] = np.angle(np.exp(1j * truth[:, 2]))  # logged wrapped: the levels unwrap it
+    ticks = np.floor(np.column_stack([t, t]) * 500.0)
+    log = Log(t, {"pose_gt": truth, "ticks": ticks})
+    settings = FeatureSettings()
+    got = DiffDriveAdapter().sample_noise_levels([_Prepared(_context(params, None), log)], settings)
+    assert got is not None
+    scale = dict(zip(("dx", "dy", "dtheta"), settings.scale("pose_gt"), strict=True))
+    for c, sigma in (("dx", sig_xy), ("dy", sig_xy), ("dtheta", sig_th)):
+        assert got["pose_gt"][c] == pytest.approx(np.sqrt(2.0) * sigma / scale[c], rel=0.08)
+    mpt = 2.0 * np.pi * 0.042 / params.ticks_per_rev
+    t_scale = settings.scale("ticks")[0]
+    assert got["ticks"]["left"] == pytest.approx(np.sqrt(2.0 / 6.0) * mpt / t_scale, rel=1e-9)
+    bare = Log(t, {"ticks": ticks})
+    assert (
+        DiffDriveAdapter().sample_noise_levels([_Prepared(_context(params, None), bare)], settings)
+        is None
+    )

@@ -487,6 +487,44 @@ def test_a_combination_must_leave_noise_wherever_it_acts(
         combination_check(problem, exact, z_nom[:-1])
 
 
+def test_a_combination_that_leaves_noise_in_a_group_of_unequal_columns_passes(
+    model_fit: Callable[..., ModelFit],
+) -> None:
+    """A motion-capture group whose heading is ten times noisier than its position: a
+    combination that leaves exactly the noise passes, and one that leaves a drift in the
+    quiet position fails. (A level pooled over the columns, near the quiet ones', took the
+    heading's noise for structure: a ratio of about 4; and an RMS over the group would let
+    the heading's noise hide the drift.)"""
+    from realitygap.diagnosis.verdict import combination_check
+
+    rng = np.random.default_rng(11)
+    m, sigmas = 120, {"dx": 0.1, "dy": 0.1, "dtheta": 1.0}
+    regimes = np.array(["straight"] * (m // 2) + ["accelerating"] * (m - m // 2))
+    lay = SimpleNamespace(
+        n=3 * m,
+        group=np.full(3 * m, "pose_gt"),
+        column=np.repeat(list(sigmas), m),
+        regime=np.tile(regimes, 3),
+        log=np.zeros(3 * m, dtype=int),
+        window=np.tile(np.arange(m), 3),
+    )
+    problem = SimpleNamespace(holdout=lay, settings=AttributionSettings())
+    noise = np.concatenate([rng.normal(0.0, s, m) for s in sigmas.values()])
+    acc = lay.regime == "accelerating"
+    z_nom = noise + np.where(acc & (lay.column == "dx"), 3.0, 0.0)
+    ok = combination_check(problem, model_fit(("a", "b"), noise.copy()), z_nom)
+    assert ok["passed"], ok["failed"]
+    # judged where the gap lived (dx while accelerating), at dx's own level
+    (row,) = ok["checked"]
+    assert (row["column"], row["regime"]) == ("dx", "accelerating")
+    assert row["ratio"] == pytest.approx(1.0, abs=0.3)
+    # a slow drift left in the quiet column is structure, however noisy the heading
+    drift = np.where(acc & (lay.column == "dx"), 1.2 * np.sin(np.arange(3 * m) / 9.0), 0.0)
+    bad = combination_check(problem, model_fit(("a", "b"), noise + drift), z_nom)
+    assert not bad["passed"]
+    assert bad["failed"][0]["column"] == "dx"
+
+
 def test_parameter_correlations_stay_within_one_whatever_the_units() -> None:
     """Two collinear parameters in very different units correlate fully, an independent one
     not at all, and one the residual does not depend on has no correlation (the

@@ -15,7 +15,11 @@ import pytest
 from realitygap.diagnosis.attribute import AttributionSettings, Layout, ModelFit
 from realitygap.diagnosis.features import FeatureGroup, FeatureSchema, FeatureSettings
 from realitygap.diagnosis.parameters import range_position
-from realitygap.diagnosis.residual import describe_residual, shrink_above_noise
+from realitygap.diagnosis.residual import (
+    above_sample_noise,
+    describe_residual,
+    shrink_above_noise,
+)
 from realitygap.diagnosis.verdict import _pinned, judge, parameter_status
 
 SCHEMA = FeatureSchema(
@@ -230,6 +234,64 @@ def test_a_speed_limit_well_inside_its_range_is_not_pinned(
     }
 
 
+def test_noise_in_a_group_of_unequal_columns_is_not_structure() -> None:
+    """Pure noise in a group whose heading is ten times noisier than its position is not
+    structure: the group's RMS is compared with its columns' levels combined as noise
+    combines, and a column's regime mean with that column's own standard error. (A level
+    pooled over the columns sits near the quiet ones': a ratio of about 4 and regime means
+    of the heading many "standard errors" from zero.) A drift in the quiet column still is."""
+    rng = np.random.default_rng(5)
+    per_col, logs = 600, 4
+    sigmas = {"dx": 0.1, "dy": 0.1, "dtheta": 1.0}
+    schema = FeatureSchema(
+        groups=(FeatureGroup("pose_gt", tuple(sigmas), ("m", "m", "rad"), (0.001, 0.001, 0.002)),),
+        regimes=("straight", "turning"),
+    )
+    per = per_col // logs
+    n = 3 * per_col
+    lay = Layout(
+        blocks=[(i, "pose_gt", np.arange(per)) for i in range(logs)],
+        group=np.full(n, "pose_gt"),
+        column=np.repeat(np.array(list(sigmas)), per_col),
+        regime=np.tile(np.array(["straight", "turning"]), n // 2),
+        log=np.tile(np.repeat(np.arange(logs), per), 3).astype(np.int64),
+        window=np.tile(np.arange(per), 3 * logs).astype(np.int64),
+        motion=np.zeros((n, 6)),
+        schema=schema,
+    )
+    settings = AttributionSettings(floor=0.01)
+    z = np.concatenate([rng.normal(0.0, s, per_col) for s in sigmas.values()])
+    out = describe_residual(z, lay, settings, FeatureSettings())
+    g = out["groups"]["pose_gt"]
+    assert g["excess_ratio"] == pytest.approx(1.0, abs=0.2)
+    assert g["worst_regime_t"] < settings.regime_t
+    assert not out["structured"], out["reasons"]
+    drift = np.where(lay.column == "dx", 0.5 * _slow_drift(n, logs, rng), 0.0)
+    assert describe_residual(z + drift, lay, settings, FeatureSettings())["structured"]
+
+
+def test_a_residual_faster_than_the_windows_is_not_taken_for_noise() -> None:
+    """A heading error that oscillates every 2.3 windows (an out-of-round wheel) differs
+    from window to window as much as it is large: the window-to-window test passes it for
+    white. Against the noise the sensor's own samples show it is several times too large;
+    noise at that level is not flagged."""
+    rng = np.random.default_rng(6)
+    n, logs = 240, 4
+    lay = _layout(n, logs)
+    sigma = 1.0
+    k = np.tile(np.arange(n // logs), logs)
+    wobble = 3.0 * np.sin(2.0 * np.pi * k / 2.3 + 0.4)
+    settings = AttributionSettings()
+    z = wobble + rng.normal(0.0, sigma, n)
+    assert not describe_residual(z, lay, settings, FeatureSettings())["structured"]
+    (why,) = above_sample_noise(z, lay, {"pose_gt": {"dtheta": sigma}}, settings)
+    assert why.startswith("pose_gt: the residual of dtheta is") and "faster than the windows" in why
+    noise = rng.normal(0.0, sigma, n)
+    assert above_sample_noise(noise, lay, {"pose_gt": {"dtheta": sigma}}, settings) == []
+    # a residual below the structure floor is never judged (0.3 here), however quiet the sensor
+    assert above_sample_noise(0.2 * noise, lay, {"pose_gt": {"dtheta": 0.01}}, settings) == []
+
+
 # --------------------------------------------------------------------------- boundary errors
 def test_adjacent_windows_that_cancel_are_not_structure() -> None:
     """A few mis-stamped samples move displacement from one window into the next
@@ -312,6 +374,31 @@ def test_a_parameter_on_a_plateau_of_the_training_cost_takes_the_end_nearest_nom
     # a fit already at the nominal end of its plateau is left alone
     again = _toward_nominal(cost, out, np.array([0.0, 0.5]), 2)
     assert again[0] == pytest.approx(out[0], abs=1e-3)
+
+
+def test_a_one_parameter_fit_finds_a_tread_narrower_than_its_grid() -> None:
+    """A dead zone among densely spread commanded speeds: the training cost is a staircase
+    whose lowest tread (0.02667 … 0.02693 m/s) lies between two points of the 41-point grid
+    (0.026 and 0.028 m/s), where the gradient-based refinement cannot move. The fine scan
+    around the best grid points lands on it."""
+    from realitygap.diagnosis.attribute import AttributionSettings, _refine_one
+
+    commands = np.linspace(0.0, 0.08, 301)  # 0.000267 m/s apart
+    truth = 0.0268
+
+    def cost(U: np.ndarray) -> np.ndarray:
+        zone = U[:, 0] * 0.08
+        wrong = (commands[None, :] < zone[:, None]) != (commands[None, :] < truth)
+        return wrong.sum(axis=1).astype(float)
+
+    grid = np.linspace(0.0, 1.0, AttributionSettings().grid_points)[:, None]
+    costs = cost(grid)
+    assert costs.min() > 0  # no grid point on the tread
+    U, c = _refine_one(grid, costs, np.zeros(1), np.ones(1), cost)
+    assert c.min() == 0.0
+    found = U[np.argmin(c), 0] * 0.08
+    assert commands[commands < truth].max() < found <= commands[commands >= truth].min()
+    assert np.all((U >= 0.0) & (U <= 1.0)) and U.shape[0] > grid.shape[0]
 
 
 def test_a_compliance_whose_law_differs_in_detail_is_named_and_the_rest_described(
