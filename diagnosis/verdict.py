@@ -134,6 +134,7 @@ def judge(
     structure = getattr(problem.adapter, "residual_structure", None)  # adapter's own test
     if structure is not None:
         nominal_desc = structure(problem, {}, nominal_desc)
+    fast: list[str] = []
     if sample_noise and not nominal_desc["structured"]:
         # white from window to window, but is it as small as the sensors' own noise?
         fast = above_sample_noise(z_nom, problem.holdout, sample_noise, st)
@@ -158,6 +159,8 @@ def judge(
     best_desc = describe_residual(best.z_heldout, problem.holdout, st, scales, noise)
     if structure is not None and best.effects:
         best_desc = structure(problem, best.values, best_desc)
+    if fast and not best.effects:  # the nominal is the best: what remains is what it left
+        best_desc = {**best_desc, "structured": True, "reasons": [*best_desc["reasons"], *fast]}
     gain = nominal_fit.rank_score - best.rank_score
     if not nominal_desc["structured"] and gain < st.margin_strong:
         verdict = Verdict(
