@@ -611,7 +611,8 @@ def fit_model(
             # speeds) makes the training cost a staircase whose treads can be narrower
             # than the grid's spacing, and the local refinement's gradient is zero on a
             # tread: scan finely around the best few grid points first
-            U, costs = _refine_one(U, costs, lo_u, hi_u, lambda V: _cost(V, tr))
+            step = float(hi_u[0] - lo_u[0]) / (settings.grid_points - 1)
+            U, costs = _refine_one(U, costs, lo_u, hi_u, step, lambda V: _cost(V, tr))
         order = np.argsort(costs)
         picks: list[FloatArray] = []
         for idx in order:
@@ -687,15 +688,14 @@ def _refine_one(
     costs: FloatArray,
     lo: FloatArray,
     hi: FloatArray,
+    step: float,
     cost: Callable[[FloatArray], FloatArray],
     n_best: int = 3,
     n_fine: int = 33,
 ) -> tuple[FloatArray, FloatArray]:
-    """A one-parameter grid ``U`` (n, 1) with its ``costs``, and a fine scan of ``n_fine``
-    points across the grid step on either side of each of its ``n_best`` lowest costs,
-    within ``lo`` … ``hi`` (the points and their costs appended)."""
-    grid = np.unique(U[:, 0])
-    step = float(np.max(np.diff(grid))) if grid.size > 1 else float(hi[0] - lo[0])
+    """A one-parameter grid ``U`` (n, 1) of spacing ``step`` with its ``costs``, and a fine
+    scan of ``n_fine`` points across one step on either side of each of its ``n_best``
+    lowest costs, within ``lo`` … ``hi`` (the points and their costs appended)."""
     best = U[np.argsort(costs)[:n_best], 0]
     fine = np.unique(
         np.clip((best[:, None] + np.linspace(-step, step, n_fine)[None]).ravel(), lo[0], hi[0])

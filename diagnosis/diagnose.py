@@ -675,11 +675,12 @@ def diagnose(
     verification: Verification = verify_ranking(problem, [*singles, *pairs], nominal_fit, be, say)
     timing["verify"] = time.perf_counter() - t2
 
+    noise = adapter.noise_levels(prepared, s.features)
     judgement = judge(
         problem,
         verification.ranking,
         nominal_fit,
-        adapter.noise_levels(prepared, s.features),
+        noise,
         adapter.sample_noise_levels(prepared, s.features),
     )
     scale_figures: dict[str, Any] = {}
@@ -691,7 +692,7 @@ def diagnose(
             nominal_fit,
             judgement.shrink_pct_best,
             verification.replays,
-            adapter.noise_levels(prepared, s.features),
+            noise,
             s.scales,
         )
     ident = advise(problem, verification.ranking, judgement)

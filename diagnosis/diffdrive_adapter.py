@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.geometry import wrap_angle
 from realitygap.diagnosis.adapters import (
     LogContext,
     PreparedLog,
@@ -513,7 +514,7 @@ class DiffDriveAdapter(WheelDrivenAdapter):
                 gt = np.asarray(log["pose_gt"], dtype=float)
                 if gt.shape[0] >= 3:
                     xy.append(np.diff(gt[:, :2], n=2, axis=0).ravel())
-                    d1 = np.angle(np.exp(1j * np.diff(gt[:, 2])))  # wrapped increments
+                    d1 = wrap_angle(np.diff(gt[:, 2]))  # heading increments across ±π
                     th.append(np.diff(d1))
             if log.has("ticks"):
                 mpt = max(mpt, *self.meters_per_tick(self._context(p).params))

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
+from scipy.stats import chi2
 
 if TYPE_CHECKING:
     from realitygap.diagnosis.attribute import AttributionSettings, Layout
@@ -127,8 +128,6 @@ def above_sample_noise(
     :data:`SAMPLE_NOISE_TOLERANCE`, holds something the sensor did not add. Returns one
     reason per such column, largest ratio first (empty when none is).
     """
-    from scipy.stats import chi2
-
     found: list[tuple[float, str]] = []
     for g, cols in levels.items():
         for c, sigma in cols.items():

@@ -101,6 +101,14 @@ def gap_channels(z_nom: FloatArray, problem: Problem) -> npt.NDArray[np.bool_]:
     return gap_mask
 
 
+def _with_reasons(desc: dict[str, Any], reasons: Sequence[str]) -> dict[str, Any]:
+    """``desc`` of :func:`~realitygap.diagnosis.residual.describe_residual` with ``reasons``
+    of structure added (itself when there are none)."""
+    if not reasons:
+        return desc
+    return {**desc, "structured": True, "reasons": [*desc["reasons"], *reasons]}
+
+
 def judge(
     problem: Problem,
     ranking: list[ModelFit],
@@ -138,8 +146,7 @@ def judge(
     if sample_noise and not nominal_desc["structured"]:
         # white from window to window, but is it as small as the sensors' own noise?
         fast = above_sample_noise(z_nom, problem.holdout, sample_noise, st)
-        if fast:
-            nominal_desc = {**nominal_desc, "structured": True, "reasons": fast}
+        nominal_desc = _with_reasons(nominal_desc, fast)
     best = ranking[0]
     # the runner-up: the best model that is neither this one nor a superset rejected for it
     runner = next(
@@ -159,8 +166,8 @@ def judge(
     best_desc = describe_residual(best.z_heldout, problem.holdout, st, scales, noise)
     if structure is not None and best.effects:
         best_desc = structure(problem, best.values, best_desc)
-    if fast and not best.effects:  # the nominal is the best: what remains is what it left
-        best_desc = {**best_desc, "structured": True, "reasons": [*best_desc["reasons"], *fast]}
+    if not best.effects:  # the nominal is the best: what remains is what it left
+        best_desc = _with_reasons(best_desc, fast)
     gain = nominal_fit.rank_score - best.rank_score
     if not nominal_desc["structured"] and gain < st.margin_strong:
         verdict = Verdict(

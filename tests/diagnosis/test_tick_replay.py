@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from realitygap.core.geometry import wrap_angle
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.diffdrive_adapter import (
     DiffDriveAdapter,
@@ -227,7 +228,7 @@ def test_sample_noise_levels_read_the_ground_truths_own_noise() -> None:
     truth = np.column_stack(
         [x + rng.normal(0, sig_xy, n), y + rng.normal(0, sig_xy, n), th + rng.normal(0, sig_th, n)]
     )
-    truth[:, 2] = np.angle(np.exp(1j * truth[:, 2]))  # logged wrapped: the levels unwrap it
+    truth[:, 2] = wrap_angle(truth[:, 2])  # logged wrapped: the levels unwrap it
     ticks = np.floor(np.column_stack([t, t]) * 500.0)
     log = Log(t, {"pose_gt": truth, "ticks": ticks})
     settings = FeatureSettings()

@@ -381,7 +381,7 @@ def test_a_one_parameter_fit_finds_a_tread_narrower_than_its_grid() -> None:
     whose lowest tread (0.02667 … 0.02693 m/s) lies between two points of the 41-point grid
     (0.026 and 0.028 m/s), where the gradient-based refinement cannot move. The fine scan
     around the best grid points lands on it."""
-    from realitygap.diagnosis.attribute import AttributionSettings, _refine_one
+    from realitygap.diagnosis.attribute import _refine_one
 
     commands = np.linspace(0.0, 0.08, 301)  # 0.000267 m/s apart
     truth = 0.0268
@@ -394,7 +394,8 @@ def test_a_one_parameter_fit_finds_a_tread_narrower_than_its_grid() -> None:
     grid = np.linspace(0.0, 1.0, AttributionSettings().grid_points)[:, None]
     costs = cost(grid)
     assert costs.min() > 0  # no grid point on the tread
-    U, c = _refine_one(grid, costs, np.zeros(1), np.ones(1), cost)
+    step = 1.0 / (AttributionSettings().grid_points - 1)
+    U, c = _refine_one(grid, costs, np.zeros(1), np.ones(1), step, cost)
     assert c.min() == 0.0
     found = U[np.argmin(c), 0] * 0.08
     assert commands[commands < truth].max() < found <= commands[commands >= truth].min()

@@ -192,15 +192,15 @@ def test_a_residual_faster_than_the_windows_is_unexplained_and_said_so(tmp_path:
     gives this case."""
     from realitygap.diagnosis.adapters import close_adapters
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-    from realitygap.experiments.independent import _read, generate_case
+    from realitygap.diagnosis.io import read_logs
+    from realitygap.experiments.independent import generate_case
 
     case = case_by_name("encoder_wobble")
     train_p, hold_p = generate_case(case, tmp_path, 1000 * [c.name for c in CASES].index(case.name))
-    refused: list[str] = []
     try:
         d = diagnose(
-            [lg for p in train_p for lg in _read(p, refused)],
-            [lg for p in hold_p for lg in _read(p, refused)],
+            [lg for p in train_p for lg in read_logs(p)],
+            [lg for p in hold_p for lg in read_logs(p)],
             settings=DiagnosisSettings(robot="diffdrive", drive="ticks"),
         )
     finally:
