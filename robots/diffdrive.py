@@ -566,9 +566,12 @@ class DiffDriveRobot:
             self.body, self.wheel_joints, p.VELOCITY_CONTROL, forces=[0.0, 0.0]
         )
         self._body_from_base = np.array([0.0, 0.0, self._body_z])
-        # bound client functions, looked up once (BulletClient rebinds on every attribute access)
-        self._get_base_pose = c.getBasePositionAndOrientation
-        self._get_joint_states = c.getJointStates
+        # bound client functions, looked up once (BulletClient rebinds on every attribute access);
+        # the two reads of every step call pybullet with the client id positional, which
+        # costs ~0.15 µs a call less than the keyword BulletClient's partial passes
+        self._cid = world.client_id
+        self._get_base_pose = p.getBasePositionAndOrientation
+        self._get_joint_states = p.getJointStates
         self._get_contacts = c.getContactPoints
         self._set_motors = c.setJointMotorControlArray
         # the torque bound as the engine needs it commanded (World.motor_force: a world that
@@ -712,7 +715,7 @@ class DiffDriveRobot:
 
     def pose2d(self) -> FloatArray:
         """Ground-truth planar pose ``[x, y, theta]`` of the base frame (m, m, rad)."""
-        pos, (qx, qy, qz, qw) = self._get_base_pose(self.body)
+        pos, (qx, qy, qz, qw) = self._get_base_pose(self.body, self._cid)
         yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
         return np.array([pos[0], pos[1], yaw])
 
@@ -768,7 +771,7 @@ class DiffDriveRobot:
 
     def wheel_angles(self) -> tuple[float, float]:
         """Wheel rotation angles (rad) since reset, positive driving forward."""
-        states = self._get_joint_states(self.body, self.wheel_joints)
+        states = self._get_joint_states(self.body, self.wheel_joints, self._cid)
         return states[0][0], states[1][0]
 
     def T_world_camera(self) -> FloatArray:

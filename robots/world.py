@@ -320,6 +320,12 @@ class World:
             raise RuntimeError("this World is closed; create a new one")
         return self.client
 
+    @property
+    def client_id(self) -> int:
+        """The engine's id of the live client, for ``pybullet`` functions called directly
+        (``physicsClientId``); a clear error after :meth:`close`."""
+        return int(self.bullet._client)
+
     def step(
         self,
         n_physics_steps: int | None = None,

@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pybullet as p
 import pytest
 
 from realitygap.robots.world import Primitive, Shape, World
@@ -103,3 +104,13 @@ def test_motor_force_gives_the_per_physics_step_impulse_bound_exactly() -> None:
     plain = World(n_substeps=12)
     assert plain.motor_force(0.35) == 0.35  # one call per physics step: the force as it is
     plain.close()
+
+
+def test_the_world_client_id_is_the_one_its_bodies_live_in() -> None:
+    world = World()
+    body = world.bullet.createMultiBody(baseMass=1.0)
+    pos, _ = p.getBasePositionAndOrientation(body, world.client_id)
+    assert pos == pytest.approx((0.0, 0.0, 0.0))
+    world.close()
+    with pytest.raises(RuntimeError, match="closed"):
+        _ = world.client_id
