@@ -199,20 +199,34 @@ class _Ranker:
     def sub_models(self, fit: ModelFit) -> list[ModelFit]:
         return [f for f in self.ranking if f.effects and set(f.effects) < set(fit.effects)]
 
+    def demote_negligible(self) -> bool:
+        """Rank every model with an effect whose fitted size changes the predictions by less
+        than the floor behind its sub-model without that effect (no replay needed to see
+        it: the two are one model). All at once, so that a library where many pairs add a
+        do-nothing partner to the same effect does not spend the verification steps on
+        them one by one. ``True`` if any model was demoted."""
+        floor = self.problem.settings.floor
+        changed = False
+        for fit in list(self.ranking):
+            if len(fit.effects) < 2 or fit.effects in self.demoted:
+                continue
+            negligible = {e for e, size in fit.effect_sizes.items() if size < floor}
+            drop = [
+                f for f in self.sub_models(fit) if set(fit.effects) - set(f.effects) <= negligible
+            ]
+            if drop:
+                self.demoted[fit.effects] = min(drop, key=lambda f: f.rank_score).effects
+                changed = True
+        if changed:
+            self.ranking = self.resort(self.ranking)
+        return changed
+
     def step(self) -> bool:
         """One verification step; ``False`` once the top of the ranking is settled."""
         st = self.problem.settings
+        if self.demote_negligible():
+            return True
         best = self.ranking[0]
-        if len(best.effects) > 1:
-            # an effect whose fitted size changes the predictions by less than the floor is
-            # not named: the model without it takes the place (no replay needed to see that)
-            negligible = {e for e, size in best.effect_sizes.items() if size < st.floor}
-            drop = [
-                f for f in self.sub_models(best) if set(best.effects) - set(f.effects) <= negligible
-            ]
-            if drop:
-                self.demote(best, drop)
-                return True
         if best.effects and not best.verified:
             self.verified(best)
             return True

@@ -32,3 +32,52 @@ def test_heldout_gain_counts_only_beyond_noise() -> None:
     assert heldout_gain_counts(_fit(np.zeros(30)), _fit(few))
     # no held-out residual: nothing to judge by, the gain is taken as given
     assert heldout_gain_counts(_fit([]), _fit([]))
+
+
+def _model(effects: tuple[str, ...], rank: float, sizes: dict[str, float], verified: bool) -> Any:
+    from realitygap.diagnosis.attribute import ModelFit
+
+    return ModelFit(
+        effects=effects,
+        keys=(),
+        values={},
+        stderr={},
+        corr=np.eye(0),
+        train_score=rank,
+        bic=rank,
+        heldout_score=rank,
+        rank_score=rank,
+        heldout_rms=1.0,
+        z_heldout=np.zeros(0),
+        verified=verified,
+        effect_sizes=sizes,
+    )
+
+
+def test_many_pairs_with_a_do_nothing_partner_all_rank_behind_their_single() -> None:
+    """Twelve pairs add a partner at its no-effect values to the same effect ``a`` and score
+    better on held-out data (their fit of ``a`` landed elsewhere): each is ``a`` itself, so
+    none may be named, however many there are against the verification's step budget."""
+    from realitygap.diagnosis.attribute import AttributionSettings
+    from realitygap.diagnosis.verify import verify_ranking
+
+    settings = AttributionSettings(verify_top=1)
+    single = _model(("a",), -700.0, {"a": 11.6}, verified=True)
+    pairs = [
+        _model(("a", f"p{k}"), -1000.0 + k, {"a": 11.6, f"p{k}": 0.0}, verified=False)
+        for k in range(12)
+    ]
+    # a pair whose partner does act is not demoted by the size rule
+    acting = _model(("a", "q"), -900.0, {"a": 11.6, "q": 2.0}, verified=True)
+    nominal = _model((), -100.0, {}, verified=True)
+
+    def no_replays(*_: Any, **__: Any) -> Any:
+        raise AssertionError("no model here needs a PyBullet replay")
+
+    problem = SimpleNamespace(settings=settings)
+    backend = SimpleNamespace(map=no_replays)
+    out = verify_ranking(problem, [*pairs, single, acting], nominal, backend, lambda _: None)  # type: ignore[arg-type]
+    names = [f.effects for f in out.ranking]
+    assert names[0] == ("a", "q")
+    assert names[1] == ("a",)
+    assert set(names[2:14]) == {p.effects for p in pairs}  # right behind ``a``
