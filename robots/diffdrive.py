@@ -581,6 +581,10 @@ class DiffDriveRobot:
         # the contact query is skipped where no scenery is near (in_contact_with_scenery)
         self._reach = collision_reach(params) + CONTACT_QUERY_MARGIN
         self._clearance_ref: tuple[object, float, float, float] | None = None
+        # whether every body but this robot and the floor has a scenery footprint, and the
+        # change counts of the world's bodies and primitives it was worked out at
+        self._footprints_seen: tuple[int, int] = (-1, -1)
+        self._all_have_footprints = False
 
     # ------------------------------------------------------------- control
     def set_wheel_speeds(self, w_left: float, w_right: float) -> None:
@@ -757,7 +761,12 @@ class DiffDriveRobot:
         from every scenery footprint (a lower bound from the last computed distance), and the
         world holds no other body the robot could touch."""
         world = self.world
-        if not world.bodies.keys() - world.primitives.keys() <= _NOT_SCENERY:
+        bodies, primitives = world.bodies, world.primitives
+        seen = (bodies.version, primitives.version)
+        if seen != self._footprints_seen:  # the bodies changed since the last look
+            self._footprints_seen = seen
+            self._all_have_footprints = bodies.keys() - primitives.keys() <= _NOT_SCENERY
+        if not self._all_have_footprints:
             return False  # a body without a footprint: ask the engine
         arrays = world.scenery_arrays
         ref = self._clearance_ref

@@ -226,6 +226,45 @@ def fused_steps_are_exact(physics_dt: float, n_substeps: int) -> bool:
     return h == physics_dt and int(period / h) == n_substeps and period - n_substeps * h == 0.0
 
 
+class CountedDict(dict):  # type: ignore[type-arg]
+    """A dict that counts the changes made to it (:attr:`version`), so that what is worked
+    out from its keys can be kept until it changes (reads cost what a dict's do)."""
+
+    version: int = 0  # (a class default too: unpickling sets the items before the state)
+
+    def __setitem__(self, key: object, value: object) -> None:
+        super().__setitem__(key, value)
+        self.version += 1
+
+    def __delitem__(self, key: object) -> None:
+        super().__delitem__(key)
+        self.version += 1
+
+    def __ior__(self, other: object) -> CountedDict:
+        self.update(other)  # type: ignore[arg-type]
+        return self
+
+    def pop(self, *args: object) -> object:
+        self.version += 1
+        return super().pop(*args)
+
+    def popitem(self) -> tuple[object, object]:
+        self.version += 1
+        return super().popitem()
+
+    def clear(self) -> None:
+        self.version += 1
+        super().clear()
+
+    def update(self, *args: object, **kwargs: object) -> None:
+        self.version += 1
+        super().update(*args, **kwargs)
+
+    def setdefault(self, key: object, default: object = None) -> object:
+        self.version += 1
+        return super().setdefault(key, default)
+
+
 class World:
     """One PyBullet simulation with static scenery.
 
@@ -291,8 +330,9 @@ class World:
                 connection_mode=p.DIRECT
             )
         self._asset_dir = tempfile.mkdtemp(prefix="realitygap-")
-        self.bodies: dict[str, int] = {}
-        self.primitives: dict[str, Primitive] = {}
+        # name → body id and name → scenery primitive; they count their changes (CountedDict)
+        self.bodies: CountedDict = CountedDict()
+        self.primitives: CountedDict = CountedDict()
         self._texture_cache: dict[str, int] = {}
         self._arrays: PrimitiveArrays | None = None
         self.physics_seconds = 0.0

@@ -284,6 +284,10 @@ def test_contact_query_skipped_only_far_from_scenery() -> None:
     assert u.robot._clear_of_scenery(*clear_xy)
     u.world.load_urdf("crate", CRATE_URDF, [0.0, 0.0, 3.0], [0, 0, 0, 1])
     assert not u.robot._clear_of_scenery(*clear_xy)
+    u.world.remove_body("crate")
+    assert u.robot._clear_of_scenery(*clear_xy)  # the check is kept only while nothing changes
+    u.world.bodies["post"] = u.world.bodies["floor"]  # written straight into the registry
+    assert not u.robot._clear_of_scenery(*clear_xy)
     env.close()
 
 

@@ -1,10 +1,12 @@
 from __future__ import annotations
 
+import pickle
+
 import numpy as np
 import pybullet as p
 import pytest
 
-from realitygap.robots.world import Primitive, Shape, World
+from realitygap.robots.world import CountedDict, Primitive, Shape, World
 
 
 def test_step_calls_before_each_once_per_physics_step() -> None:
@@ -114,3 +116,26 @@ def test_the_world_client_id_is_the_one_its_bodies_live_in() -> None:
     world.close()
     with pytest.raises(RuntimeError, match="closed"):
         _ = world.client_id
+
+
+def test_a_counted_dict_counts_every_change_and_no_read() -> None:
+    d = CountedDict()
+    changes = [
+        lambda: d.__setitem__("a", 1),
+        lambda: d.update(b=2),
+        lambda: d.setdefault("c", 3),
+        lambda: d.__ior__({"e": 5}),
+        lambda: d.pop("a"),
+        lambda: d.__delitem__("b"),
+        lambda: d.popitem(),
+        lambda: d.clear(),
+    ]
+    for k, change in enumerate(changes, start=1):
+        change()
+        assert d.version == k, change
+    d["x"] = 1
+    before = d.version
+    _ = d["x"], d.get("y"), list(d.keys()), "x" in d, len(d)
+    assert d.version == before
+    again = pickle.loads(pickle.dumps(d))
+    assert again == d and again.version == d.version and type(again) is CountedDict
