@@ -597,14 +597,19 @@ def fit_model(
 
     seed = settings.seed + sum(ord(c_) for c_ in "".join(effects))
     rng = np.random.default_rng(seed)
+    # start points over the model's parameters and the baseline nuisances: a start keeps
+    # the nuisances it was found with (a single effect's optimum refined them with it),
+    # the grid takes ``u_base``; each is scored at the very point it would start from
     cand: list[FloatArray] = []
     for st in starts:
         u = np.array([range_position(k, float(st.get(k, param_spec(k).nominal))) for k in keys])
-        cand.append(np.clip(u, lo_u, hi_u))
+        own = all(k in st for k in nuis)
+        u_n = np.array([range_position(k, float(st[k])) for k in nuis]) if own else u_base
+        cand.append(np.concatenate([np.clip(u, lo_u, hi_u), np.clip(u_n, lo_n, hi_n)]))
     u_nom = np.clip(np.array([range_position(k, param_spec(k).nominal) for k in keys]), lo_u, hi_u)
     if not local_only:
-        U = lo_u + _grid(keys, settings, rng) * (hi_u - lo_u)
-        U = np.vstack([U, u_nom[None], *cand])
+        G = np.vstack([lo_u + _grid(keys, settings, rng) * (hi_u - lo_u), u_nom[None]])
+        U = np.vstack([np.hstack([G, np.tile(u_base, (G.shape[0], 1))]), *cand])
         costs = _cost(U, tr)
         if p == 1:
             # a step-like parameter (a dead zone or a speed limit among the commanded
@@ -616,19 +621,19 @@ def fit_model(
         order = np.argsort(costs)
         picks: list[FloatArray] = []
         for idx in order:
-            if all(np.max(np.abs(U[idx] - q)) > 0.08 * np.max(hi_u - lo_u) for q in picks):
+            # distinct in the model's parameters (the nuisances only follow them)
+            if all(np.max(np.abs(U[idx, :p] - q[:p])) > 0.08 * np.max(hi_u - lo_u) for q in picks):
                 picks.append(U[idx])
             if len(picks) >= 3:
                 break
         cand = picks
     if not cand:
-        cand = [u_nom]
+        cand = [np.concatenate([u_nom, u_base])]
 
     h = 1e-3
     cache: dict[bytes, FloatArray] = {}
     # the local refinement runs over the model's parameters and the baseline nuisances
     lo_u, hi_u = np.concatenate([lo_u, lo_n]), np.concatenate([hi_u, hi_n])
-    cand = [np.concatenate([u, u_base]) for u in cand]
     n_all = p + q
 
     def fun(u: FloatArray) -> FloatArray:
@@ -693,13 +698,16 @@ def _refine_one(
     n_best: int = 3,
     n_fine: int = 33,
 ) -> tuple[FloatArray, FloatArray]:
-    """A one-parameter grid ``U`` (n, 1) of spacing ``step`` with its ``costs``, and a fine
-    scan of ``n_fine`` points across one step on either side of each of its ``n_best``
-    lowest costs, within ``lo`` … ``hi`` (the points and their costs appended)."""
-    best = U[np.argsort(costs)[:n_best], 0]
-    fine = np.unique(
-        np.clip((best[:, None] + np.linspace(-step, step, n_fine)[None]).ravel(), lo[0], hi[0])
-    )[:, None]
+    """Points ``U`` (n, 1 + q) of a one-parameter grid of spacing ``step`` (column 0; the
+    other columns, baseline nuisances, ride along) with their ``costs``, and a fine scan of
+    ``n_fine`` values of column 0 across one step on either side of each of the ``n_best``
+    lowest costs, within ``lo[0]`` … ``hi[0]`` (the points and their costs appended)."""
+    best = U[np.argsort(costs)[:n_best]]
+    fine = np.repeat(best, n_fine, axis=0)
+    fine[:, 0] = np.clip(
+        (best[:, :1] + np.linspace(-step, step, n_fine)[None]).ravel(), lo[0], hi[0]
+    )
+    fine = np.unique(fine, axis=0)
     return np.vstack([U, fine]), np.concatenate([costs, cost(fine)])
 
 

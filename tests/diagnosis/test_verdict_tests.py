@@ -427,3 +427,87 @@ def test_a_compliance_whose_law_differs_in_detail_is_named_and_the_rest_describe
     assert "differs in detail from the library's" in d.verdict.reason
     rest = [s for s in summary_sentences(d) if s.startswith("What remains")]
     assert rest and rest[0].startswith("What remains is small but structured"), rest
+
+
+class _TwoBasinProblem:
+    """A stand-in for :class:`~realitygap.diagnosis.attribute.Problem` whose training cost
+    over ``traction_slip.t_slip`` (a), ``longitudinal_slip.mu`` (b) and the baseline
+    nuisance ``command_latency.delay`` (n), in range positions, has two basins: a ≈ no effect,
+    and the better one at a* = 0.7, reached only with n* = 0.8, not with the calibrated
+    baseline's n0 = 0.2 (a pair's start found with its own nuisances, as a single effect's
+    optimum is)."""
+
+    A_STAR, B_STAR, N_STAR, N_0 = 0.7, 0.4, 0.8, 0.2
+
+    def __init__(self) -> None:
+        from realitygap.diagnosis.attribute import AttributionSettings, Layout
+        from realitygap.diagnosis.parameters import from_range_position
+
+        self.settings = AttributionSettings()
+        self.f_scale = 1.0
+        self.baseline_values = {
+            "command_latency.delay": float(from_range_position("command_latency.delay", self.N_0))
+        }
+        self.baseline_ranges = {"command_latency.delay": (0.0, 0.3)}
+        m = 12
+        self.train = Layout(
+            blocks=[],
+            group=np.array(["g"] * 4 * m),
+            column=np.array(["c"] * 4 * m),
+            regime=np.array(["r"] * 4 * m),
+            log=np.zeros(4 * m, dtype=np.int64),
+            window=np.zeros(4 * m, dtype=np.int64),
+            motion=np.zeros((4 * m, 1)),
+            schema=None,  # type: ignore[arg-type]
+        )
+        self.holdout = self.train
+        self._w = np.linspace(0.8, 1.2, m)
+
+    def held_parameters(self, effects: object) -> dict[str, str]:
+        return {}
+
+    def surrogate_residuals(self, layout, values, batch, bias=None):  # type: ignore[no-untyped-def]
+        from realitygap.diagnosis.parameters import param_spec, range_position
+
+        def u(key: str) -> np.ndarray:
+            v = values.get(key, np.full(batch, self.baseline_values.get(key, np.nan)))
+            if key not in values and key not in self.baseline_values:
+                v = np.full(batch, param_spec(key).nominal)
+            return np.array([range_position(key, float(x)) for x in np.asarray(v, dtype=float)])
+
+        a, b, n = u("traction_slip.t_slip"), u("longitudinal_slip.mu"), u("command_latency.delay")
+        a0 = float(range_position("traction_slip.t_slip", 0.0))
+        z = np.stack(
+            [
+                10.0 * (a - a0) * (a - self.A_STAR),
+                20.0 * (n - self.N_STAR) * (a - a0),
+                0.1 * (b - self.B_STAR),  # the partner: a small effect
+                a - self.A_STAR,
+            ],
+            axis=1,
+        )  # (B, 4)
+        return (z[:, :, None] * self._w[None, None, :]).reshape(batch, -1)
+
+
+def test_a_pair_start_is_scored_with_the_nuisances_it_was_found_with() -> None:
+    """A pair starts from its single effect's optimum, whose baseline nuisances were refined
+    with it. Scored at the calibrated baseline's nuisances instead, that start looks worse
+    than the no-effect basin and is never refined, and the pair falls into that basin."""
+    from realitygap.diagnosis.attribute import fit_model
+    from realitygap.diagnosis.parameters import from_range_position
+
+    pr = _TwoBasinProblem()
+    start = {
+        "traction_slip.t_slip": float(from_range_position("traction_slip.t_slip", pr.A_STAR)),
+        "longitudinal_slip.mu": 1.2,  # the partner at its no-effect value
+        "command_latency.delay": float(from_range_position("command_latency.delay", pr.N_STAR)),
+    }
+    fit = fit_model(pr, ("traction_slip", "longitudinal_slip"), starts=[start])  # type: ignore[arg-type]
+    want = from_range_position("traction_slip.t_slip", pr.A_STAR)
+    assert fit.values["traction_slip.t_slip"] == pytest.approx(want, rel=0.02)
+    assert fit.values["longitudinal_slip.mu"] == pytest.approx(
+        from_range_position("longitudinal_slip.mu", pr.B_STAR), rel=0.02
+    )
+    assert fit.values["command_latency.delay"] == pytest.approx(
+        from_range_position("command_latency.delay", pr.N_STAR), rel=0.02
+    )
