@@ -20,6 +20,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from enum import Enum
+from typing import Any, TypeVar
 
 import cv2
 import numpy as np
@@ -226,29 +227,33 @@ def fused_steps_are_exact(physics_dt: float, n_substeps: int) -> bool:
     return h == physics_dt and int(period / h) == n_substeps and period - n_substeps * h == 0.0
 
 
-class CountedDict(dict):  # type: ignore[type-arg]
+_K = TypeVar("_K")
+_V = TypeVar("_V")
+
+
+class CountedDict(dict[_K, _V]):
     """A dict that counts the changes made to it (:attr:`version`), so that what is worked
     out from its keys can be kept until it changes (reads cost what a dict's do)."""
 
     version: int = 0  # (a class default too: unpickling sets the items before the state)
 
-    def __setitem__(self, key: object, value: object) -> None:
+    def __setitem__(self, key: _K, value: _V) -> None:
         super().__setitem__(key, value)
         self.version += 1
 
-    def __delitem__(self, key: object) -> None:
+    def __delitem__(self, key: _K) -> None:
         super().__delitem__(key)
         self.version += 1
 
-    def __ior__(self, other: object) -> CountedDict:
-        self.update(other)  # type: ignore[arg-type]
+    def __ior__(self, other: Any) -> CountedDict[_K, _V]:  # type: ignore[misc,override]
+        self.update(other)  # (dict's own |= would not come through update)
         return self
 
-    def pop(self, *args: object) -> object:
+    def pop(self, *args: Any) -> Any:
         self.version += 1
         return super().pop(*args)
 
-    def popitem(self) -> tuple[object, object]:
+    def popitem(self) -> tuple[_K, _V]:
         self.version += 1
         return super().popitem()
 
@@ -256,11 +261,11 @@ class CountedDict(dict):  # type: ignore[type-arg]
         self.version += 1
         super().clear()
 
-    def update(self, *args: object, **kwargs: object) -> None:
+    def update(self, *args: Any, **kwargs: Any) -> None:
         self.version += 1
         super().update(*args, **kwargs)
 
-    def setdefault(self, key: object, default: object = None) -> object:
+    def setdefault(self, key: _K, default: Any = None) -> Any:
         self.version += 1
         return super().setdefault(key, default)
 
@@ -331,8 +336,8 @@ class World:
             )
         self._asset_dir = tempfile.mkdtemp(prefix="realitygap-")
         # name → body id and name → scenery primitive; they count their changes (CountedDict)
-        self.bodies: CountedDict = CountedDict()
-        self.primitives: CountedDict = CountedDict()
+        self.bodies: CountedDict[str, int] = CountedDict()
+        self.primitives: CountedDict[str, Primitive] = CountedDict()
         self._texture_cache: dict[str, int] = {}
         self._arrays: PrimitiveArrays | None = None
         self.physics_seconds = 0.0
