@@ -56,6 +56,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.geometry import wrap_angle
 from realitygap.diagnosis.adapters import PreparedLog
 from realitygap.diagnosis.attribute import Problem
 from realitygap.diagnosis.log import LogError
@@ -240,10 +241,6 @@ def _robust_scores(problem: Problem) -> dict[int, tuple[FloatArray, list[str]]]:
 
 
 # --------------------------------------------------------------------------- signals
-def _wrap(a: FloatArray) -> FloatArray:
-    return (a + np.pi) % (2.0 * np.pi) - np.pi
-
-
 def _signals(
     p: PreparedLog, settings: TransientSettings
 ) -> tuple[list[str], list[str], npt.NDArray[np.bool_]]:
@@ -295,14 +292,14 @@ def _signals(
                 found = "ground truth frozen"
                 break
             m_b = float(np.hypot(*(seg[-1, :2] - seg[0, :2]))) + 0.5 * b * abs(
-                float(_wrap(seg[-1, 2] - seg[0, 2]))
+                float(wrap_angle(seg[-1, 2] - seg[0, 2]))
             )
             if m_b < settings.stall_ratio * m_w:
                 found = "stall or slip"
         kinds[w] = found
         wheel_rate = (wheel_angle[e] - wheel_angle[a]) / dur
         v_body = float(np.hypot(*(gt[e, :2] - gt[a, :2]))) / dur
-        w_body = float(_wrap(gt[e, 2] - gt[a, 2])) / dur
+        w_body = float(wrap_angle(gt[e, 2] - gt[a, 2])) / dur
         w_wheels = float((d_wheels[1] - d_wheels[0]) / b) / dur
         commanded = ""
         if cmd is not None:
