@@ -135,6 +135,20 @@ DECEL_FACTOR_BOUNDS = (0.25, 4.0)
 ``max_deceleration`` is usually set between the acceleration and a few times it)."""
 
 
+DELAY_STEP_PERIODS = 0.5
+"""Spacing (control periods) of the grid the set-point delay is first searched on."""
+
+
+def max_delay_seconds() -> float:
+    """The longest delay (s) between a set-point and the wheel speed it shows in that the
+    limit fit allows: the longest command latency of the effect library
+    (``command_latency.delay``'s physical bound). A bound in seconds, not in periods: a
+    latency the fit could not reach would be taken for a slower ramp."""
+    from realitygap.diagnosis.parameters import param_spec
+
+    return float(param_spec("command_latency.delay").high)
+
+
 MIN_GAIN = 0.005
 """Fitted limits replace the stated ones only when they lower the robust cost by more than
 this share (and by more than two per fitted parameter, the Akaike penalty): wheel speeds
@@ -157,7 +171,7 @@ def _wheel_data(log: Log) -> tuple[FloatArray, FloatArray, float, float] | None:
 
 
 def fit_firmware_limits(
-    logs: Sequence[Log], convention: str, max_delay_periods: float = 3.0
+    logs: Sequence[Log], convention: str, max_delay_periods: float | None = None
 ) -> FirmwareFit:
     r"""Fit the rate limits of ``convention`` to the wheel speeds the encoders saw.
 
@@ -169,8 +183,11 @@ def fit_firmware_limits(
     compared with the wheel surface speeds from the encoders (nominal radii), a
     set-point showing :math:`d` periods later (fractional, linear interpolation;
     :math:`0 ≤ d ≤` ``max_delay_periods``: half a period of the encoders'
-    average over the period plus the velocity loop's response), :math:`d`
-    fitted at the stated limits and again at the fitted ones. The loss is robust (soft-L1, scale from the
+    average over the period, the velocity loop's response and any command
+    latency — by default one period plus :func:`max_delay_seconds` over the
+    shortest log period, a bound in time, not in periods), :math:`d` searched
+    on a grid of :data:`DELAY_STEP_PERIODS` and refined by bounded Brent steps
+    at the stated limits. The loss is robust (soft-L1, scale from the
     median absolute residual at the stated limits), so stalls and encoder
     quantisation do not steer it. ``s`` and ``f`` are searched on a logarithmic
     grid and refined by bounded Brent steps, one coordinate at a time, inside
@@ -235,14 +252,27 @@ def fit_firmware_limits(
     z0 = residuals(1.0, 1.0, 0.5)
     c = max(1.4826 * float(np.median(np.abs(z0))), 1e-6)
 
+    d_max = (
+        float(max_delay_periods)
+        if max_delay_periods is not None
+        else 1.0 + max_delay_seconds() / min(dt for _, _, _, dt, _ in data)
+    )
+
     def fit_delay(s: float, f: float) -> tuple[float, float]:
+        # a grid first: over a long bound the cost can have more than one dip (periodic
+        # manoeuvres), which a bounded Brent search over the whole range could miss
+        grid = np.arange(0.0, d_max + 1e-9, DELAY_STEP_PERIODS)
+        costs = [cost(residuals(s, f, float(d)), c) for d in grid]
+        d0 = float(grid[int(np.argmin(costs))])
         res = minimize_scalar(
             lambda d: cost(residuals(s, f, d), c),
-            bounds=(0.0, max_delay_periods),
+            bounds=(max(d0 - DELAY_STEP_PERIODS, 0.0), min(d0 + DELAY_STEP_PERIODS, d_max)),
             method="bounded",
             options={"xatol": 0.01},
         )
-        return float(res.x), float(res.fun)
+        if float(res.fun) <= min(costs):
+            return float(res.x), float(res.fun)
+        return d0, float(min(costs))
 
     d_best, cost_stated = fit_delay(1.0, 1.0)
     best = (cost_stated, 1.0, 1.0)

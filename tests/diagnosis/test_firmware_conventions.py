@@ -201,3 +201,34 @@ def test_baseline_states_the_fitted_limits() -> None:
     assert fit.meta(stated) == pytest.approx(
         {"a_max": 0.4 * 0.77, "alpha_max": 3.0 * 0.77, "ramp": "body", "decel_factor": 1.8}
     )
+
+
+def test_a_command_latency_beyond_a_few_periods_is_not_taken_for_a_slower_ramp() -> None:
+    """Set-points that reach the motors 0.2 s late (four periods here, the bound of the
+    effect library's latency is 0.3 s): the limit fit's delay reaches them, and the ramp it
+    fits is the stated one, not a slower ramp standing in for the delay."""
+    convention = "wheels/limited"
+    plain, stated = _firmware_log(convention, 1.0, 1.0, np.random.default_rng(23))
+    k = round(0.2 / DT)
+    cmd = np.asarray(plain["cmd"], dtype=float)
+    ramp, _, dec = convention.partition("/")
+    fw = FirmwareLimits(
+        a_max=stated["a_max"],
+        alpha_max=stated["alpha_max"],
+        ramp=ramp,
+        deceleration=dec,
+        decel_factor=1.0,
+    )
+    applied = fw.applied(cmd, DT, P.wheelbase)
+    late = np.vstack([np.zeros((k, 2)), applied[:-k]])
+    t = np.arange(cmd.shape[0]) * DT
+    noise = MeasurementNoise(truth_xy=0.0005, truth_theta=0.001)
+    real = simulate(t, params=P, commands=late, noise=noise, rng=np.random.default_rng(24))
+    log = real.with_channels(cmd=cmd).replace(meta={**real.meta, "firmware": stated})
+    on_time = fit_firmware_limits([plain], convention)
+    delayed = fit_firmware_limits([log], convention)
+    assert delayed.accel_scale == pytest.approx(1.0, abs=0.03)
+    assert delayed.delay_periods - on_time.delay_periods == pytest.approx(k, abs=0.3)
+    # a bound given in periods is kept
+    short = fit_firmware_limits([log], convention, max_delay_periods=2.0)
+    assert short.delay_periods <= 2.0
