@@ -77,6 +77,7 @@ from realitygap.diagnosis.features import FeatureSettings
 from realitygap.diagnosis.identifiability import identifiability
 from realitygap.diagnosis.localise import localise
 from realitygap.diagnosis.log import Log, LogError
+from realitygap.diagnosis.reach import library_reach
 from realitygap.diagnosis.replay import Drive, SimSettings
 from realitygap.diagnosis.scales import ScaleSettings, judge_scales
 from realitygap.diagnosis.shrink import (
@@ -147,6 +148,11 @@ class DiagnosisSettings:
     coverage : CoverageSettings or None
         How the held-out motions are compared with the training envelope
         (:mod:`realitygap.diagnosis.coverage`); ``None`` skips the comparison.
+    reach : bool
+        For an unexplained verdict, fit every single candidate on the held-out windows
+        themselves and say how far the library could reach there
+        (:mod:`realitygap.diagnosis.reach`): whether the training or the library falls
+        short. Never changes the verdict.
     """
 
     robot: str = "diffdrive"
@@ -163,6 +169,7 @@ class DiagnosisSettings:
     frames: bool = True
     scales: ScaleSettings | None = field(default_factory=ScaleSettings)
     coverage: CoverageSettings | None = field(default_factory=CoverageSettings)
+    reach: bool = True
 
 
 @dataclass
@@ -717,6 +724,21 @@ def diagnose(
         if tracking["beyond"]:
             judgement.verdict.notes["tracking"] = tracking
             say(f"wheels: {tracking['message']}")
+    if s.reach and judgement.verdict.kind == "unexplained":
+        t_r = time.perf_counter()
+        reach = library_reach(
+            problem,
+            candidates,
+            judgement.nominal_heldout,
+            judgement.gap_mask,
+            judgement.shrink_pct_best,
+            be,
+            say,
+        )
+        timing["reach"] = time.perf_counter() - t_r
+        if reach is not None:
+            judgement.verdict.notes["reach"] = reach.to_json()
+            say(f"reach: {reach.message}")
     rows, gap = gap_report(problem, judgement, verification.replays, baseline)
     if coverage is not None:
         say(f"coverage: {coverage.summary()}")

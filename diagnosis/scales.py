@@ -305,7 +305,7 @@ def judge_scales(
         gaps per run, timing share and its permutation level, and ``named``.
     """
     st = problem.settings
-    from realitygap.diagnosis.verdict import _confidence, _pinned
+    from realitygap.diagnosis.verdict import _confidence, pinned_parameters
 
     # the verdict's tests run in order: an unexplained verdict with a best model that is
     # not the reference and a window shrink below the bar failed on that shrink
@@ -313,7 +313,7 @@ def judge_scales(
         verdict.kind != "unexplained"
         or not best.effects
         or shrink_pct_best >= 100.0 * st.min_shrink
-        or _pinned(problem, best)
+        or pinned_parameters(problem, best)
     ):
         return verdict, {}
     key = next(

@@ -363,4 +363,8 @@ def summary_sentences(d: Diagnosis) -> list[str]:
     cov = d.coverage
     if cov is not None and cov.beyond_training:
         out.append(f"Beyond the training: {cov.summary()}.")
+    reach = v.notes.get("reach") if v.kind == "unexplained" else None
+    if reach is not None:
+        msg = str(reach["message"])
+        out.append(f"What the library could reach: {msg[0].upper()}{msg[1:]} (an upper bound).")
     return out

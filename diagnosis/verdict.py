@@ -198,7 +198,7 @@ def judge(
             "n/a",
             best_desc,
         )
-    elif pinned := _pinned(problem, best):
+    elif pinned := pinned_parameters(problem, best):
         edges = ", ".join(
             f"{k} = {best.values[k]:.4g} {param_spec(k).unit} (range {param_spec(k).low:g} … "
             f"{param_spec(k).high:g})"
@@ -254,7 +254,7 @@ def judge(
     return Judgement(verdict, best, z_nom, gap_mask, shrink_all, shrink_gap)
 
 
-def _pinned(problem: Problem, fit: ModelFit) -> list[str]:
+def pinned_parameters(problem: Problem, fit: ModelFit) -> list[str]:
     """Parameters of ``fit`` that sit at the far edge of their plausible range and matter.
 
     An effect fitted at the bound of its plausible range (the end away from "no
@@ -824,6 +824,9 @@ def explain(verdict: Verdict, top_models: Sequence[str] = ()) -> list[str]:
     disc = notes.get("discovery")
     if disc is not None:
         lines.append(f"discovery: {disc['message']}")
+    reach = notes.get("reach")
+    if reach is not None:
+        lines.append(f"reach: {reach['message']}")
     cov = notes.get("coverage")
     if cov is not None:
         lines.append(f"beyond the training: {cov['summary']}")

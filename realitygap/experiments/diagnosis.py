@@ -231,6 +231,21 @@ def _geometry_found(d: Any) -> dict[str, Any]:
     return out
 
 
+def _reach_figures(d: Any, prefix: str) -> dict[str, Any]:
+    """The library reach of an unexplained verdict (:mod:`realitygap.diagnosis.reach`): the
+    single effect that closes most of the held-out gap fitted on the held-out windows
+    themselves, and how much."""
+    reach = d.verdict.notes.get("reach")
+    if not reach or not reach.get("rows"):
+        return {}
+    top = reach["rows"][0]
+    return {
+        prefix + "reach_top_model": top["model"],
+        prefix + "reach_top_shrink_pct": top["shrink_pct"],
+        prefix + "reach_expressible": float(reach["expressible"]),
+    }
+
+
 def _real_split(ctx: RunContext, extend_training: bool) -> tuple[list[Any], list[Any]]:
     """Training and held-out OptiOdom runs of ``diagnose-real``.
 
@@ -414,6 +429,7 @@ def _real_diagnoses(
         )
         figures[prefix + "verdict_text"] = str(d.verdict.notes.get("verdict_text", d.verdict.kind))
         figures[prefix + "diagnose_seconds"] = d.timing["total"]
+        figures.update(_reach_figures(d, prefix))
         js = d.to_json()
         tables[f"{drive}_ranking"] = _ranking_table(js, 10)
         tables[f"{drive}_where"] = [
@@ -569,6 +585,7 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
                 1e3 * scale * d.gap["heldout_rms_best"]
             )
             figures[f"ur10_{prefix}diagnose_seconds"] = d.timing["total"]
+            figures.update(_reach_figures(d, f"ur10_{prefix}"))
             # the verdict's held-out evidence: residual against the noise floor (stated noise
             # raised by the fitted parameters' own noise), and what discovery finds in it
             floor = d.verdict.residual.get("noise_floor") if d.verdict.residual else None

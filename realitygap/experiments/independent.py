@@ -226,6 +226,8 @@ def score(case: Any, d: Any, drive: str = "commands", **extra: float) -> dict[st
         strict = float(v.kind == "unexplained")
         lenient = float(v.kind == "unexplained" or (v.kind == "effects" and v.confidence == "weak"))
     best = d.ranking[0] if d.ranking else None
+    reach = v.notes.get("reach") or {}
+    reach_top = reach.get("rows", [{}])[0] if reach.get("rows") else {}
     return {
         "case": case.name,
         "robot": case.robot,
@@ -243,6 +245,9 @@ def score(case: Any, d: Any, drive: str = "commands", **extra: float) -> dict[st
         "false_attribution": bool(named) and not set(named) <= accepted,
         "heldout_shrink_pct": float(d.gap.get("heldout_shrink_pct_best", math.nan)),
         "reason": v.reason,
+        "reach_top_model": reach_top.get("model", ""),
+        "reach_top_shrink_pct": float(reach_top.get("shrink_pct", math.nan)),
+        "reach_expressible": reach.get("expressible"),
         **extra,
     }
 
@@ -334,12 +339,27 @@ def diagnose_independent(ctx: RunContext) -> dict[str, Any]:
         figures[f"{p}heldout_shrink_pct_median"] = _median(
             [r["heldout_shrink_pct"] for r in closed]
         )
+        # library reach of the unexplained verdicts: outside the library for an open-set case;
+        # an accepted effect, expressible, for an in-library case the training did not pin down
+        reached = [r for r in opened if r.get("reach_expressible") is not None]
+        figures[f"{p}open_set_reach_outside"] = (
+            f"{sum(not r['reach_expressible'] for r in reached)}/{len(reached)}"
+        )
+        reached = [r for r in closed if r.get("reach_expressible") is not None]
+        figures[f"{p}in_library_reach_accepted"] = (
+            f"{sum(bool(r['reach_expressible']) and r['reach_top_model'] in r['accepted'] for r in reached)}"
+            f"/{len(reached)}"
+        )
     figures["seconds_per_diagnosis_median"] = _median([r["seconds"] for r in rows])
     notes = [
         "each scored diagnosis is one (case, drive) pair; top-1: verdict names only accepted effects and the top-ranked model is accepted; "
         "alias-aware top-1: or one of the verdict's aliases names only accepted effects; "
         "open set strict: verdict 'unexplained'; lenient: 'unexplained' or weak confidence; "
-        "shrink: median held-out shrink of the best model over in-library cases"
+        "shrink: median held-out shrink of the best model over in-library cases; "
+        "open_set_reach_outside: of the open-set diagnoses whose verdict is unexplained, those "
+        "whose library reach (every single effect fitted on the held-out windows themselves) "
+        "stays below the shrink threshold; in_library_reach_accepted: of the in-library "
+        "diagnoses whose verdict is unexplained, those whose reach is an accepted effect above it"
     ]
     refused = [m for r in rows for m in r.get("plausibility_refused", [])]
     if refused:

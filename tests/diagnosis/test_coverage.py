@@ -255,3 +255,15 @@ def test_a_top_speed_the_training_never_reached_is_reported_as_beyond_the_traini
     lines = explain(d.verdict)
     assert "never exercised" in lines[0]
     assert any(line.startswith("experiment: record training runs") for line in lines)
+    # fitted on the held-out run itself the cap closes its gap: the library can express it,
+    # the training does not pin it down (an upper bound, not a held-out score)
+    reach = js["reach"]
+    assert reach["expressible"] and reach["rows"][0]["model"] == "velocity_saturation"
+    v_limit = reach["rows"][0]["params"]["velocity_saturation.v_limit"]
+    assert v_limit == pytest.approx(0.3, abs=0.02)
+    assert reach["rows"][0]["shrink_pct"] >= reach["threshold_pct"] > reach["trained_shrink_pct"]
+    assert any(line.startswith("reach: ") and "does not pin it down" in line for line in lines)
+    assert any(
+        s.startswith("What the library could reach: Fitted on the held-out")
+        for s in summary_sentences(d)
+    )

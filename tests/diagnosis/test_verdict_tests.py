@@ -20,7 +20,7 @@ from realitygap.diagnosis.residual import (
     describe_residual,
     shrink_above_noise,
 )
-from realitygap.diagnosis.verdict import _pinned, judge, parameter_status
+from realitygap.diagnosis.verdict import judge, parameter_status, pinned_parameters
 
 SCHEMA = FeatureSchema(
     groups=(FeatureGroup("pose_gt", ("dtheta",), ("rad",), (0.002,)),), regimes=("all_of_it",)
@@ -223,12 +223,12 @@ def test_a_speed_limit_well_inside_its_range_is_not_pinned(
 
     problem = _problem(lay, np.zeros(n), surrogate)
     slow = model_fit(("velocity_saturation",), np.zeros(n), {"velocity_saturation.v_limit": 0.085})
-    assert _pinned(problem, slow) == []  # type: ignore[arg-type]
+    assert pinned_parameters(problem, slow) == []  # type: ignore[arg-type]
     assert parameter_status(problem, slow) == {}  # type: ignore[arg-type]
     at_low = model_fit(
         ("velocity_saturation",), np.zeros(n), {"velocity_saturation.v_limit": 0.0501}
     )
-    assert _pinned(problem, at_low) == ["velocity_saturation.v_limit"]  # type: ignore[arg-type]
+    assert pinned_parameters(problem, at_low) == ["velocity_saturation.v_limit"]  # type: ignore[arg-type]
     assert parameter_status(problem, at_low) == {  # type: ignore[arg-type]
         "velocity_saturation.v_limit": "at bound"
     }

@@ -249,6 +249,16 @@ def test_scoring_rules() -> None:
     assert weak["open_set_strict"] == 0.0 and weak["open_set_lenient"] == 1.0
     assert weak["false_attribution"]
     assert score(drag, _fake("none", ()))["open_set_strict"] == 0.0
+    # the library reach of an unexplained verdict is carried into the row; none without one
+    fake = _fake("unexplained", ())
+    fake.verdict.notes["reach"] = {  # type: ignore[attr-defined]
+        "rows": [{"model": "wheelbase_error", "shrink_pct": 12.0}],
+        "expressible": False,
+    }
+    row = score(drag, fake)
+    assert row["reach_top_model"] == "wheelbase_error" and row["reach_top_shrink_pct"] == 12.0
+    assert row["reach_expressible"] is False
+    assert score(drag, _fake("none", ()))["reach_expressible"] is None
 
 
 def test_a_miss_is_what_the_scoring_counts_wrong() -> None:
