@@ -263,16 +263,17 @@ def fit_firmware_limits(
         # manoeuvres), which a bounded Brent search over the whole range could miss
         grid = np.arange(0.0, d_max + 1e-9, DELAY_STEP_PERIODS)
         costs = [cost(residuals(s, f, float(d)), c) for d in grid]
-        d0 = float(grid[int(np.argmin(costs))])
+        i0 = int(np.argmin(costs))
+        d0, c0 = float(grid[i0]), float(costs[i0])
         res = minimize_scalar(
             lambda d: cost(residuals(s, f, d), c),
             bounds=(max(d0 - DELAY_STEP_PERIODS, 0.0), min(d0 + DELAY_STEP_PERIODS, d_max)),
             method="bounded",
             options={"xatol": 0.01},
         )
-        if float(res.fun) <= min(costs):
+        if float(res.fun) <= c0:
             return float(res.x), float(res.fun)
-        return d0, float(min(costs))
+        return d0, c0
 
     d_best, cost_stated = fit_delay(1.0, 1.0)
     best = (cost_stated, 1.0, 1.0)
