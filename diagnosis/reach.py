@@ -46,7 +46,9 @@ import numpy as np
 
 from realitygap.core.parallel import Backend
 from realitygap.diagnosis.attribute import ModelFit, Problem, fit_model
+from realitygap.diagnosis.parameters import param_spec
 from realitygap.diagnosis.shrink import overall_shrink
+from realitygap.diagnosis.verdict import pinned_parameters
 
 __all__ = ["TRAINED_SHARE", "Reach", "heldout_problem", "library_reach"]
 
@@ -117,8 +119,6 @@ def _reach_task(problem: Problem, effects: tuple[str, ...]) -> ModelFit:
 
 def _short(fit: ModelFit, n: int = 2) -> str:
     """The fitted values of a model of up to ``n`` parameters, else their count."""
-    from realitygap.diagnosis.parameters import param_spec
-
     if len(fit.keys) > n:
         return f"{len(fit.keys)} parameters"
     parts = []
@@ -172,8 +172,6 @@ def library_reach(
     flipped = heldout_problem(problem)
     say(f"library reach: fitting {len(candidates)} single effects on the held-out windows")
     fits: list[ModelFit] = backend.map(_reach_task, [(e,) for e in candidates], flipped)
-    from realitygap.diagnosis.verdict import pinned_parameters
-
     rows = []
     for f in fits:
         rows.append(
