@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -90,14 +90,8 @@ class Reach:
     message: str = ""
 
     def to_json(self) -> dict[str, Any]:
-        return {
-            "rows": self.rows,
-            "trained_shrink_pct": self.trained_shrink_pct,
-            "expressible": self.expressible,
-            "training_reaches": self.training_reaches,
-            "threshold_pct": self.threshold_pct,
-            "message": self.message,
-        }
+        """Every attribute, as JSON-ready values (a deep copy)."""
+        return asdict(self)
 
 
 def heldout_problem(problem: Problem) -> Problem:
