@@ -200,6 +200,35 @@ class Layout:
     def n(self) -> int:
         return int(self.group.shape[0])
 
+    def alternate(self, block: int, parity: int) -> tuple[Layout, npt.NDArray[np.int64]]:
+        """Every other block of ``block`` consecutive windows of each log (``parity`` 0: the
+        first block, 1: the second), and the positions of their entries in this layout.
+
+        Two calls with parities 0 and 1 split the layout into halves that share no window
+        and interleave in time (a two-fold split that keeps each log's motions in both).
+        """
+        if block < 1 or parity not in (0, 1):
+            raise ValueError(
+                f"Layout.alternate: block must be >= 1 and parity 0 or 1, got {block!r}, {parity!r}"
+            )
+        keep = (self.window // block) % 2 == parity
+        blocks = []
+        for i, g, wins in self.blocks:
+            w = wins[(wins // block) % 2 == parity]
+            if w.size:
+                blocks.append((i, g, w))
+        part = Layout(
+            blocks=blocks,
+            group=self.group[keep],
+            column=self.column[keep],
+            regime=self.regime[keep],
+            log=self.log[keep],
+            window=self.window[keep],
+            motion=self.motion[keep],
+            schema=self.schema,
+        )
+        return part, np.flatnonzero(keep)
+
     @classmethod
     def build(
         cls,

@@ -128,7 +128,8 @@ class DiagnosisSettings:
         Without explicit held-out logs and with several logs, the last
         ``ceil(fraction · n)`` logs are held out.
     block_windows : int
-        With a single log, alternate blocks of this many windows are held out.
+        With a single log, alternate blocks of this many windows are held out; the library
+        reach splits the held-out windows two-fold in blocks of this many.
     transients : TransientSettings or None
         Thresholds of the transient-event detector; ``None`` switches it off.
     calibrate : bool
@@ -734,6 +735,7 @@ def diagnose(
             judgement.shrink_pct_best,
             be,
             say,
+            block=s.block_windows,
         )
         timing["reach"] = time.perf_counter() - t_r
         if reach is not None:

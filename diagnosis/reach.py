@@ -16,11 +16,14 @@ held-out windows (a residual that is structured, not large, and that no single e
 removes).
 
 :func:`library_reach` tells them apart. It fits every single candidate effect on
-the held-out windows themselves (in-sample, on the bias-corrected surrogate, the
-calibrated baseline's nuisances held at their values so that only the effect
-moves) and states how much of the held-out gap each then closes. That figure is
-an upper bound of what the effect could do with perfect training, not a
-held-out score: it never enters the ranking or the verdict.
+the held-out windows themselves — two-fold: on every other block of windows of each
+held-out run, scored on the blocks between (:meth:`Layout.alternate`), so that an
+effect with many parameters gains nothing from fitting the windows it is scored on —
+on the bias-corrected surrogate, with the calibrated baseline's nuisances held at
+their values so that only the effect moves, and states how much of the held-out gap
+each then closes. That figure is what the effect could do with training that
+exercised the held-out motions, not a held-out score of the diagnosis: it never
+enters the ranking or the verdict.
 
 Example
 -------
@@ -29,10 +32,11 @@ UMBmark squares that never drive a wheel faster than 0.13 m/s, held out on runs 
 the left wheel tops out at 0.19 m/s when asked for 0.25 m/s, and whose drive train
 turns by a gain that differs from session to session::
 
-    reach: fitted on the held-out windows themselves, torque_speed_saturation (v_top
-    0.191 m/s, t_m 0 s) closes 15 % of their gap and no single effect more (needs 50 %):
-    no fixed value of any library effect reproduces the held-out runs, so the cause lies
-    outside the library or changes between runs; next: velocity_saturation 15 %, ...
+    reach: fitted on the held-out runs themselves (every other block of windows, scored
+    on the others), torque_speed_saturation (v_top 0.191 m/s, t_m 0 s) closes 15 % of
+    their gap and no single effect more within its physical range (needs 50 %): no fixed
+    value of any library effect reproduces the held-out runs, so the cause lies outside
+    the library or changes between runs; next: ...
 """
 
 from __future__ import annotations
@@ -43,14 +47,20 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from realitygap.core.parallel import Backend
-from realitygap.diagnosis.attribute import ModelFit, Problem, fit_model
+from realitygap.diagnosis.attribute import Layout, ModelFit, Problem, fit_model
 from realitygap.diagnosis.parameters import param_spec
 from realitygap.diagnosis.shrink import overall_shrink
 from realitygap.diagnosis.verdict import pinned_parameters
 
 __all__ = ["TRAINED_SHARE", "Reach", "heldout_problem", "library_reach"]
+
+WHERE = (
+    "fitted on the held-out runs themselves (every other block of windows, scored on the others)"
+)
+"""How every reach message starts: what was fitted where."""
 
 TRAINED_SHARE = 0.8
 """The training's fit already reaches the library's ceiling when it closes at least this share
@@ -65,18 +75,18 @@ class Reach:
     ----------
     rows : list of dict
         ``{"model", "shrink_pct", "params", "pinned"}`` per candidate, best first;
-        ``shrink_pct`` is the in-sample share of the held-out gap (gap channels) the effect
-        closes, %; ``pinned`` the parameters that sit at the far edge of their physical
-        range there (:func:`~realitygap.diagnosis.verdict.pinned_parameters`).
+        ``shrink_pct`` is the share of the held-out gap (gap channels) the effect closes,
+        two-fold on the held-out windows, %; ``params`` the mean of the two folds' values;
+        ``pinned`` the parameters that sit at the far edge of their physical range in
+        either fold (:func:`~realitygap.diagnosis.verdict.pinned_parameters`).
     trained_shrink_pct : float
         The held-out shrink of the verdict's best model fitted on the training, %.
     expressible : bool
         Whether some single effect, inside its physical range (no parameter pinned at its
-        far edge), reaches the verdict's shrink threshold in-sample.
+        far edge), reaches the verdict's shrink threshold there.
     training_reaches : bool
         Whether the verdict's model fitted on the training already closes
-        :data:`TRAINED_SHARE` of that in-sample best (the training pins down what the
-        library can do on these runs).
+        :data:`TRAINED_SHARE` of that best (the training is not what falls short).
     threshold_pct : float
         That threshold (:attr:`AttributionSettings.min_shrink`), %.
     message : str
@@ -94,33 +104,49 @@ class Reach:
         return asdict(self)
 
 
-def heldout_problem(problem: Problem) -> Problem:
-    """A copy of ``problem`` whose fits run on its held-out windows (in-sample), with the
-    calibrated baseline's nuisances held at their values (only a model's own
-    parameters move). ``problem`` itself is left as it was."""
-    if problem.holdout.n == 0:
-        raise ValueError("heldout_problem: the problem has no held-out windows")
+def heldout_problem(problem: Problem, fit_on: Layout, score_on: Layout) -> Problem:
+    """A copy of ``problem`` whose fits run on the windows ``fit_on`` and are scored on
+    ``score_on`` (parts of its held-out layout), with the calibrated baseline's nuisances
+    held at their values (only a model's own parameters move). ``problem`` itself is left
+    as it was."""
+    if fit_on.n == 0 or score_on.n == 0:
+        raise ValueError(
+            f"heldout_problem: fit_on and score_on need windows, got {fit_on.n} and "
+            f"{score_on.n} entries"
+        )
     flipped = copy.copy(problem)
     flipped.__dict__.pop("_held_cache", None)  # identifiability is asked of the new windows
-    flipped.train = problem.holdout
+    flipped.train = fit_on
+    flipped.holdout = score_on
     flipped.baseline_ranges = {}
     return flipped
 
 
-def _reach_task(problem: Problem, effects: tuple[str, ...]) -> ModelFit:
-    return fit_model(problem, effects)
+def _reach_task(folds: tuple[Problem, Problem], item: tuple[str, int]) -> ModelFit:
+    effect, k = item
+    return fit_model(folds[k], (effect,))
 
 
-def _short(fit: ModelFit, n: int = 2) -> str:
+def _short(params: dict[str, float], n: int = 2) -> str:
     """The fitted values of a model of up to ``n`` parameters, else their count."""
-    if len(fit.keys) > n:
-        return f"{len(fit.keys)} parameters"
+    if len(params) > n:
+        return f"{len(params)} parameters"
     parts = []
-    for k in fit.keys[:n]:
+    for k, v in params.items():
         spec = param_spec(k)
         unit = "" if spec.unit in ("", "1") else f" {spec.unit}"
-        parts.append(f"{k.split('.', 1)[1]} {fit.values[k]:.3g}{unit}")
+        parts.append(f"{k.split('.', 1)[1]} {v:.3g}{unit}")
     return ", ".join(parts)
+
+
+def _halves(holdout: Layout, block: int) -> list[tuple[Layout, npt.NDArray[np.int64]]] | None:
+    """The two interleaved halves of the held-out layout; finer blocks when a run is too
+    short for two blocks; ``None`` when it has a single window."""
+    for b in (block, 1):
+        halves = [holdout.alternate(b, k) for k in (0, 1)]
+        if all(h.n for h, _ in halves):
+            return halves
+    return None
 
 
 def library_reach(
@@ -131,8 +157,9 @@ def library_reach(
     trained_shrink_pct: float,
     backend: Backend,
     say: Callable[[str], None] = lambda msg: None,
+    block: int = 10,
 ) -> Reach | None:
-    """Fit each single candidate on the held-out windows and score it there (in-sample).
+    """Fit each single candidate on the held-out windows, two-fold, and score it there.
 
     Parameters
     ----------
@@ -148,11 +175,13 @@ def library_reach(
         The verdict's best model's held-out shrink when fitted on the training, %.
     backend : Backend
     say : callable
+    block : int
+        Windows per block of the two-fold split (:meth:`Layout.alternate`).
 
     Returns
     -------
     Reach or None
-        ``None`` without candidates, held-out windows or a gap.
+        ``None`` without candidates, a gap or two held-out windows to split.
     """
     z_nom = np.asarray(nominal_heldout, dtype=float)
     mask = np.asarray(gap_mask, dtype=bool)
@@ -163,23 +192,36 @@ def library_reach(
             f"library_reach: nominal_heldout and gap_mask must have shape ({problem.holdout.n},) "
             f"(the held-out layout), got {z_nom.shape} and {mask.shape}"
         )
-    flipped = heldout_problem(problem)
-    say(f"library reach: fitting {len(candidates)} single effects on the held-out windows")
-    fits: list[ModelFit] = backend.map(_reach_task, [(e,) for e in candidates], flipped)
+    halves = _halves(problem.holdout, block)
+    if halves is None:
+        return None
+    (h0, i0), (h1, i1) = halves
+    folds = (heldout_problem(problem, h0, h1), heldout_problem(problem, h1, h0))
+    scored_on = (i1, i0)  # fold k is scored on the other half
+    say(
+        f"library reach: fitting {len(candidates)} single effects on the held-out windows (two-fold)"
+    )
+    items = [(e, k) for e in candidates for k in (0, 1)]
+    fits: list[ModelFit] = backend.map(_reach_task, items, folds)
     rows = []
-    for f in fits:
+    for j in range(len(candidates)):
+        pair = fits[2 * j : 2 * j + 2]
+        z_cv = np.empty(problem.holdout.n)
+        for k, f in enumerate(pair):
+            z_cv[scored_on[k]] = f.z_heldout
+        keys = list(dict.fromkeys(k for f in pair for k in f.keys))
         rows.append(
             {
-                "model": f.name,
-                "shrink_pct": overall_shrink(z_nom[mask], f.z_heldout[mask]),
-                "params": {k: float(v) for k, v in f.values.items() if k in f.keys},
+                "model": pair[0].name,
+                "shrink_pct": overall_shrink(z_nom[mask], z_cv[mask]),
+                "params": {k: float(np.mean([f.values[k] for f in pair])) for k in keys},
                 # at the far edge of its physical range: stretched, not expressed
-                "pinned": pinned_parameters(flipped, f),
-                "_fit": f,
+                "pinned": sorted(
+                    {k for fold, f in zip(folds, pair) for k in pinned_parameters(fold, f)}
+                ),
             }
         )
     rows.sort(key=lambda r: -r["shrink_pct"])
-    fit_of = {r["model"]: r.pop("_fit") for r in rows}
     threshold = 100.0 * problem.settings.min_shrink
     top = rows[0]
     free = next((r for r in rows if not r["pinned"]), None)
@@ -194,19 +236,19 @@ def library_reach(
             else ""
         )
         return (
-            f"fitted on the held-out windows themselves, {r['model']} ({_short(fit_of[r['model']])}"
-            f"{edge}) closes {r['shrink_pct']:.0f} % of their gap"
+            f"{WHERE}, {r['model']} ({_short(r['params'])}{edge}) closes "
+            f"{r['shrink_pct']:.0f} % of their gap"
         )
 
     if top["shrink_pct"] <= 0.0:
         message = (
-            "fitted on the held-out windows themselves, no single effect of the library closes "
-            "any of their gap: the cause lies outside the library or changes between runs"
+            f"{WHERE}, no single effect of the library closes any of their gap: the cause lies "
+            "outside the library or changes between runs"
         )
     elif reaches:
         message = (
-            f"{head(top)}, hardly more than the {trained_shrink_pct:.0f} % of the verdict's model "
-            "fitted on the training: the training pins down what the library's single effects "
+            f"{head(top)}, against {trained_shrink_pct:.0f} % for the verdict's model fitted on "
+            "the training: the training already gets most of what the library's single effects "
             "can do on these runs, and the verdict's objection to what remains stands"
         )
     elif expressible:
