@@ -705,7 +705,7 @@ def diagnose(
         )
     ident = advise(problem, verification.ranking, judgement)
     coverage = coverage_report(problem, judgement, s.coverage)
-    conclude(problem, verification.ranking, judgement, ident, coverage)
+    conclude(problem, verification.ranking, judgement, ident, coverage, noise)
     if judgement.verdict.kind == "effects":
         robot = adapter.fitted_robot(prepared, judgement.verdict.effects, judgement.best.values)
         if robot is not None:

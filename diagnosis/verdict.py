@@ -601,6 +601,46 @@ def alias_notes(
     return out
 
 
+def unsingled_partner(
+    problem: Problem,
+    ranking: Sequence[ModelFit],
+    judgement: Judgement,
+    aliases: Sequence[Mapping[str, Any]],
+    noise: Mapping[str, float] | None = None,
+) -> tuple[ModelFit, list[str]] | None:
+    """A pair verdict whose partner the data does not single out, and the effect it does.
+
+    When the verdict's model is a pair A + B and at least two of its aliases are A with
+    other partners (A + C, A + D, … closing the held-out gap as well), the data identifies
+    A but not which further small term helps it. If A alone closes at least
+    :attr:`AttributionSettings.dominant_shrink` of the held-out gap above the noise floor
+    with no parameter pinned at the far edge of its range, that is the finding: returns A's
+    fit and the partners ``[B, C, D, …]``; else ``None``.
+    """
+    best, verdict = judgement.best, judgement.verdict
+    if verdict.kind != "effects" or len(best.effects) != 2 or len(aliases) < 2:
+        return None
+    if any(len(a.get("effects", ())) != 2 for a in aliases):
+        return None
+    shared = set(best.effects)
+    for a in aliases:
+        shared &= set(a["effects"])
+    if len(shared) != 1:
+        return None
+    (kept,) = shared
+    single = next((f for f in ranking if f.effects == (kept,)), None)
+    if single is None or single.z_heldout.shape != best.z_heldout.shape:
+        return None
+    above = shrink_above_noise(
+        judgement.nominal_heldout, single.z_heldout, problem.holdout, judgement.gap_mask, noise
+    )
+    if above < 100.0 * problem.settings.dominant_shrink or pinned_parameters(problem, single):
+        return None
+    partners = [e for e in best.effects if e != kept]
+    partners += [e for a in aliases for e in a["effects"] if e != kept and e not in partners]
+    return single, partners
+
+
 def verdict_alternatives(verdict: Any) -> list[tuple[str, ...]]:
     """The effect sets a verdict names: its model, then each alias of it on this data.
 
@@ -650,6 +690,7 @@ def conclude(
     judgement: Judgement,
     ident: Sequence[Mapping[str, Any]],
     coverage: Coverage | None = None,
+    noise: Mapping[str, float] | None = None,
 ) -> dict[str, Any]:
     """What the verdict adds after identifiability: aliases, compensators, honest
     parameters and, for an unexplained gap, what the residual looks like and, with
@@ -706,7 +747,34 @@ def conclude(
             verdict.ambiguous_with.append(a["model"])
     if aliases:
         verdict.confidence = "not identifiable"
-    if verdict.kind == "effects":
+    unsingled = unsingled_partner(problem, ranking, judgement, aliases, noise)
+    partners: list[str] = []
+    if unsingled is not None:
+        single, partners = unsingled
+        pair_shrink = judgement.shrink_pct_best
+        judgement.best = best = single
+        judgement.shrink_pct_best = overall_shrink(z_nom[mask], single.z_heldout[mask])
+        judgement.shrink_pct_above_noise = shrink_above_noise(
+            z_nom, single.z_heldout, problem.holdout, mask, noise
+        )
+        desc = describe_residual(
+            single.z_heldout, problem.holdout, problem.settings, problem.features, noise
+        )
+        structure = getattr(problem.adapter, "residual_structure", None)
+        verdict.residual = structure(problem, single.values, desc) if structure else desc
+        verdict.effects, verdict.confidence = single.effects, "moderate"
+        verdict.reason = (
+            f"{single.name} alone closes {judgement.shrink_pct_above_noise:.0f} % of the held-out "
+            f"gap above the noise floor ({judgement.shrink_pct_best:.0f} % of the raw gap); a "
+            f"further small term closes {pair_shrink - judgement.shrink_pct_best:.1f} points more, "
+            f"but {' or '.join(partners)} does it equally well, so none of them is singled out"
+        )
+    if verdict.kind == "effects" and partners:
+        text = (
+            f"{best.name} (+ {' or '.join(partners)}: a further small term this data does not "
+            "single out)"
+        )
+    elif verdict.kind == "effects":
         text = " or ".join([best.name, *(a["model"] for a in aliases)])
         text += " (aliases on this data)" if aliases else ""
         whole = verdict.notes.get("whole_runs")
@@ -733,6 +801,7 @@ def conclude(
         "parameter_status": status,
         "discovery": disc.to_json() if disc is not None else None,
         "heldout_shrink_pct_above_noise": judgement.shrink_pct_above_noise,
+        "unsingled_partners": partners,
     }
     if coverage is not None and coverage.beyond_training and verdict.kind != "effects":
         notes["coverage"] = {"summary": coverage.summary(), "suggestion": coverage.suggestion()}

@@ -23,6 +23,7 @@ from realitygap.diagnosis.verdict import (
     parameter_status,
     regime_consistency,
     run_discovery,
+    unsingled_partner,
 )
 from realitygap.robots.diffdrive import DiffDriveParams
 
@@ -187,6 +188,40 @@ def test_alias_from_parameter_correlation_and_known_groups(
     assert "alias: link_lengths fits as well" in text
     md = explain_markdown(verdict)
     assert md[1] == "- verdict: tool_offset or link_lengths (aliases on this data)"
+
+
+def test_a_pair_whose_partner_several_effects_replace_names_the_shared_effect(
+    model_fit: Callable[..., ModelFit],
+) -> None:
+    # A + B is best, A + C and A + D fit as well: the data identifies A, not its partner
+    rng = np.random.default_rng(8)
+    n = 300
+    z_nom = rng.normal(0, 1, n) + 4.0
+    pair = model_fit(("a_eff", "b_eff"), rng.normal(0, 1, n))
+    single = model_fit(("a_eff",), 1.05 * rng.normal(0, 1, n))  # a little worse alone
+    verdict = Verdict("effects", pair.effects, "", 20.0, "strong", {})
+    j = Judgement(verdict, pair, z_nom, np.ones(n, dtype=bool), 75.0)
+    pr = _alias_problem(n)
+    aliases = [{"model": f"a_eff + {e}", "effects": ["a_eff", e]} for e in ("c_eff", "d_eff")]
+    out = unsingled_partner(pr, [pair, single], j, aliases)  # type: ignore[arg-type]
+    assert out is not None and out[0] is single and out[1] == ["b_eff", "c_eff", "d_eff"]
+    # one alternative partner is an alias statement ("A + B or A + C"), not this rule
+    assert unsingled_partner(pr, [pair, single], j, aliases[:1]) is None  # type: ignore[arg-type]
+    # aliases that share no one effect with the pair
+    mixed = [aliases[0], {"model": "b_eff + d_eff", "effects": ["b_eff", "d_eff"]}]
+    assert unsingled_partner(pr, [pair, single], j, mixed) is None  # type: ignore[arg-type]
+    # the shared effect alone must close the gap (above noise) as a dominant effect does
+    weak = model_fit(("a_eff",), 0.5 * z_nom)
+    assert unsingled_partner(pr, [pair, weak], j, aliases) is None  # type: ignore[arg-type]
+    # a named single effect, or an unexplained verdict, is left alone
+    j1 = Judgement(
+        Verdict("effects", ("a_eff",), "", 20.0, "strong", {}),
+        single,
+        z_nom,
+        np.ones(n, dtype=bool),
+        75.0,
+    )
+    assert unsingled_partner(pr, [single], j1, aliases) is None  # type: ignore[arg-type]
 
 
 # --------------------------------------------------------------------------- compensators
