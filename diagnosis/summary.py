@@ -366,5 +366,8 @@ def summary_sentences(d: Diagnosis) -> list[str]:
     reach = v.notes.get("reach") if v.kind == "unexplained" else None
     if reach is not None:
         msg = str(reach["message"])
-        out.append(f"What the library could reach: {msg[0].upper()}{msg[1:]} (an upper bound).")
+        out.append(
+            f"What the library could reach: {msg[0].upper()}{msg[1:]} (what training over the "
+            "held-out motions could do, not a score)."
+        )
     return out
