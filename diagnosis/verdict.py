@@ -163,9 +163,7 @@ def judge(
     shrink_all = overall_shrink(z_nom[gap_mask], best.z_heldout[gap_mask])
     # the noise in the held-out gap is closed by no effect: the test counts the gap above it
     shrink_gap = shrink_above_noise(z_nom, best.z_heldout, problem.holdout, gap_mask, noise)
-    best_desc = describe_residual(best.z_heldout, problem.holdout, st, scales, noise)
-    if structure is not None and best.effects:
-        best_desc = structure(problem, best.values, best_desc)
+    best_desc = describe_fit_residual(problem, best, noise)
     if not best.effects:  # the nominal is the best: what remains is what it left
         best_desc = _with_reasons(best_desc, fast)
     gain = nominal_fit.rank_score - best.rank_score
@@ -252,6 +250,21 @@ def judge(
             best_desc,
         )
     return Judgement(verdict, best, z_nom, gap_mask, shrink_all, shrink_gap)
+
+
+def describe_fit_residual(
+    problem: Problem, fit: ModelFit, noise: Mapping[str, float] | None
+) -> dict[str, Any]:
+    """What ``fit`` leaves on the held-out windows
+    (:func:`~realitygap.diagnosis.residual.describe_residual`), with the adapter's own
+    structure test (``residual_structure``) where it has one and the model has effects."""
+    desc = describe_residual(
+        fit.z_heldout, problem.holdout, problem.settings, problem.features, noise
+    )
+    structure = getattr(problem.adapter, "residual_structure", None)
+    if structure is not None and fit.effects:
+        desc = structure(problem, fit.values, desc)
+    return desc
 
 
 def pinned_parameters(problem: Problem, fit: ModelFit) -> list[str]:
@@ -757,11 +770,7 @@ def conclude(
         judgement.shrink_pct_above_noise = shrink_above_noise(
             z_nom, single.z_heldout, problem.holdout, mask, noise
         )
-        desc = describe_residual(
-            single.z_heldout, problem.holdout, problem.settings, problem.features, noise
-        )
-        structure = getattr(problem.adapter, "residual_structure", None)
-        verdict.residual = structure(problem, single.values, desc) if structure else desc
+        verdict.residual = describe_fit_residual(problem, single, noise)
         verdict.effects, verdict.confidence = single.effects, "moderate"
         verdict.reason = (
             f"{single.name} alone closes {judgement.shrink_pct_above_noise:.0f} % of the held-out "
