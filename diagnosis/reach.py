@@ -33,7 +33,7 @@ the left wheel tops out at 0.19 m/s when asked for 0.25 m/s, and whose drive tra
 turns by a gain that differs from session to session::
 
     reach: fitted on the held-out runs themselves (every other block of windows, scored
-    on the others), timestamp_offset (offset -77.3 ms) closes 7 % of their gap and no
+    on the others), timestamp_offset (offset -77 ms) closes 7 % of their gap and no
     single effect more within its physical range (needs 50 %): no fixed value of any
     library effect reproduces the held-out runs, so the cause lies outside the library
     or changes between runs; next: wheelbase_error 6 %, command_latency 4 %
