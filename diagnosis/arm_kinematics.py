@@ -19,6 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.estimators.arm.mdh import MDHTable
+from realitygap.robots.arm import flange_load_torques
 from realitygap.robots.effects.arm import GEOMETRIC_TOLERANCE_PARAMS
 
 FloatArray = npt.NDArray[np.float64]
@@ -169,6 +170,7 @@ def surrogate_points(
     tools = np.tile(np.asarray(tool, dtype=float).reshape(1, 3), (B, 1))
     length = np.ones(B)
     tilt = np.zeros(B)
+    load = np.zeros(B)
     for key, v in values.items():
         arr = np.asarray(v, dtype=float).reshape(-1)
         if key in _GEOMETRY:
@@ -182,6 +184,8 @@ def surrogate_points(
             tilt = tilt + arr
         elif key.startswith("arm_encoder_scale.s"):
             scale[:, int(key[-1]) - 1] = arr
+        elif key == "arm_joint_compliance.dm":
+            load = load + arr
         elif key.startswith("arm_joint_compliance.c"):
             comp[:, int(key[-1]) - 1] = arr
         elif key.startswith("arm_backlash.b"):
@@ -190,12 +194,15 @@ def surrogate_points(
             raise KeyError(f"the arm surrogate has no parameter {key!r}")
     N = q_enc.shape[0]
     out = np.empty((B, N, 3))
+    # holding torques per batch row: the body's, plus the flange load the masses miss
+    per_kg = flange_load_torques(table, q_enc) if np.any(load != 0.0) else np.zeros_like(tau_g)
     step = max(1, max_elements // max(N, 1))
     for lo in range(0, B, step):
         sl = slice(lo, min(B, lo + step))
+        tau = tau_g[None] + load[sl, None, None] * per_kg[None]
         q_link = (
             q_enc[None] / scale[sl, None, :]
-            - comp[sl, None, :] * tau_g[None]
+            - comp[sl, None, :] * tau
             - 0.5 * play[sl, None, :] * direction[None]
         )
         out[sl] = probe_positions(
@@ -207,8 +214,9 @@ def surrogate_points(
             q_link,
             tools[sl],
         )
-    if np.any(tilt != 0.0):
-        out = base_tilt(out, table, q_enc, tau_g[:, 1], tilt)
+    if np.any(tilt != 0.0):  # the base carries the same flange load as the joints
+        tau2 = tau_g[None, :, 1] + load[:, None] * per_kg[None, :, 1]
+        out = base_tilt(out, table, q_enc, tau2, tilt)
     return out * length[:, None, None]
 
 
@@ -219,12 +227,13 @@ def base_tilt(
 
     The axis is the direction of joint 2 at the readings (nominal ``table``),
     through the base origin; ``k`` is one value per batch row (rad/(N·m)),
-    ``tau2`` the shoulder's holding torque per pose (N·m). Rodrigues' formula.
+    ``tau2`` the shoulder's holding torque per pose (N·m), (N,) or one row per batch
+    row (B, N). Rodrigues' formula.
     """
     from realitygap.estimators.arm.mdh import joint_frames
 
     u = joint_frames(table, q_enc)[:, 1, :3, 2]  # (N, 3): joint 2 turns about z of frame 1
-    phi = -np.asarray(k, dtype=float).reshape(-1, 1) * np.asarray(tau2, dtype=float)[None]
+    phi = -np.asarray(k, dtype=float).reshape(-1, 1) * np.asarray(tau2, dtype=float)
     c, s = np.cos(phi)[..., None], np.sin(phi)[..., None]
     p = np.asarray(points, dtype=float)
     uxp = np.cross(u[None], p)

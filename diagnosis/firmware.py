@@ -135,6 +135,11 @@ DECEL_FACTOR_BOUNDS = (0.25, 4.0)
 ``max_deceleration`` is usually set between the acceleration and a few times it)."""
 
 
+def _at_bound(x: float, bounds: tuple[float, float], tol: float = 0.05) -> bool:
+    """Whether ``x`` lies within ``tol`` (in logarithm: 5 %) of either end of ``bounds``."""
+    return min(abs(math.log(x / bounds[0])), abs(math.log(x / bounds[1]))) < tol
+
+
 DELAY_STEP_PERIODS = 0.5
 """Spacing (control periods) of the grid the set-point delay is first searched on."""
 
@@ -193,7 +198,12 @@ def fit_firmware_limits(
     grid and refined by bounded Brent steps, one coordinate at a time, inside
     :data:`ACCEL_SCALE_BOUNDS` and :data:`DECEL_FACTOR_BOUNDS`; ``f`` only when
     the convention limits slowing down. The stated limits stay unless the fit
-    lowers the cost by more than :data:`MIN_GAIN`.
+    lowers the cost by more than :data:`MIN_GAIN`, and they stay when a fitted
+    factor ends at either end of its range: the encoders then show a drive train
+    that no rescaling of the stated firmware describes (a speed loop slower than
+    the firmware's ramps, other ramps altogether), which is for the effect library
+    (``wheel_velocity_lag``, ``acceleration_limits``) to answer, not for the
+    nominal's convention.
 
     The encoders see the wheels' rotation, so an encoder scale error biases
     ``s`` in proportion; the limits are a convention of the nominal robot and
@@ -311,6 +321,13 @@ def fit_firmware_limits(
     k = 2 if limited else 1
     if not cost_stated - best[0] > max(2.0 * k, MIN_GAIN * cost_stated):
         best = (cost_stated, 1.0, 1.0)  # the data do not ask for other limits than the stated
+    elif _at_bound(best[1], ACCEL_SCALE_BOUNDS) or (
+        limited and _at_bound(best[2], DECEL_FACTOR_BOUNDS)
+    ):
+        # limits stretched to the end of their range: the encoders show a drive train the
+        # stated firmware, rescaled, does not describe (a slow speed loop, other ramps);
+        # that is for the effect library to answer, not for the nominal's convention
+        best = (cost_stated, 1.0, 1.0)
     return FirmwareFit(
         convention,
         accel_scale=float(best[1]),

@@ -15,7 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.diagnosis.attribute import ModelFit, Problem, parameter_correlation
-from realitygap.diagnosis.parameters import model_keys, param_spec
+from realitygap.diagnosis.parameters import from_range_position, model_keys, param_spec
 from realitygap.estimators.arm.identifiability import analyse_identifiability
 
 FloatArray = npt.NDArray[np.float64]
@@ -158,7 +158,10 @@ def dependent_parameters(
     parameters admitted before it: e.g. a wrist offset when the wrist joint stands
     still in every training pose). Meant for parameters the features depend on
     linearly near nominal (small geometric errors); a saturation limit that only
-    acts away from nominal would look unidentifiable here.
+    acts away from nominal would look unidentifiable here. A parameter silent at
+    nominal that acts only through another parameter of its effect (the load a
+    compliance turns into sag, nothing without the compliance) takes its column
+    where the others of its effect act, at the middle of their ranges.
 
     Parameters
     ----------
@@ -197,6 +200,20 @@ def dependent_parameters(
     # (RMS) over its whole physical range has no effect: its column is difference noise
     spans = np.array([param_spec(k).high - param_spec(k).low for k in keys])
     silent = np.sqrt(np.mean(J**2, axis=0)) * spans < 1e-6
+    for j in np.flatnonzero(silent):
+        # a parameter that acts only through another of its effect (a load that a
+        # compliance turns into sag) is silent at nominal: its column is taken where the
+        # others of its effect act, at the middle of their ranges
+        others = [o for o in keys if o != keys[j] and o.split(".")[0] == keys[j].split(".")[0]]
+        if not others:
+            continue
+        at = {**nominal, **{o: float(from_range_position(o, np.array([0.5]))[0]) for o in others}}
+        pair = {k: np.array([at[k], at[k]]) for k in keys}
+        pair[keys[j]] = np.array([rows[2 * j][keys[j]], rows[2 * j + 1][keys[j]]])
+        zj = problem.surrogate_residuals(problem.train, pair, 2)
+        col = (zj[0] - zj[1]) / steps[j]
+        if float(np.sqrt(np.mean(col**2))) * spans[j] >= 1e-6:
+            J[:, j], silent[j] = col, False
     J[:, silent] = 0.0
     ana = analyse_identifiability(J, keys, rank_tol)
     out = {}

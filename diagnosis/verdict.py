@@ -14,7 +14,9 @@ effects must also leave noise, at each channel's own resolution, in every
 regime where it acts (:func:`combination_check`): two effects fitted together
 can stand in for one mechanism outside the library that couples them, and
 such a verdict is "unexplained (partially explained by X + Y: N % of the
-held-out gap)".
+held-out gap)" — unless X or Y alone closes nearly all of the gap
+(:func:`dominant_single`): then the pair's structured rest says that effect's
+law differs in detail from the library's, and it is named alone.
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ __all__ = [
     "alias_notes",
     "combination_check",
     "conclude",
+    "dominant_single",
     "explain",
     "explain_markdown",
     "judge",
@@ -641,17 +644,65 @@ def unsingled_partner(
     if len(shared) != 1:
         return None
     (kept,) = shared
-    single = next((f for f in ranking if f.effects == (kept,)), None)
-    if single is None or single.z_heldout.shape != best.z_heldout.shape:
-        return None
-    above = shrink_above_noise(
-        judgement.nominal_heldout, single.z_heldout, problem.holdout, judgement.gap_mask, noise
-    )
-    if above < 100.0 * problem.settings.dominant_shrink or pinned_parameters(problem, single):
+    single = dominant_single(problem, ranking, judgement, (kept,), noise)
+    if single is None:
         return None
     partners = [e for e in best.effects if e != kept]
     partners += [e for a in aliases for e in a["effects"] if e != kept and e not in partners]
     return single, partners
+
+
+def dominant_single(
+    problem: Problem,
+    ranking: Sequence[ModelFit],
+    judgement: Judgement,
+    effects: Sequence[str],
+    noise: Mapping[str, float] | None = None,
+) -> ModelFit | None:
+    """The single-effect fit of one of ``effects`` that could be named on its own.
+
+    Of the ranking's single-effect fits of ``effects``, the one closing the most of the
+    held-out gap above the noise floor, if that is at least
+    :attr:`AttributionSettings.dominant_shrink` (the share at which a single effect is
+    named even with a small structured rest, :func:`judge`), with no parameter pinned at
+    the far edge of its range and no regime it worsens (:func:`regime_consistency`);
+    ``None`` when none qualifies.
+    """
+    z_nom, mask = judgement.nominal_heldout, judgement.gap_mask
+    found: tuple[float, ModelFit] | None = None
+    for e in effects:
+        single = next((f for f in ranking if f.effects == (e,)), None)
+        if single is None or single.z_heldout.shape != z_nom.shape:
+            continue
+        above = shrink_above_noise(z_nom, single.z_heldout, problem.holdout, mask, noise)
+        if above < 100.0 * problem.settings.dominant_shrink or (found and above <= found[0]):
+            continue
+        if pinned_parameters(problem, single):
+            continue
+        if regime_consistency(problem, single, z_nom, mask)["worsened"]:
+            continue
+        found = (above, single)
+    return None if found is None else found[1]
+
+
+def _adopt_single(
+    problem: Problem, judgement: Judgement, single: ModelFit, noise: Mapping[str, float] | None
+) -> str:
+    """Make ``single`` the verdict's model: its held-out figures and residual description;
+    returns the words that state its share of the gap."""
+    z_nom, mask = judgement.nominal_heldout, judgement.gap_mask
+    judgement.best = single
+    judgement.shrink_pct_best = overall_shrink(z_nom[mask], single.z_heldout[mask])
+    judgement.shrink_pct_above_noise = shrink_above_noise(
+        z_nom, single.z_heldout, problem.holdout, mask, noise
+    )
+    judgement.verdict.residual = describe_fit_residual(problem, single, noise)
+    judgement.verdict.kind, judgement.verdict.effects = "effects", single.effects
+    judgement.verdict.confidence = "moderate"
+    return (
+        f"{single.name} alone closes {judgement.shrink_pct_above_noise:.0f} % of the held-out "
+        f"gap above the noise floor ({judgement.shrink_pct_best:.0f} % of the raw gap)"
+    )
 
 
 def verdict_alternatives(verdict: Any) -> list[tuple[str, ...]]:
@@ -746,14 +797,31 @@ def conclude(
         combo = combination_check(problem, best, z_nom, mask)
         if not combo["passed"]:
             w = combo["failed"][0]
-            verdict.kind, verdict.effects, verdict.confidence = "unexplained", (), "n/a"
-            verdict.reason = (
-                f"partially explained: {best.name} closes {judgement.shrink_pct_best:.0f} % of "
-                f"the held-out gap, but where it acts the residual is still structured (the "
-                f"{w['group']} {w['column']} residual while {w['regime']} is {w['ratio']:.1f}× "
-                "its noise level): the two effects may stand in for one mechanism outside the library "
-                "that couples them"
+            where = (
+                f"the {w['group']} {w['column']} residual while {w['regime']} is "
+                f"{w['ratio']:.1f}× its noise level"
             )
+            single = dominant_single(problem, ranking, judgement, best.effects, noise)
+            if single is not None:
+                # one of the two closes nearly all of the gap alone: the pair's structured rest
+                # says that effect's law differs in detail, not that a second cause acts
+                pair, pair_shrink = best.name, judgement.shrink_pct_best
+                share = _adopt_single(problem, judgement, single, noise)
+                best = single
+                verdict.reason = (
+                    f"{share}; {pair} closes {pair_shrink:.0f} % but leaves a structured residual "
+                    f"where it acts ({where}), so its second effect stands in for a difference "
+                    f"in detail between {single.name}'s law and the library's, not for a second "
+                    "cause"
+                )
+            else:
+                verdict.kind, verdict.effects, verdict.confidence = "unexplained", (), "n/a"
+                verdict.reason = (
+                    f"partially explained: {best.name} closes {judgement.shrink_pct_best:.0f} % of "
+                    f"the held-out gap, but where it acts the residual is still structured "
+                    f"({where}): the two effects may stand in for one mechanism outside the "
+                    "library that couples them"
+                )
     aliases = alias_notes(problem, ranking, judgement, ident, identify=identifiability)
     for a in aliases:
         if a["model"] not in verdict.ambiguous_with:
@@ -765,18 +833,12 @@ def conclude(
     if unsingled is not None:
         single, partners = unsingled
         pair_shrink = judgement.shrink_pct_best
-        judgement.best = best = single
-        judgement.shrink_pct_best = overall_shrink(z_nom[mask], single.z_heldout[mask])
-        judgement.shrink_pct_above_noise = shrink_above_noise(
-            z_nom, single.z_heldout, problem.holdout, mask, noise
-        )
-        verdict.residual = describe_fit_residual(problem, single, noise)
-        verdict.effects, verdict.confidence = single.effects, "moderate"
+        share = _adopt_single(problem, judgement, single, noise)
+        best = single
         verdict.reason = (
-            f"{single.name} alone closes {judgement.shrink_pct_above_noise:.0f} % of the held-out "
-            f"gap above the noise floor ({judgement.shrink_pct_best:.0f} % of the raw gap); a "
-            f"further small term closes {pair_shrink - judgement.shrink_pct_best:.1f} points more, "
-            f"but {' or '.join(partners)} does it equally well, so none of them is singled out"
+            f"{share}; a further small term closes "
+            f"{pair_shrink - judgement.shrink_pct_best:.1f} points more, but "
+            f"{' or '.join(partners)} does it equally well, so none of them is singled out"
         )
     if verdict.kind == "effects" and partners:
         text = (
@@ -821,7 +883,7 @@ def conclude(
             )
     if combo is not None:
         notes["combination_check"] = combo
-        if not combo["passed"]:
+        if not combo["passed"] and verdict.kind != "effects":
             notes["partially_explained_by"] = {
                 "model": best.name,
                 "effects": list(best.effects),

@@ -54,8 +54,8 @@ import numpy.typing as npt
 import pybullet as p
 from scipy.spatial.transform import Rotation
 
-from realitygap.estimators.arm.mdh import MDHTable
-from realitygap.robots.world import World
+from realitygap.estimators.arm.mdh import MDHTable, joint_frames
+from realitygap.robots.world import GRAVITY, World
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -66,6 +66,7 @@ __all__ = [
     "MoveOutcome",
     "MoveResult",
     "constant_transform",
+    "flange_load_torques",
     "urdf_from_arm_params",
 ]
 
@@ -229,6 +230,10 @@ class ArmParams:
         Motor torque limits (N·m).
     joint_compliance : tuple of float
         Gearbox compliance :math:`c_i` (rad/(N·m)); 0 is rigid.
+    flange_load : float
+        Mass at the flange (kg) beyond the declared body and tool, in the holding torques
+        only (:func:`flange_load_torques`): a payload heavier (positive) or a wrist and tool
+        lighter (negative) than declared. The body itself is not changed.
     backlash : tuple of float
         Full gear play :math:`b_i` (rad).
     encoder_scale : tuple of float
@@ -252,6 +257,7 @@ class ArmParams:
     link_radius: tuple[float, ...] = (0.045, 0.042, 0.036, 0.032, 0.032, 0.032)
     max_joint_torque: tuple[float, ...] = (150.0, 150.0, 150.0, 28.0, 28.0, 28.0)
     joint_compliance: tuple[float, ...] = (0.0,) * _N
+    flange_load: float = 0.0
     backlash: tuple[float, ...] = (0.0,) * _N
     encoder_scale: tuple[float, ...] = (1.0,) * _N
     encoder_resolution: float = 2 * math.pi / 2**20
@@ -277,6 +283,10 @@ class ArmParams:
                 raise ValueError(f"ArmParams.{nm} must be positive, got {v!r}")
         if not (math.isfinite(self.encoder_noise_std) and self.encoder_noise_std >= 0):
             raise ValueError("ArmParams.encoder_noise_std must be >= 0")
+        if not math.isfinite(self.flange_load):
+            raise ValueError(
+                f"ArmParams.flange_load must be a finite mass (kg), got {self.flange_load!r}"
+            )
         if int(self.settle_steps) < 0:
             raise ValueError("ArmParams.settle_steps must be >= 0")
         object.__setattr__(self, "base_xyz", _tuple("base_xyz", self.base_xyz, 3))
@@ -303,6 +313,25 @@ class ArmParams:
 
 
 # =========================================================================== URDF
+def flange_load_torques(table: MDHTable, q_link: npt.ArrayLike) -> FloatArray:
+    r"""Holding torques (N, n) (N·m) of one kilogram at the flange, at link angles (N, n).
+
+    The flange is the origin :math:`p` of the last frame of ``table``; joint :math:`j`
+    turns about the z axis :math:`z_{j-1}` of frame :math:`j-1` through its origin
+    :math:`o_{j-1}`. The weight :math:`(0, 0, -g)` of the kilogram is held by
+
+    .. math:: \tau_j = z_{j-1} \cdot \big((p - o_{j-1}) \times (0, 0, g)\big)
+              = g\,(z_x r_y - z_y r_x), \qquad r = p - o_{j-1},
+
+    in the base frame (upright, gravity along its −z) — the convention of PyBullet's
+    inverse dynamics (:meth:`ArmRobot.gravity_torques`).
+    """
+    F = joint_frames(table, q_link)
+    z = F[:, :-1, :3, 2]
+    r = F[:, -1:, :3, 3] - F[:, :-1, :3, 3]
+    return GRAVITY * (z[..., 0] * r[..., 1] - z[..., 1] * r[..., 0])
+
+
 def _inertia_rod(m: float, length: float, r: float, axis: int) -> tuple[float, float, float]:
     along = 0.5 * m * r * r
     across = m * (3 * r * r + length * length) / 12.0
@@ -560,7 +589,10 @@ class ArmRobot:
         """Joint torques (6,) (N·m) that hold the body at rest at ``q_link`` against gravity."""
         q = [float(v) for v in np.asarray(q_link, dtype=float)]
         tau = self.world.bullet.calculateInverseDynamics(self.body, q, [0.0] * _N, [0.0] * _N)
-        return np.asarray(tau, dtype=float)
+        out = np.asarray(tau, dtype=float)
+        if self.params.flange_load != 0.0:
+            out = out + self.params.flange_load * flange_load_torques(self.params.mdh, [q])[0]
+        return out
 
     def link_target(self, q_cmd: FloatArray, direction: FloatArray | None = None) -> FloatArray:
         """Link angles (6,) (rad) at which the servo comes to rest for command ``q_cmd``.

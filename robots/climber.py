@@ -59,7 +59,7 @@ from realitygap.robots.blade_geometry import (
     deformed,
     write_obj,
 )
-from realitygap.robots.world import World
+from realitygap.robots.world import GRAVITY, World
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -71,8 +71,6 @@ __all__ = [
     "ClimberRobot",
     "chart_pose",
 ]
-
-GRAVITY = 9.81
 
 
 def _rot_y(angle: float) -> FloatArray:

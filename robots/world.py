@@ -227,6 +227,9 @@ def fused_steps_are_exact(physics_dt: float, n_substeps: int) -> bool:
     return h == physics_dt and int(period / h) == n_substeps and period - n_substeps * h == 0.0
 
 
+GRAVITY = 9.81
+"""Gravitational acceleration of every simulated world (m/s², along −z of the world)."""
+
 _K = TypeVar("_K")
 _V = TypeVar("_V")
 
@@ -532,7 +535,7 @@ class World:
         """Remove every body and start from an empty world with gravity and settings."""
         c = self.bullet
         c.resetSimulation()
-        c.setGravity(0.0, 0.0, -9.81)
+        c.setGravity(0.0, 0.0, -GRAVITY)
         c.setPhysicsEngineParameter(
             fixedTimeStep=self.physics_dt,
             numSubSteps=0,

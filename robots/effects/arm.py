@@ -142,11 +142,17 @@ class ArmJointCompliance(Effect):
         "Elastic gearboxes: the links of the gravity-loaded joints 2, 3, 4 sag by compliance x "
         "gravity torque while the motor-side encoders read the command. Realised by the servo: "
         "the link settles at command - c * tau_g(q), tau_g the holding torque (PyBullet inverse "
-        "dynamics of the body)."
+        "dynamics of the body, plus dm kg at the flange: the load the declared masses miss)."
     )
-    specs = tuple(
-        ParamSpec(f"c{k}", "rad/(N*m)", 0.0, 0.0, 5e-5, f"compliance of joint {k}")
-        for k in (2, 3, 4)
+    specs = (
+        *(
+            ParamSpec(f"c{k}", "rad/(N*m)", 0.0, 0.0, 5e-5, f"compliance of joint {k}")
+            for k in (2, 3, 4)
+        ),
+        # the holding torque is only as right as the declared masses: a payload, a cable
+        # or a wrist heavier or lighter than declared moves the torque's shape over the
+        # poses; UR10-class arms carry up to 10 kg
+        ParamSpec("dm", "kg", 0.0, -3.0, 10.0, "flange load beyond the declared masses"),
     )
     # wrist 1 carries almost no gravity torque: its compliance stays nominal
     blind = (BlindRange("c2", 1e-5, 4e-5, False), BlindRange("c3", 1e-5, 4e-5, False))
@@ -155,7 +161,9 @@ class ArmJointCompliance(Effect):
         c = list(params.joint_compliance)
         for k in (2, 3, 4):
             c[k - 1] = self[f"c{k}"]
-        return params.replace(joint_compliance=tuple(c))
+        return params.replace(
+            joint_compliance=tuple(c), flange_load=params.flange_load + self["dm"]
+        )
 
 
 @register_effect

@@ -195,6 +195,45 @@ def test_the_ground_truths_body_frame_goes_to_the_baseline_and_the_drift_is_name
     assert d.verdict.kind != "none"
 
 
+def _jittered(man: Manoeuvre, rng: np.random.Generator, sigma: float = 0.015) -> Log:
+    """A robot whose wheels wander around their commands (AR(1), 0.2 s, ``sigma`` m/s per
+    wheel: torque ripple, a wheel breaking away sooner or later); the log keeps the clean
+    commands and the encoders count what the wheels did."""
+    t, cmd = man.applied(0.05, P)
+    a = np.exp(-0.05 / 0.2)
+    n = np.zeros((t.size, 2))
+    for k in range(1, t.size):
+        n[k] = a * n[k - 1] + np.sqrt(1 - a * a) * sigma * rng.normal(size=2)
+    moving = (np.abs(cmd[:, 0]) + np.abs(cmd[:, 1]) > 0)[:, None]
+    n *= moving  # a robot at rest stays at rest
+    done = cmd + np.column_stack([n.mean(axis=1), (n[:, 1] - n[:, 0]) / P.wheelbase])
+    log = simulate(t, params=P, commands=done, noise=NOISE, rng=rng, meta={"name": man.name})
+    return log.without("pose_cam", "pose_est").with_channels(cmd=cmd)
+
+
+def test_a_drive_train_that_scatters_from_window_to_window_is_noise_not_a_gap(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # no effect: the wheels only wander around their commands, as the encoders show, so
+    # the command replay's heading residual is noise no fixed effect could close
+    from realitygap.diagnosis.residual import above_sample_noise
+
+    rng = np.random.default_rng(12)
+    train = [_jittered(LOOP, rng), _jittered(ARCS, rng)]
+    hold = [_jittered(LOOP, rng), _jittered(ARCS, rng)]
+    d = diagnose(train, hold, settings=DiagnosisSettings(effects=LIBRARY, attribution=FAST))
+    pr = d.problem
+    z_nom = pr.nominal_residuals(pr.holdout)
+    with_drive = pr.adapter.sample_noise_levels(pr.logs, pr.features)
+    assert above_sample_noise(z_nom, pr.holdout, with_drive, pr.settings) == []
+    # the motion capture's own noise alone would call the scatter a gap
+    monkeypatch.setattr(type(pr.adapter), "wheel_motion", lambda self, p: None)
+    truth_only = pr.adapter.sample_noise_levels(pr.logs, pr.features)
+    assert with_drive["pose_gt"]["dtheta"] > 2.0 * truth_only["pose_gt"]["dtheta"]
+    flagged = above_sample_noise(z_nom, pr.holdout, truth_only, pr.settings)
+    assert flagged and "dtheta" in flagged[0]
+
+
 def test_sub_sample_time_alignment_goes_to_the_baseline_not_the_findings() -> None:
     rng = np.random.default_rng(5)
     reality = Reality(

@@ -183,6 +183,17 @@ def test_fitted_limits_recover_the_planted_ones(
     assert kept.decel_factor == pytest.approx(1.0, abs=0.03)
 
 
+@pytest.mark.parametrize("scale", [0.2, 4.0])
+def test_limits_stretched_to_the_end_of_their_range_leave_the_stated_ones(scale: float) -> None:
+    # ramps five times slower (or four times faster) than stated are no rescaled stated
+    # firmware: the fit would end at its bound, so the stated limits stay and the
+    # difference is left to the effect library (acceleration_limits, wheel_velocity_lag)
+    log, _ = _firmware_log("body/limited", scale, 1.0, np.random.default_rng(23))
+    fit = fit_firmware_limits([log], "body/limited")
+    assert fit.n_rows == log.n - 1
+    assert (fit.accel_scale, fit.decel_factor, fit.cost) == (1.0, 1.0, fit.cost_stated)
+
+
 def test_limits_fit_without_encoders_or_firmware_is_empty() -> None:
     t = np.arange(10) * DT
     log = Log(t=t, channels={"cmd": np.zeros((10, 2))}, meta={"firmware": {"a_max": 1.0}})

@@ -18,6 +18,7 @@ from realitygap.diagnosis.manoeuvres import MANOEUVRES, PROBE_MANOEUVRES
 from realitygap.diagnosis.verdict import (
     Judgement,
     alias_notes,
+    dominant_single,
     explain,
     explain_markdown,
     parameter_status,
@@ -222,6 +223,44 @@ def test_a_pair_whose_partner_several_effects_replace_names_the_shared_effect(
         75.0,
     )
     assert unsingled_partner(pr, [single], j1, aliases) is None  # type: ignore[arg-type]
+
+
+def test_a_pair_member_that_closes_nearly_all_of_the_gap_alone_can_be_named_alone(
+    model_fit: Callable[..., ModelFit],
+) -> None:
+    # a pair rejected for a structured rest falls back to the member that is dominant alone
+    rng = np.random.default_rng(9)
+    n = 400
+    regimes = ["turning"] * 200 + ["straight"] * 200
+    z_nom = rng.normal(0, 1, n) + 10.0
+    pair = model_fit(("a_eff", "b_eff"), rng.normal(0, 1, n))
+    a_alone = model_fit(("a_eff",), 1.05 * rng.normal(0, 1, n))  # ~ 99 % of the gap above noise
+    b_alone = model_fit(("b_eff",), 0.5 * z_nom)  # half of it
+    j = Judgement(
+        Verdict("effects", pair.effects, "", 20.0, "strong", {}),
+        pair,
+        z_nom,
+        np.ones(n, dtype=bool),
+        75.0,
+    )
+    pr = _alias_problem(n)
+    pr.holdout = _layout(n, 1, regimes)
+    assert dominant_single(pr, [pair, b_alone, a_alone], j, pair.effects) is a_alone  # type: ignore[arg-type]
+    # the better of two dominant members
+    a_worse = model_fit(("a_eff",), 2.0 * rng.normal(0, 1, n))
+    b_best = model_fit(("b_eff",), 1.0 * rng.normal(0, 1, n))
+    assert dominant_single(pr, [pair, a_worse, b_best], j, pair.effects) is b_best  # type: ignore[arg-type]
+    # no member dominant: nothing to fall back to
+    assert dominant_single(pr, [pair, b_alone], j, pair.effects) is None  # type: ignore[arg-type]
+    # a member that worsens a regime it touches is a compensator, never named alone
+    z_two = np.concatenate([rng.normal(0, 1, 200) + 12.0, rng.normal(0, 1, 200) + 1.0])
+    j2 = Judgement(j.verdict, pair, z_two, np.ones(n, dtype=bool), 75.0)
+    trades = model_fit(
+        ("a_eff",), np.concatenate([rng.normal(0, 1, 200), rng.normal(0, 1, 200) + 3.0])
+    )
+    assert dominant_single(pr, [pair, trades], j2, pair.effects) is None  # type: ignore[arg-type]
+    fair = model_fit(("a_eff",), rng.normal(0, 1, n))
+    assert dominant_single(pr, [pair, fair], j2, pair.effects) is fair  # type: ignore[arg-type]
 
 
 # --------------------------------------------------------------------------- compensators

@@ -11,14 +11,16 @@ from realitygap.estimators.arm.coded_board import CodedBoard
 from realitygap.estimators.arm.mdh import MDHTable, joint_frames
 from realitygap.robots.arm import (
     ArmParams,
+    ArmRobot,
     FlangeCameraParams,
     MoveOutcome,
+    flange_load_torques,
     urdf_from_arm_params,
 )
 from realitygap.robots.arm_cell import BoardPlacement, build_arm_scene
 from realitygap.robots.effects import EFFECTS, Reality, make_effect
 from realitygap.robots.sensors import SensorMode
-from realitygap.robots.world import World
+from realitygap.robots.world import GRAVITY, World
 
 HOME = np.array([0.0, -1.3, 1.6, -1.87, -1.57, 0.0])
 BOARD = CodedBoard()
@@ -189,6 +191,49 @@ def test_backlash_compliance_and_encoder_scale_are_realised() -> None:
         np.testing.assert_allclose(robot.read_encoders(None), target, atol=3e-5)
     finally:
         w.close()
+
+
+@pytest.mark.parametrize("table", [MDHTable.ur10(), MDHTable.ur_like_6dof()])
+def test_flange_load_torques_are_the_gradient_of_the_loads_potential_energy(
+    table: MDHTable,
+) -> None:
+    # a kilogram at the flange has potential energy g·z(q); the torque holding it is ∂U/∂q
+    rng = np.random.default_rng(4)
+    q = rng.uniform(-2.5, 2.5, (12, 6))
+    tau = flange_load_torques(table, q)
+    h = 1e-6
+    for j in range(6):
+        dq = np.zeros(6)
+        dq[j] = h
+        z_up = joint_frames(table, q + dq)[:, -1, 2, 3]
+        z_dn = joint_frames(table, q - dq)[:, -1, 2, 3]
+        np.testing.assert_allclose(tau[:, j], GRAVITY * (z_up - z_dn) / (2 * h), atol=1e-6)
+    assert np.all(tau[:, 0] == pytest.approx(0.0, abs=1e-9))  # the base axis is vertical
+
+
+def test_a_flange_load_adds_its_torques_to_the_bodys_and_sags_a_compliant_joint() -> None:
+    table = MDHTable.ur10()
+    q = np.array([0.3, -0.4, 0.9, -1.2, 1.1, 0.2])
+    w = World()
+    try:
+        bare = ArmRobot(w, ArmParams(mdh=table)).gravity_torques(q)
+    finally:
+        w.close()
+    reality = Reality((make_effect("arm_joint_compliance", c2=2e-5, dm=3.0),))
+    loaded = reality.apply_params(ArmParams(mdh=table))
+    assert loaded.flange_load == 3.0 and loaded.joint_compliance[1] == 2e-5
+    w = World()
+    try:
+        robot = ArmRobot(w, loaded)
+        np.testing.assert_allclose(
+            robot.gravity_torques(q) - bare, 3.0 * flange_load_torques(table, q)[0], atol=1e-9
+        )
+        sag = q - robot.link_target(q)
+        assert sag[1] == pytest.approx(2e-5 * robot.gravity_torques(q - sag)[1], rel=1e-6)
+    finally:
+        w.close()
+    with pytest.raises(ValueError, match="flange_load"):
+        ArmParams(flange_load=float("nan"))
 
 
 def test_handeye_and_intrinsics_effects_change_the_real_camera() -> None:
