@@ -729,10 +729,10 @@ class DiffDriveAdapter(WheelDrivenAdapter):
     def _command_ticks(self, prepared: PreparedLog) -> tuple[FloatArray, FloatArray] | None:
         """The logged ticks and the nominal replay's (N, 2 each) of a command-driven replay
         of a log with encoders; ``None`` otherwise."""
+        if self._context(prepared).inputs.commands is None:
+            return None
         log, rep = prepared.log, prepared.replay_log
-        if self._context(prepared).inputs.commands is None or not (
-            log.has("ticks") and rep.has("ticks")
-        ):
+        if not (log.has("ticks") and rep.has("ticks")):
             return None
         return log["ticks"], rep["ticks"]
 
