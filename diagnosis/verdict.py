@@ -628,27 +628,29 @@ def unsingled_partner(
 
     When the verdict's model is a pair A + B and at least two of its aliases are A with
     other partners (A + C, A + D, … closing the held-out gap as well), the data identifies
-    A but not which further small term helps it. If A alone closes at least
+    A but not which further small term helps it (aliases that do not hold A, such as a
+    known alias of A with B, do not count). If A alone closes at least
     :attr:`AttributionSettings.dominant_shrink` of the held-out gap above the noise floor
-    with no parameter pinned at the far edge of its range, that is the finding: returns A's
-    fit and the partners ``[B, C, D, …]``; else ``None``.
+    with no parameter pinned at the far edge of its range (:func:`dominant_single`; of two
+    such members, the one closing more), that is the finding: returns A's fit and the
+    partners ``[B, C, D, …]``; else ``None``.
     """
     best, verdict = judgement.best, judgement.verdict
-    if verdict.kind != "effects" or len(best.effects) != 2 or len(aliases) < 2:
+    if verdict.kind != "effects" or len(best.effects) != 2:
         return None
-    if any(len(a.get("effects", ())) != 2 for a in aliases):
-        return None
-    shared = set(best.effects)
-    for a in aliases:
-        shared &= set(a["effects"])
-    if len(shared) != 1:
-        return None
-    (kept,) = shared
-    single = dominant_single(problem, ranking, judgement, (kept,), noise)
+    with_member = {
+        e: [a for a in aliases if len(a.get("effects", ())) == 2 and e in a["effects"]]
+        for e in best.effects
+    }
+    kept_ones = [e for e in best.effects if len(with_member[e]) >= 2]
+    single = dominant_single(problem, ranking, judgement, kept_ones, noise) if kept_ones else None
     if single is None:
         return None
+    (kept,) = single.effects
     partners = [e for e in best.effects if e != kept]
-    partners += [e for a in aliases for e in a["effects"] if e != kept and e not in partners]
+    partners += [
+        e for a in with_member[kept] for e in a["effects"] if e != kept and e not in partners
+    ]
     return single, partners
 
 

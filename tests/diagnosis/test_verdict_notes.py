@@ -208,6 +208,10 @@ def test_a_pair_whose_partner_several_effects_replace_names_the_shared_effect(
     assert out is not None and out[0] is single and out[1] == ["b_eff", "c_eff", "d_eff"]
     # one alternative partner is an alias statement ("A + B or A + C"), not this rule
     assert unsingled_partner(pr, [pair, single], j, aliases[:1]) is None  # type: ignore[arg-type]
+    # an alias that does not hold the shared effect (a known alias of it with B) leaves it
+    known = [*aliases, {"model": "e_eff + b_eff", "effects": ["e_eff", "b_eff"]}]
+    out = unsingled_partner(pr, [pair, single], j, known)  # type: ignore[arg-type]
+    assert out is not None and out[0] is single and out[1] == ["b_eff", "c_eff", "d_eff"]
     # aliases that share no one effect with the pair
     mixed = [aliases[0], {"model": "b_eff + d_eff", "effects": ["b_eff", "d_eff"]}]
     assert unsingled_partner(pr, [pair, single], j, mixed) is None  # type: ignore[arg-type]

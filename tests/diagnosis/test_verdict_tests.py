@@ -402,12 +402,13 @@ def test_a_one_parameter_fit_finds_a_tread_narrower_than_its_grid() -> None:
     assert np.all((U >= 0.0) & (U <= 1.0)) and U.shape[0] > grid.shape[0]
 
 
-def test_a_compliance_whose_law_differs_in_detail_is_named_and_the_rest_described(
+def test_a_compliance_under_another_gravity_law_is_named_alone(
     tmp_path: Path,
 ) -> None:
-    """The independent generator's shoulder flex (its own gravity-torque law, UR10 tracker
-    files): the library's joint compliance carries the gap; what it leaves is small but
-    structured, and the summary says so instead of calling it noise."""
+    """The independent generator's shoulder flex (its own gravity-torque law and masses,
+    UR10 tracker files): the library's joint compliance, with the flange load the declared
+    masses miss, carries the gap; the small terms that help it a little more are listed,
+    none singled out, and the summary describes what remains."""
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
     from realitygap.diagnosis.io import ReadOptions, read_logs
     from realitygap.diagnosis.summary import summary_sentences
@@ -423,10 +424,10 @@ def test_a_compliance_whose_law_differs_in_detail_is_named_and_the_rest_describe
         settings=DiagnosisSettings(robot=case.robot),
     )
     assert d.verdict.kind == "effects" and d.verdict.effects == ("arm_joint_compliance",)
-    assert d.verdict.residual["structured"]
-    assert "differs in detail from the library's" in d.verdict.reason
+    assert d.gap["heldout_shrink_pct_best"] > 90.0
+    assert d.verdict.notes["unsingled_partners"], d.verdict.reason
     rest = [s for s in summary_sentences(d) if s.startswith("What remains")]
-    assert rest and rest[0].startswith("What remains is small but structured"), rest
+    assert rest, summary_sentences(d)
 
 
 class _TwoBasinProblem:
