@@ -511,7 +511,8 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         (:meth:`wheel_motion`) changes from window to window as no fixed effect could
         make it (a wheel that breaks away a little sooner or later, torque ripple). Its
         white part — the RMS of the window-to-window differences over
-        :math:`\sqrt 2`, per column (:meth:`_drive_scatter`) — is added in quadrature
+        :math:`\sqrt 2`, per column (:meth:`_drive_scatter`), where the ground truth
+        confirms the encoders — is added in quadrature
         to the ground truth's noise, and each wheel's to its encoder's quantisation: a
         nominal residual within both is noise, not an unexplained gap.
         """
@@ -536,7 +537,7 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         sig_xy = math.sqrt(2.0) * float(s_xy) / math.sqrt(6.0)
         sig_th = math.sqrt(2.0) * float(s_th) / math.sqrt(6.0)
         sig = {"dx": sig_xy, "dy": sig_xy, "dtheta": sig_th}
-        scatter = self._drive_scatter(prepared)
+        scatter = self._drive_scatter(prepared, np.array([sig_xy, sig_xy, sig_th]))
         if scatter is not None:
             for j, c in enumerate(("dx", "dy", "dtheta")):
                 sig[c] = math.hypot(sig[c], float(scatter[0][j]))
@@ -552,20 +553,27 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         return out
 
     def _drive_scatter(
-        self, prepared: Sequence[PreparedLog]
+        self, prepared: Sequence[PreparedLog], truth_noise: FloatArray
     ) -> tuple[FloatArray, FloatArray] | None:
         r"""The white part of the drive train's scatter in a command-driven replay of logs
         with encoders: per window feature, the RMS of the window-to-window differences
         over :math:`\sqrt 2` of the motion (dx, dy m, dθ rad;
         :meth:`wheel_motion`) and of each wheel's travel (m; :meth:`wheel_travel`) the
-        encoders show beyond the nominal drive train's; ``None`` without such logs."""
-        motion, travel = [], []
+        encoders show beyond the nominal drive train's.
+
+        Only a scatter the body really made counts: the white part of the difference
+        between the encoders' motion and the ground truth's must stay within twice the
+        ground truth's own noise ``truth_noise`` (dx, dy, dθ per window) in every
+        column. Encoders that count what the wheels did not do (a disc off centre) are
+        not the drive's noise. ``None`` without such logs, or when they disagree."""
+        motion, travel, sensor = [], [], []
         for p in prepared:
             w, tr = self.wheel_motion(p), self.wheel_travel(p)
-            if w is None or tr is None or w[0].shape[0] < 2:
+            if w is None or tr is None or w[0].shape[0] < 2 or "pose_gt" not in p.real:
                 continue
             motion.append(np.diff(w[0] - w[1], axis=0))
             travel.append(np.diff(tr[0] - tr[1], axis=0))
+            sensor.append(np.diff(w[0] - p.real["pose_gt"], axis=0))
         if not motion:
             return None
 
@@ -573,6 +581,8 @@ class DiffDriveAdapter(WheelDrivenAdapter):
             d = np.concatenate(steps)
             return np.sqrt(np.mean(d**2, axis=0) / 2.0)
 
+        if np.any(white(sensor) > 2.0 * np.asarray(truth_noise)):
+            return None
         return white(motion), white(travel)
 
     def fitted_robot(

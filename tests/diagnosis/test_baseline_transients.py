@@ -232,6 +232,11 @@ def test_a_drive_train_that_scatters_from_window_to_window_is_noise_not_a_gap(
     assert with_drive["pose_gt"]["dtheta"] > 2.0 * truth_only["pose_gt"]["dtheta"]
     flagged = above_sample_noise(z_nom, pr.holdout, truth_only, pr.settings)
     assert flagged and "dtheta" in flagged[0]
+    # only a scatter the ground truth confirms counts: against a truth said to be far
+    # quieter than the encoders' disagreement with it, none is added
+    monkeypatch.undo()
+    assert pr.adapter._drive_scatter(pr.logs, np.full(3, 1.0)) is not None
+    assert pr.adapter._drive_scatter(pr.logs, np.full(3, 1e-9)) is None
 
 
 def test_sub_sample_time_alignment_goes_to_the_baseline_not_the_findings() -> None:
