@@ -195,11 +195,12 @@ def surrogate_points(
     N = q_enc.shape[0]
     out = np.empty((B, N, 3))
     # holding torques per batch row: the body's, plus the flange load the masses miss
-    per_kg = flange_load_torques(table, q_enc) if np.any(load != 0.0) else np.zeros_like(tau_g)
+    loaded = bool(np.any(load != 0.0))
+    per_kg = flange_load_torques(table, q_enc) if loaded else None
     step = max(1, max_elements // max(N, 1))
     for lo in range(0, B, step):
         sl = slice(lo, min(B, lo + step))
-        tau = tau_g[None] + load[sl, None, None] * per_kg[None]
+        tau = tau_g[None] + load[sl, None, None] * per_kg[None] if loaded else tau_g[None]
         q_link = (
             q_enc[None] / scale[sl, None, :]
             - comp[sl, None, :] * tau
@@ -215,7 +216,7 @@ def surrogate_points(
             tools[sl],
         )
     if np.any(tilt != 0.0):  # the base carries the same flange load as the joints
-        tau2 = tau_g[None, :, 1] + load[:, None] * per_kg[None, :, 1]
+        tau2 = tau_g[None, :, 1] + load[:, None] * per_kg[None, :, 1] if loaded else tau_g[:, 1]
         out = base_tilt(out, table, q_enc, tau2, tilt)
     return out * length[:, None, None]
 
