@@ -297,6 +297,17 @@ def summary_sentences(d: Diagnosis) -> list[str]:
                 f"({widest['name']}), not enough to outscore it on held-out data"
             )
         out.append(sentence + ".")
+    trained = d.verdict.notes.get("training_only") if d.verdict.kind == "effects" else None
+    chosen = next((r for r in rows if r["effects"] == list(d.verdict.effects)), None)
+    if trained and chosen is not None:
+        descs = _param_descriptions(chosen["effects"])
+        vals = "; ".join(value_words(k, p, descs.get(k, "")) for k, p in chosen["params"].items())
+        out.append(
+            "The held-out windows show no gap above their noise, the training windows one of up "
+            f"to {trained['train_gap_excess']:.0f}× theirs: on the training, {chosen['name']} "
+            f"({vals}) closes {trained['train_shrink_pct_above_noise']:.0f} % of it above the "
+            "noise floor."
+        )
     conc = concentrated_gap(g.get("heldout_trajectory_runs", []))
     if conc is not None:
         own = quantity(conc["before_m"], "m") + " nominal"

@@ -57,6 +57,7 @@ __all__ = [
     "parameter_status",
     "regime_consistency",
     "run_discovery",
+    "training_gap",
     "verdict_alternatives",
 ]
 
@@ -170,7 +171,17 @@ def judge(
     if not best.effects:  # the nominal is the best: what remains is what it left
         best_desc = _with_reasons(best_desc, fast)
     gain = nominal_fit.rank_score - best.rank_score
-    if not nominal_desc["structured"] and gain < st.margin_strong:
+    quiet = not nominal_desc["structured"] and gain < st.margin_strong
+    untested = training_gap(problem, ranking, noise, margin) if quiet else None
+    if untested is not None:
+        # the held-out windows look like noise, the training windows do not: "none" would
+        # say the robot is nominal where the held-out motions only fail to exercise it
+        verdict, train_fit = untested
+        if train_fit is not None:
+            best = train_fit
+            shrink_all = overall_shrink(z_nom[gap_mask], best.z_heldout[gap_mask])
+            shrink_gap = shrink_above_noise(z_nom, best.z_heldout, problem.holdout, gap_mask, noise)
+    elif quiet:
         verdict = Verdict(
             "none",
             (),
@@ -253,6 +264,105 @@ def judge(
             best_desc,
         )
     return Judgement(verdict, best, z_nom, gap_mask, shrink_all, shrink_gap)
+
+
+TRAINING_ONLY = "training only"
+"""The confidence of a verdict that rests on the training windows alone (:func:`training_gap`)."""
+
+
+def training_gap(
+    problem: Problem,
+    ranking: Sequence[ModelFit],
+    noise: Mapping[str, float] | None,
+    margin: float = math.nan,
+) -> tuple[Verdict, ModelFit | None] | None:
+    """The verdict when the held-out residual of the nominal replay looks like noise but the
+    training windows' does not; ``None`` when the training's looks like noise too ("none").
+
+    Held-out motions can fail to exercise an effect that the training shows plainly: a
+    tool-point offset is invisible to the distances of held-out poses that keep one
+    orientation. "None" would then say the robot is nominal. Instead the candidates are
+    judged on the training windows, where the gap is: the one with the best training score
+    (BIC) is named, with confidence :data:`TRAINING_ONLY`, when it closes at least
+    :attr:`AttributionSettings.dominant_shrink` of the training gap above the noise floor,
+    leaves a training residual that looks like noise, sits at no edge of its range, and
+    leaves the held-out residual looking like noise (it does not spoil what it cannot be
+    tested on). Other models that pass the same tests are its aliases on this data. Else
+    the verdict is "unexplained". Returns the verdict and the named model's fit (``None``
+    for "unexplained").
+    """
+    st, scales = problem.settings, problem.features
+    if problem.train.n == 0:
+        return None
+    z0 = problem.nominal_residuals(problem.train)
+    desc0 = describe_residual(z0, problem.train, st, scales, noise)
+    if not desc0["structured"]:
+        return None
+    excess = max(
+        (g.get("excess_ratio", 0.0) for g in desc0["groups"].values()), default=float("nan")
+    )
+    gap = "; ".join(desc0["reasons"])
+    mask = np.zeros(z0.shape, dtype=bool)
+    for g in np.unique(problem.train.group):
+        sel = problem.train.group == g
+        if float(np.sqrt(np.mean(z0[sel] ** 2))) > 2.0 * st.floor:
+            mask |= sel
+    if not mask.any():
+        mask[:] = True
+    passed: list[tuple[ModelFit, float]] = []
+    for f in sorted((f for f in ranking if f.effects), key=lambda f: f.bic)[:8]:
+        z = problem.surrogate_residuals(
+            problem.train, {k: np.array([v]) for k, v in f.values.items()}, 1
+        )[0]
+        closed = shrink_above_noise(z0, z, problem.train, mask, noise)
+        if closed < 100.0 * st.dominant_shrink or pinned_parameters(problem, f):
+            continue
+        if describe_residual(z, problem.train, st, scales, noise)["structured"]:
+            continue
+        if describe_fit_residual(problem, f, noise)["structured"]:
+            continue
+        passed.append((f, closed))
+    held = "the held-out residual of the nominal replay already looks like noise"
+    if not passed:
+        return (
+            Verdict(
+                "unexplained",
+                (),
+                f"{held}, but the training windows' does not ({gap}) and no candidate closes "
+                f"at least {100 * st.dominant_shrink:.0f} % of that gap leaving noise: the "
+                "held-out motions do not exercise what the training shows",
+                margin,
+                "n/a",
+                desc0,
+            ),
+            None,
+        )
+    best, closed = passed[0]
+    others = [
+        f.name
+        for f, _ in passed[1:]
+        if not (set(f.effects) <= set(best.effects) or set(f.effects) >= set(best.effects))
+    ]
+    alias = f" ({' or '.join(others)} does it as well: aliases on this data)" if others else ""
+    verdict = Verdict(
+        "effects",
+        best.effects,
+        f"{held}: the held-out motions do not exercise the gap; the training windows' nominal "
+        f"residual is up to {excess:.0f}× its noise level, and {best.name} closes "
+        f"{closed:.0f} % of that gap above the noise floor and leaves noise{alias} — a finding "
+        "of the training alone: held-out runs that exercise it would confirm it",
+        margin,
+        TRAINING_ONLY,
+        describe_fit_residual(problem, best, noise),
+        ambiguous_with=others[:3],
+    )
+    verdict.notes["training_only"] = {
+        "model": best.name,
+        "train_gap_excess": excess,
+        "train_shrink_pct_above_noise": closed,
+        "aliases": others[:3],
+    }
+    return verdict, best
 
 
 def describe_fit_residual(
@@ -848,8 +958,14 @@ def conclude(
             "single out)"
         )
     elif verdict.kind == "effects":
-        text = " or ".join([best.name, *(a["model"] for a in aliases)])
-        text += " (aliases on this data)" if aliases else ""
+        names = [best.name, *(a["model"] for a in aliases)]
+        trained = bool(verdict.notes.get("training_only"))
+        if trained:
+            names += [m for m in verdict.ambiguous_with if m not in names]
+        text = " or ".join(names)
+        text += " (aliases on this data)" if len(names) > 1 else ""
+        if trained:
+            text += " (on the training alone: the held-out motions do not exercise it)"
         whole = verdict.notes.get("whole_runs")
         if whole:
             text += (

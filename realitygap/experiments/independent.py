@@ -12,8 +12,10 @@ Scoring
 top-1 (in-library cases)
     The verdict names effects, every named effect is one the case accepts
     (:attr:`~realitygap.independent.cases.Case.accepted`), and the top-ranked
-    model is one of them. A verdict that adds an effect the case does not
-    accept is wrong.
+    model is one of them (for a verdict drawn from the training alone, whose held-out
+    windows show no gap to rank by, the training's best model:
+    :func:`~realitygap.diagnosis.verdict.training_gap`). A verdict that adds an effect
+    the case does not accept is wrong.
 open set (out-of-library cases)
     *strict*: the verdict is ``"unexplained"``; *lenient*: ``"unexplained"``,
     or effects named with ``"weak"`` confidence (the tool does not vouch for them).
@@ -215,6 +217,10 @@ def score(case: Any, d: Any, drive: str = "commands", **extra: float) -> dict[st
     v = d.verdict
     named = list(v.effects) if v.kind == "effects" else []
     top = list(d.ranking[0].effects) if d.ranking else []
+    if v.kind == "effects" and v.notes.get("training_only"):
+        # held-out windows without a gap rank every model alike: the training's best is the
+        # verdict's model (verdict.training_gap)
+        top = list(v.effects)
     accepted = set(case.accepted_for(drive))
     alternatives = verdict_alternatives(v)
     if case.in_library:

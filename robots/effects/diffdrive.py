@@ -522,7 +522,7 @@ class TimestampOffset(Effect):
         "The ground-truth (motion-capture) clock is offset from the robot's clock: each "
         "ground-truth sample is stamped `offset` seconds late. Realised by the recorder."
     )
-    specs = (ParamSpec("offset", "s", 0.0, -0.3, 0.3, "ground-truth stamp minus true time"),)
+    specs = (ParamSpec("offset", "s", 0.0, -1.0, 1.0, "ground-truth stamp minus true time"),)
     blind = (BlindRange("offset", 0.04, 0.2, True),)
     surrogate_slot = SurrogateSlot.STAMPS
     surrogate_example = (("offset", 0.08),)
