@@ -351,6 +351,14 @@ def summary_sentences(d: Diagnosis) -> list[str]:
             "what it leaves in the windows does not add up along the runs: it names the drift, "
             "not the window residual."
         )
+    elif trained:
+        out.append(
+            f"Verdict: {' + '.join(v.effects)}, on the training alone ({v.confidence} "
+            "confidence): the held-out windows already look like noise, so they cannot test it; "
+            f"the training windows' gap is {trained['train_gap_excess']:.0f}× their noise and "
+            "the named effect leaves noise in both. Held-out runs that exercise it would confirm "
+            "it."
+        )
     elif v.kind == "effects":
         out.append(f"Verdict: {' + '.join(v.effects)} ({v.confidence} confidence). {rule}: {here}.")
     elif v.kind == "none":

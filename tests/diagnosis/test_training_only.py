@@ -55,7 +55,9 @@ def test_a_tool_offset_the_held_out_poses_cannot_see_is_named_from_the_training(
     assert chosen.values["arm_tool_offset.dz"] == pytest.approx(3e-3, abs=3e-4)
     text = " ".join(explain(v))
     assert "on the training alone" in text
-    assert "held-out windows show no gap" in " ".join(summary_sentences(d))
+    summary = " ".join(summary_sentences(d))
+    assert "held-out windows show no gap" in summary
+    assert f"Verdict: {' + '.join(v.effects)}, on the training alone" in summary
     if not v.ambiguous_with:
         assert v.confidence == TRAINING_ONLY
 
