@@ -512,7 +512,12 @@ class EncoderScale(Effect):
 
 @register_effect
 class TimestampOffset(Effect):
-    """Ground-truth clock offset; surrogate: the pose sampled ``offset`` earlier."""
+    """Ground-truth clock offset; surrogate: the pose sampled ``offset`` earlier.
+
+    The range reaches ±1 s: no physics bounds an offset between two clocks, only how the
+    logs were put together, and clocks that were never synchronised (a motion-capture
+    export started by hand, a recorder's own time base) are off by hundreds of milliseconds.
+    """
 
     name = "timestamp_offset"
     robot = "diffdrive"

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from realitygap.diagnosis import arm_adapter
+from realitygap.diagnosis.adapters import get_adapter
 from realitygap.diagnosis.arm_adapter import record_arm_log
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.log import Log
@@ -67,4 +68,19 @@ def test_a_nominal_arm_on_the_same_poses_is_still_none(monkeypatch: pytest.Monke
     holdout = _wrist_sweep(monkeypatch, real, seed=13)
     d = diagnose([_train(real, 12)], [holdout], settings=DiagnosisSettings(robot="arm"))
     assert d.verdict.kind == "none", d.verdict.reason
+    assert "training_only" not in d.verdict.notes
+
+
+def test_a_training_gap_no_candidate_closes_is_unexplained(monkeypatch: pytest.MonkeyPatch) -> None:
+    # the tool offset and everything that can stand in for it (the flange link length, the
+    # full tolerance set) withheld: the training's gap stays, and "none" would hide it
+    real = Reality((make_effect("arm_tool_offset", dz=3e-3),))
+    holdout = _wrist_sweep(monkeypatch, real, seed=11)
+    withheld = ("arm_tool_offset", "arm_link_length", "arm_geometric_tolerances")
+    library = tuple(e for e in get_adapter("arm").effect_names() if e not in withheld)
+    d = diagnose(
+        [_train(real, 10)], [holdout], settings=DiagnosisSettings(robot="arm", effects=library)
+    )
+    assert d.verdict.kind == "unexplained", d.verdict.reason
+    assert "the held-out motions do not exercise what the training shows" in d.verdict.reason
     assert "training_only" not in d.verdict.notes
