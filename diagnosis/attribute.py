@@ -873,7 +873,7 @@ class Verdict:
     """The conclusion of an attribution.
 
     ``kind`` is ``"effects"`` (``effects`` names them), ``"unexplained"`` or
-    ``"none"`` (no significant gap on the held-out data).
+    ``"none"`` (no significant gap on the held-out data, nor on the training data).
     """
 
     kind: str

@@ -9,7 +9,10 @@ residual — or, as a single effect, closes nearly all of the gap
 in detail from the library's (a pair with a structured rest may be one effect and
 its compensator);
 otherwise the verdict is ``"unexplained"`` (or ``"none"`` when the
-nominal replay's residual already looks like noise). A combination of two
+nominal replay's residual already looks like noise, on the held-out windows and on the
+training windows alike; a gap that only the training windows show — held-out motions that
+do not exercise it — is judged there, and its effect named with confidence
+``"training only"``, by :func:`training_gap`). A combination of two
 effects must also leave noise, at each channel's own resolution, in every
 regime where it acts (:func:`combination_check`): two effects fitted together
 can stand in for one mechanism outside the library that couples them, and
