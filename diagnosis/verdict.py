@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.diagnosis.attribute import AttributionSettings, ModelFit, Problem, Verdict
+from realitygap.diagnosis.attribute import AttributionSettings, Layout, ModelFit, Problem, Verdict
 from realitygap.diagnosis.parameters import param_spec, range_position
 from realitygap.diagnosis.residual import (
     above_sample_noise,
@@ -94,13 +94,16 @@ class Judgement:
     shrink_pct_above_noise: float = math.nan
 
 
-def gap_channels(z_nom: FloatArray, problem: Problem) -> npt.NDArray[np.bool_]:
-    """Entries of the held-out groups whose nominal residual exceeds twice the floor (all
-    entries if none does): channels the effects do not touch would only add their noise to
-    both sides of the shrink."""
+def gap_channels(
+    z_nom: FloatArray, problem: Problem, layout: Layout | None = None
+) -> npt.NDArray[np.bool_]:
+    """Entries of the held-out groups (of ``layout``'s, e.g. the training windows) whose
+    nominal residual exceeds twice the floor (all entries if none does): channels the
+    effects do not touch would only add their noise to both sides of the shrink."""
+    lay = problem.holdout if layout is None else layout
     gap_mask = np.zeros(z_nom.shape, dtype=bool)
-    for g in np.unique(problem.holdout.group):
-        sel = problem.holdout.group == g
+    for g in np.unique(lay.group):
+        sel = lay.group == g
         if float(np.sqrt(np.mean(z_nom[sel] ** 2))) > 2.0 * problem.settings.floor:
             gap_mask |= sel
     if not gap_mask.any():
@@ -166,6 +169,13 @@ def judge(
         None,
     )
     margin = (runner.rank_score - best.rank_score) if runner is not None else math.inf
+    gain = nominal_fit.rank_score - best.rank_score
+    quiet = not nominal_desc["structured"] and gain < st.margin_strong
+    # the held-out windows look like noise: "none" only if the training windows do too; else
+    # the held-out motions fail to exercise what the training shows (judged there)
+    untested = training_gap(problem, ranking, noise, margin) if quiet else None
+    if untested is not None and untested[1] is not None:
+        best = untested[1]
     gap_mask = gap_channels(z_nom, problem)
     shrink_all = overall_shrink(z_nom[gap_mask], best.z_heldout[gap_mask])
     # the noise in the held-out gap is closed by no effect: the test counts the gap above it
@@ -173,17 +183,8 @@ def judge(
     best_desc = describe_fit_residual(problem, best, noise)
     if not best.effects:  # the nominal is the best: what remains is what it left
         best_desc = _with_reasons(best_desc, fast)
-    gain = nominal_fit.rank_score - best.rank_score
-    quiet = not nominal_desc["structured"] and gain < st.margin_strong
-    untested = training_gap(problem, ranking, noise, margin) if quiet else None
     if untested is not None:
-        # the held-out windows look like noise, the training windows do not: "none" would
-        # say the robot is nominal where the held-out motions only fail to exercise it
-        verdict, train_fit = untested
-        if train_fit is not None:
-            best = train_fit
-            shrink_all = overall_shrink(z_nom[gap_mask], best.z_heldout[gap_mask])
-            shrink_gap = shrink_above_noise(z_nom, best.z_heldout, problem.holdout, gap_mask, noise)
+        verdict = untested[0]
     elif quiet:
         verdict = Verdict(
             "none",
@@ -305,14 +306,8 @@ def training_gap(
         (g.get("excess_ratio", 0.0) for g in desc0["groups"].values()), default=float("nan")
     )
     gap = "; ".join(desc0["reasons"])
-    mask = np.zeros(z0.shape, dtype=bool)
-    for g in np.unique(problem.train.group):
-        sel = problem.train.group == g
-        if float(np.sqrt(np.mean(z0[sel] ** 2))) > 2.0 * st.floor:
-            mask |= sel
-    if not mask.any():
-        mask[:] = True
-    passed: list[tuple[ModelFit, float]] = []
+    mask = gap_channels(z0, problem, problem.train)
+    passed: list[tuple[ModelFit, float, dict[str, Any]]] = []
     for f in sorted((f for f in ranking if f.effects), key=lambda f: f.bic)[:8]:
         z = problem.surrogate_residuals(
             problem.train, {k: np.array([v]) for k, v in f.values.items()}, 1
@@ -322,9 +317,10 @@ def training_gap(
             continue
         if describe_residual(z, problem.train, st, scales, noise)["structured"]:
             continue
-        if describe_fit_residual(problem, f, noise)["structured"]:
+        held_out = describe_fit_residual(problem, f, noise)
+        if held_out["structured"]:
             continue
-        passed.append((f, closed))
+        passed.append((f, closed, held_out))
     held = "the held-out residual of the nominal replay already looks like noise"
     if not passed:
         return (
@@ -340,10 +336,10 @@ def training_gap(
             ),
             None,
         )
-    best, closed = passed[0]
+    best, closed, held_out = passed[0]
     others = [
         f.name
-        for f, _ in passed[1:]
+        for f, _, _ in passed[1:]
         if not (set(f.effects) <= set(best.effects) or set(f.effects) >= set(best.effects))
     ]
     alias = f" ({' or '.join(others)} does it as well: aliases on this data)" if others else ""
@@ -356,7 +352,7 @@ def training_gap(
         "of the training alone: held-out runs that exercise it would confirm it",
         margin,
         TRAINING_ONLY,
-        describe_fit_residual(problem, best, noise),
+        held_out,
         ambiguous_with=others[:3],
     )
     verdict.notes["training_only"] = {
