@@ -187,9 +187,10 @@ def _umbmark_on_logs(logs: list[Any], reference: dict[str, float]) -> dict[str, 
 
 
 def _umbmark_heldout(d: Any, e_b: float, e_d: float) -> dict[str, float]:
-    """The held-out trajectory gap of a tick-driven diagnosis ``d`` when the replay
+    """The held-out trajectory gap of a diagnosis ``d`` (either drive) when the replay
     carries UMBmark's ``E_b`` and ``E_d`` instead of the diagnosis's best model: the same
-    calibrated baseline (clocks, frames), the same PyBullet replays, the classical
+    calibrated baseline (clocks, frames; with the command drive also the actuator
+    response), the same PyBullet replays, the classical
     calibration's two factors (``wheelbase_error.E_b``, ``wheel_diameter_ratio.E_d``;
     UMBmark keeps the mean wheel diameter, as the diameter ratio does)."""
     from realitygap.diagnosis.shrink import trajectory_gap
@@ -456,10 +457,23 @@ def _real_diagnoses(
         notes += [f"{drive}: {line}" for line in explain(d.verdict, top)]
         if d.nominal_reference:
             notes.append(f"{drive}: {d.nominal_reference['summary']}")
+        ref = d.nominal_reference.get("reference") or _log_geometry(train[0])
+        umb = _umbmark_on_logs(tr, ref)
+        if drive == "commands" and {"umbmark_same_runs_E_b", "umbmark_same_runs_E_d"} <= set(umb):
+            ctx.progress("replaying the held-out commands with UMBmark's factors")
+            classical = _umbmark_heldout(
+                d, umb["umbmark_same_runs_E_b"], umb["umbmark_same_runs_E_d"]
+            )
+            figures.update({k.replace("umbmark_", "umbmark_commands_"): v for k, v in classical.items()})
+            notes.append(
+                "commands: umbmark_commands_*: the held-out runs' commands replayed with "
+                "UMBmark's same-run E_b and E_d on the command replay's calibrated baseline "
+                "(clocks, frames, actuator response), for the comparison with "
+                "heldout_gap_cm_corrected: what the classical calibration does where the "
+                "diagnosis is scored"
+            )
         if drive == "ticks":
-            ref = d.nominal_reference.get("reference") or _log_geometry(train[0])
             found = _geometry_found(d)
-            umb = _umbmark_on_logs(tr, ref)
             for k in ("E_b", "E_d"):
                 if k in found:
                     figures[f"ticks_{k}"] = found[k]
