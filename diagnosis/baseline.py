@@ -15,8 +15,9 @@ adapter; for the differential drive, whether the firmware's rate limit ramps
 the body twist, as ros2 ``diff_drive_controller`` does, or each wheel, as many
 motor firmwares do, and whether it limits deceleration too or brakes at once);
 :func:`choose_convention` replays each, fits the nuisances under it and keeps
-the one that fits best. It is reported with the nuisances as baseline
-calibration.
+the one that fits best, with each nuisance free over its effect's physical
+range so that a larger latency or lag cannot decide the choice. It is reported
+with the nuisances as baseline calibration.
 
 Each adapter states its nuisances (:meth:`baseline_nuisances` of the adapter):
 ``{"effect.param": (low, high, what)}`` — an existing effect's parameter with a
@@ -265,6 +266,13 @@ def choose_convention(
     ``box`` on the training windows, and the robust cost over every window
     (training and held-out, transient events set aside) is compared at one loss
     scale; ``problem`` is switched in place to the convention of least cost.
+    :func:`calibrate_baseline` passes a ``box`` that frees each nuisance over its
+    effect's physical range, not its narrow nuisance range: the choice is then
+    made with the effects a nuisance stands for (a command latency of a few
+    periods, a slow velocity loop, a late clock) profiled out. Judged with the
+    narrow ranges, a robot whose commands act 200 ms late was given the ramp
+    convention that best imitates a delay (each wheel ramped), and the latency,
+    scored against that reference, no longer explained its own gap.
 
     The convention is a property of the robot's firmware, the same in every
     log, and the motions that tell conventions apart (arcs while the speed
@@ -411,8 +419,12 @@ def calibrate_baseline(
             nom = param_spec(k).nominal
             span = 1e-9 * (param_spec(k).high - param_spec(k).low)
             box[k] = (max(nom - span, param_spec(k).low), min(nom + span, param_spec(k).high))
+    # the convention is judged with each nuisance free over its effect's physical range: a
+    # long command latency or a slow speed loop (candidates of the library, larger than any
+    # nuisance) would otherwise decide the one discrete choice every effect is scored against
+    choice_box = {**box, **{k: (param_spec(k).low, param_spec(k).high) for k in ranges}}
     conv, conv_what, conv_costs, conv_limits = choose_convention(
-        problem, effects, box, backend, say
+        problem, effects, choice_box, backend, say
     )
     if conv:
         say(f"actuator response of the nominal: {conv_what}")
