@@ -464,7 +464,9 @@ def _real_diagnoses(
             classical = _umbmark_heldout(
                 d, umb["umbmark_same_runs_E_b"], umb["umbmark_same_runs_E_d"]
             )
-            figures.update({k.replace("umbmark_", "umbmark_commands_"): v for k, v in classical.items()})
+            figures.update(
+                {k.replace("umbmark_", "umbmark_commands_"): v for k, v in classical.items()}
+            )
             notes.append(
                 "commands: umbmark_commands_*: the held-out runs' commands replayed with "
                 "UMBmark's same-run E_b and E_d on the command replay's calibrated baseline "

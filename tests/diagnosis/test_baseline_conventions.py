@@ -162,3 +162,32 @@ def test_baseline_without_convention_says_so() -> None:
     b = Baseline()
     assert b.to_json()["actuator_convention"] is None
     assert "none" in b.summary()
+
+
+@pytest.mark.parametrize("convention", ["body/limited", "wheels/limited"])
+def test_a_long_command_latency_does_not_choose_the_ramp_convention(convention: str) -> None:
+    """Commands that act 0.2 s (four periods) late. The conventions are judged with the
+    latency profiled out (each nuisance free over its physical range): the planted one
+    then fits like the nominal robot itself, far better than any other, and the latency
+    is the verdict. Judged with the nuisances' narrow ranges, every convention carried the
+    unmodelled delay and they were apart by tens of per cent only; on another world's
+    logs the ramp that best imitates a delay won."""
+    rng = np.random.default_rng(5)
+    reality = Reality((make_effect("command_latency", delay=0.2),))
+    train = [_log(convention, reality, rng), _log(convention, reality, rng)]
+    hold = [_log(convention, reality, rng)]
+    d = diagnose(
+        train,
+        hold,
+        settings=DiagnosisSettings(
+            effects=("wheelbase_error", "wheel_radius_scale", "command_latency"),
+            attribution=AttributionSettings(pair_candidates=2, verify_top=1),
+        ),
+    )
+    costs = d.baseline.convention_costs
+    assert d.baseline.convention == convention == min(costs, key=costs.get)
+    assert min(c for k, c in costs.items() if k != convention) > 5.0 * costs[convention]
+    # the baseline's own latency stays within its nuisance range (one period)
+    assert d.baseline.values["command_latency.delay"] <= DT + 1e-9
+    assert d.verdict.label == ["command_latency"]
+    assert d.ranking[0].values["command_latency.delay"] == pytest.approx(0.2, abs=0.02)
