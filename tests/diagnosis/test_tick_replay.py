@@ -178,6 +178,35 @@ def test_tick_replay_agrees_with_umbmark_on_the_same_squares(tmp_path: Path) -> 
 
 
 @pytest.mark.slow
+def test_umbmark_replay_of_the_commands_keeps_the_command_replays_baseline(
+    tmp_path: Path,
+) -> None:
+    """diagnose-real's classical comparison in the command replay: the held-out commands
+    replayed with neutral factors are the calibrated baseline's gap (its clocks, frames
+    and actuator response carried over), and UMBmark's factors from the same squares close
+    part of a wheelbase drift there too."""
+    from realitygap.calibrate import calibrate_session, pool_calibrations
+    from realitygap.diagnosis.io import logs_from_optiodom
+    from realitygap.experiments.diagnosis import _umbmark_heldout
+
+    squares, _, _, _ = _independent_squares(tmp_path, seed=4)
+    umb = pool_calibrations([calibrate_session(p) for p in squares])
+    logs = logs_from_optiodom(tmp_path)
+    assert all(lg.has("cmd") for lg in logs)
+    train = [lg for lg in logs if lg.meta.get("path_type") == "square"]
+    held = [lg for lg in logs if lg.meta.get("path_type") != "square"]
+    d = diagnose(train, held, settings=DiagnosisSettings(drive="commands", effects=GEOMETRY))
+    assert "motor_response.tau" in d.baseline.values  # the actuator response is carried
+    g = d.gap
+    neutral = _umbmark_heldout(d, 1.0, 1.0)
+    assert neutral["umbmark_heldout_gap_cm"] == pytest.approx(
+        100.0 * g["heldout_trajectory_gap_m_baseline"], rel=1e-9
+    )
+    classical = _umbmark_heldout(d, umb.E_b_for(0.084, 0.2), umb.E_d)
+    assert 0.0 < classical["umbmark_trajectory_shrink_pct"] < 100.0
+
+
+@pytest.mark.slow
 def test_tick_replay_recovers_planted_factors_of_the_projects_own_generator() -> None:
     from realitygap.diagnosis.diffdrive_adapter import DiffDriveAdapter
     from realitygap.diagnosis.manoeuvres import MANOEUVRES
