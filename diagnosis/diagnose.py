@@ -207,11 +207,15 @@ class Diagnosis:
 
     @property
     def chosen(self) -> ModelFit | None:
-        """The model named by the verdict, if any."""
+        """The model named by the verdict, if any (for a verdict A whose fit is a pair with
+        a partner that only refines a baseline nuisance, ``notes["nuisance_partner"]``, that
+        pair's fit)."""
         if self.verdict.kind != "effects":
             return None
+        partner = (self.verdict.notes.get("nuisance_partner") or {}).get("effect")
+        want = set(self.verdict.effects) | ({partner} if partner else set())
         for fit in self.ranking:
-            if fit.effects == self.verdict.effects:
+            if set(fit.effects) == want:
                 return fit
         return None
 

@@ -90,7 +90,7 @@ def _best_label(d: Diagnosis) -> str:
     best = d.ranking[0] if d.ranking else None
     if best is None or not best.effects:
         return "best candidate"
-    named = d.verdict.kind == "effects" and best.effects == d.verdict.effects
+    named = d.chosen is best
     return f"with {best.name}" + ("" if named else " (best candidate, not named)")
 
 

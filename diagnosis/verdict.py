@@ -763,6 +763,35 @@ def unsingled_partner(
     return single, partners
 
 
+def nuisance_partner(problem: Problem, fit: ModelFit) -> tuple[str, str] | None:
+    """The effect a pair names when its partner only refines a baseline nuisance.
+
+    For a pair A + N where every parameter of N is a calibrated-baseline nuisance
+    (:attr:`Problem.baseline_ranges`, e.g. ``timestamp_offset.offset`` or
+    ``command_latency.delay``) and the pair's fit puts each inside its nuisance range,
+    N adds no finding: a value in that range is a convention of the recording that the
+    baseline refines with every model anyway (:mod:`~realitygap.diagnosis.baseline`),
+    and the pair's fit is A with its nuisances refined. Returns ``(A, N)``; ``None``
+    for any other model.
+    """
+    ranges = problem.baseline_ranges
+    if len(fit.effects) != 2 or not ranges:
+        return None
+    for n in fit.effects:
+        keys = [k for k in fit.keys if k.partition(".")[0] == n]
+        inside = keys and all(
+            k in ranges
+            and ranges[k][0] - 1e-9 * (ranges[k][1] - ranges[k][0])
+            <= fit.values[k]
+            <= ranges[k][1] + 1e-9 * (ranges[k][1] - ranges[k][0])
+            for k in keys
+        )
+        if inside:
+            (kept,) = (e for e in fit.effects if e != n)
+            return kept, n
+    return None
+
+
 def dominant_single(
     problem: Problem,
     ranking: Sequence[ModelFit],
@@ -951,13 +980,28 @@ def conclude(
             f"{pair_shrink - judgement.shrink_pct_best:.1f} points more, but "
             f"{' or '.join(partners)} does it equally well, so none of them is singled out"
         )
+    absorbed = nuisance_partner(problem, best) if verdict.kind == "effects" else None
+    if absorbed is not None and not partners:
+        kept, partner = absorbed
+        verdict.effects = (kept,)
+        inside = ", ".join(
+            f"{k} = {best.values[k]:.4g} {param_spec(k).unit} within {lo:.4g} … {hi:.4g}"
+            for k, (lo, hi) in problem.baseline_ranges.items()
+            if k.partition(".")[0] == partner and k in best.keys
+        )
+        verdict.reason += (
+            f"; {partner} only refines a calibrated-baseline nuisance inside its range "
+            f"({inside}): a convention of the recording, not a finding, so the verdict is "
+            f"{kept} (with that nuisance refined)"
+        )
     if verdict.kind == "effects" and partners:
         text = (
             f"{best.name} (+ {' or '.join(partners)}: a further small term this data does not "
             "single out)"
         )
     elif verdict.kind == "effects":
-        names = [best.name, *(a["model"] for a in aliases)]
+        named = verdict.effects[0] if absorbed is not None else best.name
+        names = [named, *(a["model"] for a in aliases)]
         trained = bool(verdict.notes.get("training_only"))
         if trained:
             names += [m for m in verdict.ambiguous_with if m not in names]
@@ -991,6 +1035,11 @@ def conclude(
         "heldout_shrink_pct_above_noise": judgement.shrink_pct_above_noise,
         "unsingled_partners": partners,
     }
+    if absorbed is not None and not partners:
+        notes["nuisance_partner"] = {
+            "effect": absorbed[1],
+            "values": {k: best.values[k] for k in best.keys if k.startswith(absorbed[1] + ".")},
+        }
     if coverage is not None and coverage.beyond_training and verdict.kind != "effects":
         notes["coverage"] = {"summary": coverage.summary(), "suggestion": coverage.suggestion()}
         if text == verdict.kind:

@@ -21,6 +21,7 @@ from realitygap.diagnosis.verdict import (
     dominant_single,
     explain,
     explain_markdown,
+    nuisance_partner,
     parameter_status,
     regime_consistency,
     run_discovery,
@@ -625,3 +626,40 @@ def test_parameter_correlations_stay_within_one_whatever_the_units() -> None:
     P = parameter_correlation(cov)
     assert P[0, 1] == pytest.approx(1.0) and P[0, 0] == pytest.approx(1.0)
     assert np.all(np.isnan(P[2]))
+
+
+def test_a_partner_that_only_refines_a_nuisance_inside_its_range_is_not_named(
+    model_fit: Callable[..., ModelFit],
+) -> None:
+    z = np.zeros(4)
+    ranges = {"timestamp_offset.offset": (-0.025, 0.025), "command_latency.delay": (0.0, 0.05)}
+    problem = SimpleNamespace(baseline_ranges=ranges)
+    limits = {"acceleration_limits.t_acc": 2.0, "acceleration_limits.t_dec": 1.5}
+    clock_inside = model_fit(
+        ("acceleration_limits", "timestamp_offset"), z, {**limits, "timestamp_offset.offset": 0.014}
+    )
+    assert nuisance_partner(problem, clock_inside) == ("acceleration_limits", "timestamp_offset")
+    # a partner listed first, at the nuisance range's edge, is still only a nuisance
+    edge = model_fit(
+        ("command_latency", "motor_deadband"),
+        z,
+        {"command_latency.delay": 0.05, "motor_deadband.threshold": 0.02},
+    )
+    assert nuisance_partner(problem, edge) == ("motor_deadband", "command_latency")
+    # beyond the nuisance range the partner is a finding of its own
+    latency = model_fit(
+        ("command_latency", "longitudinal_slip"),
+        z,
+        {"command_latency.delay": 0.097, "longitudinal_slip.mu": 0.2},
+    )
+    assert nuisance_partner(problem, latency) is None
+    # a partner that is no nuisance, a single effect, and a problem without a baseline
+    dead = model_fit(
+        ("command_latency", "wheel_dead_zone"),
+        z,
+        {"command_latency.delay": 0.18, "wheel_dead_zone.dz_left": 0.01},
+    )
+    assert nuisance_partner(problem, dead) is None
+    single = model_fit(("timestamp_offset",), z, {"timestamp_offset.offset": 0.01})
+    assert nuisance_partner(problem, single) is None
+    assert nuisance_partner(SimpleNamespace(baseline_ranges={}), clock_inside) is None
