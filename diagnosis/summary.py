@@ -361,6 +361,19 @@ def summary_sentences(d: Diagnosis) -> list[str]:
         )
     elif v.kind == "effects":
         out.append(f"Verdict: {' + '.join(v.effects)} ({v.confidence} confidence). {rule}: {here}.")
+        partner = v.notes.get("nuisance_partner")
+        if partner:
+            vals = ", ".join(
+                f"{k.split('.', 1)[-1]} = {quantity(x, partner['units'][k])} within "
+                f"{quantity(partner['ranges'][k][0], partner['units'][k])} … "
+                f"{quantity(partner['ranges'][k][1], partner['units'][k])}"
+                for k, x in partner["values"].items()
+            )
+            out.append(
+                f"The fit pairs it with {partner['effect']} ({vals}): inside the calibrated "
+                "baseline's nuisance range, a convention of the recording the baseline refines "
+                "anyway, not a finding."
+            )
     elif v.kind == "none":
         out.append(f"Verdict: no significant gap — {v.reason}.")
     else:

@@ -1036,9 +1036,12 @@ def conclude(
         "unsingled_partners": partners,
     }
     if absorbed is not None and not partners:
+        keys = [k for k in best.keys if k.partition(".")[0] == absorbed[1]]
         notes["nuisance_partner"] = {
             "effect": absorbed[1],
-            "values": {k: best.values[k] for k in best.keys if k.startswith(absorbed[1] + ".")},
+            "values": {k: best.values[k] for k in keys},
+            "units": {k: param_spec(k).unit for k in keys},
+            "ranges": {k: list(problem.baseline_ranges[k]) for k in keys},
         }
     if coverage is not None and coverage.beyond_training and verdict.kind != "effects":
         notes["coverage"] = {"summary": coverage.summary(), "suggestion": coverage.suggestion()}
