@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -88,6 +90,23 @@ def _log(convention: str, reality: Reality, rng: np.random.Generator) -> Log:
     return real.with_channels(cmd=req).replace(meta={**real.meta, "firmware": dict(FIRMWARE)})
 
 
+def _diagnose_planted(convention: str, effect: Any, seed: int) -> Any:
+    """Diagnose two training logs and one held-out log of a robot whose firmware ramps as
+    ``convention`` says and which carries ``effect``, among three candidate effects."""
+    rng = np.random.default_rng(seed)
+    reality = Reality((effect,))
+    train = [_log(convention, reality, rng), _log(convention, reality, rng)]
+    hold = [_log(convention, reality, rng)]
+    return diagnose(
+        train,
+        hold,
+        settings=DiagnosisSettings(
+            effects=("wheelbase_error", "wheel_radius_scale", "command_latency"),
+            attribution=AttributionSettings(pair_candidates=2, verify_top=1),
+        ),
+    )
+
+
 def test_free_deceleration_limits_only_speeding_up() -> None:
     assert ramp_step(0.3, 0.0, 0.01, True) == 0.0  # brakes at once
     assert ramp_step(0.3, -0.2, 0.01, True) == -0.2  # through standstill at once
@@ -133,18 +152,7 @@ def test_applied_commands_follow_the_stated_convention() -> None:
 def test_planted_ramp_convention_is_baseline_calibration_and_the_effect_is_found(
     convention: str,
 ) -> None:
-    rng = np.random.default_rng(11)
-    reality = Reality((make_effect("wheelbase_error", E_b=1.04),))
-    train = [_log(convention, reality, rng), _log(convention, reality, rng)]
-    hold = [_log(convention, reality, rng)]
-    d = diagnose(
-        train,
-        hold,
-        settings=DiagnosisSettings(
-            effects=("wheelbase_error", "wheel_radius_scale", "command_latency"),
-            attribution=AttributionSettings(pair_candidates=2, verify_top=1),
-        ),
-    )
+    d = _diagnose_planted(convention, make_effect("wheelbase_error", E_b=1.04), seed=11)
     assert d.baseline.convention == convention
     costs = d.baseline.convention_costs
     assert min(costs, key=costs.get) == convention and len(costs) == 6
@@ -172,18 +180,7 @@ def test_a_long_command_latency_does_not_choose_the_ramp_convention(convention: 
     is the verdict. Judged with the nuisances' narrow ranges, every convention carried the
     unmodelled delay and they were apart by tens of per cent only; on another world's
     logs the ramp that best imitates a delay won."""
-    rng = np.random.default_rng(5)
-    reality = Reality((make_effect("command_latency", delay=0.2),))
-    train = [_log(convention, reality, rng), _log(convention, reality, rng)]
-    hold = [_log(convention, reality, rng)]
-    d = diagnose(
-        train,
-        hold,
-        settings=DiagnosisSettings(
-            effects=("wheelbase_error", "wheel_radius_scale", "command_latency"),
-            attribution=AttributionSettings(pair_candidates=2, verify_top=1),
-        ),
-    )
+    d = _diagnose_planted(convention, make_effect("command_latency", delay=0.2), seed=5)
     costs = d.baseline.convention_costs
     assert d.baseline.convention == convention == min(costs, key=costs.get)
     assert min(c for k, c in costs.items() if k != convention) > 5.0 * costs[convention]
