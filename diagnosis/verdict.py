@@ -981,13 +981,16 @@ def conclude(
             f"{' or '.join(partners)} does it equally well, so none of them is singled out"
         )
     absorbed = nuisance_partner(problem, best) if verdict.kind == "effects" else None
-    if absorbed is not None and not partners:
+    absorbed = absorbed if not partners else None
+    partner_keys: list[str] = []
+    if absorbed is not None:
         kept, partner = absorbed
         verdict.effects = (kept,)
+        partner_keys = [k for k in best.keys if k.partition(".")[0] == partner]
         inside = ", ".join(
-            f"{k} = {best.values[k]:.4g} {param_spec(k).unit} within {lo:.4g} … {hi:.4g}"
-            for k, (lo, hi) in problem.baseline_ranges.items()
-            if k.partition(".")[0] == partner and k in best.keys
+            f"{k} = {best.values[k]:.4g} {param_spec(k).unit} within "
+            f"{problem.baseline_ranges[k][0]:.4g} … {problem.baseline_ranges[k][1]:.4g}"
+            for k in partner_keys
         )
         verdict.reason += (
             f"; {partner} only refines a calibrated-baseline nuisance inside its range "
@@ -1035,13 +1038,12 @@ def conclude(
         "heldout_shrink_pct_above_noise": judgement.shrink_pct_above_noise,
         "unsingled_partners": partners,
     }
-    if absorbed is not None and not partners:
-        keys = [k for k in best.keys if k.partition(".")[0] == absorbed[1]]
+    if absorbed is not None:
         notes["nuisance_partner"] = {
             "effect": absorbed[1],
-            "values": {k: best.values[k] for k in keys},
-            "units": {k: param_spec(k).unit for k in keys},
-            "ranges": {k: list(problem.baseline_ranges[k]) for k in keys},
+            "values": {k: best.values[k] for k in partner_keys},
+            "units": {k: param_spec(k).unit for k in partner_keys},
+            "ranges": {k: list(problem.baseline_ranges[k]) for k in partner_keys},
         }
     if coverage is not None and coverage.beyond_training and verdict.kind != "effects":
         notes["coverage"] = {"summary": coverage.summary(), "suggestion": coverage.suggestion()}
