@@ -777,16 +777,17 @@ def nuisance_partner(problem: Problem, fit: ModelFit) -> tuple[str, str] | None:
     ranges = problem.baseline_ranges
     if len(fit.effects) != 2 or not ranges:
         return None
+
+    def inside(k: str) -> bool:
+        if k not in ranges:
+            return False
+        lo, hi = ranges[k]
+        tol = 1e-9 * (hi - lo)  # the fit may end on the range's edge to rounding
+        return lo - tol <= fit.values[k] <= hi + tol
+
     for n in fit.effects:
         keys = [k for k in fit.keys if k.partition(".")[0] == n]
-        inside = keys and all(
-            k in ranges
-            and ranges[k][0] - 1e-9 * (ranges[k][1] - ranges[k][0])
-            <= fit.values[k]
-            <= ranges[k][1] + 1e-9 * (ranges[k][1] - ranges[k][0])
-            for k in keys
-        )
-        if inside:
+        if keys and all(inside(k) for k in keys):
             (kept,) = (e for e in fit.effects if e != n)
             return kept, n
     return None
@@ -980,8 +981,9 @@ def conclude(
             f"{pair_shrink - judgement.shrink_pct_best:.1f} points more, but "
             f"{' or '.join(partners)} does it equally well, so none of them is singled out"
         )
-    absorbed = nuisance_partner(problem, best) if verdict.kind == "effects" else None
-    absorbed = absorbed if not partners else None
+    absorbed = (
+        nuisance_partner(problem, best) if verdict.kind == "effects" and not partners else None
+    )
     partner_keys: list[str] = []
     if absorbed is not None:
         kept, partner = absorbed

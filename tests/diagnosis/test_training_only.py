@@ -15,7 +15,7 @@ from realitygap.diagnosis.arm_adapter import record_arm_log
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.log import Log
 from realitygap.diagnosis.summary import summary_sentences
-from realitygap.diagnosis.verdict import TRAINING_ONLY, explain
+from realitygap.diagnosis.verdict import explain
 from realitygap.robots.effects import Reality, make_effect
 
 
@@ -63,7 +63,7 @@ def test_a_tool_offset_the_held_out_poses_cannot_see_is_named_from_the_training(
     # cannot tell them apart, and the verdict says so (stated aliases lower the confidence)
     assert "arm_link_length" in v.notes["training_only"]["aliases"]
     assert "arm_link_length" in v.ambiguous_with
-    assert v.confidence == ("not identifiable" if v.ambiguous_with else TRAINING_ONLY)
+    assert v.confidence == "not identifiable"
 
 
 def test_a_nominal_arm_on_the_same_poses_is_still_none(monkeypatch: pytest.MonkeyPatch) -> None:
