@@ -10,21 +10,21 @@ Typical use::
     print(result.verdict.label)        # ["wheelbase_error"] or "unexplained"
     write_report(result, "out/")
 
-Modules: :mod:`~realitygap.diagnosis.log` (the :class:`Log` and its file
-format), :mod:`~realitygap.diagnosis.io` and ``importers`` (OptiOdom, CSV, ROS
-bags), :mod:`~realitygap.diagnosis.record` (:class:`RecordLog` wrapper),
-:mod:`~realitygap.diagnosis.replay` (PyBullet replay),
-:mod:`~realitygap.diagnosis.surrogate` (the fit's fast model),
-:mod:`~realitygap.diagnosis.features`, :mod:`~realitygap.diagnosis.localise`,
-:mod:`~realitygap.diagnosis.attribute`, :mod:`~realitygap.diagnosis.verify`,
-:mod:`~realitygap.diagnosis.verdict`, :mod:`~realitygap.diagnosis.identifiability`,
-:mod:`~realitygap.diagnosis.shrink`, :mod:`~realitygap.diagnosis.diagnose` (the
-pipeline of those stages), :mod:`~realitygap.diagnosis.adapters` (the robot-adapter
+Modules: :mod:`~realitygap.diagnosis.logs.log` (the :class:`Log` and its file
+format), :mod:`~realitygap.diagnosis.logs.read` and ``importers`` (OptiOdom, CSV, ROS
+bags), :mod:`~realitygap.diagnosis.adapters.diffdrive.record` (:class:`RecordLog` wrapper),
+:mod:`~realitygap.diagnosis.adapters.diffdrive.replay` (PyBullet replay),
+:mod:`~realitygap.diagnosis.adapters.diffdrive.surrogate` (the fit's fast model),
+:mod:`~realitygap.diagnosis.problem.features`, :mod:`~realitygap.diagnosis.stages.localise`,
+:mod:`~realitygap.diagnosis.fit.model`, :mod:`~realitygap.diagnosis.fit.verify`,
+:mod:`~realitygap.diagnosis.verdict.rules`, :mod:`~realitygap.diagnosis.fit.identifiability`,
+:mod:`~realitygap.diagnosis.problem.shrink`, :mod:`~realitygap.diagnosis.diagnose` (the
+pipeline of those stages), :mod:`~realitygap.diagnosis.adapters.contract` (the robot-adapter
 interface and registry) with one adapter per robot
-(:mod:`~realitygap.diagnosis.diffdrive_adapter`,
-:mod:`~realitygap.diagnosis.arm_adapter`, :mod:`~realitygap.diagnosis.climb_adapter`),
+(:mod:`~realitygap.diagnosis.adapters.diffdrive.adapter`,
+:mod:`~realitygap.diagnosis.adapters.arm.adapter`, :mod:`~realitygap.diagnosis.adapters.climber.adapter`),
 :mod:`~realitygap.core.parallel` (serial / processes / Ray),
-:mod:`~realitygap.diagnosis.report`, :mod:`~realitygap.diagnosis.suite`
+:mod:`~realitygap.diagnosis.report.writer`, :mod:`~realitygap.diagnosis.validation.suite`
 (blind validation) and :mod:`~realitygap.diagnosis.cli` (``realitygap diagnose``).
 
 Attributes are imported lazily, so ``import realitygap.diagnosis`` stays light.
@@ -36,26 +36,26 @@ import importlib
 from typing import Any
 
 _EXPORTS = {
-    "Log": "realitygap.diagnosis.log",
-    "LogError": "realitygap.diagnosis.log",
-    "ChannelSpec": "realitygap.diagnosis.log",
-    "read_logs": "realitygap.diagnosis.io",
-    "read_many": "realitygap.diagnosis.io",
-    "ReadOptions": "realitygap.diagnosis.io",
-    "logs_from_optiodom": "realitygap.diagnosis.io",
-    "RecordLog": "realitygap.diagnosis.record",
-    "replay": "realitygap.diagnosis.replay",
-    "simulate": "realitygap.diagnosis.replay",
-    "SimSettings": "realitygap.diagnosis.replay",
+    "Log": "realitygap.diagnosis.logs.log",
+    "LogError": "realitygap.diagnosis.logs.log",
+    "ChannelSpec": "realitygap.diagnosis.logs.log",
+    "read_logs": "realitygap.diagnosis.logs.read",
+    "read_many": "realitygap.diagnosis.logs.read",
+    "ReadOptions": "realitygap.diagnosis.logs.read",
+    "logs_from_optiodom": "realitygap.diagnosis.logs.read",
+    "RecordLog": "realitygap.diagnosis.adapters.diffdrive.record",
+    "replay": "realitygap.diagnosis.adapters.diffdrive.replay",
+    "simulate": "realitygap.diagnosis.adapters.diffdrive.replay",
+    "SimSettings": "realitygap.diagnosis.adapters.diffdrive.replay",
     "diagnose": "realitygap.diagnosis.diagnose",
     "Diagnosis": "realitygap.diagnosis.diagnose",
     "DiagnosisSettings": "realitygap.diagnosis.diagnose",
-    "AttributionSettings": "realitygap.diagnosis.attribute",
-    "FeatureSettings": "realitygap.diagnosis.features",
-    "write_report": "realitygap.diagnosis.report",
-    "write_json": "realitygap.diagnosis.report",
+    "AttributionSettings": "realitygap.diagnosis.problem.problem",
+    "FeatureSettings": "realitygap.diagnosis.problem.features",
+    "write_report": "realitygap.diagnosis.report.writer",
+    "write_json": "realitygap.diagnosis.report.writer",
     "make_backend": "realitygap.core.parallel",
-    "get_adapter": "realitygap.diagnosis.adapters",
+    "get_adapter": "realitygap.diagnosis.adapters.registry",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -176,7 +176,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
     The robot adapters' simulator scenes are closed when it returns.
     """
-    from realitygap.diagnosis.adapters import close_adapters
+    from realitygap.diagnosis.adapters.registry import close_adapters
 
     try:
         return _diagnose(args)
@@ -187,12 +187,12 @@ def run_diagnose(args: argparse.Namespace) -> int:
 def _diagnose(args: argparse.Namespace) -> int:
     from realitygap.core.parallel import make_backend
     from realitygap.core.progress import Countdown
-    from realitygap.diagnosis.attribute import AttributionSettings
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-    from realitygap.diagnosis.features import FeatureSettings
-    from realitygap.diagnosis.io import ReadOptions, read_many
-    from realitygap.diagnosis.log import LogError
-    from realitygap.diagnosis.report import write_json, write_reports
+    from realitygap.diagnosis.logs.log import LogError
+    from realitygap.diagnosis.logs.read import ReadOptions, read_many
+    from realitygap.diagnosis.problem.features import FeatureSettings
+    from realitygap.diagnosis.problem.problem import AttributionSettings
+    from realitygap.diagnosis.report.writer import write_json, write_reports
 
     clock = Countdown(math.nan)
 
@@ -279,7 +279,7 @@ def _diagnose(args: argparse.Namespace) -> int:
 
 
 def _library(settings: Any) -> tuple[str, ...]:
-    from realitygap.diagnosis.adapters import get_adapter
+    from realitygap.diagnosis.adapters.registry import get_adapter
     from realitygap.diagnosis.diagnose import candidate_library
     from realitygap.robots.effects import EFFECTS
 
@@ -342,8 +342,8 @@ def _plan(
 def print_result(result: Any, verbose: bool = False, file: Any = None) -> None:
     """Print a diagnosis for a person: the summary sentences, then the candidates by
     held-out shrink (the first five; all with ``verbose``) and the notes."""
-    from realitygap.diagnosis.summary import quantity, ranking_by_shrink, summary_sentences
-    from realitygap.diagnosis.verdict import explain
+    from realitygap.diagnosis.report.summary import quantity, ranking_by_shrink, summary_sentences
+    from realitygap.diagnosis.verdict.rules import explain
 
     out = file if file is not None else sys.stdout
     for sentence in summary_sentences(result):

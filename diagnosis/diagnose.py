@@ -7,21 +7,21 @@ function of this module or of the module it names:
 1. every log is checked and replayed in the nominal PyBullet simulation
    (same commands or wheel rotation, same start);
 2. windows disturbed by stalls, bumps or lost markers are listed and set aside
-   (:mod:`realitygap.diagnosis.transients`), and the nuisances of every real log
+   (:mod:`realitygap.diagnosis.stages.transients`), and the nuisances of every real log
    (time alignment, response of the replayed commands) are fitted first as the
    calibrated baseline every effect is scored against
-   (:mod:`realitygap.diagnosis.baseline`);
-3. :func:`~realitygap.diagnosis.localise.localise` tabulates where replay and
+   (:mod:`realitygap.diagnosis.stages.baseline`);
+3. :func:`~realitygap.diagnosis.stages.localise.localise` tabulates where replay and
    reality part (per channel, regime, pipeline stage);
 4. each candidate effect, then pairs of the best, is fitted on the training
    windows and scored on the held-out ones
-   (:mod:`realitygap.diagnosis.attribute`), fits running in parallel through a
+   (:mod:`realitygap.diagnosis.fit.model`), fits running in parallel through a
    backend (:mod:`realitygap.core.parallel`);
 5. the best models are verified in PyBullet, and the verdict is drawn — an
    effect (or pair) only if it closes enough of the held-out gap and leaves
    unstructured residuals, else ``"unexplained"``; confounded explanations
    are flagged with a manoeuvre that would separate them;
-6. :mod:`realitygap.diagnosis.shrink` reports the held-out gap before and
+6. :mod:`realitygap.diagnosis.problem.shrink` reports the held-out gap before and
    after, per channel and regime.
 
 ================  ==============================================  ==========================
@@ -29,13 +29,13 @@ stage             function                                        result
 ================  ==============================================  ==========================
 library           :func:`candidate_library`                       effect names to consider
 prepare           :func:`prepare_logs`                            checked, replayed logs
-transients        :func:`~realitygap.diagnosis.transients.detect_transients`  windows set aside
+transients        :func:`~realitygap.diagnosis.stages.transients.detect_transients`  windows set aside
 observability     :func:`observable_candidates`                   candidates, and why not
-baseline          :func:`~realitygap.diagnosis.baseline.calibrate_baseline`  calibrated reference
-localise          :func:`~realitygap.diagnosis.localise.localise`  where the gap lies
+baseline          :func:`~realitygap.diagnosis.stages.baseline.calibrate_baseline`  calibrated reference
+localise          :func:`~realitygap.diagnosis.stages.localise.localise`  where the gap lies
 attribute         :func:`fit_candidates`                          fitted singles and pairs
-verify            :func:`~realitygap.diagnosis.verify.verify_ranking`  verified ranking
-verdict           :func:`~realitygap.diagnosis.verdict.judge`     the verdict
+verify            :func:`~realitygap.diagnosis.fit.verify.verify_ranking`  verified ranking
+verdict           :func:`~realitygap.diagnosis.verdict.rules.judge`     the verdict
 identifiability   :func:`advise`                                  confounded alternatives
 shrink            :func:`gap_report`                              held-out gap before/after
 ================  ==============================================  ==========================
@@ -53,18 +53,29 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.core.parallel import Backend, SerialBackend
-from realitygap.diagnosis.actuation import actuation_spread, command_wheel_gains, wheel_tracking
-from realitygap.diagnosis.adapters import PreparedLog, RobotAdapter, get_adapter
-from realitygap.diagnosis.attribute import (
-    AttributionSettings,
-    ModelFit,
-    Problem,
-    Verdict,
-    fit_model,
+from realitygap.diagnosis.adapters.contract import PreparedLog, RobotAdapter
+from realitygap.diagnosis.adapters.diffdrive.actuation import (
+    actuation_spread,
+    command_wheel_gains,
+    wheel_tracking,
 )
-from realitygap.diagnosis.baseline import Baseline, calibrate_baseline
-from realitygap.diagnosis.clock import ClockSettings
-from realitygap.diagnosis.coverage import (
+from realitygap.diagnosis.adapters.diffdrive.replay import Drive, SimSettings
+from realitygap.diagnosis.adapters.registry import get_adapter
+from realitygap.diagnosis.fit.identifiability import identifiability
+from realitygap.diagnosis.fit.model import ModelFit, fit_model
+from realitygap.diagnosis.fit.verify import Verification, verify_ranking
+from realitygap.diagnosis.logs.log import Log, LogError
+from realitygap.diagnosis.problem.features import FeatureSettings
+from realitygap.diagnosis.problem.problem import AttributionSettings, Problem
+from realitygap.diagnosis.problem.shrink import (
+    overall_shrink,
+    shrink_table,
+    trajectory_gap,
+    trajectory_runs,
+)
+from realitygap.diagnosis.stages.baseline import Baseline, calibrate_baseline
+from realitygap.diagnosis.stages.clock import ClockSettings
+from realitygap.diagnosis.stages.coverage import (
     Coverage,
     CoverageSettings,
     layout_windows,
@@ -73,22 +84,16 @@ from realitygap.diagnosis.coverage import (
     training_coverage,
     wheel_speeds,
 )
-from realitygap.diagnosis.features import FeatureSettings
-from realitygap.diagnosis.identifiability import identifiability
-from realitygap.diagnosis.localise import localise
-from realitygap.diagnosis.log import Log, LogError
-from realitygap.diagnosis.reach import library_reach
-from realitygap.diagnosis.replay import Drive, SimSettings
-from realitygap.diagnosis.scales import ScaleSettings, judge_scales
-from realitygap.diagnosis.shrink import (
-    overall_shrink,
-    shrink_table,
-    trajectory_gap,
-    trajectory_runs,
+from realitygap.diagnosis.stages.localise import localise
+from realitygap.diagnosis.stages.reach import library_reach
+from realitygap.diagnosis.stages.scales import ScaleSettings, judge_scales
+from realitygap.diagnosis.stages.transients import (
+    TransientReport,
+    TransientSettings,
+    detect_transients,
 )
-from realitygap.diagnosis.transients import TransientReport, TransientSettings, detect_transients
-from realitygap.diagnosis.verdict import Judgement, conclude, judge
-from realitygap.diagnosis.verify import Verification, verify_ranking
+from realitygap.diagnosis.verdict.rules import Judgement, conclude, judge
+from realitygap.diagnosis.verdict.types import Verdict
 from realitygap.robots.effects import EFFECTS
 
 FloatArray = npt.NDArray[np.float64]
@@ -137,22 +142,22 @@ class DiagnosisSettings:
     clock : ClockSettings or None
         With ``calibrate``: fit each log's own clock offset first and re-stamp the
         logs whose deviation from the common offset is a synchronisation error
-        (:mod:`realitygap.diagnosis.clock`); ``None`` leaves every log's clock alone.
+        (:mod:`realitygap.diagnosis.stages.clock`); ``None`` leaves every log's clock alone.
     frames : bool
         With ``calibrate`` and a tick-driven replay: fit each log's own ground-truth
         frame (where the adapter states one as a nuisance) and re-frame the logs
         whose deviation from the common frame is their own
-        (:mod:`realitygap.diagnosis.frames`).
+        (:mod:`realitygap.diagnosis.stages.frames`).
     scales : ScaleSettings or None
         Revisit a verdict that fails only on the window shrink on the scale of whole
-        held-out runs (:mod:`realitygap.diagnosis.scales`); ``None``: windows only.
+        held-out runs (:mod:`realitygap.diagnosis.stages.scales`); ``None``: windows only.
     coverage : CoverageSettings or None
         How the held-out motions are compared with the training envelope
-        (:mod:`realitygap.diagnosis.coverage`); ``None`` skips the comparison.
+        (:mod:`realitygap.diagnosis.stages.coverage`); ``None`` skips the comparison.
     reach : bool
         For an unexplained verdict, fit every single candidate on the held-out windows
         themselves and say how far the library could reach there
-        (:mod:`realitygap.diagnosis.reach`): whether the training or the library falls
+        (:mod:`realitygap.diagnosis.stages.reach`): whether the training or the library falls
         short. Never changes the verdict.
     """
 
@@ -202,8 +207,8 @@ class Diagnosis:
     actuation: dict[str, Any] = field(default_factory=dict)
     """A command-driven replay of logs with encoders: ``gains`` (per log, the adapter's
     ``command_wheel_gains``), ``spread``
-    (:func:`~realitygap.diagnosis.actuation.actuation_spread`, or ``None``) and
-    ``tracking`` (:func:`~realitygap.diagnosis.actuation.wheel_tracking`); else empty."""
+    (:func:`~realitygap.diagnosis.adapters.diffdrive.actuation.actuation_spread`, or ``None``) and
+    ``tracking`` (:func:`~realitygap.diagnosis.adapters.diffdrive.actuation.wheel_tracking`); else empty."""
 
     @property
     def chosen(self) -> ModelFit | None:
@@ -550,8 +555,8 @@ def coverage_report(
     problem: Problem, judgement: Judgement, settings: CoverageSettings | None
 ) -> Coverage | None:
     """Whether the held-out motions lie within the training's
-    (:func:`~realitygap.diagnosis.coverage.training_coverage`), for the best model of
-    ``judgement``. :func:`~realitygap.diagnosis.verdict.conclude` puts it in the verdict's
+    (:func:`~realitygap.diagnosis.stages.coverage.training_coverage`), for the best model of
+    ``judgement``. :func:`~realitygap.diagnosis.verdict.rules.conclude` puts it in the verdict's
     words when no effect is named and what remains gathers beyond the training
     (:attr:`Coverage.beyond_training`)."""
     if settings is None or problem.holdout.n == 0 or problem.train.n == 0:

@@ -1,7 +1,7 @@
 r"""``realitygap calibrate umbmark``: Borenstein's UMBmark on recorded square runs.
 
 Each session folder (OptiOdom layout, see
-:mod:`realitygap.diagnosis.importers.optiodom`) holds squares of side ``L``
+:mod:`realitygap.diagnosis.logs.importers.optiodom`) holds squares of side ``L``
 driven clockwise and counter-clockwise, with wheel ticks and the ground-truth
 pose. Per session the end-pose errors ``ε = absolute − odometry`` (nominal
 kinematics of that session) give
@@ -192,7 +192,7 @@ def calibrate_session(folder: str | Path, side_length: float | None = None) -> S
         If the session is not a square session, has no side length, or does not
         hold runs in both directions.
     """
-    from realitygap.diagnosis.importers.optiodom import PathType, read_session
+    from realitygap.diagnosis.logs.importers.optiodom import PathType, read_session
     from realitygap.estimators.umbmark import UMBmarkRun, umbmark_from_runs
 
     folder = Path(folder)

@@ -240,7 +240,7 @@ def run(
         result["data"] = dict(ctx.data_used)
     result["wall_seconds"] = time.perf_counter() - start
     if report_dir is not None and ctx.diagnoses:
-        from realitygap.diagnosis.report import write_reports
+        from realitygap.diagnosis.report.writer import write_reports
 
         ctx.progress(f"writing the report into {report_dir}")
         result["report"] = str(

@@ -168,8 +168,8 @@ def arm002(ctx: RunContext) -> dict[str, Any]:
     data_subdir="ipa_ur10_lasertracker",
 )
 def arm_real(ctx: RunContext) -> dict[str, Any]:
-    from realitygap.diagnosis.importers.franka import read_franka_npz
-    from realitygap.diagnosis.importers.ur10 import read_ur10_dataset
+    from realitygap.diagnosis.logs.importers.franka import read_franka_npz
+    from realitygap.diagnosis.logs.importers.ur10 import read_ur10_dataset
     from realitygap.estimators.arm.calibration import calibrate_fr3, calibrate_ur10
 
     ur_root = ctx.data_subdir("ipa_ur10_lasertracker")

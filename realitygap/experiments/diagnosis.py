@@ -29,7 +29,12 @@ GOALS = {
 def diagnose_suite(ctx: RunContext) -> dict[str, Any]:
     from realitygap.core.parallel import make_backend
     from realitygap.core.progress import Progress
-    from realitygap.diagnosis.suite import SuiteSettings, draw_cases, run_suite, summarise
+    from realitygap.diagnosis.validation.suite import (
+        SuiteSettings,
+        draw_cases,
+        run_suite,
+        summarise,
+    )
 
     n = int(ctx.options.get("cases", 12 if ctx.quick else 48))
     robot = str(ctx.options.get("robot", "diffdrive"))
@@ -84,7 +89,7 @@ def diagnose_suite(ctx: RunContext) -> dict[str, Any]:
 
 
 def _optiodom_groups(ctx: RunContext) -> dict[str, list[Any]]:
-    from realitygap.diagnosis.io import logs_from_optiodom
+    from realitygap.diagnosis.logs.read import logs_from_optiodom
 
     root = ctx.data_subdir("optiodom_diffdrive")
     logs = logs_from_optiodom(root)
@@ -147,7 +152,7 @@ def _umbmark_on_logs(logs: list[Any], reference: dict[str, float]) -> dict[str, 
     from pathlib import Path
 
     from realitygap.calibrate import calibrate_session
-    from realitygap.diagnosis.importers.optiodom import read_session
+    from realitygap.diagnosis.logs.importers.optiodom import read_session
     from realitygap.estimators.umbmark import UMBmarkRun, umbmark_from_runs
 
     d_ref = reference["wheel_radius_left"] + reference["wheel_radius_right"]
@@ -193,7 +198,7 @@ def _umbmark_heldout(d: Any, e_b: float, e_d: float) -> dict[str, float]:
     response), the same PyBullet replays, the classical
     calibration's two factors (``wheelbase_error.E_b``, ``wheel_diameter_ratio.E_d``;
     UMBmark keeps the mean wheel diameter, as the diameter ratio does)."""
-    from realitygap.diagnosis.shrink import trajectory_gap
+    from realitygap.diagnosis.problem.shrink import trajectory_gap
 
     problem = d.problem
     values = {
@@ -233,7 +238,7 @@ def _geometry_found(d: Any) -> dict[str, Any]:
 
 
 def _reach_figures(d: Any, prefix: str) -> dict[str, Any]:
-    """The library reach of an unexplained verdict (:mod:`realitygap.diagnosis.reach`): the
+    """The library reach of an unexplained verdict (:mod:`realitygap.diagnosis.stages.reach`): the
     single effect that closes most of the held-out gap fitted on the held-out windows
     themselves, and how much."""
     reach = d.verdict.notes.get("reach")
@@ -283,9 +288,9 @@ def _real_diagnoses(
     from realitygap.core.parallel import ProcessBackend
     from realitygap.diagnosis.cli import estimate_seconds
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-    from realitygap.diagnosis.shrink import concentrated_gap
-    from realitygap.diagnosis.summary import stage_split
-    from realitygap.diagnosis.verdict import explain
+    from realitygap.diagnosis.problem.shrink import concentrated_gap
+    from realitygap.diagnosis.report.summary import stage_split
+    from realitygap.diagnosis.verdict.rules import explain
 
     backend = ProcessBackend(ctx.options.get("workers"))
     ctx.expect(
@@ -555,12 +560,12 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
     figures ``ur10_top_effects`` and ``ur10_shrink_pct``.
     """
     from realitygap.core.parallel import ProcessBackend
-    from realitygap.diagnosis.adapters import ADAPTERS
-    from realitygap.diagnosis.arm_adapter import ArmAdapter
-    from realitygap.diagnosis.arm_aliases import identify_window_geometry
+    from realitygap.diagnosis.adapters.arm.adapter import ArmAdapter
+    from realitygap.diagnosis.adapters.arm.aliases import identify_window_geometry
+    from realitygap.diagnosis.adapters.registry import ADAPTERS
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-    from realitygap.diagnosis.io import logs_from_ur10
-    from realitygap.diagnosis.verdict import explain
+    from realitygap.diagnosis.logs.read import logs_from_ur10
+    from realitygap.diagnosis.verdict.rules import explain
 
     logs = logs_from_ur10(ctx.data_subdir("ipa_ur10_lasertracker"))
     if len(logs) < 2:
@@ -683,9 +688,9 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
 )
 def diagnose_bench(ctx: RunContext) -> dict[str, Any]:
     from realitygap.core.parallel import ProcessBackend, SerialBackend
+    from realitygap.diagnosis.adapters.diffdrive.manoeuvres import MANOEUVRES
+    from realitygap.diagnosis.adapters.diffdrive.replay import MeasurementNoise, simulate
     from realitygap.diagnosis.diagnose import diagnose
-    from realitygap.diagnosis.manoeuvres import MANOEUVRES
-    from realitygap.diagnosis.replay import MeasurementNoise, simulate
     from realitygap.robots.diffdrive import DiffDriveParams
     from realitygap.robots.effects import Reality, make_effect
 

@@ -4,7 +4,7 @@ For each case of :mod:`realitygap.independent.cases` the independent simulator
 (:mod:`realitygap.independent`) writes training and held-out sessions in the
 recorded-data formats (OptiOdom folders for the differential drive, UR10
 laser-tracker series for the arm) into a temporary folder; they are read back
-with the package's importers (:func:`~realitygap.diagnosis.io.read_logs`) and
+with the package's importers (:func:`~realitygap.diagnosis.logs.read.read_logs`) and
 diagnosed as ``realitygap diagnose`` does, without the truth.
 
 Scoring
@@ -14,7 +14,7 @@ top-1 (in-library cases)
     (:attr:`~realitygap.independent.cases.Case.accepted`), and the top-ranked
     model is one of them (for a verdict drawn from the training alone, whose held-out
     windows show no gap to rank by, the training's best model:
-    :func:`~realitygap.diagnosis.verdict.training_gap`). A verdict that adds an effect
+    :func:`~realitygap.diagnosis.verdict.rules.training_gap`). A verdict that adds an effect
     the case does not accept is wrong.
 open set (out-of-library cases)
     *strict*: the verdict is ``"unexplained"``; *lenient*: ``"unexplained"``,
@@ -25,7 +25,7 @@ false attribution
 top-1, alias-aware (in-library cases)
     As strict top-1, or the verdict is "X or Y (aliases on this data)" and one
     of its alternatives names only accepted effects
-    (:func:`~realitygap.diagnosis.verdict.verdict_alternatives`); a separate
+    (:func:`~realitygap.diagnosis.verdict.rules.verdict_alternatives`); a separate
     column, so that an alias verdict is never counted as a strict hit.
 held-out shrink
     ``gap["heldout_shrink_pct_best"]`` of the diagnosis, median over in-library cases.
@@ -193,13 +193,13 @@ def _missed(row: dict[str, Any]) -> bool:
 def _read(path: Path, refused: list[str]) -> list[Any]:
     """The logs of ``path``, read as ``realitygap diagnose`` reads them.
 
-    The importer's plausibility check (:func:`~realitygap.diagnosis.io.check_plausible`) is
+    The importer's plausibility check (:func:`~realitygap.diagnosis.logs.read.check_plausible`) is
     run on each log; a log it refuses is kept (the files are written in their declared
     units) and the refusal is appended to ``refused`` — what a user would read before
     passing ``--no-plausibility-check``.
     """
-    from realitygap.diagnosis.io import ReadOptions, check_plausible, read_logs
-    from realitygap.diagnosis.log import LogError
+    from realitygap.diagnosis.logs.log import LogError
+    from realitygap.diagnosis.logs.read import ReadOptions, check_plausible, read_logs
 
     logs = read_logs(path, ReadOptions(check_plausible=False))
     for lg in logs:
@@ -212,7 +212,7 @@ def _read(path: Path, refused: list[str]) -> list[Any]:
 
 def score(case: Any, d: Any, drive: str = "commands", **extra: float) -> dict[str, Any]:
     """Score a diagnosis ``d`` of ``case`` replayed with ``drive`` (see the module notes)."""
-    from realitygap.diagnosis.verdict import verdict_alternatives
+    from realitygap.diagnosis.verdict.rules import verdict_alternatives
 
     v = d.verdict
     named = list(v.effects) if v.kind == "effects" else []
@@ -275,7 +275,7 @@ def _median(xs: list[float]) -> float:
 )
 def diagnose_independent(ctx: RunContext) -> dict[str, Any]:
     from realitygap.core.parallel import ProcessBackend
-    from realitygap.diagnosis.adapters import close_adapters
+    from realitygap.diagnosis.adapters.registry import close_adapters
     from realitygap.independent.cases import CASES, QUICK, case_by_name
     from realitygap.independent.variants import variant_by_name
 

@@ -65,7 +65,7 @@ def umbmark_real_calibration(
         If ``root`` holds no square session or no other session.
     """
     from realitygap.calibrate import calibrate_session
-    from realitygap.diagnosis.importers.optiodom import PathType, find_sessions, read_session
+    from realitygap.diagnosis.logs.importers.optiodom import PathType, find_sessions, read_session
 
     sessions = [read_session(p) for p in find_sessions(root)]
     squares = [s for s in sessions if s.path_type is PathType.SQUARE]

@@ -6,7 +6,7 @@ height. The blind ranges are realistic magnitudes: sag of 2.5–10 cm at 5 m, an
 anchor surveyed 1–4 cm off, a spool scale off by 0.4–1.5 %, a skirt worn by
 2–8 mm. A tether stretch reads exactly like a spool-scale error and has no
 blind range of its own; the IMU biases and the surface deviation do not show
-in tether and ride-height logs (see :mod:`~realitygap.diagnosis.climb_adapter`).
+in tether and ride-height logs (see :mod:`~realitygap.diagnosis.adapters.climber.adapter`).
 """
 
 from __future__ import annotations

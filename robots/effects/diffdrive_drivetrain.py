@@ -261,7 +261,7 @@ class MotorResponse(Effect):
     per wheel: every start and stop is softened alike and the robot does not
     yaw. It is the actuator response of the nominal that every real drive has,
     so it stays outside the default library: the calibrated baseline fits it as
-    a convention of the drive (:meth:`~realitygap.diagnosis.diffdrive_adapter.DiffDriveAdapter.baseline_nuisances`).
+    a convention of the drive (:meth:`~realitygap.diagnosis.adapters.diffdrive.adapter.DiffDriveAdapter.baseline_nuisances`).
     Wheels that answer with *different* time constants are the effect
     ``wheel_velocity_lag``. The same law as that effect (one recursion).
     """

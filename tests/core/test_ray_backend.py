@@ -31,9 +31,9 @@ def test_small_diagnose_suite_equals_the_process_backend(local_cluster) -> None:
     """Two blind cases (hidden effects realised in PyBullet, then diagnosed) on each backend;
     a small candidate library and single effects keep it quick."""
     from realitygap.core.parallel import ProcessBackend, RayBackend
-    from realitygap.diagnosis.attribute import AttributionSettings
     from realitygap.diagnosis.diagnose import DiagnosisSettings
-    from realitygap.diagnosis.suite import SuiteSettings, draw_cases, run_suite
+    from realitygap.diagnosis.problem.problem import AttributionSettings
+    from realitygap.diagnosis.validation.suite import SuiteSettings, draw_cases, run_suite
 
     settings = SuiteSettings(
         diagnosis=DiagnosisSettings(

@@ -8,7 +8,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.attribute import ModelFit
+from realitygap.diagnosis.fit.model import ModelFit
 
 
 def _model_fit(

@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from realitygap.diagnosis.adapters import (
+from realitygap.diagnosis.adapters.climber.adapter import BladeScenes, replay_heights
+from realitygap.diagnosis.adapters.registry import (
     ADAPTER_CLASSES,
     feature_group,
     get_adapter,
     known_robots,
 )
-from realitygap.diagnosis.climb_adapter import BladeScenes, replay_heights
-from realitygap.diagnosis.features import FeatureSettings
-from realitygap.diagnosis.log import standard_channels
+from realitygap.diagnosis.logs.log import standard_channels
+from realitygap.diagnosis.problem.features import FeatureSettings
 from realitygap.robots.climber import ClimberParams, chart_pose
 
 

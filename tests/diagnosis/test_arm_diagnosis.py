@@ -8,8 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.adapters import get_adapter, reality_from_values
-from realitygap.diagnosis.arm_adapter import (
+from realitygap.diagnosis.adapters.arm.adapter import (
     backlash_directions,
     known_direction_poses,
     probe_positions,
@@ -19,13 +18,15 @@ from realitygap.diagnosis.arm_adapter import (
     surrogate_points,
     tool_distance_features,
 )
+from realitygap.diagnosis.adapters.diffdrive.replay import Drive
+from realitygap.diagnosis.adapters.registry import get_adapter
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-from realitygap.diagnosis.features import FeatureSettings
-from realitygap.diagnosis.io import read_logs
-from realitygap.diagnosis.log import Log, LogError
-from realitygap.diagnosis.replay import Drive
-from realitygap.diagnosis.suite import SuiteSettings, draw_cases
-from realitygap.diagnosis.summary import summary_sentences
+from realitygap.diagnosis.logs.log import Log, LogError
+from realitygap.diagnosis.logs.read import read_logs
+from realitygap.diagnosis.problem.features import FeatureSettings
+from realitygap.diagnosis.problem.parameters import reality_from_values
+from realitygap.diagnosis.report.summary import summary_sentences
+from realitygap.diagnosis.validation.suite import SuiteSettings, draw_cases
 from realitygap.estimators.arm.mdh import MDHTable, tool_positions
 from realitygap.robots.arm import ArmParams
 from realitygap.robots.effects import Reality, make_effect
@@ -331,7 +332,7 @@ def test_the_tolerance_set_is_what_distances_identify() -> None:
 
 
 def test_many_small_geometric_errors_are_identified_on_the_windows() -> None:
-    from realitygap.diagnosis.arm_aliases import identify_window_geometry
+    from realitygap.diagnosis.adapters.arm.aliases import identify_window_geometry
     from realitygap.robots.effects.arm import GEOMETRIC_TOLERANCE_PARAMS
 
     rng = np.random.default_rng(11)
@@ -351,7 +352,7 @@ def test_many_small_geometric_errors_are_identified_on_the_windows() -> None:
 
 
 def test_aliases_are_stated_with_the_measured_correlation() -> None:
-    from realitygap.diagnosis.arm_aliases import AliasGroup, measure_aliases
+    from realitygap.diagnosis.adapters.arm.aliases import AliasGroup, measure_aliases
 
     prepared = _prepared(None, seed=4, n=40)
     adapter = get_adapter("arm")

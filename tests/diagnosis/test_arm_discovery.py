@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.arm_adapter import arm_params_to_meta
-from realitygap.diagnosis.arm_discovery import discover_arm, pair_terms
+from realitygap.diagnosis.adapters.arm.adapter import arm_params_to_meta
+from realitygap.diagnosis.adapters.arm.discovery import discover_arm, pair_terms
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-from realitygap.diagnosis.log import Log
+from realitygap.diagnosis.logs.log import Log
 from realitygap.estimators.arm.mdh import MDHTable, tool_positions
 from realitygap.robots.arm import ArmParams
 
@@ -93,10 +93,10 @@ def test_noise_alone_is_no_gap_and_no_finding() -> None:
 
 
 def test_the_noise_floor_grows_with_the_fitted_parameters() -> None:
-    from realitygap.diagnosis.adapters import get_adapter
-    from realitygap.diagnosis.arm_aliases import fit_noise_inflation
-    from realitygap.diagnosis.features import FeatureSettings
-    from realitygap.diagnosis.replay import Drive
+    from realitygap.diagnosis.adapters.arm.aliases import fit_noise_inflation
+    from realitygap.diagnosis.adapters.diffdrive.replay import Drive
+    from realitygap.diagnosis.adapters.registry import get_adapter
+    from realitygap.diagnosis.problem.features import FeatureSettings
 
     rng = np.random.default_rng(4)
     adapter = get_adapter("arm")

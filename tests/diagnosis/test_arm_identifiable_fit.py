@@ -5,15 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.adapters import get_adapter
-from realitygap.diagnosis.arm_adapter import record_arm_log
-from realitygap.diagnosis.attribute import AttributionSettings, Problem, fit_model
-from realitygap.diagnosis.features import FeatureSettings
-from realitygap.diagnosis.identifiability import dependent_parameters
-from realitygap.diagnosis.log import Log
-from realitygap.diagnosis.parameters import model_keys
-from realitygap.diagnosis.replay import Drive
-from realitygap.diagnosis.verdict import parameter_status
+from realitygap.diagnosis.adapters.arm.adapter import record_arm_log
+from realitygap.diagnosis.adapters.diffdrive.replay import Drive
+from realitygap.diagnosis.adapters.registry import get_adapter
+from realitygap.diagnosis.fit.identifiability import dependent_parameters
+from realitygap.diagnosis.fit.model import fit_model
+from realitygap.diagnosis.logs.log import Log
+from realitygap.diagnosis.problem.features import FeatureSettings
+from realitygap.diagnosis.problem.parameters import model_keys
+from realitygap.diagnosis.problem.problem import AttributionSettings, Problem
+from realitygap.diagnosis.verdict.rules import parameter_status
 from realitygap.estimators.arm.identification import IdentificationSettings, identify
 from realitygap.estimators.arm.mdh import tool_positions
 from realitygap.estimators.arm.residuals import PairObservations, ResidualMode
@@ -80,7 +81,7 @@ def test_a_still_wrist_leaves_what_the_kinematic_identification_leaves(
     # pairs of the training windows
     p = next(x for x in frozen_wrist.logs if x.split == "train")
     pts = np.asarray(p.log["tool_pos"], dtype=float)[p.context.rows]
-    from realitygap.diagnosis.arm_adapter import TOOL_DIST_PAIRS
+    from realitygap.diagnosis.adapters.arm.adapter import TOOL_DIST_PAIRS
 
     ij = np.array([(a + i, a + j) for a, _ in p.bounds for i, j in TOOL_DIST_PAIRS])
     obs = PairObservations(

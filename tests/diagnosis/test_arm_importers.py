@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.importers.franka import read_franka_npz
-from realitygap.diagnosis.importers.ur10 import (
+from realitygap.diagnosis.logs.importers.franka import read_franka_npz
+from realitygap.diagnosis.logs.importers.ur10 import (
     read_transform_txt,
     read_ur10_dataset,
     read_ur10_measurements,

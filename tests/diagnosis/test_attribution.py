@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.attribute import AttributionSettings
+from realitygap.diagnosis.adapters.diffdrive.manoeuvres import Manoeuvre
+from realitygap.diagnosis.adapters.diffdrive.replay import MeasurementNoise, simulate
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-from realitygap.diagnosis.manoeuvres import Manoeuvre
-from realitygap.diagnosis.replay import MeasurementNoise, simulate
+from realitygap.diagnosis.problem.problem import AttributionSettings
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import Reality, make_effect
 
@@ -117,8 +117,8 @@ def test_one_turning_direction_cannot_separate_eb_from_ed() -> None:
 
 # --------------------------------------------------------------------------- residual structure
 def _regime_layout(n: int, busy_every: int = 4) -> tuple[object, np.ndarray]:
-    from realitygap.diagnosis.attribute import Layout
-    from realitygap.diagnosis.features import FeatureGroup, FeatureSchema
+    from realitygap.diagnosis.problem.features import FeatureGroup, FeatureSchema
+    from realitygap.diagnosis.problem.problem import Layout
 
     schema = FeatureSchema(
         groups=(FeatureGroup("pose_gt", ("dtheta",), ("rad",), (0.002,)),),
@@ -139,8 +139,8 @@ def _regime_layout(n: int, busy_every: int = 4) -> tuple[object, np.ndarray]:
 
 
 def test_a_regime_that_only_scatters_more_is_not_structure() -> None:
-    from realitygap.diagnosis.features import FeatureSettings
-    from realitygap.diagnosis.residual import describe_residual
+    from realitygap.diagnosis.problem.features import FeatureSettings
+    from realitygap.diagnosis.problem.residual import describe_residual
 
     lay, busy = _regime_layout(800)
     rng = np.random.default_rng(3)

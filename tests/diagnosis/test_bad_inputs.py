@@ -19,9 +19,9 @@ from realitygap.core.checks import (
     parse_json_option,
 )
 from realitygap.diagnosis.cli import main
-from realitygap.diagnosis.importers.csv_log import read_csv_log, regularise_rounded_time
-from realitygap.diagnosis.io import ReadOptions, check_plausible, read_logs, resample_split
-from realitygap.diagnosis.log import Log, LogError
+from realitygap.diagnosis.logs.importers.csv_log import read_csv_log, regularise_rounded_time
+from realitygap.diagnosis.logs.log import Log, LogError
+from realitygap.diagnosis.logs.read import ReadOptions, check_plausible, read_logs, resample_split
 
 CSV_MAP = "t=time:s,cmd.v=v,cmd.w=w,pose_gt.x=x,pose_gt.y=y,pose_gt.theta=yaw"
 
@@ -309,7 +309,7 @@ def test_training_and_benchmark_counts(argv: list[str], message: str, capsys) ->
 
 
 def test_optiodom_run_cut_inside_its_last_field(tmp_path: Path) -> None:
-    from realitygap.diagnosis.importers.numeric_text import numeric_file
+    from realitygap.diagnosis.logs.importers.numeric_text import numeric_file
 
     cols = ("time", "x", "y", "theta", "ticks_right", "ticks_left")
     rows = [f"{0.05 * k:.2f},0.1,0.2,0.3,51,66" for k in range(30)]
@@ -340,7 +340,7 @@ def test_gap_limit_can_be_raised(monkeypatch) -> None:
 
 
 def test_ur10_file_with_a_renamed_column_names_it(tmp_path: Path) -> None:
-    from realitygap.diagnosis.importers.ur10 import REQUIRED_COLUMNS
+    from realitygap.diagnosis.logs.importers.ur10 import REQUIRED_COLUMNS
 
     cols = ["Timestamp", *(c if c != "measurement_x" else "meas_x" for c in REQUIRED_COLUMNS)]
     f = tmp_path / "measurements_1.csv"
@@ -354,7 +354,7 @@ def test_ur10_file_with_a_renamed_column_names_it(tmp_path: Path) -> None:
 
 
 def test_fifo_inside_a_session_folder_is_refused(tmp_path: Path) -> None:
-    from realitygap.diagnosis.importers.numeric_text import read_text_lines
+    from realitygap.diagnosis.logs.importers.numeric_text import read_text_lines
 
     f = tmp_path / "s_run-01.csv"
     os.mkfifo(f)

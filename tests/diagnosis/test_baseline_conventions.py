@@ -7,13 +7,17 @@ from typing import Any
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.attribute import AttributionSettings
-from realitygap.diagnosis.baseline import Baseline
+from realitygap.diagnosis.adapters.diffdrive.adapter import DiffDriveAdapter
+from realitygap.diagnosis.adapters.diffdrive.manoeuvres import Manoeuvre
+from realitygap.diagnosis.adapters.diffdrive.replay import (
+    MeasurementNoise,
+    applied_commands,
+    simulate,
+)
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-from realitygap.diagnosis.diffdrive_adapter import DiffDriveAdapter
-from realitygap.diagnosis.log import Log, LogError
-from realitygap.diagnosis.manoeuvres import Manoeuvre
-from realitygap.diagnosis.replay import MeasurementNoise, applied_commands, simulate
+from realitygap.diagnosis.logs.log import Log, LogError
+from realitygap.diagnosis.problem.problem import AttributionSettings
+from realitygap.diagnosis.stages.baseline import Baseline
 from realitygap.robots.diffdrive import DiffDriveParams, FirmwareLimits, ramp_step
 from realitygap.robots.effects import Reality, make_effect
 

@@ -8,13 +8,14 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from realitygap.diagnosis.attribute import AttributionSettings, _rho
+from realitygap.diagnosis.adapters.diffdrive.manoeuvres import Manoeuvre
+from realitygap.diagnosis.adapters.diffdrive.replay import MeasurementNoise, simulate
 from realitygap.diagnosis.diagnose import Diagnosis, DiagnosisSettings, diagnose
-from realitygap.diagnosis.log import Log, LogError
-from realitygap.diagnosis.manoeuvres import Manoeuvre
-from realitygap.diagnosis.replay import MeasurementNoise, simulate
-from realitygap.diagnosis.report import write_report
-from realitygap.diagnosis.transients import TransientSettings
+from realitygap.diagnosis.fit.model import _rho
+from realitygap.diagnosis.logs.log import Log, LogError
+from realitygap.diagnosis.problem.problem import AttributionSettings
+from realitygap.diagnosis.report.writer import write_report
+from realitygap.diagnosis.stages.transients import TransientSettings
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import EFFECTS, Reality, make_effect
 from realitygap.robots.effects.base import ParamSpec
@@ -216,7 +217,7 @@ def test_a_drive_train_that_scatters_from_window_to_window_is_noise_not_a_gap(
 ) -> None:
     # no effect: the wheels only wander around their commands, as the encoders show, so
     # the command replay's heading residual is noise no fixed effect could close
-    from realitygap.diagnosis.residual import above_sample_noise
+    from realitygap.diagnosis.problem.residual import above_sample_noise
 
     rng = np.random.default_rng(12)
     train = [_jittered(LOOP, rng), _jittered(ARCS, rng)]

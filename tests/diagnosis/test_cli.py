@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from realitygap.core.parallel import ProcessBackend, RayBackend
+from realitygap.diagnosis.adapters.diffdrive.manoeuvres import Manoeuvre
+from realitygap.diagnosis.adapters.diffdrive.replay import MeasurementNoise, simulate
 from realitygap.diagnosis.cli import main
-from realitygap.diagnosis.manoeuvres import Manoeuvre
-from realitygap.diagnosis.replay import MeasurementNoise, simulate
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import Reality, make_effect
 
@@ -109,7 +109,7 @@ def test_bad_input_is_refused_and_nothing_is_written(saved_logs, tmp_path, capsy
 
 
 def test_jittery_log_is_refused_with_the_resample_fix(saved_logs, tmp_path, capsys) -> None:
-    from realitygap.diagnosis.log import Log
+    from realitygap.diagnosis.logs.log import Log
 
     log = Log.load(saved_logs[0])
     rng = np.random.default_rng(0)

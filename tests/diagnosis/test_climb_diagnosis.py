@@ -6,14 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.climb_adapter import (
+from realitygap.diagnosis.adapters.climber.adapter import (
     climber_params_to_meta,
     heights_above_cad,
     record_climber_logs,
     tether_model,
 )
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-from realitygap.diagnosis.log import Log, LogError
+from realitygap.diagnosis.logs.log import Log, LogError
 from realitygap.robots.climber import ClimberParams, ClimbFaults
 from realitygap.robots.climber_sensors import TetherModel
 from realitygap.robots.effects import Reality, make_effect

@@ -7,13 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.attribute import AttributionSettings, Layout
-from realitygap.diagnosis.clock import ClockSettings, restamp, timing_channel
+from realitygap.diagnosis.adapters.diffdrive.manoeuvres import Manoeuvre
+from realitygap.diagnosis.adapters.diffdrive.replay import MeasurementNoise, simulate
 from realitygap.diagnosis.diagnose import Diagnosis, DiagnosisSettings, diagnose
-from realitygap.diagnosis.log import Log
-from realitygap.diagnosis.manoeuvres import Manoeuvre
-from realitygap.diagnosis.replay import MeasurementNoise, simulate
-from realitygap.diagnosis.scales import ScaleSettings, window_timing
+from realitygap.diagnosis.logs.log import Log
+from realitygap.diagnosis.problem.problem import AttributionSettings, Layout
+from realitygap.diagnosis.stages.clock import ClockSettings, restamp, timing_channel
+from realitygap.diagnosis.stages.scales import ScaleSettings, window_timing
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import Reality, make_effect
 
@@ -195,7 +195,7 @@ def _independent_sessions(root: Path, seed: int) -> None:
 
 @pytest.mark.slow
 def test_independent_generator_geometry_with_clock_skews(tmp_path: Path) -> None:
-    from realitygap.diagnosis.io import logs_from_optiodom
+    from realitygap.diagnosis.logs.read import logs_from_optiodom
 
     _independent_sessions(tmp_path, seed=5)
     logs = logs_from_optiodom(tmp_path)
@@ -217,7 +217,7 @@ def test_independent_generator_geometry_with_clock_skews(tmp_path: Path) -> None
 
 # --------------------------------------------------------------------------- two scales
 def _layout(n_logs: int, n_win: int, k: int) -> Layout:
-    from realitygap.diagnosis.diffdrive_adapter import DIFFDRIVE_SCHEMA
+    from realitygap.diagnosis.adapters.diffdrive.adapter import DIFFDRIVE_SCHEMA
 
     log = np.repeat(np.arange(n_logs), n_win * k)
     window = np.tile(np.repeat(np.arange(n_win), k), n_logs)

@@ -9,21 +9,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.attribute import AttributionSettings
-from realitygap.diagnosis.coverage import (
+from realitygap.diagnosis.adapters.diffdrive.manoeuvres import Manoeuvre
+from realitygap.diagnosis.adapters.diffdrive.replay import MeasurementNoise, simulate
+from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
+from realitygap.diagnosis.problem.problem import AttributionSettings
+from realitygap.diagnosis.problem.shrink import overall_shrink
+from realitygap.diagnosis.report.summary import summary_sentences
+from realitygap.diagnosis.report.writer import write_report
+from realitygap.diagnosis.stages.coverage import (
     CoverageSettings,
     motion_variables,
     planar_motion,
     training_coverage,
     wheel_speeds,
 )
-from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-from realitygap.diagnosis.manoeuvres import Manoeuvre
-from realitygap.diagnosis.replay import MeasurementNoise, simulate
-from realitygap.diagnosis.report import write_report
-from realitygap.diagnosis.shrink import overall_shrink
-from realitygap.diagnosis.summary import summary_sentences
-from realitygap.diagnosis.verdict import explain
+from realitygap.diagnosis.verdict.rules import explain
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import Reality, make_effect
 

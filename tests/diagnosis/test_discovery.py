@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.discovery import DiscoverySettings, fit_terms
+from realitygap.diagnosis.stages.discovery import DiscoverySettings, fit_terms
 
 NAMES = ["v", "w", "dv", "dw", "|v|", "sign_w", "v*w", "t"]
 UNITS = ["m/s", "rad/s", "m/s²", "rad/s²", "m/s", "", "m·rad/s²", "s"]

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.replay import simulate
+from realitygap.diagnosis.adapters.diffdrive.replay import simulate
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import (
     EFFECTS,
@@ -87,7 +87,8 @@ def test_every_effect_declares_typed_stage_channels_and_valid_blind_ranges() -> 
 
 
 def test_command_stage_effects_are_those_the_tick_drive_cannot_see() -> None:
-    from realitygap.diagnosis.adapters import Drive, get_adapter
+    from realitygap.diagnosis.adapters.contract import Drive
+    from realitygap.diagnosis.adapters.registry import get_adapter
 
     adapter = get_adapter("diffdrive")
     command = {n for n in adapter.effect_names() if EFFECTS[n].stage is Stage.COMMAND}
@@ -238,7 +239,7 @@ def test_timestamp_offset_shifts_ground_truth_only(straight) -> None:
 
 
 def test_effects_reach_the_env() -> None:
-    from realitygap.diagnosis.record import RecordLog
+    from realitygap.diagnosis.adapters.diffdrive.record import RecordLog
     from realitygap.envs.wheeled_nav import WheeledNavEnv
 
     reality = Reality(
@@ -312,12 +313,12 @@ def test_unequal_wheel_lags_yaw_the_robot_on_a_start_and_back_on_the_stop() -> N
 
 
 def test_motor_response_lags_both_wheels_alike_and_stays_a_baseline_nuisance() -> None:
-    from realitygap.diagnosis.diffdrive_adapter import (
+    from realitygap.diagnosis.adapters.diffdrive.adapter import (
         DRIVE_RESPONSE_FLOOR,
         TRUTH_LATENCY_FLOOR,
         DiffDriveAdapter,
     )
-    from realitygap.diagnosis.replay import Drive
+    from realitygap.diagnosis.adapters.diffdrive.replay import Drive
 
     plan = [(2.0, 0.3, 0.4), (2.0, 0.0, 0.0)]
     common = run(plan, ("motor_response", {"tau": 0.15}))

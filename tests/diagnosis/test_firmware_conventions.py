@@ -5,9 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.firmware import firmware_from_meta, fit_firmware_limits
-from realitygap.diagnosis.log import Log, LogError
-from realitygap.diagnosis.replay import MeasurementNoise, applied_commands, simulate
+from realitygap.diagnosis.adapters.diffdrive.firmware import (
+    firmware_from_meta,
+    fit_firmware_limits,
+)
+from realitygap.diagnosis.adapters.diffdrive.replay import (
+    MeasurementNoise,
+    applied_commands,
+    simulate,
+)
+from realitygap.diagnosis.logs.log import Log, LogError
 from realitygap.robots.diffdrive import (
     Deceleration,
     DiffDriveParams,
@@ -201,8 +208,8 @@ def test_limits_fit_without_encoders_or_firmware_is_empty() -> None:
 
 
 def test_baseline_states_the_fitted_limits() -> None:
-    from realitygap.diagnosis.baseline import Baseline
-    from realitygap.diagnosis.firmware import FirmwareFit
+    from realitygap.diagnosis.adapters.diffdrive.firmware import FirmwareFit
+    from realitygap.diagnosis.stages.baseline import Baseline
 
     fit = FirmwareFit("body/stop", accel_scale=0.77, decel_factor=1.8, n_rows=10)
     b = Baseline(convention="body/stop", convention_what="ramps", convention_limits=fit.to_json())

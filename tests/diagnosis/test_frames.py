@@ -9,7 +9,7 @@ import pytest
 
 from realitygap.core.geometry import reframe_recorded, reframe_track
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-from realitygap.diagnosis.frames import align_frames, frame_channel
+from realitygap.diagnosis.stages.frames import align_frames, frame_channel
 
 
 def _track() -> np.ndarray:
@@ -75,7 +75,7 @@ def _sessions(root: Path, seed: int) -> dict[str, np.ndarray]:
 
 
 def test_each_session_keeps_its_own_rigid_body(tmp_path: Path) -> None:
-    from realitygap.diagnosis.io import logs_from_optiodom
+    from realitygap.diagnosis.logs.read import logs_from_optiodom
 
     twins = _sessions(tmp_path, seed=3)
     logs = logs_from_optiodom(tmp_path)
@@ -104,7 +104,7 @@ def test_each_session_keeps_its_own_rigid_body(tmp_path: Path) -> None:
         assert after < min(0.003, 0.4 * before), (name, before, after)
     assert "per-log frame alignment of pose_gt: 2 of" in d.baseline.summary()
     assert d.baseline.to_json()["frame_alignment"]["channel"] == "pose_gt"
-    from realitygap.diagnosis.report import write_report
+    from realitygap.diagnosis.report.writer import write_report
 
     write_report(d, tmp_path / "report")
     md = (tmp_path / "report" / "report.md").read_text()

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.importers.csv_log import ColumnMap, read_csv_log
-from realitygap.diagnosis.io import ReadOptions, read_logs
-from realitygap.diagnosis.log import LogError
+from realitygap.diagnosis.logs.importers.csv_log import ColumnMap, read_csv_log
+from realitygap.diagnosis.logs.log import LogError
+from realitygap.diagnosis.logs.read import ReadOptions, read_logs
 
 MAP = "t=time:ms,cmd.v=v:mm/s,cmd.w=w:deg/s,pose_gt.x=x:mm,pose_gt.y=y:mm,pose_gt.theta=yaw:deg"
 

@@ -8,7 +8,7 @@ import pickle
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.log import ChannelSpec, Log, LogError, Role, convert_units
+from realitygap.diagnosis.logs.log import ChannelSpec, Log, LogError, Role, convert_units
 
 
 def make_log(n: int = 50, seed: int = 0) -> Log:

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.importers.optiodom import (
+from realitygap.diagnosis.logs.importers.optiodom import (
     OptiOdomSession,
     PathType,
     find_sessions,

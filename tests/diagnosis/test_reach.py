@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from realitygap.core.parallel import SerialBackend
-from realitygap.diagnosis.attribute import AttributionSettings, Layout
-from realitygap.diagnosis.parameters import from_range_position, param_spec, range_position
-from realitygap.diagnosis.reach import WHERE, heldout_problem, library_reach
+from realitygap.diagnosis.problem.parameters import from_range_position, param_spec, range_position
+from realitygap.diagnosis.problem.problem import AttributionSettings, Layout
+from realitygap.diagnosis.stages.reach import WHERE, heldout_problem, library_reach
 
 
 def _layout(n: int, log: int) -> Layout:
@@ -28,7 +28,7 @@ def _layout(n: int, log: int) -> Layout:
 
 
 class _CapProblem:
-    """A stand-in for :class:`~realitygap.diagnosis.attribute.Problem`: a top speed
+    """A stand-in for :class:`~realitygap.diagnosis.problem.problem.Problem`: a top speed
     (``velocity_saturation.v_limit``) acts only in the held-out windows (log 1; the training,
     log 0, never drives that fast), so the training windows cannot see it. With ``outside``
     the held-out gap is a pattern no parameter changes (an effect outside the library)."""

@@ -16,12 +16,11 @@ import numpy as np
 import pytest
 
 from realitygap.core.parallel import SerialBackend
+from realitygap.diagnosis.adapters.diffdrive.manoeuvres import Manoeuvre
+from realitygap.diagnosis.adapters.diffdrive.replay import MeasurementNoise, simulate
 from realitygap.diagnosis.diagnose import Diagnosis, DiagnosisSettings, diagnose
-from realitygap.diagnosis.manoeuvres import Manoeuvre
-from realitygap.diagnosis.replay import MeasurementNoise, simulate
-from realitygap.diagnosis.report import write_report, write_reports
-from realitygap.diagnosis.report_html import markdown_to_html
-from realitygap.diagnosis.summary import (
+from realitygap.diagnosis.report.html import markdown_to_html
+from realitygap.diagnosis.report.summary import (
     channel_name,
     quantity,
     ranking_by_shrink,
@@ -29,6 +28,7 @@ from realitygap.diagnosis.summary import (
     summary_sentences,
     value_words,
 )
+from realitygap.diagnosis.report.writer import write_report, write_reports
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import Reality, make_effect
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.log import Log
-from realitygap.diagnosis.shrink import concentrated_gap, trajectory_gap, trajectory_runs
+from realitygap.diagnosis.logs.log import Log
+from realitygap.diagnosis.problem.shrink import concentrated_gap, trajectory_gap, trajectory_runs
 
 
 def _track(name: str, n: int, offset: tuple[float, float] = (0.0, 0.0)) -> Log:

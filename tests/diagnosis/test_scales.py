@@ -11,16 +11,16 @@ import numpy as np
 import pytest
 from scipy.stats import t as student_t
 
-from realitygap.diagnosis.attribute import Layout
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-from realitygap.diagnosis.report import write_report
-from realitygap.diagnosis.scales import ScaleSettings, run_bias
-from realitygap.diagnosis.summary import summary_sentences
-from realitygap.diagnosis.verdict import explain
+from realitygap.diagnosis.problem.problem import Layout
+from realitygap.diagnosis.report.summary import summary_sentences
+from realitygap.diagnosis.report.writer import write_report
+from realitygap.diagnosis.stages.scales import ScaleSettings, run_bias
+from realitygap.diagnosis.verdict.rules import explain
 
 
 def _layout(n_logs: int, n_win: int) -> Layout:
-    from realitygap.diagnosis.diffdrive_adapter import DIFFDRIVE_SCHEMA
+    from realitygap.diagnosis.adapters.diffdrive.adapter import DIFFDRIVE_SCHEMA
 
     cols = np.array(["dx", "dy", "dtheta"])
     log = np.repeat(np.arange(n_logs), n_win * 3)
@@ -123,7 +123,7 @@ def test_a_wandering_clock_moves_only_the_motion_capture() -> None:
 
 
 def test_a_drift_under_a_wandering_clock_is_named_on_whole_runs(tmp_path: Path) -> None:
-    from realitygap.diagnosis.io import logs_from_optiodom
+    from realitygap.diagnosis.logs.read import logs_from_optiodom
 
     _wandering_clock_sessions(tmp_path, seed=5, b_true=1.02)
     logs = logs_from_optiodom(tmp_path)
@@ -153,7 +153,7 @@ def test_a_drift_under_a_wandering_clock_is_named_on_whole_runs(tmp_path: Path) 
 def test_a_drift_under_a_fast_noisy_capture_is_named_in_the_windows_above_each_channels_noise(
     tmp_path: Path,
 ) -> None:
-    from realitygap.diagnosis.io import read_logs
+    from realitygap.diagnosis.logs.read import read_logs
     from realitygap.experiments.independent import generate_case
     from realitygap.independent.cases import case_by_name
 

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from realitygap.diagnosis.diagnose import Diagnosis, DiagnosisSettings, diagnose
-from realitygap.diagnosis.summary import stage_split, summary_sentences
+from realitygap.diagnosis.report.summary import stage_split, summary_sentences
 
 
 def _diagnose(root: Path, drive: str, **hidden: float) -> Diagnosis:
     import realitygap.independent.diffdrive as dd
-    from realitygap.diagnosis.io import logs_from_optiodom
+    from realitygap.diagnosis.logs.read import logs_from_optiodom
 
     rng = np.random.default_rng(11)
     robot = dd.DriveRobot()
@@ -66,7 +66,7 @@ def test_a_tick_driven_replay_has_no_command_stage(tmp_path: Path) -> None:
 def test_wheel_gains_say_whether_the_wheels_did_what_the_commands_asked(
     tmp_path: Path, hidden: dict[str, float], slower: bool
 ) -> None:
-    from realitygap.diagnosis.adapters import get_adapter
+    from realitygap.diagnosis.adapters.registry import get_adapter
 
     d = _diagnose(tmp_path, "commands", **hidden)
     adapter = get_adapter("diffdrive")
@@ -85,7 +85,7 @@ def test_wheel_gains_say_whether_the_wheels_did_what_the_commands_asked(
 def test_actuation_spread_is_cochrans_q() -> None:
     from scipy.stats import chi2
 
-    from realitygap.diagnosis.actuation import actuation_spread
+    from realitygap.diagnosis.adapters.diffdrive.actuation import actuation_spread
 
     rows = [
         {"log": "a", "turn_gain": 0.986, "turn_gain_se": 0.002},
@@ -138,7 +138,7 @@ def _prepared(name: str, split: str, n: int, v_max: float = 0.5) -> object:
 
 
 def test_wheel_tracking_compares_the_gain_beyond_the_training_with_the_training() -> None:
-    from realitygap.diagnosis.actuation import wheel_tracking
+    from realitygap.diagnosis.adapters.diffdrive.actuation import wheel_tracking
 
     rng = np.random.default_rng(3)
     dur = np.ones(40)
@@ -204,7 +204,7 @@ def test_a_wheel_capped_beyond_the_training_speeds_is_found_by_the_encoders(
     import dataclasses
 
     import realitygap.independent.diffdrive as dd
-    from realitygap.diagnosis.io import logs_from_optiodom
+    from realitygap.diagnosis.logs.read import logs_from_optiodom
 
     rng = np.random.default_rng(5)
     robot = dd.DriveRobot()
@@ -228,7 +228,7 @@ def test_a_wheel_capped_beyond_the_training_speeds_is_found_by_the_encoders(
         )
         results[label] = d.actuation["tracking"]
         if label == "capped":  # the report shows what the encoders say, with its table
-            from realitygap.diagnosis.report import _coverage_section
+            from realitygap.diagnosis.report.writer import _coverage_section
 
             text = "\n".join(_coverage_section(d))
             assert "What the encoders show: beyond the training's wheel speeds" in text

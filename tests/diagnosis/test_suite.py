@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.adapters import get_adapter
-from realitygap.diagnosis.suite import (
+from realitygap.diagnosis.adapters.registry import get_adapter
+from realitygap.diagnosis.validation.suite import (
     BlindCase,
     SuiteSettings,
     draw_cases,
@@ -81,8 +81,8 @@ def test_alias_aware_top1_is_reported_beside_the_strict_one() -> None:
 
 
 def test_verdict_alternatives_lists_the_model_then_its_aliases() -> None:
-    from realitygap.diagnosis.attribute import Verdict
-    from realitygap.diagnosis.verdict import verdict_alternatives
+    from realitygap.diagnosis.verdict.rules import verdict_alternatives
+    from realitygap.diagnosis.verdict.types import Verdict
 
     v = Verdict("effects", ("wheel_radius_scale",), "r", 1.0, "not identifiable", {})
     v.notes["aliases"] = [

@@ -13,16 +13,16 @@ import numpy as np
 import pytest
 
 from realitygap.core.geometry import wrap_angle
-from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-from realitygap.diagnosis.diffdrive_adapter import (
+from realitygap.diagnosis.adapters.diffdrive.adapter import (
     DiffDriveAdapter,
     DiffDriveContext,
     values_for_log,
 )
-from realitygap.diagnosis.features import FeatureSettings
-from realitygap.diagnosis.log import Log
-from realitygap.diagnosis.replay import SimSettings
-from realitygap.diagnosis.surrogate import DiffDriveSurrogate, SurrogateInputs
+from realitygap.diagnosis.adapters.diffdrive.replay import SimSettings
+from realitygap.diagnosis.adapters.diffdrive.surrogate import DiffDriveSurrogate, SurrogateInputs
+from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
+from realitygap.diagnosis.logs.log import Log
+from realitygap.diagnosis.problem.features import FeatureSettings
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import Reality, make_effect
 
@@ -138,7 +138,7 @@ def _independent_squares(root: Path, seed: int) -> tuple[list[Path], list[Path],
 @pytest.mark.slow
 def test_tick_replay_agrees_with_umbmark_on_the_same_squares(tmp_path: Path) -> None:
     from realitygap.calibrate import calibrate_session, pool_calibrations
-    from realitygap.diagnosis.io import logs_from_optiodom
+    from realitygap.diagnosis.logs.read import logs_from_optiodom
 
     squares, _, e_b_true, e_d_true = _independent_squares(tmp_path, seed=3)
     umb = pool_calibrations([calibrate_session(p) for p in squares])
@@ -186,7 +186,7 @@ def test_umbmark_replay_of_the_commands_keeps_the_command_replays_baseline(
     and actuator response carried over), and UMBmark's factors from the same squares close
     part of a wheelbase drift there too."""
     from realitygap.calibrate import calibrate_session, pool_calibrations
-    from realitygap.diagnosis.io import logs_from_optiodom
+    from realitygap.diagnosis.logs.read import logs_from_optiodom
     from realitygap.experiments.diagnosis import _umbmark_heldout
 
     squares, _, _, _ = _independent_squares(tmp_path, seed=4)
@@ -208,9 +208,9 @@ def test_umbmark_replay_of_the_commands_keeps_the_command_replays_baseline(
 
 @pytest.mark.slow
 def test_tick_replay_recovers_planted_factors_of_the_projects_own_generator() -> None:
-    from realitygap.diagnosis.diffdrive_adapter import DiffDriveAdapter
-    from realitygap.diagnosis.manoeuvres import MANOEUVRES
-    from realitygap.diagnosis.replay import simulate
+    from realitygap.diagnosis.adapters.diffdrive.adapter import DiffDriveAdapter
+    from realitygap.diagnosis.adapters.diffdrive.manoeuvres import MANOEUVRES
+    from realitygap.diagnosis.adapters.diffdrive.replay import simulate
 
     params = DiffDriveParams()
     reality = Reality(

@@ -9,13 +9,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from realitygap.diagnosis import arm_adapter
-from realitygap.diagnosis.adapters import get_adapter
-from realitygap.diagnosis.arm_adapter import record_arm_log
+from realitygap.diagnosis.adapters.arm import adapter as arm_adapter
+from realitygap.diagnosis.adapters.arm.adapter import record_arm_log
+from realitygap.diagnosis.adapters.registry import get_adapter
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-from realitygap.diagnosis.log import Log
-from realitygap.diagnosis.summary import summary_sentences
-from realitygap.diagnosis.verdict import explain
+from realitygap.diagnosis.logs.log import Log
+from realitygap.diagnosis.report.summary import summary_sentences
+from realitygap.diagnosis.verdict.rules import explain
 from realitygap.robots.effects import Reality, make_effect
 
 

@@ -10,12 +10,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.attribute import AttributionSettings, ModelFit, Verdict
-from realitygap.diagnosis.discovery import discover
-from realitygap.diagnosis.features import FeatureGroup, FeatureSchema
-from realitygap.diagnosis.identifiability import probe_description
-from realitygap.diagnosis.manoeuvres import MANOEUVRES, PROBE_MANOEUVRES
-from realitygap.diagnosis.verdict import (
+from realitygap.diagnosis.adapters.diffdrive.manoeuvres import MANOEUVRES, PROBE_MANOEUVRES
+from realitygap.diagnosis.fit.identifiability import probe_description
+from realitygap.diagnosis.fit.model import ModelFit
+from realitygap.diagnosis.problem.features import FeatureGroup, FeatureSchema
+from realitygap.diagnosis.problem.problem import AttributionSettings
+from realitygap.diagnosis.stages.discovery import discover
+from realitygap.diagnosis.verdict.rules import (
     Judgement,
     alias_notes,
     dominant_single,
@@ -27,6 +28,7 @@ from realitygap.diagnosis.verdict import (
     run_discovery,
     unsingled_partner,
 )
+from realitygap.diagnosis.verdict.types import Verdict
 from realitygap.robots.diffdrive import DiffDriveParams
 
 SCHEMA = FeatureSchema(
@@ -383,9 +385,9 @@ def test_hard_starts_for_a_half_metre_per_second_robot() -> None:
 
 # --------------------------------------------------------------------------- end to end
 def _diagnose(reality_effect, train, holdout, effects, seed):
+    from realitygap.diagnosis.adapters.diffdrive.manoeuvres import Manoeuvre
+    from realitygap.diagnosis.adapters.diffdrive.replay import MeasurementNoise, simulate
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-    from realitygap.diagnosis.manoeuvres import Manoeuvre
-    from realitygap.diagnosis.replay import MeasurementNoise, simulate
     from realitygap.robots.effects import Reality
 
     p = DiffDriveParams()
@@ -460,10 +462,10 @@ def test_in_library_verdict_is_kept_and_open_set_residual_is_described() -> None
 
 
 def test_wheeled_term_library_follows_the_commands() -> None:
-    from realitygap.diagnosis.adapters import get_adapter
-    from realitygap.diagnosis.features import FeatureSettings
-    from realitygap.diagnosis.manoeuvres import Manoeuvre
-    from realitygap.diagnosis.replay import Drive, MeasurementNoise, simulate
+    from realitygap.diagnosis.adapters.diffdrive.manoeuvres import Manoeuvre
+    from realitygap.diagnosis.adapters.diffdrive.replay import Drive, MeasurementNoise, simulate
+    from realitygap.diagnosis.adapters.registry import get_adapter
+    from realitygap.diagnosis.problem.features import FeatureSettings
 
     p = DiffDriveParams()
     t, cmd = Manoeuvre("m", "m", ARCS, ramp=False).applied(0.05, p)
@@ -490,10 +492,10 @@ def test_wheeled_term_library_follows_the_commands() -> None:
 
 
 def test_arm_term_library_has_every_joint() -> None:
-    from realitygap.diagnosis.adapters import get_adapter
-    from realitygap.diagnosis.arm_adapter import record_arm_log
-    from realitygap.diagnosis.features import FeatureSettings
-    from realitygap.diagnosis.replay import Drive
+    from realitygap.diagnosis.adapters.arm.adapter import record_arm_log
+    from realitygap.diagnosis.adapters.diffdrive.replay import Drive
+    from realitygap.diagnosis.adapters.registry import get_adapter
+    from realitygap.diagnosis.problem.features import FeatureSettings
 
     lg = record_arm_log(None, np.random.default_rng(0), 16)
     adapter = get_adapter("arm")
@@ -529,7 +531,7 @@ def _two_channel_layout(m: int) -> SimpleNamespace:
 def test_a_combination_must_leave_noise_wherever_it_acts(
     model_fit: Callable[..., ModelFit],
 ) -> None:
-    from realitygap.diagnosis.verdict import combination_check
+    from realitygap.diagnosis.verdict.rules import combination_check
 
     rng = np.random.default_rng(8)
     m = 80
@@ -574,7 +576,7 @@ def test_a_combination_that_leaves_noise_in_a_group_of_unequal_columns_passes(
     quiet position fails. (A level pooled over the columns, near the quiet ones', took the
     heading's noise for structure: a ratio of about 4; and an RMS over the group would let
     the heading's noise hide the drift.)"""
-    from realitygap.diagnosis.verdict import combination_check
+    from realitygap.diagnosis.verdict.rules import combination_check
 
     rng = np.random.default_rng(11)
     m, sigmas = 120, {"dx": 0.1, "dy": 0.1, "dtheta": 1.0}
@@ -608,8 +610,8 @@ def test_parameter_correlations_stay_within_one_whatever_the_units() -> None:
     """Two collinear parameters in very different units correlate fully, an independent one
     not at all, and one the residual does not depend on has no correlation (the
     pseudo-inverse of the unscaled, nearly singular information matrix gives 1.90)."""
-    from realitygap.diagnosis.attribute import parameter_correlation
-    from realitygap.diagnosis.identifiability import _corr
+    from realitygap.diagnosis.fit.identifiability import _corr
+    from realitygap.diagnosis.fit.model import parameter_correlation
 
     rng = np.random.default_rng(8)
     u, w, z = rng.normal(size=(3, 200))

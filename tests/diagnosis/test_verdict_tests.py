@@ -12,15 +12,16 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.attribute import AttributionSettings, Layout, ModelFit
-from realitygap.diagnosis.features import FeatureGroup, FeatureSchema, FeatureSettings
-from realitygap.diagnosis.parameters import range_position
-from realitygap.diagnosis.residual import (
+from realitygap.diagnosis.fit.model import ModelFit
+from realitygap.diagnosis.problem.features import FeatureGroup, FeatureSchema, FeatureSettings
+from realitygap.diagnosis.problem.parameters import range_position
+from realitygap.diagnosis.problem.problem import AttributionSettings, Layout
+from realitygap.diagnosis.problem.residual import (
     above_sample_noise,
     describe_residual,
     shrink_above_noise,
 )
-from realitygap.diagnosis.verdict import judge, parameter_status, pinned_parameters
+from realitygap.diagnosis.verdict.rules import judge, parameter_status, pinned_parameters
 
 SCHEMA = FeatureSchema(
     groups=(FeatureGroup("pose_gt", ("dtheta",), ("rad",), (0.002,)),), regimes=("all_of_it",)
@@ -355,7 +356,7 @@ def test_a_baseline_nuisance_at_the_edge_of_its_range_is_reported(
 def test_a_parameter_on_a_plateau_of_the_training_cost_takes_the_end_nearest_nominal() -> None:
     """A dead band between the commanded speeds: the training data bound it to an interval;
     the fit reports the smallest band they support, and a smooth parameter stays put."""
-    from realitygap.diagnosis.attribute import _toward_nominal
+    from realitygap.diagnosis.fit.model import _toward_nominal
 
     commands = np.array([0.02, 0.04, 0.07])  # wheel speeds the training logs hold, m/s
     truth = 0.05  # a dead band: the first two stop, the third moves
@@ -381,7 +382,7 @@ def test_a_one_parameter_fit_finds_a_tread_narrower_than_its_grid() -> None:
     whose lowest tread (0.02667 … 0.02693 m/s) lies between two points of the 41-point grid
     (0.026 and 0.028 m/s), where the gradient-based refinement cannot move. The fine scan
     around the best grid points lands on it."""
-    from realitygap.diagnosis.attribute import _refine_one
+    from realitygap.diagnosis.fit.model import _refine_one
 
     commands = np.linspace(0.0, 0.08, 301)  # 0.000267 m/s apart
     truth = 0.0268
@@ -410,8 +411,8 @@ def test_a_compliance_under_another_gravity_law_is_named_alone(
     masses miss, carries the gap; the small terms that help it a little more are listed,
     none singled out, and the summary describes what remains."""
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-    from realitygap.diagnosis.io import ReadOptions, read_logs
-    from realitygap.diagnosis.summary import summary_sentences
+    from realitygap.diagnosis.logs.read import ReadOptions, read_logs
+    from realitygap.diagnosis.report.summary import summary_sentences
     from realitygap.experiments.independent import generate_case
     from realitygap.independent.cases import case_by_name
 
@@ -431,7 +432,7 @@ def test_a_compliance_under_another_gravity_law_is_named_alone(
 
 
 class _TwoBasinProblem:
-    """A stand-in for :class:`~realitygap.diagnosis.attribute.Problem` whose training cost
+    """A stand-in for :class:`~realitygap.diagnosis.problem.problem.Problem` whose training cost
     over ``traction_slip.t_slip`` (a), ``longitudinal_slip.mu`` (b) and the baseline
     nuisance ``command_latency.delay`` (n), in range positions, has two basins: a ≈ no effect,
     and the better one at a* = 0.7, reached only with n* = 0.8, not with the calibrated
@@ -441,8 +442,8 @@ class _TwoBasinProblem:
     A_STAR, B_STAR, N_STAR, N_0 = 0.7, 0.4, 0.8, 0.2
 
     def __init__(self) -> None:
-        from realitygap.diagnosis.attribute import AttributionSettings, Layout
-        from realitygap.diagnosis.parameters import from_range_position
+        from realitygap.diagnosis.problem.parameters import from_range_position
+        from realitygap.diagnosis.problem.problem import AttributionSettings, Layout
 
         self.settings = AttributionSettings()
         self.f_scale = 1.0
@@ -468,7 +469,7 @@ class _TwoBasinProblem:
         return {}
 
     def surrogate_residuals(self, layout, values, batch, bias=None):  # type: ignore[no-untyped-def]
-        from realitygap.diagnosis.parameters import param_spec, range_position
+        from realitygap.diagnosis.problem.parameters import param_spec, range_position
 
         def u(key: str) -> np.ndarray:
             v = values.get(key, np.full(batch, self.baseline_values.get(key, np.nan)))
@@ -494,8 +495,8 @@ def test_a_pair_start_is_scored_with_the_nuisances_it_was_found_with() -> None:
     """A pair starts from its single effect's optimum, whose baseline nuisances were refined
     with it. Scored at the calibrated baseline's nuisances instead, that start looks worse
     than the no-effect basin and is never refined, and the pair falls into that basin."""
-    from realitygap.diagnosis.attribute import fit_model
-    from realitygap.diagnosis.parameters import from_range_position
+    from realitygap.diagnosis.fit.model import fit_model
+    from realitygap.diagnosis.problem.parameters import from_range_position
 
     pr = _TwoBasinProblem()
     start = {

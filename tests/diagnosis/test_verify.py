@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from realitygap.diagnosis.verify import heldout_gain_counts
+from realitygap.diagnosis.fit.verify import heldout_gain_counts
 
 
 def _fit(z: Any) -> Any:
@@ -35,7 +35,7 @@ def test_heldout_gain_counts_only_beyond_noise() -> None:
 
 
 def _model(effects: tuple[str, ...], rank: float, sizes: dict[str, float], verified: bool) -> Any:
-    from realitygap.diagnosis.attribute import ModelFit
+    from realitygap.diagnosis.fit.model import ModelFit
 
     return ModelFit(
         effects=effects,
@@ -58,8 +58,8 @@ def test_many_pairs_with_a_do_nothing_partner_all_rank_behind_their_single() -> 
     """Twelve pairs add a partner at its no-effect values to the same effect ``a`` and score
     better on held-out data (their fit of ``a`` landed elsewhere): each is ``a`` itself, so
     none may be named, however many there are against the verification's step budget."""
-    from realitygap.diagnosis.attribute import AttributionSettings
-    from realitygap.diagnosis.verify import verify_ranking
+    from realitygap.diagnosis.fit.verify import verify_ranking
+    from realitygap.diagnosis.problem.problem import AttributionSettings
 
     settings = AttributionSettings(verify_top=1)
     single = _model(("a",), -700.0, {"a": 11.6}, verified=True)

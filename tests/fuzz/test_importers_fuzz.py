@@ -21,11 +21,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from realitygap.diagnosis.importers.csv_log import read_csv_log
-from realitygap.diagnosis.importers.franka import read_franka_npz
-from realitygap.diagnosis.importers.ur10 import read_ur10_measurements
-from realitygap.diagnosis.io import ReadOptions, read_logs
-from realitygap.diagnosis.log import Log
+from realitygap.diagnosis.logs.importers.csv_log import read_csv_log
+from realitygap.diagnosis.logs.importers.franka import read_franka_npz
+from realitygap.diagnosis.logs.importers.ur10 import read_ur10_measurements
+from realitygap.diagnosis.logs.log import Log
+from realitygap.diagnosis.logs.read import ReadOptions, read_logs
 
 FUZZ = settings(
     max_examples=80,

@@ -50,8 +50,8 @@ def test_straight_line_gives_the_known_ticks_through_the_importer(tmp_path: Path
     rng = np.random.default_rng(3)
     run = dd.simulate_run(_straight(robot, 6.0), robot, dd.Hidden(), rng)
     folder = dd.write_session(tmp_path, "010320240900", [run], robot, "free", rng=rng)
-    from realitygap.diagnosis.importers.optiodom import read_session
-    from realitygap.diagnosis.io import read_logs
+    from realitygap.diagnosis.logs.importers.optiodom import read_session
+    from realitygap.diagnosis.logs.read import read_logs
 
     s = read_session(folder)
     r = s.runs[0]
@@ -90,7 +90,7 @@ def test_known_dh_pose_gives_the_known_tool_point(tmp_path: Path) -> None:
     q[1, 1] = -math.pi / 2
     s = ur10.measure_series(q, ur10.ArmHidden(), tracker, np.random.default_rng(0))
     folder = ur10.write_series(tmp_path, "A", s)
-    from realitygap.diagnosis.io import read_logs
+    from realitygap.diagnosis.logs.read import read_logs
 
     (log,) = read_logs(folder)
     d, a = ur10.UR10_DH["d"], ur10.UR10_DH["a"]
@@ -141,7 +141,7 @@ def test_end_to_end_names_a_strong_in_library_effect() -> None:
     """Files written here, read by the importers and diagnosed: a 3 % wider axle (tick
     replay) and a 3 mm longer probe are named, with their values."""
     from realitygap.core.parallel import ProcessBackend
-    from realitygap.diagnosis.adapters import close_adapters
+    from realitygap.diagnosis.adapters.registry import close_adapters
     from realitygap.experiments.independent import diagnose_case
 
     try:
@@ -164,7 +164,7 @@ def test_an_encoder_error_beside_a_noisy_heading_is_named() -> None:
     the one ``diagnose-independent`` gives this case, where a noise level pooled over the
     pose's columns counted the heading's noise as gap and the verdict was "unexplained"."""
     from realitygap.core.parallel import ProcessBackend
-    from realitygap.diagnosis.adapters import close_adapters
+    from realitygap.diagnosis.adapters.registry import close_adapters
     from realitygap.experiments.independent import diagnose_case
 
     try:
@@ -190,9 +190,9 @@ def test_a_residual_faster_than_the_windows_is_unexplained_and_said_so(tmp_path:
     noise, but it is many times the motion capture's own noise. The verdict is "unexplained",
     not "none", and what remains says why. The seed is the one ``diagnose-independent``
     gives this case."""
-    from realitygap.diagnosis.adapters import close_adapters
+    from realitygap.diagnosis.adapters.registry import close_adapters
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-    from realitygap.diagnosis.io import read_logs
+    from realitygap.diagnosis.logs.read import read_logs
     from realitygap.experiments.independent import generate_case
 
     case = case_by_name("encoder_wobble")

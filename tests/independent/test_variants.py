@@ -54,7 +54,7 @@ def test_the_variants_differ_in_what_they_claim_and_default_is_todays_world() ->
 def test_each_variant_is_read_back_with_its_geometry_rate_and_ramp(
     name: str, tmp_path: Path
 ) -> None:
-    from realitygap.diagnosis.io import ReadOptions, read_logs
+    from realitygap.diagnosis.logs.read import ReadOptions, read_logs
 
     robot = VARIANTS[name].drive
     rng = np.random.default_rng(4)
@@ -130,7 +130,7 @@ def test_a_body_ramp_limits_the_turn_rate_by_its_own_angular_limit() -> None:
 def test_each_variants_arm_files_give_the_tool_distances_of_the_closed_form(
     name: str, tmp_path: Path
 ) -> None:
-    from realitygap.diagnosis.io import read_logs
+    from realitygap.diagnosis.logs.read import read_logs
 
     v = VARIANTS[name]
     tracker = replace(v.tracker, sigma=0.0)

@@ -1,0 +1,954 @@
+"""The differential drive's diagnosis adapter: PyBullet replay, pose / tick / camera features.
+
+A differential-drive log is sampled at the control rate: the commanded body
+twist ``cmd``, the cumulative encoder counts ``ticks``, the ground-truth base
+pose ``pose_gt`` (motion capture), and optionally the estimated pose
+``pose_est`` and a camera pose ``pose_cam``. Its metadata gives the nominal
+robot (:func:`~realitygap.diagnosis.adapters.diffdrive.replay.params_from_meta`).
+
+Features, per window (1 s by default)
+    ``pose_gt`` — motion of the ground truth in the frame of its pose at the
+    window start; ``ticks`` — wheel travel counted by the encoders (nominal
+    metres per tick); ``pose_cam`` — mean camera pose seen from the
+    ground-truth base pose (:func:`~realitygap.diagnosis.problem.features.features`).
+
+Regimes
+    From the applied commands (or, when the wheels drive the replay, from the
+    wheel motion): :data:`~realitygap.diagnosis.problem.features.DIFFDRIVE_REGIMES`.
+
+Replay and surrogate
+    The nominal PyBullet robot driven by the same commands or wheel rotation
+    (:func:`~realitygap.diagnosis.adapters.diffdrive.replay.replay`); the fit uses the analytic
+    :class:`~realitygap.diagnosis.adapters.diffdrive.surrogate.DiffDriveSurrogate`.
+
+Blind logs
+    Ordinary manoeuvres (:data:`TRAIN_MANOEUVRES`, :data:`HOLDOUT_MANOEUVRES`)
+    recorded with motion-capture and camera noise: the firmware-ramped ones
+    through :class:`~realitygap.envs.wheeled_nav.WheeledNavEnv` and
+    :class:`~realitygap.diagnosis.adapters.diffdrive.record.RecordLog`, hard starts by driving
+    the robot directly.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+import numpy.typing as npt
+
+from realitygap.core.geometry import wrap_angle
+from realitygap.diagnosis.adapters.contract import LogContext, PreparedLog, WheelDrivenAdapter
+from realitygap.diagnosis.adapters.diffdrive.firmware import FirmwareFit, fit_firmware_limits
+from realitygap.diagnosis.adapters.diffdrive.manoeuvres import MANOEUVRES
+from realitygap.diagnosis.adapters.diffdrive.record import RecordLog
+from realitygap.diagnosis.adapters.diffdrive.replay import (
+    Drive,
+    MeasurementNoise,
+    SimSettings,
+    applied_commands,
+    nominal_odometry,
+    params_from_meta,
+    replay,
+    simulate,
+)
+from realitygap.diagnosis.adapters.diffdrive.surrogate import (
+    SURROGATE_EFFECTS,
+    DiffDriveSurrogate,
+    SurrogateInputs,
+    calibrate,
+)
+from realitygap.diagnosis.logs.log import ChannelSpec, Log, LogError, Role
+from realitygap.diagnosis.problem.features import (
+    DIFFDRIVE_REGIMES,
+    FeatureGroup,
+    FeatureSchema,
+    FeatureSettings,
+    classify_regimes,
+    features,
+    window_bounds,
+)
+from realitygap.diagnosis.problem.parameters import reality_from_values
+from realitygap.diagnosis.problem.residual import robust_spread
+from realitygap.diagnosis.stages.scales import gain_through_origin
+from realitygap.robots.diffdrive import DiffDriveParams
+from realitygap.robots.effects import Reality
+
+if TYPE_CHECKING:
+    from realitygap.diagnosis.validation.suite import SuiteSettings
+
+FloatArray = npt.NDArray[np.float64]
+
+TURN_WINDOW_RAD = 0.05
+"""A window turns when what the commands asked of it turns by more than this (rad): the
+windows :meth:`DiffDriveAdapter.command_wheel_gains` compares turn rates on."""
+Features = dict[str, FloatArray]
+
+__all__ = [
+    "DIFFDRIVE_CHANNELS",
+    "DIFFDRIVE_SCHEMA",
+    "HOLDOUT_MANOEUVRES",
+    "TRAIN_MANOEUVRES",
+    "DiffDriveAdapter",
+    "DiffDriveContext",
+    "record_case_logs",
+    "values_for_log",
+]
+
+_POSE = ("x", "y", "theta")
+_POSE_UNITS = ("m", "m", "rad")
+
+DIFFDRIVE_CHANNELS: tuple[ChannelSpec, ...] = (
+    ChannelSpec(
+        "cmd",
+        ("v", "w"),
+        ("m/s", "rad/s"),
+        Role.COMMAND,
+        "body twist issued at t[k] and held until t[k+1]",
+    ),
+    ChannelSpec(
+        "ticks", ("left", "right"), ("count", "count"), Role.SENSOR, "cumulative encoder counts"
+    ),
+    ChannelSpec(
+        "pose_gt", _POSE, _POSE_UNITS, Role.TRUTH, "ground-truth base pose", angle_columns=(2,)
+    ),
+    ChannelSpec(
+        "pose_est", _POSE, _POSE_UNITS, Role.ESTIMATE, "estimated base pose", angle_columns=(2,)
+    ),
+    ChannelSpec(
+        "pose_cam",
+        _POSE,
+        _POSE_UNITS,
+        Role.SENSOR,
+        "planar camera pose from a camera localisation",
+        angle_columns=(2,),
+    ),
+)
+"""Channels of a differential-drive log."""
+
+DIFFDRIVE_SCHEMA = FeatureSchema(
+    groups=(
+        FeatureGroup("pose_gt", ("dx", "dy", "dtheta"), ("m", "m", "rad"), (0.002, 0.002, 0.002)),
+        FeatureGroup("ticks", ("left", "right"), ("m", "m"), (0.002, 0.002)),
+        FeatureGroup("pose_cam", ("ex", "ey", "etheta"), ("m", "m", "rad"), (0.002, 0.002, 0.003)),
+    ),
+    regimes=DIFFDRIVE_REGIMES,
+)
+"""Window features of a differential drive (default scales 2 mm, 2 mm, 2 mrad for the
+ground truth; 2 mm per wheel; 2 mm, 2 mm, 3 mrad for the camera) and its regimes."""
+
+TRAIN_MANOEUVRES = ("straight_runs", "turns_in_place", "arcs", "accelerations")
+"""Manoeuvres of a blind case's training logs."""
+HOLDOUT_MANOEUVRES = ("square_cw", "square_ccw", "tour", "hard_starts")
+"""Manoeuvres of a blind case's held-out logs."""
+
+TRUTH_FRAME_RANGE = 0.02
+"""m: how far from the axle centre a hand-defined ground-truth body origin is a convention."""
+TRUTH_YAW_RANGE = 0.035
+"""rad (2°): how far from the rolling direction a hand-defined ground-truth heading is a convention."""
+TRUTH_LATENCY_FLOOR = 0.02
+"""s: how far the ground truth's stamps may trail or lead the rows as a convention, however
+short the row period: a capture system stamps a pose its latency and sample hold after the
+motion (some to twenty milliseconds), and the rows hold the latest sample."""
+DRIVE_RESPONSE_FLOOR = 0.05
+"""s: the time constant of a DC wheel drive's speed loop that is its own response, not a
+finding, however fast the commands come (a speed loop settles in some tens of
+milliseconds; the command period bounds it only where it is longer)."""
+
+
+@dataclass
+class DiffDriveContext(LogContext):
+    """What the differential drive keeps about a prepared log.
+
+    Attributes
+    ----------
+    params : DiffDriveParams
+        The nominal robot of the log.
+    inputs : SurrogateInputs
+        Start pose and the commands or ticks that drive the surrogate.
+    twist : ndarray, shape (N, 2)
+        Applied body twist (m/s, rad/s): the commands, or the wheel motion.
+    surrogate : DiffDriveSurrogate
+    reference : DiffDriveParams or None
+        The nominal geometry every log of the diagnosis shares when the logs
+        declare different ones (:meth:`DiffDriveAdapter.link_logs`); ``None``
+        while the log is judged against its own.
+    """
+
+    params: DiffDriveParams
+    inputs: SurrogateInputs
+    twist: FloatArray
+    surrogate: DiffDriveSurrogate
+    reference: DiffDriveParams | None = None
+
+    def window_motion(self, bounds: npt.NDArray[np.int64]) -> FloatArray | None:
+        """Mean speed and turn rate, their change over the window and ranges, (M, 6)."""
+        twist = self.twist
+        motion = np.zeros((bounds.shape[0], 6))
+        for m, (a, b) in enumerate(bounds):
+            seg = twist[a:b]
+            before = twist[max(a - 1, 0)]
+            motion[m] = (
+                seg[:, 0].mean(),
+                seg[:, 1].mean(),
+                twist[b - 1, 0] - before[0],
+                twist[b - 1, 1] - before[1],
+                np.ptp(twist[max(a - 1, 0) : b, 0]),
+                np.ptp(twist[max(a - 1, 0) : b, 1]),
+            )
+        return motion
+
+
+class DiffDriveAdapter(WheelDrivenAdapter):
+    """Differential drive: effects, PyBullet replay, channels, features and surrogate."""
+
+    robot = "diffdrive"
+    channels = DIFFDRIVE_CHANNELS
+    schema = DIFFDRIVE_SCHEMA
+    stage_group = "pose_gt"
+    drive_stages = ("command → wheels", "motion → sensor")
+    surrogate_effects = tuple(SURROGATE_EFFECTS)
+    blind_noise = MeasurementNoise(
+        truth_xy=0.0005, truth_theta=0.001, camera_xy=0.001, camera_theta=0.002
+    )
+    """Motion-capture and camera noise of the blind suite's logs."""
+
+    transient_detection = True
+    """Time series: windows disturbed by stalls, bumps or lost markers are set aside
+    (:mod:`~realitygap.diagnosis.stages.transients`)."""
+
+    # ------------------------------------------------------------------ baseline
+    def baseline_nuisances(
+        self, prepared: Sequence[PreparedLog], drive: Drive
+    ) -> dict[str, tuple[float, float, str]]:
+        """Nuisances of the calibrated baseline (:mod:`~realitygap.diagnosis.stages.baseline`).
+
+        The ground truth's time alignment (``timestamp_offset.offset``) within
+        half the shortest sample period of the logs (stamps are quantised to the
+        sample period, so offsets that small are a sampling convention, not a
+        finding), and at least :data:`TRUTH_LATENCY_FLOOR` (a capture system's
+        latency and sample hold do not shrink with the row period) and, with a command-driven replay, the response time of the
+        replayed commands (``command_latency.delay``): within half a period when
+        the logs hold the twist the drive received, within one period when they
+        hold requests to the robot's firmware (``meta["firmware"]``) — whether
+        the firmware takes a request in the period it is issued or the next one,
+        and a velocity loop that settles within a period, are the robot's
+        actuator response, not a finding — and, in the same range but at least
+        :data:`DRIVE_RESPONSE_FLOOR` (a speed loop's time constant does not shrink
+        with the command period), the time constant of both wheels' velocity loops
+        (``motor_response.tau``, a first-order lag common to the two wheels).
+        Longer delays and lags, and wheels that lag differently
+        (``wheel_velocity_lag``), remain candidates of the effect library. The firmware's ramp convention is chosen beside them
+        (:meth:`actuator_conventions`).
+
+        Beside the clocks, the body frame the ground truth tracks
+        (``truth_frame_offset``): a motion-capture rigid body defined by hand
+        puts its origin within :data:`TRUTH_FRAME_RANGE` metres of the axle
+        centre and its heading within :data:`TRUTH_YAW_RANGE` rad of the rolling
+        direction; that is the setup's convention, not the robot's physics.
+        """
+        if not prepared:
+            return {}
+        dt = min(p.log.dt for p in prepared)
+        half = 0.5 * dt
+        align = max(half, TRUTH_LATENCY_FLOOR)
+        out = {"timestamp_offset.offset": (-align, align, "ground-truth time alignment")}
+        out["truth_frame_offset.x"] = (
+            -TRUTH_FRAME_RANGE,
+            TRUTH_FRAME_RANGE,
+            "ground-truth body origin ahead of the axle centre",
+        )
+        out["truth_frame_offset.y"] = (
+            -TRUTH_FRAME_RANGE,
+            TRUTH_FRAME_RANGE,
+            "ground-truth body origin left of the axle centre",
+        )
+        out["truth_frame_offset.yaw"] = (
+            -TRUTH_YAW_RANGE,
+            TRUTH_YAW_RANGE,
+            "ground-truth body heading against the rolling direction",
+        )
+        if drive is Drive.COMMANDS:
+            requests = bool(self.actuator_conventions(prepared, drive))
+            response = dt if requests else half
+            out["command_latency.delay"] = (0.0, response, "response time of the replayed commands")
+            out["motor_response.tau"] = (
+                0.0,
+                max(response, DRIVE_RESPONSE_FLOOR),
+                "time constant of both wheels' velocity loops",
+            )
+        return out
+
+    # ------------------------------------------------------------------ common geometry
+    def link_logs(self, prepared: Sequence[PreparedLog], drive: Drive) -> dict[str, Any]:
+        """Put the geometric effects of logs with different declared geometry on one reference.
+
+        The logs of one diagnosis come from one physical robot, but their metadata may
+        declare different nominal wheel radii or wheelbases (an odometry configuration
+        changed between sessions). A factor such as ``E_b = b_actual / b_nominal``
+        relative to each log's own nominal would then be a different physical wheelbase
+        in each log, and no single value could fit them. When the declared geometries
+        differ, the most common one (the first log's on a tie) becomes the reference:
+        every geometric factor is relative to it (:func:`values_for_log`), and the
+        nominal replay of a log that declares another geometry is the robot with the
+        reference geometry (what its own ticks and commands would do on it).
+
+        Returns
+        -------
+        dict
+            Empty when every log declares the same geometry; else ``reference``
+            (wheel radii and wheelbase, m), ``relinked`` (the logs whose nominal
+            replay now uses it) and ``summary`` (one line).
+        """
+        if not prepared:
+            return {}
+        geoms = [_geometry(self._context(p).params) for p in prepared]
+        counts: dict[tuple[float, float, float], int] = {}
+        for g in geoms:
+            counts[g] = counts.get(g, 0) + 1
+        if len(counts) < 2:
+            return {}
+        ref_geom = max(counts, key=lambda g: (counts[g], -geoms.index(g)))
+        ref = self._context(prepared[geoms.index(ref_geom)]).params
+        relinked = []
+        for p, g in zip(prepared, geoms):
+            ctx = self._context(p)
+            ctx.reference = ref
+            if g == ref_geom:
+                continue
+            relinked.append(p.name)
+            nominal, replay_log = self.replay_features(p, {}, drive, ctx.sim)
+            p.nominal = {k: v for k, v in nominal.items() if k in p.real}
+            p.replay_log = replay_log
+            sur = self.surrogate_features(p, {}, drive)
+            p.bias = {k: p.nominal[k] - sur[k][0] for k in p.groups}
+        rl, rr, b = ref_geom
+        return {
+            "reference": {"wheel_radius_left": rl, "wheel_radius_right": rr, "wheelbase": b},
+            "declared": [
+                {
+                    "wheel_radius_left": g[0],
+                    "wheel_radius_right": g[1],
+                    "wheelbase": g[2],
+                    "logs": n,
+                }
+                for g, n in counts.items()
+            ],
+            "relinked": relinked,
+            "summary": (
+                f"the logs declare {len(counts)} nominal geometries; geometric factors are "
+                f"relative to the most common one (wheel radii {1e3 * rl:.2f} / {1e3 * rr:.2f} mm, "
+                f"wheelbase {1e3 * b:.1f} mm); {len(relinked)} log(s) replayed on it"
+            ),
+        }
+
+    _CONVENTIONS: ClassVar[dict[str, str]] = {
+        "body/limited": "the firmware ramps the body twist up and down (a_max on v, alpha_max on ω)",
+        "body/free": "the firmware ramps the body twist up only (a_max on v, alpha_max on ω); "
+        "it slows down at once",
+        "wheels/limited": "the firmware ramps each wheel's speed set-point up and down "
+        "(a_max per wheel)",
+        "wheels/free": "the firmware ramps each wheel's speed set-point up only (a_max per "
+        "wheel); it slows down at once",
+        "body/stop": "the firmware ramps the body twist up and down (a_max on v, alpha_max on "
+        "ω); a zero request stops at once",
+        "wheels/stop": "the firmware ramps each wheel's speed set-point up and down (a_max per "
+        "wheel); a zero request stops at once",
+    }
+
+    def actuator_conventions(self, prepared: Sequence[PreparedLog], drive: Drive) -> dict[str, str]:
+        """How the firmware's rate limit acts, when the commands are requests it ramps.
+
+        A command-driven replay of logs whose ``meta["firmware"]`` states an
+        acceleration limit can ramp the body twist (ros2 ``diff_drive_controller``'s
+        speed limiter) or each wheel's speed set-point (many motor firmwares) —
+        on arcs the two give different curvature while the speed changes
+        (:meth:`~realitygap.robots.diffdrive.FirmwareLimits.limit_wheels`) — and
+        it can limit deceleration as well, or only speeding up (a drive that
+        brakes at once), or limit it but take a zero request for a stop command
+        (:class:`~realitygap.robots.diffdrive.Deceleration`):
+        ``"<body|wheels>/<limited|free|stop>"``.
+        """
+        if drive is not Drive.COMMANDS:
+            return {}
+        for p in prepared:
+            fw = p.log.meta.get("firmware")
+            if isinstance(fw, Mapping) and math.isfinite(float(fw.get("a_max", math.inf))):
+                return dict(self._CONVENTIONS)
+        return {}
+
+    def actuator_convention(self, log: Log) -> str:
+        """``"<ramp>/<deceleration>"`` from ``meta["firmware"]``; ``""`` without a firmware."""
+        fw = log.meta.get("firmware")
+        if not isinstance(fw, Mapping) or not fw:
+            return ""
+        return f"{fw.get('ramp', 'body')}/{fw.get('deceleration', 'limited')}"
+
+    def with_actuator_convention(self, log: Log, name: str) -> Log:
+        """A copy of ``log`` whose firmware ramps as ``name`` says (``"wheels/free"``, …)."""
+        if name not in self._CONVENTIONS:
+            raise ValueError(
+                f"actuator convention must be one of {', '.join(self._CONVENTIONS)}, got {name!r}"
+            )
+        fw = log.meta.get("firmware")
+        if not isinstance(fw, Mapping) or not fw:
+            return log
+        ramp, _, decel = name.partition("/")
+        return log.replace(
+            meta={**log.meta, "firmware": {**fw, "ramp": ramp, "deceleration": decel}}
+        )
+
+    def fit_actuator_limits(self, logs: Sequence[Log], name: str) -> FirmwareFit | None:
+        """The firmware's rate limits under convention ``name``, fitted to the wheel speeds
+        the encoders of ``logs`` saw (:func:`~realitygap.diagnosis.adapters.diffdrive.firmware.fit_firmware_limits`);
+        ``None`` when no log has requests, encoder counts and a stated firmware."""
+        fit = fit_firmware_limits(logs, name)
+        return fit if fit.n_rows else None
+
+    def with_actuator_limits(self, log: Log, fit: FirmwareFit | None) -> Log:
+        """A copy of ``log`` whose firmware has the fitted limits ``fit`` (the stated ones
+        scaled; :meth:`FirmwareFit.meta`)."""
+        fw = log.meta.get("firmware")
+        if fit is None or not isinstance(fw, Mapping) or not fw:
+            return log
+        return log.replace(meta={**log.meta, "firmware": fit.meta(fw)})
+
+    # ------------------------------------------------------------------ checks
+    def check(self, log: Log, drive: Drive) -> Log:
+        """Validate a log for this robot; returns it (raises :class:`LogError` with the fix)."""
+        self.check_robot(log, drive)
+        params_from_meta(log)
+        log.check_uniform()
+        if drive is Drive.COMMANDS:
+            log.require(["cmd", "pose_gt"], "a command-driven diagnosis")
+        else:
+            log.require(["ticks", "pose_gt"], "a tick-driven diagnosis")
+        if log.n < 3:
+            raise LogError(f"{log.source}: the log is too short ({log.n} rows)")
+        return log
+
+    # ------------------------------------------------------------------ preparation
+    def prepare(
+        self,
+        log: Log,
+        *,
+        split: str,
+        drive: Drive,
+        features_settings: FeatureSettings,
+        sim: SimSettings | None,
+    ) -> PreparedLog:
+        """Windows, regimes, real features, the nominal replay and the surrogate's bias."""
+        params = params_from_meta(log)
+        dt = log.dt
+        bounds = self.time_windows(log, features_settings)
+        if drive is Drive.COMMANDS:
+            twist = applied_commands(log)
+        else:
+            twist = self._twist_from_ticks(log["ticks"], params, dt)
+        regimes = classify_regimes(twist, bounds, features_settings)
+        settings = sim if sim is not None else SimSettings.for_log(log)
+        start = np.asarray(log["pose_gt"][0], dtype=float)
+        inputs = SurrogateInputs(
+            dt=dt,
+            start=start,
+            commands=twist if drive is Drive.COMMANDS else None,
+            ticks=np.asarray(log["ticks"], dtype=float) if drive is Drive.TICKS else None,
+        )
+        mpt = self.meters_per_tick(params)
+        real = features(log.channels, bounds, mpt)
+        if drive is Drive.TICKS:
+            real.pop("ticks", None)
+        context = DiffDriveContext(
+            sim=settings,
+            params=params,
+            inputs=inputs,
+            twist=twist,
+            surrogate=DiffDriveSurrogate(params, calibrate(params, settings.solver_iterations)),
+        )
+        prepared = PreparedLog(
+            log=log,
+            split=split,
+            bounds=bounds,
+            regimes=regimes,
+            real=real,
+            nominal={},
+            replay_log=log,
+            holdout_windows=np.full(bounds.shape[0], split == "holdout"),
+            schema=self.schema,
+            context=context,
+        )
+        nominal, replay_log = self.replay_features(prepared, {}, drive, settings)
+        prepared.nominal = {g: v for g, v in nominal.items() if g in real}
+        prepared.replay_log = replay_log
+        sur = self.surrogate_features(prepared, {}, drive)
+        prepared.bias = {g: prepared.nominal[g] - sur[g][0] for g in prepared.groups}
+        return prepared
+
+    def sample_noise_levels(
+        self, prepared: Sequence[PreparedLog], settings: FeatureSettings
+    ) -> dict[str, dict[str, float]] | None:
+        r"""Noise of each window feature that the logs' own samples show (feature-scale units).
+
+        Ground truth: a pose track sampled at the log's rate moves smoothly between
+        samples, so its second differences are noise, :math:`\sqrt 6\,σ` for
+        independent samples of noise :math:`σ` (the motion adds :math:`a\,Δt^2`, well
+        below a motion-capture system's noise at tens of hertz, and the robust spread
+        ignores the rest). A window feature is the difference of two samples:
+        :math:`\sqrt 2\,σ` (``x`` and ``y`` pooled for ``dx``, ``dy``). Encoders: a
+        count is quantised to one tick, so a window's travel in the log and in the
+        replay each carry :math:`1/\sqrt 6` tick. Pooled over all logs (one sensor);
+        ``None`` when no log has a ground truth with three samples.
+
+        In a command-driven replay of logs with encoders the pose features also carry
+        the drive train's own scatter: how the wheels' turning, as the encoders count
+        it, differs from what the nominal drive train makes of the commands
+        (:meth:`wheel_motion`) changes from window to window as no fixed effect could
+        make it (a wheel that breaks away a little sooner or later, torque ripple). Its
+        white part — the RMS of the window-to-window differences over
+        :math:`\sqrt 2`, per column (:meth:`_drive_scatter`), where the ground truth
+        confirms the encoders — is added in quadrature
+        to the ground truth's noise, and each wheel's to its encoder's quantisation: a
+        nominal residual within both is noise, not an unexplained gap.
+        """
+        xy: list[FloatArray] = []
+        th: list[FloatArray] = []
+        mpt = 0.0
+        for p in prepared:
+            log = p.log
+            if log.has("pose_gt"):
+                gt = np.asarray(log["pose_gt"], dtype=float)
+                if gt.shape[0] >= 3:
+                    xy.append(np.diff(gt[:, :2], n=2, axis=0).ravel())
+                    d1 = wrap_angle(np.diff(gt[:, 2]))  # heading increments across ±π
+                    th.append(np.diff(d1))
+            if log.has("ticks"):
+                mpt = max(mpt, *self.meters_per_tick(self._context(p).params))
+        if not xy:
+            return None
+        scale = dict(zip(self.schema.columns("pose_gt"), settings.scale("pose_gt"), strict=True))
+        _, s_xy = robust_spread(np.concatenate(xy))
+        _, s_th = robust_spread(np.concatenate(th))
+        sig_xy = math.sqrt(2.0) * float(s_xy) / math.sqrt(6.0)
+        sig_th = math.sqrt(2.0) * float(s_th) / math.sqrt(6.0)
+        sig = {"dx": sig_xy, "dy": sig_xy, "dtheta": sig_th}
+        scatter = self._drive_scatter(prepared, np.array([sig_xy, sig_xy, sig_th]))
+        if scatter is not None:
+            for j, c in enumerate(("dx", "dy", "dtheta")):
+                sig[c] = math.hypot(sig[c], float(scatter[0][j]))
+        out = {"pose_gt": {c: sig[c] / scale[c] for c in ("dx", "dy", "dtheta")}}
+        if mpt > 0.0:
+            quant = math.sqrt(2.0) * mpt / math.sqrt(6.0)
+            cols = self.schema.columns("ticks")
+            ts = dict(zip(cols, settings.scale("ticks"), strict=True))
+            wheel = [quant] * len(cols)
+            if scatter is not None:
+                wheel = [math.hypot(quant, float(x)) for x in scatter[1]]
+            out["ticks"] = {c: w / ts[c] for c, w in zip(cols, wheel, strict=True)}
+        return out
+
+    def _drive_scatter(
+        self, prepared: Sequence[PreparedLog], truth_noise: FloatArray
+    ) -> tuple[FloatArray, FloatArray] | None:
+        r"""The white part of the drive train's scatter in a command-driven replay of logs
+        with encoders: per window feature, the RMS of the window-to-window differences
+        over :math:`\sqrt 2` of the motion (dx, dy m, dθ rad;
+        :meth:`wheel_motion`) and of each wheel's travel (m; :meth:`wheel_travel`) the
+        encoders show beyond the nominal drive train's.
+
+        Only a scatter the body really made counts: the white part of the difference
+        between the encoders' motion and the ground truth's must stay within twice the
+        ground truth's own noise ``truth_noise`` (dx, dy, dθ per window) in every
+        column. Encoders that count what the wheels did not do (a disc off centre) are
+        not the drive's noise. ``None`` without such logs, or when they disagree."""
+        motion, travel, sensor = [], [], []
+        for p in prepared:
+            w, tr = self.wheel_motion(p), self.wheel_travel(p)
+            if w is None or tr is None or w[0].shape[0] < 2 or "pose_gt" not in p.real:
+                continue
+            motion.append(np.diff(w[0] - w[1], axis=0))
+            travel.append(np.diff(tr[0] - tr[1], axis=0))
+            sensor.append(np.diff(w[0] - p.real["pose_gt"], axis=0))
+        if not motion:
+            return None
+
+        def white(steps: list[FloatArray]) -> FloatArray:
+            d = np.concatenate(steps)
+            return np.sqrt(np.mean(d**2, axis=0) / 2.0)
+
+        if np.any(white(sensor) > 2.0 * np.asarray(truth_noise)):
+            return None
+        return white(motion), white(travel)
+
+    def fitted_robot(
+        self, prepared: Sequence[PreparedLog], effects: Sequence[str], values: Mapping[str, float]
+    ) -> dict[str, Any] | None:
+        """Wheel radii, wheelbase and encoder counts of the robot ``effects`` at ``values``
+        describe, as factors of the declared ones, per wheel.
+
+        The library splits a per-wheel quantity into a ratio at a kept mean and a common
+        scale (``wheel_diameter_ratio`` and ``wheel_radius_scale``, ``encoder_ratio`` and
+        ``encoder_scale``); a verdict naming both reads, per wheel, as what to change in the
+        robot's description: ``E_c = 1.030`` with ``scale = 1.015`` is a right encoder
+        counting 3.0 % more edges than declared and a left one counting as declared. Built
+        from the effects' own definitions (their parameters and encoder hooks), so it
+        holds for any combination. ``None`` when the model leaves all of them as declared.
+        """
+        named = set(effects)
+        own = {k: float(v) for k, v in values.items() if k.partition(".")[0] in named}
+        if not prepared or not own:
+            return None
+        ctx = self._context(prepared[0])
+        # the values speak of the geometry all logs share (DiffDriveAdapter.link_logs)
+        declared = ctx.reference if ctx.reference is not None else ctx.params
+        reality = reality_from_values(own)
+        real = reality.apply_params(declared)
+        counts = (1.0, 1.0)
+        for hook in reality.ticks_hooks():
+            counts = hook(*counts)
+        # (quantity, factor) per wheel where it has two; a pair is shown whole
+        quantities = (
+            (
+                ("left wheel radius", real.wheel_radius_left / declared.wheel_radius_left),
+                ("right wheel radius", real.wheel_radius_right / declared.wheel_radius_right),
+            ),
+            (("wheelbase", real.wheelbase / declared.wheelbase),),
+            (
+                ("left encoder's counts per revolution", float(counts[0])),
+                ("right encoder's counts per revolution", float(counts[1])),
+            ),
+        )
+        shown = [
+            q for group in quantities if any(abs(f - 1.0) > 5e-5 for _, f in group) for q in group
+        ]
+        if not shown:
+            return None
+        message = "; ".join(
+            f"{name} {f:.4f} × the declared ({100.0 * (f - 1.0):+.2f} %)" for name, f in shown
+        )
+        return {"factors": dict(shown), "message": message}
+
+    @staticmethod
+    def meters_per_tick(params: DiffDriveParams) -> tuple[float, float]:
+        return (
+            2.0 * math.pi * params.wheel_radius_left / params.ticks_per_rev,
+            2.0 * math.pi * params.wheel_radius_right / params.ticks_per_rev,
+        )
+
+    @staticmethod
+    def _twist_from_ticks(ticks: FloatArray, params: DiffDriveParams, dt: float) -> FloatArray:
+        d = np.diff(ticks, axis=0, append=ticks[-1:]) * (2.0 * math.pi / params.ticks_per_rev)
+        sl = d[:, 0] * params.wheel_radius_left / dt
+        sr = d[:, 1] * params.wheel_radius_right / dt
+        return np.column_stack([(sl + sr) / 2.0, (sr - sl) / params.wheelbase])
+
+    @staticmethod
+    def _context(prepared: PreparedLog) -> DiffDriveContext:
+        ctx = prepared.context
+        assert isinstance(ctx, DiffDriveContext)
+        return ctx
+
+    # ------------------------------------------------------------------ models
+    def replay_features(
+        self, prepared: PreparedLog, values: Mapping[str, float], drive: Drive, sim: SimSettings
+    ) -> tuple[Features, Log]:
+        """PyBullet replay with effect values ``{"effect.param": v}``; its features and log."""
+        ctx = self._context(prepared)
+        params = ctx.params
+        values = values_for_log(ctx, values)
+        reality = reality_from_values(values) if values else None
+        rep = replay(prepared.log, reality, drive=drive, settings=sim, params=params)
+        feats = features(rep.channels, prepared.bounds, self.meters_per_tick(params))
+        if drive is Drive.TICKS:
+            feats.pop("ticks", None)
+        return feats, rep
+
+    def log_features(self, prepared: PreparedLog, log: Log) -> Features:
+        """Window features of another log of the same episode (e.g. a replay)."""
+        mpt = self.meters_per_tick(self._context(prepared).params)
+        return features(log.channels, prepared.bounds, mpt)
+
+    def surrogate_features(
+        self, prepared: PreparedLog, values: Mapping[str, npt.ArrayLike], drive: Drive
+    ) -> Features:
+        """Surrogate features for a batch of effect values, (B, M, k) per group."""
+        ctx = self._context(prepared)
+        out = ctx.surrogate.simulate(ctx.inputs, values_for_log(ctx, values))
+        feats = features(out, prepared.bounds, self.meters_per_tick(ctx.params))
+        return {g: v for g, v in feats.items() if g in prepared.real}
+
+    def probe_manoeuvres(self) -> dict[str, str]:
+        """Manoeuvres the identifiability advice may suggest, with descriptions."""
+        from realitygap.diagnosis.adapters.diffdrive.manoeuvres import PROBE_MANOEUVRES
+
+        return {name: MANOEUVRES[name].description for name in PROBE_MANOEUVRES}
+
+    def probe_features(
+        self, manoeuvre: str, params_like: PreparedLog, values: Mapping[str, npt.ArrayLike]
+    ) -> tuple[Features, list[str]]:
+        """Surrogate features of a library manoeuvre (for identifiability advice)."""
+        ctx = self._context(params_like)
+        params = ctx.params
+        man = MANOEUVRES[manoeuvre]
+        dt = params_like.log.dt
+        t, cmd = man.applied(dt, params)
+        out = ctx.surrogate.simulate(SurrogateInputs(dt, np.zeros(3), commands=cmd), values)
+        bounds = window_bounds(t.shape[0], dt, 1.0)
+        feats = features(out, bounds, self.meters_per_tick(params))
+        groups = [g for g in params_like.real if g in feats]
+        return {g: feats[g] for g in groups}, groups
+
+    # ------------------------------------------------------------------ stages
+    def stage_residuals(self, prepared: PreparedLog) -> dict[str, FloatArray]:
+        """Residuals of the pipeline stages inside the real log, per window.
+
+        ``command → motion``: real ground truth minus the nominal replay's;
+        ``command → wheels`` (a command-driven replay of a log with encoders):
+        the motion nominal odometry makes of the logged ticks minus the motion it
+        makes of the nominal replay's ticks — what the wheels did beyond what the
+        commands, through the nominal drive train, asked of them;
+        ``motion → sensor``: encoder travel minus the travel the nominal
+        geometry predicts from the ground-truth motion (the wheels → body stage);
+        ``sensor → estimate``: the logged estimate's motion minus nominal
+        odometry of the logged ticks.
+        """
+        params = self._context(prepared).params
+        log = prepared.log
+        out: dict[str, FloatArray] = {}
+        if "pose_gt" in prepared.real and "pose_gt" in prepared.nominal:
+            out["command → motion"] = prepared.real["pose_gt"] - prepared.nominal["pose_gt"]
+        if log.has("ticks") and log.has("pose_gt"):
+            mpt = self.meters_per_tick(params)
+            wheels = self.wheel_motion(prepared)
+            if wheels is not None:
+                f_odo = wheels[0]
+                out["command → wheels"] = wheels[0] - wheels[1]
+            else:
+                f_odo = self._tick_motion(prepared, log["ticks"])[0]
+            out["motion → sensor"] = f_odo - prepared.real["pose_gt"]
+            if log.has("pose_est"):
+                f_est = features({"pose_gt": log["pose_est"]}, prepared.bounds, mpt)["pose_gt"]
+                out["sensor → estimate"] = f_est - f_odo
+        return out
+
+    def _command_ticks(self, prepared: PreparedLog) -> tuple[FloatArray, FloatArray] | None:
+        """The logged ticks and the nominal replay's (N, 2 each) of a command-driven replay
+        of a log with encoders; ``None`` otherwise."""
+        if self._context(prepared).inputs.commands is None:
+            return None
+        log, rep = prepared.log, prepared.replay_log
+        if not (log.has("ticks") and rep.has("ticks")):
+            return None
+        return log["ticks"], rep["ticks"]
+
+    def wheel_motion(self, prepared: PreparedLog) -> tuple[FloatArray, FloatArray] | None:
+        """Per window, the motion nominal odometry makes of the logged ticks and of the
+        nominal replay's ticks (M, 3 each: dx, dy m, dθ rad), for a command-driven replay
+        of a log with encoders; ``None`` otherwise."""
+        ticks = self._command_ticks(prepared)
+        if ticks is None:
+            return None
+        real, asked = self._tick_motion(prepared, *ticks)
+        return real, asked
+
+    def wheel_travel(
+        self, prepared: PreparedLog
+    ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+        """Per window, each wheel's ground travel by the logged encoders and by the nominal
+        replay's (what the nominal drive train makes of the commands), (M, 2) each, m, and
+        the windows' durations (M,), s, for a command-driven replay of a log with encoders;
+        ``None`` otherwise."""
+        ticks = self._command_ticks(prepared)
+        if ticks is None:
+            return None
+        mpt = np.asarray(self.meters_per_tick(self._context(prepared).params))
+        a, b = prepared.bounds[:, 0], prepared.bounds[:, 1]
+        real, asked = (
+            (np.asarray(tk, dtype=float)[b] - np.asarray(tk, dtype=float)[a]) * mpt for tk in ticks
+        )
+        t = np.asarray(prepared.log.t)
+        return real, asked, t[b] - t[a]
+
+    def _tick_motion(self, prepared: PreparedLog, *ticks: FloatArray) -> FloatArray:
+        """Per window, the motion (dx, dy m, dθ rad) nominal odometry makes of each tick
+        series (N, 2) of the log, (len(ticks), M, 3); window motions do not depend on the
+        start pose."""
+        params = self._context(prepared).params
+        odo = [nominal_odometry(np.asarray(tk), params, np.zeros(3)) for tk in ticks]
+        mpt = self.meters_per_tick(params)
+        return features({"pose_gt": np.stack(odo)}, prepared.bounds, mpt)["pose_gt"]
+
+    def command_wheel_gains(self, prepared: PreparedLog) -> dict[str, float] | None:
+        """How far and how much the wheels turned against what the commands asked of the
+        nominal drive train, over a command-driven log with encoders (``None`` otherwise).
+
+        ``distance_gain``: logged over asked wheel travel (means of the two wheels);
+        ``turn_gain``: least-squares slope of the logged heading change per window on
+        the asked one, over the windows that turn, and ``turn_gain_se`` its standard
+        error (:func:`~realitygap.diagnosis.stages.scales.gain_through_origin`);
+        NaN with fewer than three turning windows.
+        """
+        wheels = self.wheel_motion(prepared)
+        if wheels is None:
+            return None
+        real, asked = wheels
+        s_real, s_asked = np.hypot(real[:, 0], real[:, 1]), np.hypot(asked[:, 0], asked[:, 1])
+        dist = float(s_real.sum() / s_asked.sum()) if s_asked.sum() > 0 else math.nan
+        a, r = asked[:, 2], real[:, 2]
+        turning = np.abs(a) > TURN_WINDOW_RAD
+        n = int(turning.sum())
+        turn = se = math.nan
+        if n >= 3:
+            turn, se = gain_through_origin(r[turning], a[turning])
+        return {"distance_gain": dist, "turn_gain": turn, "turn_gain_se": se, "turning_windows": n}
+
+    # ------------------------------------------------------------------ blind suite
+    def record_blind_logs(
+        self, reality: Reality, rng: np.random.Generator, settings: SuiteSettings
+    ) -> tuple[list[Log], list[Log]]:
+        """The training and held-out manoeuvres of ``reality`` with the suite's noise."""
+        noise = settings.noise if settings.noise is not None else self.blind_noise
+        train = record_case_logs(reality, rng, noise, TRAIN_MANOEUVRES)
+        holdout = record_case_logs(reality, rng, noise, HOLDOUT_MANOEUVRES)
+        return train, holdout
+
+    def discovery_terms(self, prepared: PreparedLog) -> dict[str, tuple[FloatArray, str]]:
+        """Candidate terms of an unexplained residual, one value per window, with SI units.
+
+        Window means of the applied twist ``v`` (m/s), ``ω`` (rad/s), their rates
+        ``v̇``, ``ω̇`` (change over the window / its duration), sign and magnitude
+        terms, ``v·ω``, the wheel speeds ``v ∓ ω b / 2`` and the time of the window.
+        """
+        ctx = self._context(prepared)
+        tw, b = ctx.twist, prepared.bounds
+        t = np.asarray(prepared.log.t, dtype=float)
+        v = np.array([tw[i:j, 0].mean() for i, j in b])
+        w = np.array([tw[i:j, 1].mean() for i, j in b])
+        span = np.maximum(t[b[:, 1] - 1] - t[np.maximum(b[:, 0] - 1, 0)], 1e-9)
+        dv = (tw[b[:, 1] - 1, 0] - tw[np.maximum(b[:, 0] - 1, 0), 0]) / span
+        dw = (tw[b[:, 1] - 1, 1] - tw[np.maximum(b[:, 0] - 1, 0), 1]) / span
+        half = 0.5 * ctx.params.wheelbase
+        return {
+            "v": (v, "m/s"),
+            "ω": (w, "rad/s"),
+            "v̇": (dv, "m/s²"),
+            "ω̇": (dw, "rad/s²"),
+            "sign v": (np.sign(v), ""),
+            "|v|": (np.abs(v), "m/s"),
+            "sign ω": (np.sign(w), ""),
+            "|ω|": (np.abs(w), "rad/s"),
+            "v·ω": (v * w, "m·rad/s²"),
+            "left wheel speed": (v - half * w, "m/s"),
+            "right wheel speed": (v + half * w, "m/s"),
+            "time": (0.5 * (t[b[:, 0]] + t[b[:, 1] - 1]), "s"),
+        }
+
+
+# --------------------------------------------------------------------------- common geometry
+def _geometry(params: DiffDriveParams) -> tuple[float, float, float]:
+    """Declared wheel radii and wheelbase (m), the geometry the geometric effects scale."""
+    return (
+        float(params.wheel_radius_left),
+        float(params.wheel_radius_right),
+        float(params.wheelbase),
+    )
+
+
+def values_for_log(ctx: DiffDriveContext, values: Mapping[str, Any]) -> dict[str, Any]:
+    r"""Effect values relative to the reference geometry, re-expressed for one log's nominal.
+
+    With a reference (:meth:`DiffDriveAdapter.link_logs`) of radii :math:`r^*_{L,R}`
+    and wheelbase :math:`b^*`, a log that declares :math:`r_{L,R}`, :math:`b` gets
+
+    .. math::
+
+        E_b' = E_b \frac{b^*}{b}, \quad
+        s' = s \frac{\bar r^*}{\bar r}, \quad
+        E_d' = E_d \frac{r^*_R / r^*_L}{r_R / r_L},
+
+    so that every log's physical wheelbase and wheel radii are the same
+    (``wheelbase_error``, ``wheel_radius_scale``, ``wheel_diameter_ratio``;
+    values may be arrays over a batch). Without a reference, or for a log that
+    declares the reference geometry, ``values`` is returned unchanged.
+    """
+    ref = ctx.reference
+    if ref is None:
+        return dict(values)
+    rl0, rr0, b0 = _geometry(ref)
+    rl, rr, b = _geometry(ctx.params)
+    if (rl, rr, b) == (rl0, rr0, b0):
+        return dict(values)
+    out = dict(values)
+    factors = {
+        "wheelbase_error.E_b": b0 / b,
+        "wheel_radius_scale.scale": (rl0 + rr0) / (rl + rr),
+        "wheel_diameter_ratio.E_d": (rr0 / rl0) / (rr / rl),
+    }
+    for key, f in factors.items():
+        if f != 1.0:
+            out[key] = np.asarray(values.get(key, 1.0), dtype=float) * f
+            if out[key].ndim == 0:
+                out[key] = float(out[key])
+    return out
+
+
+# --------------------------------------------------------------------------- recording
+def _record_env(
+    manoeuvre: str, reality: Reality, params: DiffDriveParams, noise: MeasurementNoise, rng: Any
+) -> Log:
+    from realitygap.envs.wheeled_nav import WheeledNavEnv
+
+    env = WheeledNavEnv(
+        reality=reality,
+        params=params,
+        n_obstacles=0,
+        room_half_size=20.0,
+        start=(0.0, 0.0, float(rng.uniform(-math.pi, math.pi))),
+        goal=(15.0, 15.0, 0.0),
+        terminate_on_success=False,
+        n_beams=8,
+    )
+    rec = RecordLog(env, noise=noise, rng=rng, meta={"name": manoeuvre})
+    try:
+        rec.reset(seed=int(rng.integers(2**31)))
+        t, req = MANOEUVRES[manoeuvre].requested(env.dt)
+        scale = np.array([params.v_max, params.w_max])
+        for k in range(t.shape[0] - 1):
+            rec.step(req[k] / scale)
+        return rec.log
+    finally:
+        env.close()
+
+
+def record_case_logs(
+    reality: Reality,
+    rng: np.random.Generator,
+    noise: MeasurementNoise,
+    manoeuvres: Sequence[str],
+    params: DiffDriveParams | None = None,
+) -> list[Log]:
+    """Record ``manoeuvres`` with the robot ``reality``: ramped ones through the env, steps directly."""
+    params = params if params is not None else DiffDriveParams()
+    logs = []
+    for m in manoeuvres:
+        man = MANOEUVRES[m]
+        if man.ramp:
+            logs.append(_record_env(m, reality, params, noise, rng))
+        else:
+            t, cmd = man.applied(0.05, params)
+            start = np.array([0.0, 0.0, float(rng.uniform(-math.pi, math.pi))])
+            logs.append(
+                simulate(
+                    t,
+                    params=params,
+                    reality=reality,
+                    commands=cmd,
+                    start=start,
+                    noise=noise,
+                    rng=rng,
+                    meta={"name": m},
+                    source=m,
+                )
+            )
+    return logs

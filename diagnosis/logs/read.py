@@ -1,0 +1,619 @@
+"""Read anything the diagnosis accepts as a LOG: a saved log, an OptiOdom session, a CSV, a bag.
+
+:func:`read_logs` looks at what a path *is* (its content, not its extension)
+and hands it to the right reader:
+
+* a ``.npz`` log written by :meth:`~realitygap.diagnosis.logs.log.Log.save`;
+* an OptiOdom session folder ``<ID>/`` (or a folder holding sessions):
+  one log per run, via :mod:`realitygap.diagnosis.logs.importers.optiodom`
+  (:func:`logs_from_optiodom`);
+* a CSV file with a column map (:mod:`realitygap.diagnosis.logs.importers.csv_log`);
+* a ROS 1 bag or a ROS 2 bag folder (:mod:`realitygap.diagnosis.logs.importers.rosbag`).
+
+A file whose extension promises something else than its content is refused
+with a message naming both.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from realitygap.core.checks import (
+    ResourceLimits,
+    check_finite_float,
+    check_regular_file,
+    check_rows_limit,
+)
+from realitygap.diagnosis.adapters.diffdrive.replay import nominal_odometry, params_to_meta
+from realitygap.diagnosis.logs.log import Log, LogError, sniff_file_kind
+from realitygap.robots.diffdrive import DiffDriveParams
+
+__all__ = [
+    "ReadOptions",
+    "check_plausible",
+    "log_from_ur10_series",
+    "logs_from_optiodom",
+    "logs_from_ur10",
+    "read_logs",
+    "resample_split",
+]
+
+_EXT_KIND = {
+    ".npz": {"npz"},
+    ".csv": {"text"},
+    ".txt": {"text"},
+    ".tsv": {"text"},
+    ".bag": {"rosbag1"},
+    ".db3": {"sqlite"},
+    ".mcap": {"mcap"},
+}
+
+
+@dataclass(frozen=True)
+class ReadOptions:
+    """Options for the importers (all optional).
+
+    Attributes
+    ----------
+    columns : str or None
+        CSV column map (see :class:`~realitygap.diagnosis.logs.importers.csv_log.ColumnMap`).
+    decimal, delimiter : str or None
+        CSV number format (default: detected).
+    nan : {"raise", "interpolate", "drop"}
+        Missing CSV values.
+    params : mapping or None
+        Nominal robot parameters for CSV and bag logs.
+    firmware : mapping or None
+        ``{"a_max", "alpha_max"}`` if the commands are requests the firmware rate-limits.
+    cmd_topic, odom_topic, truth_topic, truth_frame, wheels_topic : str or None
+        ROS bag topics.
+    rate_hz : float
+        Resampling rate of bags.
+    resample : float or None
+        Resample every log to this step (s) — for jittery time stamps.
+    check_plausible : bool
+        Refuse wheeled logs whose speeds, wheel rates or row rate are physically
+        implausible (:func:`check_plausible`), a sign of a wrong unit.
+    """
+
+    columns: str | None = None
+    decimal: str | None = None
+    delimiter: str | None = None
+    nan: str = "raise"
+    params: Mapping[str, Any] | None = None
+    firmware: Mapping[str, Any] | None = None
+    cmd_topic: str = "/cmd_vel"
+    odom_topic: str | None = "/odom"
+    truth_topic: str | None = None
+    truth_frame: str | None = None
+    wheels_topic: str | None = None
+    rate_hz: float = 20.0
+    resample: float | None = None
+    check_plausible: bool = True
+
+
+def logs_from_optiodom(
+    folder: str | os.PathLike[str], warn: Callable[[str], None] | None = None
+) -> list[Log]:
+    """One :class:`Log` per run of an OptiOdom session folder (or of every session below a folder).
+
+    Channels: ``pose_gt`` (OptiTrack, start frame), ``ticks`` (cumulative
+    counts from the per-cycle increments), ``pose_est`` (the robot's own
+    odometry from its log, in the start frame; nominal dead reckoning of the
+    ticks when the robot log cannot be aligned) and, when
+    the robot log could be aligned, ``cmd`` — the commanded linear
+    (ticks/cycle → m/s) and angular (rad/cycle → rad/s) velocity. The
+    firmware's acceleration limits from the robot-log header (``DVMAX``
+    ticks/cycle², ``DWMAX`` rad/cycle²) go to ``meta["firmware"]``, so a replay
+    ramps the commands as the robot did. A run too short to be a log is dropped and
+    named through ``warn``.
+    """
+    from realitygap.diagnosis.logs.importers.optiodom import find_sessions, read_session
+
+    root = Path(folder)
+    sessions = find_sessions(root)
+    if not sessions:
+        raise LogError(
+            f"{root}: no OptiOdom session found (expected <ID>/<ID>_metadata.csv below it)"
+        )
+    say = warn if warn is not None else (lambda msg: None)
+    logs: list[Log] = []
+    for sdir in sessions:
+        session = read_session(sdir)
+        m = session.metadata
+        tpr = m.gear_ratio * m.encoder_resolution
+        params = DiffDriveParams(
+            wheel_radius_left=m.wheel_diameter_left / 2.0,
+            wheel_radius_right=m.wheel_diameter_right / 2.0,
+            wheelbase=m.wheelbase,
+            ticks_per_rev=tpr,
+        )
+        mean_d = 0.5 * (m.wheel_diameter_left + m.wheel_diameter_right)
+        m_per_tick = math.pi * mean_d / tpr
+        header = session.robot_log_header
+        for run in session.runs:
+            t = np.asarray(run.time, dtype=float)
+            if t.shape[0] < 3:
+                say(
+                    f"{run.path}: run dropped: {t.shape[0]} row(s), a log needs at least 3 "
+                    "(a start, a motion and an end)"
+                )
+                continue
+            dt = float(np.median(np.diff(t)))
+            inc = np.column_stack([run.ticks_left, run.ticks_right]).astype(float)
+            inc[0] = 0.0
+            ticks = np.cumsum(inc, axis=0)
+            channels: dict[str, Any] = {
+                "pose_gt": np.asarray(run.gt_pose, dtype=float),
+                "ticks": ticks,
+            }
+            # the robot's own odometry when the robot log is aligned, else nominal dead reckoning
+            rl, off = run.robot_log, run.robot_log_offset
+            if rl is not None and off is not None and off + t.shape[0] <= rl.odo_pose.shape[0]:
+                est = np.asarray(rl.odo_pose[off : off + t.shape[0]], dtype=float)
+                channels["pose_est"] = _to_start_frame(est)
+            else:
+                channels["pose_est"] = nominal_odometry(ticks, params, np.zeros(3))
+            meta: dict[str, Any] = {
+                "robot": "diffdrive",
+                "params": params_to_meta(params),
+                "name": f"{session.session_id}_run-{run.index:02d}",
+                "source": str(run.path),
+                "dataset": "optiodom",
+                "path_type": session.path_type.value,
+                "direction": run.direction,
+                "session": session.session_id,
+                "run": run.index,
+            }
+            if run.cmd_linear is not None and run.cmd_angular is not None:
+                channels["cmd"] = np.column_stack(
+                    [np.asarray(run.cmd_linear) * m_per_tick / dt, np.asarray(run.cmd_angular) / dt]
+                )
+                fw: dict[str, float] = {}
+                for key, name, scale in (
+                    ("DVMAX(ticks/cyc^2)", "a_max", m_per_tick / dt**2),
+                    ("DWMAX(ticks/cyc^2)", "alpha_max", 1.0 / dt**2),
+                ):
+                    vals = header.get(key)
+                    if vals:
+                        try:
+                            fw[name] = float(vals[0]) * scale
+                        except ValueError:
+                            pass
+                if fw:
+                    meta["firmware"] = fw
+            meta["command_alignment"] = run.alignment
+            logs.append(Log(t=t - t[0], channels=channels, meta=meta, source=str(run.path)))
+    return logs
+
+
+def _to_start_frame(pose: np.ndarray) -> np.ndarray:
+    """Poses (N, 3) expressed in the frame of the first one, continuous heading."""
+    c, s = math.cos(pose[0, 2]), math.sin(pose[0, 2])
+    dx, dy = pose[:, 0] - pose[0, 0], pose[:, 1] - pose[0, 1]
+    th = np.unwrap(pose[:, 2] - pose[0, 2])
+    return np.column_stack([c * dx + s * dy, -s * dx + c * dy, th])
+
+
+UR10_LINK_MASSES: tuple[float, ...] = (7.1, 12.7, 4.27, 2.0, 2.0, 0.365)
+"""Link masses of the UR10 (kg), from Universal Robots' published dynamics parameters."""
+
+UR10_REPEATABILITY_SIGMA = 0.1e-3 / 3.0
+"""One standard deviation of the UR10's pose repeatability (m): its data sheet gives ±0.1 mm,
+taken as a 3-σ bound."""
+
+UR10_TRACKER_SIGMA = 1.0e-5
+"""Per-axis noise of the laser tracker (m) for series that do not report their own."""
+
+UR10_PROBE_MASS = 1.2
+"""Mass of the tracker probe and its adapter on the flange (kg); an assumption (a T-Mac
+probe weighs about 1.1 kg), used only for the holding torques of the compliance effect."""
+
+
+def log_from_ur10_series(series: Any) -> Log:
+    """An arm :class:`Log` from one UR10 laser-tracker series
+    (:class:`~realitygap.diagnosis.logs.importers.ur10.UR10Series`).
+
+    One row per pose in file order (``t`` counts poses): ``joints`` are the joint
+    readings, ``tool_pos`` the probe positions in the tracker frame; the nominal
+    arm is the published UR10 table with UR10 link masses, the tool the probe
+    point in the flange frame from the series' ``Trafo_TM_F_init.txt``, and the
+    noise of one measurement (``meta["tool_noise_m"]``) the tracker's reported
+    standard deviation (or :data:`UR10_TRACKER_SIGMA`) combined with the arm's
+    repeatability (:data:`UR10_REPEATABILITY_SIGMA`).
+    """
+    from realitygap.diagnosis.adapters.arm.adapter import arm_params_to_meta
+    from realitygap.estimators.arm.mdh import MDHTable
+    from realitygap.robots.arm import ArmParams
+
+    params = ArmParams(
+        mdh=MDHTable.ur10(), link_masses=UR10_LINK_MASSES, camera_mass=UR10_PROBE_MASS
+    )
+    tracker = (
+        float(np.median(series.position_std))
+        if series.position_std is not None
+        else UR10_TRACKER_SIGMA
+    )
+    noise = math.hypot(tracker, UR10_REPEATABILITY_SIGMA)
+    return Log(
+        t=np.arange(series.n, dtype=float),
+        channels={"joints": series.joint_angles, "tool_pos": series.probe_positions},
+        meta={
+            "robot": "arm",
+            "name": series.name,
+            "params": arm_params_to_meta(params),
+            "tool": series.probe_in_flange.tolist(),
+            "tool_noise_m": noise,
+            "importer": "ur10",
+            "timestamps_valid": bool(series.timestamps_valid),
+        },
+        source=series.source,
+    )
+
+
+def logs_from_ur10(path: str | os.PathLike[str]) -> list[Log]:
+    """Arm logs from a UR10 laser-tracker folder (``Series_*/measurements_*.csv``), one
+    ``Series_*`` folder, or one ``measurements_*.csv`` file; one log per measurement file."""
+    from realitygap.diagnosis.logs.importers.ur10 import (
+        read_transform_txt,
+        read_ur10_dataset,
+        read_ur10_measurements,
+    )
+
+    p = Path(path)
+    try:
+        if p.is_dir() and any(p.glob("Series_*/measurements_*.csv")):
+            series = list(read_ur10_dataset(p).series)
+        else:
+            files = sorted(p.glob("measurements_*.csv")) if p.is_dir() else [p]
+            folder = p if p.is_dir() else p.parent
+            init = folder / "Trafo_TM_F_init.txt"
+            T0 = read_transform_txt(init) if init.exists() else None
+            series = [read_ur10_measurements(f, T0, name=f"{folder.name}/{f.stem}") for f in files]
+    except ValueError as exc:
+        raise LogError(str(exc)) from None
+    return [log_from_ur10_series(s) for s in series]
+
+
+def _looks_like_ur10(p: Path) -> bool:
+    if p.is_dir():
+        return any(p.glob("Series_*/measurements_*.csv")) or any(p.glob("measurements_*.csv"))
+    try:
+        with open(p, encoding="utf-8-sig", errors="replace") as fh:
+            head = fh.readline()
+    except OSError:
+        return False
+    return "Goal x" in head and "measurement_x" in head and "shoulder_pan_joint" in head
+
+
+def _looks_like_optiodom(p: Path) -> bool:
+    if (p / f"{p.name}_metadata.csv").is_file():
+        return True
+    return any(p.glob("*/*_metadata.csv")) or any(p.glob("*/*/*_metadata.csv"))
+
+
+def read_logs(
+    path: str | os.PathLike[str],
+    options: ReadOptions | None = None,
+    warn: Callable[[str], None] | None = None,
+) -> list[Log]:
+    """Read one LOG argument (file or folder) into one or more logs.
+
+    ``warn`` receives a message for every run dropped or split (with the reason).
+
+    Raises
+    ------
+    LogError
+        Unknown content, an extension that contradicts the content, a CSV
+        without a column map, or an importer's own error (which names the
+        file, the channel and the fix).
+    """
+    opt = options if options is not None else ReadOptions()
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"no such file or folder: {p}")
+    if not p.is_dir():
+        try:
+            check_regular_file(p, "LOG")
+        except ValueError as exc:
+            raise LogError(str(exc)) from None
+    kind = sniff_file_kind(p)
+    ext = p.suffix.lower()
+    if kind != "directory" and ext in _EXT_KIND and kind not in _EXT_KIND[ext]:
+        raise LogError(
+            f"{p}: the extension {ext!r} promises {'/'.join(sorted(_EXT_KIND[ext]))} but the "
+            f"content looks like {kind}. Fix: rename the file or export it again"
+        )
+    if kind == "directory":
+        if (p / "metadata.yaml").is_file():
+            logs = [_read_bag(p, opt)]
+        elif _looks_like_optiodom(p):
+            logs = logs_from_optiodom(p, warn)
+        elif _looks_like_ur10(p):
+            logs = logs_from_ur10(p)
+        else:
+            raise LogError(
+                f"{p}: a folder that is neither an OptiOdom session (<ID>/<ID>_metadata.csv), "
+                "a UR10 laser-tracker set (Series_*/measurements_*.csv) nor a ROS 2 bag "
+                "(metadata.yaml)"
+            )
+    elif kind == "npz":
+        logs = [Log.load(p)]
+    elif kind == "text" and not opt.columns and _looks_like_ur10(p):
+        logs = logs_from_ur10(p)
+    elif kind == "text":
+        if not opt.columns:
+            near = _ur10_near_miss(p)
+            if near:
+                raise LogError(near)
+            raise LogError(
+                f"{p}: a CSV file with the header {_header_text(p)}; it is not a known layout "
+                f"(a UR10 measurement file has the columns {', '.join(UR10_KEY_COLUMNS)}), so "
+                "it needs a column map saying which column is what, e.g. --columns "
+                "'t=time:s,cmd.v=v,cmd.w=w,pose_gt.x=x,pose_gt.y=y,pose_gt.theta=yaw'"
+            )
+        from realitygap.diagnosis.logs.importers.csv_log import read_csv_log
+
+        meta = {"firmware": dict(opt.firmware)} if opt.firmware else None
+        logs = [
+            read_csv_log(
+                p,
+                opt.columns,
+                delimiter=opt.delimiter,
+                decimal=opt.decimal,
+                params=opt.params,
+                meta=meta,
+                nan=opt.nan,
+            )
+        ]
+    elif kind in ("rosbag1", "sqlite", "mcap"):
+        logs = [_read_bag(p, opt)]
+    else:
+        raise LogError(
+            f"{p}: not a log the diagnosis can read (content looks like {kind}, not text); "
+            "expected a .npz "
+            "log, a CSV file, a ROS bag or an OptiOdom session folder"
+        )
+    if opt.check_plausible:
+        for lg in logs:
+            try:
+                check_plausible(lg)
+            except LogError as exc:
+                raise LogError(
+                    f"{exc} (if these numbers are right, skip the check: --no-plausibility-check, "
+                    "or ReadOptions(check_plausible=False))"
+                ) from None
+    if opt.resample is not None:
+        logs = [piece for lg in logs for piece in resample_split(lg, opt.resample, warn)]
+    return logs
+
+
+MAX_BASE_SPEED = 10.0
+"""Fastest plausible speed of a wheeled base (m/s)."""
+
+MAX_WHEEL_RPM = 3000.0
+"""Fastest plausible wheel rotation (rev/min)."""
+
+MIN_ROW_RATE = 1.0
+"""Slowest plausible row rate of a wheeled log (Hz); slower suggests a time unit mix-up."""
+
+ODOMETRY_RATIO_RANGE = (0.5, 2.0)
+"""Plausible ratio of wheel-odometry path length to true path length."""
+
+PATH_STRIDE_S = 0.5
+"""Time between the samples the path lengths are measured over (s): row-to-row steps of a
+fast, noisy ground truth add its noise to the path; half-second chords do not."""
+
+
+def check_plausible(log: Log) -> None:
+    """Refuse a wheeled log whose numbers are physically implausible (a unit mix-up).
+
+    Checked, with the unit in the message: the 99th-percentile speed of
+    ``pose_gt`` and ``pose_est`` (≤ :data:`MAX_BASE_SPEED`), the
+    99th-percentile wheel rate from ``ticks`` and ``ticks_per_rev``
+    (≤ :data:`MAX_WHEEL_RPM`), the row rate (≥ :data:`MIN_ROW_RATE`), and the
+    wheel-odometry path length against the true one (within
+    :data:`ODOMETRY_RATIO_RANGE` when the robot moved more than 0.5 m; both over
+    chords :data:`PATH_STRIDE_S` apart, so that a fast, noisy ground truth does not
+    lengthen its path by its noise).
+
+    Raises
+    ------
+    LogError
+        Naming the file, the channel, the value with its unit, the bound and the likely fix.
+    """
+    if str(log.meta.get("robot", "diffdrive")) != "diffdrive" or log.n < 3:
+        return
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow → inf, which is refused
+        _check_plausible(log)
+
+
+def _check_plausible(log: Log) -> None:
+    src = log.source or log.name
+    dt = np.diff(log.t)
+    rate = 1.0 / float(np.median(dt))
+    if rate < MIN_ROW_RATE:
+        raise LogError(
+            f"{src}: rows arrive at {rate:.3g} Hz over {log.duration / 3600:.3g} h, implausible "
+            f"for a wheeled log (at least {MIN_ROW_RATE:g} Hz expected). Fix: a time column in "
+            "ms or µs declared as s? give its unit in the column map, e.g. 't=time:ms'"
+        )
+    paths: dict[str, float] = {}
+    stride = max(1, int(round(PATH_STRIDE_S * rate)))
+    for name in ("pose_gt", "pose_est"):
+        if log.has(name):
+            xy = log[name][:, :2]
+            step = np.hypot(*np.diff(xy, axis=0).T)
+            paths[name] = float(np.hypot(*np.diff(xy[::stride], axis=0).T).sum())
+            speed = float(np.percentile(step / dt, 99))
+            if not speed <= MAX_BASE_SPEED:
+                raise LogError(
+                    f"{src}: channel {name!r} moves at {speed:.4g} m/s (99th percentile), "
+                    f"implausible for a wheeled robot (≤ {MAX_BASE_SPEED:g} m/s). Fix: positions "
+                    "in mm or cm declared as m? give the unit in the column map, e.g. "
+                    f"'{name}.x=x:mm'"
+                )
+    params = log.meta.get("params", {})
+    tpr = params.get("ticks_per_rev") if isinstance(params, dict) else None
+    if log.has("ticks") and isinstance(tpr, (int, float)) and tpr > 0:
+        dticks = np.abs(np.diff(log["ticks"], axis=0))
+        rpm = float(np.percentile(dticks.max(axis=1) / dt, 99)) / tpr * 60.0
+        if not rpm <= MAX_WHEEL_RPM:
+            raise LogError(
+                f"{src}: channel 'ticks' turns a wheel at {rpm:.4g} rev/min (99th percentile, "
+                f"with ticks_per_rev={tpr:g}), implausible (≤ {MAX_WHEEL_RPM:g} rev/min). Fix: "
+                "check ticks_per_rev in --params and whether the counts are scaled"
+            )
+        radius = 0.5 * (
+            float(params.get("wheel_radius_left", 0.0))
+            + float(params.get("wheel_radius_right", 0.0))
+        )
+        truth = paths.get("pose_gt", 0.0)
+        if radius > 0 and truth > 0.5:
+            wheel = float(np.sum(np.abs(np.diff(log["ticks"].mean(axis=1)[::stride]))))
+            ratio = wheel * 2.0 * math.pi * radius / tpr / truth
+            lo, hi = ODOMETRY_RATIO_RANGE
+            if not lo <= ratio <= hi:
+                raise LogError(
+                    f"{src}: the wheels travelled {ratio:.3g} × the true path length "
+                    f"({truth:.3g} m of 'pose_gt'), outside the plausible {lo:g}–{hi:g}. Fix: "
+                    "scaled tick counts (e.g. quadrature ×4), a wrong ticks_per_rev or wheel "
+                    "radius in --params, or pose_gt in the wrong unit"
+                )
+
+
+UR10_KEY_COLUMNS = ("Goal x", "measurement_x", "shoulder_pan_joint")
+"""Header names that mark a UR10 laser-tracker measurement file."""
+
+
+def _ur10_near_miss(p: Path) -> str | None:
+    """The message for a file with most, but not all, UR10 measurement columns (else None)."""
+    import difflib
+
+    from realitygap.diagnosis.logs.importers.ur10 import REQUIRED_COLUMNS
+
+    try:
+        with open(p, encoding="utf-8-sig", errors="replace") as fh:
+            head = fh.readline(20_000).strip()
+    except OSError:
+        return None
+    found = [c.strip() for c in head.replace(";", ",").split(",")]
+    missing = [c for c in REQUIRED_COLUMNS if c not in found]
+    if not missing or len(missing) > len(REQUIRED_COLUMNS) // 2:
+        return None
+    extra = [c for c in found if c and c not in REQUIRED_COLUMNS and c != "Timestamp"]
+    hints = []
+    for c in missing:
+        close = difflib.get_close_matches(c, extra, n=1, cutoff=0.6)
+        hints.append(f"{c!r}" + (f" (found {close[0]!r})" if close else ""))
+    return (
+        f"{p}: looks like a UR10 laser-tracker measurement file, but the header lacks "
+        f"{', '.join(hints)}; expected the columns {', '.join(REQUIRED_COLUMNS)}. Fix: restore the "
+        "column names (or pass a column map with --columns for another layout)"
+    )
+
+
+def _header_text(p: Path) -> str:
+    try:
+        with open(p, encoding="utf-8-sig", errors="replace") as fh:
+            head = fh.readline(2000).strip()
+    except OSError:
+        return "(unreadable)"
+    return repr(head[:200] + ("…" if len(head) > 200 else ""))
+
+
+def resample_split(
+    log: Log,
+    dt: float,
+    warn: Callable[[str], None] | None = None,
+    limits: ResourceLimits | None = None,
+) -> list[Log]:
+    """``log`` resampled to the step ``dt`` (s), split where its time stamps have gaps.
+
+    A gap longer than ``limits.max_gap_steps`` steps is never bridged by
+    interpolation: the log is split there, each piece is resampled on its own
+    and ``warn`` names the gap. Pieces shorter than 3 rows are dropped (and
+    named). The number of rows is checked against the limits before any array
+    is allocated.
+
+    Raises
+    ------
+    LogError
+        ``dt`` not a positive number, or the resampled log beyond the limits.
+    """
+    lim = limits if limits is not None else ResourceLimits.from_environment()
+    say = warn if warn is not None else (lambda msg: None)
+    try:
+        dt = check_finite_float(dt, "--resample", low=0.0, strict_low=True, unit="s")
+        cols = sum(a.shape[1] for a in log.channels.values()) + 1
+        check_rows_limit(int(log.duration / dt) + 1, cols, f"{log.source}: --resample {dt:g}", lim)
+    except ValueError as exc:
+        raise LogError(str(exc)) from None
+    gaps = np.flatnonzero(np.diff(log.t) > lim.max_gap_steps * dt)
+    bounds = [0, *(int(g) + 1 for g in gaps), log.n]
+    for g in gaps:
+        say(
+            f"{log.source}: a gap of {log.t[g + 1] - log.t[g]:.6g} s after t={log.t[g]:.6g} s is "
+            f"longer than {lim.max_gap_steps:g} resampling steps of {dt:g} s; the run is split "
+            "there instead of inventing rows (REALITYGAP_MAX_GAP_STEPS sets how many steps may "
+            "be bridged)"
+        )
+    out: list[Log] = []
+    for k, (a, b) in enumerate(itertools.pairwise(bounds)):
+        if b - a < 2 or int((log.t[b - 1] - log.t[a]) / dt) + 1 < 3:
+            say(f"{log.source}: piece {k + 1} (rows {a}..{b - 1}) dropped: shorter than 3 steps")
+            continue
+        piece = log.slice(a, b) if len(bounds) > 2 else log
+        res = piece.resampled(dt)
+        if len(bounds) > 2:
+            res = res.replace(meta={**res.meta, "name": f"{log.name}_part-{k + 1}"})
+        out.append(res)
+    return out
+
+
+def _read_bag(p: Path, opt: ReadOptions) -> Log:
+    from realitygap.diagnosis.logs.importers.rosbag import BagTopics, read_bag
+
+    topics = BagTopics(
+        cmd=opt.cmd_topic,
+        odom=opt.odom_topic,
+        truth=opt.truth_topic,
+        truth_frame=opt.truth_frame,
+        wheels=opt.wheels_topic,
+    )
+    meta = {"firmware": dict(opt.firmware)} if opt.firmware else None
+    return read_bag(p, topics, rate_hz=opt.rate_hz, params=opt.params, meta=meta)
+
+
+def read_many(
+    paths: Sequence[str | os.PathLike[str]],
+    options: ReadOptions | None = None,
+    warn: Callable[[str], None] | None = None,
+) -> list[Log]:
+    """:func:`read_logs` over several paths, concatenated.
+
+    Raises
+    ------
+    LogError
+        If no path gave a log (every run dropped), naming the paths.
+    """
+    out: list[Log] = []
+    for path in paths:
+        out += read_logs(path, options, warn)
+    if paths and not out:
+        raise LogError(
+            f"no usable log in {', '.join(map(str, paths))}: every run was dropped (see the "
+            "warnings above for each run and why)"
+        )
+    return out
+
+
+__all__ += ["read_many"]

@@ -1,0 +1,405 @@
+"""Words before numbers: the opening sentences of a diagnosis, and the names a person reads.
+
+:func:`summary_sentences` turns a :class:`~realitygap.diagnosis.diagnose.Diagnosis`
+into a few sentences — what was compared with what, where the gap lies (in plain
+names: "heading, while accelerating"), which effect explains it with its fitted
+value in engineering units at the precision its uncertainty allows, how much of
+the held-out gap it closes, the verdict rule next to the numbers it was applied
+to, and what remains. The terminal (``realitygap diagnose``, ``realitygap run``)
+and the report (:mod:`realitygap.diagnosis.report.writer`) print the same sentences.
+
+:func:`channel_name`, :func:`regime_name` and :func:`quantity` are the one place
+where feature columns, motion regimes and values get their human form; tables and
+figure labels use them too. :func:`ranking_by_shrink` orders candidates by what
+the reader compares: the held-out shrink.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any
+
+from realitygap.diagnosis.problem.shrink import concentrated_gap
+
+if TYPE_CHECKING:
+    from realitygap.diagnosis.diagnose import Diagnosis
+
+__all__ = [
+    "channel_name",
+    "group_name",
+    "quantity",
+    "ranking_by_shrink",
+    "regime_name",
+    "stage_split",
+    "summary_sentences",
+    "value_words",
+]
+
+GROUP_NAMES: dict[str, str] = {
+    "pose_gt": "ground-truth motion",
+    "ticks": "wheel encoders",
+    "pose_cam": "camera pose",
+    "tool_dist": "tool-point distances",
+    "tether": "tether",
+    "surface": "ride height",
+}
+"""Feature group → what a person calls it."""
+
+CHANNEL_NAMES: dict[tuple[str, str], str] = {
+    ("pose_gt", "dx"): "forward travel",
+    ("pose_gt", "dy"): "sideways travel",
+    ("pose_gt", "dtheta"): "heading",
+    ("ticks", "left"): "left wheel travel",
+    ("ticks", "right"): "right wheel travel",
+    ("pose_cam", "ex"): "camera forward position",
+    ("pose_cam", "ey"): "camera sideways position",
+    ("pose_cam", "etheta"): "camera heading",
+    ("tether", "length"): "tether length",
+    ("surface", "height"): "ride height",
+}
+"""(feature group, column) → what a person calls it; other columns fall back to
+``"<group name> <column>"``."""
+
+REGIME_NAMES: dict[str, str] = {
+    "all": "over all motions",
+    "standing": "while standing",
+    "straight": "while driving straight",
+    "turning_ccw": "while turning left",
+    "turning_cw": "while turning right",
+    "accelerating": "while accelerating",
+}
+"""Motion regime → the phrase that follows a channel name."""
+
+DRIVE_WORDS: dict[str, str] = {
+    "commands": "driven by the logged velocity commands (what the simulated robot was told)",
+    "ticks": "driven by the logged wheel rotation (what the encoders counted)",
+}
+
+
+def group_name(group: str) -> str:
+    """The human name of a feature group (``"ticks"`` → ``"wheel encoders"``)."""
+    return GROUP_NAMES.get(group, group.replace("_", " "))
+
+
+def channel_name(group: str, column: str) -> str:
+    """The human name of a feature column (``("pose_gt", "dtheta")`` → ``"heading"``)."""
+    if (group, column) in CHANNEL_NAMES:
+        return CHANNEL_NAMES[(group, column)]
+    if column == "all":
+        return group_name(group)
+    return f"{group_name(group)} {column.replace('_', ' ')}"
+
+
+def regime_name(regime: str) -> str:
+    """The phrase for a motion regime (``"accelerating"`` → ``"while accelerating"``)."""
+    return REGIME_NAMES.get(regime, f"while {regime.replace('_', ' ')}")
+
+
+_ENGINEERING: dict[str, tuple[str, float]] = {
+    "m": ("mm", 1e3),
+    "s": ("ms", 1e3),
+    "rad": ("°", 180.0 / math.pi),
+    "rad/s": ("°/s", 180.0 / math.pi),
+    "m/s": ("mm/s", 1e3),
+}
+
+
+def _digits(step: float) -> int:
+    """Decimals that show ``step`` with two significant digits (0 … 6)."""
+    if not (math.isfinite(step) and step > 0):
+        return 3
+    return int(min(6, max(0, 1 - math.floor(math.log10(step)))))
+
+
+def quantity(value: float, unit: str, stderr: float | None = None) -> str:
+    """``value`` (SI ``unit``) in engineering units, rounded to what ``stderr`` resolves.
+
+    Lengths go to mm, times to ms, angles to degrees; ratios (unit ``"1"``) stay
+    plain. With a finite ``stderr`` the value keeps two significant digits of the
+    uncertainty and the uncertainty is shown (``"1.70 ± 0.21 ms"``); without one,
+    three significant digits.
+
+    Examples
+    --------
+    >>> quantity(0.0017, "s", 0.00021)
+    '1.70 ± 0.21 ms'
+    >>> quantity(1.008, "1")
+    '1.01'
+    >>> quantity(1.0712, "m")
+    '1.07 m'
+    """
+    if not math.isfinite(value):
+        return f"{value} {unit}".strip()
+    shown_unit, factor = _ENGINEERING.get(unit, ("" if unit == "1" else unit, 1.0))
+    if factor > 1.0 and abs(value * factor) >= 1e3:
+        shown_unit, factor = unit, 1.0  # 1.07 m, not 1.07e+03 mm
+    v = value * factor
+    if stderr is not None and math.isfinite(stderr) and stderr > 0:
+        e = stderr * factor
+        nd = _digits(e)
+        text = f"{v:.{nd}f} ± {e:.{nd}f}"
+    else:
+        text = f"{v:.3g}" if abs(v) >= 1e-3 or v == 0 else f"{v:.2e}"
+    sep = "" if shown_unit in ("°", "°/s", "") else " "
+    return f"{text}{sep}{shown_unit}" if shown_unit else text
+
+
+def value_words(key: str, param: Mapping[str, Any], description: str = "") -> str:
+    """One fitted parameter in words: what it is, its value, how far from nominal.
+
+    Parameters
+    ----------
+    key : str
+        ``"effect.param"``.
+    param : mapping
+        ``value``, ``stderr``, ``unit``, ``nominal`` (a row of
+        :meth:`Diagnosis.ranking_rows`).
+    description : str
+        What the parameter is (its ``ParamSpec.description``).
+    """
+    value, unit = float(param["value"]), str(param["unit"])
+    stderr = float(param.get("stderr", math.nan))
+    nominal = float(param.get("nominal", math.nan))
+    name = key.split(".", 1)[-1]
+    what = f"{description} ({name})" if description else name
+    text = f"{what} = {quantity(value, unit, stderr)}"
+    if math.isfinite(stderr) and stderr > 0 and abs(value - nominal) < stderr:
+        return text + ", not resolved from its nominal value by these logs"
+    if unit == "1" and math.isfinite(nominal) and nominal != 0:
+        pct = 100.0 * (value / nominal - 1.0)
+        text += f", {abs(pct):.2g} % {'above' if pct > 0 else 'below'} nominal {nominal:g}"
+    return text
+
+
+def ranking_by_shrink(rows: Sequence[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
+    """Ranking rows ordered by held-out shrink, largest first (ties keep their rank)."""
+    return sorted(rows, key=lambda r: (-float(r.get("heldout_shrink_pct", -math.inf)), r["rank"]))
+
+
+def _param_descriptions(effects: Sequence[str]) -> dict[str, str]:
+    from realitygap.robots.effects import EFFECTS
+
+    out = {}
+    for e in effects:
+        cls = EFFECTS.get(e)
+        if cls is None:
+            continue
+        for spec in cls.specs:
+            out[f"{e}.{spec.name}"] = spec.description
+    return out
+
+
+def _rest_over_noise(residual: Mapping[str, Any]) -> tuple[float, str]:
+    """Largest ratio of the remaining residual to its noise level, and where."""
+    worst, where = 0.0, ""
+    for g, info in residual.get("groups", {}).items():
+        for ratio, place in (
+            (info.get("excess_ratio", 0.0), group_name(g)),
+            (info.get("worst_concentration", 0.0), info.get("worst_concentration_where", "")),
+        ):
+            if ratio is not None and math.isfinite(ratio) and ratio > worst:
+                worst, where = float(ratio), str(place) or group_name(g)
+                if place and place != group_name(g):
+                    col, _, reg = str(place).partition(" while ")
+                    where = channel_name(g, col) + (f", {regime_name(reg)}" if reg else "")
+    return worst, where
+
+
+def where_rows(d: Diagnosis, n: int = 3) -> list[dict[str, Any]]:
+    """The ``n`` channel-and-regime cells with the largest share of the nominal gap."""
+    table = [
+        r
+        for r in d.localisation.get("table", [])
+        if r.get("kind") == "channel" and r.get("regime") != "all"
+    ]
+    return sorted(table, key=lambda r: -float(r.get("share", 0.0)))[:n]
+
+
+def stage_split(d: Diagnosis) -> tuple[float, float] | None:
+    """Shares (%) of the adapter's two :attr:`drive_stages` (up to the actuators, after
+    them) in what both carry (normalised sums of squares over every window), or ``None``
+    where the adapter names none or the diagnosis holds not both."""
+    from realitygap.diagnosis.adapters.registry import get_adapter
+
+    names = get_adapter(d.settings.robot).drive_stages
+    if names is None:
+        return None
+    ss: dict[str, float] = {}
+    for r in d.localisation.get("overall", []):
+        if r["kind"] == "stage":
+            ss[r["where"]] = ss.get(r["where"], 0.0) + float(r["normalised_ss"])
+    a, b = ss.get(names[0]), ss.get(names[1])
+    if a is None or b is None or a + b <= 0:
+        return None
+    return 100.0 * a / (a + b), 100.0 * b / (a + b)
+
+
+def summary_sentences(d: Diagnosis) -> list[str]:
+    """The opening sentences of a diagnosis report (see the module docstring)."""
+    js_logs = {
+        "train": [p.name for p in d.prepared if p.split == "train"],
+        "holdout": [p.name for p in d.prepared if p.split == "holdout"],
+    }
+    robot = {"diffdrive": "differential drive", "arm": "arm", "climber": "climbing robot"}.get(
+        d.settings.robot, d.settings.robot
+    )
+    drive = DRIVE_WORDS.get(d.settings.drive, f"driven by the logged {d.settings.drive}")
+    held = (
+        f"{len(js_logs['holdout'])} held-out run(s)"
+        if js_logs["holdout"]
+        else "held-out blocks of windows of the same runs"
+    )
+    out = [
+        f"Compared {len(js_logs['train'])} recorded training run(s) and {held} of the real "
+        f"{robot} with its nominal PyBullet simulation, {drive}, window by window "
+        f"({d.settings.features.window_s:g} s windows)."
+    ]
+    cells = where_rows(d)
+    if cells:
+        parts = [
+            f"{channel_name(c['where'], c['column'])}, {regime_name(c['regime'])} "
+            f"({100 * c['share']:.0f} % of the gap; RMS {quantity(c['rms'], c['unit'])} per window)"
+            for c in cells
+        ]
+        out.append("The gap lies mostly in " + "; then ".join(parts) + ".")
+    split = stage_split(d)
+    if split is not None:
+        out.append(
+            f"By pipeline stage, {split[0]:.0f} % of it lies between the commands and the wheels "
+            "(what the encoders counted against what the commands asked of the nominal drive "
+            f"train) and {split[1]:.0f} % between the wheels and the body (the ground truth "
+            "against the encoders)."
+        )
+    rows = d.ranking_rows()
+    g = d.gap
+    best_row = rows[0] if rows else None
+    if best_row is not None and best_row["effects"]:
+        descs = _param_descriptions(best_row["effects"])
+        vals = "; ".join(value_words(k, p, descs.get(k, "")) for k, p in best_row["params"].items())
+        closes = float(g.get("heldout_shrink_pct_best", best_row["heldout_shrink_pct"]))
+        sentence = (
+            f"The best-scoring candidate is {best_row['name']}: {vals}. "
+            f"It closes {closes:.0f} % of the held-out gap window by window"
+        )
+        if "heldout_trajectory_gap_m_best" in g:
+            traj = g.get("heldout_trajectory_shrink_pct_best")
+            sentence += (
+                "; over whole held-out runs the RMS position error goes from "
+                f"{quantity(g['heldout_trajectory_gap_m_nominal'], 'm')} nominal to "
+                f"{quantity(g['heldout_trajectory_gap_m_best'], 'm')}"
+                + (f" ({float(traj):.0f} % less)" if traj is not None else "")
+            )
+        widest = max(rows, key=lambda r: float(r["heldout_shrink_pct"]))
+        if float(widest["heldout_shrink_pct"]) > closes + 1.0 and widest is not best_row:
+            sentence += (
+                f"; the most any candidate closes is {float(widest['heldout_shrink_pct']):.0f} % "
+                f"({widest['name']}), not enough to outscore it on held-out data"
+            )
+        out.append(sentence + ".")
+    trained = d.verdict.notes.get("training_only") if d.verdict.kind == "effects" else None
+    chosen = next((r for r in rows if r["effects"] == list(d.verdict.effects)), None)
+    if trained and chosen is not None:
+        descs = _param_descriptions(chosen["effects"])
+        vals = "; ".join(value_words(k, p, descs.get(k, "")) for k, p in chosen["params"].items())
+        out.append(
+            "The held-out windows show no gap above their noise, the training windows one of up "
+            f"to {trained['train_gap_excess']:.0f}× theirs: on the training, {chosen['name']} "
+            f"({vals}) closes {trained['train_shrink_pct_above_noise']:.0f} % of it above the "
+            "noise floor."
+        )
+    conc = concentrated_gap(g.get("heldout_trajectory_runs", []))
+    if conc is not None:
+        own = quantity(conc["before_m"], "m") + " nominal"
+        others = quantity(conc["rest_before_m"], "m") + " nominal"
+        if "after_m" in conc:
+            own += f", {quantity(conc['after_m'], 'm')} with the best candidate"
+            others += f" → {quantity(conc['rest_after_m'], 'm')}"
+        out.append(
+            f"One held-out run, {conc['log']}, carries {conc['share_pct']:.0f} % of the whole-run "
+            f"gap (its squared position error; its own RMS error is {own}); over the other "
+            f"{conc['runs']} runs the gap is {others}."
+        )
+    v = d.verdict
+    st = d.settings.attribution
+    rest, where = _rest_over_noise(v.residual)
+    rule = (
+        f"An effect is named only if it closes ≥ {100 * st.min_shrink:.0f} % of the held-out gap "
+        "above the noise floor (the part any model could close) and the rest is noise-like "
+        f"(≤ {st.excess_ratio:g}× its noise level, no regime or motion dependence), or, alone, "
+        f"closes ≥ {100 * st.dominant_shrink:.0f} % of it above noise"
+    )
+    if best_row is not None and best_row["effects"]:
+        above = v.notes.get("heldout_shrink_pct_above_noise")
+        closes = (
+            f"{float(above):.0f} % of the gap above noise "
+            f"({float(g.get('heldout_shrink_pct_best', 0.0)):.0f} % of the raw gap)"
+            if above is not None and math.isfinite(float(above))
+            else f"{float(g.get('heldout_shrink_pct_best', 0.0)):.0f} %"
+        )
+        here = f"here it closes {closes} and the rest is {rest:.1f}× noise" + (
+            f" ({where})" if where else ""
+        )
+    else:
+        here = f"here no candidate improves on the nominal replay; the rest is {rest:.1f}× noise"
+    whole = v.notes.get("whole_runs") if v.kind == "effects" else None
+    if whole:
+        out.append(
+            f"Verdict: {' + '.join(v.effects)} on whole runs ({v.confidence} confidence). At the "
+            f"1-s window scale it closes {float(whole['window_shrink_pct']):.0f} % of the gap; "
+            f"over whole held-out runs {float(whole['run_shrink_pct']):.0f} %, run after run, and "
+            "what it leaves in the windows does not add up along the runs: it names the drift, "
+            "not the window residual."
+        )
+    elif trained:
+        out.append(
+            f"Verdict: {' + '.join(v.effects)}, on the training alone ({v.confidence} "
+            "confidence): the held-out windows already look like noise, so they cannot test it; "
+            f"the training windows' gap is {trained['train_gap_excess']:.0f}× their noise and "
+            "the named effect leaves noise in both. Held-out runs that exercise it would confirm "
+            "it."
+        )
+    elif v.kind == "effects":
+        out.append(f"Verdict: {' + '.join(v.effects)} ({v.confidence} confidence). {rule}: {here}.")
+        partner = v.notes.get("nuisance_partner")
+        if partner:
+            vals = ", ".join(
+                f"{k.split('.', 1)[-1]} = {quantity(x, partner['units'][k])} within "
+                f"{quantity(partner['ranges'][k][0], partner['units'][k])} … "
+                f"{quantity(partner['ranges'][k][1], partner['units'][k])}"
+                for k, x in partner["values"].items()
+            )
+            out.append(
+                f"The fit pairs it with {partner['effect']} ({vals}): inside the calibrated "
+                "baseline's nuisance range, a convention of the recording the baseline refines "
+                "anyway, not a finding."
+            )
+    elif v.kind == "none":
+        out.append(f"Verdict: no significant gap — {v.reason}.")
+    else:
+        out.append(f"Verdict: unexplained — no effect is named. {rule}: {here}.")
+    reasons = v.residual.get("reasons", []) if v.kind != "none" else []
+    if whole and whole["remainder"]:
+        out.append(
+            "What remains in the windows is unexplained: " + "; ".join(whole["remainder"][:3]) + "."
+        )
+    elif v.kind == "effects" and v.residual.get("structured") and reasons:
+        out.append(
+            "What remains is small but structured, so the effect's law differs in detail from "
+            "the library's: " + "; ".join(reasons[:3]) + "."
+        )
+    elif v.kind == "effects" or not reasons:
+        out.append("What remains looks like measurement noise.")
+    else:
+        out.append("What remains: " + "; ".join(reasons[:3]) + ".")
+    cov = d.coverage
+    if cov is not None and cov.beyond_training:
+        out.append(f"Beyond the training: {cov.summary()}.")
+    reach = v.notes.get("reach") if v.kind == "unexplained" else None
+    if reach is not None:
+        msg = str(reach["message"])
+        out.append(
+            f"What the library could reach: {msg[0].upper()}{msg[1:]} (what training over the "
+            "held-out motions could do, not a score)."
+        )
+    return out
