@@ -46,7 +46,7 @@ _EXPORTS = {
     "RecordLog": "realitygap.diagnosis.adapters.diffdrive.record",
     "replay": "realitygap.diagnosis.adapters.diffdrive.replay",
     "simulate": "realitygap.diagnosis.adapters.diffdrive.replay",
-    "SimSettings": "realitygap.diagnosis.adapters.diffdrive.replay",
+    "SimSettings": "realitygap.robots.simulation",
     "diagnose": "realitygap.diagnosis.diagnose",
     "Diagnosis": "realitygap.diagnosis.diagnose",
     "DiagnosisSettings": "realitygap.diagnosis.diagnose",

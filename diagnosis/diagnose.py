@@ -53,13 +53,12 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.core.parallel import Backend, SerialBackend
-from realitygap.diagnosis.adapters.contract import PreparedLog, RobotAdapter
+from realitygap.diagnosis.adapters.contract import Drive, PreparedLog, RobotAdapter
 from realitygap.diagnosis.adapters.diffdrive.actuation import (
     actuation_spread,
     command_wheel_gains,
     wheel_tracking,
 )
-from realitygap.diagnosis.adapters.diffdrive.replay import Drive, SimSettings
 from realitygap.diagnosis.adapters.registry import get_adapter
 from realitygap.diagnosis.fit.identifiability import identifiability
 from realitygap.diagnosis.fit.model import ModelFit, fit_model
@@ -95,6 +94,7 @@ from realitygap.diagnosis.stages.transients import (
 from realitygap.diagnosis.verdict.rules import Judgement, conclude, judge
 from realitygap.diagnosis.verdict.types import Verdict
 from realitygap.robots.effects import EFFECTS
+from realitygap.robots.simulation import SimSettings
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -34,12 +34,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from enum import Enum
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.diagnosis.adapters.diffdrive.replay import Drive, SimSettings
 from realitygap.diagnosis.logs.log import ChannelSpec, Log, LogError
 from realitygap.diagnosis.problem.features import (
     FeatureSchema,
@@ -54,6 +54,7 @@ from realitygap.robots.effects import (
     blind_ranges,
     library,
 )
+from realitygap.robots.simulation import SimSettings
 
 if TYPE_CHECKING:
     from realitygap.diagnosis.validation.suite import SuiteSettings
@@ -73,6 +74,14 @@ __all__ = [
 
 HiddenTable = dict[str, tuple[BlindRange, ...]]
 """Blind-test magnitudes per effect: ``(param, low, high, symmetric)`` per parameter."""
+
+
+class Drive(str, Enum):
+    """What drives a replay: the logged commands, or the logged actuator readings (a wheeled
+    robot's encoder ticks; an adapter without such readings replays ``COMMANDS`` only)."""
+
+    COMMANDS = "commands"
+    TICKS = "ticks"
 
 
 @dataclass
@@ -261,6 +270,15 @@ class AdapterBase:
         """Residuals of the pipeline stages inside the real log, per window, in the columns of
         the feature group :attr:`stage_group` (none by default)."""
         return {}
+
+    def residual_structure(
+        self, problem: Any, values: Mapping[str, float], desc: dict[str, Any]
+    ) -> dict[str, Any]:
+        """The verdict's description of a held-out residual (``desc``, of
+        :func:`~realitygap.diagnosis.problem.residual.describe_residual`) with this robot's own
+        structure test added, for the model at ``values`` (``{}``: the nominal); ``desc``
+        unchanged by default."""
+        return desc
 
     def noise_levels(
         self, prepared: Sequence[PreparedLog], settings: FeatureSettings

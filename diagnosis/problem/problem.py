@@ -10,14 +10,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.diagnosis.adapters.contract import PreparedLog, RobotAdapter
-from realitygap.diagnosis.adapters.diffdrive.replay import Drive, SimSettings
+from realitygap.diagnosis.adapters.contract import Drive, PreparedLog, RobotAdapter
 from realitygap.diagnosis.logs.log import Log
 from realitygap.diagnosis.problem.features import FeatureSchema, FeatureSettings
 from realitygap.diagnosis.problem.parameters import (
     model_keys,
 )
 from realitygap.diagnosis.problem.residual import white_level
+from realitygap.robots.simulation import SimSettings
 
 FloatArray = npt.NDArray[np.float64]
 

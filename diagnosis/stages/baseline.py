@@ -59,8 +59,7 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.core.parallel import Backend
-from realitygap.diagnosis.adapters.contract import PreparedLog
-from realitygap.diagnosis.adapters.diffdrive.replay import Drive
+from realitygap.diagnosis.adapters.contract import Drive, PreparedLog
 from realitygap.diagnosis.fit.model import _rho, fit_model, replay_task
 from realitygap.diagnosis.logs.log import Log
 from realitygap.diagnosis.problem.parameters import model_keys, param_spec

@@ -64,7 +64,7 @@ import numpy.typing as npt
 from scipy.stats import binomtest
 from scipy.stats import t as student_t
 
-from realitygap.diagnosis.adapters.diffdrive.replay import Drive
+from realitygap.diagnosis.adapters.contract import Drive
 from realitygap.diagnosis.fit.model import ModelFit
 from realitygap.diagnosis.logs.log import Log
 from realitygap.diagnosis.problem.problem import Layout, Problem

@@ -33,12 +33,12 @@ import numpy.typing as npt
 
 from realitygap.core.parallel import Backend, SerialBackend
 from realitygap.diagnosis.adapters.contract import HiddenTable
-from realitygap.diagnosis.adapters.diffdrive.replay import MeasurementNoise
 from realitygap.diagnosis.adapters.registry import get_adapter, known_robots
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.logs.log import Log
 from realitygap.diagnosis.verdict.rules import verdict_alternatives
 from realitygap.robots.effects import EFFECTS, Reality, make_effect
+from realitygap.robots.simulation import MeasurementNoise
 
 __all__ = [
     "BlindCase",

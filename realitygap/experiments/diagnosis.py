@@ -689,10 +689,11 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
 def diagnose_bench(ctx: RunContext) -> dict[str, Any]:
     from realitygap.core.parallel import ProcessBackend, SerialBackend
     from realitygap.diagnosis.adapters.diffdrive.manoeuvres import MANOEUVRES
-    from realitygap.diagnosis.adapters.diffdrive.replay import MeasurementNoise, simulate
+    from realitygap.diagnosis.adapters.diffdrive.replay import simulate
     from realitygap.diagnosis.diagnose import diagnose
     from realitygap.robots.diffdrive import DiffDriveParams
     from realitygap.robots.effects import Reality, make_effect
+    from realitygap.robots.simulation import MeasurementNoise
 
     params = DiffDriveParams()
     dt = 0.05

@@ -18,7 +18,7 @@ from realitygap.diagnosis.adapters.arm.adapter import (
     surrogate_points,
     tool_distance_features,
 )
-from realitygap.diagnosis.adapters.diffdrive.replay import Drive
+from realitygap.diagnosis.adapters.contract import Drive
 from realitygap.diagnosis.adapters.registry import get_adapter
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.logs.log import Log, LogError

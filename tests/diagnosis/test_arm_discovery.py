@@ -94,7 +94,7 @@ def test_noise_alone_is_no_gap_and_no_finding() -> None:
 
 def test_the_noise_floor_grows_with_the_fitted_parameters() -> None:
     from realitygap.diagnosis.adapters.arm.aliases import fit_noise_inflation
-    from realitygap.diagnosis.adapters.diffdrive.replay import Drive
+    from realitygap.diagnosis.adapters.contract import Drive
     from realitygap.diagnosis.adapters.registry import get_adapter
     from realitygap.diagnosis.problem.features import FeatureSettings
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from realitygap.diagnosis.adapters.arm.adapter import record_arm_log
-from realitygap.diagnosis.adapters.diffdrive.replay import Drive
+from realitygap.diagnosis.adapters.contract import Drive
 from realitygap.diagnosis.adapters.registry import get_adapter
 from realitygap.diagnosis.fit.identifiability import dependent_parameters
 from realitygap.diagnosis.fit.model import fit_model

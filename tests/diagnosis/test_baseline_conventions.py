@@ -9,17 +9,14 @@ import pytest
 
 from realitygap.diagnosis.adapters.diffdrive.adapter import DiffDriveAdapter
 from realitygap.diagnosis.adapters.diffdrive.manoeuvres import Manoeuvre
-from realitygap.diagnosis.adapters.diffdrive.replay import (
-    MeasurementNoise,
-    applied_commands,
-    simulate,
-)
+from realitygap.diagnosis.adapters.diffdrive.replay import applied_commands, simulate
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.logs.log import Log, LogError
 from realitygap.diagnosis.problem.problem import AttributionSettings
 from realitygap.diagnosis.stages.baseline import Baseline
 from realitygap.robots.diffdrive import DiffDriveParams, FirmwareLimits, ramp_step
 from realitygap.robots.effects import Reality, make_effect
+from realitygap.robots.simulation import MeasurementNoise
 
 P = DiffDriveParams()
 DT = 0.05

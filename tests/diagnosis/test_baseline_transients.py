@@ -9,7 +9,7 @@ import pytest
 from scipy.optimize import least_squares
 
 from realitygap.diagnosis.adapters.diffdrive.manoeuvres import Manoeuvre
-from realitygap.diagnosis.adapters.diffdrive.replay import MeasurementNoise, simulate
+from realitygap.diagnosis.adapters.diffdrive.replay import simulate
 from realitygap.diagnosis.diagnose import Diagnosis, DiagnosisSettings, diagnose
 from realitygap.diagnosis.fit.model import _rho
 from realitygap.diagnosis.logs.log import Log, LogError
@@ -19,6 +19,7 @@ from realitygap.diagnosis.stages.transients import TransientSettings
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import EFFECTS, Reality, make_effect
 from realitygap.robots.effects.base import ParamSpec
+from realitygap.robots.simulation import MeasurementNoise
 
 P = DiffDriveParams()
 NOISE = MeasurementNoise(truth_xy=0.0005, truth_theta=0.001, camera_xy=0.001, camera_theta=0.002)

@@ -10,10 +10,11 @@ import pytest
 
 from realitygap.core.parallel import ProcessBackend, RayBackend
 from realitygap.diagnosis.adapters.diffdrive.manoeuvres import Manoeuvre
-from realitygap.diagnosis.adapters.diffdrive.replay import MeasurementNoise, simulate
+from realitygap.diagnosis.adapters.diffdrive.replay import simulate
 from realitygap.diagnosis.cli import main
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import Reality, make_effect
+from realitygap.robots.simulation import MeasurementNoise
 
 P = DiffDriveParams()
 TURNS = Manoeuvre(

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from realitygap.diagnosis.adapters.diffdrive.manoeuvres import Manoeuvre
-from realitygap.diagnosis.adapters.diffdrive.replay import MeasurementNoise, simulate
+from realitygap.diagnosis.adapters.diffdrive.replay import simulate
 from realitygap.diagnosis.diagnose import Diagnosis, DiagnosisSettings, diagnose
 from realitygap.diagnosis.logs.log import Log
 from realitygap.diagnosis.problem.problem import AttributionSettings, Layout
@@ -16,6 +16,7 @@ from realitygap.diagnosis.stages.clock import ClockSettings, restamp, timing_cha
 from realitygap.diagnosis.stages.scales import ScaleSettings, window_timing
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import Reality, make_effect
+from realitygap.robots.simulation import MeasurementNoise
 
 P = DiffDriveParams()
 NOISE = MeasurementNoise(truth_xy=0.0005, truth_theta=0.001, camera_xy=0.001, camera_theta=0.002)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from realitygap.diagnosis.adapters.diffdrive.manoeuvres import Manoeuvre
-from realitygap.diagnosis.adapters.diffdrive.replay import MeasurementNoise, simulate
+from realitygap.diagnosis.adapters.diffdrive.replay import simulate
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.problem.problem import AttributionSettings
 from realitygap.diagnosis.problem.shrink import overall_shrink
@@ -26,6 +26,7 @@ from realitygap.diagnosis.stages.coverage import (
 from realitygap.diagnosis.verdict.rules import explain
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import Reality, make_effect
+from realitygap.robots.simulation import MeasurementNoise
 
 
 def _cover(train_motion, ho_motion, z_ref, z_best, mask=None, per_window=3, **kw):

@@ -313,12 +313,12 @@ def test_unequal_wheel_lags_yaw_the_robot_on_a_start_and_back_on_the_stop() -> N
 
 
 def test_motor_response_lags_both_wheels_alike_and_stays_a_baseline_nuisance() -> None:
+    from realitygap.diagnosis.adapters.contract import Drive
     from realitygap.diagnosis.adapters.diffdrive.adapter import (
         DRIVE_RESPONSE_FLOOR,
         TRUTH_LATENCY_FLOOR,
         DiffDriveAdapter,
     )
-    from realitygap.diagnosis.adapters.diffdrive.replay import Drive
 
     plan = [(2.0, 0.3, 0.4), (2.0, 0.0, 0.0)]
     common = run(plan, ("motor_response", {"tau": 0.15}))

@@ -9,11 +9,7 @@ from realitygap.diagnosis.adapters.diffdrive.firmware import (
     firmware_from_meta,
     fit_firmware_limits,
 )
-from realitygap.diagnosis.adapters.diffdrive.replay import (
-    MeasurementNoise,
-    applied_commands,
-    simulate,
-)
+from realitygap.diagnosis.adapters.diffdrive.replay import applied_commands, simulate
 from realitygap.diagnosis.logs.log import Log, LogError
 from realitygap.robots.diffdrive import (
     Deceleration,
@@ -23,6 +19,7 @@ from realitygap.robots.diffdrive import (
     Ramp,
     ramp_step,
 )
+from realitygap.robots.simulation import MeasurementNoise
 from realitygap.robots.world import World
 
 P = DiffDriveParams()

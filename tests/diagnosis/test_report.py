@@ -17,7 +17,7 @@ import pytest
 
 from realitygap.core.parallel import SerialBackend
 from realitygap.diagnosis.adapters.diffdrive.manoeuvres import Manoeuvre
-from realitygap.diagnosis.adapters.diffdrive.replay import MeasurementNoise, simulate
+from realitygap.diagnosis.adapters.diffdrive.replay import simulate
 from realitygap.diagnosis.diagnose import Diagnosis, DiagnosisSettings, diagnose
 from realitygap.diagnosis.report.html import markdown_to_html
 from realitygap.diagnosis.report.summary import (
@@ -31,6 +31,7 @@ from realitygap.diagnosis.report.summary import (
 from realitygap.diagnosis.report.writer import write_report, write_reports
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import Reality, make_effect
+from realitygap.robots.simulation import MeasurementNoise
 
 P = DiffDriveParams()
 TURNS = Manoeuvre(

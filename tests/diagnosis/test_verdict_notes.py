@@ -386,9 +386,10 @@ def test_hard_starts_for_a_half_metre_per_second_robot() -> None:
 # --------------------------------------------------------------------------- end to end
 def _diagnose(reality_effect, train, holdout, effects, seed):
     from realitygap.diagnosis.adapters.diffdrive.manoeuvres import Manoeuvre
-    from realitygap.diagnosis.adapters.diffdrive.replay import MeasurementNoise, simulate
+    from realitygap.diagnosis.adapters.diffdrive.replay import simulate
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
     from realitygap.robots.effects import Reality
+    from realitygap.robots.simulation import MeasurementNoise
 
     p = DiffDriveParams()
     noise = MeasurementNoise(0.0005, 0.001, 0.001, 0.002)
@@ -462,10 +463,12 @@ def test_in_library_verdict_is_kept_and_open_set_residual_is_described() -> None
 
 
 def test_wheeled_term_library_follows_the_commands() -> None:
+    from realitygap.diagnosis.adapters.contract import Drive
     from realitygap.diagnosis.adapters.diffdrive.manoeuvres import Manoeuvre
-    from realitygap.diagnosis.adapters.diffdrive.replay import Drive, MeasurementNoise, simulate
+    from realitygap.diagnosis.adapters.diffdrive.replay import simulate
     from realitygap.diagnosis.adapters.registry import get_adapter
     from realitygap.diagnosis.problem.features import FeatureSettings
+    from realitygap.robots.simulation import MeasurementNoise
 
     p = DiffDriveParams()
     t, cmd = Manoeuvre("m", "m", ARCS, ramp=False).applied(0.05, p)
@@ -493,7 +496,7 @@ def test_wheeled_term_library_follows_the_commands() -> None:
 
 def test_arm_term_library_has_every_joint() -> None:
     from realitygap.diagnosis.adapters.arm.adapter import record_arm_log
-    from realitygap.diagnosis.adapters.diffdrive.replay import Drive
+    from realitygap.diagnosis.adapters.contract import Drive
     from realitygap.diagnosis.adapters.registry import get_adapter
     from realitygap.diagnosis.problem.features import FeatureSettings
 

@@ -85,12 +85,12 @@ from realitygap.diagnosis.adapters.arm.kinematics import (
     probe_positions,
     surrogate_points,
 )
-from realitygap.diagnosis.adapters.contract import AdapterBase, LogContext, PreparedLog
-from realitygap.diagnosis.adapters.diffdrive.replay import Drive, SimSettings
+from realitygap.diagnosis.adapters.contract import AdapterBase, Drive, LogContext, PreparedLog
 from realitygap.diagnosis.logs.log import ChannelSpec, Log, LogError, Role
 from realitygap.diagnosis.problem.features import FeatureGroup, FeatureSchema, FeatureSettings
 from realitygap.diagnosis.problem.parameters import reality_from_values
 from realitygap.estimators.arm.mdh import MDHTable
+from realitygap.robots.simulation import SimSettings
 
 if TYPE_CHECKING:
     from realitygap.diagnosis.validation.suite import SuiteSettings

@@ -46,11 +46,11 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
-from realitygap.diagnosis.adapters.contract import AdapterBase, LogContext, PreparedLog
-from realitygap.diagnosis.adapters.diffdrive.replay import Drive, SimSettings
+from realitygap.diagnosis.adapters.contract import AdapterBase, Drive, LogContext, PreparedLog
 from realitygap.diagnosis.adapters.registry import get_adapter
 from realitygap.diagnosis.logs.log import ChannelSpec, Log, LogError, Role
 from realitygap.diagnosis.problem.features import FeatureGroup, FeatureSchema, FeatureSettings
+from realitygap.robots.simulation import SimSettings
 
 if TYPE_CHECKING:
     from realitygap.diagnosis.validation.suite import SuiteSettings

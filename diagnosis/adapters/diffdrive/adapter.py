@@ -40,14 +40,16 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.core.geometry import wrap_angle
-from realitygap.diagnosis.adapters.contract import LogContext, PreparedLog, WheelDrivenAdapter
+from realitygap.diagnosis.adapters.contract import (
+    Drive,
+    LogContext,
+    PreparedLog,
+    WheelDrivenAdapter,
+)
 from realitygap.diagnosis.adapters.diffdrive.firmware import FirmwareFit, fit_firmware_limits
 from realitygap.diagnosis.adapters.diffdrive.manoeuvres import MANOEUVRES
 from realitygap.diagnosis.adapters.diffdrive.record import RecordLog
 from realitygap.diagnosis.adapters.diffdrive.replay import (
-    Drive,
-    MeasurementNoise,
-    SimSettings,
     applied_commands,
     nominal_odometry,
     params_from_meta,
@@ -75,6 +77,7 @@ from realitygap.diagnosis.problem.residual import robust_spread
 from realitygap.diagnosis.stages.scales import gain_through_origin
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import Reality
+from realitygap.robots.simulation import MeasurementNoise, SimSettings
 
 if TYPE_CHECKING:
     from realitygap.diagnosis.validation.suite import SuiteSettings

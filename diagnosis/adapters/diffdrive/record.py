@@ -25,13 +25,12 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.diagnosis.adapters.diffdrive.replay import (
-    MeasurementNoise,
-    SimSettings,
     camera_planar_pose,
     params_to_meta,
     shift_channel,
 )
 from realitygap.diagnosis.logs.log import ChannelSpec, Log
+from realitygap.robots.simulation import MeasurementNoise, SimSettings
 
 FloatArray = npt.NDArray[np.float64]
 
