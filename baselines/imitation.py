@@ -135,7 +135,7 @@ class DemoSettings:
             )
         values = dict(data)
         if values.get("train_wrappers") is not None:
-            from realitygap.baselines.rl import check_train_wrappers
+            from realitygap.baselines.rl.wrappers import check_train_wrappers
 
             values["train_wrappers"] = check_train_wrappers(values["train_wrappers"])
         return cls(**values)
@@ -268,7 +268,7 @@ class _CollectTask:
 
 def _collect(task: _CollectTask) -> Rollouts:
     import realitygap  # noqa: F401  (registers the ids in a fresh worker)
-    from realitygap.baselines.rl import apply_train_wrappers
+    from realitygap.baselines.rl.wrappers import apply_train_wrappers
 
     env = gym.make(task.env_id, max_episode_steps=task.max_episode_steps, **task.env_kwargs)
     env = apply_train_wrappers(env, task.train_wrappers)

@@ -13,8 +13,9 @@ Typical use::
 Modules: :mod:`~realitygap.diagnosis.logs.log` (the :class:`Log` and its file
 format), :mod:`~realitygap.diagnosis.logs.read` and ``importers`` (OptiOdom, CSV, ROS
 bags), :mod:`~realitygap.diagnosis.adapters.diffdrive.record` (:class:`RecordLog` wrapper),
-:mod:`~realitygap.diagnosis.adapters.diffdrive.replay` (PyBullet replay),
-:mod:`~realitygap.diagnosis.adapters.diffdrive.surrogate` (the fit's fast model),
+:mod:`~realitygap.diagnosis.adapters.diffdrive.replay` (PyBullet replay, on the core in
+:mod:`~realitygap.robots.diffdrive_replay`),
+:mod:`~realitygap.robots.diffdrive_surrogate` (the fit's fast model),
 :mod:`~realitygap.diagnosis.problem.features`, :mod:`~realitygap.diagnosis.stages.localise`,
 :mod:`~realitygap.diagnosis.fit.model`, :mod:`~realitygap.diagnosis.fit.verify`,
 :mod:`~realitygap.diagnosis.verdict.rules`, :mod:`~realitygap.diagnosis.fit.identifiability`,

@@ -343,7 +343,7 @@ def print_result(result: Any, verbose: bool = False, file: Any = None) -> None:
     """Print a diagnosis for a person: the summary sentences, then the candidates by
     held-out shrink (the first five; all with ``verbose``) and the notes."""
     from realitygap.diagnosis.report.summary import quantity, ranking_by_shrink, summary_sentences
-    from realitygap.diagnosis.verdict.rules import explain
+    from realitygap.diagnosis.report.words import explain
 
     out = file if file is not None else sys.stdout
     for sentence in summary_sentences(result):
@@ -352,7 +352,7 @@ def print_result(result: Any, verbose: bool = False, file: Any = None) -> None:
     rows = ranking_by_shrink(result.ranking_rows())
     shown = rows if verbose else rows[:5]
     print(f"candidates by held-out shrink ({len(shown)} of {len(rows)}):", file=out)
-    status = v.notes.get("parameter_status", {})
+    status = v.notes.parameter_status
     for row in shown:
         marks = status.get(row["name"], {})
         vals = ", ".join(

@@ -35,8 +35,10 @@ baseline          :func:`~realitygap.diagnosis.stages.baseline.calibrate_baselin
 localise          :func:`~realitygap.diagnosis.stages.localise.localise`  where the gap lies
 attribute         :func:`fit_candidates`                          fitted singles and pairs
 verify            :func:`~realitygap.diagnosis.fit.verify.verify_ranking`  verified ranking
-verdict           :func:`~realitygap.diagnosis.verdict.rules.judge`     the verdict
-identifiability   :func:`advise`                                  confounded alternatives
+verdict           :func:`~realitygap.diagnosis.verdict.judge.judge`     the draft verdict
+identifiability   :func:`~realitygap.diagnosis.verdict.advice.advise`  confounded alternatives
+rules             :func:`~realitygap.diagnosis.verdict.rules.decide`  the decision
+conclude          :func:`~realitygap.diagnosis.verdict.conclude.conclude`  the verdict
 shrink            :func:`gap_report`                              held-out gap before/after
 ================  ==============================================  ==========================
 """
@@ -54,17 +56,12 @@ import numpy.typing as npt
 
 from realitygap.core.parallel import Backend, SerialBackend
 from realitygap.diagnosis.adapters.contract import Drive, PreparedLog, RobotAdapter
-from realitygap.diagnosis.adapters.diffdrive.actuation import (
-    actuation_spread,
-    command_wheel_gains,
-    wheel_tracking,
-)
 from realitygap.diagnosis.adapters.registry import get_adapter
-from realitygap.diagnosis.fit.identifiability import identifiability
 from realitygap.diagnosis.fit.model import ModelFit, fit_model
 from realitygap.diagnosis.fit.verify import Verification, verify_ranking
 from realitygap.diagnosis.logs.log import Log, LogError
 from realitygap.diagnosis.problem.features import FeatureSettings
+from realitygap.diagnosis.problem.parameters import split_key
 from realitygap.diagnosis.problem.problem import AttributionSettings, Problem
 from realitygap.diagnosis.problem.shrink import (
     overall_shrink,
@@ -85,14 +82,18 @@ from realitygap.diagnosis.stages.coverage import (
 )
 from realitygap.diagnosis.stages.localise import localise
 from realitygap.diagnosis.stages.reach import library_reach
-from realitygap.diagnosis.stages.scales import ScaleSettings, judge_scales
+from realitygap.diagnosis.stages.scales import ScaleSettings, whole_run_figures
 from realitygap.diagnosis.stages.transients import (
     TransientReport,
     TransientSettings,
     detect_transients,
 )
-from realitygap.diagnosis.verdict.rules import Judgement, conclude, judge
-from realitygap.diagnosis.verdict.types import Verdict
+from realitygap.diagnosis.verdict.advice import advise
+from realitygap.diagnosis.verdict.conclude import conclude
+from realitygap.diagnosis.verdict.judge import judge
+from realitygap.diagnosis.verdict.rules import decide, run_discovery
+from realitygap.diagnosis.verdict.scales import judge_scales, revisits_on_whole_runs
+from realitygap.diagnosis.verdict.types import Judgement, Verdict, VerdictKind
 from realitygap.robots.effects import EFFECTS
 from realitygap.robots.simulation import SimSettings
 
@@ -101,7 +102,6 @@ FloatArray = npt.NDArray[np.float64]
 __all__ = [
     "Diagnosis",
     "DiagnosisSettings",
-    "advise",
     "candidate_library",
     "diagnose",
     "fit_candidates",
@@ -205,20 +205,20 @@ class Diagnosis:
     scales: dict[str, Any] = field(default_factory=dict)
     coverage: Coverage | None = None
     actuation: dict[str, Any] = field(default_factory=dict)
-    """A command-driven replay of logs with encoders: ``gains`` (per log, the adapter's
-    ``command_wheel_gains``), ``spread``
-    (:func:`~realitygap.diagnosis.adapters.diffdrive.actuation.actuation_spread`, or ``None``) and
-    ``tracking`` (:func:`~realitygap.diagnosis.adapters.diffdrive.actuation.wheel_tracking`); else empty."""
+    """How the actuators answered the commands, where the logs show it
+    (:meth:`~realitygap.diagnosis.adapters.contract.RobotAdapter.actuation`; for a
+    command-driven replay of a differential drive's logs with encoders ``gains``, ``spread``
+    and ``tracking``, :mod:`~realitygap.diagnosis.adapters.diffdrive.actuation`); else empty."""
 
     @property
     def chosen(self) -> ModelFit | None:
         """The model named by the verdict, if any (for a verdict A whose fit is a pair with
-        a partner that only refines a baseline nuisance, ``notes["nuisance_partner"]``, that
+        a partner that only refines a baseline nuisance, ``notes.nuisance_partner``, that
         pair's fit)."""
-        if self.verdict.kind != "effects":
+        if self.verdict.kind is not VerdictKind.EFFECTS:
             return None
-        partner = (self.verdict.notes.get("nuisance_partner") or {}).get("effect")
-        want = set(self.verdict.effects) | ({partner} if partner else set())
+        partner = self.verdict.notes.nuisance_partner
+        want = set(self.verdict.effects) | ({partner.effect} if partner is not None else set())
         for fit in self.ranking:
             if set(fit.effects) == want:
                 return fit
@@ -236,7 +236,7 @@ class Diagnosis:
         for rank, fit in enumerate(self.ranking, start=1):
             params = {}
             for k in (*fit.keys, *fit.held):
-                effect, _, pname = k.partition(".")
+                effect, pname = split_key(k)
                 spec = EFFECTS[effect]().spec(pname)
                 params[k] = {
                     "value": fit.values[k],
@@ -286,14 +286,14 @@ class Diagnosis:
             "baseline_calibration": self.baseline.to_json(),
             "transients": self.transients.to_json(),
             "verdict": v.label,
-            **v.notes,
+            **v.notes.to_json(),
             "verdict_detail": {
-                "kind": v.kind,
+                "kind": v.kind.value,
                 "effects": list(v.effects),
                 "reason": v.reason,
-                "confidence": v.confidence,
+                "confidence": v.confidence.value,
                 "margin": v.margin,
-                "ambiguous_with": v.ambiguous_with,
+                "ambiguous_with": list(v.ambiguous_with),
                 "remaining_residual": v.residual,
             },
             "verdict_scales": self.scales,
@@ -457,38 +457,12 @@ def fit_candidates(
         combos.setdefault(frozenset(fa.effects + fb.effects), (fa, fb))
     pairs_items = []
     for fa, fb in combos.values():
-        nominal_b = {k: EFFECTS[fb.effects[0]]().spec(k.split(".")[1]).nominal for k in fb.keys}
+        nominal_b = {k: EFFECTS[fb.effects[0]]().spec(split_key(k)[1]).nominal for k in fb.keys}
         starts = [{**fa.values, **fb.values}, {**fa.values, **nominal_b}]
         pairs_items.append(((fa.effects[0], fb.effects[0]), starts))
     say(f"fitting {len(pairs_items)} pairs")
     pairs: list[ModelFit] = backend.map(_fit_task, pairs_items, problem)
     return singles, pairs, nominal_fit
-
-
-def advise(
-    problem: Problem, ranking: Sequence[ModelFit], judgement: Judgement
-) -> list[dict[str, Any]]:
-    """Identifiability of the best model against its close contenders.
-
-    A contender the logged motions cannot tell from the best model is added to
-    the verdict's ``ambiguous_with`` (its confidence becomes "not identifiable").
-    """
-    st = problem.settings
-    best, verdict = judgement.best, judgement.verdict
-    ident: list[dict[str, Any]] = []
-    contenders = [f for f in ranking if f.effects and f.effects != best.effects]
-    close = [f for f in contenders if f.rank_score - best.rank_score < st.margin_strong][:2]
-    if best.effects:
-        for other in close:
-            if set(other.effects) >= set(best.effects) or set(best.effects) >= set(other.effects):
-                continue
-            info = identifiability(problem, best, other)
-            ident.append(info)
-            if not info["separable"] and verdict.kind == "effects":
-                verdict.ambiguous_with.append(other.name)
-        if verdict.ambiguous_with:
-            verdict.confidence = "not identifiable"
-    return ident
 
 
 def gap_report(
@@ -504,11 +478,11 @@ def gap_report(
     aside; trajectory gaps are whole replays (nominal, baseline, best model), pooled
     and run by run (``heldout_trajectory_runs``).
     """
-    best, verdict = judgement.best, judgement.verdict
+    best = judgement.best
     z_nom, gap_mask = judgement.nominal_heldout, judgement.gap_mask
     prepared = problem.logs
     scales = problem.features
-    chosen = best if verdict.kind == "effects" else None
+    chosen = best if judgement.kind is VerdictKind.EFFECTS else None
     z_after = chosen.z_heldout if chosen is not None else z_nom
     rows = shrink_table(z_nom, z_after, problem.holdout, scales)
     ho_idx = [i for i, p in enumerate(prepared) if p.holdout_windows.any()]
@@ -556,7 +530,7 @@ def coverage_report(
 ) -> Coverage | None:
     """Whether the held-out motions lie within the training's
     (:func:`~realitygap.diagnosis.stages.coverage.training_coverage`), for the best model of
-    ``judgement``. :func:`~realitygap.diagnosis.verdict.rules.conclude` puts it in the verdict's
+    ``judgement``. :func:`~realitygap.diagnosis.verdict.rules.decide` puts it in the verdict's
     words when no effect is named and what remains gathers beyond the training
     (:attr:`Coverage.beyond_training`)."""
     if settings is None or problem.holdout.n == 0 or problem.train.n == 0:
@@ -571,9 +545,9 @@ def coverage_report(
         p = problem.logs[i]
         if p.log.has("pose_gt") and np.shape(p.log["pose_gt"])[-1] == 3:
             planar[i] = planar_motion(p.log.t, p.log["pose_gt"], p.bounds)
-        params = getattr(p.context, "reference", None) or getattr(p.context, "params", None)
-        if getattr(params, "wheelbase", None) is not None:
-            wheelbase[i] = float(params.wheelbase)
+        b = p.context.reference_wheelbase()
+        if b is not None:
+            wheelbase[i] = b
     wheels = all(i in planar and i in wheelbase for i in used)
     motions: dict[int, FloatArray] = {}
     for i in used:
@@ -595,7 +569,7 @@ def coverage_report(
         judgement.nominal_heldout,
         best.z_heldout,
         judgement.gap_mask,
-        variables=motion_variables(getattr(problem.adapter, "motion_labels", None), wheels),
+        variables=motion_variables(problem.adapter.motion_labels, wheels),
         best=best.name,
         settings=settings,
     )
@@ -701,10 +675,9 @@ def diagnose(
         adapter.sample_noise_levels(prepared, s.features),
     )
     scale_figures: dict[str, Any] = {}
-    if s.scales is not None:
-        judgement.verdict, scale_figures = judge_scales(
+    if s.scales is not None and revisits_on_whole_runs(problem, judgement):
+        figures = whole_run_figures(
             problem,
-            judgement.verdict,
             judgement.best,
             nominal_fit,
             judgement.shrink_pct_best,
@@ -712,29 +685,31 @@ def diagnose(
             noise,
             s.scales,
         )
-    ident = advise(problem, verification.ranking, judgement)
+        if figures is not None:
+            judgement, scale_figures = judge_scales(problem, judgement, figures, s.scales)
+    advice = advise(problem, verification.ranking, judgement)
     coverage = coverage_report(problem, judgement, s.coverage)
-    conclude(problem, verification.ranking, judgement, ident, coverage, noise)
-    if judgement.verdict.kind == "effects":
-        robot = adapter.fitted_robot(prepared, judgement.verdict.effects, judgement.best.values)
+    decision = decide(problem, verification.ranking, judgement, advice, coverage, noise)
+    judgement = decision.judgement
+    discovery = run_discovery(problem, judgement)
+    robot = None
+    if decision.kind is VerdictKind.EFFECTS:
+        robot = adapter.fitted_robot(prepared, decision.effects, judgement.best.values)
         if robot is not None:
-            judgement.verdict.notes["robot"] = robot
             say(f"fitted robot: {robot['message']}")
-    actuation: dict[str, Any] = {}
-    gains = command_wheel_gains(adapter, prepared) if drive is Drive.COMMANDS else []
-    if gains:
-        spread = actuation_spread(gains)
-        actuation = {"gains": gains, "spread": spread}
-        if spread is not None and spread["differs"]:
-            judgement.verdict.notes["actuation"] = spread
-            say(f"drive train: {spread['message']}")
-    tracking = wheel_tracking(adapter, prepared) if drive is Drive.COMMANDS else None
-    if tracking is not None:
-        actuation["tracking"] = tracking
-        if tracking["beyond"]:
-            judgement.verdict.notes["tracking"] = tracking
-            say(f"wheels: {tracking['message']}")
-    if s.reach and judgement.verdict.kind == "unexplained":
+    actuation_note: dict[str, Any] | None = None
+    tracking_note: dict[str, Any] | None = None
+    actuation = adapter.actuation(prepared, drive)
+    spread = actuation.get("spread")
+    if spread is not None and spread["differs"]:
+        actuation_note = spread
+        say(f"drive train: {spread['message']}")
+    tracking = actuation.get("tracking")
+    if tracking is not None and tracking["beyond"]:
+        tracking_note = tracking
+        say(f"wheels: {tracking['message']}")
+    reach = None
+    if s.reach and decision.kind is VerdictKind.UNEXPLAINED:
         t_r = time.perf_counter()
         reach = library_reach(
             problem,
@@ -748,13 +723,20 @@ def diagnose(
         )
         timing["reach"] = time.perf_counter() - t_r
         if reach is not None:
-            judgement.verdict.notes["reach"] = reach.to_json()
             say(f"reach: {reach.message}")
+    verdict = conclude(
+        decision,
+        discovery=discovery,
+        robot=robot,
+        actuation=actuation_note,
+        tracking=tracking_note,
+        reach=reach,
+    )
     rows, gap = gap_report(problem, judgement, verification.replays, baseline)
     if coverage is not None:
         say(f"coverage: {coverage.summary()}")
     timing["total"] = time.perf_counter() - t0
-    say(f"verdict: {judgement.verdict.label}")
+    say(f"verdict: {verdict.label}")
     z_nom, best = judgement.nominal_heldout, judgement.best
     return Diagnosis(
         settings=s,
@@ -763,8 +745,8 @@ def diagnose(
         not_observable=not_observable,
         localisation=loc,
         ranking=verification.ranking,
-        verdict=judgement.verdict,
-        identifiability=ident,
+        verdict=verdict,
+        identifiability=advice.identifiability,
         shrink=rows,
         gap=gap,
         agreement=verification.agreement,

@@ -4,12 +4,12 @@ Everything here acts on a leading axis of ``N`` robots in numpy, with the
 definitions of the single-robot code it mirrors:
 
 * :class:`BatchDrive` steps the calibrated kinematic surrogate of the
-  differential drive (:mod:`realitygap.diagnosis.adapters.diffdrive.surrogate`) one control period
+  differential drive (:mod:`realitygap.robots.diffdrive_surrogate`) one control period
   at a time: the firmware's :class:`~realitygap.robots.diffdrive.FirmwareLimits`,
   the nominal inverse kinematics, the effects' surrogate terms
   (:meth:`~realitygap.robots.effects.Effect.surrogate_term`), the motors'
   calibrated overshoot, the shared acceleration budget of motors and traction
-  (:meth:`~realitygap.diagnosis.adapters.diffdrive.surrogate.DiffDriveSurrogate.accel_limits`,
+  (:meth:`~realitygap.robots.diffdrive_surrogate.DiffDriveSurrogate.accel_limits`,
   stepped as in the surrogate's carried branch) and the arc integration of the
   body.
 * :class:`BatchScenery` packs each robot's walls and obstacles
@@ -150,7 +150,7 @@ class BatchDrive:
         effects: Sequence[str] = (),
         history_steps: int = 40,
     ):
-        from realitygap.diagnosis.adapters.diffdrive.surrogate import DiffDriveSurrogate
+        from realitygap.robots.diffdrive_surrogate import DiffDriveSurrogate
 
         self.params = params
         self.model = DiffDriveSurrogate(params, calibration)

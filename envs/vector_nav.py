@@ -7,7 +7,7 @@ success and termination (fast sensor mode; see
 in the PyBullet env; what differs is the simulator:
 
 * the drive is the kinematic surrogate that the diagnosis validates against
-  PyBullet (:mod:`realitygap.diagnosis.adapters.diffdrive.surrogate`), batched and stepped one
+  PyBullet (:mod:`realitygap.robots.diffdrive_surrogate`), batched and stepped one
   control period at a time (:class:`~realitygap.envs.vector_drive.BatchDrive`),
   behind the same firmware limits and nominal inverse kinematics;
 * the scan is the same analytic ray cast against the same footprints
@@ -149,7 +149,7 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
     randomize : ``{"effect.param": (low, high)}``: drawn uniformly per robot and
         episode from the robot's generator, on top of ``reality``.
     calibration : the surrogate's calibration; default: measured once on the
-        PyBullet body (:func:`realitygap.diagnosis.adapters.diffdrive.surrogate.calibrate`, cached).
+        PyBullet body (:func:`realitygap.robots.diffdrive_surrogate.calibrate`, cached).
     n_obstacles, obstacles, room_half_size, start, goal, success_pos_tol,
     success_ang_tol, terminate_on_success, reward_weights :
         as :class:`~realitygap.envs.wheeled_nav.WheeledNavEnv`.
@@ -238,7 +238,7 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
         self.success_pos_tol, self.success_ang_tol = task.success_pos_tol, task.success_ang_tol
         self.terminate_on_success = task.terminate_on_success
         if calibration is None:
-            from realitygap.diagnosis.adapters.diffdrive.surrogate import calibrate
+            from realitygap.robots.diffdrive_surrogate import calibrate
 
             calibration = calibrate(self.params)
         self.calibration = calibration

@@ -65,6 +65,7 @@ __all__ = [
     "FlangeCameraParams",
     "MoveOutcome",
     "MoveResult",
+    "arm_params_to_meta",
     "constant_transform",
     "flange_load_torques",
     "urdf_from_arm_params",
@@ -310,6 +311,18 @@ class ArmParams:
                 out[f.name] = getattr(self, f.name)
         out["camera"] = {f.name: getattr(self.camera, f.name) for f in fields(self.camera)}
         return out
+
+
+def arm_params_to_meta(params: Any) -> dict[str, Any]:
+    """The nominal-arm metadata of a log (``meta["params"]``) from an :class:`ArmParams`."""
+    return {
+        "mdh": params.mdh.param_dict(),
+        "mdh_name": params.mdh.name,
+        "link_masses": list(params.link_masses),
+        "payload_mass": float(params.camera_mass),
+        "joint_lower": list(params.joint_lower),
+        "joint_upper": list(params.joint_upper),
+    }
 
 
 # =========================================================================== URDF

@@ -46,6 +46,7 @@ with ``pip install 'realitygap[ray]'``).
 
 from __future__ import annotations
 
+from realitygap.baselines.benchmark.config import BenchmarkConfig, episode_seeds, n_episodes
 from realitygap.baselines.benchmark.policies import (
     POLICY_KINDS,
     PolicySpec,
@@ -66,15 +67,12 @@ from realitygap.baselines.benchmark.report import markdown_report, plot_success
 from realitygap.baselines.benchmark.runner import (
     INSTALL_RAY,
     RAY_MISSING,
-    BenchmarkConfig,
     BenchmarkResult,
     ChunkTask,
     Progress,
     ResultStore,
-    episode_seeds,
     execute,
     iter_chunk,
-    n_episodes,
     plan_tasks,
     require_ray,
     run_benchmark,

@@ -16,6 +16,7 @@ import gymnasium as gym
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.baselines.benchmark.config import BenchmarkConfig, episode_seeds, n_episodes
 from realitygap.baselines.benchmark.policies import PolicySpec, build_policy
 from realitygap.baselines.benchmark.profiles import (
     REALITY_PROFILES,
@@ -174,39 +175,6 @@ def _float(value: Any) -> float:
 
 # --------------------------------------------------------------------------- tasks
 @dataclass(frozen=True)
-class BenchmarkConfig:
-    """Settings of one benchmark run.
-
-    Parameters
-    ----------
-    env_ids : environments (default: every registered one).
-    policies : policy specs (see :func:`parse_policies`).
-    episodes : episodes per cell (env × policy × reality × sensor mode).
-    realities : reality profiles besides ``nominal``; profiles for another robot are
-        skipped for an env.
-    sensor_modes : ``fast`` and/or ``image``.
-    seed : episode ``k`` of an env uses env seed ``1000 * seed + k`` for every policy.
-    env_kwargs : extra ``gym.make`` kwargs per env id.
-    episode_counts : episode counts overriding ``episodes``, keyed ``"<env_id>:<mode>"``,
-        ``"<env_id>"`` or ``"<mode>"`` (most specific first); 0 leaves the cells out. Image
-        mode renders and is ~50x slower than fast mode.
-    policies_by_mode : policy names allowed per sensor mode (default: all).
-    chunk : episodes per task sent to a worker (streaming granularity).
-    """
-
-    env_ids: tuple[str, ...]
-    policies: tuple[PolicySpec, ...]
-    episodes: int = 20
-    realities: tuple[str, ...] = ("kobuki-worn",)
-    sensor_modes: tuple[str, ...] = ("fast",)
-    seed: int = 0
-    env_kwargs: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
-    episode_counts: Mapping[str, int] = field(default_factory=dict)
-    policies_by_mode: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
-    chunk: int = 5
-
-
-@dataclass(frozen=True)
 class ChunkTask:
     """Episodes of one cell for one worker (picklable)."""
 
@@ -220,19 +188,6 @@ class ChunkTask:
     @property
     def cell(self) -> tuple[str, str, str, str]:
         return (self.env_id, self.policy.name, self.reality, self.sensor_mode)
-
-
-def n_episodes(cfg: BenchmarkConfig, env_id: str, mode: str) -> int:
-    """Episodes per cell of ``env_id`` in sensor ``mode`` (see ``episode_counts``)."""
-    for key in (f"{env_id}:{mode}", env_id, mode):
-        if key in cfg.episode_counts:
-            return int(cfg.episode_counts[key])
-    return int(cfg.episodes)
-
-
-def episode_seeds(cfg: BenchmarkConfig, n: int) -> list[int]:
-    """The episode seeds every policy runs: ``1000 * seed + k``."""
-    return [1000 * cfg.seed + k for k in range(n)]
 
 
 def plan_tasks(

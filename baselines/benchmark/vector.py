@@ -247,8 +247,8 @@ def surrogate_transfer_rows(
     ``success_pybullet``, ``success_drop_pp`` (surrogate − PyBullet), ``reached_10cm_*``,
     ``collision_*``.
     """
+    from realitygap.baselines.benchmark.config import episode_seeds, n_episodes
     from realitygap.baselines.benchmark.profiles import reality_for
-    from realitygap.baselines.benchmark.runner import episode_seeds, n_episodes
     from realitygap.baselines.rl import VECTOR_ENVS, load_policy, read_policy_meta, shipped_policy
 
     by_cell = {

@@ -5,25 +5,34 @@ An adapter bundles
 * the **effect library** it may attribute a gap to (effects of
   :mod:`realitygap.robots.effects` registered for the robot),
 * the **replay** of a log in PyBullet with the nominal robot plus effects,
-* the **channels** it reads and the window **features** compared between real
-  and simulated episodes (:class:`~realitygap.diagnosis.problem.features.FeatureSchema`:
-  feature groups with columns, units and scales, and the motion **regimes**),
+* the **channels** it reads (declared in :mod:`~realitygap.diagnosis.logs.channels`) and the
+  window **features** compared between real and simulated episodes
+  (:class:`~realitygap.diagnosis.problem.schemas.FeatureSchema`, declared in
+  :mod:`~realitygap.diagnosis.problem.schemas`: feature groups with columns, units and
+  scales, and the motion **regimes**),
 * the **probe manoeuvres** its identifiability advice may suggest,
 * a fast **surrogate** of the replay for the fit, and
 * the **blind-log recorder** and noise model of the validation suite.
 
-The diagnosis (:mod:`realitygap.diagnosis.diagnose`) only talks to this
-interface. :data:`ADAPTER_CLASSES` is the one place that maps robot names to
-adapters. A new robot is
+The diagnosis (:mod:`realitygap.diagnosis.diagnose`) only talks to this interface,
+:class:`RobotAdapter`: one abstract base class that declares every capability the
+pipeline may call. The required ones are abstract; every optional one has a default
+that says what an adapter without the capability means (no stage residuals, no
+nuisances, no actuation figures, …). The pipeline never asks an adapter, nor the
+:class:`LogContext` of a prepared log, whether it has an attribute.
+:data:`~realitygap.diagnosis.adapters.registry.ADAPTER_CLASSES` is the one place that maps
+robot names to adapters. A new robot is
 
 1. one effects module (its :class:`~realitygap.robots.effects.Effect` classes),
-2. one adapter module: a subclass of :class:`AdapterBase` that sets ``robot``,
+2. its channels in :mod:`~realitygap.diagnosis.logs.channels` and its feature schema in
+   :mod:`~realitygap.diagnosis.problem.schemas`,
+3. one adapter module: a subclass of :class:`RobotAdapter` that sets ``robot``,
    ``channels``, ``schema`` and ``surrogate_effects``, keeps what it needs about
    a prepared log in a :class:`LogContext` subclass and implements ``check``,
    ``prepare``, ``replay_features``, ``log_features``, ``surrogate_features``,
-   ``probe_manoeuvres``, ``probe_features`` and ``record_blind_logs`` (the
-   blind-test ranges come from the effect classes themselves),
-3. one line in :data:`ADAPTER_CLASSES`.
+   ``probe_manoeuvres`` and ``probe_features`` (and ``record_blind_logs`` for the blind
+   suite; the blind-test ranges come from the effect classes themselves),
+4. one line in :data:`~realitygap.diagnosis.adapters.registry.ADAPTER_CLASSES`.
 
 The adapters are :class:`~realitygap.diagnosis.adapters.diffdrive.adapter.DiffDriveAdapter`,
 :class:`~realitygap.diagnosis.adapters.arm.adapter.ArmAdapter` and
@@ -32,10 +41,11 @@ The adapters are :class:`~realitygap.diagnosis.adapters.diffdrive.adapter.DiffDr
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -54,22 +64,27 @@ from realitygap.robots.effects import (
     blind_ranges,
     library,
 )
-from realitygap.robots.simulation import SimSettings
+from realitygap.robots.simulation import MeasurementNoise, SimSettings
 
 if TYPE_CHECKING:
-    from realitygap.diagnosis.validation.suite import SuiteSettings
+    from realitygap.diagnosis.problem.problem import Problem
 
 FloatArray = npt.NDArray[np.float64]
 Features = dict[str, FloatArray]
+DiscoveryTerms = dict[str, tuple[FloatArray, str]]
+"""Candidate terms of a residual: name → (one value per window, SI unit)."""
 
 __all__ = [
-    "AdapterBase",
+    "ActuatorLimits",
+    "BlindLogSettings",
+    "DiscoveryTerms",
     "Drive",
     "HiddenTable",
     "LogContext",
     "PreparedLog",
     "RobotAdapter",
     "WheelDrivenAdapter",
+    "WheelGeometry",
 ]
 
 HiddenTable = dict[str, tuple[BlindRange, ...]]
@@ -84,12 +99,33 @@ class Drive(str, Enum):
     TICKS = "ticks"
 
 
+@dataclass(frozen=True)
+class WheelGeometry:
+    """The nominal wheels a wheeled robot's log declares (:meth:`LogContext.wheels`).
+
+    Attributes
+    ----------
+    wheel_radius_left, wheel_radius_right : float
+        m.
+    wheelbase : float
+        Distance between the wheels' contact points, m.
+    ticks_per_rev : float
+        Encoder counts per wheel revolution.
+    """
+
+    wheel_radius_left: float
+    wheel_radius_right: float
+    wheelbase: float
+    ticks_per_rev: float
+
+
 @dataclass
 class LogContext:
     """What an adapter keeps about one prepared log besides its features.
 
     Each adapter subclasses this with its own inputs (parameters, surrogate
-    inputs, poses, …).
+    inputs, poses, …) and answers the questions below that its robot can; the defaults
+    say the robot has no such thing.
 
     Attributes
     ----------
@@ -102,6 +138,23 @@ class LogContext:
     def window_motion(self, bounds: npt.NDArray[np.int64]) -> FloatArray | None:
         """The motion of each window in the six columns of
         :data:`~realitygap.diagnosis.problem.problem.MOTION_COLUMNS`, (M, 6), or ``None``."""
+        return None
+
+    def wheels(self) -> WheelGeometry | None:
+        """The nominal wheels the log declares, whose travel the transient detector
+        (:mod:`~realitygap.diagnosis.stages.transients`) compares with the body's motion;
+        ``None`` (the default) for a robot without them."""
+        return None
+
+    def applied_twist(self) -> FloatArray | None:
+        """The body twist (N, 2: m/s, rad/s) that drives the replay — the applied commands, or
+        the wheel motion — or ``None`` (the default) for a robot not driven by one."""
+        return None
+
+    def reference_wheelbase(self) -> float | None:
+        """The wheelbase (m) of the geometry every log of the diagnosis is judged on, from
+        which the coverage (:mod:`~realitygap.diagnosis.stages.coverage`) turns a planar
+        motion into wheel speeds; ``None`` (the default) for a robot without one."""
         return None
 
 
@@ -157,20 +210,72 @@ class PreparedLog:
         return [g for g in self.schema.names if g in self.real and g in self.nominal]
 
 
-class RobotAdapter(Protocol):
-    """What the diagnosis needs from a robot (see the module docstring)."""
+@dataclass(frozen=True)
+class BlindLogSettings:
+    """What an adapter's blind-log recorder (:meth:`RobotAdapter.record_blind_logs`) is told
+    by the validation suite
+    (:attr:`~realitygap.diagnosis.validation.suite.SuiteSettings.blind_logs`).
 
-    robot: str
-    channels: tuple[ChannelSpec, ...]
-    schema: FeatureSchema
-    stage_group: str
-    drive_stages: tuple[str, str] | None
-    transient_detection: bool
+    Attributes
+    ----------
+    noise : MeasurementNoise or None
+        Motion-capture and camera noise of a differential drive's recorded logs
+        (``None``: the adapter's own).
+    arm_poses : int
+        Arm: measured poses per log.
+    arm_tracker_noise : float
+        Arm: laser-tracker noise per axis (m).
+    """
 
-    def effect_names(self) -> tuple[str, ...]: ...
+    noise: MeasurementNoise | None
+    arm_poses: int
+    arm_tracker_noise: float
 
-    def check(self, log: Log, drive: Drive) -> Log: ...
 
+class ActuatorLimits(ABC):
+    """Continuous limits of an actuator convention fitted to the training logs
+    (:meth:`RobotAdapter.fit_actuator_limits`)."""
+
+    @abstractmethod
+    def leaves_stated(self) -> bool:
+        """Whether the fit keeps the limits the logs state as they are."""
+
+    @abstractmethod
+    def to_json(self) -> dict[str, Any]:
+        """JSON form (the calibrated baseline's ``actuator_limits``)."""
+
+
+class RobotAdapter(ABC):
+    """What the diagnosis needs from a robot (see the module docstring).
+
+    Required: :attr:`robot`, :attr:`channels`, :attr:`schema` (class attributes of a
+    subclass) and the abstract methods :meth:`check`, :meth:`prepare`,
+    :meth:`replay_features`, :meth:`log_features`, :meth:`surrogate_features`,
+    :meth:`probe_manoeuvres` and :meth:`probe_features`. Everything else has a default
+    that stands for a robot without the capability.
+    """
+
+    # ------------------------------------------------------------------ required
+    @property
+    @abstractmethod
+    def robot(self) -> str:
+        """The robot's name (the registry's key, ``meta["robot"]`` of its logs)."""
+
+    @property
+    @abstractmethod
+    def channels(self) -> tuple[ChannelSpec, ...]:
+        """The log channels it reads (:mod:`~realitygap.diagnosis.logs.channels`)."""
+
+    @property
+    @abstractmethod
+    def schema(self) -> FeatureSchema:
+        """Its feature groups and regimes (:mod:`~realitygap.diagnosis.problem.schemas`)."""
+
+    @abstractmethod
+    def check(self, log: Log, drive: Drive) -> Log:
+        """Validate a log for this robot; returns it (raises :class:`LogError` with the fix)."""
+
+    @abstractmethod
     def prepare(
         self,
         log: Log,
@@ -179,144 +284,89 @@ class RobotAdapter(Protocol):
         drive: Drive,
         features_settings: FeatureSettings,
         sim: SimSettings | None,
-    ) -> PreparedLog: ...
+    ) -> PreparedLog:
+        """Windows, regimes, real features, the nominal replay and the surrogate's bias."""
 
-    def observable(self, effect: str, prepared: Sequence[PreparedLog], drive: Drive) -> str: ...
-
-    def probe_manoeuvres(self) -> dict[str, str]: ...
-
-    def log_features(self, prepared: PreparedLog, log: Log) -> Features: ...
-
+    @abstractmethod
     def replay_features(
         self, prepared: PreparedLog, values: Mapping[str, float], drive: Drive, sim: SimSettings
-    ) -> tuple[Features, Log]: ...
+    ) -> tuple[Features, Log]:
+        """PyBullet replay with effect values ``{"effect.param": v}``: its features and log."""
 
+    @abstractmethod
+    def log_features(self, prepared: PreparedLog, log: Log) -> Features:
+        """Window features of another log of the same episode (e.g. a replay)."""
+
+    @abstractmethod
     def surrogate_features(
         self, prepared: PreparedLog, values: Mapping[str, npt.ArrayLike], drive: Drive
-    ) -> Features: ...
+    ) -> Features:
+        """Surrogate features for a batch of effect values, (B, M, k) per group."""
 
+    @abstractmethod
+    def probe_manoeuvres(self) -> dict[str, str]:
+        """Manoeuvres the identifiability advice may suggest, with descriptions."""
+
+    @abstractmethod
     def probe_features(
         self, manoeuvre: str, params_like: PreparedLog, values: Mapping[str, npt.ArrayLike]
-    ) -> tuple[Features, list[str]]: ...
+    ) -> tuple[Features, list[str]]:
+        """Surrogate features of a probe manoeuvre on the robot of ``params_like`` (for the
+        identifiability advice), and the groups they hold."""
 
-    def stage_residuals(self, prepared: PreparedLog) -> dict[str, FloatArray]: ...
-
-    def noise_levels(
-        self, prepared: Sequence[PreparedLog], settings: FeatureSettings
-    ) -> dict[str, float] | None: ...
-
-    def sample_noise_levels(
-        self, prepared: Sequence[PreparedLog], settings: FeatureSettings
-    ) -> dict[str, dict[str, float]] | None: ...
-
-    def hidden_effects(self) -> HiddenTable: ...
-
-    def fitted_robot(
-        self, prepared: Sequence[PreparedLog], effects: Sequence[str], values: Mapping[str, float]
-    ) -> dict[str, Any] | None: ...
-
-    def baseline_nuisances(
-        self, prepared: Sequence[PreparedLog], drive: Drive
-    ) -> dict[str, tuple[float, float, str]]: ...
-
-    def link_logs(self, prepared: Sequence[PreparedLog], drive: Drive) -> dict[str, Any]: ...
-    def actuator_conventions(
-        self, prepared: Sequence[PreparedLog], drive: Drive
-    ) -> dict[str, str]: ...
-
-    def actuator_convention(self, log: Log) -> str: ...
-
-    def with_actuator_convention(self, log: Log, name: str) -> Log: ...
-
-    def fit_actuator_limits(self, logs: Sequence[Log], name: str) -> Any: ...
-
-    def with_actuator_limits(self, log: Log, fit: Any) -> Log: ...
-
-    def alias_groups(
-        self,
-        prepared: Sequence[PreparedLog],
-        threshold: float = 0.95,
-        effects: Sequence[str] | None = None,
-    ) -> list[dict[str, Any]]: ...
-
-    def record_blind_logs(
-        self, reality: Reality, rng: np.random.Generator, settings: SuiteSettings
-    ) -> tuple[list[Log], list[Log]]: ...
-
-    def close(self) -> None: ...
-
-
-class AdapterBase:
-    """What every adapter shares: its effect library, the robot check, observability.
-
-    Subclasses set :attr:`robot`, :attr:`channels` (the log channels it
-    reads), :attr:`schema` (feature groups and regimes), :attr:`surrogate_effects`
-    (effects the fast surrogate models) and may give :attr:`unobservable`
-    (effect → why these channels cannot show it, whatever the log) and
-    :attr:`stage_group` (the feature group whose columns its
-    :meth:`stage_residuals` use) and :attr:`drive_stages` (the two of those stages
-    a command-driven gap splits into: up to the actuators, and after them).
-    """
-
-    robot: str = ""
-    channels: tuple[ChannelSpec, ...] = ()
-    schema: FeatureSchema = FeatureSchema((), ())
+    # ------------------------------------------------------------------ optional: attributes
     surrogate_effects: tuple[str, ...] = ()
+    """Effects the fast surrogate models (none: every effect is "no analytic surrogate")."""
+
     unobservable: Mapping[str, str] = {}
+    """Effect → why these channels cannot show it, whatever the log (none)."""
+
     stage_group: str = ""
+    """The feature group whose columns :meth:`stage_residuals` use."""
+
     drive_stages: tuple[str, str] | None = None
-
-    def stage_residuals(self, prepared: PreparedLog) -> dict[str, FloatArray]:
-        """Residuals of the pipeline stages inside the real log, per window, in the columns of
-        the feature group :attr:`stage_group` (none by default)."""
-        return {}
-
-    def residual_structure(
-        self, problem: Any, values: Mapping[str, float], desc: dict[str, Any]
-    ) -> dict[str, Any]:
-        """The verdict's description of a held-out residual (``desc``, of
-        :func:`~realitygap.diagnosis.problem.residual.describe_residual`) with this robot's own
-        structure test added, for the model at ``values`` (``{}``: the nominal); ``desc``
-        unchanged by default."""
-        return desc
-
-    def noise_levels(
-        self, prepared: Sequence[PreparedLog], settings: FeatureSettings
-    ) -> dict[str, float] | None:
-        """Measurement noise per group in feature-scale units, or ``None``: then the
-        window-to-window spread of the residual stands for the noise."""
-        return None
-
-    def sample_noise_levels(
-        self, prepared: Sequence[PreparedLog], settings: FeatureSettings
-    ) -> dict[str, dict[str, float]] | None:
-        """Noise of window features that a sensor's own samples show, per group and column
-        in feature-scale units, or ``None`` (no such measurement): what the verdict asks
-        before it calls a residual that passes for white "noise"
-        (:func:`~realitygap.diagnosis.problem.residual.above_sample_noise`)."""
-        return None
-
-    def fitted_robot(
-        self, prepared: Sequence[PreparedLog], effects: Sequence[str], values: Mapping[str, float]
-    ) -> dict[str, Any] | None:
-        """The robot a verdict's ``effects`` at ``values`` describe, in the robot's own
-        quantities (per wheel, per joint), or ``None`` where the adapter reads none."""
-        return None
-
-    def hidden_effects(self) -> HiddenTable:
-        """Blind-test magnitudes of the effects the validation suite hides in this robot
-        (each effect's :attr:`~realitygap.robots.effects.Effect.blind` ranges)."""
-        return blind_ranges(self.robot)
-
-    def record_blind_logs(
-        self, reality: Reality, rng: np.random.Generator, settings: SuiteSettings
-    ) -> tuple[list[Log], list[Log]]:
-        """Training and held-out logs of the robot ``reality`` for one blind case."""
-        raise NotImplementedError(f"the blind suite cannot record {self.robot!r} logs")
+    """The two stages of :meth:`stage_residuals` a command-driven gap splits into: up to the
+    actuators, and after them (``None``: no such split)."""
 
     transient_detection: bool = False
     """Whether the logs are time series in which disturbed windows (stalls, bumps, lost
     markers) are detected and set aside (:mod:`~realitygap.diagnosis.stages.transients`)."""
+
+    motion_labels: tuple[tuple[str, str], ...] | None = None
+    """``(name, unit)`` of the six columns of :meth:`LogContext.window_motion`
+    (:mod:`~realitygap.diagnosis.stages.coverage`); ``None``: a wheeled robot's speed and turn
+    rate (:data:`~realitygap.diagnosis.stages.coverage.DEFAULT_MOTION_LABELS`)."""
+
+    # ------------------------------------------------------------------ optional: the library
+    def effect_names(self) -> tuple[str, ...]:
+        """The effect library of :attr:`robot`."""
+        return library(self.robot)
+
+    def observable(self, effect: str, prepared: Sequence[PreparedLog], drive: Drive) -> str:
+        """``""`` if the logs can show ``effect``, else why not."""
+        cls = EFFECTS.get(effect)
+        if cls is None or cls.robot != self.robot:
+            return f"not a {self.robot} effect"
+        if effect in self.unobservable:
+            return self.unobservable[effect]
+        groups = set().union(*(p.groups for p in prepared)) if prepared else set()
+        if not [c for c in cls.observed_in if c in groups]:
+            return f"shows only in {', '.join(cls.observed_in)}, which the logs do not compare"
+        if effect not in self.surrogate_effects:
+            return "no analytic surrogate"
+        return ""
+
+    def probe_description(self, manoeuvre: str, params_like: PreparedLog) -> str:
+        """The description of probe manoeuvre ``manoeuvre`` for the robot of ``params_like``
+        (as its :meth:`probe_features` drive it); its :meth:`probe_manoeuvres` description by
+        default."""
+        return self.probe_manoeuvres()[manoeuvre]
+
+    # ------------------------------------------------------------------ optional: stages
+    def stage_residuals(self, prepared: PreparedLog) -> dict[str, FloatArray]:
+        """Residuals of the pipeline stages inside the real log, per window, in the columns of
+        the feature group :attr:`stage_group` (none by default)."""
+        return {}
 
     def baseline_nuisances(
         self, prepared: Sequence[PreparedLog], drive: Drive
@@ -348,15 +398,48 @@ class AdapterBase:
         """``log`` replayed with the actuator convention ``name`` (itself by default)."""
         return log
 
-    def fit_actuator_limits(self, logs: Sequence[Log], name: str) -> Any:
+    def fit_actuator_limits(self, logs: Sequence[Log], name: str) -> ActuatorLimits | None:
         """Continuous limits of the actuator convention ``name`` fitted to ``logs`` (the
         training logs), or ``None`` when the adapter fits none (default)."""
         return None
 
-    def with_actuator_limits(self, log: Log, fit: Any) -> Log:
+    def with_actuator_limits(self, log: Log, fit: ActuatorLimits | None) -> Log:
         """``log`` replayed with the limits ``fit`` of :meth:`fit_actuator_limits` (itself by
         default)."""
         return log
+
+    def held_parameters(self, problem: Problem, keys: Sequence[str]) -> dict[str, str]:
+        """Parameters ``"effect.param"`` of a model (``keys``) that the training windows of
+        ``problem`` cannot identify, with the reason: held at nominal and reported as not
+        testable (:meth:`~realitygap.diagnosis.problem.problem.Problem.held_parameters`);
+        none by default."""
+        return {}
+
+    def noise_levels(
+        self, prepared: Sequence[PreparedLog], settings: FeatureSettings
+    ) -> dict[str, float] | None:
+        """Measurement noise per group in feature-scale units, or ``None``: then the
+        window-to-window spread of the residual stands for the noise."""
+        return None
+
+    def sample_noise_levels(
+        self, prepared: Sequence[PreparedLog], settings: FeatureSettings
+    ) -> dict[str, dict[str, float]] | None:
+        """Noise of window features that a sensor's own samples show, per group and column
+        in feature-scale units, or ``None`` (no such measurement): what the verdict asks
+        before it calls a residual that passes for white "noise"
+        (:func:`~realitygap.diagnosis.problem.residual.above_sample_noise`)."""
+        return None
+
+    # ------------------------------------------------------------------ optional: the verdict
+    def residual_structure(
+        self, problem: Problem, values: Mapping[str, float], desc: dict[str, Any]
+    ) -> dict[str, Any]:
+        """The verdict's description of a held-out residual (``desc``, of
+        :func:`~realitygap.diagnosis.problem.residual.describe_residual`) with this robot's own
+        structure test added, for the model at ``values`` (``{}``: the nominal); ``desc``
+        unchanged by default."""
+        return desc
 
     def alias_groups(
         self,
@@ -369,18 +452,71 @@ class AdapterBase:
         none by default. ``effects`` keeps only the groups containing one of them."""
         return []
 
-    def close(self) -> None:
+    def fitted_robot(
+        self, prepared: Sequence[PreparedLog], effects: Sequence[str], values: Mapping[str, float]
+    ) -> dict[str, Any] | None:
+        """The robot a verdict's ``effects`` at ``values`` describe, in the robot's own
+        quantities (per wheel, per joint), or ``None`` where the adapter reads none."""
+        return None
+
+    def actuation(self, prepared: Sequence[PreparedLog], drive: Drive) -> dict[str, Any]:
+        """How the actuators answered the commands, log by log, where the logs show it (a
+        wheeled robot's encoders in a command-driven replay): ``gains`` (per log) and
+        ``spread`` (whether the logs share one drive train), ``tracking`` (whether the
+        actuators followed beyond the training's requests), each where present; empty by
+        default (:attr:`~realitygap.diagnosis.diagnose.Diagnosis.actuation`)."""
+        return {}
+
+    def discovery_terms(self, prepared: PreparedLog) -> DiscoveryTerms | None:
+        """Candidate terms of an unexplained residual, one value per window of ``prepared``,
+        with SI units (:mod:`~realitygap.diagnosis.stages.discovery`); ``None`` (the default):
+        the robot states no term library, and nothing is discovered."""
+        return None
+
+    def discover_residual(
+        self,
+        problem: Problem,
+        z_train: FloatArray,
+        z_holdout: FloatArray,
+        mask: npt.NDArray[np.bool_] | None,
+        settings: Any,
+    ) -> Any:
+        """The robot's own discovery of a residual whose terms are not signals of a window (a
+        :class:`~realitygap.diagnosis.stages.discovery.Discovery`), or ``None`` (the default):
+        :func:`~realitygap.diagnosis.stages.discovery.discover` then regresses the residual on
+        the per-window :meth:`discovery_terms`."""
+        return None
+
+    # ------------------------------------------------------------------ optional: blind suite
+    def hidden_effects(self) -> HiddenTable:
+        """Blind-test magnitudes of the effects the validation suite hides in this robot
+        (each effect's :attr:`~realitygap.robots.effects.Effect.blind` ranges)."""
+        return blind_ranges(self.robot)
+
+    def record_blind_logs(
+        self, reality: Reality, rng: np.random.Generator, settings: BlindLogSettings
+    ) -> tuple[list[Log], list[Log]]:
+        """Training and held-out logs of the robot ``reality`` for one blind case (a robot
+        without a recorder cannot be blind-tested: ``NotImplementedError``)."""
+        raise NotImplementedError(f"the blind suite cannot record {self.robot!r} logs")
+
+    def blind_measurement_noise(self, settings: BlindLogSettings) -> dict[str, FloatArray]:
+        """Per channel, the noise of each column in the logs :meth:`record_blind_logs` records
+        with ``settings`` (SI units): the size below which two recordings do not measurably
+        differ; none by default."""
+        return {}
+
+    # ------------------------------------------------------------------ resources
+    def close(self) -> None:  # noqa: B027 - an adapter without resources closes nothing
         """Release what the adapter holds open (simulator scenes); it can be used again."""
 
-    def __enter__(self) -> AdapterBase:
+    def __enter__(self) -> RobotAdapter:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def effect_names(self) -> tuple[str, ...]:
-        return library(self.robot)
-
+    # ------------------------------------------------------------------ helpers of subclasses
     def check_robot(self, log: Log, drive: Drive, replayed_from: str | None = None) -> None:
         """The log names this robot; ``replayed_from`` (e.g. "its joint readings"): only the
         default command drive is meaningful."""
@@ -406,24 +542,10 @@ class AdapterBase:
             )
         return bounds
 
-    def observable(self, effect: str, prepared: Sequence[PreparedLog], drive: Drive) -> str:
-        """``""`` if the logs can show ``effect``, else why not."""
-        cls = EFFECTS.get(effect)
-        if cls is None or cls.robot != self.robot:
-            return f"not a {self.robot} effect"
-        if effect in self.unobservable:
-            return self.unobservable[effect]
-        groups = set().union(*(p.groups for p in prepared)) if prepared else set()
-        if not [c for c in cls.observed_in if c in groups]:
-            return f"shows only in {', '.join(cls.observed_in)}, which the logs do not compare"
-        if effect not in self.surrogate_effects:
-            return "no analytic surrogate"
-        return ""
 
-
-class WheelDrivenAdapter(AdapterBase):
+class WheelDrivenAdapter(RobotAdapter):
     """An adapter whose replay can be driven by the logged commands or by the measured wheel
-    rotation (:class:`~realitygap.diagnosis.adapters.diffdrive.replay.Drive`)."""
+    rotation (:class:`Drive`)."""
 
     # ------------------------------------------------------------------ observability
     def observable(self, effect: str, prepared: Sequence[PreparedLog], drive: Drive) -> str:

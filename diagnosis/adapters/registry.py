@@ -5,15 +5,11 @@ from __future__ import annotations
 import importlib
 
 from realitygap.diagnosis.adapters.contract import RobotAdapter
-from realitygap.diagnosis.logs.log import ChannelSpec
-from realitygap.diagnosis.problem.features import FeatureGroup
 
 __all__ = [
     "ADAPTERS",
     "ADAPTER_CLASSES",
-    "adapter_channels",
     "close_adapters",
-    "feature_group",
     "get_adapter",
     "known_robots",
 ]
@@ -55,21 +51,3 @@ def close_adapters() -> None:
     while ADAPTERS:
         _, adapter = ADAPTERS.popitem()
         adapter.close()
-
-
-def adapter_channels() -> dict[str, ChannelSpec]:
-    """The channels every adapter declares, by name, in registry order."""
-    out: dict[str, ChannelSpec] = {}
-    for robot in known_robots():
-        for spec in get_adapter(robot).channels:
-            out.setdefault(spec.name, spec)
-    return out
-
-
-def feature_group(name: str) -> FeatureGroup:
-    """The feature group ``name`` as the adapter that compares it declares it."""
-    for robot in known_robots():
-        schema = get_adapter(robot).schema
-        if name in schema.names:
-            return schema.group(name)
-    raise KeyError(f"no robot adapter compares a feature group {name!r}")

@@ -3,7 +3,8 @@
 :func:`identifiability` compares two fitted models through the correlation of
 their parameters in the surrogate's finite-difference Jacobian on the
 training windows; when they are confounded it tries each probe manoeuvre of
-the robot adapter and names the one that separates them best.
+the robot adapter and names the one that separates them best, described for the logs' robot
+(:meth:`~realitygap.diagnosis.adapters.contract.RobotAdapter.probe_description`).
 """
 
 from __future__ import annotations
@@ -15,30 +16,18 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.diagnosis.fit.model import ModelFit, parameter_correlation
-from realitygap.diagnosis.problem.parameters import from_range_position, model_keys, param_spec
+from realitygap.diagnosis.problem.parameters import (
+    from_range_position,
+    model_keys,
+    param_spec,
+    split_key,
+)
 from realitygap.diagnosis.problem.problem import Problem
 from realitygap.estimators.arm.identifiability import analyse_identifiability
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["dependent_parameters", "identifiability", "jacobian", "probe_description"]
-
-
-def probe_description(ref: Any, name: str, description: str) -> str:
-    """The description of probe manoeuvre ``name`` within the limits of the log's robot.
-
-    A wheeled log whose robot parameters state ``v_max`` and ``w_max`` gets the
-    library manoeuvre scaled into them
-    (:meth:`~realitygap.diagnosis.adapters.diffdrive.manoeuvres.Manoeuvre.within`), as its probe
-    features are; any other description is returned unchanged.
-    """
-    from realitygap.diagnosis.adapters.diffdrive.manoeuvres import MANOEUVRES
-
-    params = getattr(getattr(ref, "context", None), "params", None)
-    v_max, w_max = getattr(params, "v_max", None), getattr(params, "w_max", None)
-    if name in MANOEUVRES and v_max and w_max:
-        return MANOEUVRES[name].within(float(v_max), float(w_max)).description
-    return description
+__all__ = ["dependent_parameters", "identifiability", "jacobian"]
 
 
 def jacobian(
@@ -100,8 +89,8 @@ def identifiability(problem: Problem, a: ModelFit, b: ModelFit) -> dict[str, Any
 
     J = jacobian(train_res, keys, point)
     C = _corr(J)
-    ka = [j for j, k in enumerate(keys) if k.split(".")[0] in a.effects]
-    kb = [j for j, k in enumerate(keys) if k.split(".")[0] not in a.effects]
+    ka = [j for j, k in enumerate(keys) if split_key(k)[0] in a.effects]
+    kb = [j for j, k in enumerate(keys) if split_key(k)[0] not in a.effects]
     cross = _cross(C, ka, kb)
     out: dict[str, Any] = {
         "effects": [a.name, b.name],
@@ -129,7 +118,7 @@ def identifiability(problem: Problem, a: ModelFit, b: ModelFit) -> dict[str, Any
         if best is None or cross_m < best[1]:
             best = (name, cross_m)
     assert best is not None
-    description = probe_description(ref, best[0], probes[best[0]])
+    description = problem.adapter.probe_description(best[0], ref)
     out["separating_motion"] = {
         "name": best[0],
         "description": description,
@@ -205,7 +194,7 @@ def dependent_parameters(
         # a parameter that acts only through another of its effect (a load that a
         # compliance turns into sag) is silent at nominal: its column is taken where the
         # others of its effect act, at the middle of their ranges
-        others = [o for o in keys if o != keys[j] and o.split(".")[0] == keys[j].split(".")[0]]
+        others = [o for o in keys if o != keys[j] and split_key(o)[0] == split_key(keys[j])[0]]
         if not others:
             continue
         at = {**nominal, **{o: float(from_range_position(o, np.array([0.5]))[0]) for o in others}}

@@ -56,6 +56,7 @@ from realitygap.diagnosis.problem.parameters import (
     param_spec,
     range_derivative,
     range_position,
+    split_key,
 )
 from realitygap.diagnosis.problem.problem import (
     AttributionSettings,
@@ -478,7 +479,7 @@ def _effect_sizes(
     for e in effects:
         row = dict(values)
         for k in keys:
-            if k.split(".")[0] == e:
+            if split_key(k)[0] == e:
                 row[k] = param_spec(k).nominal
         rows.append(row)
     batch = {k: np.array([r[k] for r in rows]) for k in keys}

@@ -86,7 +86,6 @@ import math
 import os
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from enum import Enum
 from pathlib import Path
 from typing import IO, Any
 
@@ -95,6 +94,7 @@ import numpy.typing as npt
 
 from realitygap.core.checks import check_regular_file
 from realitygap.core.io import atomic_write
+from realitygap.diagnosis.logs.channels import ChannelSpec, Role, standard_channels
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -115,77 +115,6 @@ FORMAT_VERSION = 1
 
 class LogError(ValueError):
     """A log (or the file it came from) is not usable; the message names file, channel and fix."""
-
-
-class Role(str, Enum):
-    """What a channel is: an input to the robot, a sensor reading, the truth or an estimate."""
-
-    COMMAND = "command"
-    SENSOR = "sensor"
-    TRUTH = "truth"
-    ESTIMATE = "estimate"
-    OTHER = "other"
-
-
-@dataclass(frozen=True)
-class ChannelSpec:
-    """Columns, units and role of one channel.
-
-    ``angle_columns`` lists the columns that are angles (rad): they are
-    unwrapped before interpolation.
-    """
-
-    name: str
-    columns: tuple[str, ...]
-    units: tuple[str, ...]
-    role: Role = Role.OTHER
-    description: str = ""
-    angle_columns: tuple[int, ...] = ()
-
-    def __post_init__(self) -> None:
-        if len(self.columns) != len(self.units) or not self.columns:
-            raise ValueError(
-                f"channel {self.name!r}: need one unit per column, got columns {self.columns} "
-                f"and units {self.units}"
-            )
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "columns": list(self.columns),
-            "units": list(self.units),
-            "role": self.role.value,
-            "description": self.description,
-            "angle_columns": list(self.angle_columns),
-        }
-
-    @classmethod
-    def from_dict(cls, name: str, data: Mapping[str, Any]) -> ChannelSpec:
-        return cls(
-            name=name,
-            columns=tuple(str(c) for c in data["columns"]),
-            units=tuple(str(u) for u in data["units"]),
-            role=Role(data.get("role", "other")),
-            description=str(data.get("description", "")),
-            angle_columns=tuple(int(i) for i in data.get("angle_columns", ())),
-        )
-
-
-_STANDARD: dict[str, ChannelSpec] = {}
-"""The channels the robot adapters declare, by name (filled on first use)."""
-
-
-def standard_channels() -> Mapping[str, ChannelSpec]:
-    """The standard channels: those the robot adapters read, by name, in registry order.
-
-    A log may hold a standard channel without giving its :class:`ChannelSpec`;
-    each adapter declares its own (e.g.
-    :data:`~realitygap.diagnosis.adapters.diffdrive.adapter.DIFFDRIVE_CHANNELS`).
-    """
-    if not _STANDARD:
-        from realitygap.diagnosis.adapters.registry import adapter_channels
-
-        _STANDARD.update(adapter_channels())
-    return _STANDARD
 
 
 # unit → (SI unit, factor to SI)

@@ -32,9 +32,9 @@ from realitygap.core.checks import (
     check_regular_file,
     check_rows_limit,
 )
-from realitygap.diagnosis.adapters.diffdrive.replay import nominal_odometry, params_to_meta
 from realitygap.diagnosis.logs.log import Log, LogError, sniff_file_kind
 from realitygap.robots.diffdrive import DiffDriveParams
+from realitygap.robots.diffdrive_replay import nominal_odometry, params_to_meta
 
 __all__ = [
     "ReadOptions",
@@ -230,9 +230,8 @@ def log_from_ur10_series(series: Any) -> Log:
     standard deviation (or :data:`UR10_TRACKER_SIGMA`) combined with the arm's
     repeatability (:data:`UR10_REPEATABILITY_SIGMA`).
     """
-    from realitygap.diagnosis.adapters.arm.adapter import arm_params_to_meta
     from realitygap.estimators.arm.mdh import MDHTable
-    from realitygap.robots.arm import ArmParams
+    from realitygap.robots.arm import ArmParams, arm_params_to_meta
 
     params = ArmParams(
         mdh=MDHTable.ur10(), link_masses=UR10_LINK_MASSES, camera_mass=UR10_PROBE_MASS

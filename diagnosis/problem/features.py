@@ -43,6 +43,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.diagnosis.problem.schemas import (
+    DIFFDRIVE_REGIMES,
+    FeatureGroup,
+    FeatureSchema,
+    feature_group,
+)
+
 FloatArray = npt.NDArray[np.float64]
 
 __all__ = [
@@ -55,75 +62,6 @@ __all__ = [
     "relative_motion",
     "window_bounds",
 ]
-
-DIFFDRIVE_REGIMES: tuple[str, ...] = (
-    "standing",
-    "straight",
-    "turning_ccw",
-    "turning_cw",
-    "accelerating",
-)
-"""Regimes :func:`classify_regimes` gives a differential drive's windows."""
-
-
-@dataclass(frozen=True)
-class FeatureGroup:
-    """One group of window features: its columns, their SI units and default residual scales.
-
-    Attributes
-    ----------
-    name : str
-        Group name, e.g. ``"pose_gt"``.
-    columns : tuple of str
-    units : tuple of str
-        SI unit of each column.
-    scales : tuple of float
-        Residual size that counts as one unit per column (SI units per window),
-        unless :attr:`FeatureSettings.scales` gives another.
-    """
-
-    name: str
-    columns: tuple[str, ...]
-    units: tuple[str, ...]
-    scales: tuple[float, ...]
-
-    def __post_init__(self) -> None:
-        if not (len(self.columns) == len(self.units) == len(self.scales)):
-            raise ValueError(
-                f"feature group {self.name!r}: columns, units and scales must have one length"
-            )
-
-
-@dataclass(frozen=True)
-class FeatureSchema:
-    """What a robot's windows are compared by: its feature groups and its motion regimes.
-
-    Attributes
-    ----------
-    groups : tuple of FeatureGroup
-        In the order of every table of the diagnosis.
-    regimes : tuple of str
-        Regime labels a window can have, in table order.
-    """
-
-    groups: tuple[FeatureGroup, ...]
-    regimes: tuple[str, ...]
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return tuple(g.name for g in self.groups)
-
-    def group(self, name: str) -> FeatureGroup:
-        for g in self.groups:
-            if g.name == name:
-                return g
-        raise KeyError(f"no feature group {name!r}; known: {', '.join(self.names)}")
-
-    def columns(self, name: str) -> tuple[str, ...]:
-        return self.group(name).columns
-
-    def units(self, name: str) -> tuple[str, ...]:
-        return self.group(name).units
 
 
 @dataclass(frozen=True)
@@ -163,7 +101,7 @@ class FeatureSettings:
         if not (self.window_s > 0 and math.isfinite(self.window_s)):
             raise ValueError(f"window_s must be a positive number of seconds, got {self.window_s}")
         for g, given in self.scales.items():
-            cols = _known_group(g).columns
+            cols = feature_group(g).columns
             sc = tuple(given)
             if len(sc) != len(cols) or not all(v > 0 for v in sc):
                 raise ValueError(
@@ -174,21 +112,8 @@ class FeatureSettings:
         """Residual scale of each column of ``group`` (given, else the group's default)."""
         given = self.scales.get(group)
         if given is None:
-            return np.asarray(_known_group(group).scales, dtype=float)
+            return np.asarray(feature_group(group).scales, dtype=float)
         return np.asarray(given, dtype=float)
-
-
-_GROUPS: dict[str, FeatureGroup] = {}
-"""Feature groups looked up so far, by name (the adapters' schemas are constants)."""
-
-
-def _known_group(name: str) -> FeatureGroup:
-    """The feature group ``name`` of whichever robot adapter declares it."""
-    if name not in _GROUPS:
-        from realitygap.diagnosis.adapters.registry import feature_group
-
-        _GROUPS[name] = feature_group(name)
-    return _GROUPS[name]
 
 
 def window_bounds(n: int, dt: float, window_s: float) -> npt.NDArray[np.int64]:

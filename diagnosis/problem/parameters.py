@@ -39,7 +39,7 @@ def model_keys(effects: Sequence[str]) -> tuple[str, ...]:
 
 def param_spec(key: str) -> Any:
     """The :class:`~realitygap.robots.effects.ParamSpec` of ``"effect.param"``."""
-    effect, _, param = key.partition(".")
+    effect, param = split_key(key)
     for s in EFFECTS[effect].specs:
         if s.name == param:
             return s

@@ -316,19 +316,18 @@ class Problem:
     def held_parameters(self, effects: Sequence[str]) -> dict[str, str]:
         """Parameters of a model that the training windows cannot identify, with the reason.
 
-        Asked of the adapter (``adapter.held_parameters(problem, keys)``, where it
-        has one: the arm's geometry, whose tool-distance features are linear in
-        small parameter errors, so a rank test of their Jacobian decides); such
-        parameters are held at nominal and reported as not testable rather than
-        fitted into a direction the data cannot see. Cached per model.
+        Asked of the adapter (``adapter.held_parameters(problem, keys)``; none by default,
+        the arm's geometry: its tool-distance features are linear in small parameter
+        errors, so a rank test of their Jacobian decides); such parameters are held at
+        nominal and reported as not testable rather than fitted into a direction the data
+        cannot see. Cached per model.
         """
         keys = model_keys(effects)
-        hook = getattr(self.adapter, "held_parameters", None)
-        if hook is None or not keys or self.train.n == 0:
+        if not keys or self.train.n == 0:
             return {}
         cache = self.__dict__.setdefault("_held_cache", {})
         if keys not in cache:
-            cache[keys] = dict(hook(self, keys))
+            cache[keys] = dict(self.adapter.held_parameters(self, keys))
         return dict(cache[keys])
 
     def replay(self, i: int, values: Mapping[str, float]) -> tuple[Any, Log]:

@@ -33,6 +33,7 @@ from realitygap.diagnosis.report.summary import (
     regime_name,
     where_rows,
 )
+from realitygap.diagnosis.verdict.types import VerdictKind
 
 if TYPE_CHECKING:
     from realitygap.diagnosis.diagnose import Diagnosis
@@ -207,7 +208,7 @@ def _timeline(d: Diagnosis, out: Path, prefix: str, plt: Any) -> tuple[str, str]
 
 
 def _residuals(d: Diagnosis, out: Path, prefix: str, plt: Any) -> tuple[str, str] | None:
-    named = d.verdict.kind == "effects"
+    named = d.verdict.kind is VerdictKind.EFFECTS
     table = d.shrink if named else d.shrink_best
     bars = [r for r in table if r["column"] != "all" and r.get("n", 1) > 0]
     if not bars:

@@ -8,7 +8,8 @@ the held-out gap it closes, the verdict rule next to the numbers it was applied
 to, and what remains. The terminal (``realitygap diagnose``, ``realitygap run``)
 and the report (:mod:`realitygap.diagnosis.report.writer`) print the same sentences.
 
-:func:`channel_name`, :func:`regime_name` and :func:`quantity` are the one place
+:func:`channel_name`, :func:`regime_name` and :func:`quantity` (of
+:mod:`realitygap.diagnosis.problem.units`, where the stages find it too) are the one place
 where feature columns, motion regimes and values get their human form; tables and
 figure labels use them too. :func:`ranking_by_shrink` orders candidates by what
 the reader compares: the held-out shrink.
@@ -20,7 +21,10 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
+from realitygap.diagnosis.problem.parameters import split_key
 from realitygap.diagnosis.problem.shrink import concentrated_gap
+from realitygap.diagnosis.problem.units import quantity
+from realitygap.diagnosis.verdict.types import VerdictKind
 
 if TYPE_CHECKING:
     from realitygap.diagnosis.diagnose import Diagnosis
@@ -96,55 +100,6 @@ def regime_name(regime: str) -> str:
     return REGIME_NAMES.get(regime, f"while {regime.replace('_', ' ')}")
 
 
-_ENGINEERING: dict[str, tuple[str, float]] = {
-    "m": ("mm", 1e3),
-    "s": ("ms", 1e3),
-    "rad": ("°", 180.0 / math.pi),
-    "rad/s": ("°/s", 180.0 / math.pi),
-    "m/s": ("mm/s", 1e3),
-}
-
-
-def _digits(step: float) -> int:
-    """Decimals that show ``step`` with two significant digits (0 … 6)."""
-    if not (math.isfinite(step) and step > 0):
-        return 3
-    return int(min(6, max(0, 1 - math.floor(math.log10(step)))))
-
-
-def quantity(value: float, unit: str, stderr: float | None = None) -> str:
-    """``value`` (SI ``unit``) in engineering units, rounded to what ``stderr`` resolves.
-
-    Lengths go to mm, times to ms, angles to degrees; ratios (unit ``"1"``) stay
-    plain. With a finite ``stderr`` the value keeps two significant digits of the
-    uncertainty and the uncertainty is shown (``"1.70 ± 0.21 ms"``); without one,
-    three significant digits.
-
-    Examples
-    --------
-    >>> quantity(0.0017, "s", 0.00021)
-    '1.70 ± 0.21 ms'
-    >>> quantity(1.008, "1")
-    '1.01'
-    >>> quantity(1.0712, "m")
-    '1.07 m'
-    """
-    if not math.isfinite(value):
-        return f"{value} {unit}".strip()
-    shown_unit, factor = _ENGINEERING.get(unit, ("" if unit == "1" else unit, 1.0))
-    if factor > 1.0 and abs(value * factor) >= 1e3:
-        shown_unit, factor = unit, 1.0  # 1.07 m, not 1.07e+03 mm
-    v = value * factor
-    if stderr is not None and math.isfinite(stderr) and stderr > 0:
-        e = stderr * factor
-        nd = _digits(e)
-        text = f"{v:.{nd}f} ± {e:.{nd}f}"
-    else:
-        text = f"{v:.3g}" if abs(v) >= 1e-3 or v == 0 else f"{v:.2e}"
-    sep = "" if shown_unit in ("°", "°/s", "") else " "
-    return f"{text}{sep}{shown_unit}" if shown_unit else text
-
-
 def value_words(key: str, param: Mapping[str, Any], description: str = "") -> str:
     """One fitted parameter in words: what it is, its value, how far from nominal.
 
@@ -161,7 +116,7 @@ def value_words(key: str, param: Mapping[str, Any], description: str = "") -> st
     value, unit = float(param["value"]), str(param["unit"])
     stderr = float(param.get("stderr", math.nan))
     nominal = float(param.get("nominal", math.nan))
-    name = key.split(".", 1)[-1]
+    name = split_key(key)[1]
     what = f"{description} ({name})" if description else name
     text = f"{what} = {quantity(value, unit, stderr)}"
     if math.isfinite(stderr) and stderr > 0 and abs(value - nominal) < stderr:
@@ -297,15 +252,15 @@ def summary_sentences(d: Diagnosis) -> list[str]:
                 f"({widest['name']}), not enough to outscore it on held-out data"
             )
         out.append(sentence + ".")
-    trained = d.verdict.notes.get("training_only") if d.verdict.kind == "effects" else None
+    trained = d.verdict.notes.training_only if d.verdict.kind is VerdictKind.EFFECTS else None
     chosen = next((r for r in rows if r["effects"] == list(d.verdict.effects)), None)
-    if trained and chosen is not None:
+    if trained is not None and chosen is not None:
         descs = _param_descriptions(chosen["effects"])
         vals = "; ".join(value_words(k, p, descs.get(k, "")) for k, p in chosen["params"].items())
         out.append(
             "The held-out windows show no gap above their noise, the training windows one of up "
-            f"to {trained['train_gap_excess']:.0f}× theirs: on the training, {chosen['name']} "
-            f"({vals}) closes {trained['train_shrink_pct_above_noise']:.0f} % of it above the "
+            f"to {trained.train_gap_excess:.0f}× theirs: on the training, {chosen['name']} "
+            f"({vals}) closes {trained.train_shrink_pct_above_noise:.0f} % of it above the "
             "noise floor."
         )
     conc = concentrated_gap(g.get("heldout_trajectory_runs", []))
@@ -330,72 +285,75 @@ def summary_sentences(d: Diagnosis) -> list[str]:
         f"closes ≥ {100 * st.dominant_shrink:.0f} % of it above noise"
     )
     if best_row is not None and best_row["effects"]:
-        above = v.notes.get("heldout_shrink_pct_above_noise")
-        closes = (
+        above = v.notes.heldout_shrink_pct_above_noise
+        closed = (
             f"{float(above):.0f} % of the gap above noise "
             f"({float(g.get('heldout_shrink_pct_best', 0.0)):.0f} % of the raw gap)"
-            if above is not None and math.isfinite(float(above))
+            if math.isfinite(float(above))
             else f"{float(g.get('heldout_shrink_pct_best', 0.0)):.0f} %"
         )
-        here = f"here it closes {closes} and the rest is {rest:.1f}× noise" + (
+        here = f"here it closes {closed} and the rest is {rest:.1f}× noise" + (
             f" ({where})" if where else ""
         )
     else:
         here = f"here no candidate improves on the nominal replay; the rest is {rest:.1f}× noise"
-    whole = v.notes.get("whole_runs") if v.kind == "effects" else None
-    if whole:
+    named = v.kind is VerdictKind.EFFECTS
+    whole = v.notes.whole_runs if named else None
+    if whole is not None:
         out.append(
-            f"Verdict: {' + '.join(v.effects)} on whole runs ({v.confidence} confidence). At the "
-            f"1-s window scale it closes {float(whole['window_shrink_pct']):.0f} % of the gap; "
-            f"over whole held-out runs {float(whole['run_shrink_pct']):.0f} %, run after run, and "
+            f"Verdict: {' + '.join(v.effects)} on whole runs ({v.confidence.value} confidence). "
+            f"At the 1-s window scale it closes {float(whole.window_shrink_pct):.0f} % of the "
+            f"gap; over whole held-out runs {float(whole.run_shrink_pct):.0f} %, run after run, and "
             "what it leaves in the windows does not add up along the runs: it names the drift, "
             "not the window residual."
         )
-    elif trained:
+    elif trained is not None:
         out.append(
-            f"Verdict: {' + '.join(v.effects)}, on the training alone ({v.confidence} "
+            f"Verdict: {' + '.join(v.effects)}, on the training alone ({v.confidence.value} "
             "confidence): the held-out windows already look like noise, so they cannot test it; "
-            f"the training windows' gap is {trained['train_gap_excess']:.0f}× their noise and "
+            f"the training windows' gap is {trained.train_gap_excess:.0f}× their noise and "
             "the named effect leaves noise in both. Held-out runs that exercise it would confirm "
             "it."
         )
-    elif v.kind == "effects":
-        out.append(f"Verdict: {' + '.join(v.effects)} ({v.confidence} confidence). {rule}: {here}.")
-        partner = v.notes.get("nuisance_partner")
-        if partner:
+    elif named:
+        out.append(
+            f"Verdict: {' + '.join(v.effects)} ({v.confidence.value} confidence). {rule}: {here}."
+        )
+        partner = v.notes.nuisance_partner
+        if partner is not None:
             vals = ", ".join(
-                f"{k.split('.', 1)[-1]} = {quantity(x, partner['units'][k])} within "
-                f"{quantity(partner['ranges'][k][0], partner['units'][k])} … "
-                f"{quantity(partner['ranges'][k][1], partner['units'][k])}"
-                for k, x in partner["values"].items()
+                f"{k.split('.', 1)[-1]} = {quantity(x, partner.units[k])} within "
+                f"{quantity(partner.ranges[k][0], partner.units[k])} … "
+                f"{quantity(partner.ranges[k][1], partner.units[k])}"
+                for k, x in partner.values.items()
             )
             out.append(
-                f"The fit pairs it with {partner['effect']} ({vals}): inside the calibrated "
+                f"The fit pairs it with {partner.effect} ({vals}): inside the calibrated "
                 "baseline's nuisance range, a convention of the recording the baseline refines "
                 "anyway, not a finding."
             )
-    elif v.kind == "none":
+    elif v.kind is VerdictKind.NONE:
         out.append(f"Verdict: no significant gap — {v.reason}.")
     else:
         out.append(f"Verdict: unexplained — no effect is named. {rule}: {here}.")
-    reasons = v.residual.get("reasons", []) if v.kind != "none" else []
-    if whole and whole["remainder"]:
+    reasons = v.residual.get("reasons", []) if v.kind is not VerdictKind.NONE else []
+    if whole is not None and whole.remainder:
         out.append(
-            "What remains in the windows is unexplained: " + "; ".join(whole["remainder"][:3]) + "."
+            "What remains in the windows is unexplained: " + "; ".join(whole.remainder[:3]) + "."
         )
-    elif v.kind == "effects" and v.residual.get("structured") and reasons:
+    elif named and v.residual.get("structured") and reasons:
         out.append(
             "What remains is small but structured, so the effect's law differs in detail from "
             "the library's: " + "; ".join(reasons[:3]) + "."
         )
-    elif v.kind == "effects" or not reasons:
+    elif named or not reasons:
         out.append("What remains looks like measurement noise.")
     else:
         out.append("What remains: " + "; ".join(reasons[:3]) + ".")
     cov = d.coverage
     if cov is not None and cov.beyond_training:
         out.append(f"Beyond the training: {cov.summary()}.")
-    reach = v.notes.get("reach") if v.kind == "unexplained" else None
+    reach = v.notes.reach if v.kind is VerdictKind.UNEXPLAINED else None
     if reach is not None:
         msg = str(reach["message"])
         out.append(

@@ -31,7 +31,8 @@ from realitygap.diagnosis.report.summary import (
     regime_name,
     summary_sentences,
 )
-from realitygap.diagnosis.verdict.rules import explain_markdown
+from realitygap.diagnosis.report.words import explain_markdown
+from realitygap.diagnosis.verdict.types import VerdictKind
 
 __all__ = ["jsonable", "write_json", "write_report", "write_reports"]
 
@@ -232,14 +233,15 @@ def _markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str, note: st
         f"{', '.join(js['logs']['holdout']) or 'alternate blocks of windows'}."
     )
     lines += ["", "## Verdict", ""]
-    label = ", ".join(v.effects) if v.kind == "effects" else v.kind.upper()
-    if v.kind == "effects" and v.notes.get("whole_runs"):
-        label = str(v.notes.get("verdict_text") or label)
+    named = v.kind is VerdictKind.EFFECTS
+    label = ", ".join(v.effects) if named else v.kind.value.upper()
+    if named and v.notes.whole_runs is not None:
+        label = v.notes.verdict_text or label
     lines.append(f"**{label}** — {v.reason}.  ")
     lines += explain_markdown(v, [f.name for f in d.ranking[:5]])
-    if v.kind == "effects":
+    if named:
         lines.append(
-            f"Confidence: {v.confidence} (score margin to the runner-up {_fmt(v.margin)})."
+            f"Confidence: {v.confidence.value} (score margin to the runner-up {_fmt(v.margin)})."
         )
         if v.ambiguous_with:
             lines.append(
@@ -266,7 +268,7 @@ def _markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str, note: st
             f"measured against the {g.get('reference', 'nominal replay')}."
         )
     lines += _run_gaps(g.get("heldout_trajectory_runs", []))
-    if (v.kind != "effects" or v.notes.get("whole_runs")) and v.residual.get("reasons"):
+    if (not named or v.notes.whole_runs is not None) and v.residual.get("reasons"):
         lines += ["", "What remains unexplained:", ""]
         lines += [f"- {r}" for r in v.residual["reasons"]]
     lines += _baseline_and_transients(d)
@@ -346,7 +348,7 @@ def _markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str, note: st
                 f"{_si(r['rms_before'], r['unit'])} | {_si(r['rms_after'], r['unit'])} | "
                 f"{r['shrink_pct']:.1f} % |"
             )
-    if v.kind != "effects" and d.shrink_best:
+    if not named and d.shrink_best:
         lines += ["", f"No effect was chosen; with the best candidate ({d.ranking[0].name}):", ""]
         lines += ["| channel | column | before | after | shrink |", "|---|---|---|---|---|"]
         for r in d.shrink_best:

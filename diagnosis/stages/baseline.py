@@ -59,10 +59,10 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.core.parallel import Backend
-from realitygap.diagnosis.adapters.contract import Drive, PreparedLog
+from realitygap.diagnosis.adapters.contract import ActuatorLimits, Drive, PreparedLog, RobotAdapter
 from realitygap.diagnosis.fit.model import _rho, fit_model, replay_task
 from realitygap.diagnosis.logs.log import Log
-from realitygap.diagnosis.problem.parameters import model_keys, param_spec
+from realitygap.diagnosis.problem.parameters import model_keys, param_spec, split_key
 from realitygap.diagnosis.problem.problem import Problem
 from realitygap.diagnosis.problem.shrink import overall_shrink
 from realitygap.diagnosis.stages.clock import (
@@ -239,17 +239,14 @@ def _fitted_cost(
     return cost, values
 
 
-def _fit_limits_task(shared: tuple[Any, list[Log]], name: str) -> Any:
+def _fit_limits_task(shared: tuple[RobotAdapter, list[Log]], name: str) -> ActuatorLimits | None:
     adapter, logs = shared
     return adapter.fit_actuator_limits(logs, name)
 
 
-def _trivial_limits(fit: Any) -> bool:
-    """Whether fitted limits leave the stated ones as they are (no fit, or factors of one)."""
-    if fit is None:
-        return True
-    scale = getattr(fit, "accel_scale", 1.0)
-    return bool(scale == 1.0 and getattr(fit, "decel_factor", 1.0) == 1.0)
+def _trivial_limits(fit: ActuatorLimits | None) -> bool:
+    """Whether fitted limits leave the stated ones as they are (no fit, or the stated)."""
+    return fit is None or fit.leaves_stated()
 
 
 def choose_convention(
@@ -341,7 +338,7 @@ def choose_convention(
         problem.logs[:] = options[best].logs
         problem.exclude(problem.excluded)
     fit = fits[best]
-    limits = fit.to_json() if fit is not None and hasattr(fit, "to_json") else {}
+    limits = fit.to_json() if fit is not None else {}
     return best, offered[best], costs, limits
 
 
@@ -395,7 +392,7 @@ def calibrate_baseline(
     ranges = {
         k: r
         for k, r in ranges.items()
-        if k.partition(".")[0] in candidates or k.partition(".")[0] not in default
+        if split_key(k)[0] in candidates or split_key(k)[0] not in default
     }
     check_nuisances(ranges)
     if not ranges or problem.train.n == 0:
@@ -409,14 +406,14 @@ def calibrate_baseline(
         say(f"aligning each log's clock ({timing[0]})")
         aligned = align_clocks(problem, timing[0], clock, say)
     framed = FrameAlignment()
-    frame_keys = [k for k in ranges if frame_channel(k.partition(".")[0]) is not None]
+    frame_keys = [k for k in ranges if frame_channel(split_key(k)[0]) is not None]
     if frames and len(frame_keys) == 3 and problem.drive is Drive.TICKS:
         say(f"aligning each log's ground-truth frame ({', '.join(frame_keys)})")
         own = [e for e in candidates if e in default and frame_channel(e) is None]
         framed = align_frames(
             problem, frame_keys, [ranges[k][:2] for k in frame_keys], say, effects=own
         )
-    effects = tuple(dict.fromkeys(k.partition(".")[0] for k in ranges))
+    effects = tuple(dict.fromkeys(split_key(k)[0] for k in ranges))
     box = {k: (r[0], r[1]) for k, r in ranges.items()}
     # parameters of a nuisance effect that are not nuisances stay at nominal
     for k in model_keys(effects):

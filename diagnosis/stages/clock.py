@@ -56,7 +56,7 @@ import numpy.typing as npt
 
 from realitygap.diagnosis.fit.model import _rho
 from realitygap.diagnosis.logs.log import Log
-from realitygap.diagnosis.problem.parameters import param_spec
+from realitygap.diagnosis.problem.parameters import param_spec, split_key
 from realitygap.diagnosis.problem.problem import Problem
 from realitygap.robots.effects import make_effect
 
@@ -156,13 +156,13 @@ def timing_channel(key: str) -> str | None:
     Read from the effect itself (:meth:`~realitygap.robots.effects.Effect.channel_time_offsets`
     at a non-zero value): an effect that shifts exactly one channel's stamps.
     """
-    effect, _, pname = key.partition(".")
+    effect, pname = split_key(key)
     try:
         spec = param_spec(key)
         probe = make_effect(effect, **{pname: 0.5 * (spec.high if spec.high else spec.low)})
     except (KeyError, TypeError, ValueError):
         return None
-    shifted = probe.channel_time_offsets() if hasattr(probe, "channel_time_offsets") else {}
+    shifted = probe.channel_time_offsets()
     return next(iter(shifted)) if len(shifted) == 1 else None
 
 

@@ -8,7 +8,9 @@ logged signals. Each robot adapter states its library through
 values and SI unit (wheeled: v, ω, their rates, sign and magnitude terms,
 v·ω, per-wheel speeds, time; arm: sin, cos of each joint angle and of twice
 it, joint gravity torques, reach, time; climber: height, surface normal
-angle, tether length, time).
+angle, tether length, time), or ``None`` (no library: nothing is discovered).
+An adapter whose features are not signals of a window describes a residual its
+own way instead (``discover_residual``: the arm's joint-angle error generators).
 
 The sparse regression is sequentially thresholded least squares
 (:class:`pysindy.STLSQ`) on columns scaled to unit RMS:
@@ -32,10 +34,12 @@ import math
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
+
+from realitygap.diagnosis.adapters.contract import RobotAdapter
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -313,14 +317,18 @@ def fit_terms(
 
 
 def _term_matrix(
-    adapter: Any, logs: Sequence[Any]
-) -> tuple[list[str], list[str], dict[int, FloatArray]]:
-    """Term names, units and each log's (M, p) term matrix from the adapter."""
+    adapter: RobotAdapter, logs: Sequence[Any]
+) -> tuple[list[str], list[str], dict[int, FloatArray]] | None:
+    """Term names, units and each log's (M, p) term matrix from the adapter; ``None`` when the
+    adapter states no term library."""
     names: list[str] | None = None
     units: list[str] = []
     mats: dict[int, FloatArray] = {}
     for i, p in enumerate(logs):
-        terms: Mapping[str, tuple[FloatArray, str]] = adapter.discovery_terms(p)
+        given: Mapping[str, tuple[FloatArray, str]] | None = adapter.discovery_terms(p)
+        if given is None:
+            return None
+        terms = given
         if names is None:
             names = list(terms)
             units = [terms[n][1] for n in names]
@@ -366,9 +374,11 @@ def discover(
     """
     st = settings if settings is not None else DiscoverySettings()
     adapter = problem.adapter
-    if hasattr(adapter, "discover_residual"):  # an adapter whose terms are not per window
-        return adapter.discover_residual(problem, z_train, z_holdout, mask, st)
-    if not hasattr(adapter, "discovery_terms"):
+    own = adapter.discover_residual(problem, z_train, z_holdout, mask, st)
+    if own is not None:  # an adapter whose terms are not per window
+        return cast(Discovery, own)
+    matrix = _term_matrix(adapter, problem.logs)
+    if matrix is None:  # the adapter states no term library
         return None
     tr, ho = problem.train, problem.holdout
     if z_train.shape != (tr.n,) or z_holdout.shape != (ho.n,):
@@ -376,7 +386,7 @@ def discover(
             f"discover: residuals must follow the layouts, ({tr.n},) and ({ho.n},); got "
             f"{z_train.shape} and {z_holdout.shape}"
         )
-    names, units, mats = _term_matrix(adapter, problem.logs)
+    names, units, mats = matrix
     sel_ho = np.ones(ho.n, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
     fits: list[TermFit] = []
     targets = sorted({(str(gr), str(c)) for gr, c in zip(ho.group[sel_ho], ho.column[sel_ho])})

@@ -53,7 +53,7 @@ from scipy.optimize import least_squares
 from realitygap.core.geometry import reframe_recorded
 from realitygap.diagnosis.fit.model import _rho
 from realitygap.diagnosis.logs.log import Log
-from realitygap.diagnosis.problem.parameters import model_keys, param_spec
+from realitygap.diagnosis.problem.parameters import model_keys, param_spec, split_key
 from realitygap.diagnosis.problem.problem import Problem
 from realitygap.robots.effects import make_effect
 
@@ -131,7 +131,7 @@ def frame_channel(effect: str) -> str | None:
         probe = make_effect(effect, x=0.01, y=0.01, yaw=0.01)
     except (KeyError, TypeError, ValueError):
         return None
-    frames = probe.channel_frames() if hasattr(probe, "channel_frames") else {}
+    frames = probe.channel_frames()
     return next(iter(frames)) if len(frames) == 1 else None
 
 
@@ -290,11 +290,11 @@ def align_frames(
         Empty when fewer than two logs are given or the keys re-frame no single channel.
     """
     order = {"x": 0, "y": 1, "yaw": 2}
-    pairs = sorted(zip(keys, ranges), key=lambda kr: order.get(kr[0].partition(".")[2], 3))
+    pairs = sorted(zip(keys, ranges), key=lambda kr: order.get(split_key(kr[0])[1], 3))
     keys = tuple(k for k, _ in pairs)
     ranges = [r for _, r in pairs]
-    owners = {k.partition(".")[0] for k in keys}
-    suffixes = [k.partition(".")[2] for k in keys]
+    owners = {split_key(k)[0] for k in keys}
+    suffixes = [split_key(k)[1] for k in keys]
     if suffixes != ["x", "y", "yaw"] or len(owners) != 1 or len(ranges) != 3:
         raise ValueError(
             f"align_frames: expected the x, y and yaw parameters of one effect with a range "

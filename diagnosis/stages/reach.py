@@ -51,11 +51,11 @@ import numpy.typing as npt
 
 from realitygap.core.parallel import Backend
 from realitygap.diagnosis.fit.model import ModelFit, fit_model
+from realitygap.diagnosis.fit.status import pinned_parameters
 from realitygap.diagnosis.problem.parameters import param_spec
 from realitygap.diagnosis.problem.problem import Layout, Problem
 from realitygap.diagnosis.problem.shrink import overall_shrink
-from realitygap.diagnosis.report.summary import quantity
-from realitygap.diagnosis.verdict.rules import pinned_parameters
+from realitygap.diagnosis.problem.units import quantity
 
 __all__ = ["TRAINED_SHARE", "Reach", "heldout_problem", "library_reach"]
 
@@ -80,7 +80,7 @@ class Reach:
         ``shrink_pct`` is the share of the held-out gap (gap channels) the effect closes,
         two-fold on the held-out windows, %; ``params`` the mean of the two folds' values;
         ``pinned`` the parameters that sit at the far edge of their physical range in
-        either fold (:func:`~realitygap.diagnosis.verdict.rules.pinned_parameters`).
+        either fold (:func:`~realitygap.diagnosis.fit.status.pinned_parameters`).
     trained_shrink_pct : float
         The held-out shrink of the verdict's best model fitted on the training, %.
     expressible : bool
@@ -131,7 +131,7 @@ def _reach_task(folds: tuple[Problem, Problem], item: tuple[str, int]) -> ModelF
 
 def _short(params: dict[str, float], n: int = 2) -> str:
     """The fitted values of a model of up to ``n`` parameters (engineering units,
-    :func:`~realitygap.diagnosis.report.summary.quantity`), else their count."""
+    :func:`~realitygap.diagnosis.problem.units.quantity`), else their count."""
     if len(params) > n:
         return f"{len(params)} parameters"
     return ", ".join(

@@ -1,4 +1,4 @@
-r"""The verdict on two scales: 1-s windows and whole held-out runs.
+r"""Two scales of the held-out gap: 1-s windows and whole held-out runs.
 
 A drift-type effect (a wheelbase or wheel-diameter error) adds a small error to
 every window — a wheelbase error of 0.8 % turns a 1-s quarter turn by about
@@ -13,8 +13,10 @@ the change of motion within the window), and at the window scale it can hide
 the drift effect: the window shrink of the right effect is then a few per cent
 while it closes most of the whole-run gap.
 
-:func:`judge_scales` revisits an ``"unexplained"`` verdict whose only reason was
-the window shrink. The best model is named, with both figures stated, when
+:func:`whole_run_figures` measures both scales for the best model of an
+``"unexplained"`` draft whose only reason was the window shrink;
+:func:`~realitygap.diagnosis.verdict.scales.judge_scales` then names the model, with both
+figures stated, when
 
 1. it improves the held-out windows beyond :attr:`AttributionSettings.margin_strong`
    (rank score against the reference) — it helps at the window scale, it is
@@ -64,23 +66,22 @@ import numpy.typing as npt
 from scipy.stats import binomtest
 from scipy.stats import t as student_t
 
-from realitygap.diagnosis.adapters.contract import Drive
 from realitygap.diagnosis.fit.model import ModelFit
 from realitygap.diagnosis.logs.log import Log
 from realitygap.diagnosis.problem.problem import Layout, Problem
 from realitygap.diagnosis.problem.residual import describe_residual
 from realitygap.diagnosis.problem.shrink import trajectory_runs
 from realitygap.diagnosis.stages.clock import timing_channel
-from realitygap.diagnosis.verdict.types import Verdict
 
 FloatArray = npt.NDArray[np.float64]
 
 __all__ = [
+    "ScaleFigures",
     "ScaleSettings",
     "gain_through_origin",
-    "judge_scales",
     "run_bias",
     "timing_signature",
+    "whole_run_figures",
     "window_timing",
 ]
 
@@ -227,7 +228,7 @@ def run_bias(
     """
     if z.shape != (layout.n,):
         raise ValueError(f"run_bias: z has shape {z.shape}, the layout {layout.n} entries")
-    out = []
+    out: list[dict[str, Any]] = []
     keys = np.char.add(np.char.add(layout.group, "/"), layout.column)
     for i in np.unique(layout.log):
         in_log = layout.log == i
@@ -286,45 +287,110 @@ def _permuted(signature: FloatArray, layout: Layout, rng: np.random.Generator) -
     return out
 
 
-def judge_scales(
+@dataclass(frozen=True)
+class ScaleFigures:
+    """What the best model does on whole held-out runs, and what it leaves in the windows
+    (:func:`whole_run_figures`).
+
+    Attributes
+    ----------
+    window_shrink_pct : float
+        Its held-out shrink at the window scale, %.
+    run_gap_m_nominal, run_gap_m_best : float
+        RMS over held-out runs of each run's whole-replay position error, nominal and best, m.
+    run_shrink_pct : float
+        The whole-run gap it closes, %.
+    runs_improved : int
+        Held-out runs whose whole-replay error it lowers.
+    runs : list of dict
+        Per run: ``log``, ``gap_m_nominal``, ``gap_m_best``.
+    consistent : bool
+        Every run improves, or a one-sided sign test over runs at 5 %.
+    window_gain : float
+        Its rank-score gain over the reference on the held-out windows.
+    run_bias_max_se, run_bias_p_family : float
+        The largest mean window residual of a run and column in standard errors, and its
+        family-wise p-value (Bonferroni over the ``run_bias_tests`` runs and columns).
+    run_bias_worst : dict or None
+        That run and column (:func:`run_bias`, ``log`` by name).
+    run_bias_tests : int
+    timing_parameter : str
+        The clock parameter whose signature the per-window offsets follow.
+    timing_share_pct, timing_share_pct_permuted_max : float
+        The share of the window residual one clock offset per window explains, and the
+        most permuted signatures explain, %.
+    window_offsets_ms_p5_p95 : list of float
+    residual_after_timing_structured : bool
+    clock_like : bool
+        The offsets explain at least :attr:`ScaleSettings.min_timing_share` of it, more
+        than any permuted signature.
+    """
+
+    window_shrink_pct: float
+    run_gap_m_nominal: float
+    run_gap_m_best: float
+    run_shrink_pct: float
+    runs_improved: int
+    runs: list[dict[str, Any]]
+    consistent: bool
+    window_gain: float
+    run_bias_max_se: float
+    run_bias_p_family: float
+    run_bias_worst: dict[str, Any] | None
+    run_bias_tests: int
+    timing_parameter: str
+    timing_share_pct: float
+    timing_share_pct_permuted_max: float
+    window_offsets_ms_p5_p95: list[float]
+    residual_after_timing_structured: bool
+    clock_like: bool
+
+    def to_json(self) -> dict[str, Any]:
+        """The figures as ``verdict_scales`` of the diagnosis JSON holds them."""
+        return {
+            "window_shrink_pct": self.window_shrink_pct,
+            "run_gap_m_nominal": self.run_gap_m_nominal,
+            "run_gap_m_best": self.run_gap_m_best,
+            "run_shrink_pct": self.run_shrink_pct,
+            "runs_improved": self.runs_improved,
+            "runs": self.runs,
+            "window_gain": self.window_gain,
+            "run_bias_max_se": self.run_bias_max_se,
+            "run_bias_p_family": self.run_bias_p_family,
+            "run_bias_worst": self.run_bias_worst,
+            "timing_parameter": self.timing_parameter,
+            "timing_share_pct": self.timing_share_pct,
+            "timing_share_pct_permuted_max": self.timing_share_pct_permuted_max,
+            "window_offsets_ms_p5_p95": self.window_offsets_ms_p5_p95,
+            "residual_after_timing_structured": self.residual_after_timing_structured,
+        }
+
+
+def whole_run_figures(
     problem: Problem,
-    verdict: Verdict,
     best: ModelFit,
     nominal_fit: ModelFit,
     shrink_pct_best: float,
     replays: Mapping[tuple[str, ...], Mapping[int, Log]],
     noise: Mapping[str, float] | None,
     settings: ScaleSettings,
-) -> tuple[Verdict, dict[str, Any]]:
-    """Revisit an ``"unexplained"`` verdict that failed only on the window shrink.
+) -> ScaleFigures | None:
+    """Measure ``best`` on whole held-out runs and its window residual along the runs.
 
     Returns
     -------
-    verdict : Verdict
-        The same verdict, or one naming ``best.effects`` (reason with both figures).
-    figures : dict
-        What was measured (empty when the verdict did not qualify): whole-run
-        gaps per run, timing share and its permutation level, and ``named``.
+    ScaleFigures or None
+        ``None`` when no timing parameter (of the baseline or the model) gives a signature
+        or ``best`` has no PyBullet replays.
     """
     st = problem.settings
-    from realitygap.diagnosis.verdict.rules import _confidence, pinned_parameters
-
-    # the verdict's tests run in order: an unexplained verdict with a best model that is
-    # not the reference and a window shrink below the bar failed on that shrink
-    if (
-        verdict.kind != "unexplained"
-        or not best.effects
-        or shrink_pct_best >= 100.0 * st.min_shrink
-        or pinned_parameters(problem, best)
-    ):
-        return verdict, {}
     key = next(
         (k for k in (*problem.baseline_values, *best.values) if timing_channel(k) is not None),
         None,
     )
     reps = replays.get(best.effects)
     if key is None or reps is None:
-        return verdict, {}
+        return None
     ho = [i for i, p in enumerate(problem.logs) if p.holdout_windows.any() and i in reps]
     rows = trajectory_runs(
         [problem.logs[i].log for i in ho],
@@ -355,98 +421,29 @@ def judge_scales(
         for _ in range(settings.permutations)
     )
     left_desc = describe_residual(z_left, problem.holdout, st, problem.features, noise)
-    # what the best model leaves on the held-out windows: the verdict already described it
-    rest_desc = verdict.residual
-    clock_like = share >= settings.min_timing_share and share > null
     bias = run_bias(z, problem.holdout)
     worst = bias[0] if bias else None
-    worst_t = abs(float(worst["t"])) if worst is not None else 0.0
-    p_family = min(1.0, len(bias) * float(worst["p"])) if worst is not None else 1.0
-    figures: dict[str, Any] = {
-        "window_shrink_pct": shrink_pct_best,
-        "run_gap_m_nominal": nom,
-        "run_gap_m_best": aft,
-        "run_shrink_pct": run_shrink,
-        "runs_improved": better,
-        "runs": [{"log": n, "gap_m_nominal": a, "gap_m_best": b} for n, a, b in runs],
-        "window_gain": gain,
-        "run_bias_max_se": worst_t,
-        "run_bias_p_family": p_family,
-        "run_bias_worst": (
+    return ScaleFigures(
+        window_shrink_pct=shrink_pct_best,
+        run_gap_m_nominal=nom,
+        run_gap_m_best=aft,
+        run_shrink_pct=run_shrink,
+        runs_improved=better,
+        runs=[{"log": n, "gap_m_nominal": a, "gap_m_best": b} for n, a, b in runs],
+        consistent=consistent,
+        window_gain=gain,
+        run_bias_max_se=abs(float(worst["t"])) if worst is not None else 0.0,
+        run_bias_p_family=min(1.0, len(bias) * float(worst["p"])) if worst is not None else 1.0,
+        run_bias_worst=(
             {**worst, "log": problem.logs[int(worst["log"])].name} if worst is not None else None
         ),
-        "timing_parameter": key,
-        "timing_share_pct": 100.0 * share,
-        "timing_share_pct_permuted_max": 100.0 * null,
-        "window_offsets_ms_p5_p95": [float(1e3 * np.percentile(offsets, q)) for q in (5, 95)]
+        run_bias_tests=len(bias),
+        timing_parameter=key,
+        timing_share_pct=100.0 * share,
+        timing_share_pct_permuted_max=100.0 * null,
+        window_offsets_ms_p5_p95=[float(1e3 * np.percentile(offsets, q)) for q in (5, 95)]
         if offsets.size
         else [],
-        "residual_after_timing_structured": bool(left_desc["structured"]),
-        "remainder": rest_desc["reasons"],
-        "named": False,
-    }
-    drift_msg = (
-        f"what it leaves still adds up along held-out run "
-        f"{problem.logs[int(worst['log'])].name} ({worst['group']} {worst['column']}: mean window "
-        f"residual {worst_t:.1f} standard errors from zero over {worst['windows']} windows, "
-        f"p = {p_family:.2g} over {len(bias)} runs and columns, against "
-        f"{settings.run_bias_alpha:g}): a second mechanism that drifts"
-        if worst is not None
-        else ""
+        residual_after_timing_structured=bool(left_desc["structured"]),
+        clock_like=share >= settings.min_timing_share and share > null,
     )
-    checks = {
-        f"the windows do not improve beyond the margin ({gain:.1f} < {st.margin_strong:g})": gain
-        >= st.margin_strong,
-        f"the whole-run gap shrinks only {run_shrink:.0f} % (needs {100 * st.min_shrink:.0f} %)": run_shrink
-        >= 100.0 * st.min_shrink,
-        f"only {better} of {len(runs)} held-out runs improve": consistent,
-        drift_msg: p_family >= settings.run_bias_alpha,
-    }
-    failed = [msg for msg, ok in checks.items() if not ok]
-    if failed:
-        figures["why_not"] = failed
-        return verdict, figures
-    figures["named"] = True
-    timing_words = (
-        f"one clock offset per window (5–95 %: {figures['window_offsets_ms_p5_p95'][0]:+.0f} … "
-        f"{figures['window_offsets_ms_p5_p95'][1]:+.0f} ms) explains {100 * share:.0f} % of it "
-        f"(permuted signatures: at most {100 * null:.0f} %), as a clock wandering between the "
-        "channels would"
-        + (
-            " (or the drive train's response to the commands, which moves windows in time alike)"
-            if problem.drive is Drive.COMMANDS
-            else ""
-        )
-        if clock_like
-        else f"one clock offset per window explains only {100 * share:.0f} % of it (permuted "
-        f"signatures: up to {100 * null:.0f} %), so it is not a clock's alone"
-    )
-    rest_words = (
-        "is not explained: " + "; ".join(rest_desc["reasons"][:3])
-        if rest_desc["structured"]
-        else "looks like noise at that scale"
-    )
-    reason = (
-        f"{best.name} closes {run_shrink:.0f} % of the held-out whole-run trajectory gap "
-        f"({100 * nom:.2f} → {100 * aft:.2f} cm, {better} of {len(runs)} runs better) but only "
-        f"{shrink_pct_best:.0f} % at the 1-s window scale; what it leaves there does not add up "
-        f"along the runs (no run's mean window residual is away from zero: p = {p_family:.2g} over "
-        f"{len(bias)} runs and columns) and {rest_words}; {timing_words}"
-    )
-    named = Verdict(
-        "effects",
-        best.effects,
-        reason,
-        verdict.margin,
-        _confidence(verdict.margin, st),
-        rest_desc,
-        notes=dict(verdict.notes),
-    )
-    named.notes["whole_runs"] = {
-        "run_shrink_pct": run_shrink,
-        "window_shrink_pct": shrink_pct_best,
-        "remainder": rest_desc["reasons"] if rest_desc["structured"] else [],
-        "clock_like": clock_like,
-        "timing_share_pct": 100.0 * share,
-    }
-    return named, figures

@@ -250,25 +250,28 @@ def _signals(
     m = p.bounds.shape[0]
     kinds, texts = [""] * m, [""] * m
     moving = np.zeros(m, dtype=bool)
-    params = getattr(p.context, "params", None)
-    if params is None or not log.has("pose_gt"):
+    wheels = p.context.wheels()
+    if wheels is None or not log.has("pose_gt"):
         return kinds, texts, moving
     dt = log.dt
-    b = float(params.wheelbase)
+    b = float(wheels.wheelbase)
     gt = np.asarray(log["pose_gt"], dtype=float)
     if log.has("ticks"):
         ticks = np.asarray(log["ticks"], dtype=float)
-        k = 2.0 * math.pi / params.ticks_per_rev
+        k = 2.0 * math.pi / wheels.ticks_per_rev
         wheel_angle = ticks * k  # rad
-        travel = wheel_angle * np.array([params.wheel_radius_left, params.wheel_radius_right])
+        travel = wheel_angle * np.array([wheels.wheel_radius_left, wheels.wheel_radius_right])
         min_motion = settings.min_motion_m
         source = "wheels"
     else:
-        twist = np.asarray(p.context.twist, dtype=float)
+        applied = p.context.applied_twist()
+        if applied is None:  # wheels but no twist: nothing to measure the wheels by
+            return kinds, texts, moving
+        twist = np.asarray(applied, dtype=float)
         sl = (twist[:, 0] - 0.5 * b * twist[:, 1]) * dt
         sr = (twist[:, 0] + 0.5 * b * twist[:, 1]) * dt
         travel = np.concatenate([np.zeros((1, 2)), np.cumsum(np.column_stack([sl, sr]), 0)[:-1]])
-        wheel_angle = travel / np.array([params.wheel_radius_left, params.wheel_radius_right])
+        wheel_angle = travel / np.array([wheels.wheel_radius_left, wheels.wheel_radius_right])
         min_motion = settings.min_command_motion_m
         source = "commands"
     cmd = np.asarray(log["cmd"], dtype=float) if log.has("cmd") else None

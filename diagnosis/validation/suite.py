@@ -2,10 +2,10 @@
 
 Each :class:`BlindCase` draws one hidden effect (sometimes two) with a
 realistic magnitude from a seeded generator (the robot adapter's
-:meth:`~realitygap.diagnosis.adapters.contract.AdapterBase.hidden_effects`), realises it
+:meth:`~realitygap.diagnosis.adapters.contract.RobotAdapter.hidden_effects`), realises it
 in the PyBullet robot, records a training and a held-out set of logs with the
 adapter's blind-log recorder
-(:meth:`~realitygap.diagnosis.adapters.contract.AdapterBase.record_blind_logs`: ordinary
+(:meth:`~realitygap.diagnosis.adapters.contract.RobotAdapter.record_blind_logs`: ordinary
 manoeuvres of the differential drive with motion-capture and camera noise,
 random poses of the arm under a simulated laser tracker, paths of the climber
 on the blade) and runs :func:`~realitygap.diagnosis.diagnose.diagnose` without
@@ -32,11 +32,13 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.core.parallel import Backend, SerialBackend
-from realitygap.diagnosis.adapters.contract import HiddenTable
+from realitygap.diagnosis.adapters.contract import BlindLogSettings, HiddenTable
 from realitygap.diagnosis.adapters.registry import get_adapter, known_robots
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.logs.log import Log
+from realitygap.diagnosis.problem.parameters import split_key
 from realitygap.diagnosis.verdict.rules import verdict_alternatives
+from realitygap.diagnosis.verdict.types import VerdictKind
 from realitygap.robots.effects import EFFECTS, Reality, make_effect
 from realitygap.robots.simulation import MeasurementNoise
 
@@ -92,6 +94,14 @@ class SuiteSettings:
     def hidden_effects(self) -> HiddenTable:
         """The hidden-effect table of :attr:`robot` (its adapter's)."""
         return get_adapter(self.robot).hidden_effects()
+
+    @property
+    def blind_logs(self) -> BlindLogSettings:
+        """What the adapter's blind-log recorder is told
+        (:meth:`~realitygap.diagnosis.adapters.contract.RobotAdapter.record_blind_logs`)."""
+        return BlindLogSettings(
+            noise=self.noise, arm_poses=self.arm_poses, arm_tracker_noise=self.arm_tracker_noise
+        )
 
 
 @dataclass(frozen=True)
@@ -169,14 +179,7 @@ def draw_cases(n: int, seed: int, settings: SuiteSettings | None = None) -> list
 def _measurement_tolerance(settings: SuiteSettings) -> dict[str, FloatArray]:
     """Per channel and column, the measurement noise of the suite's recorded logs: the
     size below which a difference between two recordings is not a measurable one."""
-    if settings.robot == "diffdrive":
-        noise = settings.noise
-        if noise is None:
-            noise = get_adapter("diffdrive").blind_noise  # type: ignore[attr-defined]
-        return {"pose_gt": np.array([noise.truth_xy, noise.truth_xy, noise.truth_theta])}
-    if settings.robot == "arm":
-        return {"tool_pos": np.full(3, settings.arm_tracker_noise)}
-    return {}
+    return get_adapter(settings.robot).blind_measurement_noise(settings.blind_logs)
 
 
 def withheld_exercised(
@@ -198,7 +201,7 @@ def withheld_exercised(
         return True
     rng = np.random.default_rng(case.seed)
     reality = Reality(tuple(make_effect(n, **dict(v)) for n, v in kept))
-    again = get_adapter(settings.robot).record_blind_logs(reality, rng, settings)
+    again = get_adapter(settings.robot).record_blind_logs(reality, rng, settings.blind_logs)
     if len(train) + len(holdout) != len(again[0]) + len(again[1]):
         return True
     for ours, theirs in zip((*train, *holdout), (*again[0], *again[1]), strict=True):
@@ -223,7 +226,9 @@ def run_case(settings: SuiteSettings, case: BlindCase) -> dict[str, Any]:
     t0 = time.perf_counter()
     rng = np.random.default_rng(case.seed)
     reality = case.reality()
-    train, holdout = get_adapter(settings.robot).record_blind_logs(reality, rng, settings)
+    train, holdout = get_adapter(settings.robot).record_blind_logs(
+        reality, rng, settings.blind_logs
+    )
     exercised = withheld_exercised(settings, case, train, holdout) if case.open_set else True
     t_rec = time.perf_counter() - t0
     library = tuple(n for n in settings.hidden_effects if n not in case.withheld)
@@ -245,7 +250,7 @@ def run_case(settings: SuiteSettings, case: BlindCase) -> dict[str, Any]:
     top = [tuple(sorted(r["effects"])) for r in rows if r["effects"]]
     alternatives = [tuple(sorted(a)) for a in verdict_alternatives(d.verdict)]
     if open_set:
-        correct = verdict == "unexplained"
+        correct = verdict == VerdictKind.UNEXPLAINED
         alias_aware = correct
     else:
         correct = named == truth
@@ -254,7 +259,7 @@ def run_case(settings: SuiteSettings, case: BlindCase) -> dict[str, Any]:
     if not open_set and named == truth:
         fit = next(r for r in rows if tuple(sorted(r["effects"])) == truth)
         for key, x in case.truth_values().items():
-            effect, _, pname = key.partition(".")
+            effect, pname = split_key(key)
             if effect not in truth:
                 continue
             nominal = EFFECTS[effect]().spec(pname).nominal
@@ -262,6 +267,7 @@ def run_case(settings: SuiteSettings, case: BlindCase) -> dict[str, Any]:
             est = fit["params"][key]["value"]
             param_err[key] = abs(est - x) / dev if dev > 0 else math.nan
     best = rows[0]
+    partial = d.verdict.notes.partially_explained_by
     return {
         "index": case.index,
         "truth": {n: dict(v) for n, v in case.truth},
@@ -271,7 +277,7 @@ def run_case(settings: SuiteSettings, case: BlindCase) -> dict[str, Any]:
         "open_set": open_set,
         "verdict": verdict,
         "reason": d.verdict.reason,
-        "confidence": d.verdict.confidence,
+        "confidence": d.verdict.confidence.value,
         "correct": bool(correct),
         "correct_alias_aware": bool(alias_aware),
         "verdict_alternatives": [list(a) for a in alternatives],
@@ -282,12 +288,10 @@ def run_case(settings: SuiteSettings, case: BlindCase) -> dict[str, Any]:
         "param_rel_err": param_err,
         "heldout_shrink_pct": float(d.gap["heldout_shrink_pct"]),
         "heldout_shrink_pct_best": float(d.gap["heldout_shrink_pct_best"]),
-        "ambiguous_with": d.verdict.ambiguous_with,
+        "ambiguous_with": list(d.verdict.ambiguous_with),
         # an "unexplained" verdict whose combination closed part of the gap (scored as
         # unexplained: a wrong answer for an in-library case, the right one for an open set)
-        "partially_explained_by": (d.verdict.notes.get("partially_explained_by") or {}).get(
-            "model"
-        ),
+        "partially_explained_by": partial.model if partial is not None else None,
         "seconds_record": t_rec,
         "seconds_diagnose": d.timing["total"],
     }
@@ -348,7 +352,9 @@ def summarise(outcomes: Sequence[dict[str, Any]]) -> tuple[dict[str, float], dic
         "heldout_shrink_pct_median": float(np.median([o["heldout_shrink_pct"] for o in closed]))
         if closed
         else math.nan,
-        "open_set_unexplained_rate": float(np.mean([o["verdict"] == "unexplained" for o in opened]))
+        "open_set_unexplained_rate": float(
+            np.mean([o["verdict"] == VerdictKind.UNEXPLAINED for o in opened])
+        )
         if opened
         else math.nan,
         "false_attribution_rate": len(false_attr) / len(outcomes) if outcomes else math.nan,

@@ -237,11 +237,19 @@ def _geometry_found(d: Any) -> dict[str, Any]:
     return out
 
 
+def _verdict_figure(d: Any) -> str:
+    """The verdict of diagnosis ``d`` as a figure: its effects joined by "+", or its kind."""
+    from realitygap.diagnosis.verdict.types import VerdictKind
+
+    v = d.verdict
+    return "+".join(v.effects) if v.kind is VerdictKind.EFFECTS else v.kind.value
+
+
 def _reach_figures(d: Any, prefix: str) -> dict[str, Any]:
     """The library reach of an unexplained verdict (:mod:`realitygap.diagnosis.stages.reach`): the
     single effect that closes most of the held-out gap fitted on the held-out windows
     themselves, and how much."""
-    reach = d.verdict.notes.get("reach")
+    reach = d.verdict.notes.reach
     if not reach or not reach.get("rows"):
         return {}
     top = reach["rows"][0]
@@ -290,7 +298,7 @@ def _real_diagnoses(
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
     from realitygap.diagnosis.problem.shrink import concentrated_gap
     from realitygap.diagnosis.report.summary import stage_split
-    from realitygap.diagnosis.verdict.rules import explain
+    from realitygap.diagnosis.report.words import explain
 
     backend = ProcessBackend(ctx.options.get("workers"))
     ctx.expect(
@@ -413,7 +421,7 @@ def _real_diagnoses(
             figures[prefix + "shrink_within_training_pct"] = cov.shrink_inside_pct
             figures[prefix + "shrink_beyond_training_pct"] = cov.shrink_outside_pct
             tables[f"{drive}_coverage"] = cov.rows
-            if "coverage" not in d.verdict.notes:  # else the verdict's own lines state it
+            if d.verdict.notes.coverage is None:  # else the verdict's own lines state it
                 notes.append(f"{drive}: coverage: {cov.summary()}")
         track = d.actuation.get("tracking")
         if track is not None:
@@ -430,10 +438,8 @@ def _real_diagnoses(
         figures[prefix + "transient_windows_set_aside"] = float(tr_rep.n_excluded)
         figures[prefix + "transient_share_pct"] = 100.0 * tr_rep.share_excluded
         figures[prefix + "top_effect"] = best.name
-        figures[prefix + "verdict"] = (
-            "+".join(d.verdict.effects) if d.verdict.kind == "effects" else d.verdict.kind
-        )
-        figures[prefix + "verdict_text"] = str(d.verdict.notes.get("verdict_text", d.verdict.kind))
+        figures[prefix + "verdict"] = _verdict_figure(d)
+        figures[prefix + "verdict_text"] = d.verdict.notes.verdict_text
         figures[prefix + "diagnose_seconds"] = d.timing["total"]
         figures.update(_reach_figures(d, prefix))
         js = d.to_json()
@@ -565,7 +571,7 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
     from realitygap.diagnosis.adapters.registry import ADAPTERS
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
     from realitygap.diagnosis.logs.read import logs_from_ur10
-    from realitygap.diagnosis.verdict.rules import explain
+    from realitygap.diagnosis.report.words import explain
 
     logs = logs_from_ur10(ctx.data_subdir("ipa_ur10_lasertracker"))
     if len(logs) < 2:
@@ -596,9 +602,7 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
             scale = 1e-4  # tool_dist feature scale, m
             figures[f"ur10_{prefix}top_effects"] = list(best.effects)
             figures[f"ur10_{prefix}shrink_pct"] = d.gap["heldout_shrink_pct_best"]
-            figures[f"ur10_{prefix}verdict"] = (
-                "+".join(d.verdict.effects) if d.verdict.kind == "effects" else d.verdict.kind
-            )
+            figures[f"ur10_{prefix}verdict"] = _verdict_figure(d)
             figures[f"ur10_{prefix}heldout_dist_err_mm_nominal"] = (
                 1e3 * scale * d.gap["heldout_rms_nominal"]
             )
@@ -620,7 +624,7 @@ def diagnose_arm_real(ctx: RunContext) -> dict[str, Any]:
                     1.0 - float(np.sqrt(np.mean(geo.z_heldout**2) / np.mean(z_nom**2)))
                 )
                 figures[f"ur10_{prefix}geometric_tolerances_rank"] = d.ranking.index(geo) + 1
-            disc = d.verdict.notes.get("discovery") or (
+            disc = d.verdict.notes.discovery or (
                 (d.verdict.residual or {}).get("held_out_structure")
             )
             if disc is not None:
@@ -726,7 +730,7 @@ def diagnose_bench(ctx: RunContext) -> dict[str, Any]:
         "diagnose_seconds": seconds,
         "log_seconds": log.duration,
         "workers": float(backend.workers),
-        "verdict": "+".join(d.verdict.effects) if d.verdict.kind == "effects" else d.verdict.kind,
+        "verdict": _verdict_figure(d),
     }
     if not ctx.quick:
         t1 = time.perf_counter()

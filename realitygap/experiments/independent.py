@@ -14,7 +14,7 @@ top-1 (in-library cases)
     (:attr:`~realitygap.independent.cases.Case.accepted`), and the top-ranked
     model is one of them (for a verdict drawn from the training alone, whose held-out
     windows show no gap to rank by, the training's best model:
-    :func:`~realitygap.diagnosis.verdict.rules.training_gap`). A verdict that adds an effect
+    :func:`~realitygap.diagnosis.verdict.judge.training_gap`). A verdict that adds an effect
     the case does not accept is wrong.
 open set (out-of-library cases)
     *strict*: the verdict is ``"unexplained"``; *lenient*: ``"unexplained"``,
@@ -169,7 +169,9 @@ def diagnose_case(
                 for m in d.ranking[1:3]
             ]
             row["verdict_notes"] = {
-                k: x for k, x in d.verdict.notes.items() if isinstance(x, (str, int, float))
+                k: x
+                for k, x in d.verdict.notes.to_json().items()
+                if isinstance(x, (str, int, float))
             }
             if keep_miss is not None and _missed(row):
                 keep_miss(f"{case.name} ({drive}, {variant})", d)
@@ -213,11 +215,12 @@ def _read(path: Path, refused: list[str]) -> list[Any]:
 def score(case: Any, d: Any, drive: str = "commands", **extra: float) -> dict[str, Any]:
     """Score a diagnosis ``d`` of ``case`` replayed with ``drive`` (see the module notes)."""
     from realitygap.diagnosis.verdict.rules import verdict_alternatives
+    from realitygap.diagnosis.verdict.types import Confidence, VerdictKind
 
     v = d.verdict
-    named = list(v.effects) if v.kind == "effects" else []
+    named = list(v.effects) if v.kind is VerdictKind.EFFECTS else []
     top = list(d.ranking[0].effects) if d.ranking else []
-    if v.kind == "effects" and v.notes.get("training_only"):
+    if v.kind is VerdictKind.EFFECTS and v.notes.training_only is not None:
         # held-out windows without a gap rank every model alike: the training's best is the
         # verdict's model (verdict.training_gap)
         top = list(v.effects)
@@ -229,10 +232,13 @@ def score(case: Any, d: Any, drive: str = "commands", **extra: float) -> dict[st
         strict = lenient = math.nan
     else:
         correct = alias_aware = False
-        strict = float(v.kind == "unexplained")
-        lenient = float(v.kind == "unexplained" or (v.kind == "effects" and v.confidence == "weak"))
+        strict = float(v.kind is VerdictKind.UNEXPLAINED)
+        lenient = float(
+            v.kind is VerdictKind.UNEXPLAINED
+            or (v.kind is VerdictKind.EFFECTS and v.confidence is Confidence.WEAK)
+        )
     best = d.ranking[0] if d.ranking else None
-    reach = v.notes.get("reach") or {}
+    reach = v.notes.reach or {}
     reach_top = reach.get("rows", [{}])[0] if reach.get("rows") else {}
     return {
         "case": case.name,
@@ -240,7 +246,7 @@ def score(case: Any, d: Any, drive: str = "commands", **extra: float) -> dict[st
         "in_library": case.in_library,
         "accepted": sorted(accepted),
         "verdict": v.label,
-        "confidence": v.confidence,
+        "confidence": v.confidence.value,
         "top_model": "+".join(top),
         "top_params": {k: float(v) for k, v in best.values.items()} if best is not None else {},
         "correct": correct,

@@ -3,7 +3,7 @@ r"""Effects of the differential drive (``realitygap/WheeledNav-v0``).
 Each effect is realised on :class:`~realitygap.robots.diffdrive.DiffDriveParams`
 (a body with other radii, wheelbase, friction or camera mount), by a command or
 encoder hook, or by a clock error; and each has a term in the fast kinematic
-surrogate (:class:`~realitygap.diagnosis.adapters.diffdrive.surrogate.DiffDriveSurrogate`), which
+surrogate (:class:`~realitygap.robots.diffdrive_surrogate.DiffDriveSurrogate`), which
 composes the terms at the :class:`SurrogateSlot` they declare. The drive-train
 family (wheel lags, acceleration limits, per-wheel dead zones, torque–speed
 saturation, traction slip) lives in

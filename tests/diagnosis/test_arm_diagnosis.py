@@ -27,6 +27,7 @@ from realitygap.diagnosis.problem.features import FeatureSettings
 from realitygap.diagnosis.problem.parameters import reality_from_values
 from realitygap.diagnosis.report.summary import summary_sentences
 from realitygap.diagnosis.validation.suite import SuiteSettings, draw_cases
+from realitygap.diagnosis.verdict.types import VerdictKind
 from realitygap.estimators.arm.mdh import MDHTable, tool_positions
 from realitygap.robots.arm import ArmParams
 from realitygap.robots.effects import Reality, make_effect
@@ -135,7 +136,7 @@ def test_a_compliance_under_a_load_the_declared_masses_miss_is_named_with_the_lo
     # at the flange than declared is found as the compliance's load, not as a second effect
     train, holdout = _record("arm_joint_compliance", {"c2": 3e-5, "dm": 4.0}, seed=3)
     d = diagnose(train, holdout, settings=DiagnosisSettings(robot="arm"))
-    assert d.verdict.kind == "effects"
+    assert d.verdict.kind is VerdictKind.EFFECTS
     assert d.verdict.effects == ("arm_joint_compliance",)
     fit = d.ranking[0].values
     assert fit["arm_joint_compliance.c2"] == pytest.approx(3e-5, rel=0.1)
@@ -146,7 +147,7 @@ def test_a_compliance_under_a_load_the_declared_masses_miss_is_named_with_the_lo
 def test_a_hidden_compliance_is_named_and_closes_the_gap() -> None:
     train, holdout = _record("arm_joint_compliance", {"c2": 3e-5, "c3": 2e-5}, seed=0)
     d = diagnose(train, holdout, settings=DiagnosisSettings(robot="arm"))
-    assert d.verdict.kind == "effects"
+    assert d.verdict.kind is VerdictKind.EFFECTS
     assert d.verdict.effects == ("arm_joint_compliance",)
     assert d.gap["heldout_shrink_pct"] > 75.0
     fit = d.ranking[0].values
@@ -166,7 +167,7 @@ def test_a_withheld_effect_is_left_unexplained() -> None:
     withheld = ("arm_link_length", "arm_geometric_tolerances")
     library = tuple(e for e in get_adapter("arm").effect_names() if e not in withheld)
     d = diagnose(train, holdout, settings=DiagnosisSettings(robot="arm", effects=library))
-    assert d.verdict.kind == "unexplained", d.verdict.reason
+    assert d.verdict.kind is VerdictKind.UNEXPLAINED, d.verdict.reason
 
 
 def test_the_arm_suite_draws_only_arm_effects() -> None:

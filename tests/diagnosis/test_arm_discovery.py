@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.adapters.arm.adapter import arm_params_to_meta
 from realitygap.diagnosis.adapters.arm.discovery import discover_arm, pair_terms
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.logs.log import Log
+from realitygap.diagnosis.verdict.types import VerdictKind
 from realitygap.estimators.arm.mdh import MDHTable, tool_positions
-from realitygap.robots.arm import ArmParams
+from realitygap.robots.arm import ArmParams, arm_params_to_meta
 
 TOOL = np.array([0.0, 0.02, 0.11])
 NOISE = 2e-5
@@ -71,9 +71,9 @@ def _diagnose(eccentric: float, seed: int) -> object:
 
 def test_a_planted_joint_angle_error_is_described_with_its_coefficient() -> None:
     d = _diagnose(8e-4, seed=1)
-    assert d.verdict.kind == "unexplained", d.verdict.reason
-    disc = d.verdict.notes["discovery"]
-    assert disc["found"], disc["message"]
+    assert d.verdict.kind is VerdictKind.UNEXPLAINED, d.verdict.reason
+    disc = d.verdict.notes.discovery
+    assert disc is not None and disc["found"], disc
     assert disc["fits"][0]["terms"][0]["term"] == "δq2 ∝ sin 2q2"
     # on the nominal replay's residual the planted coefficient comes back
     p = d.problem
@@ -87,7 +87,7 @@ def test_a_planted_joint_angle_error_is_described_with_its_coefficient() -> None
 
 def test_noise_alone_is_no_gap_and_no_finding() -> None:
     d = _diagnose(0.0, seed=2)
-    assert d.verdict.kind == "none", d.verdict.reason
+    assert d.verdict.kind is VerdictKind.NONE, d.verdict.reason
     structure = d.verdict.residual.get("held_out_structure")
     assert structure is not None and not structure["found"]
 

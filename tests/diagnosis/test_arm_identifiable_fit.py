@@ -10,11 +10,11 @@ from realitygap.diagnosis.adapters.contract import Drive
 from realitygap.diagnosis.adapters.registry import get_adapter
 from realitygap.diagnosis.fit.identifiability import dependent_parameters
 from realitygap.diagnosis.fit.model import fit_model
+from realitygap.diagnosis.fit.status import parameter_status
 from realitygap.diagnosis.logs.log import Log
 from realitygap.diagnosis.problem.features import FeatureSettings
 from realitygap.diagnosis.problem.parameters import model_keys
 from realitygap.diagnosis.problem.problem import AttributionSettings, Problem
-from realitygap.diagnosis.verdict.rules import parameter_status
 from realitygap.estimators.arm.identification import IdentificationSettings, identify
 from realitygap.estimators.arm.mdh import tool_positions
 from realitygap.estimators.arm.residuals import PairObservations, ResidualMode

@@ -10,6 +10,7 @@ from realitygap.diagnosis.adapters.diffdrive.manoeuvres import Manoeuvre
 from realitygap.diagnosis.adapters.diffdrive.replay import simulate
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.problem.problem import AttributionSettings
+from realitygap.diagnosis.verdict.types import Confidence, VerdictKind
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import Reality, make_effect
 from realitygap.robots.simulation import MeasurementNoise
@@ -89,7 +90,7 @@ def test_withheld_effect_comes_out_unexplained() -> None:
         ("wheelbase_error", "wheel_diameter_ratio", "encoder_scale"),
         seed=1,
     )
-    assert d.verdict.label == "unexplained"
+    assert d.verdict.label == VerdictKind.UNEXPLAINED
     assert d.verdict.residual["structured"] or "closes only" in d.verdict.reason
 
 
@@ -112,8 +113,9 @@ def test_one_turning_direction_cannot_separate_eb_from_ed() -> None:
     }
     assert info["separating_motion"]["correlation_after"] < 0.9
     assert "cannot tell" in info["message"]
-    if d.verdict.kind == "effects":
-        assert d.verdict.ambiguous_with and d.verdict.confidence == "not identifiable"
+    if d.verdict.kind is VerdictKind.EFFECTS:
+        assert d.verdict.ambiguous_with
+        assert d.verdict.confidence is Confidence.NOT_IDENTIFIABLE
 
 
 # --------------------------------------------------------------------------- residual structure

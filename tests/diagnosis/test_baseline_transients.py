@@ -16,6 +16,7 @@ from realitygap.diagnosis.logs.log import Log, LogError
 from realitygap.diagnosis.problem.problem import AttributionSettings
 from realitygap.diagnosis.report.writer import write_report
 from realitygap.diagnosis.stages.transients import TransientSettings
+from realitygap.diagnosis.verdict.types import VerdictKind
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import EFFECTS, Reality, make_effect
 from realitygap.robots.effects.base import ParamSpec
@@ -194,7 +195,7 @@ def test_the_ground_truths_body_frame_goes_to_the_baseline_and_the_drift_is_name
         settings=DiagnosisSettings(effects=LIBRARY, attribution=FAST),
     )
     assert d.baseline.values["truth_frame_offset.x"] == pytest.approx(0.02, abs=1e-6)
-    assert d.verdict.kind != "none"
+    assert d.verdict.kind is not VerdictKind.NONE
 
 
 def _jittered(man: Manoeuvre, rng: np.random.Generator, sigma: float = 0.015) -> Log:

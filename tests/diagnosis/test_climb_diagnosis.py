@@ -14,6 +14,7 @@ from realitygap.diagnosis.adapters.climber.adapter import (
 )
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.logs.log import Log, LogError
+from realitygap.diagnosis.verdict.types import VerdictKind
 from realitygap.robots.climber import ClimberParams, ClimbFaults
 from realitygap.robots.climber_sensors import TetherModel
 from realitygap.robots.effects import Reality, make_effect
@@ -68,7 +69,7 @@ def test_a_hidden_spool_scale_is_named_and_estimated(
 ) -> None:
     train, holdout = spool_logs
     d = diagnose(train, holdout, settings=DiagnosisSettings(robot="climber"))
-    assert d.verdict.kind == "effects", d.verdict.reason
+    assert d.verdict.kind is VerdictKind.EFFECTS, d.verdict.reason
     assert d.verdict.effects == ("climber_spool_scale",)
     assert d.ranking[0].values["climber_spool_scale.s"] == pytest.approx(1.008, abs=5e-4)
     assert d.gap["heldout_shrink_pct"] > 80.0
@@ -83,7 +84,7 @@ def test_a_withheld_spool_scale_is_left_unexplained(
     train, holdout = spool_logs
     library = ("climber_tether_sag", "climber_adsorption_gap")
     d = diagnose(train, holdout, settings=DiagnosisSettings(robot="climber", effects=library))
-    assert d.verdict.kind == "unexplained", d.verdict.reason
+    assert d.verdict.kind is VerdictKind.UNEXPLAINED, d.verdict.reason
 
 
 def _log(**changes: object) -> Log:

@@ -14,6 +14,7 @@ from realitygap.diagnosis.logs.log import Log
 from realitygap.diagnosis.problem.problem import AttributionSettings, Layout
 from realitygap.diagnosis.stages.clock import ClockSettings, restamp, timing_channel
 from realitygap.diagnosis.stages.scales import ScaleSettings, window_timing
+from realitygap.diagnosis.verdict.types import VerdictKind
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import Reality, make_effect
 from realitygap.robots.simulation import MeasurementNoise
@@ -143,7 +144,7 @@ def test_geometry_is_named_and_recovered_once_the_clocks_are_aligned(
     geometry_with_clocks: tuple[Diagnosis, list[float]],
 ) -> None:
     d, _ = geometry_with_clocks
-    assert d.verdict.kind == "effects", d.verdict.reason
+    assert d.verdict.kind is VerdictKind.EFFECTS, d.verdict.reason
     assert "wheelbase_error" in d.verdict.effects
     fit = d.chosen
     assert fit is not None
@@ -168,7 +169,7 @@ def test_a_common_latency_is_still_named_beside_per_log_offsets() -> None:
 
 def test_logs_that_differ_only_by_their_clocks_and_noise_name_no_effect() -> None:
     d, _ = _diagnose((), 0.0, seed=8, clock=ClockSettings())
-    assert d.verdict.kind != "effects", d.verdict.reason
+    assert d.verdict.kind is not VerdictKind.EFFECTS, d.verdict.reason
     assert not d.scales.get("named", False)
 
 
@@ -207,7 +208,7 @@ def test_independent_generator_geometry_with_clock_skews(tmp_path: Path) -> None
     planted = np.array([*TRAIN_OFFSETS, *HELD_OFFSETS])
     shift = np.median(fitted - planted)
     np.testing.assert_allclose(fitted - shift, planted, atol=0.012)
-    assert d.verdict.kind == "effects", d.verdict.reason
+    assert d.verdict.kind is VerdictKind.EFFECTS, d.verdict.reason
     fit = d.chosen
     assert fit is not None and "wheelbase_error" in fit.effects
     e_b = fit.values["wheelbase_error.E_b"] / fit.values.get("wheel_radius_scale.scale", 1.0)

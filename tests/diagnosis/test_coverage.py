@@ -15,6 +15,7 @@ from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.problem.problem import AttributionSettings
 from realitygap.diagnosis.problem.shrink import overall_shrink
 from realitygap.diagnosis.report.summary import summary_sentences
+from realitygap.diagnosis.report.words import explain
 from realitygap.diagnosis.report.writer import write_report
 from realitygap.diagnosis.stages.coverage import (
     CoverageSettings,
@@ -23,7 +24,7 @@ from realitygap.diagnosis.stages.coverage import (
     training_coverage,
     wheel_speeds,
 )
-from realitygap.diagnosis.verdict.rules import explain
+from realitygap.diagnosis.verdict.types import VerdictKind
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import Reality, make_effect
 from realitygap.robots.simulation import MeasurementNoise
@@ -247,7 +248,7 @@ def test_a_top_speed_the_training_never_reached_is_reported_as_beyond_the_traini
     js = d.to_json()
     assert js["coverage"]["beyond_training"] and js["coverage"]["n_outside"] == cov.n_outside
     # the cap cannot be named from training that never reaches it
-    assert d.verdict.kind == "unexplained"
+    assert d.verdict.kind is VerdictKind.UNEXPLAINED
     # the summary states the rule the verdict applies: the share of the gap above noise
     text = " ".join(summary_sentences(d))
     assert "above the noise floor" in text

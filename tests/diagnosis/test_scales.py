@@ -14,9 +14,10 @@ from scipy.stats import t as student_t
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.problem.problem import Layout
 from realitygap.diagnosis.report.summary import summary_sentences
+from realitygap.diagnosis.report.words import explain
 from realitygap.diagnosis.report.writer import write_report
 from realitygap.diagnosis.stages.scales import ScaleSettings, run_bias
-from realitygap.diagnosis.verdict.rules import explain
+from realitygap.diagnosis.verdict.types import VerdictKind
 
 
 def _layout(n_logs: int, n_win: int) -> Layout:
@@ -134,14 +135,14 @@ def test_a_drift_under_a_wandering_clock_is_named_on_whole_runs(tmp_path: Path) 
     # the window scale hides the drift; whole runs show it
     assert sc["window_shrink_pct"] < 50.0 <= sc["run_shrink_pct"], sc
     assert sc["named"] and sc["run_bias_p_family"] >= ScaleSettings().run_bias_alpha
-    assert d.verdict.kind == "effects" and "wheelbase_error" in d.verdict.effects
+    assert d.verdict.kind is VerdictKind.EFFECTS and "wheelbase_error" in d.verdict.effects
     assert d.chosen is not None
     # a wider axle (planted 2 %); the window fit under a 30 ms wander is loose
     assert 1.005 < d.chosen.values["wheelbase_error.E_b"] < 1.03
-    text = d.verdict.notes["verdict_text"]
+    text = d.verdict.notes.verdict_text
     assert "on whole runs" in text
-    whole = d.verdict.notes["whole_runs"]
-    assert ("unexplained" in text) == bool(whole["remainder"])
+    whole = d.verdict.notes.whole_runs
+    assert whole is not None and ("unexplained" in text) == bool(whole.remainder)
     assert any(line.startswith("window scale:") for line in explain(d.verdict))
     assert any("on whole runs" in s for s in summary_sentences(d))
     write_report(d, tmp_path / "report")
@@ -171,4 +172,6 @@ def test_a_drift_under_a_fast_noisy_capture_is_named_in_the_windows_above_each_c
     assert "above the noise floor" in d.verdict.reason
     assert not d.scales  # named in the windows, not on whole runs
     assert d.ranking[0].values["wheelbase_error.E_b"] == pytest.approx(1.03, abs=0.006)
-    assert d.verdict.notes["robot"]["factors"] == {"wheelbase": pytest.approx(1.03, abs=0.006)}
+    robot = d.verdict.notes.robot
+    assert robot is not None
+    assert robot["factors"] == {"wheelbase": pytest.approx(1.03, abs=0.006)}

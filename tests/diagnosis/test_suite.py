@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pytest
 
@@ -14,6 +16,7 @@ from realitygap.diagnosis.validation.suite import (
     summarise,
     withheld_exercised,
 )
+from realitygap.diagnosis.verdict.types import Confidence, Verdict, VerdictKind, VerdictNotes
 from realitygap.robots.effects import blind_ranges
 
 
@@ -52,7 +55,7 @@ def _outcome(truth: list[str], verdict: object, alias_aware: bool, open_set: boo
         "open_set": open_set,
         "verdict": verdict,
         "reason": "r",
-        "correct": (verdict == "unexplained") if open_set else named,
+        "correct": (verdict == VerdictKind.UNEXPLAINED) if open_set else named,
         "correct_alias_aware": alias_aware,
         "top1": (not open_set) and named,
         "top2": (not open_set) and named,
@@ -69,9 +72,9 @@ def test_alias_aware_top1_is_reported_beside_the_strict_one() -> None:
         _outcome(["wheelbase_error"], ["wheelbase_error"], True),
         # "wheel_radius_scale or wheelbase_error (aliases on this data)"
         _outcome(["wheelbase_error"], ["wheel_radius_scale"], True),
-        _outcome(["wheelbase_error"], "unexplained", False),
+        _outcome(["wheelbase_error"], VerdictKind.UNEXPLAINED, False),
         _outcome(["wheelbase_error"], ["encoder_scale"], False),
-        _outcome(["command_latency"], "unexplained", True, open_set=True),
+        _outcome(["command_latency"], VerdictKind.UNEXPLAINED, True, open_set=True),
     ]
     figures, tables = summarise(outcomes)
     assert figures["top1_accuracy"] == pytest.approx(1 / 4)
@@ -80,27 +83,33 @@ def test_alias_aware_top1_is_reported_beside_the_strict_one() -> None:
     assert [c["correct_alias_aware"] for c in tables["cases"]] == [True, True, False, False, True]
 
 
-def test_verdict_alternatives_lists_the_model_then_its_aliases() -> None:
+def test_verdict_alternatives_lists_the_model_then_its_aliases(
+    make_verdict: Callable[..., Verdict],
+) -> None:
     from realitygap.diagnosis.verdict.rules import verdict_alternatives
-    from realitygap.diagnosis.verdict.types import Verdict
 
-    v = Verdict("effects", ("wheel_radius_scale",), "r", 1.0, "not identifiable", {})
-    v.notes["aliases"] = [
+    aliases = (
         {"model": "wheelbase_error", "effects": ["wheelbase_error"]},
         {"model": "encoder_scale + timestamp_offset"},  # no effects key: read from the name
-    ]
+    )
+    v = make_verdict(
+        effects=("wheel_radius_scale",),
+        confidence=Confidence.NOT_IDENTIFIABLE,
+        notes=VerdictNotes(aliases=aliases),
+    )
     assert verdict_alternatives(v) == [
         ("wheel_radius_scale",),
         ("wheelbase_error",),
         ("encoder_scale", "timestamp_offset"),
     ]
-    assert verdict_alternatives(Verdict("unexplained", (), "r", 1.0, "n/a", {})) == []
+    assert verdict_alternatives(make_verdict(kind=VerdictKind.UNEXPLAINED)) == []
 
 
 def test_a_partially_explained_verdict_is_scored_as_unexplained() -> None:
     # a combination that closed part of the gap but left structure where it acts
-    partial_open = _outcome(["torque_speed_saturation"], "unexplained", True, open_set=True)
-    partial_in = _outcome(["velocity_saturation", "acceleration_limits"], "unexplained", False)
+    unexplained = VerdictKind.UNEXPLAINED
+    partial_open = _outcome(["torque_speed_saturation"], unexplained, True, open_set=True)
+    partial_in = _outcome(["velocity_saturation", "acceleration_limits"], unexplained, False)
     confident_wrong = _outcome(
         ["torque_speed_saturation"], ["velocity_saturation", "acceleration_limits"], False, True
     )
@@ -126,7 +135,7 @@ def test_a_withheld_effect_that_never_acts_is_not_an_open_set_case() -> None:
         cap = ("velocity_saturation", (("v_limit", v_limit),))
         case = BlindCase(0, (base, cap), ("velocity_saturation",), 11)
         rng = np.random.default_rng(11)
-        train, holdout = adapter.record_blind_logs(case.reality(), rng, settings)
+        train, holdout = adapter.record_blind_logs(case.reality(), rng, settings.blind_logs)
         return withheld_exercised(settings, case, train, holdout)
 
     # a speed cap far above every commanded speed never acts; one below them does

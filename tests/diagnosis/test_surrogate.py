@@ -7,14 +7,14 @@ import pytest
 
 from realitygap.diagnosis.adapters.diffdrive.manoeuvres import Manoeuvre
 from realitygap.diagnosis.adapters.diffdrive.replay import simulate
-from realitygap.diagnosis.adapters.diffdrive.surrogate import (
+from realitygap.diagnosis.problem.features import FeatureSettings, features, window_bounds
+from realitygap.robots.diffdrive import DiffDriveParams
+from realitygap.robots.diffdrive_surrogate import (
     SURROGATE_EFFECTS,
     DiffDriveSurrogate,
     SurrogateInputs,
     calibrate,
 )
-from realitygap.diagnosis.problem.features import FeatureSettings, features, window_bounds
-from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import EFFECTS, Reality, make_effect
 from realitygap.robots.effects.diffdrive import SurrogateSlot
 
@@ -136,7 +136,7 @@ def test_tick_driven_runs_read_ticks_through_both_encoder_terms(base) -> None:
 
 
 def test_calibration_cache_key_holds_no_source_code(tmp_path, monkeypatch) -> None:
-    from realitygap.diagnosis.adapters.diffdrive import surrogate
+    from realitygap.robots import diffdrive_surrogate as surrogate
 
     monkeypatch.setenv("REALITYGAP_CACHE", str(tmp_path))
     path = surrogate._cache_path(P, 0)

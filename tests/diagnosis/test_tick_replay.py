@@ -18,11 +18,11 @@ from realitygap.diagnosis.adapters.diffdrive.adapter import (
     DiffDriveContext,
     values_for_log,
 )
-from realitygap.diagnosis.adapters.diffdrive.surrogate import DiffDriveSurrogate, SurrogateInputs
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.logs.log import Log
 from realitygap.diagnosis.problem.features import FeatureSettings
 from realitygap.robots.diffdrive import DiffDriveParams
+from realitygap.robots.diffdrive_surrogate import DiffDriveSurrogate, SurrogateInputs
 from realitygap.robots.effects import Reality, make_effect
 from realitygap.robots.simulation import SimSettings
 

@@ -9,19 +9,20 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.adapters.arm import adapter as arm_adapter
+from realitygap.diagnosis.adapters.arm import poses as arm_poses
 from realitygap.diagnosis.adapters.arm.adapter import record_arm_log
 from realitygap.diagnosis.adapters.registry import get_adapter
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.logs.log import Log
 from realitygap.diagnosis.report.summary import summary_sentences
-from realitygap.diagnosis.verdict.rules import explain
+from realitygap.diagnosis.report.words import explain
+from realitygap.diagnosis.verdict.types import Confidence, VerdictKind
 from realitygap.robots.effects import Reality, make_effect
 
 
 def _wrist_sweep(monkeypatch: pytest.MonkeyPatch, reality: Reality, seed: int) -> Log:
     """A held-out series that turns only the last joint, from one random arm pose."""
-    real_sample = arm_adapter.sample_arm_poses
+    real_sample = arm_poses.sample_arm_poses
 
     def sweep(robot: object, rng: np.random.Generator, n: int) -> np.ndarray:
         for _ in range(100):  # a base pose from which the whole turn is collision-free
@@ -33,7 +34,7 @@ def _wrist_sweep(monkeypatch: pytest.MonkeyPatch, reality: Reality, seed: int) -
         raise RuntimeError("no collision-free wrist sweep in 100 draws")
 
     with monkeypatch.context() as m:
-        m.setattr(arm_adapter, "sample_arm_poses", sweep)
+        m.setattr(arm_poses, "sample_arm_poses", sweep)
         return record_arm_log(reality, np.random.default_rng(seed), 48, name="holdout")
 
 
@@ -48,9 +49,10 @@ def test_a_tool_offset_the_held_out_poses_cannot_see_is_named_from_the_training(
     holdout = _wrist_sweep(monkeypatch, real, seed=11)
     d = diagnose([_train(real, 10)], [holdout], settings=DiagnosisSettings(robot="arm"))
     v = d.verdict
-    assert v.kind == "effects", v.reason
+    assert v.kind is VerdictKind.EFFECTS, v.reason
     assert "arm_tool_offset" in v.effects
-    assert v.notes["training_only"]["train_shrink_pct_above_noise"] >= 90.0
+    trained = v.notes.training_only
+    assert trained is not None and trained.train_shrink_pct_above_noise >= 90.0
     chosen = d.chosen
     assert chosen is not None
     assert chosen.values["arm_tool_offset.dz"] == pytest.approx(3e-3, abs=3e-4)
@@ -61,17 +63,18 @@ def test_a_tool_offset_the_held_out_poses_cannot_see_is_named_from_the_training(
     assert f"Verdict: {' + '.join(v.effects)}, on the training alone" in summary
     # the flange link's offset d6 lies along the same axis as the tool length: the training
     # cannot tell them apart, and the verdict says so (stated aliases lower the confidence)
-    assert "arm_link_length" in v.notes["training_only"]["aliases"]
+    assert "arm_link_length" in trained.aliases
     assert "arm_link_length" in v.ambiguous_with
-    assert v.confidence == "not identifiable"
+    assert v.confidence is Confidence.NOT_IDENTIFIABLE
 
 
 def test_a_nominal_arm_on_the_same_poses_is_still_none(monkeypatch: pytest.MonkeyPatch) -> None:
     real = Reality(())
     holdout = _wrist_sweep(monkeypatch, real, seed=13)
     d = diagnose([_train(real, 12)], [holdout], settings=DiagnosisSettings(robot="arm"))
-    assert d.verdict.kind == "none", d.verdict.reason
-    assert "training_only" not in d.verdict.notes
+    assert d.verdict.kind is VerdictKind.NONE, d.verdict.reason
+    assert d.verdict.notes.training_only is None
+    assert "training_only" not in d.to_json()
 
 
 def test_a_training_gap_no_candidate_closes_is_unexplained(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -84,6 +87,6 @@ def test_a_training_gap_no_candidate_closes_is_unexplained(monkeypatch: pytest.M
     d = diagnose(
         [_train(real, 10)], [holdout], settings=DiagnosisSettings(robot="arm", effects=library)
     )
-    assert d.verdict.kind == "unexplained", d.verdict.reason
+    assert d.verdict.kind is VerdictKind.UNEXPLAINED, d.verdict.reason
     assert "the held-out motions do not exercise what the training shows" in d.verdict.reason
-    assert "training_only" not in d.verdict.notes
+    assert d.verdict.notes.training_only is None

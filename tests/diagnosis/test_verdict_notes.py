@@ -4,88 +4,76 @@ and probe manoeuvres that stay within the robot's limits."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from types import SimpleNamespace
+from collections.abc import Callable, Mapping
+from typing import Any
 
 import numpy as np
 import pytest
 
-from realitygap.diagnosis.adapters.diffdrive.manoeuvres import MANOEUVRES, PROBE_MANOEUVRES
-from realitygap.diagnosis.fit.identifiability import probe_description
+from realitygap.diagnosis.adapters.diffdrive.manoeuvres import (
+    MANOEUVRES,
+    PROBE_MANOEUVRES,
+    probe_description,
+)
 from realitygap.diagnosis.fit.model import ModelFit
-from realitygap.diagnosis.problem.features import FeatureGroup, FeatureSchema
-from realitygap.diagnosis.problem.problem import AttributionSettings
+from realitygap.diagnosis.fit.status import parameter_status
+from realitygap.diagnosis.problem.problem import AttributionSettings, Layout, Problem
+from realitygap.diagnosis.report.words import explain, explain_markdown
 from realitygap.diagnosis.stages.discovery import discover
+from realitygap.diagnosis.verdict.advice import Advice
 from realitygap.diagnosis.verdict.rules import (
-    Judgement,
     alias_notes,
+    combination_check,
+    decide,
     dominant_single,
-    explain,
-    explain_markdown,
     nuisance_partner,
-    parameter_status,
     regime_consistency,
     run_discovery,
     unsingled_partner,
 )
-from realitygap.diagnosis.verdict.types import Verdict
-from realitygap.robots.diffdrive import DiffDriveParams
-
-SCHEMA = FeatureSchema(
-    (FeatureGroup("pose_gt", ("dtheta",), ("rad",), (0.01,)),), ("straight", "turning")
+from realitygap.diagnosis.verdict.types import (
+    Confidence,
+    Decision,
+    Judgement,
+    Verdict,
+    VerdictKind,
+    VerdictNotes,
 )
-
-
-def _layout(n: int, logs: int, regimes: list[str] | None = None) -> SimpleNamespace:
-    per = n // logs
-    return SimpleNamespace(
-        n=n,
-        group=np.full(n, "pose_gt"),
-        column=np.full(n, "dtheta"),
-        regime=np.array(regimes if regimes is not None else ["straight"] * n),
-        log=np.repeat(np.arange(logs), per),
-        window=np.tile(np.arange(per), logs),
-    )
+from realitygap.robots.diffdrive import DiffDriveParams
 
 
 # --------------------------------------------------------------------------- discovery
-class _Terms:
-    schema = SCHEMA
-
-    def __init__(self, terms: dict[int, np.ndarray]) -> None:
-        self.terms = terms
-
-    def discovery_terms(self, prepared):
-        X = self.terms[prepared.index]
-        return {"ω": (X[:, 0], "rad/s"), "ω̇": (X[:, 1], "rad/s²"), "time": (X[:, 2], "s")}
-
-
-def _discovery_problem(rng: np.random.Generator, n_logs: int = 6, m: int = 40):
+def _discovery_problem(
+    toy_problem: Callable[..., Problem], rng: np.random.Generator, m: int = 40
+) -> tuple[Problem, dict[int, np.ndarray]]:
+    """Four training and two held-out logs of ``m`` windows, each with three candidate terms
+    per window (the second, ω̇, is the one a test plants)."""
     terms = {
         i: np.column_stack([rng.uniform(-1, 1, m), rng.normal(0, 2, m), np.arange(m, dtype=float)])
-        for i in range(n_logs)
+        for i in range(6)
     }
-    logs = [SimpleNamespace(index=i, bounds=np.zeros((m, 2), dtype=int)) for i in range(n_logs)]
-    train, hold = _layout(4 * m, 4), _layout(2 * m, 2)
-    hold.log = hold.log + 4
-    problem = SimpleNamespace(
-        adapter=_Terms(terms),
-        logs=logs,
-        train=train,
-        holdout=hold,
-        features=SimpleNamespace(scale=lambda g: np.array([0.01])),
-    )
+    named = [
+        {"ω": (X[:, 0], "rad/s"), "ω̇": (X[:, 1], "rad/s²"), "time": (X[:, 2], "s")}
+        for X in terms.values()
+    ]
+    problem = toy_problem(windows=m, train_logs=4, holdout_logs=2, terms=named)
     return problem, terms
 
 
-def _residual(problem, terms, layout, coef: float, rng) -> np.ndarray:
+def _residual(
+    problem: Problem, terms: dict[int, np.ndarray], layout: Layout, coef: float, rng
+) -> np.ndarray:
+    """``coef`` · ω̇ plus noise, SI, in the layout's feature-scale units."""
     dw = np.array([terms[i][w, 1] for i, w in zip(layout.log, layout.window)])
-    return (coef * dw + rng.normal(0, 0.004, layout.n)) / 0.01
+    scale = float(problem.features.scale("tether")[0])
+    return (coef * dw + rng.normal(0, 0.004, layout.n)) / scale
 
 
-def test_discovery_recovers_planted_term_through_the_layout() -> None:
+def test_discovery_recovers_planted_term_through_the_layout(
+    toy_problem: Callable[..., Problem],
+) -> None:
     rng = np.random.default_rng(11)
-    problem, terms = _discovery_problem(rng)
+    problem, terms = _discovery_problem(toy_problem, rng)
     z_tr = _residual(problem, terms, problem.train, 0.012, rng)
     z_ho = _residual(problem, terms, problem.holdout, 0.012, rng)
     d = discover(problem, z_tr, z_ho)
@@ -97,9 +85,11 @@ def test_discovery_recovers_planted_term_through_the_layout() -> None:
     assert d.message.startswith("not in the library")
 
 
-def test_discovery_on_pure_noise_says_it_found_nothing() -> None:
+def test_discovery_on_pure_noise_says_it_found_nothing(
+    toy_problem: Callable[..., Problem],
+) -> None:
     rng = np.random.default_rng(12)
-    problem, terms = _discovery_problem(rng)
+    problem, terms = _discovery_problem(toy_problem, rng)
     z_tr = _residual(problem, terms, problem.train, 0.0, rng)
     z_ho = _residual(problem, terms, problem.holdout, 0.0, rng)
     d = discover(problem, z_tr, z_ho)
@@ -107,59 +97,38 @@ def test_discovery_on_pure_noise_says_it_found_nothing() -> None:
     assert d.message.startswith("no term of the 3-term library")
 
 
-def test_discovery_rejects_misaligned_residuals() -> None:
-    problem, _ = _discovery_problem(np.random.default_rng(0))
+def test_discovery_rejects_misaligned_residuals(toy_problem: Callable[..., Problem]) -> None:
+    problem, _ = _discovery_problem(toy_problem, np.random.default_rng(0))
     with pytest.raises(ValueError, match="must follow the layouts"):
         discover(problem, np.zeros(3), np.zeros(problem.holdout.n))
 
 
-def test_discovery_never_runs_on_a_named_verdict(model_fit: Callable[..., ModelFit]) -> None:
-    verdict = Verdict("effects", ("wheelbase_error",), "ok", 20.0, "strong", {})
-    best = model_fit(("wheelbase_error",), np.zeros(4))
-    j = Judgement(verdict, best, np.zeros(4), np.ones(4, dtype=bool), 90.0)
-    # the problem is never consulted: a named verdict is left as it is
+def test_discovery_never_runs_on_a_named_verdict(
+    model_fit: Callable[..., ModelFit], make_judgement: Callable[..., Judgement]
+) -> None:
+    best = model_fit(effects=("wheelbase_error",), z_heldout=np.zeros(4))
+    j = make_judgement(best=best, nominal_heldout=np.zeros(4), shrink_pct_best=90.0)
+    # the problem is never consulted: a named verdict whose rest is noise has nothing to discover
     assert run_discovery(None, j) is None  # type: ignore[arg-type]
-    assert verdict.kind == "effects" and verdict.effects == ("wheelbase_error",)
+    assert j.kind is VerdictKind.EFFECTS and j.draft.effects == ("wheelbase_error",)
 
 
 # --------------------------------------------------------------------------- aliases
-def _alias_problem(n: int, adapter: object | None = None) -> SimpleNamespace:
-    return SimpleNamespace(
-        holdout=_layout(n, 1),
-        settings=AttributionSettings(),
-        adapter=adapter if adapter is not None else _adapter_knowing(),
-        logs=[],
-    )
-
-
-def _adapter_knowing(*pairs: tuple[str, str]) -> SimpleNamespace:
-    """An adapter whose alias groups measure ``pairs`` as aliases."""
-    return SimpleNamespace(
-        alias_groups=lambda prepared, threshold=0.95, effects=None: (
-            [
-                {
-                    "effects": sorted({e for p in pairs for e in p}),
-                    "aliases": [list(p) for p in pairs],
-                }
-            ]
-            if pairs
-            else []
-        )
-    )
-
-
 def test_two_perfectly_correlated_candidates_are_aliases(
     model_fit: Callable[..., ModelFit],
+    toy_problem: Callable[..., Problem],
+    make_judgement: Callable[..., Judgement],
+    make_verdict: Callable[..., Verdict],
 ) -> None:
     rng = np.random.default_rng(3)
     n = 200
     z_nom = rng.normal(0, 1, n) + 4.0
     z = rng.normal(0, 1, n)
-    a, b = model_fit(("scale_a",), z), model_fit(("scale_b",), z.copy())
-    other = model_fit(("other",), z_nom * 0.9)
-    verdict = Verdict("effects", a.effects, "", 20.0, "strong", {})
-    j = Judgement(verdict, a, z_nom, np.ones(n, dtype=bool), 80.0)
-    notes = alias_notes(_alias_problem(n), [a, b, other], j, [])
+    a = model_fit(effects=("scale_a",), z_heldout=z)
+    b = model_fit(effects=("scale_b",), z_heldout=z.copy())
+    other = model_fit(effects=("other",), z_heldout=z_nom * 0.9)
+    j = make_judgement(best=a, nominal_heldout=z_nom, shrink_pct_best=80.0)
+    notes = alias_notes(toy_problem(windows=n), [a, b, other], j, [])
     assert [x["model"] for x in notes] == ["scale_b"]
     assert "as well within noise" in notes[0]["why"][0]
     # a clearly worse candidate is not an alias
@@ -168,25 +137,31 @@ def test_two_perfectly_correlated_candidates_are_aliases(
 
 def test_alias_from_parameter_correlation_and_known_groups(
     model_fit: Callable[..., ModelFit],
+    toy_problem: Callable[..., Problem],
+    make_judgement: Callable[..., Judgement],
+    make_verdict: Callable[..., Verdict],
 ) -> None:
     rng = np.random.default_rng(4)
     n = 200
     z_nom = rng.normal(0, 1, n) + 4.0
-    a = model_fit(("tool_offset",), rng.normal(0, 1, n))
-    b = model_fit(("link_lengths",), rng.normal(0, 1, n) * 1.3)  # worse on held-out data
-    verdict = Verdict("effects", a.effects, "", 20.0, "strong", {})
-    j = Judgement(verdict, a, z_nom, np.ones(n, dtype=bool), 80.0)
-    assert alias_notes(_alias_problem(n), [a, b], j, []) == []
+    a = model_fit(effects=("tool_offset",), z_heldout=rng.normal(0, 1, n))
+    # worse on held-out data
+    b = model_fit(effects=("link_lengths",), z_heldout=rng.normal(0, 1, n) * 1.3)
+    j = make_judgement(best=a, nominal_heldout=z_nom, shrink_pct_best=80.0)
+    assert alias_notes(toy_problem(windows=n), [a, b], j, []) == []
     ident = [{"effects": ["tool_offset", "link_lengths"], "separable": False, "correlation": 0.99}]
-    notes = alias_notes(_alias_problem(n), [a, b], j, ident)
+    notes = alias_notes(toy_problem(windows=n), [a, b], j, ident)
     assert notes and "parameter correlation 0.99" in notes[0]["why"]
-    adapter = _adapter_knowing(("tool_offset", "link_lengths"))
-    notes = alias_notes(_alias_problem(n, adapter), [a, b], j, [])
+    known = toy_problem(windows=n, alias_pairs=[("tool_offset", "link_lengths")])
+    notes = alias_notes(known, [a, b], j, [])
     assert notes and "a known alias of this robot" in notes[0]["why"]
-    verdict.notes = {
-        "verdict_text": "tool_offset or link_lengths (aliases on this data)",
-        "aliases": notes,
-    }
+    verdict = make_verdict(
+        effects=a.effects,
+        notes=VerdictNotes(
+            verdict_text="tool_offset or link_lengths (aliases on this data)",
+            aliases=tuple(notes),
+        ),
+    )
     text = "\n".join(explain(verdict))
     assert "verdict: tool_offset or link_lengths (aliases on this data)" in text
     assert "alias: link_lengths fits as well" in text
@@ -196,93 +171,91 @@ def test_alias_from_parameter_correlation_and_known_groups(
 
 def test_a_pair_whose_partner_several_effects_replace_names_the_shared_effect(
     model_fit: Callable[..., ModelFit],
+    toy_problem: Callable[..., Problem],
+    make_judgement: Callable[..., Judgement],
 ) -> None:
     # A + B is best, A + C and A + D fit as well: the data identifies A, not its partner
     rng = np.random.default_rng(8)
     n = 300
     z_nom = rng.normal(0, 1, n) + 4.0
-    pair = model_fit(("a_eff", "b_eff"), rng.normal(0, 1, n))
-    single = model_fit(("a_eff",), 1.05 * rng.normal(0, 1, n))  # a little worse alone
-    verdict = Verdict("effects", pair.effects, "", 20.0, "strong", {})
-    j = Judgement(verdict, pair, z_nom, np.ones(n, dtype=bool), 75.0)
-    pr = _alias_problem(n)
+    pair = model_fit(effects=("a_eff", "b_eff"), z_heldout=rng.normal(0, 1, n))
+    # a little worse alone
+    single = model_fit(effects=("a_eff",), z_heldout=1.05 * rng.normal(0, 1, n))
+    j = make_judgement(best=pair, nominal_heldout=z_nom, shrink_pct_best=75.0)
+    pr = toy_problem(windows=n)
     aliases = [{"model": f"a_eff + {e}", "effects": ["a_eff", e]} for e in ("c_eff", "d_eff")]
-    out = unsingled_partner(pr, [pair, single], j, aliases)  # type: ignore[arg-type]
+    out = unsingled_partner(pr, [pair, single], j, aliases)
     assert out is not None and out[0] is single and out[1] == ["b_eff", "c_eff", "d_eff"]
     # one alternative partner is an alias statement ("A + B or A + C"), not this rule
-    assert unsingled_partner(pr, [pair, single], j, aliases[:1]) is None  # type: ignore[arg-type]
+    assert unsingled_partner(pr, [pair, single], j, aliases[:1]) is None
     # an alias that does not hold the shared effect (a known alias of it with B) leaves it
     known = [*aliases, {"model": "e_eff + b_eff", "effects": ["e_eff", "b_eff"]}]
-    out = unsingled_partner(pr, [pair, single], j, known)  # type: ignore[arg-type]
+    out = unsingled_partner(pr, [pair, single], j, known)
     assert out is not None and out[0] is single and out[1] == ["b_eff", "c_eff", "d_eff"]
     # aliases that share no one effect with the pair
     mixed = [aliases[0], {"model": "b_eff + d_eff", "effects": ["b_eff", "d_eff"]}]
-    assert unsingled_partner(pr, [pair, single], j, mixed) is None  # type: ignore[arg-type]
+    assert unsingled_partner(pr, [pair, single], j, mixed) is None
     # the shared effect alone must close the gap (above noise) as a dominant effect does
-    weak = model_fit(("a_eff",), 0.5 * z_nom)
-    assert unsingled_partner(pr, [pair, weak], j, aliases) is None  # type: ignore[arg-type]
+    weak = model_fit(effects=("a_eff",), z_heldout=0.5 * z_nom)
+    assert unsingled_partner(pr, [pair, weak], j, aliases) is None
     # a named single effect, or an unexplained verdict, is left alone
-    j1 = Judgement(
-        Verdict("effects", ("a_eff",), "", 20.0, "strong", {}),
-        single,
-        z_nom,
-        np.ones(n, dtype=bool),
-        75.0,
+    j1 = make_judgement(best=single, nominal_heldout=z_nom, shrink_pct_best=75.0)
+    assert unsingled_partner(pr, [single], j1, aliases) is None
+    j0 = make_judgement(
+        best=pair, nominal_heldout=z_nom, kind=VerdictKind.UNEXPLAINED, shrink_pct_best=75.0
     )
-    assert unsingled_partner(pr, [single], j1, aliases) is None  # type: ignore[arg-type]
+    assert unsingled_partner(pr, [pair, single], j0, aliases) is None
 
 
 def test_a_pair_member_that_closes_nearly_all_of_the_gap_alone_can_be_named_alone(
     model_fit: Callable[..., ModelFit],
+    toy_problem: Callable[..., Problem],
+    make_judgement: Callable[..., Judgement],
 ) -> None:
     # a pair rejected for a structured rest falls back to the member that is dominant alone
     rng = np.random.default_rng(9)
     n = 400
     regimes = ["turning"] * 200 + ["straight"] * 200
     z_nom = rng.normal(0, 1, n) + 10.0
-    pair = model_fit(("a_eff", "b_eff"), rng.normal(0, 1, n))
-    a_alone = model_fit(("a_eff",), 1.05 * rng.normal(0, 1, n))  # ~ 99 % of the gap above noise
-    b_alone = model_fit(("b_eff",), 0.5 * z_nom)  # half of it
-    j = Judgement(
-        Verdict("effects", pair.effects, "", 20.0, "strong", {}),
-        pair,
-        z_nom,
-        np.ones(n, dtype=bool),
-        75.0,
-    )
-    pr = _alias_problem(n)
-    pr.holdout = _layout(n, 1, regimes)
-    assert dominant_single(pr, [pair, b_alone, a_alone], j, pair.effects) is a_alone  # type: ignore[arg-type]
+    pair = model_fit(effects=("a_eff", "b_eff"), z_heldout=rng.normal(0, 1, n))
+    # ~ 99 % of the gap above noise
+    a_alone = model_fit(effects=("a_eff",), z_heldout=1.05 * rng.normal(0, 1, n))
+    b_alone = model_fit(effects=("b_eff",), z_heldout=0.5 * z_nom)  # half of it
+    j = make_judgement(best=pair, nominal_heldout=z_nom, shrink_pct_best=75.0)
+    pr = toy_problem(windows=n, regimes=regimes)
+    assert dominant_single(pr, [pair, b_alone, a_alone], j, pair.effects) is a_alone
     # the better of two dominant members
-    a_worse = model_fit(("a_eff",), 2.0 * rng.normal(0, 1, n))
-    b_best = model_fit(("b_eff",), 1.0 * rng.normal(0, 1, n))
-    assert dominant_single(pr, [pair, a_worse, b_best], j, pair.effects) is b_best  # type: ignore[arg-type]
+    a_worse = model_fit(effects=("a_eff",), z_heldout=2.0 * rng.normal(0, 1, n))
+    b_best = model_fit(effects=("b_eff",), z_heldout=1.0 * rng.normal(0, 1, n))
+    assert dominant_single(pr, [pair, a_worse, b_best], j, pair.effects) is b_best
     # no member dominant: nothing to fall back to
-    assert dominant_single(pr, [pair, b_alone], j, pair.effects) is None  # type: ignore[arg-type]
+    assert dominant_single(pr, [pair, b_alone], j, pair.effects) is None
     # a member that worsens a regime it touches is a compensator, never named alone
     z_two = np.concatenate([rng.normal(0, 1, 200) + 12.0, rng.normal(0, 1, 200) + 1.0])
-    j2 = Judgement(j.verdict, pair, z_two, np.ones(n, dtype=bool), 75.0)
+    j2 = make_judgement(best=pair, nominal_heldout=z_two, shrink_pct_best=75.0)
     trades = model_fit(
-        ("a_eff",), np.concatenate([rng.normal(0, 1, 200), rng.normal(0, 1, 200) + 3.0])
+        effects=("a_eff",),
+        z_heldout=np.concatenate([rng.normal(0, 1, 200), rng.normal(0, 1, 200) + 3.0]),
     )
-    assert dominant_single(pr, [pair, trades], j2, pair.effects) is None  # type: ignore[arg-type]
-    fair = model_fit(("a_eff",), rng.normal(0, 1, n))
-    assert dominant_single(pr, [pair, fair], j2, pair.effects) is fair  # type: ignore[arg-type]
+    assert dominant_single(pr, [pair, trades], j2, pair.effects) is None
+    fair = model_fit(effects=("a_eff",), z_heldout=rng.normal(0, 1, n))
+    assert dominant_single(pr, [pair, fair], j2, pair.effects) is fair
 
 
 # --------------------------------------------------------------------------- compensators
 def test_candidate_that_helps_one_regime_and_hurts_another_is_a_compensator(
-    model_fit: Callable[..., ModelFit],
+    model_fit: Callable[..., ModelFit], toy_problem: Callable[..., Problem]
 ) -> None:
     rng = np.random.default_rng(5)
     n = 400
     regimes = ["turning"] * 200 + ["straight"] * 200
-    problem = SimpleNamespace(holdout=_layout(n, 1, regimes))
+    problem = toy_problem(windows=n, regimes=regimes)
     z_nom = np.concatenate([rng.normal(3, 1, 200), rng.normal(0, 1, 200)])
     comp = model_fit(
-        ("wheel_radius_scale",), np.concatenate([rng.normal(0, 1, 200), rng.normal(2, 1, 200)])
+        effects=("wheel_radius_scale",),
+        z_heldout=np.concatenate([rng.normal(0, 1, 200), rng.normal(2, 1, 200)]),
     )
-    good = model_fit(("dead_zone",), rng.normal(0, 1, n))
+    good = model_fit(effects=("dead_zone",), z_heldout=rng.normal(0, 1, n))
     c = regime_consistency(problem, comp, z_nom)
     assert c["compensator"] and c["improved"] == ["turning"] and c["worsened"] == ["straight"]
     g = regime_consistency(problem, good, z_nom)
@@ -292,69 +265,50 @@ def test_candidate_that_helps_one_regime_and_hurts_another_is_a_compensator(
 
 
 def test_parameters_at_a_bound_or_untested_get_no_error_bar(
-    model_fit: Callable[..., ModelFit],
+    model_fit: Callable[..., ModelFit], toy_problem: Callable[..., Problem]
 ) -> None:
     n = 50
 
-    def surrogate_residuals(layout, batch, B):
+    def shift(batch: Mapping[str, np.ndarray]) -> np.ndarray:
         # a speed limit matters only below the 0.5 m/s these motions command
         e_b, v_lim = batch["wheelbase_error.E_b"], batch["velocity_saturation.v_limit"]
-        z = (e_b - 1.0) * 100.0 + 10.0 * np.maximum(0.5 - v_lim, 0.0)
-        return np.repeat(z[:, None], n, axis=1)
+        return (e_b - 1.0) * 100.0 + 10.0 * np.maximum(0.5 - v_lim, 0.0)
 
-    problem = SimpleNamespace(
-        train=_layout(n, 1),
-        settings=AttributionSettings(),
-        surrogate_residuals=surrogate_residuals,
-    )
-    fit = model_fit(
-        ("wheelbase_error", "velocity_saturation"),
-        np.zeros(n),
-        {"wheelbase_error.E_b": 1.0999, "velocity_saturation.v_limit": 0.65},
-    )
-    status = parameter_status(problem, fit)  # type: ignore[arg-type]
-    assert status == {
+    problem = toy_problem(windows=n, shift=shift)
+    effects = ("wheelbase_error", "velocity_saturation")
+
+    def fit(e_b: float, v_limit: float) -> ModelFit:
+        values = {"wheelbase_error.E_b": e_b, "velocity_saturation.v_limit": v_limit}
+        return model_fit(effects=effects, z_heldout=np.zeros(n), values=values)
+
+    assert parameter_status(problem, fit(1.0999, 0.65)) == {
         "wheelbase_error.E_b": "at bound",
         "velocity_saturation.v_limit": "untestable",
     }
-    inner = model_fit(
-        ("wheelbase_error", "velocity_saturation"),
-        np.zeros(n),
-        {"wheelbase_error.E_b": 1.03, "velocity_saturation.v_limit": 0.45},
-    )
-    assert parameter_status(problem, inner) == {}  # type: ignore[arg-type]
+    assert parameter_status(problem, fit(1.03, 0.45)) == {}
     # just above the fastest command: the logs say only "above 0.5 m/s"
-    near = model_fit(
-        ("wheelbase_error", "velocity_saturation"),
-        np.zeros(n),
-        {"wheelbase_error.E_b": 1.03, "velocity_saturation.v_limit": 0.52},
-    )
-    assert parameter_status(problem, near) == {  # type: ignore[arg-type]
+    assert parameter_status(problem, fit(1.03, 0.52)) == {
         "velocity_saturation.v_limit": "one-sided"
     }
 
 
 def test_a_parameter_at_its_nominal_bound_is_absent_not_pinned(
-    model_fit: Callable[..., ModelFit],
+    model_fit: Callable[..., ModelFit], toy_problem: Callable[..., Problem]
 ) -> None:
     n = 50
 
-    def surrogate_residuals(layout, batch, B):
+    def shift(batch: Mapping[str, np.ndarray]) -> np.ndarray:
         lag_l, lag_r = batch["wheel_velocity_lag.tau_left"], batch["wheel_velocity_lag.tau_right"]
-        return np.repeat((10.0 * (lag_l + lag_r))[:, None], n, axis=1)
+        return 10.0 * (lag_l + lag_r)
 
-    problem = SimpleNamespace(
-        train=_layout(n, 1), settings=AttributionSettings(), surrogate_residuals=surrogate_residuals
-    )
+    problem = toy_problem(windows=n, shift=shift)
     # tau_left = 0 is the nominal end of [0, 0.5] s: no lag on that wheel, not a pinned fit
     fit = model_fit(
-        ("wheel_velocity_lag",),
-        np.zeros(n),
-        {"wheel_velocity_lag.tau_left": 0.0, "wheel_velocity_lag.tau_right": 0.4999},
+        effects=("wheel_velocity_lag",),
+        z_heldout=np.zeros(n),
+        values={"wheel_velocity_lag.tau_left": 0.0, "wheel_velocity_lag.tau_right": 0.4999},
     )
-    assert parameter_status(problem, fit) == {  # type: ignore[arg-type]
-        "wheel_velocity_lag.tau_right": "at bound"
-    }
+    assert parameter_status(problem, fit) == {"wheel_velocity_lag.tau_right": "at bound"}
 
 
 # --------------------------------------------------------------------------- manoeuvres
@@ -364,8 +318,7 @@ def test_probe_manoeuvres_respect_the_robots_speed_limits(name: str) -> None:
     _, cmd = MANOEUVRES[name].applied(0.05, params)
     assert np.abs(cmd[:, 0]).max() <= 0.5 + 1e-12
     assert np.abs(cmd[:, 1]).max() <= 0.8 + 1e-12
-    ref = SimpleNamespace(context=SimpleNamespace(params=params))
-    text = probe_description(ref, name, MANOEUVRES[name].description)
+    text = probe_description(name, params)
     import re
 
     for num, unit in re.findall(r"(\d+(?:\.\d+)?) (m/s|rad/s)", text):
@@ -452,7 +405,7 @@ def test_in_library_verdict_is_kept_and_open_set_residual_is_described() -> None
         ("wheelbase_error", "wheel_diameter_ratio"),
         seed=1,
     )
-    assert d.verdict.label == "unexplained"
+    assert d.verdict.label == VerdictKind.UNEXPLAINED
     disc = d.to_json()["discovery"]
     assert disc["found"]
     dx = next(f for f in disc["fits"] if f["target"] == "pose_gt.dx")
@@ -516,95 +469,90 @@ def test_arm_term_library_has_every_joint() -> None:
 
 
 # --------------------------------------------------------------------------- combinations
-def _two_channel_layout(m: int) -> SimpleNamespace:
+def _two_channel_problem(
+    toy_problem: Callable[..., Problem], toy_schema: Callable[..., Any], m: int
+) -> Problem:
     """``m`` windows of one log, half straight and half accelerating, in two groups: a
-    coarse one (``pose_gt``) and one that resolves far below the structure floor
-    (``ticks``)."""
-    regimes = np.array(["straight"] * (m // 2) + ["accelerating"] * (m - m // 2))
-    return SimpleNamespace(
-        n=2 * m,
-        group=np.repeat(["pose_gt", "ticks"], m),
-        column=np.repeat(["dtheta", "left"], m),
-        regime=np.tile(regimes, 2),
-        log=np.zeros(2 * m, dtype=int),
-        window=np.tile(np.arange(m), 2),
-    )
+    coarse one (``tether``) and one that resolves far below the structure floor
+    (``surface``)."""
+    regimes = ["straight"] * (m // 2) + ["accelerating"] * (m - m // 2)
+    schema = toy_schema("tether", "surface", regimes=("straight", "accelerating"))
+    return toy_problem(windows=m, schema=schema, regimes=regimes)
 
 
 def test_a_combination_must_leave_noise_wherever_it_acts(
     model_fit: Callable[..., ModelFit],
+    toy_problem: Callable[..., Problem],
+    toy_schema: Callable[..., Any],
 ) -> None:
-    from realitygap.diagnosis.verdict.rules import combination_check
-
     rng = np.random.default_rng(8)
     m = 80
-    lay = _two_channel_layout(m)
-    problem = SimpleNamespace(holdout=lay, settings=AttributionSettings())
+    problem = _two_channel_problem(toy_problem, toy_schema, m)
+    lay = problem.holdout
     noise = np.concatenate([rng.normal(0, 0.5, m), rng.normal(0, 0.02, m)])
     acc = lay.regime == "accelerating"
-    gap = np.where(acc, 4.0, 0.0) * np.where(lay.group == "ticks", 1.5, 1.0)
+    gap = np.where(acc, 4.0, 0.0) * np.where(lay.group == "surface", 1.5, 1.0)
     z_nom = noise + gap
-    exact = model_fit(("velocity_saturation", "acceleration_limits"), noise.copy())
+    pair = ("velocity_saturation", "acceleration_limits")
+    exact = model_fit(effects=pair, z_heldout=noise.copy())
     ok = combination_check(problem, exact, z_nom)
     assert ok["passed"]
     # only where a gap lived and the model acted: both groups while accelerating
     assert {(r["group"], r["regime"]) for r in ok["checked"]} == {
-        ("pose_gt", "accelerating"),
-        ("ticks", "accelerating"),
+        ("tether", "accelerating"),
+        ("surface", "accelerating"),
     }
     # a remainder that drifts slowly from window to window, 0.5 scale units RMS: above the
     # structure floor (0.3) but below 2.5 times it, and several times its own
     # window-to-window level
     drift = np.sqrt(2.0) * 0.5 * np.sin(np.linspace(0.0, 2.0 * np.pi, m - m // 2))
     drift = np.concatenate([np.zeros(m // 2), drift])
-    partial = noise + np.where(lay.group == "ticks", np.tile(drift, 2), 0.0)
-    bad = combination_check(problem, model_fit(("a", "b"), partial), z_nom)
+    partial = noise + np.where(lay.group == "surface", np.tile(drift, 2), 0.0)
+    bad = combination_check(problem, model_fit(effects=("a", "b"), z_heldout=partial), z_nom)
     assert not bad["passed"]
     worst = bad["failed"][0]
-    assert (worst["group"], worst["regime"]) == ("ticks", "accelerating")
+    assert (worst["group"], worst["regime"]) == ("surface", "accelerating")
     assert worst["ratio"] > 2 * AttributionSettings().excess_ratio
     assert 0.3 < worst["rms_model"] < 0.75
     # the same shape ten times smaller is below what the logs resolve: accepted
-    small = noise + np.where(lay.group == "ticks", np.tile(0.1 * drift, 2), 0.0)
-    assert combination_check(problem, model_fit(("a", "b"), small), z_nom)["passed"]
+    small = noise + np.where(lay.group == "surface", np.tile(0.1 * drift, 2), 0.0)
+    assert combination_check(problem, model_fit(effects=("a", "b"), z_heldout=small), z_nom)[
+        "passed"
+    ]
     with pytest.raises(ValueError, match="held-out layout's length"):
         combination_check(problem, exact, z_nom[:-1])
 
 
 def test_a_combination_that_leaves_noise_in_a_group_of_unequal_columns_passes(
     model_fit: Callable[..., ModelFit],
+    toy_problem: Callable[..., Problem],
+    toy_schema: Callable[..., Any],
 ) -> None:
     """A motion-capture group whose heading is ten times noisier than its position: a
     combination that leaves exactly the noise passes, and one that leaves a drift in the
     quiet position fails. (A level pooled over the columns, near the quiet ones', took the
     heading's noise for structure: a ratio of about 4; and an RMS over the group would let
     the heading's noise hide the drift.)"""
-    from realitygap.diagnosis.verdict.rules import combination_check
-
     rng = np.random.default_rng(11)
     m, sigmas = 120, {"dx": 0.1, "dy": 0.1, "dtheta": 1.0}
-    regimes = np.array(["straight"] * (m // 2) + ["accelerating"] * (m - m // 2))
-    lay = SimpleNamespace(
-        n=3 * m,
-        group=np.full(3 * m, "pose_gt"),
-        column=np.repeat(list(sigmas), m),
-        regime=np.tile(regimes, 3),
-        log=np.zeros(3 * m, dtype=int),
-        window=np.tile(np.arange(m), 3),
-    )
-    problem = SimpleNamespace(holdout=lay, settings=AttributionSettings())
-    noise = np.concatenate([rng.normal(0.0, s, m) for s in sigmas.values()])
+    regimes = ["straight"] * (m // 2) + ["accelerating"] * (m - m // 2)
+    schema = toy_schema("pose_gt", regimes=("straight", "accelerating"))
+    problem = toy_problem(windows=m, schema=schema, regimes=regimes)
+    lay = problem.holdout
+    # each column's noise, window by window, in the layout's order
+    draws = {c: rng.normal(0.0, s, m) for c, s in sigmas.items()}
+    noise = np.array([draws[str(c)][w] for c, w in zip(lay.column, lay.window)])
     acc = lay.regime == "accelerating"
     z_nom = noise + np.where(acc & (lay.column == "dx"), 3.0, 0.0)
-    ok = combination_check(problem, model_fit(("a", "b"), noise.copy()), z_nom)
+    ok = combination_check(problem, model_fit(effects=("a", "b"), z_heldout=noise.copy()), z_nom)
     assert ok["passed"], ok["failed"]
     # judged where the gap lived (dx while accelerating), at dx's own level
     (row,) = ok["checked"]
     assert (row["column"], row["regime"]) == ("dx", "accelerating")
     assert row["ratio"] == pytest.approx(1.0, abs=0.3)
     # a slow drift left in the quiet column is structure, however noisy the heading
-    drift = np.where(acc & (lay.column == "dx"), 1.2 * np.sin(np.arange(3 * m) / 9.0), 0.0)
-    bad = combination_check(problem, model_fit(("a", "b"), noise + drift), z_nom)
+    drift = np.where(acc & (lay.column == "dx"), 1.2 * np.sin(lay.window / 9.0), 0.0)
+    bad = combination_check(problem, model_fit(effects=("a", "b"), z_heldout=noise + drift), z_nom)
     assert not bad["passed"]
     assert bad["failed"][0]["column"] == "dx"
 
@@ -634,37 +582,125 @@ def test_parameter_correlations_stay_within_one_whatever_the_units() -> None:
 
 
 def test_a_partner_that_only_refines_a_nuisance_inside_its_range_is_not_named(
-    model_fit: Callable[..., ModelFit],
+    model_fit: Callable[..., ModelFit], toy_problem: Callable[..., Problem]
 ) -> None:
     z = np.zeros(4)
     ranges = {"timestamp_offset.offset": (-0.025, 0.025), "command_latency.delay": (0.0, 0.05)}
-    problem = SimpleNamespace(baseline_ranges=ranges)
+    problem = toy_problem(windows=4, baseline_ranges=ranges)
     limits = {"acceleration_limits.t_acc": 2.0, "acceleration_limits.t_dec": 1.5}
-    clock_inside = model_fit(
-        ("acceleration_limits", "timestamp_offset"), z, {**limits, "timestamp_offset.offset": 0.014}
+
+    def fit(effects: tuple[str, ...], values: dict[str, float]) -> ModelFit:
+        return model_fit(effects=effects, z_heldout=z, values=values)
+
+    clock_inside = fit(
+        ("acceleration_limits", "timestamp_offset"), {**limits, "timestamp_offset.offset": 0.014}
     )
     assert nuisance_partner(problem, clock_inside) == ("acceleration_limits", "timestamp_offset")
     # a partner listed first, at the nuisance range's edge, is still only a nuisance
-    edge = model_fit(
+    edge = fit(
         ("command_latency", "motor_deadband"),
-        z,
         {"command_latency.delay": 0.05, "motor_deadband.threshold": 0.02},
     )
     assert nuisance_partner(problem, edge) == ("motor_deadband", "command_latency")
     # beyond the nuisance range the partner is a finding of its own
-    latency = model_fit(
+    latency = fit(
         ("command_latency", "longitudinal_slip"),
-        z,
         {"command_latency.delay": 0.097, "longitudinal_slip.mu": 0.2},
     )
     assert nuisance_partner(problem, latency) is None
     # a partner that is no nuisance, a single effect, and a problem without a baseline
-    dead = model_fit(
+    dead = fit(
         ("command_latency", "wheel_dead_zone"),
-        z,
         {"command_latency.delay": 0.18, "wheel_dead_zone.dz_left": 0.01},
     )
     assert nuisance_partner(problem, dead) is None
-    single = model_fit(("timestamp_offset",), z, {"timestamp_offset.offset": 0.01})
+    single = fit(("timestamp_offset",), {"timestamp_offset.offset": 0.01})
     assert nuisance_partner(problem, single) is None
-    assert nuisance_partner(SimpleNamespace(baseline_ranges={}), clock_inside) is None
+    assert nuisance_partner(toy_problem(windows=4), clock_inside) is None
+
+
+# --------------------------------------------------------------------------- the rules in order
+def _decided(problem: Problem, ranking: list[ModelFit], judgement: Judgement) -> Decision:
+    advice = Advice([], judgement.draft.ambiguous_with, judgement.draft.confidence)
+    return decide(problem, ranking, judgement, advice)
+
+
+def test_a_named_pair_whose_partner_refines_a_nuisance_is_decided_as_the_other_effect(
+    model_fit: Callable[..., ModelFit],
+    toy_problem: Callable[..., Problem],
+    make_judgement: Callable[..., Judgement],
+) -> None:
+    rng = np.random.default_rng(21)
+    n = 200
+    ranges = {"timestamp_offset.offset": (-0.025, 0.025)}
+    problem = toy_problem(windows=n, baseline_ranges=ranges)
+    z_nom = rng.normal(0, 1, n) + 4.0
+    values = {"acceleration_limits.t_acc": 2.0, "timestamp_offset.offset": 0.014}
+    pair = model_fit(
+        effects=("acceleration_limits", "timestamp_offset"),
+        z_heldout=rng.normal(0, 1, n),
+        values=values,
+    )
+    j = make_judgement(best=pair, nominal_heldout=z_nom, reason="the pair closes it")
+    decision = _decided(problem, [pair], j)
+    assert decision.kind is VerdictKind.EFFECTS
+    assert decision.effects == ("acceleration_limits",)
+    assert decision.judgement.draft.reason.startswith("the pair closes it; timestamp_offset only")
+    assert decision.notes.verdict_text == "acceleration_limits"
+    partner = decision.notes.nuisance_partner
+    assert partner is not None and partner.effect == "timestamp_offset"
+    assert partner.to_json() == {
+        "effect": "timestamp_offset",
+        "values": {"timestamp_offset.offset": 0.014},
+        "units": {"timestamp_offset.offset": "s"},
+        "ranges": {"timestamp_offset.offset": [-0.025, 0.025]},
+    }
+    # the judgement it was decided from is left as it was
+    assert j.draft.effects == pair.effects and j.draft.reason == "the pair closes it"
+
+
+def test_a_compensator_and_a_pair_that_leaves_structure_are_decided_unexplained(
+    model_fit: Callable[..., ModelFit],
+    toy_problem: Callable[..., Problem],
+    toy_schema: Callable[..., Any],
+    make_judgement: Callable[..., Judgement],
+) -> None:
+    rng = np.random.default_rng(22)
+    n = 400
+    regimes = ["turning"] * 200 + ["straight"] * 200
+    problem = toy_problem(windows=n, regimes=regimes)
+    z_nom = np.concatenate([rng.normal(3, 1, 200), rng.normal(0, 1, 200)])
+    comp = model_fit(
+        effects=("wheel_radius_scale",),
+        z_heldout=np.concatenate([rng.normal(0, 1, 200), rng.normal(2, 1, 200)]),
+    )
+    decision = _decided(problem, [comp], make_judgement(best=comp, nominal_heldout=z_nom))
+    assert decision.kind is VerdictKind.UNEXPLAINED and decision.effects == ()
+    assert decision.judgement.draft.confidence is Confidence.NOT_APPLICABLE
+    assert "likely compensator" in decision.judgement.draft.reason
+    assert decision.notes.compensators == ("wheel_radius_scale",)
+    assert decision.notes.verdict_text == "unexplained"
+    # a pair that leaves a slow drift where it acts, with no member that closes the gap alone
+    m = 80
+    two = _two_channel_problem(toy_problem, toy_schema, m)
+    lay = two.holdout
+    noise = np.concatenate([rng.normal(0, 0.5, m), rng.normal(0, 0.02, m)])
+    z_two = noise + np.where(lay.regime == "accelerating", 4.0, 0.0)
+    drift = np.sqrt(2.0) * 0.5 * np.sin(np.linspace(0.0, 2.0 * np.pi, m - m // 2))
+    drift = np.concatenate([np.zeros(m // 2), drift])
+    pair = model_fit(
+        effects=("velocity_saturation", "acceleration_limits"),
+        z_heldout=noise + np.where(lay.group == "surface", np.tile(drift, 2), 0.0),
+    )
+    j = make_judgement(best=pair, nominal_heldout=z_two, shrink_pct_best=85.0)
+    decision = _decided(two, [pair], j)
+    assert decision.kind is VerdictKind.UNEXPLAINED
+    assert decision.judgement.draft.reason.startswith("partially explained:")
+    assert decision.notes.verdict_text == (
+        "unexplained (partially explained by velocity_saturation + acceleration_limits: 85 % "
+        "of the held-out gap)"
+    )
+    partial = decision.notes.partially_explained_by
+    assert partial is not None and partial.heldout_shrink_pct == 85.0
+    assert decision.notes.combination_check is not None
+    assert not decision.notes.combination_check["passed"]

@@ -5,23 +5,25 @@ adjacent windows cancel (an error at the window boundaries)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 import pytest
 
 from realitygap.diagnosis.fit.model import ModelFit
+from realitygap.diagnosis.fit.status import parameter_status, pinned_parameters
 from realitygap.diagnosis.problem.features import FeatureGroup, FeatureSchema, FeatureSettings
 from realitygap.diagnosis.problem.parameters import range_position
-from realitygap.diagnosis.problem.problem import AttributionSettings, Layout
+from realitygap.diagnosis.problem.problem import AttributionSettings, Layout, Problem
 from realitygap.diagnosis.problem.residual import (
     above_sample_noise,
     describe_residual,
     shrink_above_noise,
 )
-from realitygap.diagnosis.verdict.rules import judge, parameter_status, pinned_parameters
+from realitygap.diagnosis.verdict.judge import judge
+from realitygap.diagnosis.verdict.types import Confidence, VerdictKind
 
 SCHEMA = FeatureSchema(
     groups=(FeatureGroup("pose_gt", ("dtheta",), ("rad",), (0.002,)),), regimes=("all_of_it",)
@@ -116,87 +118,81 @@ def test_shrink_above_noise_refuses_misaligned_residuals() -> None:
         shrink_above_noise(np.zeros(40), np.zeros(39), lay, np.ones(40, dtype=bool))
 
 
-def _problem(lay: Layout, z_nom: np.ndarray, surrogate=None) -> SimpleNamespace:
-    return SimpleNamespace(
-        settings=AttributionSettings(),
-        features=FeatureSettings(),
-        holdout=lay,
-        train=lay,
-        adapter=object(),
-        nominal_residuals=lambda layout: z_nom,
-        surrogate_residuals=surrogate or (lambda layout, batch, B: np.zeros((B, layout.n))),
+def _judged(
+    toy_problem: Callable[..., Problem], z_nom: np.ndarray, logs: int = 4, **kw: Any
+) -> Problem:
+    """A toy problem of ``logs`` held-out logs whose nominal residual is ``z_nom``."""
+    return toy_problem(
+        windows=z_nom.size // logs, holdout_logs=logs, train_logs=logs, holdout=z_nom, **kw
     )
 
 
 def test_a_small_true_effect_is_judged_on_the_gap_above_noise(
-    model_fit: Callable[..., ModelFit],
+    model_fit: Callable[..., ModelFit], toy_problem: Callable[..., Problem]
 ) -> None:
     """A true effect comparable with the noise closes less than half of the raw gap but
     all of the gap above noise: the verdict names it."""
     rng = np.random.default_rng(2)
     n, sigma = 2000, 1.0
-    lay = _layout(n)
     noise = rng.normal(0.0, sigma, n)
     z_nom = 1.2 * _slow_drift(n, 4, rng) + noise
-    z_best = noise.copy()
-    best = model_fit(("wheel_diameter_ratio",), z_best, {"wheel_diameter_ratio.E_d": 1.01})
-    nominal = model_fit((), z_nom, {})
-    nominal.rank_score = 500.0
-    problem = _problem(lay, z_nom)
-    j = judge(problem, [best, nominal], nominal, {"pose_gt": sigma})  # type: ignore[arg-type]
+    ratio = {"wheel_diameter_ratio.E_d": 1.01}
+    best = model_fit(effects=("wheel_diameter_ratio",), z_heldout=noise.copy(), values=ratio)
+    nominal = model_fit(z_heldout=z_nom, rank_score=500.0)
+    problem = _judged(toy_problem, z_nom)
+    j = judge(problem, [best, nominal], nominal, {"tether": sigma})
     assert j.shrink_pct_best < 50.0
     assert j.shrink_pct_above_noise > 90.0
-    assert j.verdict.kind == "effects", j.verdict.reason
+    assert j.draft.kind is VerdictKind.EFFECTS, j.draft.reason
     # a model that closes only a fifth of the gap above noise is still refused, saying so
     z_part = 0.8 * (z_nom - noise) + noise
-    part = model_fit(("wheel_diameter_ratio",), z_part, {"wheel_diameter_ratio.E_d": 1.01})
-    j = judge(problem, [part, nominal], nominal, {"pose_gt": sigma})  # type: ignore[arg-type]
-    assert j.verdict.kind == "unexplained"
-    assert "of the held-out gap above the noise floor" in j.verdict.reason
+    part = model_fit(effects=("wheel_diameter_ratio",), z_heldout=z_part, values=ratio)
+    j = judge(problem, [part, nominal], nominal, {"tether": sigma})
+    assert j.draft.kind is VerdictKind.UNEXPLAINED
+    assert "of the held-out gap above the noise floor" in j.draft.reason
 
 
 def test_an_effect_that_carries_nearly_all_the_gap_is_named_despite_a_structured_rest(
-    model_fit: Callable[..., ModelFit],
+    model_fit: Callable[..., ModelFit], toy_problem: Callable[..., Problem]
 ) -> None:
     """A real effect never follows the library's law exactly: closing 97 % of the gap above
     noise with a small systematic rest names it, saying the law differs in detail; closing
     80 % with a systematic rest does not."""
     rng = np.random.default_rng(5)
     n, sigma = 2000, 1.0
-    lay = _layout(n)
     noise = rng.normal(0.0, sigma, n)
     drift = _slow_drift(n, 4, rng)
     z_nom = 100.0 * drift + noise
-    nominal = model_fit((), z_nom, {})
-    nominal.rank_score = 5000.0
-    problem = _problem(lay, z_nom)
-    stated = {"pose_gt": sigma}
+    nominal = model_fit(z_heldout=z_nom, rank_score=5000.0)
+    problem = _judged(toy_problem, z_nom)
+    stated = {"tether": sigma}
     rest = 3.0 * drift + noise  # 3 % of the gap, a slow drift three times the noise
-    best = model_fit(("wheel_diameter_ratio",), rest, {"wheel_diameter_ratio.E_d": 1.01})
-    j = judge(problem, [best, nominal], nominal, stated)  # type: ignore[arg-type]
-    assert j.verdict.residual["structured"], "the planted rest must count as structure"
+    ratio = {"wheel_diameter_ratio.E_d": 1.01}
+    best = model_fit(effects=("wheel_diameter_ratio",), z_heldout=rest, values=ratio)
+    j = judge(problem, [best, nominal], nominal, stated)
+    assert j.draft.residual["structured"], "the planted rest must count as structure"
     assert j.shrink_pct_above_noise > 95.0
-    assert j.verdict.kind == "effects" and j.verdict.effects == ("wheel_diameter_ratio",)
-    assert "differs in detail from the library's" in j.verdict.reason
-    assert j.verdict.confidence != "strong"
+    assert j.draft.kind is VerdictKind.EFFECTS and j.draft.effects == ("wheel_diameter_ratio",)
+    assert "differs in detail from the library's" in j.draft.reason
+    assert j.draft.confidence is not Confidence.STRONG
     # the same rest behind a model that closes only four fifths of the gap: unexplained
     part = model_fit(
-        ("wheel_diameter_ratio",), 20.0 * drift + noise, {"wheel_diameter_ratio.E_d": 1.01}
+        effects=("wheel_diameter_ratio",), z_heldout=20.0 * drift + noise, values=ratio
     )
-    j = judge(problem, [part, nominal], nominal, stated)  # type: ignore[arg-type]
-    assert j.verdict.kind == "unexplained" and "still structured" in j.verdict.reason
+    j = judge(problem, [part, nominal], nominal, stated)
+    assert j.draft.kind is VerdictKind.UNEXPLAINED and "still structured" in j.draft.reason
     # a pair that leaves the same structured rest may be an effect and its compensator
     pair = model_fit(
-        ("wheel_diameter_ratio", "wheelbase_error"),
-        rest,
-        {"wheel_diameter_ratio.E_d": 1.01, "wheelbase_error.E_b": 1.01},
+        effects=("wheel_diameter_ratio", "wheelbase_error"),
+        z_heldout=rest,
+        values={**ratio, "wheelbase_error.E_b": 1.01},
     )
-    j = judge(problem, [pair, nominal], nominal, stated)  # type: ignore[arg-type]
-    assert j.verdict.kind == "unexplained"
+    j = judge(problem, [pair, nominal], nominal, stated)
+    assert j.draft.kind is VerdictKind.UNEXPLAINED
     # with dominant_shrink = 1 the rule is off
-    problem.settings = AttributionSettings(dominant_shrink=1.0)
-    j = judge(problem, [best, nominal], nominal, stated)  # type: ignore[arg-type]
-    assert j.verdict.kind == "unexplained"
+    off = _judged(toy_problem, z_nom, settings=AttributionSettings(dominant_shrink=1.0))
+    j = judge(off, [best, nominal], nominal, stated)
+    assert j.draft.kind is VerdictKind.UNEXPLAINED
     with pytest.raises(ValueError, match="min_shrink <= dominant_shrink"):
         AttributionSettings(dominant_shrink=0.3)
 
@@ -213,26 +209,23 @@ def test_range_position_is_logarithmic_for_a_parameter_spanning_decades() -> Non
 
 
 def test_a_speed_limit_well_inside_its_range_is_not_pinned(
-    model_fit: Callable[..., ModelFit],
+    model_fit: Callable[..., ModelFit], toy_problem: Callable[..., Problem]
 ) -> None:
     n = 50
-    lay = _layout(n, 1)
 
-    def surrogate(layout, batch, B):
-        v = batch["velocity_saturation.v_limit"]
-        return np.repeat((100.0 * np.maximum(0.3 - v, 0.0))[:, None], layout.n, axis=1)
+    def shift(batch: Mapping[str, np.ndarray]) -> np.ndarray:
+        return 100.0 * np.maximum(0.3 - batch["velocity_saturation.v_limit"], 0.0)
 
-    problem = _problem(lay, np.zeros(n), surrogate)
-    slow = model_fit(("velocity_saturation",), np.zeros(n), {"velocity_saturation.v_limit": 0.085})
-    assert pinned_parameters(problem, slow) == []  # type: ignore[arg-type]
-    assert parameter_status(problem, slow) == {}  # type: ignore[arg-type]
+    problem = toy_problem(windows=n, shift=shift)
+    key = "velocity_saturation.v_limit"
+    slow = model_fit(effects=("velocity_saturation",), z_heldout=np.zeros(n), values={key: 0.085})
+    assert pinned_parameters(problem, slow) == []
+    assert parameter_status(problem, slow) == {}
     at_low = model_fit(
-        ("velocity_saturation",), np.zeros(n), {"velocity_saturation.v_limit": 0.0501}
+        effects=("velocity_saturation",), z_heldout=np.zeros(n), values={key: 0.0501}
     )
-    assert pinned_parameters(problem, at_low) == ["velocity_saturation.v_limit"]  # type: ignore[arg-type]
-    assert parameter_status(problem, at_low) == {  # type: ignore[arg-type]
-        "velocity_saturation.v_limit": "at bound"
-    }
+    assert pinned_parameters(problem, at_low) == [key]
+    assert parameter_status(problem, at_low) == {key: "at bound"}
 
 
 def test_noise_in_a_group_of_unequal_columns_is_not_structure() -> None:
@@ -325,29 +318,34 @@ def test_adjacent_windows_that_cancel_are_not_structure() -> None:
 
 
 def test_a_baseline_nuisance_at_the_edge_of_its_range_is_reported(
-    model_fit: Callable[..., ModelFit],
+    model_fit: Callable[..., ModelFit], toy_problem: Callable[..., Problem]
 ) -> None:
     n = 50
-    lay = _layout(n, 1)
-
-    def surrogate(layout, batch, B):
-        return np.repeat((100.0 * (batch["wheelbase_error.E_b"] - 1.0))[:, None], layout.n, axis=1)
-
-    problem = _problem(lay, np.zeros(n), surrogate)
-    problem.baseline_ranges = {
-        "command_latency.delay": (0.0, 0.05),
-        "timestamp_offset.offset": (-0.025, 0.025),
-    }
+    problem = toy_problem(
+        windows=n,
+        shift=lambda batch: 100.0 * (batch["wheelbase_error.E_b"] - 1.0),
+        baseline_ranges={
+            "command_latency.delay": (0.0, 0.05),
+            "timestamp_offset.offset": (-0.025, 0.025),
+        },
+    )
     values = {"wheelbase_error.E_b": 1.03}
-    pinned = model_fit(("wheelbase_error",), np.zeros(n), values)
-    pinned.values.update({"command_latency.delay": 0.05, "timestamp_offset.offset": 0.001})
-    assert parameter_status(problem, pinned) == {  # type: ignore[arg-type]
-        "command_latency.delay": "nuisance at range bound"
-    }
+    # the nuisances are refined with the model, not fitted as its parameters
+    pinned = model_fit(
+        effects=("wheelbase_error",),
+        z_heldout=np.zeros(n),
+        values={**values, "command_latency.delay": 0.05, "timestamp_offset.offset": 0.001},
+        keys=tuple(values),
+    )
+    assert parameter_status(problem, pinned) == {"command_latency.delay": "nuisance at range bound"}
     # a latency of 0 s is the nominal end of its range: no response delay, not pinned
-    absent = model_fit(("wheelbase_error",), np.zeros(n), values)
-    absent.values.update({"command_latency.delay": 0.0, "timestamp_offset.offset": -0.025})
-    assert parameter_status(problem, absent) == {  # type: ignore[arg-type]
+    absent = model_fit(
+        effects=("wheelbase_error",),
+        z_heldout=np.zeros(n),
+        values={**values, "command_latency.delay": 0.0, "timestamp_offset.offset": -0.025},
+        keys=tuple(values),
+    )
+    assert parameter_status(problem, absent) == {
         "timestamp_offset.offset": "nuisance at range bound"
     }
 
@@ -424,9 +422,10 @@ def test_a_compliance_under_another_gravity_law_is_named_alone(
         [lg for p in held for lg in read_logs(p, opts)],
         settings=DiagnosisSettings(robot=case.robot),
     )
-    assert d.verdict.kind == "effects" and d.verdict.effects == ("arm_joint_compliance",)
+    assert d.verdict.kind is VerdictKind.EFFECTS
+    assert d.verdict.effects == ("arm_joint_compliance",)
     assert d.gap["heldout_shrink_pct_best"] > 90.0
-    assert d.verdict.notes["unsingled_partners"], d.verdict.reason
+    assert d.verdict.notes.unsingled_partners, d.verdict.reason
     rest = [s for s in summary_sentences(d) if s.startswith("What remains")]
     assert rest, summary_sentences(d)
 

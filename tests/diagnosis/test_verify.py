@@ -2,19 +2,21 @@
 
 from __future__ import annotations
 
-from types import SimpleNamespace
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
+from realitygap.core.parallel import SerialBackend
+from realitygap.diagnosis.fit.model import ModelFit
 from realitygap.diagnosis.fit.verify import heldout_gain_counts
+from realitygap.diagnosis.problem.problem import Problem
 
 
-def _fit(z: Any) -> Any:
-    return SimpleNamespace(z_heldout=np.asarray(z, dtype=float))
+def test_heldout_gain_counts_only_beyond_noise(model_fit: Callable[..., ModelFit]) -> None:
+    def _fit(z: Any) -> ModelFit:
+        return model_fit(z_heldout=z)
 
-
-def test_heldout_gain_counts_only_beyond_noise() -> None:
     rng = np.random.default_rng(4)
     noise = rng.normal(0.0, 1.0, 2000)
     single = _fit(noise + 0.5)  # a systematic part the second effect removes
@@ -54,7 +56,16 @@ def _model(effects: tuple[str, ...], rank: float, sizes: dict[str, float], verif
     )
 
 
-def test_many_pairs_with_a_do_nothing_partner_all_rank_behind_their_single() -> None:
+class _NoReplays(SerialBackend):
+    """A backend that fails the test if a model needs a PyBullet replay."""
+
+    def map(self, fn: Any, items: Any, shared: Any) -> Any:
+        raise AssertionError("no model here needs a PyBullet replay")
+
+
+def test_many_pairs_with_a_do_nothing_partner_all_rank_behind_their_single(
+    toy_problem: Callable[..., Problem],
+) -> None:
     """Twelve pairs add a partner at its no-effect values to the same effect ``a`` and score
     better on held-out data (their fit of ``a`` landed elsewhere): each is ``a`` itself, so
     none may be named, however many there are against the verification's step budget."""
@@ -71,12 +82,8 @@ def test_many_pairs_with_a_do_nothing_partner_all_rank_behind_their_single() -> 
     acting = _model(("a", "q"), -900.0, {"a": 11.6, "q": 2.0}, verified=True)
     nominal = _model((), -100.0, {}, verified=True)
 
-    def no_replays(*_: Any, **__: Any) -> Any:
-        raise AssertionError("no model here needs a PyBullet replay")
-
-    problem = SimpleNamespace(settings=settings)
-    backend = SimpleNamespace(map=no_replays)
-    out = verify_ranking(problem, [*pairs, single, acting], nominal, backend, lambda _: None)  # type: ignore[arg-type]
+    problem = toy_problem(windows=4, settings=settings)
+    out = verify_ranking(problem, [*pairs, single, acting], nominal, _NoReplays(), lambda _: None)
     names = [f.effects for f in out.ranking]
     assert names[0] == ("a", "q")
     assert names[1] == ("a",)

@@ -179,12 +179,12 @@ def test_collision_step_agrees_with_pybullet_on_crafted_layouts(name: str) -> No
 def test_reality_terms_move_the_vector_env_as_the_surrogate_moves() -> None:
     """Open-loop twists through a worn robot: the vector env's steps equal the
     surrogate's whole-series simulation of the same applied twists."""
-    from realitygap.diagnosis.adapters.diffdrive.surrogate import (
+    from realitygap.robots.diffdrive import DiffDriveParams
+    from realitygap.robots.diffdrive_surrogate import (
         DiffDriveSurrogate,
         SurrogateInputs,
         calibrate,
     )
-    from realitygap.robots.diffdrive import DiffDriveParams
 
     reality = Reality(
         (

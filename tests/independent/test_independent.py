@@ -193,6 +193,7 @@ def test_a_residual_faster_than_the_windows_is_unexplained_and_said_so(tmp_path:
     from realitygap.diagnosis.adapters.registry import close_adapters
     from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
     from realitygap.diagnosis.logs.read import read_logs
+    from realitygap.diagnosis.verdict.types import VerdictKind
     from realitygap.experiments.independent import generate_case
 
     case = case_by_name("encoder_wobble")
@@ -205,7 +206,7 @@ def test_a_residual_faster_than_the_windows_is_unexplained_and_said_so(tmp_path:
         )
     finally:
         close_adapters()
-    assert d.verdict.kind == "unexplained", d.verdict.reason
+    assert d.verdict.kind is VerdictKind.UNEXPLAINED, d.verdict.reason
     rest = d.verdict.residual
     assert rest is not None and rest["structured"]
     assert any("noise of the sensor's own samples" in r for r in rest["reasons"]), rest["reasons"]
@@ -216,16 +217,23 @@ def _fake(
     effects: tuple[str, ...],
     confidence: str = "strong",
     aliases: tuple[tuple[str, ...], ...] = (),
+    reach: dict[str, object] | None = None,
 ) -> object:
     from types import SimpleNamespace
 
-    verdict = SimpleNamespace(
-        kind=kind,
+    from realitygap.diagnosis.verdict.types import Confidence, Verdict, VerdictKind, VerdictNotes
+
+    verdict = Verdict(
+        kind=VerdictKind(kind),
         effects=effects,
-        confidence=confidence,
         reason="r",
-        label=list(effects) if kind == "effects" else kind,
-        notes={"aliases": [{"model": " + ".join(a), "effects": list(a)} for a in aliases]},
+        margin=1.0,
+        confidence=Confidence(confidence),
+        residual={},
+        notes=VerdictNotes(
+            aliases=tuple({"model": " + ".join(a), "effects": list(a)} for a in aliases),
+            reach=reach,
+        ),
     )
     ranking = [SimpleNamespace(effects=effects or ("x",), values={"x.p": 1.0})]
     return SimpleNamespace(verdict=verdict, ranking=ranking, gap={"heldout_shrink_pct_best": 50.0})
@@ -250,11 +258,8 @@ def test_scoring_rules() -> None:
     assert weak["false_attribution"]
     assert score(drag, _fake("none", ()))["open_set_strict"] == 0.0
     # the library reach of an unexplained verdict is carried into the row; none without one
-    fake = _fake("unexplained", ())
-    fake.verdict.notes["reach"] = {  # type: ignore[attr-defined]
-        "rows": [{"model": "wheelbase_error", "shrink_pct": 12.0}],
-        "expressible": False,
-    }
+    reach = {"rows": [{"model": "wheelbase_error", "shrink_pct": 12.0}], "expressible": False}
+    fake = _fake("unexplained", (), reach=reach)
     row = score(drag, fake)
     assert row["reach_top_model"] == "wheelbase_error" and row["reach_top_shrink_pct"] == 12.0
     assert row["reach_expressible"] is False

@@ -73,27 +73,47 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from realitygap.diagnosis.adapters.arm.kinematics import (
+    POSES_PER_WINDOW,
+    TOOL_DIST_PAIRS,
     backlash_directions,
     base_tilt,
     known_direction_poses,
+    pose_windows,
     probe_positions,
+    reach_ratio,
+    spread_windows,
     surrogate_points,
+    tool_distance_features,
 )
-from realitygap.diagnosis.adapters.contract import AdapterBase, Drive, LogContext, PreparedLog
-from realitygap.diagnosis.logs.log import ChannelSpec, Log, LogError, Role
-from realitygap.diagnosis.problem.features import FeatureGroup, FeatureSchema, FeatureSettings
+from realitygap.diagnosis.adapters.arm.poses import (
+    ARM_PROBE_SETS,
+    arm_params_from_meta,
+    probe_poses,
+    record_arm_log,
+    replay_arm,
+    sample_arm_poses,
+    tool_from_meta,
+)
+from realitygap.diagnosis.adapters.contract import (
+    BlindLogSettings,
+    DiscoveryTerms,
+    Drive,
+    LogContext,
+    PreparedLog,
+    RobotAdapter,
+)
+from realitygap.diagnosis.logs.channels import ARM_CHANNELS
+from realitygap.diagnosis.logs.log import Log, LogError
+from realitygap.diagnosis.problem.features import FeatureSettings
 from realitygap.diagnosis.problem.parameters import reality_from_values
-from realitygap.estimators.arm.mdh import MDHTable
+from realitygap.diagnosis.problem.schemas import ARM_REGIMES, ARM_SCHEMA, TOOL_DIST_COLUMNS
 from realitygap.robots.simulation import SimSettings
-
-if TYPE_CHECKING:
-    from realitygap.diagnosis.validation.suite import SuiteSettings
 
 FloatArray = npt.NDArray[np.float64]
 Features = dict[str, FloatArray]
@@ -109,7 +129,6 @@ __all__ = [
     "ArmAdapter",
     "ArmContext",
     "arm_params_from_meta",
-    "arm_params_to_meta",
     "backlash_directions",
     "base_tilt",
     "known_direction_poses",
@@ -117,183 +136,18 @@ __all__ = [
     "probe_positions",
     "reach_ratio",
     "record_arm_log",
+    "replay_arm",
     "sample_arm_poses",
     "spread_windows",
     "surrogate_points",
     "tool_distance_features",
 ]
 
-POSES_PER_WINDOW = 4
-"""Consecutive poses per window (their 6 pairwise distances are the features)."""
-
-TOOL_DIST_COLUMNS: tuple[str, ...] = ("d01", "d02", "d03", "d12", "d13", "d23")
-"""Pairs of the four poses of an arm window whose tool-point distance is compared."""
-
-ARM_REGIMES: tuple[str, ...] = ("folded", "mid_reach", "outstretched")
-"""Arm windows, by how far the wrist reaches out from the base axis."""
-
-ARM_CHANNELS: tuple[ChannelSpec, ...] = (
-    ChannelSpec(
-        "joints",
-        ("q1", "q2", "q3", "q4", "q5", "q6"),
-        ("rad",) * 6,
-        Role.SENSOR,
-        "joint encoder readings of the arm at rest",
-    ),
-    ChannelSpec(
-        "tool_pos",
-        ("x", "y", "z"),
-        ("m", "m", "m"),
-        Role.TRUTH,
-        "tool point measured by an external instrument (laser tracker), in its own frame",
-    ),
-)
-"""Channels of an arm log: one row per measurement pose, the arm at rest."""
-
-ARM_SCHEMA = FeatureSchema(
-    groups=(
-        FeatureGroup(
-            "tool_dist",
-            TOOL_DIST_COLUMNS,
-            ("m",) * len(TOOL_DIST_COLUMNS),
-            (1e-4,) * len(TOOL_DIST_COLUMNS),
-        ),
-    ),
-    regimes=ARM_REGIMES,
-)
-"""The arm's window features (tool-point distances, default scale 0.1 mm) and regimes."""
-
-TOOL_DIST_PAIRS: tuple[tuple[int, int], ...] = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
-"""The pose pairs of a window behind :data:`TOOL_DIST_COLUMNS`, in their order."""
-assert len(TOOL_DIST_PAIRS) == len(TOOL_DIST_COLUMNS)
-
 _FOLDED, _OUTSTRETCHED = 0.45, 0.8
 
 DEFAULT_TOOL_NOISE = 2.5e-5
 """Per-axis noise of a tool-point measurement (m) when a log does not state it
 (``meta["tool_noise_m"]``): a laser tracker at a few metres."""
-
-ARM_PROBE_SETS: dict[str, str] = {
-    "outstretched_poses": "poses with the upper arm and forearm stretched out near the "
-    "horizontal (largest gravity torque on shoulder and elbow)",
-    "approach_reversals": "each pose measured twice, approached once from below and once from "
-    "above on every joint",
-    "wrist_sweep": "the wrist joints 4-6 over their full range with the arm held still",
-    "base_sweep": "joint 1 over its full range at a few fixed arm postures",
-}
-"""Pose sets suggested to separate confounded arm effects (identifiability advice)."""
-
-
-# --------------------------------------------------------------------------- parameters
-def arm_params_to_meta(params: Any) -> dict[str, Any]:
-    """The nominal-arm metadata of a log (``meta["params"]``) from an :class:`ArmParams`."""
-    return {
-        "mdh": params.mdh.param_dict(),
-        "mdh_name": params.mdh.name,
-        "link_masses": list(params.link_masses),
-        "payload_mass": float(params.camera_mass),
-        "joint_lower": list(params.joint_lower),
-        "joint_upper": list(params.joint_upper),
-    }
-
-
-def arm_params_from_meta(log: Log) -> Any:
-    """The nominal :class:`~realitygap.robots.arm.ArmParams` of an arm log.
-
-    Raises
-    ------
-    LogError
-        ``meta["params"]`` missing or without a full 6-joint MDH table.
-    """
-    from realitygap.robots.arm import ArmParams
-
-    raw = log.meta.get("params")
-    if not isinstance(raw, Mapping) or not isinstance(raw.get("mdh"), Mapping):
-        raise LogError(
-            f"{log.source}: an arm log needs meta['params']['mdh'] (the nominal MDH table, "
-            "e.g. MDHTable.param_dict()); got "
-            f"{sorted(raw) if isinstance(raw, Mapping) else type(raw).__name__}"
-        )
-    mdh = raw["mdh"]
-    base = MDHTable(np.zeros(6), np.zeros(6), np.zeros(6), np.zeros(6), np.zeros(6))
-    names = base.param_names()
-    missing = [n for n in names if n not in mdh]
-    if missing:
-        raise LogError(
-            f"{log.source}: meta['params']['mdh'] lacks {', '.join(missing[:6])}"
-            f"{' …' if len(missing) > 6 else ''} (a 6-joint table needs theta1..beta6)"
-        )
-    table = base.with_params([float(mdh[n]) for n in names], names)
-    table = MDHTable(
-        table.theta_offset,
-        table.d,
-        table.a,
-        table.alpha,
-        table.beta,
-        str(raw.get("mdh_name", "arm")),
-    )
-    kw: dict[str, Any] = {"mdh": table}
-    if "link_masses" in raw:
-        kw["link_masses"] = tuple(float(v) for v in raw["link_masses"])
-    if "payload_mass" in raw:
-        kw["camera_mass"] = float(raw["payload_mass"])
-    for key in ("joint_lower", "joint_upper"):
-        if key in raw:
-            kw[key] = tuple(float(v) for v in raw[key])
-    try:
-        return ArmParams(**kw)
-    except ValueError as exc:
-        raise LogError(f"{log.source}: meta['params'] is not a valid arm: {exc}") from None
-
-
-def _tool(log: Log) -> FloatArray:
-    tool = np.asarray(log.meta.get("tool", (0.0, 0.0, 0.0)), dtype=float).reshape(-1)
-    if tool.shape != (3,) or not np.all(np.isfinite(tool)):
-        raise LogError(
-            f"{log.source}: meta['tool'] must be the tool point in the flange frame, 3 finite "
-            f"numbers in m; got {log.meta.get('tool')!r}"
-        )
-    return tool
-
-
-# --------------------------------------------------------------------------- kinematics
-def tool_distance_features(points: FloatArray, bounds: npt.NDArray[np.int64]) -> FloatArray:
-    """Pairwise distances (…, M, 6) of the tool points (…, N, 3) of every window."""
-    a = bounds[:, 0]
-    cols = [
-        np.linalg.norm(points[..., a + i, :] - points[..., a + j, :], axis=-1)
-        for i, j in TOOL_DIST_PAIRS
-    ]
-    return np.stack(cols, axis=-1)
-
-
-def reach_ratio(table: MDHTable, q: FloatArray) -> FloatArray:
-    """Horizontal distance of the wrist (frame 4) from the base axis over |a2| + |a3| (N,)."""
-    from realitygap.estimators.arm.mdh import joint_frames
-
-    frames = joint_frames(table, q)
-    r = np.hypot(frames[:, 4, 0, 3], frames[:, 4, 1, 3])
-    length = abs(float(table.a[1])) + abs(float(table.a[2]))
-    return r / max(length, 1e-9)
-
-
-def _windows(n: int) -> npt.NDArray[np.int64]:
-    m = n // POSES_PER_WINDOW
-    a = np.arange(m) * POSES_PER_WINDOW
-    return np.stack([a, a + POSES_PER_WINDOW], axis=1).astype(np.int64)
-
-
-def spread_windows(n: int) -> npt.NDArray[np.int64]:
-    """Rows (M, 4) of the poses of each window of a series of ``n`` poses.
-
-    Window ``m`` holds poses ``m, m + M, m + 2M, m + 3M`` with ``M = n // 4``: its
-    four poses lie a quarter of the series apart, so its tool-point distances span
-    the workspace whatever order the poses were measured in (in a grid series
-    neighbouring poses are a few centimetres apart, and a short distance hardly
-    changes with the geometry: it would hide what the calibration sees).
-    """
-    m = n // POSES_PER_WINDOW
-    return (np.arange(m)[:, None] + m * np.arange(POSES_PER_WINDOW)[None, :]).astype(np.int64)
 
 
 # --------------------------------------------------------------------------- surrogate
@@ -310,53 +164,6 @@ _SURROGATE_EFFECTS = (
     "arm_geometric_tolerances",
     "arm_base_compliance",
 )
-
-
-# --------------------------------------------------------------------------- replay
-def replay_arm(
-    params: Any,
-    q_enc: FloatArray,
-    tool: FloatArray,
-    reality: Any = None,
-    direction: FloatArray | None = None,
-) -> tuple[FloatArray, FloatArray]:
-    """Tool points (N, 3) in the base frame of the PyBullet arm for readings ``q_enc``.
-
-    ``direction`` (N, 6) is each joint's last direction of motion (from the
-    readings by default, :func:`backlash_directions`). Returns the points and the
-    holding torques (N, 6) (N·m) at the link angles.
-    """
-    from realitygap.robots.arm import ArmRobot, constant_transform
-    from realitygap.robots.effects import (
-        arm_base_compliance,
-        arm_measurement_scale,
-        arm_tool_offset,
-    )
-    from realitygap.robots.world import World
-
-    body_params = reality.apply_params(params) if reality is not None else params
-    tool = np.asarray(tool, dtype=float) + np.asarray(arm_tool_offset(reality))
-    if direction is None:
-        direction = backlash_directions(q_enc)
-    world = World()
-    try:
-        robot = ArmRobot(world, body_params)
-        T_base_inv = np.linalg.inv(body_params.T_world_base)
-        last = constant_transform(body_params.mdh, 5)
-        pts = np.empty((q_enc.shape[0], 3))
-        taus = np.empty((q_enc.shape[0], 6))
-        for k, (q, dirn) in enumerate(zip(q_enc, direction)):
-            q_link = robot.link_target(q, dirn)
-            robot.set_link_angles(q_link)
-            F = T_base_inv @ robot.link_pose("link6") @ last
-            pts[k] = F[:3, :3] @ tool + F[:3, 3]
-            taus[k] = robot.gravity_torques(q_link)
-        k_tilt = arm_base_compliance(reality)
-        if k_tilt != 0.0:
-            pts = base_tilt(pts[None], params.mdh, q_enc, taus[:, 1], [k_tilt])[0]
-        return pts * arm_measurement_scale(reality), taus
-    finally:
-        world.close()
 
 
 # --------------------------------------------------------------------------- the adapter
@@ -394,7 +201,7 @@ class ArmContext(LogContext):
         return self.motion
 
 
-class ArmAdapter(AdapterBase):
+class ArmAdapter(RobotAdapter):
     """Arm: effects, PyBullet replay, tool-distance features and the analytic surrogate.
 
     Parameters
@@ -454,7 +261,7 @@ class ArmAdapter(AdapterBase):
         self.check_robot(log, drive, replayed_from="its joint readings")
         log.require(["joints", "tool_pos"], "an arm diagnosis")
         arm_params_from_meta(log)
-        _tool(log)
+        tool_from_meta(log)
         if log.n < 2 * POSES_PER_WINDOW:
             raise LogError(
                 f"{log.source}: {log.n} poses are too few; the diagnosis needs at least "
@@ -473,7 +280,7 @@ class ArmAdapter(AdapterBase):
         sim: SimSettings | None,
     ) -> PreparedLog:
         params = arm_params_from_meta(log)
-        tool = _tool(log)
+        tool = tool_from_meta(log)
         q_all = np.asarray(log["joints"], dtype=float)
         dir_all = backlash_directions(q_all)  # from the full sequence of moves
         # poses of unknown approach direction are left out, not assumed; only when fewer
@@ -489,7 +296,7 @@ class ArmAdapter(AdapterBase):
         keep = windows.reshape(-1)
         q, direction = q_all[keep], dir_all[keep]
         points = np.asarray(log["tool_pos"], dtype=float)[keep]
-        bounds = _windows(keep.size)
+        bounds = pose_windows(keep.size)
         reach = reach_ratio(params.mdh, q)
         reach_w = np.array([reach[a:b].mean() for a, b in bounds])
         regimes = [
@@ -607,12 +414,16 @@ class ArmAdapter(AdapterBase):
         finally:
             world.close()
         pts = surrogate_points(ctx.params.mdh, q, tau, backlash_directions(q), ctx.tool, values)
-        bounds = _windows(q.shape[0])
+        bounds = pose_windows(q.shape[0])
         return {"tool_dist": tool_distance_features(pts, bounds)}, ["tool_dist"]
 
     # ------------------------------------------------------------------ blind suite
+    def blind_measurement_noise(self, settings: BlindLogSettings) -> dict[str, FloatArray]:
+        """The laser tracker's noise per axis in the blind logs."""
+        return {"tool_pos": np.full(3, settings.arm_tracker_noise)}
+
     def record_blind_logs(
-        self, reality: Any, rng: np.random.Generator, settings: SuiteSettings
+        self, reality: Any, rng: np.random.Generator, settings: BlindLogSettings
     ) -> tuple[list[Log], list[Log]]:
         """One training and one held-out set of random poses measured by a laser tracker."""
         train, holdout = (
@@ -668,7 +479,7 @@ class ArmAdapter(AdapterBase):
 
         return held_out_structure(problem, values, desc)
 
-    def discovery_terms(self, prepared: PreparedLog) -> dict[str, tuple[FloatArray, str]]:
+    def discovery_terms(self, prepared: PreparedLog) -> DiscoveryTerms:
         """Candidate terms of an unexplained residual, one value per window, with SI units.
 
         Window means of ``sin q_j``, ``cos q_j``, ``sin 2q_j``, ``cos 2q_j`` and the
@@ -693,113 +504,3 @@ class ArmAdapter(AdapterBase):
         out["reach"] = (wmean(reach_ratio(ctx.params.mdh, ctx.q)), "")
         out["time"] = (wmean(t_rows), "s")
         return out
-
-
-def probe_poses(name: str, table: MDHTable, n: int = 40) -> FloatArray:
-    """The joint readings (n, 6) of a pose set of :data:`ARM_PROBE_SETS` (deterministic)."""
-    if name not in ARM_PROBE_SETS:
-        raise ValueError(f"unknown arm pose set {name!r}; known: {', '.join(ARM_PROBE_SETS)}")
-    rng = np.random.default_rng(sum(ord(c) for c in name))
-    q = rng.uniform(-math.pi, math.pi, (n, 6))
-    if name == "outstretched_poses":
-        q[:, 1] = rng.choice([-0.15, -math.pi + 0.15], n) + rng.normal(0, 0.1, n)
-        q[:, 2] = rng.normal(0.0, 0.15, n)
-    elif name == "approach_reversals":
-        # P - δ, P (from below), P + δ, P (from above): one window per pose
-        base = q[: max(n // POSES_PER_WINDOW, 1)]
-        q = np.stack([base - 0.2, base, base + 0.2, base], axis=1).reshape(-1, 6)
-    elif name == "wrist_sweep":
-        q[:, :3] = (0.3, -1.2, 1.2)
-    elif name == "base_sweep":
-        postures = np.array([[-1.0, 1.2], [-0.5, 0.6], [-1.6, 1.8], [-0.2, 0.3]])
-        q[:, 1:3] = postures[np.arange(n) % 4]
-    return q
-
-
-# --------------------------------------------------------------------------- recording
-def sample_arm_poses(
-    robot: Any, rng: np.random.Generator, n: int, max_tries: int = 50_000
-) -> FloatArray:
-    """``n`` random collision-free joint commands (n, 6) of a PyBullet arm, from ``rng``.
-
-    Shoulder above the horizontal, elbow anywhere but fully folded, wrist free;
-    configurations that collide (with the arm itself or the scenery) are drawn
-    again.
-    """
-    out: list[FloatArray] = []
-    for _ in range(max_tries):
-        q = rng.uniform(-math.pi, math.pi, 6)
-        q[1] = rng.uniform(-math.pi, 0.0)
-        q[2] = rng.uniform(-2.6, 2.6)
-        if not robot.collides_at(q):
-            out.append(q)
-            if len(out) == n:
-                return np.asarray(out)
-    raise RuntimeError(f"found only {len(out)} of {n} collision-free poses in {max_tries} draws")
-
-
-def record_arm_log(
-    reality: Any,
-    rng: np.random.Generator,
-    n_poses: int,
-    *,
-    params: Any = None,
-    tool: npt.ArrayLike = (0.0, 0.05, 0.1),
-    tracker_noise: float = 2e-5,
-    name: str = "arm",
-) -> Log:
-    """Measure ``n_poses`` random poses of the PyBullet arm ``reality`` with a laser tracker.
-
-    The arm (nominal ``params`` with the effects of ``reality`` built in) moves
-    pose to pose through its servo (:meth:`~realitygap.robots.arm.ArmRobot.move_to`,
-    so backlash follows the real order of moves and compliance sags under the
-    real holding torque); at each pose the encoders are read (noise,
-    quantisation) and the tool point ``tool`` (flange frame, m) is measured in
-    the world with isotropic Gaussian noise of ``tracker_noise`` (m) per axis.
-    """
-    from realitygap.robots.arm import ArmParams, ArmRobot, constant_transform
-    from realitygap.robots.effects import (
-        arm_base_compliance,
-        arm_measurement_scale,
-        arm_tool_offset,
-    )
-    from realitygap.robots.world import World
-
-    nominal = params if params is not None else ArmParams()
-    body = reality.apply_params(nominal) if reality is not None else nominal
-    length, k_tilt = arm_measurement_scale(reality), arm_base_compliance(reality)
-    tool = np.asarray(tool, dtype=float).reshape(3)
-    measured = tool + np.asarray(arm_tool_offset(reality))
-    world = World()
-    try:
-        robot = ArmRobot(world, body)
-        poses = sample_arm_poses(robot, rng, n_poses)
-        robot.reset(poses[0] - 0.05)
-        last = constant_transform(body.mdh, 5)
-        q_enc = np.empty((n_poses, 6))
-        pts = np.empty((n_poses, 3))
-        for k, q in enumerate(poses):
-            res = robot.move_to(q)
-            if not res.ok:
-                raise RuntimeError(f"pose {k} could not be reached: {res.message}")
-            q_enc[k] = robot.read_encoders(rng)
-            F = robot.link_pose("link6") @ last
-            p = F[:3, :3] @ measured + F[:3, 3]
-            if k_tilt != 0.0:
-                tau2 = robot.gravity_torques(robot.link_target(q))[1]
-                p = base_tilt(p[None, None], nominal.mdh, q[None], np.array([tau2]), [k_tilt])[0, 0]
-            pts[k] = length * p + rng.normal(0.0, tracker_noise, 3)
-    finally:
-        world.close()
-    return Log(
-        t=np.arange(n_poses, dtype=float),
-        channels={"joints": q_enc, "tool_pos": pts},
-        meta={
-            "robot": "arm",
-            "name": name,
-            "params": arm_params_to_meta(nominal),
-            "tool": tool.tolist(),
-            "tool_noise_m": float(tracker_noise),
-        },
-        source=name,
-    )

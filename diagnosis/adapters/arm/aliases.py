@@ -35,7 +35,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy.linalg import subspace_angles
 
-from realitygap.diagnosis.adapters.contract import PreparedLog
+from realitygap.diagnosis.adapters.arm.kinematics import TOOL_DIST_PAIRS
+from realitygap.diagnosis.adapters.contract import PreparedLog, RobotAdapter
 from realitygap.robots.effects import EFFECTS
 
 FloatArray = npt.NDArray[np.float64]
@@ -89,7 +90,7 @@ ARM_ALIAS_GROUPS: tuple[AliasGroup, ...] = (
 
 
 def effect_jacobian(
-    adapter: Any, prepared: Sequence[PreparedLog], effect: str, held: bool = False
+    adapter: RobotAdapter, prepared: Sequence[PreparedLog], effect: str, held: bool = False
 ) -> FloatArray:
     """Derivatives (n, p) of the training features by ``effect``'s parameters.
 
@@ -125,7 +126,7 @@ def effect_jacobian(
 
 
 def fit_noise_inflation(
-    adapter: Any, prepared: Sequence[PreparedLog], effects: Sequence[str]
+    adapter: RobotAdapter, prepared: Sequence[PreparedLog], effects: Sequence[str]
 ) -> float:
     r"""Factor by which fitting ``effects`` on the training windows raises the held-out
     residual of pure noise.
@@ -164,7 +165,7 @@ def _correlation(A: FloatArray, B: FloatArray) -> float:
 
 
 def measure_aliases(
-    adapter: Any,
+    adapter: RobotAdapter,
     prepared: Sequence[PreparedLog],
     groups: Sequence[AliasGroup] = ARM_ALIAS_GROUPS,
     threshold: float = 0.95,
@@ -243,7 +244,6 @@ def identify_window_geometry(
         raise ValueError(f"pairs must be 'windows' or 'all', got {pairs!r}")
     if max_poses < 8:
         raise ValueError(f"max_poses must be at least 8, got {max_poses}")
-    from realitygap.diagnosis.adapters.arm.adapter import TOOL_DIST_PAIRS
     from realitygap.estimators.arm.identification import IdentificationSettings, identify
     from realitygap.estimators.arm.mdh import tool_positions
     from realitygap.estimators.arm.residuals import PairObservations, ResidualMode

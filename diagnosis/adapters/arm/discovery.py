@@ -35,6 +35,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.diagnosis.adapters.arm.kinematics import TOOL_DIST_PAIRS, reach_ratio
+from realitygap.diagnosis.problem.parameters import split_key
+from realitygap.diagnosis.problem.schemas import TOOL_DIST_COLUMNS
 from realitygap.diagnosis.stages.discovery import Discovery, DiscoverySettings, fit_terms
 
 FloatArray = npt.NDArray[np.float64]
@@ -64,7 +67,6 @@ def arm_discovery_generators(ctx: Any, t: FloatArray) -> tuple[list[str], list[s
     (readings ``q``, holding torques ``tau``, nominal table and tool), ``t`` the
     time of each kept pose (s).
     """
-    from realitygap.diagnosis.adapters.arm.adapter import reach_ratio
     from realitygap.estimators.arm.mdh import tool_positions
 
     table, q, tool = ctx.params.mdh, np.asarray(ctx.q, dtype=float), np.asarray(ctx.tool)
@@ -116,7 +118,6 @@ def pair_terms(
 
 
 def _entry_terms(problem: Any, layout: Any, sel: npt.NDArray[np.bool_]) -> FloatArray:
-    from realitygap.diagnosis.adapters.arm.adapter import TOOL_DIST_COLUMNS, TOOL_DIST_PAIRS
     from realitygap.estimators.arm.mdh import tool_positions
 
     idx = np.flatnonzero(sel)
@@ -258,7 +259,7 @@ def held_out_structure(
     out = {**desc, "reasons": list(desc.get("reasons", ())), "held_out_structure": disc.to_json()}
     group = desc.get("groups", {}).get("tool_dist")
     if group is not None and group["white_level"] > 0.0:
-        effects = sorted({k.split(".")[0] for k in values})
+        effects = sorted({split_key(k)[0] for k in values})
         inflation = fit_noise_inflation(problem.adapter, problem.logs, effects)
         ratio = group["rms"] / (group["white_level"] * inflation)
         out["noise_floor"] = {"inflation": inflation, "ratio": ratio}

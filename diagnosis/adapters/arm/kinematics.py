@@ -1,5 +1,6 @@
 r"""Closed-form kinematics of the arm's diagnosis: batched MDH forward kinematics, the
-surrogate of every arm effect, the base tilt and the directions of motion (backlash).
+surrogate of every arm effect, the base tilt and the directions of motion (backlash), and
+the windows of poses whose tool-point distances are the arm's features.
 
 The surrogate is the arm's transmission and geometry in closed form, batched over
 effect values: link angles
@@ -18,6 +19,7 @@ from collections.abc import Mapping
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.diagnosis.problem.schemas import TOOL_DIST_COLUMNS
 from realitygap.estimators.arm.mdh import MDHTable
 from realitygap.robots.arm import flange_load_torques
 from realitygap.robots.effects.arm import GEOMETRIC_TOLERANCE_PARAMS
@@ -25,12 +27,26 @@ from realitygap.robots.effects.arm import GEOMETRIC_TOLERANCE_PARAMS
 FloatArray = npt.NDArray[np.float64]
 
 __all__ = [
+    "POSES_PER_WINDOW",
+    "TOOL_DIST_PAIRS",
     "backlash_directions",
     "base_tilt",
     "known_direction_poses",
+    "pose_windows",
     "probe_positions",
+    "reach_ratio",
+    "spread_windows",
     "surrogate_points",
+    "tool_distance_features",
 ]
+
+POSES_PER_WINDOW = 4
+"""Consecutive poses per window (their 6 pairwise distances are the features)."""
+
+TOOL_DIST_PAIRS: tuple[tuple[int, int], ...] = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
+"""The pose pairs of a window behind
+:data:`~realitygap.diagnosis.problem.schemas.TOOL_DIST_COLUMNS`, in their order."""
+assert len(TOOL_DIST_PAIRS) == len(TOOL_DIST_COLUMNS)
 
 _DIR_THRESHOLD = 1e-5
 """A reading change below this (rad) keeps the joint's last direction of motion."""
@@ -240,3 +256,44 @@ def base_tilt(
     uxp = np.cross(u[None], p)
     udp = np.sum(u[None] * p, axis=-1, keepdims=True)
     return p * c + uxp * s + u[None] * udp * (1.0 - c)
+
+
+# --------------------------------------------------------------------------- windows of poses
+def tool_distance_features(points: FloatArray, bounds: npt.NDArray[np.int64]) -> FloatArray:
+    """Pairwise distances (…, M, 6) of the tool points (…, N, 3) of every window."""
+    a = bounds[:, 0]
+    cols = [
+        np.linalg.norm(points[..., a + i, :] - points[..., a + j, :], axis=-1)
+        for i, j in TOOL_DIST_PAIRS
+    ]
+    return np.stack(cols, axis=-1)
+
+
+def reach_ratio(table: MDHTable, q: FloatArray) -> FloatArray:
+    """Horizontal distance of the wrist (frame 4) from the base axis over |a2| + |a3| (N,)."""
+    from realitygap.estimators.arm.mdh import joint_frames
+
+    frames = joint_frames(table, q)
+    r = np.hypot(frames[:, 4, 0, 3], frames[:, 4, 1, 3])
+    length = abs(float(table.a[1])) + abs(float(table.a[2]))
+    return r / max(length, 1e-9)
+
+
+def pose_windows(n: int) -> npt.NDArray[np.int64]:
+    """Bounds (M, 2) of the consecutive windows of :data:`POSES_PER_WINDOW` of ``n`` poses."""
+    m = n // POSES_PER_WINDOW
+    a = np.arange(m) * POSES_PER_WINDOW
+    return np.stack([a, a + POSES_PER_WINDOW], axis=1).astype(np.int64)
+
+
+def spread_windows(n: int) -> npt.NDArray[np.int64]:
+    """Rows (M, 4) of the poses of each window of a series of ``n`` poses.
+
+    Window ``m`` holds poses ``m, m + M, m + 2M, m + 3M`` with ``M = n // 4``: its
+    four poses lie a quarter of the series apart, so its tool-point distances span
+    the workspace whatever order the poses were measured in (in a grid series
+    neighbouring poses are a few centimetres apart, and a short distance hardly
+    changes with the geometry: it would hide what the calibration sees).
+    """
+    m = n // POSES_PER_WINDOW
+    return (np.arange(m)[:, None] + m * np.arange(POSES_PER_WINDOW)[None, :]).astype(np.int64)

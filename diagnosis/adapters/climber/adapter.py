@@ -40,20 +40,27 @@ import dataclasses
 import json
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
-from realitygap.diagnosis.adapters.contract import AdapterBase, Drive, LogContext, PreparedLog
+from realitygap.diagnosis.adapters.contract import (
+    BlindLogSettings,
+    DiscoveryTerms,
+    Drive,
+    LogContext,
+    PreparedLog,
+    RobotAdapter,
+)
 from realitygap.diagnosis.adapters.registry import get_adapter
-from realitygap.diagnosis.logs.log import ChannelSpec, Log, LogError, Role
-from realitygap.diagnosis.problem.features import FeatureGroup, FeatureSchema, FeatureSettings
+from realitygap.diagnosis.logs.channels import CLIMBER_CHANNELS
+from realitygap.diagnosis.logs.log import Log, LogError
+from realitygap.diagnosis.problem.features import FeatureSettings
+from realitygap.diagnosis.problem.parameters import split_key
+from realitygap.diagnosis.problem.schemas import CLIMBER_REGIMES, CLIMBER_SCHEMA
 from realitygap.robots.simulation import SimSettings
-
-if TYPE_CHECKING:
-    from realitygap.diagnosis.validation.suite import SuiteSettings
 
 FloatArray = npt.NDArray[np.float64]
 Features = dict[str, FloatArray]
@@ -79,31 +86,6 @@ CLIMB_PROBES: dict[str, str] = {
     "changes most)",
 }
 """Paths suggested to separate confounded climber effects."""
-
-CLIMBER_REGIMES: tuple[str, ...] = ("standing", "climbing", "descending", "traversing")
-"""Climber windows, by the true motion on the blade."""
-
-CLIMBER_CHANNELS: tuple[ChannelSpec, ...] = (
-    ChannelSpec(
-        "pose3_gt",
-        ("x", "y", "z", "rx", "ry", "rz"),
-        ("m", "m", "m", "rad", "rad", "rad"),
-        Role.TRUTH,
-        "ground-truth 3-D body pose: position and rotation vector in the world (CAD) frame",
-    ),
-    ChannelSpec("tether", ("length",), ("m",), Role.SENSOR, "tether length reported by the spool"),
-)
-"""Channels of a climber log."""
-
-CLIMBER_SCHEMA = FeatureSchema(
-    groups=(
-        FeatureGroup("tether", ("length",), ("m",), (1e-3,)),
-        FeatureGroup("surface", ("height",), ("m",), (1e-3,)),
-    ),
-    regimes=CLIMBER_REGIMES,
-)
-"""The climber's window features (tether reading, ride height; default scale 1 mm) and
-regimes."""
 
 _SURROGATE_EFFECTS = (
     "climber_tether_sag",
@@ -275,7 +257,7 @@ def _values(values: Mapping[str, npt.ArrayLike]) -> tuple[int, dict[str, FloatAr
     B = sizes.pop() if sizes else 1
     out = {k: np.asarray(v, dtype=float).reshape(-1) for k, v in values.items()}
     for key in out:
-        effect = key.partition(".")[0]
+        effect = split_key(key)[0]
         if effect not in _SURROGATE_EFFECTS and effect != "climber_tether_stretch":
             raise KeyError(f"the climber surrogate has no parameter {key!r}")
     return B, out
@@ -340,8 +322,13 @@ class ClimberContext(LogContext):
     def window_motion(self, bounds: npt.NDArray[np.int64]) -> FloatArray | None:
         return self.motion
 
+    def reference_wheelbase(self) -> float | None:
+        """The climber's wheelbase (m; its logs have no planar ground truth to turn into
+        wheel speeds)."""
+        return None if self.params.wheelbase is None else float(self.params.wheelbase)
 
-class ClimberAdapter(AdapterBase):
+
+class ClimberAdapter(RobotAdapter):
     """Climber: tether and ride-height features, sensor replay with PyBullet ride height.
 
     The adapter owns the PyBullet blade scenes of its replays (:attr:`scenes`);
@@ -548,12 +535,12 @@ class ClimberAdapter(AdapterBase):
 
     # ------------------------------------------------------------------ blind suite
     def record_blind_logs(
-        self, reality: Any, rng: np.random.Generator, settings: SuiteSettings
+        self, reality: Any, rng: np.random.Generator, settings: BlindLogSettings
     ) -> tuple[list[Log], list[Log]]:
         """One training and one held-out run of the climber on the blade."""
         return record_climber_logs(reality, rng)
 
-    def discovery_terms(self, prepared: PreparedLog) -> dict[str, tuple[FloatArray, str]]:
+    def discovery_terms(self, prepared: PreparedLog) -> DiscoveryTerms:
         """Candidate terms of an unexplained residual, one value per window, with SI units.
 
         Height of the body (m), the angle between its normal and the vertical

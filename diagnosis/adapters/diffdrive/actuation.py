@@ -33,7 +33,7 @@ speeds.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -43,21 +43,26 @@ from scipy.stats import chi2
 from realitygap.diagnosis.adapters.contract import PreparedLog
 from realitygap.diagnosis.stages.scales import gain_through_origin
 
-__all__ = ["actuation_spread", "command_wheel_gains", "wheel_tracking"]
+__all__ = ["GainsOf", "TravelOf", "actuation_spread", "command_wheel_gains", "wheel_tracking"]
 
 FloatArray = npt.NDArray[np.float64]
 
 WHEELS = ("left", "right")
 
 
-def command_wheel_gains(adapter: Any, prepared: Sequence[PreparedLog]) -> list[dict[str, Any]]:
-    """Per log of a command-driven diagnosis, the adapter's ``command_wheel_gains`` with
-    the log's name and split; empty when the adapter has none or no log qualifies."""
-    if not hasattr(adapter, "command_wheel_gains"):
-        return []
+GainsOf = Callable[[PreparedLog], dict[str, float] | None]
+"""A log's drive-train gains (the adapter's ``command_wheel_gains``), or ``None``."""
+TravelOf = Callable[[PreparedLog], tuple[FloatArray, FloatArray, FloatArray] | None]
+"""A log's wheel travel per window, logged and nominal (M, 2 each, m), and the windows'
+durations (M,), s (the adapter's ``wheel_travel``), or ``None``."""
+
+
+def command_wheel_gains(gains_of: GainsOf, prepared: Sequence[PreparedLog]) -> list[dict[str, Any]]:
+    """Per log of a command-driven diagnosis, its gains ``gains_of(log)`` (the adapter's
+    ``command_wheel_gains``) with the log's name and split; empty when no log qualifies."""
     rows = []
     for p in prepared:
-        g = adapter.command_wheel_gains(p)
+        g = gains_of(p)
         if g is not None:
             rows.append({"log": p.name, "split": p.split, **g})
     return rows
@@ -126,9 +131,10 @@ def actuation_spread(
 
 
 def wheel_tracking(
-    adapter: Any,
+    travel_of: TravelOf,
     prepared: Sequence[PreparedLog],
     *,
+    v_max: float | None = None,
     margin: float = 0.1,
     min_speed: float = 0.02,
     min_windows: int = 3,
@@ -140,12 +146,14 @@ def wheel_tracking(
 
     Parameters
     ----------
-    adapter : RobotAdapter
-        Needs ``wheel_travel(prepared)``: per window the logged and the nominal
-        replay's wheel travel (M, 2), m, and the windows' durations, s (``None`` for a
-        log without encoders or commands).
+    travel_of : callable
+        ``travel_of(prepared)`` (the adapter's ``wheel_travel``): per window the logged and
+        the nominal replay's wheel travel (M, 2), m, and the windows' durations, s
+        (``None`` for a log without encoders or commands).
     prepared : sequence of PreparedLog
         Training windows are those of training logs not scored as held out.
+    v_max : float or None
+        The robot's speed limit (m/s): the message's suggested test speed stays within it.
     margin : float
         A held-out window lies beyond the training when the nominal drive train's speed
         of a wheel there exceeds the training's fastest by more than this share.
@@ -171,8 +179,7 @@ def wheel_tracking(
         ``reached_max``, ``departs``) and ``departs`` (the pooled gain, a ceiling or a log's
         gain departs);
         ``departs`` (any wheel), ``beyond`` (any wheel asked beyond the training) and
-        ``message``. ``None`` when the adapter has no wheel travel or either split has
-        no window with it.
+        ``message``. ``None`` when either split has no window with wheel travel.
     """
     for name, value, ok, expected in (
         ("margin", margin, margin >= 0, "a share >= 0 (default 0.1)"),
@@ -183,11 +190,9 @@ def wheel_tracking(
     ):
         if not (ok and math.isfinite(value)):
             raise ValueError(f"wheel_tracking: {name} must be {expected}, got {value!r}")
-    if not hasattr(adapter, "wheel_travel"):
-        return None
     real, asked, dur, train, held, names = [], [], [], [], [], []
     for p in prepared:
-        w = adapter.wheel_travel(p)
+        w = travel_of(p)
         if w is None:
             continue
         r, a, d = w
@@ -265,7 +270,6 @@ def wheel_tracking(
         )
     if not rows:
         return None
-    v_max = getattr(getattr(prepared[0].context, "params", None), "v_max", None)
     return {
         "wheels": rows,
         "departs": any(r["departs"] for r in rows),

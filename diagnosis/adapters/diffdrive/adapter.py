@@ -19,189 +19,115 @@ Regimes
 Replay and surrogate
     The nominal PyBullet robot driven by the same commands or wheel rotation
     (:func:`~realitygap.diagnosis.adapters.diffdrive.replay.replay`); the fit uses the analytic
-    :class:`~realitygap.diagnosis.adapters.diffdrive.surrogate.DiffDriveSurrogate`.
+    :class:`~realitygap.robots.diffdrive_surrogate.DiffDriveSurrogate`.
 
 Blind logs
     Ordinary manoeuvres (:data:`TRAIN_MANOEUVRES`, :data:`HOLDOUT_MANOEUVRES`)
     recorded with motion-capture and camera noise: the firmware-ramped ones
     through :class:`~realitygap.envs.wheeled_nav.WheeledNavEnv` and
     :class:`~realitygap.diagnosis.adapters.diffdrive.record.RecordLog`, hard starts by driving
-    the robot directly.
+    the robot directly (:mod:`~realitygap.diagnosis.adapters.diffdrive.blind`).
+
+The log context and the geometry the logs share are in
+:mod:`~realitygap.diagnosis.adapters.diffdrive.context`, the drive-train figures of a
+command-driven replay (:meth:`DiffDriveAdapter.actuation`) in
+:mod:`~realitygap.diagnosis.adapters.diffdrive.actuation`.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from realitygap.core.geometry import wrap_angle
 from realitygap.diagnosis.adapters.contract import (
+    BlindLogSettings,
     Drive,
-    LogContext,
     PreparedLog,
     WheelDrivenAdapter,
 )
-from realitygap.diagnosis.adapters.diffdrive.firmware import FirmwareFit, fit_firmware_limits
-from realitygap.diagnosis.adapters.diffdrive.manoeuvres import MANOEUVRES
-from realitygap.diagnosis.adapters.diffdrive.record import RecordLog
+from realitygap.diagnosis.adapters.diffdrive.actuation import (
+    actuation_spread,
+    command_wheel_gains,
+    wheel_tracking,
+)
+from realitygap.diagnosis.adapters.diffdrive.blind import (
+    BLIND_NOISE,
+    HOLDOUT_MANOEUVRES,
+    TRAIN_MANOEUVRES,
+    record_case_logs,
+)
+from realitygap.diagnosis.adapters.diffdrive.context import (
+    DRIVE_RESPONSE_FLOOR,
+    TRUTH_FRAME_RANGE,
+    TRUTH_LATENCY_FLOOR,
+    TRUTH_YAW_RANGE,
+    TURN_WINDOW_RAD,
+    DiffDriveContext,
+    geometry,
+    meters_per_tick,
+    values_for_log,
+)
+from realitygap.diagnosis.adapters.diffdrive.firmware import (
+    FIRMWARE_CONVENTIONS,
+    FirmwareFit,
+    fit_firmware_limits,
+)
+from realitygap.diagnosis.adapters.diffdrive.manoeuvres import (
+    MANOEUVRES,
+    PROBE_MANOEUVRES,
+    probe_description,
+)
 from realitygap.diagnosis.adapters.diffdrive.replay import (
     applied_commands,
-    nominal_odometry,
     params_from_meta,
     replay,
-    simulate,
 )
-from realitygap.diagnosis.adapters.diffdrive.surrogate import (
-    SURROGATE_EFFECTS,
-    DiffDriveSurrogate,
-    SurrogateInputs,
-    calibrate,
-)
-from realitygap.diagnosis.logs.log import ChannelSpec, Log, LogError, Role
+from realitygap.diagnosis.logs.channels import DIFFDRIVE_CHANNELS
+from realitygap.diagnosis.logs.log import Log, LogError
 from realitygap.diagnosis.problem.features import (
-    DIFFDRIVE_REGIMES,
-    FeatureGroup,
-    FeatureSchema,
     FeatureSettings,
     classify_regimes,
     features,
     window_bounds,
 )
-from realitygap.diagnosis.problem.parameters import reality_from_values
+from realitygap.diagnosis.problem.parameters import reality_from_values, split_key
 from realitygap.diagnosis.problem.residual import robust_spread
+from realitygap.diagnosis.problem.schemas import DIFFDRIVE_SCHEMA
 from realitygap.diagnosis.stages.scales import gain_through_origin
 from realitygap.robots.diffdrive import DiffDriveParams
+from realitygap.robots.diffdrive_replay import nominal_odometry
+from realitygap.robots.diffdrive_surrogate import (
+    SURROGATE_EFFECTS,
+    DiffDriveSurrogate,
+    SurrogateInputs,
+    calibrate,
+)
 from realitygap.robots.effects import Reality
-from realitygap.robots.simulation import MeasurementNoise, SimSettings
-
-if TYPE_CHECKING:
-    from realitygap.diagnosis.validation.suite import SuiteSettings
+from realitygap.robots.simulation import SimSettings
 
 FloatArray = npt.NDArray[np.float64]
 
-TURN_WINDOW_RAD = 0.05
-"""A window turns when what the commands asked of it turns by more than this (rad): the
-windows :meth:`DiffDriveAdapter.command_wheel_gains` compares turn rates on."""
 Features = dict[str, FloatArray]
 
 __all__ = [
     "DIFFDRIVE_CHANNELS",
     "DIFFDRIVE_SCHEMA",
+    "DRIVE_RESPONSE_FLOOR",
     "HOLDOUT_MANOEUVRES",
     "TRAIN_MANOEUVRES",
+    "TRUTH_FRAME_RANGE",
+    "TRUTH_LATENCY_FLOOR",
+    "TRUTH_YAW_RANGE",
     "DiffDriveAdapter",
     "DiffDriveContext",
     "record_case_logs",
     "values_for_log",
 ]
-
-_POSE = ("x", "y", "theta")
-_POSE_UNITS = ("m", "m", "rad")
-
-DIFFDRIVE_CHANNELS: tuple[ChannelSpec, ...] = (
-    ChannelSpec(
-        "cmd",
-        ("v", "w"),
-        ("m/s", "rad/s"),
-        Role.COMMAND,
-        "body twist issued at t[k] and held until t[k+1]",
-    ),
-    ChannelSpec(
-        "ticks", ("left", "right"), ("count", "count"), Role.SENSOR, "cumulative encoder counts"
-    ),
-    ChannelSpec(
-        "pose_gt", _POSE, _POSE_UNITS, Role.TRUTH, "ground-truth base pose", angle_columns=(2,)
-    ),
-    ChannelSpec(
-        "pose_est", _POSE, _POSE_UNITS, Role.ESTIMATE, "estimated base pose", angle_columns=(2,)
-    ),
-    ChannelSpec(
-        "pose_cam",
-        _POSE,
-        _POSE_UNITS,
-        Role.SENSOR,
-        "planar camera pose from a camera localisation",
-        angle_columns=(2,),
-    ),
-)
-"""Channels of a differential-drive log."""
-
-DIFFDRIVE_SCHEMA = FeatureSchema(
-    groups=(
-        FeatureGroup("pose_gt", ("dx", "dy", "dtheta"), ("m", "m", "rad"), (0.002, 0.002, 0.002)),
-        FeatureGroup("ticks", ("left", "right"), ("m", "m"), (0.002, 0.002)),
-        FeatureGroup("pose_cam", ("ex", "ey", "etheta"), ("m", "m", "rad"), (0.002, 0.002, 0.003)),
-    ),
-    regimes=DIFFDRIVE_REGIMES,
-)
-"""Window features of a differential drive (default scales 2 mm, 2 mm, 2 mrad for the
-ground truth; 2 mm per wheel; 2 mm, 2 mm, 3 mrad for the camera) and its regimes."""
-
-TRAIN_MANOEUVRES = ("straight_runs", "turns_in_place", "arcs", "accelerations")
-"""Manoeuvres of a blind case's training logs."""
-HOLDOUT_MANOEUVRES = ("square_cw", "square_ccw", "tour", "hard_starts")
-"""Manoeuvres of a blind case's held-out logs."""
-
-TRUTH_FRAME_RANGE = 0.02
-"""m: how far from the axle centre a hand-defined ground-truth body origin is a convention."""
-TRUTH_YAW_RANGE = 0.035
-"""rad (2°): how far from the rolling direction a hand-defined ground-truth heading is a convention."""
-TRUTH_LATENCY_FLOOR = 0.02
-"""s: how far the ground truth's stamps may trail or lead the rows as a convention, however
-short the row period: a capture system stamps a pose its latency and sample hold after the
-motion (some to twenty milliseconds), and the rows hold the latest sample."""
-DRIVE_RESPONSE_FLOOR = 0.05
-"""s: the time constant of a DC wheel drive's speed loop that is its own response, not a
-finding, however fast the commands come (a speed loop settles in some tens of
-milliseconds; the command period bounds it only where it is longer)."""
-
-
-@dataclass
-class DiffDriveContext(LogContext):
-    """What the differential drive keeps about a prepared log.
-
-    Attributes
-    ----------
-    params : DiffDriveParams
-        The nominal robot of the log.
-    inputs : SurrogateInputs
-        Start pose and the commands or ticks that drive the surrogate.
-    twist : ndarray, shape (N, 2)
-        Applied body twist (m/s, rad/s): the commands, or the wheel motion.
-    surrogate : DiffDriveSurrogate
-    reference : DiffDriveParams or None
-        The nominal geometry every log of the diagnosis shares when the logs
-        declare different ones (:meth:`DiffDriveAdapter.link_logs`); ``None``
-        while the log is judged against its own.
-    """
-
-    params: DiffDriveParams
-    inputs: SurrogateInputs
-    twist: FloatArray
-    surrogate: DiffDriveSurrogate
-    reference: DiffDriveParams | None = None
-
-    def window_motion(self, bounds: npt.NDArray[np.int64]) -> FloatArray | None:
-        """Mean speed and turn rate, their change over the window and ranges, (M, 6)."""
-        twist = self.twist
-        motion = np.zeros((bounds.shape[0], 6))
-        for m, (a, b) in enumerate(bounds):
-            seg = twist[a:b]
-            before = twist[max(a - 1, 0)]
-            motion[m] = (
-                seg[:, 0].mean(),
-                seg[:, 1].mean(),
-                twist[b - 1, 0] - before[0],
-                twist[b - 1, 1] - before[1],
-                np.ptp(twist[max(a - 1, 0) : b, 0]),
-                np.ptp(twist[max(a - 1, 0) : b, 1]),
-            )
-        return motion
 
 
 class DiffDriveAdapter(WheelDrivenAdapter):
@@ -213,9 +139,7 @@ class DiffDriveAdapter(WheelDrivenAdapter):
     stage_group = "pose_gt"
     drive_stages = ("command → wheels", "motion → sensor")
     surrogate_effects = tuple(SURROGATE_EFFECTS)
-    blind_noise = MeasurementNoise(
-        truth_xy=0.0005, truth_theta=0.001, camera_xy=0.001, camera_theta=0.002
-    )
+    blind_noise = BLIND_NOISE
     """Motion-capture and camera noise of the blind suite's logs."""
 
     transient_detection = True
@@ -307,7 +231,7 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         """
         if not prepared:
             return {}
-        geoms = [_geometry(self._context(p).params) for p in prepared]
+        geoms = [geometry(self._context(p).params) for p in prepared]
         counts: dict[tuple[float, float, float], int] = {}
         for g in geoms:
             counts[g] = counts.get(g, 0) + 1
@@ -347,20 +271,6 @@ class DiffDriveAdapter(WheelDrivenAdapter):
             ),
         }
 
-    _CONVENTIONS: ClassVar[dict[str, str]] = {
-        "body/limited": "the firmware ramps the body twist up and down (a_max on v, alpha_max on ω)",
-        "body/free": "the firmware ramps the body twist up only (a_max on v, alpha_max on ω); "
-        "it slows down at once",
-        "wheels/limited": "the firmware ramps each wheel's speed set-point up and down "
-        "(a_max per wheel)",
-        "wheels/free": "the firmware ramps each wheel's speed set-point up only (a_max per "
-        "wheel); it slows down at once",
-        "body/stop": "the firmware ramps the body twist up and down (a_max on v, alpha_max on "
-        "ω); a zero request stops at once",
-        "wheels/stop": "the firmware ramps each wheel's speed set-point up and down (a_max per "
-        "wheel); a zero request stops at once",
-    }
-
     def actuator_conventions(self, prepared: Sequence[PreparedLog], drive: Drive) -> dict[str, str]:
         """How the firmware's rate limit acts, when the commands are requests it ramps.
 
@@ -379,7 +289,7 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         for p in prepared:
             fw = p.log.meta.get("firmware")
             if isinstance(fw, Mapping) and math.isfinite(float(fw.get("a_max", math.inf))):
-                return dict(self._CONVENTIONS)
+                return dict(FIRMWARE_CONVENTIONS)
         return {}
 
     def actuator_convention(self, log: Log) -> str:
@@ -391,9 +301,9 @@ class DiffDriveAdapter(WheelDrivenAdapter):
 
     def with_actuator_convention(self, log: Log, name: str) -> Log:
         """A copy of ``log`` whose firmware ramps as ``name`` says (``"wheels/free"``, …)."""
-        if name not in self._CONVENTIONS:
+        if name not in FIRMWARE_CONVENTIONS:
             raise ValueError(
-                f"actuator convention must be one of {', '.join(self._CONVENTIONS)}, got {name!r}"
+                f"actuator convention must be one of {', '.join(FIRMWARE_CONVENTIONS)}, got {name!r}"
             )
         fw = log.meta.get("firmware")
         if not isinstance(fw, Mapping) or not fw:
@@ -599,7 +509,7 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         holds for any combination. ``None`` when the model leaves all of them as declared.
         """
         named = set(effects)
-        own = {k: float(v) for k, v in values.items() if k.partition(".")[0] in named}
+        own = {k: float(v) for k, v in values.items() if split_key(k)[0] in named}
         if not prepared or not own:
             return None
         ctx = self._context(prepared[0])
@@ -634,10 +544,8 @@ class DiffDriveAdapter(WheelDrivenAdapter):
 
     @staticmethod
     def meters_per_tick(params: DiffDriveParams) -> tuple[float, float]:
-        return (
-            2.0 * math.pi * params.wheel_radius_left / params.ticks_per_rev,
-            2.0 * math.pi * params.wheel_radius_right / params.ticks_per_rev,
-        )
+        """Nominal wheel travel per encoder count, left and right, m."""
+        return meters_per_tick(params)
 
     @staticmethod
     def _twist_from_ticks(ticks: FloatArray, params: DiffDriveParams, dt: float) -> FloatArray:
@@ -683,9 +591,13 @@ class DiffDriveAdapter(WheelDrivenAdapter):
 
     def probe_manoeuvres(self) -> dict[str, str]:
         """Manoeuvres the identifiability advice may suggest, with descriptions."""
-        from realitygap.diagnosis.adapters.diffdrive.manoeuvres import PROBE_MANOEUVRES
-
         return {name: MANOEUVRES[name].description for name in PROBE_MANOEUVRES}
+
+    def probe_description(self, manoeuvre: str, params_like: PreparedLog) -> str:
+        """The description of a library manoeuvre scaled into the ``v_max`` and ``w_max`` of
+        the log's robot (:func:`~realitygap.diagnosis.adapters.diffdrive.manoeuvres.probe_description`),
+        as its probe features are."""
+        return probe_description(manoeuvre, self._context(params_like).params)
 
     def probe_features(
         self, manoeuvre: str, params_like: PreparedLog, values: Mapping[str, npt.ArrayLike]
@@ -806,15 +718,43 @@ class DiffDriveAdapter(WheelDrivenAdapter):
             turn, se = gain_through_origin(r[turning], a[turning])
         return {"distance_gain": dist, "turn_gain": turn, "turn_gain_se": se, "turning_windows": n}
 
+    def actuation(self, prepared: Sequence[PreparedLog], drive: Drive) -> dict[str, Any]:
+        """How the drive train answered the commands, for a command-driven replay of logs
+        with encoders (:mod:`~realitygap.diagnosis.adapters.diffdrive.actuation`).
+
+        ``gains`` (per log, :meth:`command_wheel_gains` with the log's name and split) and
+        ``spread`` (:func:`~realitygap.diagnosis.adapters.diffdrive.actuation.actuation_spread`,
+        or ``None``) where a log has gains; ``tracking``
+        (:func:`~realitygap.diagnosis.adapters.diffdrive.actuation.wheel_tracking`, within the
+        first log's ``v_max``) where both splits have wheel travel; empty otherwise, and
+        for a tick-driven replay.
+        """
+        if drive is not Drive.COMMANDS:
+            return {}
+        out: dict[str, Any] = {}
+        gains = command_wheel_gains(self.command_wheel_gains, prepared)
+        if gains:
+            out = {"gains": gains, "spread": actuation_spread(gains)}
+        v_max = self._context(prepared[0]).params.v_max if prepared else None
+        tracking = wheel_tracking(self.wheel_travel, prepared, v_max=v_max)
+        if tracking is not None:
+            out["tracking"] = tracking
+        return out
+
     # ------------------------------------------------------------------ blind suite
     def record_blind_logs(
-        self, reality: Reality, rng: np.random.Generator, settings: SuiteSettings
+        self, reality: Reality, rng: np.random.Generator, settings: BlindLogSettings
     ) -> tuple[list[Log], list[Log]]:
         """The training and held-out manoeuvres of ``reality`` with the suite's noise."""
         noise = settings.noise if settings.noise is not None else self.blind_noise
         train = record_case_logs(reality, rng, noise, TRAIN_MANOEUVRES)
         holdout = record_case_logs(reality, rng, noise, HOLDOUT_MANOEUVRES)
         return train, holdout
+
+    def blind_measurement_noise(self, settings: BlindLogSettings) -> dict[str, FloatArray]:
+        """The ground truth's noise in the blind logs (the suite's, else :data:`BLIND_NOISE`)."""
+        noise = settings.noise if settings.noise is not None else self.blind_noise
+        return {"pose_gt": np.array([noise.truth_xy, noise.truth_xy, noise.truth_theta])}
 
     def discovery_terms(self, prepared: PreparedLog) -> dict[str, tuple[FloatArray, str]]:
         """Candidate terms of an unexplained residual, one value per window, with SI units.
@@ -846,112 +786,3 @@ class DiffDriveAdapter(WheelDrivenAdapter):
             "right wheel speed": (v + half * w, "m/s"),
             "time": (0.5 * (t[b[:, 0]] + t[b[:, 1] - 1]), "s"),
         }
-
-
-# --------------------------------------------------------------------------- common geometry
-def _geometry(params: DiffDriveParams) -> tuple[float, float, float]:
-    """Declared wheel radii and wheelbase (m), the geometry the geometric effects scale."""
-    return (
-        float(params.wheel_radius_left),
-        float(params.wheel_radius_right),
-        float(params.wheelbase),
-    )
-
-
-def values_for_log(ctx: DiffDriveContext, values: Mapping[str, Any]) -> dict[str, Any]:
-    r"""Effect values relative to the reference geometry, re-expressed for one log's nominal.
-
-    With a reference (:meth:`DiffDriveAdapter.link_logs`) of radii :math:`r^*_{L,R}`
-    and wheelbase :math:`b^*`, a log that declares :math:`r_{L,R}`, :math:`b` gets
-
-    .. math::
-
-        E_b' = E_b \frac{b^*}{b}, \quad
-        s' = s \frac{\bar r^*}{\bar r}, \quad
-        E_d' = E_d \frac{r^*_R / r^*_L}{r_R / r_L},
-
-    so that every log's physical wheelbase and wheel radii are the same
-    (``wheelbase_error``, ``wheel_radius_scale``, ``wheel_diameter_ratio``;
-    values may be arrays over a batch). Without a reference, or for a log that
-    declares the reference geometry, ``values`` is returned unchanged.
-    """
-    ref = ctx.reference
-    if ref is None:
-        return dict(values)
-    rl0, rr0, b0 = _geometry(ref)
-    rl, rr, b = _geometry(ctx.params)
-    if (rl, rr, b) == (rl0, rr0, b0):
-        return dict(values)
-    out = dict(values)
-    factors = {
-        "wheelbase_error.E_b": b0 / b,
-        "wheel_radius_scale.scale": (rl0 + rr0) / (rl + rr),
-        "wheel_diameter_ratio.E_d": (rr0 / rl0) / (rr / rl),
-    }
-    for key, f in factors.items():
-        if f != 1.0:
-            out[key] = np.asarray(values.get(key, 1.0), dtype=float) * f
-            if out[key].ndim == 0:
-                out[key] = float(out[key])
-    return out
-
-
-# --------------------------------------------------------------------------- recording
-def _record_env(
-    manoeuvre: str, reality: Reality, params: DiffDriveParams, noise: MeasurementNoise, rng: Any
-) -> Log:
-    from realitygap.envs.wheeled_nav import WheeledNavEnv
-
-    env = WheeledNavEnv(
-        reality=reality,
-        params=params,
-        n_obstacles=0,
-        room_half_size=20.0,
-        start=(0.0, 0.0, float(rng.uniform(-math.pi, math.pi))),
-        goal=(15.0, 15.0, 0.0),
-        terminate_on_success=False,
-        n_beams=8,
-    )
-    rec = RecordLog(env, noise=noise, rng=rng, meta={"name": manoeuvre})
-    try:
-        rec.reset(seed=int(rng.integers(2**31)))
-        t, req = MANOEUVRES[manoeuvre].requested(env.dt)
-        scale = np.array([params.v_max, params.w_max])
-        for k in range(t.shape[0] - 1):
-            rec.step(req[k] / scale)
-        return rec.log
-    finally:
-        env.close()
-
-
-def record_case_logs(
-    reality: Reality,
-    rng: np.random.Generator,
-    noise: MeasurementNoise,
-    manoeuvres: Sequence[str],
-    params: DiffDriveParams | None = None,
-) -> list[Log]:
-    """Record ``manoeuvres`` with the robot ``reality``: ramped ones through the env, steps directly."""
-    params = params if params is not None else DiffDriveParams()
-    logs = []
-    for m in manoeuvres:
-        man = MANOEUVRES[m]
-        if man.ramp:
-            logs.append(_record_env(m, reality, params, noise, rng))
-        else:
-            t, cmd = man.applied(0.05, params)
-            start = np.array([0.0, 0.0, float(rng.uniform(-math.pi, math.pi))])
-            logs.append(
-                simulate(
-                    t,
-                    params=params,
-                    reality=reality,
-                    commands=cmd,
-                    start=start,
-                    noise=noise,
-                    rng=rng,
-                    meta={"name": m},
-                    source=m,
-                )
-            )
-    return logs

@@ -28,6 +28,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import minimize_scalar
 
+from realitygap.diagnosis.adapters.contract import ActuatorLimits
 from realitygap.diagnosis.logs.log import Log, LogError
 from realitygap.robots.diffdrive import FirmwareLimits
 
@@ -36,11 +37,29 @@ FloatArray = npt.NDArray[np.float64]
 __all__ = [
     "ACCEL_SCALE_BOUNDS",
     "DECEL_FACTOR_BOUNDS",
+    "FIRMWARE_CONVENTIONS",
     "MIN_GAIN",
     "FirmwareFit",
     "firmware_from_meta",
     "fit_firmware_limits",
 ]
+
+
+FIRMWARE_CONVENTIONS: dict[str, str] = {
+    "body/limited": "the firmware ramps the body twist up and down (a_max on v, alpha_max on ω)",
+    "body/free": "the firmware ramps the body twist up only (a_max on v, alpha_max on ω); "
+    "it slows down at once",
+    "wheels/limited": "the firmware ramps each wheel's speed set-point up and down "
+    "(a_max per wheel)",
+    "wheels/free": "the firmware ramps each wheel's speed set-point up only (a_max per "
+    "wheel); it slows down at once",
+    "body/stop": "the firmware ramps the body twist up and down (a_max on v, alpha_max on "
+    "ω); a zero request stops at once",
+    "wheels/stop": "the firmware ramps each wheel's speed set-point up and down (a_max per "
+    "wheel); a zero request stops at once",
+}
+"""The conventions by which a firmware's rate limits act, ``"<ramp>/<deceleration>"`` →
+what it does (the nominal's actuator conventions the calibrated baseline chooses among)."""
 
 
 def firmware_from_meta(log: Log) -> FirmwareLimits | None:
@@ -74,7 +93,7 @@ def firmware_from_meta(log: Log) -> FirmwareLimits | None:
 
 
 @dataclass(frozen=True)
-class FirmwareFit:
+class FirmwareFit(ActuatorLimits):
     """Rate limits of a firmware convention fitted to the encoders of request-driven logs.
 
     Attributes
@@ -113,6 +132,10 @@ class FirmwareFit:
                 out[key] = float(out[key]) * self.accel_scale
         out["decel_factor"] = float(stated.get("decel_factor", 1.0)) * self.decel_factor
         return out
+
+    def leaves_stated(self) -> bool:
+        """Whether the fitted limits are the stated ones (both factors one)."""
+        return bool(self.accel_scale == 1.0 and self.decel_factor == 1.0)
 
     def to_json(self) -> dict[str, Any]:
         """JSON form."""
@@ -162,11 +185,14 @@ one period apart are correlated, so a smaller gain is within what noise buys."""
 
 def _wheel_data(log: Log) -> tuple[FloatArray, FloatArray, float, float] | None:
     """Requests (N, 2), measured wheel surface speeds (N−1, 2) in m/s, dt and wheelbase."""
-    from realitygap.diagnosis.adapters.diffdrive.replay import params_from_meta
+    from realitygap.robots.diffdrive_replay import MetaError, params_from_meta
 
     if not (log.has("cmd") and log.has("ticks")) or log.n < 4:
         return None
-    params = params_from_meta(log)
+    try:
+        params = params_from_meta(log.meta, log.source)
+    except MetaError as exc:
+        raise LogError(str(exc)) from None
     ticks = np.asarray(log["ticks"], dtype=float)
     k = 2.0 * math.pi / params.ticks_per_rev
     rates = np.diff(ticks, axis=0) * k / log.dt

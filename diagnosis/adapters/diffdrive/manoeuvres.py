@@ -23,7 +23,14 @@ from realitygap.robots.diffdrive import DiffDriveParams, FirmwareLimits
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["MANOEUVRES", "Manoeuvre", "scale_speeds_in_text", "square"]
+__all__ = [
+    "MANOEUVRES",
+    "PROBE_MANOEUVRES",
+    "Manoeuvre",
+    "probe_description",
+    "scale_speeds_in_text",
+    "square",
+]
 
 
 @dataclass(frozen=True)
@@ -279,3 +286,14 @@ PROBE_MANOEUVRES: tuple[str, ...] = (
     "hard_starts",
 )
 """Short single-purpose manoeuvres proposed to separate confounded effects."""
+
+
+def probe_description(name: str, params: DiffDriveParams) -> str:
+    """The description of the library manoeuvre ``name`` scaled into the speed limits of the
+    robot ``params`` (:meth:`Manoeuvre.within`; unchanged where it states no ``v_max`` or
+    ``w_max``), as :meth:`Manoeuvre.applied` drives it."""
+    man = MANOEUVRES[name]
+    v_max, w_max = params.v_max, params.w_max
+    if v_max and w_max:
+        return man.within(float(v_max), float(w_max)).description
+    return man.description

@@ -24,12 +24,12 @@ import gymnasium as gym
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.diagnosis.adapters.diffdrive.replay import (
+from realitygap.diagnosis.logs.log import ChannelSpec, Log
+from realitygap.robots.diffdrive_replay import (
     camera_planar_pose,
     params_to_meta,
     shift_channel,
 )
-from realitygap.diagnosis.logs.log import ChannelSpec, Log
 from realitygap.robots.simulation import MeasurementNoise, SimSettings
 
 FloatArray = npt.NDArray[np.float64]

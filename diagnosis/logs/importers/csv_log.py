@@ -31,7 +31,6 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.core.checks import ResourceLimits, check_regular_file, check_rows_limit
-from realitygap.diagnosis.adapters.diffdrive.replay import params_to_meta
 from realitygap.diagnosis.logs.log import (
     Log,
     LogError,
@@ -41,6 +40,7 @@ from realitygap.diagnosis.logs.log import (
     standard_channels,
 )
 from realitygap.robots.diffdrive import DiffDriveParams
+from realitygap.robots.diffdrive_replay import params_to_meta
 
 FloatArray = npt.NDArray[np.float64]
 

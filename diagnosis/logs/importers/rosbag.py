@@ -35,9 +35,9 @@ import numpy.typing as npt
 
 from realitygap.core.checks import check_rows_limit
 from realitygap.core.geometry import yaw_from_quat_xyzw
-from realitygap.diagnosis.adapters.diffdrive.replay import params_to_meta
 from realitygap.diagnosis.logs.log import Log, LogError, sniff_file_kind
 from realitygap.robots.diffdrive import DiffDriveParams
+from realitygap.robots.diffdrive_replay import params_to_meta
 
 FloatArray = npt.NDArray[np.float64]
 

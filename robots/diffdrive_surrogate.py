@@ -1,12 +1,12 @@
 r"""A fast, vectorised kinematic model of the differential drive with every effect in closed form.
 
 Fitting effect parameters needs thousands of simulated episodes; the PyBullet
-replay (:mod:`realitygap.diagnosis.adapters.diffdrive.replay`) takes about a second per minute of
-log, this model a few milliseconds for a whole batch of parameter sets. It is
-used only inside the fit: every number the diagnosis reports comes from
-PyBullet replays, and the model's agreement with PyBullet is measured
-(:func:`agreement`, figure ``surrogate_agreement.png`` of the report, and a test
-bounding it).
+replay (:func:`realitygap.robots.diffdrive_replay.simulate_channels`) takes about a second per
+minute of log, this model a few milliseconds for a whole batch of parameter sets. In the
+diagnosis it is used only inside the fit: every number the diagnosis reports comes from
+PyBullet replays, and the model's agreement with PyBullet is measured (figure
+``surrogate_agreement.png`` of the report, and a test bounding it). The vectorised
+WheeledNav (:mod:`realitygap.envs.vector_drive`) steps it one control period at a time.
 
 Model, per control period ``dt`` with the twist ``u_k = [v_k, ω_k]`` issued at
 ``t_k`` (zero-order hold):
@@ -441,11 +441,9 @@ def calibrate(params: DiffDriveParams, solver_iterations: int = 0) -> SurrogateC
     by :data:`CALIBRATION_VERSION`, the body's URDF and parameters, the solver
     setting and the PyBullet version).
     """
-    from realitygap.diagnosis.adapters.diffdrive.replay import (  # PyBullet only here
-        SimSettings,
-        simulate,
-    )
+    from realitygap.robots.diffdrive_replay import simulate_channels  # PyBullet only here
     from realitygap.robots.effects import Reality, make_effect
+    from realitygap.robots.simulation import SimSettings
 
     settings = SimSettings(solver_iterations=int(solver_iterations))
     key = (params, settings.solver_iterations)
@@ -469,8 +467,10 @@ def calibrate(params: DiffDriveParams, solver_iterations: int = 0) -> SurrogateC
 
     def run(cmd: FloatArray, mu: float | None) -> dict[str, FloatArray]:
         reality = None if mu is None else Reality((make_effect("longitudinal_slip", mu=mu),))
-        log = simulate(t, params=params, commands=cmd, settings=settings, reality=reality)
-        return {k: np.asarray(v) for k, v in log.channels.items()}
+        channels, _ = simulate_channels(
+            t, params=params, commands=cmd, settings=settings, reality=reality
+        )
+        return {k: np.array(v, dtype=float) for k, v in channels.items()}
 
     nom_f, nom_t = run(fwd, None), run(turn, None)
     ang = nom_f["ticks"] * (2.0 * math.pi / params.ticks_per_rev)

@@ -1,0 +1,177 @@
+"""What the differential drive keeps about a prepared log, and the geometry all logs share.
+
+:class:`DiffDriveContext` holds a prepared log's nominal robot, the surrogate and its
+inputs, and the applied twist; :func:`values_for_log` re-expresses effect values relative
+to the reference geometry of the diagnosis (:meth:`DiffDriveAdapter.link_logs
+<realitygap.diagnosis.adapters.diffdrive.adapter.DiffDriveAdapter.link_logs>`) for one
+log's nominal. The constants are the conventions the adapter's baseline and drive-train
+figures use.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from realitygap.diagnosis.adapters.contract import LogContext, WheelGeometry
+from realitygap.robots.diffdrive import DiffDriveParams
+from realitygap.robots.diffdrive_surrogate import DiffDriveSurrogate, SurrogateInputs
+
+FloatArray = npt.NDArray[np.float64]
+
+__all__ = [
+    "DRIVE_RESPONSE_FLOOR",
+    "TRUTH_FRAME_RANGE",
+    "TRUTH_LATENCY_FLOOR",
+    "TRUTH_YAW_RANGE",
+    "TURN_WINDOW_RAD",
+    "DiffDriveContext",
+    "geometry",
+    "meters_per_tick",
+    "values_for_log",
+]
+
+TURN_WINDOW_RAD = 0.05
+"""A window turns when what the commands asked of it turns by more than this (rad): the
+windows :meth:`DiffDriveAdapter.command_wheel_gains
+<realitygap.diagnosis.adapters.diffdrive.adapter.DiffDriveAdapter.command_wheel_gains>`
+compares turn rates on."""
+
+TRUTH_FRAME_RANGE = 0.02
+"""m: how far from the axle centre a hand-defined ground-truth body origin is a convention."""
+TRUTH_YAW_RANGE = 0.035
+"""rad (2°): how far from the rolling direction a hand-defined ground-truth heading is a convention."""
+TRUTH_LATENCY_FLOOR = 0.02
+"""s: how far the ground truth's stamps may trail or lead the rows as a convention, however
+short the row period: a capture system stamps a pose its latency and sample hold after the
+motion (some to twenty milliseconds), and the rows hold the latest sample."""
+DRIVE_RESPONSE_FLOOR = 0.05
+"""s: the time constant of a DC wheel drive's speed loop that is its own response, not a
+finding, however fast the commands come (a speed loop settles in some tens of
+milliseconds; the command period bounds it only where it is longer)."""
+
+
+def meters_per_tick(params: DiffDriveParams) -> tuple[float, float]:
+    """Nominal wheel travel per encoder count, left and right, m."""
+    return (
+        2.0 * math.pi * params.wheel_radius_left / params.ticks_per_rev,
+        2.0 * math.pi * params.wheel_radius_right / params.ticks_per_rev,
+    )
+
+
+@dataclass
+class DiffDriveContext(LogContext):
+    """What the differential drive keeps about a prepared log.
+
+    Attributes
+    ----------
+    params : DiffDriveParams
+        The nominal robot of the log.
+    inputs : SurrogateInputs
+        Start pose and the commands or ticks that drive the surrogate.
+    twist : ndarray, shape (N, 2)
+        Applied body twist (m/s, rad/s): the commands, or the wheel motion.
+    surrogate : DiffDriveSurrogate
+    reference : DiffDriveParams or None
+        The nominal geometry every log of the diagnosis shares when the logs
+        declare different ones (:meth:`DiffDriveAdapter.link_logs
+        <realitygap.diagnosis.adapters.diffdrive.adapter.DiffDriveAdapter.link_logs>`);
+        ``None`` while the log is judged against its own.
+    """
+
+    params: DiffDriveParams
+    inputs: SurrogateInputs
+    twist: FloatArray
+    surrogate: DiffDriveSurrogate
+    reference: DiffDriveParams | None = None
+
+    def window_motion(self, bounds: npt.NDArray[np.int64]) -> FloatArray | None:
+        """Mean speed and turn rate, their change over the window and ranges, (M, 6)."""
+        twist = self.twist
+        motion = np.zeros((bounds.shape[0], 6))
+        for m, (a, b) in enumerate(bounds):
+            seg = twist[a:b]
+            before = twist[max(a - 1, 0)]
+            motion[m] = (
+                seg[:, 0].mean(),
+                seg[:, 1].mean(),
+                twist[b - 1, 0] - before[0],
+                twist[b - 1, 1] - before[1],
+                np.ptp(twist[max(a - 1, 0) : b, 0]),
+                np.ptp(twist[max(a - 1, 0) : b, 1]),
+            )
+        return motion
+
+    def wheels(self) -> WheelGeometry:
+        """The wheels the log declares (its own nominal, not the reference)."""
+        p = self.params
+        return WheelGeometry(
+            wheel_radius_left=p.wheel_radius_left,
+            wheel_radius_right=p.wheel_radius_right,
+            wheelbase=p.wheelbase,
+            ticks_per_rev=p.ticks_per_rev,
+        )
+
+    def applied_twist(self) -> FloatArray:
+        """The applied body twist (:attr:`twist`)."""
+        return self.twist
+
+    def reference_wheelbase(self) -> float | None:
+        """The wheelbase of the reference geometry, else of the log's own nominal."""
+        params = self.reference or self.params
+        return None if params.wheelbase is None else float(params.wheelbase)
+
+
+# --------------------------------------------------------------------------- common geometry
+def geometry(params: DiffDriveParams) -> tuple[float, float, float]:
+    """Declared wheel radii and wheelbase (m), the geometry the geometric effects scale."""
+    return (
+        float(params.wheel_radius_left),
+        float(params.wheel_radius_right),
+        float(params.wheelbase),
+    )
+
+
+def values_for_log(ctx: DiffDriveContext, values: Mapping[str, Any]) -> dict[str, Any]:
+    r"""Effect values relative to the reference geometry, re-expressed for one log's nominal.
+
+    With a reference (:meth:`DiffDriveAdapter.link_logs
+    <realitygap.diagnosis.adapters.diffdrive.adapter.DiffDriveAdapter.link_logs>`) of radii
+    :math:`r^*_{L,R}` and wheelbase :math:`b^*`, a log that declares :math:`r_{L,R}`,
+    :math:`b` gets
+
+    .. math::
+
+        E_b' = E_b \frac{b^*}{b}, \quad
+        s' = s \frac{\bar r^*}{\bar r}, \quad
+        E_d' = E_d \frac{r^*_R / r^*_L}{r_R / r_L},
+
+    so that every log's physical wheelbase and wheel radii are the same
+    (``wheelbase_error``, ``wheel_radius_scale``, ``wheel_diameter_ratio``;
+    values may be arrays over a batch). Without a reference, or for a log that
+    declares the reference geometry, ``values`` is returned unchanged.
+    """
+    ref = ctx.reference
+    if ref is None:
+        return dict(values)
+    rl0, rr0, b0 = geometry(ref)
+    rl, rr, b = geometry(ctx.params)
+    if (rl, rr, b) == (rl0, rr0, b0):
+        return dict(values)
+    out = dict(values)
+    factors = {
+        "wheelbase_error.E_b": b0 / b,
+        "wheel_radius_scale.scale": (rl0 + rr0) / (rl + rr),
+        "wheel_diameter_ratio.E_d": (rr0 / rl0) / (rr / rl),
+    }
+    for key, f in factors.items():
+        if f != 1.0:
+            out[key] = np.asarray(values.get(key, 1.0), dtype=float) * f
+            if out[key].ndim == 0:
+                out[key] = float(out[key])
+    return out
