@@ -91,6 +91,7 @@ def test_every_command_is_described_and_every_option_helped() -> None:
     assert "climber" in diagnose._option_string_actions["--robot"].help
 
 
+@pytest.mark.slow
 def test_no_pybullet_banner_on_any_stream(tmp_path) -> None:
     import subprocess
     import sys

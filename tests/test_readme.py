@@ -67,6 +67,7 @@ def test_the_readme_has_the_blocks_it_should() -> None:
     assert "shared/data/optiodom" not in "".join(blocks("bash"))  # paths that exist in a clone
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("code", PY_BLOCKS, ids=[f"python-{i}" for i in range(len(PY_BLOCKS))])
 def test_python_block_runs(code: str) -> None:
     done = subprocess.run(
@@ -81,6 +82,7 @@ def test_python_block_runs(code: str) -> None:
     assert "pybullet build time" not in done.stdout + done.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("block", SH_BLOCKS, ids=[f"shell-{i}" for i in range(len(SH_BLOCKS))])
 def test_shell_block_runs(block: str) -> None:
     script = "set -euo pipefail\n" + "\n".join(

@@ -50,6 +50,7 @@ def bench_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 # --------------------------------------------------------------------------- determinism
+@pytest.mark.slow
 def test_identical_seeds_give_identical_results(bench_dir: Path, tmp_path: Path) -> None:
     again = bm.run_benchmark(_cfg(), tmp_path, verbose=False)
     first = bm.ResultStore(bench_dir / "episodes.jsonl").load()
@@ -196,6 +197,7 @@ def test_finished_episodes_survive_a_failing_task_and_are_resumed(
     assert [(t.policy.name, t.seeds) for t in left] == [("classical", (0,))]
 
 
+@pytest.mark.slow
 def test_a_policy_that_raises_fails_its_episode_only(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -170,6 +170,7 @@ def cloned(tmp_path_factory: pytest.TempPathFactory) -> Path:
     ).model_path
 
 
+@pytest.mark.slow
 def test_cloning_fits_the_expert_and_freezes_the_normaliser(cloned: Path) -> None:
     meta = rl.read_policy_meta(cloned)
     rounds = meta["demonstrations"]
@@ -234,6 +235,7 @@ def _arm_hyperparams(rounds: int = 1) -> dict:
     }
 
 
+@pytest.mark.slow
 def test_arm_pose_selection_clones_the_greedy_expert(tmp_path: Path) -> None:
     """The cloned network's deterministic poses are the greedy selector's, so its campaign
     identifies the arm as the expert's does (a network trained by PPO alone asks for nearly

@@ -67,6 +67,7 @@ def test_bad_field_input_is_refused() -> None:
         GeodesicNavExpert(gym.make("CartPole-v1"))
 
 
+@pytest.mark.slow
 def test_expert_reaches_the_goal_pose_without_collision() -> None:
     env = gym.make(ENV_ID, n_obstacles=6)
     expert = GeodesicNavExpert(env)

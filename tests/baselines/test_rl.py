@@ -63,6 +63,7 @@ def tiny_ppo(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return result.model_path
 
 
+@pytest.mark.slow
 def test_training_writes_model_metadata_curve_and_checkpoints(tiny_ppo: Path) -> None:
     folder = tiny_ppo.parent
     meta = json.loads((folder / "model.json").read_text())
@@ -575,6 +576,7 @@ def test_a_continued_run_takes_the_files_optimisation_settings(
     assert rl.read_policy_meta(result.model_path)["init_model"] == str(tiny_ppo)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", sorted(rl.POLICIES_DIR.glob("*.pth")), ids=lambda p: p.stem)
 def test_shipped_policies_load_for_their_env_and_act_in_bounds(path: Path) -> None:
     meta = json.loads(path.with_suffix(".json").read_text(encoding="utf-8"))
@@ -589,6 +591,7 @@ def test_shipped_policies_load_for_their_env_and_act_in_bounds(path: Path) -> No
     env.close()
 
 
+@pytest.mark.slow
 def test_docking_starts_put_some_episodes_next_to_the_goal_and_are_seeded() -> None:
     def starts(seed0: int, probability: float) -> list[tuple[float, float]]:
         env = rl.apply_train_wrappers(
@@ -703,6 +706,7 @@ def test_arm_observability_shaping_telescopes_and_pays_for_spread_poses() -> Non
         rl.ArmObservabilityShaping(gym.make(ENV_ID, n_obstacles=0))
 
 
+@pytest.mark.slow
 def test_vector_training_gives_a_wheeled_nav_policy_evaluated_in_pybullet(tmp_path: Path) -> None:
     hp = rl.load_hyperparams("ppo", "realitygap/WheeledNavVec-v0")
     hp.update(n_steps=32, batch_size=256, n_epochs=1)

@@ -36,6 +36,7 @@ def _single_expert(base: object, i: int) -> GeodesicNavExpert:
     return GeodesicNavExpert(view)
 
 
+@pytest.mark.slow
 def test_batched_expert_equals_the_single_robot_expert_on_the_same_states() -> None:
     n = 6
     env = gym.make_vec(VEC_ID, num_envs=n)
@@ -87,6 +88,7 @@ def _demo_env(io: rl.PolicyIO, n: int) -> Callable[[int, Sequence[Any]], Any]:
     return make
 
 
+@pytest.mark.slow
 def test_warm_started_policy_matches_the_expert_on_held_out_states() -> None:
     """DAgger on the vector env (2 rounds of 24 episodes, 8 robots): on states of other
     episodes the cloned network's motion command is within 0.15 (RMS, of the normalised

@@ -261,6 +261,7 @@ def run_stabiliser(
     return done_at, pose, commands
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("goal", [[0.0, 0.0, math.pi / 2], [1.0, -0.5, -2.5]])
 def test_polar_stabiliser_converges_from_every_start_within_half_a_metre(goal: list[float]) -> None:
     goal_pose = np.array(goal)

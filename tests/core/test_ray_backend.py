@@ -21,12 +21,14 @@ def _square(shared: int, item: int) -> int:
     return shared + item * item
 
 
+@pytest.mark.slow
 def test_map_keeps_item_order(local_cluster) -> None:
     from realitygap.core.parallel import RayBackend
 
     assert RayBackend().map(_square, list(range(7)), 10) == [10 + k * k for k in range(7)]
 
 
+@pytest.mark.slow
 def test_small_diagnose_suite_equals_the_process_backend(local_cluster) -> None:
     """Two blind cases (hidden effects realised in PyBullet, then diagnosed) on each backend;
     a small candidate library and single effects keep it quick."""
@@ -69,6 +71,7 @@ def _episodes(folder: Path) -> list[str]:
     )
 
 
+@pytest.mark.slow
 def test_small_benchmark_equals_the_process_backend(local_cluster, tmp_path: Path) -> None:
     from realitygap.cli import main
 

@@ -206,6 +206,7 @@ def _probes(path: Path) -> list[str]:
     return found
 
 
+@pytest.mark.slow
 def test_no_module_of_the_diagnosis_probes_an_adapter_or_a_context() -> None:
     found = {
         str(path.relative_to(DIAGNOSIS)): _probes(path) for path in sorted(DIAGNOSIS.rglob("*.py"))

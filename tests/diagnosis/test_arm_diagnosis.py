@@ -131,6 +131,7 @@ def _record(effect: str, values: dict[str, float], seed: int) -> tuple[list[Log]
     )
 
 
+@pytest.mark.slow
 def test_a_compliance_under_a_load_the_declared_masses_miss_is_named_with_the_load() -> None:
     # the holding torque's shape over the poses is only as right as the masses: 4 kg more
     # at the flange than declared is found as the compliance's load, not as a second effect
@@ -144,6 +145,7 @@ def test_a_compliance_under_a_load_the_declared_masses_miss_is_named_with_the_lo
     assert d.gap["heldout_shrink_pct"] > 90.0
 
 
+@pytest.mark.slow
 def test_a_hidden_compliance_is_named_and_closes_the_gap() -> None:
     train, holdout = _record("arm_joint_compliance", {"c2": 3e-5, "c3": 2e-5}, seed=0)
     d = diagnose(train, holdout, settings=DiagnosisSettings(robot="arm"))
@@ -159,6 +161,7 @@ def test_a_hidden_compliance_is_named_and_closes_the_gap() -> None:
     assert "nan" not in " ".join(summary_sentences(d))
 
 
+@pytest.mark.slow
 def test_a_withheld_effect_is_left_unexplained() -> None:
     train, holdout = _record(
         "arm_link_length", {"da2": 8e-4, "da3": -6e-4, "dd4": 5e-4, "dd5": -7e-4}, seed=1

@@ -69,6 +69,7 @@ def _diagnose(eccentric: float, seed: int) -> object:
     return diagnose(train, holdout, settings=DiagnosisSettings(robot="arm", effects=library))
 
 
+@pytest.mark.slow
 def test_a_planted_joint_angle_error_is_described_with_its_coefficient() -> None:
     d = _diagnose(8e-4, seed=1)
     assert d.verdict.kind is VerdictKind.UNEXPLAINED, d.verdict.reason
@@ -119,6 +120,7 @@ def test_the_noise_floor_grows_with_the_fitted_parameters() -> None:
     assert many > tool > 1.0
 
 
+@pytest.mark.slow
 def test_many_small_geometric_errors_are_a_verdict() -> None:
     from realitygap.robots.effects.arm import GEOMETRIC_TOLERANCE_PARAMS
 

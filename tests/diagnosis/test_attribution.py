@@ -59,6 +59,7 @@ def run(reality: Reality, train, holdout, effects, seed: int = 0):
     return diagnose(tr, ho, settings=DiagnosisSettings(effects=effects, attribution=fast))
 
 
+@pytest.mark.slow
 def test_known_effect_is_recovered() -> None:
     reality = Reality((make_effect("wheelbase_error", E_b=1.04),))
     d = run(
@@ -81,6 +82,7 @@ def test_known_effect_is_recovered() -> None:
     assert first["regime"].startswith("turning") or first["regime"] == "accelerating"
 
 
+@pytest.mark.slow
 def test_withheld_effect_comes_out_unexplained() -> None:
     reality = Reality((make_effect("wheel_radius_scale", scale=1.035),))
     d = run(
@@ -94,6 +96,7 @@ def test_withheld_effect_comes_out_unexplained() -> None:
     assert d.verdict.residual["structured"] or "closes only" in d.verdict.reason
 
 
+@pytest.mark.slow
 def test_one_turning_direction_cannot_separate_eb_from_ed() -> None:
     reality = Reality((make_effect("wheel_diameter_ratio", E_d=1.01),))
     d = run(reality, [CCW_A], [CCW_B], ("wheel_diameter_ratio", "wheelbase_error"), seed=2)

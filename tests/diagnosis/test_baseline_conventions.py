@@ -149,6 +149,7 @@ def test_applied_commands_follow_the_stated_convention() -> None:
     assert not differ[settled].any()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("convention", ["wheels/limited", "body/free", "body/stop"])
 def test_planted_ramp_convention_is_baseline_calibration_and_the_effect_is_found(
     convention: str,
@@ -173,6 +174,7 @@ def test_baseline_without_convention_says_so() -> None:
     assert "none" in b.summary()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("convention", ["body/limited", "wheels/limited"])
 def test_a_long_command_latency_does_not_choose_the_ramp_convention(convention: str) -> None:
     """Commands that act 0.2 s (four periods) late. The conventions are judged with the

@@ -112,6 +112,7 @@ def stalled() -> Diagnosis:
     return diagnose(train, hold, settings=DiagnosisSettings(effects=LIBRARY, attribution=FAST))
 
 
+@pytest.mark.slow
 def test_stall_is_set_aside_and_the_planted_wheelbase_recovered(stalled: Diagnosis) -> None:
     d = stalled
     tr = d.transients
@@ -173,6 +174,7 @@ def test_robot_held_in_the_air_has_not_enough_clean_data() -> None:
 
 
 # --------------------------------------------------------------------------- baseline
+@pytest.mark.slow
 def test_the_ground_truths_body_frame_goes_to_the_baseline_and_the_drift_is_named() -> None:
     rng = np.random.default_rng(6)
     frame = {"x": 0.012, "y": -0.008, "yaw": 0.02}
@@ -214,6 +216,7 @@ def _jittered(man: Manoeuvre, rng: np.random.Generator, sigma: float = 0.015) ->
     return log.without("pose_cam", "pose_est").with_channels(cmd=cmd)
 
 
+@pytest.mark.slow
 def test_a_drive_train_that_scatters_from_window_to_window_is_noise_not_a_gap(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -242,6 +245,7 @@ def test_a_drive_train_that_scatters_from_window_to_window_is_noise_not_a_gap(
     assert pr.adapter._drive_scatter(pr.logs, np.full(3, 1e-9)) is None
 
 
+@pytest.mark.slow
 def test_sub_sample_time_alignment_goes_to_the_baseline_not_the_findings() -> None:
     rng = np.random.default_rng(5)
     reality = Reality(

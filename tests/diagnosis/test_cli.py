@@ -50,6 +50,7 @@ def saved_logs(tmp_path_factory):
     return paths
 
 
+@pytest.mark.slow
 def test_diagnose_writes_report_and_json(saved_logs, tmp_path, capsys) -> None:
     report, js = tmp_path / "report", tmp_path / "out" / "d.json"
     rc = main(
@@ -141,6 +142,7 @@ def test_jittery_log_is_refused_with_the_resample_fix(saved_logs, tmp_path, caps
     assert rc == 0 and js.is_file()
 
 
+@pytest.mark.slow
 def test_ray_backend_is_optional() -> None:
     try:
         import ray  # noqa: F401

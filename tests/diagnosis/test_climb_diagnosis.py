@@ -64,6 +64,7 @@ def spool_logs() -> tuple[list[Log], list[Log]]:
     return record_climber_logs(real, np.random.default_rng(3))
 
 
+@pytest.mark.slow
 def test_a_hidden_spool_scale_is_named_and_estimated(
     spool_logs: tuple[list[Log], list[Log]],
 ) -> None:
@@ -78,6 +79,7 @@ def test_a_hidden_spool_scale_is_named_and_estimated(
     assert "imu" in d.not_observable["climber_gyro_bias"]
 
 
+@pytest.mark.slow
 def test_a_withheld_spool_scale_is_left_unexplained(
     spool_logs: tuple[list[Log], list[Log]],
 ) -> None:

@@ -124,6 +124,7 @@ def geometry_with_clocks() -> tuple[Diagnosis, list[float]]:
     return _diagnose(effects, 0.0, seed=21, clock=ClockSettings())
 
 
+@pytest.mark.slow
 def test_per_log_offsets_are_recovered_relative_to_the_common_one(
     geometry_with_clocks: tuple[Diagnosis, list[float]],
 ) -> None:
@@ -153,6 +154,7 @@ def test_geometry_is_named_and_recovered_once_the_clocks_are_aligned(
         assert fit.values["wheel_diameter_ratio.E_d"] == pytest.approx(1.01, abs=0.004)
 
 
+@pytest.mark.slow
 def test_a_common_latency_is_still_named_beside_per_log_offsets() -> None:
     d, _ = _diagnose((), 0.12, seed=4, clock=ClockSettings())
     # the common part is not a per-log nuisance: it stays an effect of the verdict
@@ -167,6 +169,7 @@ def test_a_common_latency_is_still_named_beside_per_log_offsets() -> None:
     )
 
 
+@pytest.mark.slow
 def test_logs_that_differ_only_by_their_clocks_and_noise_name_no_effect() -> None:
     d, _ = _diagnose((), 0.0, seed=8, clock=ClockSettings())
     assert d.verdict.kind is not VerdictKind.EFFECTS, d.verdict.reason

@@ -211,6 +211,7 @@ FAST = Manoeuvre(
 )
 
 
+@pytest.mark.slow
 def test_a_top_speed_the_training_never_reached_is_reported_as_beyond_the_training(
     tmp_path: Path,
 ) -> None:

@@ -164,6 +164,7 @@ def _firmware_log(
     ("convention", "scale", "decel"),
     [("body/stop", 0.77, 1.8), ("wheels/limited", 1.3, 0.6), ("body/free", 0.85, 1.0)],
 )
+@pytest.mark.slow
 def test_fitted_limits_recover_the_planted_ones(
     convention: str, scale: float, decel: float
 ) -> None:

@@ -74,6 +74,7 @@ def _sessions(root: Path, seed: int) -> dict[str, np.ndarray]:
     return twins
 
 
+@pytest.mark.slow
 def test_each_session_keeps_its_own_rigid_body(tmp_path: Path) -> None:
     from realitygap.diagnosis.logs.read import logs_from_optiodom
 

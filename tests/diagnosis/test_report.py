@@ -109,6 +109,7 @@ def test_ranking_by_shrink_orders_by_what_the_reader_compares() -> None:
     assert [r["rank"] for r in ranking_by_shrink(rows)] == [2, 1, 3]
 
 
+@pytest.mark.slow
 def test_summary_opens_with_what_where_which_and_the_rule(planted: Diagnosis) -> None:
     sentences = summary_sentences(planted)
     text = " ".join(sentences)
@@ -132,6 +133,7 @@ class _Images(HTMLParser):
             self.sources.append(dict(attrs).get("src") or "")
 
 
+@pytest.mark.slow
 def test_report_html_is_self_contained_and_every_image_decodes(
     planted: Diagnosis, tmp_path: Path
 ) -> None:
@@ -151,6 +153,7 @@ def test_report_html_is_self_contained_and_every_image_decodes(
     assert {"report.md", "report.html", "diagnosis.json", "timeline.png", "ranking.png"} <= names
 
 
+@pytest.mark.slow
 def test_several_diagnoses_share_one_report(planted: Diagnosis, tmp_path: Path) -> None:
     page = write_reports(
         [("commands-driven replay", planted), ("second look", planted)],
@@ -169,6 +172,7 @@ def test_markdown_to_html_refuses_a_missing_image(tmp_path: Path) -> None:
         markdown_to_html("![gone](missing.png)", tmp_path)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mask", [0o022, 0o077])
 def test_report_files_follow_the_umask(planted: Diagnosis, tmp_path: Path, mask: int) -> None:
     old = os.umask(mask)

@@ -104,6 +104,7 @@ def _wandering_clock_sessions(root: Path, seed: int, **hidden: float) -> None:
     dd.write_session(root, "010320241220", circles, robot, "circular", rng=rng)
 
 
+@pytest.mark.slow
 def test_a_wandering_clock_moves_only_the_motion_capture() -> None:
     import realitygap.independent.diffdrive as dd
 
@@ -123,6 +124,7 @@ def test_a_wandering_clock_moves_only_the_motion_capture() -> None:
     assert lag[2] > 1e-3
 
 
+@pytest.mark.slow
 def test_a_drift_under_a_wandering_clock_is_named_on_whole_runs(tmp_path: Path) -> None:
     from realitygap.diagnosis.logs.read import logs_from_optiodom
 

@@ -47,6 +47,7 @@ def _split(root: Path, drive: str, **hidden: float) -> tuple[float, float] | Non
     [({"stiction": 0.03, "delay": 0.12}, 0), ({"b_true": 1.03}, 1)],
     ids=["drive train", "wheelbase"],
 )
+@pytest.mark.slow
 def test_the_stage_that_carries_the_gap_is_the_one_the_effect_acts_in(
     tmp_path: Path, hidden: dict[str, float], stage: int
 ) -> None:
@@ -56,6 +57,7 @@ def test_the_stage_that_carries_the_gap_is_the_one_the_effect_acts_in(
     assert split[stage] > 60.0, split
 
 
+@pytest.mark.slow
 def test_a_tick_driven_replay_has_no_command_stage(tmp_path: Path) -> None:
     assert _split(tmp_path, "ticks", b_true=1.03) is None
 
@@ -63,6 +65,7 @@ def test_a_tick_driven_replay_has_no_command_stage(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("hidden", "slower"), [({"b_true": 1.03}, False), ({"speed_cap": 0.1}, True)]
 )
+@pytest.mark.slow
 def test_wheel_gains_say_whether_the_wheels_did_what_the_commands_asked(
     tmp_path: Path, hidden: dict[str, float], slower: bool
 ) -> None:
@@ -200,6 +203,7 @@ def test_only_a_command_driven_replay_has_actuation_figures() -> None:
             assert get_adapter(robot).actuation([], drive) == {}
 
 
+@pytest.mark.slow
 def test_a_wheel_capped_beyond_the_training_speeds_is_found_by_the_encoders(
     tmp_path: Path,
 ) -> None:

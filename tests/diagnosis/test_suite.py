@@ -126,6 +126,7 @@ def test_a_partially_explained_verdict_is_scored_as_unexplained() -> None:
     assert figures["false_attribution_rate"] == 0.5
 
 
+@pytest.mark.slow
 def test_a_withheld_effect_that_never_acts_is_not_an_open_set_case() -> None:
     settings = SuiteSettings()
     adapter = get_adapter("diffdrive")

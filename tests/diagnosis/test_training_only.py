@@ -42,6 +42,7 @@ def _train(reality: Reality, seed: int) -> Log:
     return record_arm_log(reality, np.random.default_rng(seed), 64, name="train")
 
 
+@pytest.mark.slow
 def test_a_tool_offset_the_held_out_poses_cannot_see_is_named_from_the_training(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -68,6 +69,7 @@ def test_a_tool_offset_the_held_out_poses_cannot_see_is_named_from_the_training(
     assert v.confidence is Confidence.NOT_IDENTIFIABLE
 
 
+@pytest.mark.slow
 def test_a_nominal_arm_on_the_same_poses_is_still_none(monkeypatch: pytest.MonkeyPatch) -> None:
     real = Reality(())
     holdout = _wrist_sweep(monkeypatch, real, seed=13)
@@ -77,6 +79,7 @@ def test_a_nominal_arm_on_the_same_poses_is_still_none(monkeypatch: pytest.Monke
     assert "training_only" not in d.to_json()
 
 
+@pytest.mark.slow
 def test_a_training_gap_no_candidate_closes_is_unexplained(monkeypatch: pytest.MonkeyPatch) -> None:
     # the tool offset and everything that can stand in for it (the flange link length, the
     # full tolerance set) withheld: the training's gap stays, and "none" would hide it

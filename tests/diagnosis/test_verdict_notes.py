@@ -382,6 +382,7 @@ LOOP = (
 )
 
 
+@pytest.mark.slow
 def test_in_library_verdict_is_kept_and_open_set_residual_is_described() -> None:
     from realitygap.robots.effects import make_effect
 

@@ -401,6 +401,7 @@ def test_a_one_parameter_fit_finds_a_tread_narrower_than_its_grid() -> None:
     assert np.all((U >= 0.0) & (U <= 1.0)) and U.shape[0] > grid.shape[0]
 
 
+@pytest.mark.slow
 def test_a_compliance_under_another_gravity_law_is_named_alone(
     tmp_path: Path,
 ) -> None:

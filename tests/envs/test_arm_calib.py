@@ -199,6 +199,7 @@ def test_geometric_measurement_rejects_what_a_detector_could_not_read(env: ArmCa
         observation_from_corners(uv, ids[:-1], K, None, board)
 
 
+@pytest.mark.slow
 def test_rendered_capture_feeds_the_same_pipeline() -> None:
     e = ArmCalibEnv(sensor_mode="fast", budget=2, n_validation=8)
     try:

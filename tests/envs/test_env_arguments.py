@@ -94,6 +94,7 @@ def test_room_that_cannot_hold_the_obstacles_is_named() -> None:
         gym.make("realitygap/WheeledNav-v0", n_obstacles=10_000)
 
 
+@pytest.mark.slow
 def test_crowded_room_fails_fast_instead_of_hanging() -> None:
     from realitygap.envs.layouts import random_layout
 

@@ -15,6 +15,7 @@ import realitygap
 ENV_IDS = realitygap.ENV_IDS
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_check_env_without_warnings(env_id: str) -> None:
     env = gym.make(env_id)
@@ -43,6 +44,7 @@ def _rollout(env_id: str, seed: int, n: int = 60) -> tuple[np.ndarray, list[floa
     return np.stack(observations), rewards, truth
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_seeded_rollouts_are_identical(env_id: str) -> None:
     a = _rollout(env_id, seed=3)
@@ -66,6 +68,7 @@ def test_close_twice_and_observations_do_not_alias(env_id: str) -> None:
     env.close()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_no_memory_growth_over_500_resets(env_id: str) -> None:
     env = gym.make(env_id)

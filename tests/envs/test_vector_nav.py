@@ -272,6 +272,7 @@ def test_sb3_vec_env_contract_and_a_short_ppo_run() -> None:
         sb3_vector_env(gym.make_vec(PB_ID, num_envs=1, vectorization_mode="sync"))
 
 
+@pytest.mark.slow
 def test_bench_vec_experiment_reports_speeds_and_agreement() -> None:
     from realitygap.experiments import RunContext, get, load_all
 

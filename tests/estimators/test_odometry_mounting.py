@@ -104,6 +104,7 @@ def test_dead_reckoning_covariance_of_a_straight_drive_has_its_closed_form() -> 
         ticks_for_path(NOMINAL, ds, ds[:-1])
 
 
+@pytest.mark.slow
 def test_propagated_error_matches_the_scatter_over_repeated_draws() -> None:
     """Predicted RMS position error of a semicircle vs the empirical one over 40 calibrations."""
     rng = np.random.default_rng(7)
@@ -162,6 +163,7 @@ def test_sequential_calibration_stops_once_the_prediction_meets_the_target() -> 
         calibrate_until_precise(one_drive, NOMINAL, [], 1e-3)
 
 
+@pytest.mark.slow
 def test_dispersion_widens_the_prediction_when_drives_share_an_error() -> None:
     """Each drive's sensor motions carry a scale error of their own (1 %): samples are no
     longer independent, the pooled covariance is too small, and the dispersion of the rounds'

@@ -468,6 +468,7 @@ def test_malformed_frames_raise() -> None:
         RGBDVisualOdometry(T_base_camera=np.diag([2.0, 1.0, 1.0, 1.0]))
 
 
+@pytest.mark.slow
 def test_lost_keyframe_falls_back_to_the_previous_frame_and_says_so() -> None:
     # key-frames never renew on their own: only the fallback can carry the turn
     vo = make_vo(keyframe_translation_m=10.0, keyframe_rotation_rad=3.0, keyframe_min_inliers=0)

@@ -60,6 +60,7 @@ def excitation_log() -> DriveLog:
         env.close()
 
 
+@pytest.mark.slow
 def test_online_calibration_recovers_wheelbase_and_diameter_ratio(
     excitation_log: DriveLog,
 ) -> None:
@@ -156,6 +157,7 @@ def _synthetic_drive(
     return inc, motions, weights
 
 
+@pytest.mark.slow
 def test_pooled_fit_over_drives_is_more_precise_than_each_drive() -> None:
     """Independent drives pooled in one fit: scatter of k_b below every single drive's."""
     from realitygap.estimators.diffdrive_model import DiffDriveKinematics

@@ -16,6 +16,7 @@ DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
     not (DATA / "optiodom_diffdrive").is_dir(),
     reason="needs the OptiOdom sessions in ../shared/data beside the checkout",
 )
+@pytest.mark.slow
 @pytest.mark.parametrize("quick", [False, True])
 def test_extended_training_keeps_the_held_out_runs_and_adds_other_sessions(quick: bool) -> None:
     ctx = RunContext(quick=quick, data_dir=DATA, verbose=False)

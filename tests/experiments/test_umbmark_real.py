@@ -65,6 +65,7 @@ def test_same_period_picks_the_day_of_the_nearest_square_session() -> None:
     assert len(_same_period("not-a-date", cals)) == 3
 
 
+@pytest.mark.slow
 def test_umbmark_real_improves_the_held_out_runs() -> None:
     if not DATA.is_dir():
         pytest.skip(f"OptiOdom data not found at {DATA}; needs ../shared/data beside the repo")

@@ -88,6 +88,7 @@ def csv_text(n: int = 60, scale: float = 1.0) -> str:
 
 
 # --------------------------------------------------------------------------- CSV
+@pytest.mark.slow
 @FUZZ
 @given(data=st.data())
 def test_csv_bytes_damaged(data: st.DataObject) -> None:
@@ -262,6 +263,7 @@ def _smallest_session() -> Path | None:
     return min(folders, key=lambda p: sum(f.stat().st_size for f in p.iterdir()), default=None)
 
 
+@pytest.mark.slow
 @FUZZ
 @given(data=st.data())
 def test_optiodom_session_damaged(data: st.DataObject) -> None:

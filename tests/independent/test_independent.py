@@ -156,6 +156,7 @@ def test_end_to_end_names_a_strong_in_library_effect() -> None:
     assert arm["top_params"]["arm_tool_offset.dz"] == pytest.approx(3e-3, abs=3e-4)
 
 
+@pytest.mark.slow
 def test_an_encoder_error_beside_a_noisy_heading_is_named() -> None:
     """One encoder counting 3 % more, command replay: the encoders' gap closes while the
     motion capture's heading carries only its noise, several times its position's in
@@ -184,6 +185,7 @@ def test_an_encoder_error_beside_a_noisy_heading_is_named() -> None:
     assert scale * 2.0 * e_c / (e_c + 1.0) == pytest.approx(1.03, abs=0.003)  # the right one
 
 
+@pytest.mark.slow
 def test_a_residual_faster_than_the_windows_is_unexplained_and_said_so(tmp_path: Path) -> None:
     """An encoder disc off centre (once per wheel turn) in a tick replay: the heading
     residual oscillates within a couple of windows, so window to window it passes for white

@@ -96,6 +96,7 @@ def test_motion_capture_rows_hold_the_last_sample_of_its_rate_phase_and_latency(
     np.testing.assert_allclose(lead, u * age, atol=u * robot.substep * 1.01)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", NAMES)
 def test_planted_wheelbase_turns_each_variants_square_by_the_closed_form(name: str) -> None:
     v = VARIANTS[name]
@@ -200,6 +201,7 @@ def test_bad_conventions_are_refused_with_the_field_named() -> None:
         )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ("large", "fast_noisy"))
 def test_a_case_on_a_variant_is_the_same_files_for_the_same_seed(name: str, tmp_path: Path) -> None:
     from realitygap.experiments.independent import generate_case

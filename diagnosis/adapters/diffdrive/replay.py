@@ -1,22 +1,11 @@
 r"""Replay a differential-drive log in PyBullet: the nominal (or nominal + effects) robot.
 
-:func:`simulate` drives the simulated body through the same firmware as
-:class:`~realitygap.envs.wheeled_nav.WheeledNavEnv`
-(:meth:`~realitygap.robots.diffdrive.DiffDriveRobot.command_twist`: command
-hooks of the effects, then the inverse kinematics with the *nominal* geometry,
-then the wheel velocity motors) from a given start pose, and records the
-standard channels (see :mod:`realitygap.diagnosis.logs.log`). :func:`replay` does
-it for a logged episode: the logged commands (or, with ``drive="ticks"``, the
-logged wheel rotation) from the logged initial pose, producing the same
-channels, so real and simulated episodes can be compared sample by sample.
-
-The PyBullet core (the loop over control periods and the channels' post-processing) is
-:func:`realitygap.robots.diffdrive_replay.simulate_channels`; :func:`simulate` wraps its
-channels into a :class:`~realitygap.diagnosis.logs.log.Log`.
-
-Timing convention (as in the env): row ``k`` holds the state at ``t[k]`` and
-the command issued at ``t[k]``; the command is held for one control period,
-after which row ``k + 1`` is measured.
+:func:`simulate` runs the PyBullet core of a replay
+(:func:`realitygap.robots.diffdrive_replay.simulate_channels`: the firmware, the body and
+the standard channels, with the timing convention stated there) and wraps its channels into
+a :class:`~realitygap.diagnosis.logs.log.Log`. :func:`replay` does it for a logged episode:
+the logged commands (or, with ``drive="ticks"``, the logged wheel rotation) from the logged
+initial pose, so real and simulated episodes can be compared sample by sample.
 """
 
 from __future__ import annotations

@@ -97,6 +97,7 @@ def _odometry_errors(truth: tuple, vio: list[ClimbEstimate]) -> np.ndarray:
     return np.linalg.norm(p_from_vio - p, axis=1)
 
 
+@pytest.mark.slow
 def test_perfect_odometry_stays_exact(surface: SurfaceModel, truth: tuple) -> None:
     errors, est = _run(surface, truth, _odometry(truth, None))
     assert errors.max() < 0.002
@@ -104,6 +105,7 @@ def test_perfect_odometry_stays_exact(surface: SurfaceModel, truth: tuple) -> No
     assert np.all(np.linalg.eigvalsh(est[-1].cov) > 0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", range(5))
 def test_constrained_beats_odometry_and_is_bounded(
     surface: SurfaceModel, truth: tuple, seed: int

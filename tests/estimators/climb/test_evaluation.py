@@ -134,6 +134,7 @@ def test_slack_episodes_lengthen_the_tether() -> None:
     assert 0 < sum(not m.ok for m in teth) < len(teth)
 
 
+@pytest.mark.slow
 def test_end_to_end_evaluation(surface: SurfaceModel) -> None:
     rec = synthesise_recording(FAST, np.random.default_rng(3))
     m = evaluate_recording(rec, surface)

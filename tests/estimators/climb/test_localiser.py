@@ -16,6 +16,7 @@ SC = ClimbScenario()
 ANCHOR = np.asarray(SC.anchor_cad)
 
 
+@pytest.mark.slow
 def test_localiser_phases_on_synthetic_recording(surface: SurfaceModel) -> None:
     sc = dataclasses.replace(SC, speed=0.2, camera_rate=5.0, sweep_waypoints=((2.6, 0.12),))
     rec = synthesise_recording(sc, np.random.default_rng(1))

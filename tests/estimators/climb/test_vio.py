@@ -58,6 +58,7 @@ def _run(vio: SlidingWindowVIO, measurements: list) -> list:
     return out
 
 
+@pytest.mark.slow
 def test_vio_synthetic_run_has_bounded_drift(loop_recording: ClimbRecording) -> None:
     vio = SlidingWindowVIO()
     kfs = _run(vio, list(loop_recording.measurements))
@@ -73,6 +74,7 @@ def test_vio_synthetic_run_has_bounded_drift(loop_recording: ClimbRecording) -> 
     assert kfs[-1].frame == "world" and kfs[-1].ok
 
 
+@pytest.mark.slow
 def test_tracking_loss_falls_back_to_imu(loop_recording: ClimbRecording) -> None:
     ms = [
         m
@@ -121,6 +123,7 @@ K = np.array([[280.0, 0.0, 160.0], [0.0, 280.0, 120.0], [0.0, 0.0, 1.0]])
 TEXEL = 0.25 / 1024
 
 
+@pytest.mark.slow
 def test_vio_on_rendered_images(texture: np.ndarray) -> None:
     """Robot on a level textured floor: still, then accelerating along body x."""
     cfg = VioConfig()
