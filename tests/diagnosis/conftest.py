@@ -9,6 +9,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 import pytest
 
@@ -37,6 +38,12 @@ factories = _load_factories()
 def model_fit() -> Callable[..., ModelFit]:
     """Build a :class:`ModelFit` (``effects``, ``z_heldout``, ``values``, …; keywords)."""
     return factories.model_fit
+
+
+@pytest.fixture
+def make_prepared() -> Callable[..., Any]:
+    """Build a :class:`PreparedLog` of ``n`` windows without a gap (``name``, ``split``, ``n``)."""
+    return factories.prepared_log
 
 
 @pytest.fixture

@@ -46,6 +46,7 @@ __all__ = [
     "ToyContext",
     "judgement",
     "model_fit",
+    "prepared_log",
     "toy_problem",
     "toy_schema",
     "verdict",
@@ -182,6 +183,13 @@ def _prepared(
         context=ToyContext(SimSettings(), terms=terms),
         bias={g.name: np.zeros((m, len(g.columns))) for g in schema.groups},
     )
+
+
+def prepared_log(name: str, split: str = "train", n: int = 4) -> PreparedLog:
+    """A prepared log ``name`` of ``n`` windows whose features equal the nominal replay's."""
+    schema = toy_schema()
+    k = sum(len(g.columns) for g in schema.groups)
+    return _prepared(schema, split, name, np.zeros(n * k), ["all_of_it"] * n, {})
 
 
 def toy_problem(

@@ -129,13 +129,9 @@ class _Travel:
         return self.travel.get(p.name)  # type: ignore[attr-defined]
 
 
-def _prepared(name: str, split: str, n: int) -> object:
-    from types import SimpleNamespace
-
-    return SimpleNamespace(name=name, split=split, holdout_windows=np.full(n, split == "holdout"))
-
-
-def test_wheel_tracking_compares_the_gain_beyond_the_training_with_the_training() -> None:
+def test_wheel_tracking_compares_the_gain_beyond_the_training_with_the_training(
+    make_prepared,
+) -> None:
     from realitygap.diagnosis.adapters.diffdrive.actuation import wheel_tracking
 
     rng = np.random.default_rng(3)
@@ -148,7 +144,7 @@ def test_wheel_tracking_compares_the_gain_beyond_the_training_with_the_training(
     adapter = _Travel(
         {"sq": (slow + noise[0], slow, dur), "free": (real_fast + noise[1], fast, dur)}
     )
-    prepared = [_prepared("sq", "train", 40), _prepared("free", "holdout", 40)]
+    prepared = [make_prepared("sq", "train", 40), make_prepared("free", "holdout", 40)]
     out = wheel_tracking(adapter.wheel_travel, prepared, v_max=0.5)  # type: ignore[arg-type]
     assert out is not None and out["beyond"] and out["departs"]
     left, right = out["wheels"]
@@ -171,12 +167,12 @@ def test_wheel_tracking_compares_the_gain_beyond_the_training_with_the_training(
     # one held-out run whose drive train turns 10 % less, among six that follow: the pooled
     # gain stays within tolerance, the run's own gain departs
     logs = {"sq": (slow + noise[0], slow, dur)}
-    runs = [_prepared("sq", "train", 40)]
+    runs = [make_prepared("sq", "train", 40)]
     for k in range(7):
         gain = 0.9 if k == 6 else 1.0
         part = slice(6 * k, 6 * k + 6) if k < 6 else slice(0, 6)
         logs[f"run{k}"] = (gain * fast[part] + noise[1][part], fast[part], dur[part])
-        runs.append(_prepared(f"run{k}", "holdout", 6))
+        runs.append(make_prepared(f"run{k}", "holdout", 6))
     mixed = wheel_tracking(_Travel(logs).wheel_travel, runs, v_max=0.5)  # type: ignore[arg-type]
     assert mixed is not None and mixed["departs"]
     for w in mixed["wheels"]:
