@@ -243,18 +243,28 @@ def test_a_pair_member_that_closes_nearly_all_of_the_gap_alone_can_be_named_alon
 
 
 # --------------------------------------------------------------------------- compensators
-def test_candidate_that_helps_one_regime_and_hurts_another_is_a_compensator(
-    model_fit: Callable[..., ModelFit], toy_problem: Callable[..., Problem]
-) -> None:
-    rng = np.random.default_rng(5)
-    n = 400
-    regimes = ["turning"] * 200 + ["straight"] * 200
-    problem = toy_problem(windows=n, regimes=regimes)
+def _compensator_case(
+    rng: np.random.Generator,
+    toy_problem: Callable[..., Problem],
+    model_fit: Callable[..., ModelFit],
+) -> tuple[Problem, np.ndarray, ModelFit]:
+    """400 held-out windows, half turning and half straight, with a nominal gap in the
+    turning half, and a candidate that closes it there but opens one while driving straight."""
+    problem = toy_problem(windows=400, regimes=["turning"] * 200 + ["straight"] * 200)
     z_nom = np.concatenate([rng.normal(3, 1, 200), rng.normal(0, 1, 200)])
     comp = model_fit(
         effects=("wheel_radius_scale",),
         z_heldout=np.concatenate([rng.normal(0, 1, 200), rng.normal(2, 1, 200)]),
     )
+    return problem, z_nom, comp
+
+
+def test_candidate_that_helps_one_regime_and_hurts_another_is_a_compensator(
+    model_fit: Callable[..., ModelFit], toy_problem: Callable[..., Problem]
+) -> None:
+    rng = np.random.default_rng(5)
+    n = 400
+    problem, z_nom, comp = _compensator_case(rng, toy_problem, model_fit)
     good = model_fit(effects=("dead_zone",), z_heldout=rng.normal(0, 1, n))
     c = regime_consistency(problem, comp, z_nom)
     assert c["compensator"] and c["improved"] == ["turning"] and c["worsened"] == ["straight"]
@@ -667,14 +677,7 @@ def test_a_compensator_and_a_pair_that_leaves_structure_are_decided_unexplained(
     make_judgement: Callable[..., Judgement],
 ) -> None:
     rng = np.random.default_rng(22)
-    n = 400
-    regimes = ["turning"] * 200 + ["straight"] * 200
-    problem = toy_problem(windows=n, regimes=regimes)
-    z_nom = np.concatenate([rng.normal(3, 1, 200), rng.normal(0, 1, 200)])
-    comp = model_fit(
-        effects=("wheel_radius_scale",),
-        z_heldout=np.concatenate([rng.normal(0, 1, 200), rng.normal(2, 1, 200)]),
-    )
+    problem, z_nom, comp = _compensator_case(rng, toy_problem, model_fit)
     decision = _decided(problem, [comp], make_judgement(best=comp, nominal_heldout=z_nom))
     assert decision.kind is VerdictKind.UNEXPLAINED and decision.effects == ()
     assert decision.judgement.draft.confidence is Confidence.NOT_APPLICABLE

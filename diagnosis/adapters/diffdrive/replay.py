@@ -99,26 +99,8 @@ def simulate(
 
     Parameters
     ----------
-    t : array_like, shape (N,)
-        Regular time stamps, s (the control period is their step).
-    params : DiffDriveParams
-        Nominal parameters: what the firmware believes; the body is
-        ``reality.apply_params(params)``.
-    reality : Reality, optional
-        Effects realised in the simulation (default: none).
-    commands : array_like, shape (N, 2), optional
-        Body twists ``[v, w]`` (m/s, rad/s) issued at each row (the last is
-        unused). Exactly one of ``commands`` and ``ticks`` is needed.
-    ticks : array_like, shape (N, 2), optional
-        Cumulative encoder counts ``[left, right]`` to reproduce: each control
-        period the wheels are driven at the logged rotation rate (through the
-        inverse of the effects' encoder hooks).
-    start : array_like, shape (3,)
-        Initial pose ``[x, y, θ]`` (m, m, rad).
-    settings : SimSettings, optional
-    noise : MeasurementNoise, optional
-        Noise added to ``pose_gt`` and ``pose_cam`` (needs ``rng``).
-    rng : numpy.random.Generator, optional
+    t, params, reality, commands, ticks, start, settings, noise, rng
+        As :func:`~realitygap.robots.diffdrive_replay.simulate_channels`.
     meta : mapping, optional
         Extra metadata for the returned log.
     source : str
