@@ -252,13 +252,11 @@ def cycles(root: Path = ROOT) -> list[list[str]]:
     return out
 
 
-@pytest.mark.slow
 def test_no_lower_layer_imports_a_higher_one() -> None:
     found = violations()
     assert not found, "layer violations:\n" + "\n".join(found)
 
 
-@pytest.mark.slow
 def test_no_import_cycle() -> None:
     found = cycles()
     assert not found, "modules that import each other at run time:\n" + "\n".join(
