@@ -19,7 +19,6 @@ import argparse
 import json
 import math
 import sys
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -47,11 +46,6 @@ examples:
   # the first series trains, the last is held out
   realitygap diagnose path/to/ipa_ur10_lasertracker --report out/ur10/
 """
-
-SECONDS_PER_LOG_SECOND_AND_FIT = 0.02
-"""Rough cost of one candidate fit per second of logged motion on one worker, s (0.012 to
-0.036 measured on the embedded OptiOdom sample with PyBullet replays on two cores, idle to
-heavily loaded); only for the estimate shown before a run and the time left."""
 
 
 def _parse_kv(text: str, what: str) -> dict[str, Any]:
@@ -122,7 +116,9 @@ def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
         help="where fits and replays run (default: process pool; ray needs realitygap[ray])",
     )
     p.add_argument("--workers", type=int, help="processes of the process backend")
-    p.add_argument("--ray-address", help="Ray cluster address (default: a local cluster)")
+    p.add_argument(
+        "--ray-address", help="Ray cluster address (default: $RAY_ADDRESS, else a local cluster)"
+    )
     p.add_argument("--window", type=float, default=1.0, help="feature window, s (default 1)")
     g = p.add_argument_group("importers")
     g.add_argument("--columns", help="CSV column map, e.g. 't=time:ms,cmd.v=v,…' or a .json file")
@@ -259,11 +255,15 @@ def _diagnose(args: argparse.Namespace) -> int:
             else AttributionSettings(),
         )
         backend = make_backend(args.backend, workers=args.workers, address=args.ray_address)
-        lines, estimate = _plan(train, holdout, settings, backend)
-        for line in lines:
+        for line in _plan(train, holdout, settings, backend):
             say(line)
-        clock.estimate_s = clock.elapsed_s() + estimate
-        result = diagnose(train, holdout, settings=settings, backend=backend, progress=say)
+
+        def estimate(left_s: float) -> None:
+            clock.estimate_s = clock.elapsed_s() + left_s
+
+        result = diagnose(
+            train, holdout, settings=settings, backend=backend, progress=say, on_estimate=estimate
+        )
     except (LogError, ValueError, FileNotFoundError, ImportError, KeyError) as exc:
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"error: {msg}", file=sys.stderr)
@@ -289,25 +289,12 @@ def _library(settings: Any) -> tuple[str, ...]:
         return tuple(e for e, cls in EFFECTS.items() if cls.robot == settings.robot)
 
 
-def estimate_seconds(logs: Sequence[Any], settings: Any, backend: Any) -> float:
-    """A rough duration of :func:`~realitygap.diagnosis.diagnose.diagnose` on ``logs``, s.
+def _plan(train: list[Any], holdout: list[Any] | None, settings: Any, backend: Any) -> list[str]:
+    """What the diagnosis is about to do, said before it starts: the split and the work.
 
-    Proportional to the seconds of logged motion, the fits (every single effect of the
-    library and up to three pairs per pair candidate) and inversely to the backend's
-    workers, at :data:`SECONDS_PER_LOG_SECOND_AND_FIT`; shown before a run and used for
-    the time left.
-    """
-    seconds_of_motion = sum(float(lg.duration) for lg in logs)
-    fits = len(_library(settings)) + settings.attribution.pair_candidates * 3
-    workers = max(1, int(getattr(backend, "workers", 1) or 1))
-    return SECONDS_PER_LOG_SECOND_AND_FIT * seconds_of_motion * fits / workers
-
-
-def _plan(
-    train: list[Any], holdout: list[Any] | None, settings: Any, backend: Any
-) -> tuple[list[str], float]:
-    """What the diagnosis is about to do, said before it starts: the split and the cost
-    (lines to show, and the estimated duration in s)."""
+    How long it takes is not guessed here: the diagnosis measures its replays and its
+    surrogate on these logs in its first seconds and says it then
+    (:class:`~realitygap.diagnosis.fit.workload.Workload`)."""
 
     lines = []
     if holdout:
@@ -328,15 +315,11 @@ def _plan(
     library = _library(settings)
     seconds_of_motion = sum(float(lg.duration) for lg in [*train, *(holdout or [])])
     workers = max(1, int(getattr(backend, "workers", 1) or 1))
-    estimate = estimate_seconds([*train, *(holdout or [])], settings, backend)
-    from realitygap.core.progress import duration_words
-
     lines.append(
         f"{len(train) + len(holdout or [])} log(s), {seconds_of_motion:.0f} s of motion × "
-        f"{len(library)} candidate effect(s) on {workers} worker(s): roughly "
-        f"{duration_words(estimate)}"
+        f"{len(library)} candidate effect(s) on {workers} worker(s)"
     )
-    return lines, estimate
+    return lines
 
 
 def print_result(result: Any, verbose: bool = False, file: Any = None) -> None:

@@ -55,10 +55,13 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.core.parallel import Backend, SerialBackend
+from realitygap.core.progress import duration_words
 from realitygap.diagnosis.adapters.contract import Drive, PreparedLog, RobotAdapter
 from realitygap.diagnosis.adapters.registry import get_adapter
-from realitygap.diagnosis.fit.model import ModelFit, fit_model
+from realitygap.diagnosis.fit.candidates import fit_candidates
+from realitygap.diagnosis.fit.model import ModelFit
 from realitygap.diagnosis.fit.verify import Verification, verify_ranking
+from realitygap.diagnosis.fit.workload import Workload, row_seconds
 from realitygap.diagnosis.logs.log import Log, LogError
 from realitygap.diagnosis.problem.features import FeatureSettings
 from realitygap.diagnosis.problem.parameters import split_key
@@ -264,6 +267,7 @@ class Diagnosis:
                     "bic_train": fit.bic,
                     "margin_to_next": (nxt.rank_score - fit.rank_score) if nxt else math.inf,
                     "verified_in_pybullet": fit.verified,
+                    "screened": fit.screened,
                 }
             )
         return rows
@@ -319,11 +323,6 @@ def _prepare_task(shared: tuple[Any, ...], item: tuple[Log, str]) -> PreparedLog
     return get_adapter(robot).prepare(
         log, split=split, drive=Drive(drive), features_settings=feats, sim=sim
     )
-
-
-def _fit_task(problem: Problem, item: tuple[tuple[str, ...], list[dict[str, float]]]) -> ModelFit:
-    effects, starts = item
-    return fit_model(problem, effects, starts=starts)
 
 
 # --------------------------------------------------------------------------- stages
@@ -427,42 +426,6 @@ def observable_candidates(
         else:
             candidates.append(e)
     return candidates, not_observable
-
-
-def fit_candidates(
-    problem: Problem,
-    candidates: Sequence[str],
-    backend: Backend,
-    say: Callable[[str], None],
-) -> tuple[list[ModelFit], list[ModelFit], ModelFit]:
-    """Fit every single candidate, then pairs; returns ``(singles, pairs, nominal_fit)``.
-
-    Pairs are the best single with every other candidate (forward selection:
-    a second effect is often masked by a dominant one) and every pair among
-    the best singles.
-    """
-    say(f"fitting {len(candidates)} single effects")
-    singles: list[ModelFit] = backend.map(_fit_task, [((e,), []) for e in candidates], problem)
-    nominal_fit = fit_model(problem, ())
-    singles.sort(key=lambda f: f.rank_score)
-    top = [f for f in singles if f.rank_score < nominal_fit.rank_score][
-        : problem.settings.pair_candidates
-    ]
-    combos: dict[frozenset[str], tuple[ModelFit, ModelFit]] = {}
-    if top:
-        for other in singles:
-            if other.effects != top[0].effects:
-                combos.setdefault(frozenset(top[0].effects + other.effects), (top[0], other))
-    for fa, fb in ((x, y) for i, x in enumerate(top) for y in top[i + 1 :]):
-        combos.setdefault(frozenset(fa.effects + fb.effects), (fa, fb))
-    pairs_items = []
-    for fa, fb in combos.values():
-        nominal_b = {k: EFFECTS[fb.effects[0]]().spec(split_key(k)[1]).nominal for k in fb.keys}
-        starts = [{**fa.values, **fb.values}, {**fa.values, **nominal_b}]
-        pairs_items.append(((fa.effects[0], fb.effects[0]), starts))
-    say(f"fitting {len(pairs_items)} pairs")
-    pairs: list[ModelFit] = backend.map(_fit_task, pairs_items, problem)
-    return singles, pairs, nominal_fit
 
 
 def gap_report(
@@ -584,6 +547,7 @@ def diagnose(
     settings: DiagnosisSettings | None = None,
     backend: Backend | None = None,
     progress: Callable[[str], None] | None = None,
+    on_estimate: Callable[[float], None] | None = None,
 ) -> Diagnosis:
     """Diagnose the gap between real ``logs`` and the nominal simulation.
 
@@ -601,6 +565,10 @@ def diagnose(
         Where replays and fits run (default: this process).
     progress : callable, optional
         Receives short progress messages.
+    on_estimate : callable, optional
+        Receives the estimated seconds left (:class:`~realitygap.diagnosis.fit.workload.Workload`:
+        from the replay and surrogate rates measured in this run, corrected as stages
+        finish), first once the nominal replays are done, then after every stage.
 
     Returns
     -------
@@ -649,22 +617,55 @@ def diagnose(
             + "; record longer episodes"
         )
     candidates, not_observable = observable_candidates(adapter, library, prepared, drive)
+    workers = int(getattr(be, "workers", 1) or 1)
+    workload = Workload.plan(
+        problem,
+        len(candidates),
+        row_s=row_seconds(problem, candidates),
+        replay_s=adapter.replay_seconds(prepared) or timing["prepare"] * workers,
+        workers=workers,
+        calibrate=s.calibrate,
+        conventions=len(adapter.actuator_conventions(prepared, drive)),
+    )
+    estimate_said = [math.inf]
+
+    def stage_done(stage: str, seconds: float) -> None:
+        workload.finish(stage, seconds)
+        left = workload.remaining_s()
+        if on_estimate is not None:
+            on_estimate(left)
+        # say it again when it moved by more than a quarter
+        if abs(left - estimate_said[0]) > 0.25 * max(estimate_said[0], 1.0) and left >= 1.0:
+            estimate_said[0] = left
+            say(f"estimate: about {duration_words(left).removeprefix('about ')} left")
+
+    first = workload.remaining_s()
+    estimate_said[0] = first
+    if on_estimate is not None:
+        on_estimate(first)
+    say(
+        f"measured: a PyBullet replay of the logs {workload.replay_s:.1f} s, a surrogate "
+        f"evaluation {1e3 * workload.row_s:.2f} ms; estimate: about "
+        f"{duration_words(first).removeprefix('about ')} left"
+    )
     baseline = Baseline()
     if s.calibrate:
         t_b = time.perf_counter()
         baseline = calibrate_baseline(problem, candidates, be, say, clock=s.clock, frames=s.frames)
         timing["baseline"] = time.perf_counter() - t_b
+        stage_done("baseline", timing["baseline"])
         if baseline.values:
             say(baseline.summary())
     loc = localise(prepared, adapter, s.features)
 
     t1 = time.perf_counter()
-    singles, pairs, nominal_fit = fit_candidates(problem, candidates, be, say)
+    singles, pairs, nominal_fit = fit_candidates(problem, candidates, be, say, stage_done)
     timing["fit"] = time.perf_counter() - t1
 
     t2 = time.perf_counter()
     verification: Verification = verify_ranking(problem, [*singles, *pairs], nominal_fit, be, say)
     timing["verify"] = time.perf_counter() - t2
+    stage_done("verify", timing["verify"])
 
     noise = adapter.noise_levels(prepared, s.features)
     judgement = judge(
@@ -710,6 +711,8 @@ def diagnose(
         say(f"wheels: {tracking['message']}")
     reach = None
     if s.reach and decision.kind is VerdictKind.UNEXPLAINED:
+        workload.add_reach(problem, len(candidates))
+        stage_done("rest", time.perf_counter() - t2 - timing["verify"])
         t_r = time.perf_counter()
         reach = library_reach(
             problem,
@@ -722,6 +725,7 @@ def diagnose(
             block=s.block_windows,
         )
         timing["reach"] = time.perf_counter() - t_r
+        stage_done("reach", timing["reach"])
         if reach is not None:
             say(f"reach: {reach.message}")
     verdict = conclude(

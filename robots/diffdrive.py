@@ -267,6 +267,22 @@ class FirmwareLimits:
         ``dt`` is the control period (s), ``wheelbase`` the nominal one (m).
         """
         req = np.asarray(requests, dtype=float)
+        if req.ndim != 2 or req.shape[-1] != 2:
+            raise ValueError(f"FirmwareLimits.applied: requests must be (N, 2), got {req.shape}")
+        if _applied_rows_compiled is not None and use_compiled():
+            return _applied_rows_compiled(
+                np.ascontiguousarray(req),
+                float(dt),
+                float(wheelbase),
+                self.v_max,
+                self.w_max,
+                self.a_max,
+                self.alpha_max,
+                self.decel_factor,
+                self.ramp is _WHEELS,
+                self.deceleration is _STOP,
+                self.deceleration is _FREE,
+            )
         out = np.empty_like(req)
         v = w = 0.0
         for k in range(req.shape[0]):
@@ -412,6 +428,60 @@ def _body_ramp(
 _body_ramp_compiled = compiled(_body_ramp)
 """:func:`_body_ramp` compiled by Numba (the same bits: IEEE arithmetic, the same
 comparisons); ``None`` without Numba."""
+
+
+def _applied_rows(
+    req: FloatArray,
+    dt: float,
+    wheelbase: float,
+    v_max: float,
+    w_max: float,
+    a_max: float,
+    alpha_max: float,
+    f: float,
+    wheels: bool,
+    stop: bool,
+    free: bool,
+) -> FloatArray:
+    """:meth:`FirmwareLimits.applied` as one loop over the rows with the firmware's numbers
+    given: :meth:`FirmwareLimits.step` (:meth:`~FirmwareLimits.limit` or
+    :meth:`~FirmwareLimits.limit_wheels`) with the same operations in the same order, so
+    that its compiled twin gives the same bits (a day of logs is millions of rows, and the
+    actuator-limit fit replays them hundreds of times)."""
+    n = req.shape[0]
+    out = np.empty((n, 2))
+    v = 0.0
+    w = 0.0
+    dv = a_max * dt
+    dv_slow = f * a_max * dt
+    dw = alpha_max * dt
+    dw_slow = f * alpha_max * dt
+    half = 0.5 * wheelbase
+    ds = a_max * dt
+    dd = f * ds
+    for k in range(n):
+        rv = req[k, 0]
+        rw = req[k, 1]
+        if stop and rv == 0.0 and rw == 0.0:
+            v = 0.0
+            w = 0.0
+        else:
+            cv = min(v_max, max(-v_max, rv))
+            cw = min(w_max, max(-w_max, rw))
+            if wheels:
+                sl = _ramp_step(v - w * half, cv - cw * half, ds, free, dd)
+                sr = _ramp_step(v + w * half, cv + cw * half, ds, free, dd)
+                v = 0.5 * (sl + sr)
+                w = (sr - sl) / wheelbase
+            else:
+                v, w = _ramp_step(v, cv, dv, free, dv_slow), _ramp_step(w, cw, dw, free, dw_slow)
+        out[k, 0] = v
+        out[k, 1] = w
+    return out
+
+
+_applied_rows_compiled = compiled(_applied_rows)
+""":func:`_applied_rows` compiled by Numba (the same bits); ``None`` without Numba."""
 
 
 _FLOAT64 = np.dtype(np.float64)

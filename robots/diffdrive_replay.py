@@ -25,13 +25,18 @@ after which row ``k + 1`` is measured.
 from __future__ import annotations
 
 import dataclasses
+import functools
+import hashlib
 import math
+import time
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.cache import ArrayCache, content_key, default_cache
 from realitygap.core.geometry import reframe_track
 from realitygap.estimators.diffdrive_model import DiffDriveKinematics
 from realitygap.robots.diffdrive import DiffDriveParams, DiffDriveRobot, RGBDCameraParams
@@ -150,6 +155,139 @@ def _unwrap_continuous(theta: FloatArray, start: float) -> FloatArray:
 
 
 # --------------------------------------------------------------------------- simulation
+_REPLAY_CACHE = "diffdrive_replay"
+
+
+@functools.lru_cache(maxsize=1)
+def _code_fingerprint() -> str:
+    """SHA-256 of the robot package's source (the body, firmware, effects and world): a
+    cached replay is read only by the code that wrote it."""
+    h = hashlib.sha256()
+    here = Path(__file__).resolve().parent
+    for path in sorted([*here.glob("*.py"), *here.glob("effects/*.py")]):
+        h.update(path.name.encode())
+        h.update(path.read_bytes())
+    import pybullet
+
+    h.update(str(getattr(pybullet, "getAPIVersion", lambda: 0)()).encode())
+    return h.hexdigest()
+
+
+def _physics(
+    t: FloatArray,
+    dt: float,
+    params: DiffDriveParams,
+    reality: Reality,
+    cmd: FloatArray | None,
+    tk: FloatArray | None,
+    start: FloatArray,
+    settings: SimSettings,
+    cache: ArrayCache | None = None,
+    use_cache: bool = True,
+) -> tuple[FloatArray, FloatArray, FloatArray, float]:
+    """The PyBullet run of a replay: body poses, encoder angles and camera poses, (N, 3/2/3),
+    and the seconds the run took (when read back from the cache: when it was made).
+
+    Deterministic in its inputs, so it is kept in the content-addressed cache
+    (:mod:`realitygap.core.cache`) under the time base, the drive input, the start, the
+    nominal parameters, the effects, the simulator settings and the code's fingerprint:
+    a log replayed again (another diagnosis of the same logs, another split) is read
+    back instead of simulated; any change of an input is another entry.
+    """
+    store = (cache if cache is not None else default_cache()) if use_cache else None
+    key = ""
+    if store is not None:
+        drive_input = ("cmd", cmd) if cmd is not None else ("ticks", tk)
+        key = content_key(
+            _code_fingerprint(),
+            t,
+            drive_input[0],
+            drive_input[1],
+            start,
+            params_to_meta(params),
+            reality.to_dict(),
+            settings.to_meta(),
+        )
+        hit = store.get(_REPLAY_CACHE, key)
+        n = t.shape[0]
+        if (
+            hit is not None
+            and all(
+                name in hit and hit[name].shape == (n, k)
+                for name, k in (("poses", 3), ("angles", 2), ("cams", 3))
+            )
+            and hit.get("seconds", np.zeros(1)).shape == ()
+        ):
+            return hit["poses"], hit["angles"], hit["cams"], float(hit["seconds"])
+
+    t0 = time.perf_counter()
+    n = t.shape[0]
+    n_sub = max(1, int(round(settings.physics_hz * dt)))
+    world = World(
+        physics_hz=n_sub / dt, n_substeps=n_sub, solver_iterations=settings.solver_iterations
+    )
+    try:
+        world.add_floor()
+        true_params = reality.apply_params(params)
+        robot = DiffDriveRobot(world, true_params)
+        robot.reset(start)
+        robot.attach_firmware(dt, nominal=params, reality=reality)
+        k_ticks = params.ticks_per_rev / (2.0 * math.pi)
+
+        wheel_target = None
+        if tk is not None:
+            ang = robot.wheel_angles_from_encoder(tk / k_ticks)
+            wheel_target = np.diff(ang, axis=0) / dt
+
+        poses = np.empty((n, 3))
+        angles = np.empty((n, 2))
+        cams = np.empty((n, 3))
+
+        def record(k: int) -> None:
+            poses[k] = robot.pose2d()
+            angles[k] = robot.encoder_angles()
+            cams[k] = camera_planar_pose(robot)
+
+        record(0)
+        for k in range(n - 1):
+            if wheel_target is not None:
+                robot.set_wheel_speeds(float(wheel_target[k, 0]), float(wheel_target[k, 1]))
+            else:
+                assert cmd is not None
+                robot.command_twist(float(cmd[k, 0]), float(cmd[k, 1]))
+            world.step()
+            record(k + 1)
+    finally:
+        world.close()
+    seconds = time.perf_counter() - t0
+    if store is not None:
+        store.put(
+            _REPLAY_CACHE,
+            key,
+            {"poses": poses, "angles": angles, "cams": cams, "seconds": np.float64(seconds)},
+        )
+    return poses, angles, cams, seconds
+
+
+def replay_rate(
+    params: DiffDriveParams, settings: SimSettings, dt: float, seconds: float = 2.0
+) -> float:
+    """Seconds of computation per second of replayed motion, measured now: a short PyBullet
+    run (a drive and a turn, ``seconds`` long, not read from the cache) of the robot
+    ``params`` at control period ``dt``. What a replay of a log costs on this machine at
+    its present load."""
+    if not (dt > 0 and seconds > 0):
+        raise ValueError(f"replay_rate: expected dt > 0 and seconds > 0, got {dt!r}, {seconds!r}")
+    n = max(3, int(round(seconds / dt)) + 1)
+    t = dt * np.arange(n)
+    cmd = np.zeros((n, 2))
+    cmd[: n // 2, 0] = 0.2
+    cmd[n // 2 :, 1] = 0.5
+    t0 = time.perf_counter()
+    _physics(t, dt, params, Reality(), cmd, None, np.zeros(3), settings, use_cache=False)
+    return (time.perf_counter() - t0) / (t[-1] - t[0])
+
+
 def simulate_channels(
     t: npt.ArrayLike,
     *,
@@ -216,44 +354,9 @@ def simulate_channels(
     if tk is not None and tk.shape != (n, 2):
         raise ValueError(f"ticks must have shape ({n}, 2), got {tk.shape}")
 
-    n_sub = max(1, int(round(settings.physics_hz * dt)))
-    world = World(
-        physics_hz=n_sub / dt, n_substeps=n_sub, solver_iterations=settings.solver_iterations
-    )
-    try:
-        world.add_floor()
-        true_params = reality.apply_params(params)
-        robot = DiffDriveRobot(world, true_params)
-        start_arr = np.asarray(start, dtype=float)
-        robot.reset(start_arr)
-        robot.attach_firmware(dt, nominal=params, reality=reality)
-        k_ticks = params.ticks_per_rev / (2.0 * math.pi)
-
-        wheel_target = None
-        if tk is not None:
-            ang = robot.wheel_angles_from_encoder(tk / k_ticks)
-            wheel_target = np.diff(ang, axis=0) / dt
-
-        poses = np.empty((n, 3))
-        angles = np.empty((n, 2))
-        cams = np.empty((n, 3))
-
-        def record(k: int) -> None:
-            poses[k] = robot.pose2d()
-            angles[k] = robot.encoder_angles()
-            cams[k] = camera_planar_pose(robot)
-
-        record(0)
-        for k in range(n - 1):
-            if wheel_target is not None:
-                robot.set_wheel_speeds(float(wheel_target[k, 0]), float(wheel_target[k, 1]))
-            else:
-                assert cmd is not None
-                robot.command_twist(float(cmd[k, 0]), float(cmd[k, 1]))
-            world.step()
-            record(k + 1)
-    finally:
-        world.close()
+    start_arr = np.asarray(start, dtype=float)
+    k_ticks = params.ticks_per_rev / (2.0 * math.pi)
+    poses, angles, cams, _ = _physics(t, dt, params, reality, cmd, tk, start_arr, settings)
 
     poses[:, 2] = _unwrap_continuous(poses[:, 2], float(start_arr[2]))
     cams[:, 2] = _unwrap_continuous(cams[:, 2], float(cams[0, 2]))

@@ -40,18 +40,15 @@ body's motion — and calibrates the model against PyBullet.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
-import os
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.core.io import atomic_write_text
+from realitygap.core.cache import content_key, default_cache
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import EFFECTS, Effect, pipeline_key
 from realitygap.robots.effects.diffdrive import SurrogateContext, SurrogateSlot
@@ -60,6 +57,7 @@ FloatArray = npt.NDArray[np.float64]
 
 __all__ = [
     "SURROGATE_EFFECTS",
+    "SURROGATE_OUTPUTS",
     "DiffDriveSurrogate",
     "SurrogateCalibration",
     "SurrogateInputs",
@@ -69,6 +67,9 @@ SURROGATE_EFFECTS: tuple[str, ...] = tuple(
     n for n, c in EFFECTS.items() if c.robot == "diffdrive" and c.surrogate_slot is not None
 )
 """Effects with a term in the surrogate (registration order), in the default library or not."""
+
+SURROGATE_OUTPUTS: tuple[str, ...] = ("pose_gt", "ticks", "pose_cam", "pose_true")
+"""The channels :meth:`DiffDriveSurrogate.simulate` can return."""
 
 _TERMS: dict[SurrogateSlot, tuple[type[Effect], ...]] = {
     slot: tuple(
@@ -192,7 +193,11 @@ class DiffDriveSurrogate:
         }
 
     def simulate(
-        self, inputs: SurrogateInputs, values: Mapping[str, npt.ArrayLike], batch: int | None = None
+        self,
+        inputs: SurrogateInputs,
+        values: Mapping[str, npt.ArrayLike],
+        batch: int | None = None,
+        outputs: Collection[str] | None = None,
     ) -> dict[str, FloatArray]:
         """Simulate a batch of parameter sets.
 
@@ -203,6 +208,9 @@ class DiffDriveSurrogate:
             Effect parameters; absent ones are nominal.
         batch : int, optional
             ``B`` when every value is a scalar.
+        outputs : collection of str, optional
+            The channels wanted (default all); a channel not asked for is not computed
+            (a log without a camera does not pay for the camera's track).
 
         Returns
         -------
@@ -210,6 +218,13 @@ class DiffDriveSurrogate:
             ``pose_gt`` (B, N, 3) as stamped in the log, ``ticks`` (B, N, 2)
             (continuous counts), ``pose_cam`` (B, N, 3), ``pose_true`` (B, N, 3).
         """
+        wanted = set(SURROGATE_OUTPUTS if outputs is None else outputs)
+        unknown = wanted - set(SURROGATE_OUTPUTS)
+        if unknown:
+            raise ValueError(
+                f"DiffDriveSurrogate.simulate: unknown output(s) {sorted(unknown)}; "
+                f"expected some of {', '.join(SURROGATE_OUTPUTS)}"
+            )
         P = self.params
         dt = float(inputs.dt)
         n = inputs.n
@@ -311,25 +326,29 @@ class DiffDriveSurrogate:
         )
         pose = np.stack([x, y, heading], axis=-1)
 
+        out: dict[str, FloatArray] = {"pose_true": pose, "ticks": ticks}
         # ---------------------------------------------------- camera, stamps
-        cam = P.camera
-        mx, my, myaw = (
-            np.broadcast_to(np.asarray(m, dtype=float), (B,))
-            for m in term(
-                SurrogateSlot.CAMERA_MOUNT, (cam.mount_xyz[0], cam.mount_xyz[1], cam.mount_yaw)
+        if "pose_cam" in wanted:
+            cam = P.camera
+            mx, my, myaw = (
+                np.broadcast_to(np.asarray(m, dtype=float), (B,))
+                for m in term(
+                    SurrogateSlot.CAMERA_MOUNT,
+                    (cam.mount_xyz[0], cam.mount_xyz[1], cam.mount_yaw),
+                )
             )
-        )
-        c, s = np.cos(heading), np.sin(heading)
-        pose_cam = np.stack(
-            [
-                x + c * mx[:, None] - s * my[:, None],
-                y + s * mx[:, None] + c * my[:, None],
-                heading + myaw[:, None],
-            ],
-            axis=-1,
-        )
-        pose_gt = term(SurrogateSlot.STAMPS, pose)
-        return {"pose_gt": pose_gt, "ticks": ticks, "pose_cam": pose_cam, "pose_true": pose}
+            c, s = np.cos(heading), np.sin(heading)
+            out["pose_cam"] = np.stack(
+                [
+                    x + c * mx[:, None] - s * my[:, None],
+                    y + s * mx[:, None] + c * my[:, None],
+                    heading + myaw[:, None],
+                ],
+                axis=-1,
+            )
+        if "pose_gt" in wanted:
+            out["pose_gt"] = term(SurrogateSlot.STAMPS, pose)
+        return {k: v for k, v in out.items() if k in wanted}
 
     @staticmethod
     def _rate_limited(
@@ -437,8 +456,8 @@ def calibrate(params: DiffDriveParams, solver_iterations: int = 0) -> SurrogateC
     wheel rotation, the motor limits from the encoder counts at nominal
     friction, the friction limits (and the load transfer) from the poses at
     low friction. Results are cached per parameter set and solver setting, in
-    memory and on disk (``$REALITYGAP_CACHE`` or ``~/.cache/realitygap``, keyed
-    by :data:`CALIBRATION_VERSION`, the body's URDF and parameters, the solver
+    memory and in the content-addressed cache of :mod:`realitygap.core.cache`
+    (keyed by :data:`CALIBRATION_VERSION`, the body's URDF and parameters, the solver
     setting and the PyBullet version).
     """
     from realitygap.robots.diffdrive_replay import simulate_channels  # PyBullet only here
@@ -536,44 +555,42 @@ URDF does not show, so that stale cached constants are not used.
 """
 
 
-def _cache_path(params: DiffDriveParams, solver_iterations: int) -> Path:
-    """Cache file of a calibration, keyed by :data:`CALIBRATION_VERSION`, the body and the solver."""
-    import hashlib
+_CALIBRATION_CACHE = "surrogate_calibration"
 
+
+def _cache_key(params: DiffDriveParams, solver_iterations: int) -> str:
+    """Content key of a calibration (:mod:`realitygap.core.cache`): :data:`CALIBRATION_VERSION`,
+    the body's URDF and parameters, the solver setting and the PyBullet version."""
     from realitygap.robots.diffdrive import urdf_from_params
     from realitygap.robots.world import physics_engine_version
 
-    root = os.environ.get("REALITYGAP_CACHE")
-    base = Path(root) if root else Path.home() / ".cache" / "realitygap"
-    h = hashlib.sha256()
-    for part in (
+    return content_key(
         urdf_from_params(params),
         repr(params),
-        str(solver_iterations),
-        str(CALIBRATION_VERSION),
+        int(solver_iterations),
+        CALIBRATION_VERSION,
         physics_engine_version(),
-    ):
-        h.update(part.encode("utf-8"))
-    return base / f"surrogate-calibration-{h.hexdigest()[:24]}.json"
+    )
 
 
 def _load_cached(params: DiffDriveParams, solver_iterations: int) -> SurrogateCalibration | None:
-    try:
-        path = _cache_path(params, solver_iterations)
-        if not path.is_file():
-            return None
-        data = json.loads(path.read_text(encoding="utf-8"))
-        return SurrogateCalibration(**{k: float(v) for k, v in data.items()})
-    except (OSError, ValueError, TypeError):
+    store = default_cache()
+    if store is None:
         return None
+    hit = store.get(_CALIBRATION_CACHE, _cache_key(params, solver_iterations))
+    names = [f.name for f in dataclasses.fields(SurrogateCalibration)]
+    if hit is None or any(n not in hit or hit[n].shape != () for n in names):
+        return None
+    return SurrogateCalibration(**{n: float(hit[n]) for n in names})
 
 
 def _store_cached(
     params: DiffDriveParams, solver_iterations: int, cal: SurrogateCalibration
 ) -> None:
-    try:
-        path = _cache_path(params, solver_iterations)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(path, json.dumps(dataclasses.asdict(cal)))
-    except OSError:
-        pass
+    store = default_cache()
+    if store is not None:
+        store.put(
+            _CALIBRATION_CACHE,
+            _cache_key(params, solver_iterations),
+            {k: np.float64(v) for k, v in dataclasses.asdict(cal).items()},
+        )

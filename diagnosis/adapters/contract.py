@@ -408,6 +408,20 @@ class RobotAdapter(ABC):
         default)."""
         return log
 
+    def replay_seconds(self, prepared: Sequence[PreparedLog]) -> float | None:
+        """Seconds one PyBullet replay of every log of ``prepared`` takes on one core,
+        measured now on a short probe (:class:`~realitygap.diagnosis.fit.workload.Workload`);
+        ``None`` (default): unknown, the nominal replays' own time stands in."""
+        return None
+
+    def prepare_on_surrogate(self, prepared: PreparedLog, log: Log) -> PreparedLog | None:
+        """``prepared`` for ``log`` — the same episode replayed otherwise (another actuator
+        convention or limits) — without a PyBullet replay: the nominal predicted by the
+        surrogate plus ``prepared``'s PyBullet defect (its ``bias``). For screening
+        choices on the fast model before the chosen one is replayed; ``None`` (default)
+        when the adapter cannot, and every option is then replayed."""
+        return None
+
     def held_parameters(self, problem: Problem, keys: Sequence[str]) -> dict[str, str]:
         """Parameters ``"effect.param"`` of a model (``keys``) that the training windows of
         ``problem`` cannot identify, with the reason: held at nominal and reported as not

@@ -97,6 +97,7 @@ class ModelFit:
     n_train: int = 0
     effect_sizes: dict[str, float] = field(default_factory=dict)
     held: dict[str, str] = field(default_factory=dict)
+    screened: bool = False
 
     @property
     def name(self) -> str:
@@ -171,6 +172,8 @@ def fit_model(
     bias: Mapping[int, dict[str, FloatArray]] | None = None,
     local_only: bool = False,
     box: Mapping[str, tuple[float, float]] | None = None,
+    screen: bool = False,
+    anchor: Mapping[str, float] | None = None,
 ) -> ModelFit:
     """Fit one model's parameters on the training windows and score it on the held-out ones.
 
@@ -193,6 +196,17 @@ def fit_model(
     box : mapping of key to (low, high), optional
         Narrower bounds (natural units) for some parameters, inside their
         physical bounds (the baseline's nuisance ranges).
+    screen : bool
+        A screening fit: the baseline nuisances stay at their calibrated values. It costs a fraction of the full fit,
+        and its training cost is an upper bound on the full fit's (the full fit
+        has more freedom): it ranks candidates, and
+        :func:`~realitygap.diagnosis.fit.candidates.fit_candidates` fits fully those that
+        can still change the answer. The result is marked ``screened``.
+    anchor : mapping, optional
+        Parameters ``{"effect.param": value}`` held at these values on the start grid,
+        which then spans the model's other parameters only (a forward-selection step:
+        a second effect searched with the first at its single-effect optimum); the
+        local refinement moves them all.
     """
     settings = problem.settings
     held = problem.held_parameters(effects)
@@ -218,7 +232,9 @@ def fit_model(
     loss, c = settings.loss, problem.f_scale
     # baseline nuisances the model does not fit itself: refined with it inside their ranges
     nuis = tuple(
-        k for k in problem.baseline_ranges if k not in keys and k in problem.baseline_values
+        k
+        for k in problem.baseline_ranges
+        if k not in keys and k in problem.baseline_values and not screen
     )
     q = len(nuis)
     all_keys = keys + nuis
@@ -257,7 +273,17 @@ def fit_model(
         cand.append(np.concatenate([np.clip(u, lo_u, hi_u), np.clip(u_n, lo_n, hi_n)]))
     u_nom = np.clip(np.array([range_position(k, param_spec(k).nominal) for k in keys]), lo_u, hi_u)
     if not local_only:
-        G = np.vstack([lo_u + _grid(keys, settings, rng) * (hi_u - lo_u), u_nom[None]])
+        # the grid spans the parameters not anchored; anchored ones sit at their values
+        free = [j for j, k in enumerate(keys) if not (anchor and k in anchor)]
+        G = np.repeat(u_nom[None], 1, axis=0)
+        if free:
+            G_free = _grid([keys[j] for j in free], settings, rng)
+            G = np.repeat(u_nom[None], G_free.shape[0], axis=0)
+            G[:, free] = lo_u[free] + G_free * (hi_u[free] - lo_u[free])
+            for j, k in enumerate(keys):
+                if anchor and k in anchor:
+                    G[:, j] = np.clip(range_position(k, float(anchor[k])), lo_u[j], hi_u[j])
+            G = np.vstack([G, u_nom[None]])
         U = np.vstack([np.hstack([G, np.tile(u_base, (G.shape[0], 1))]), *cand])
         costs = _cost(U, tr)
         if p == 1:
@@ -291,18 +317,39 @@ def fit_model(
             cache[key] = residual_batch(u[None], tr)[0]
         return cache[key]
 
+    def differences(u: FloatArray, cols: Sequence[int]) -> FloatArray:
+        """Forward differences (n, len(cols)) of the training residual at ``u``."""
+        steps = np.where(u[list(cols)] + h <= hi_u[list(cols)], h, -h)
+        U = np.repeat(u[None], len(cols), axis=0)
+        U[np.arange(len(cols)), list(cols)] += steps
+        z0 = fun(u)
+        return ((residual_batch(U, tr) - z0) / steps[:, None]).T
+
+    # The nuisances are small corrections (a clock offset of milliseconds, a frame
+    # offset of millimetres) on which the residual depends almost linearly, and
+    # barely through the model's parameters: their Jacobian columns are taken once
+    # per start and kept (a Broyden-like quasi-Newton step in those directions); the
+    # model's columns are differenced at every step. The residual itself is always
+    # exact, so the optimum is the same to the tolerance's order.
+    frozen: dict[str, FloatArray] = {}
+
     def jac(u: FloatArray) -> FloatArray:
-        steps = np.where(u + h <= hi_u, h, -h)
-        U = np.vstack([u] + [u + np.eye(n_all)[j] * steps[j] for j in range(n_all)])
-        z = residual_batch(U, tr)
-        cache[u.tobytes()] = z[0]
-        return ((z[1:] - z[0]) / steps[:, None]).T
+        J = np.empty((tr.n, n_all))
+        if p:
+            J[:, :p] = differences(u, range(p))
+        if q:
+            if "nuisance" not in frozen:
+                frozen["nuisance"] = differences(u, range(p, n_all))
+            J[:, p:] = frozen["nuisance"]
+        return J
 
     # least_squares needs strictly feasible starts and lower < upper
     span = np.maximum(hi_u - lo_u, 1e-12)
     best = None
+    tol = settings.fit_tolerance
     for u0 in cand:
         u0 = np.clip(u0, lo_u + 1e-9 * span, hi_u - 1e-9 * span)
+        frozen.clear()
         try:
             res = least_squares(
                 fun,
@@ -311,9 +358,15 @@ def fit_model(
                 bounds=(lo_u, hi_u),
                 x_scale=0.1 * span,
                 max_nfev=30 * n_all,
-                method="trf",
+                # a refinement from a given optimum starts in its basin, where the
+                # nuisances (time shifts of nearly one signature) leave the problem
+                # ill-conditioned: dogbox's rectangular trust region converges there in
+                # a few steps where trf's ellipsoidal one crawls along the valley
+                method="dogbox" if local_only else "trf",
                 loss=loss,
                 f_scale=c,
+                xtol=tol,
+                ftol=tol,
             )
         except (ValueError, np.linalg.LinAlgError):  # pragma: no cover - defensive
             continue
@@ -327,14 +380,16 @@ def fit_model(
         p,
     )
     z_tr = fun(u_all)
-    J = jac(u_all)[:, :p]
+    J = differences(u_all, range(p))
     z_ho = residual_batch(u_all[None], ho)[0] if ho.n else np.zeros(0)
     nuisance = {
         k: float(from_range_position(k, np.array([u_all[p + j]]))[0]) for j, k in enumerate(nuis)
     }
-    return _finish(
+    fit = _finish(
         problem, tuple(effects), keys, u_all[:p], z_tr, z_ho, J, nuisance=nuisance, held=held
     )
+    fit.screened = screen
+    return fit
 
 
 def _refine_one(

@@ -299,7 +299,9 @@ def _markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str, note: st
     lines.append(
         "Fitted on the training windows, scored on the held-out ones, sorted by the share of "
         "the held-out gap each closes (# is the rank by score: profile likelihood + BIC "
-        "penalty, lower is better). ✓ = verified with PyBullet replays. A model is named "
+        "penalty, lower is better). ✓ = verified with PyBullet replays; s = screening fit "
+        "(the baseline nuisances held at their calibrated values: the model cannot reach the "
+        "top of the ranking, so it was not refined further). A model is named "
         f"only if it closes ≥ {100 * d.settings.attribution.min_shrink:.0f} % and leaves a "
         "noise-like residual, or, as a single effect, closes "
         f"≥ {100 * d.settings.attribution.dominant_shrink:.0f} % of the gap above noise (its "
@@ -317,7 +319,8 @@ def _markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str, note: st
         )
         lines.append(
             f"| {r['rank']} | {r['name']} | {vals or '—'} | {r['heldout_shrink_pct']:.1f} % | "
-            f"{_fmt(r['rank_score'], 5)} | {'✓' if r['verified_in_pybullet'] else ''} |"
+            f"{_fmt(r['rank_score'], 5)} | {'✓' if r['verified_in_pybullet'] else ''}"
+            f"{'s' if r.get('screened') else ''} |"
         )
     if d.not_observable:
         lines += ["", "Not attributable with these logs:", ""]

@@ -51,6 +51,7 @@ within the nuisance range) gains nothing over it and cannot be a finding.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -264,8 +265,10 @@ def choose_convention(
     limits fitted on the training logs (:meth:`fit_actuator_limits`: for the
     differential drive the firmware's acceleration and deceleration limits,
     fitted to the encoders within physical bounds of the stated ones), is
-    replayed in PyBullet with them, the nuisances ``effects`` are fitted inside
-    ``box`` on the training windows, and the robust cost over every window
+    screened on the surrogate (:meth:`prepare_on_surrogate`: the nominal replays'
+    PyBullet defect carried over) and, unless its screened cost exceeds the best by
+    more than ``margin_strong``, replayed in PyBullet with them; the nuisances
+    ``effects`` are fitted inside ``box`` on the training windows, and the robust cost over every window
     (training and held-out, transient events set aside) is compared at one loss
     scale; ``problem`` is switched in place to the convention of least cost.
     :func:`calibrate_baseline` passes a ``box`` that frees each nuisance over its
@@ -296,41 +299,71 @@ def choose_convention(
     if len(offered) < 2 or problem.train.n == 0:
         return "", "", {}, {}
     c = problem.f_scale
-    current = problem.adapter.actuator_convention(problem.logs[0].log)
+    adapter = problem.adapter
+    current = adapter.actuator_convention(problem.logs[0].log)
     train_logs = [p.log for p in problem.logs if p.split == "train"]
     say(f"fitting the limits of {len(offered)} actuator conventions to the training logs")
-    fitted = backend.map(_fit_limits_task, list(offered), (problem.adapter, train_logs))
+    fitted = backend.map(_fit_limits_task, list(offered), (adapter, train_logs))
     fits = dict(zip(offered, fitted, strict=True))
+    own = {
+        name: name == current and _trivial_limits(fits[name]) for name in offered
+    }  # the logs as prepared: nothing to replay
+
+    def relogged(name: str) -> list[tuple[int, Log]]:
+        return [
+            (
+                i,
+                adapter.with_actuator_limits(
+                    adapter.with_actuator_convention(p.log, name), fits[name]
+                ),
+            )
+            for i, p in enumerate(problem.logs)
+        ]
+
+    def candidate(logs: list[PreparedLog], replayed: bool = True) -> Problem:
+        # logs that declare different geometries stay on the one reference (a screened
+        # log keeps the reference its replayed original was linked to)
+        if replayed:
+            adapter.link_logs(logs, problem.drive)
+        cand = Problem(
+            adapter, list(logs), problem.drive, problem.features, problem.sim, problem.settings
+        )
+        cand.exclude(problem.excluded)
+        return cand
+
+    # screen every convention on the surrogate (the nominal replays' PyBullet defect
+    # carried over), then replay in PyBullet only those whose screened cost lies within
+    # ``margin_strong`` of the best: a larger difference is decisive on its own
+    screened: dict[str, float] = {}
+    for name in offered:
+        if own[name]:
+            continue
+        preps = [adapter.prepare_on_surrogate(problem.logs[i], lg) for i, lg in relogged(name)]
+        if any(p is None for p in preps):
+            screened = {}
+            break
+        screened[name], _ = _fitted_cost(candidate(list(preps), False), effects, box, c)  # type: ignore[arg-type]
     costs: dict[str, float] = {}
     options: dict[str, Problem] = {}
     for name in offered:
-        fit = fits[name]
-        if name == current and _trivial_limits(fit):
-            cand = problem
-        else:
-            say(f"replaying with the actuator convention {name!r}")
-            adapter = problem.adapter
-            items = [
-                (
-                    i,
-                    adapter.with_actuator_limits(
-                        adapter.with_actuator_convention(p.log, name), fit
-                    ),
-                )
-                for i, p in enumerate(problem.logs)
-            ]
-            logs = list(backend.map(_prepare_task, items, problem))
-            # logs that declare different geometries stay on the one reference
-            problem.adapter.link_logs(logs, problem.drive)
-            cand = Problem(
-                problem.adapter,
-                list(logs),
-                problem.drive,
-                problem.features,
-                problem.sim,
-                problem.settings,
+        if own[name]:
+            costs[name], _ = _fitted_cost(problem, effects, box, c)
+            options[name] = problem
+    if screened:
+        bar = min([*screened.values(), *costs.values()]) + problem.settings.margin_strong
+        left_out = [n for n, v in screened.items() if v > bar]
+        if left_out:
+            say(
+                f"screened {len(screened)} actuator conventions on the surrogate; "
+                f"{', '.join(repr(n) for n in left_out)} fit the logs clearly worse and are not "
+                "replayed"
             )
-            cand.exclude(problem.excluded)
+    for name in offered:
+        if own[name] or (screened and screened[name] > bar):
+            continue
+        say(f"replaying with the actuator convention {name!r}")
+        logs = list(backend.map(_prepare_task, relogged(name), problem))
+        cand = candidate(logs)
         costs[name], _ = _fitted_cost(cand, effects, box, c)
         options[name] = cand
     best = min(costs, key=lambda k: costs[k])
@@ -339,6 +372,8 @@ def choose_convention(
         problem.exclude(problem.excluded)
     fit = fits[best]
     limits = fit.to_json() if fit is not None else {}
+    # the costs reported: PyBullet's where replayed, the screening's otherwise
+    costs = {name: costs.get(name, screened.get(name, math.nan)) for name in offered}
     return best, offered[best], costs, limits
 
 

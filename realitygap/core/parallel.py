@@ -138,11 +138,29 @@ def limit_blas_threads(threads: int) -> None:
         raise ValueError(f"blas_threads must be a positive integer, got {threads!r}")
     for var in BLAS_THREAD_VARIABLES:
         os.environ[var] = str(threads)
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - optional
-        return
-    _BLAS_LIMIT = threadpool_limits(limits=threads)
+    controller = _blas_controller()
+    if controller is not None:
+        _BLAS_LIMIT = controller.limit(limits=threads)
+
+
+_CONTROLLER: Any = None
+
+
+def _blas_controller() -> Any:
+    """This process's ``threadpoolctl`` controller (``None`` without threadpoolctl), made once.
+
+    Finding the loaded BLAS / OpenMP libraries takes a few tenths of a second; made in
+    the parent before a pool forks, every worker inherits the result and only sets its
+    limit (a pool started per stage of a diagnosis would otherwise pay it per worker).
+    """
+    global _CONTROLLER
+    if _CONTROLLER is None:
+        try:
+            from threadpoolctl import ThreadpoolController
+        except ImportError:  # pragma: no cover - optional
+            return None
+        _CONTROLLER = ThreadpoolController()
+    return _CONTROLLER
 
 
 def _init_worker(shared: Any, blas_threads: int | None = None) -> None:
@@ -213,6 +231,8 @@ class ProcessBackend:
         if self.workers == 1 or len(items) <= 1:
             return [fn(shared, item) for item in items]
         n = min(self.workers, len(items))
+        if self.blas_threads is not None:
+            _blas_controller()  # found once here; the forked workers inherit it
         with ProcessPoolExecutor(
             max_workers=n,
             mp_context=self._context(),
@@ -228,6 +248,8 @@ class ProcessBackend:
         :class:`concurrent.futures.process.BrokenProcessPool` error of its items.
         """
         items = list(items)
+        if self.blas_threads is not None:
+            _blas_controller()
         with ProcessPoolExecutor(
             max_workers=self.workers,
             mp_context=self._context(),
@@ -246,16 +268,25 @@ class ProcessBackend:
 
 
 class RayBackend:
-    """Tasks on a Ray cluster; ``address=None`` starts (or joins) a local one.
+    """Tasks on a Ray cluster: the one at ``address``, else the one ``RAY_ADDRESS`` names,
+    else a local one.
+
+    The connection is made on first use. Where this process is already connected to Ray,
+    that connection is used; it must be to the cluster ``address`` names, if one is named.
+    :meth:`shutdown` (or leaving a ``with`` block) disconnects, when this backend made the
+    connection.
 
     Parameters
     ----------
     address : str, optional
-        Ray cluster address; ``None`` starts (or joins) a local cluster.
+        Ray cluster address (``"host:port"`` of its head, ``"ray://host:port"`` for Ray
+        Client); ``None``: the ``RAY_ADDRESS`` environment variable when it is set, else a
+        local cluster (started, or the last one ``ray start`` started on this machine).
     missing : str, optional
         Message of the ``ImportError`` when Ray is not installed.
     task_options : mapping, optional
-        Ray task options of :meth:`imap_unordered` (default one CPU, one retry).
+        Ray task options of :meth:`map` and :meth:`imap_unordered` (default one CPU,
+        one retry).
     log_to_driver : bool
         Whether the workers' output reaches this process (default ``False``).
 
@@ -263,6 +294,8 @@ class RayBackend:
     ------
     ImportError
         If Ray is not installed, with the ``pip install`` fix.
+    TypeError
+        If ``address`` is not a string or ``None``.
     """
 
     name = "ray"
@@ -274,25 +307,104 @@ class RayBackend:
         task_options: Mapping[str, Any] | None = None,
         log_to_driver: bool = False,
     ):
+        if address is not None and not isinstance(address, str):
+            raise TypeError(
+                f"address must be a Ray cluster address such as '10.0.0.5:6379' or None, "
+                f"got {type(address).__name__} {address!r}"
+            )
         self._ray = require_ray(missing)
+        if address is None:
+            address = os.environ.get("RAY_ADDRESS") or None
         self.address = address
         self.task_options = dict(
             {"num_cpus": 1, "max_retries": 1} if task_options is None else task_options
         )
         self.log_to_driver = log_to_driver
+        self._connected_here = False
 
     def _init(self) -> Any:
         ray = self._ray
-        if not ray.is_initialized():
-            ray.init(
-                address=self.address, ignore_reinit_error=True, log_to_driver=self.log_to_driver
-            )
+        if ray.is_initialized():
+            self._check_same_cluster(ray.get_runtime_context().gcs_address)
+            return ray
+        ray.init(address=self.address, log_to_driver=self.log_to_driver)
+        self._connected_here = True
         return ray
 
+    def _check_same_cluster(self, connected: str) -> None:
+        """Refuse an ``address`` that names another cluster than the one already connected."""
+        named = self.address
+        if named is None or named in ("auto", "local") or "://" in named or not connected:
+            return  # no address to compare (Ray Client addresses name a proxy, not the GCS)
+        if self._same_endpoint(named, connected):
+            return
+        raise RuntimeError(
+            f"RayBackend(address={named!r}): this process is already connected to the Ray "
+            f"cluster at {connected!r}, and Ray connects a process to one cluster at a time. "
+            f"Fix: call ray.shutdown() before using the cluster at {named!r}, or pass "
+            f"address={connected!r} to use the connected one"
+        )
+
+    @staticmethod
+    def _same_endpoint(a: str, b: str) -> bool:
+        """Whether ``host:port`` addresses ``a`` and ``b`` name the same server: same port,
+        and the same host or both hosts this machine (a cluster started here answers on its
+        IP and on the loopback)."""
+        host_a, _, port_a = a.rpartition(":")
+        host_b, _, port_b = b.rpartition(":")
+        if port_a != port_b:
+            return False
+        if host_a == host_b:
+            return True
+        return RayBackend._is_this_machine(host_a) and RayBackend._is_this_machine(host_b)
+
+    @staticmethod
+    def _is_this_machine(host: str) -> bool:
+        import socket
+
+        host = host.strip("[]")
+        if host in ("localhost", "::1", "0.0.0.0", socket.gethostname()) or host.startswith("127."):
+            return True
+        ours: set[str] = set()
+        try:
+            ours |= {str(info[4][0]) for info in socket.getaddrinfo(socket.gethostname(), None)}
+        except OSError:
+            pass
+        try:
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+                probe.connect(("192.0.2.1", 9))  # sends nothing: picks the outgoing interface
+                ours.add(probe.getsockname()[0])
+        except OSError:
+            pass
+        return host in ours
+
+    @property
+    def connected(self) -> bool:
+        """Whether this backend made the process's current Ray connection."""
+        return self._connected_here and self._ray.is_initialized()
+
+    def shutdown(self) -> None:
+        """Disconnect from Ray if this backend connected; a connection made elsewhere stays.
+
+        For a local cluster that the connection started, this also stops that cluster.
+        """
+        if self.connected:
+            self._ray.shutdown()
+        self._connected_here = False
+
+    def __enter__(self) -> RayBackend:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.shutdown()
+
     def map(self, fn: Callable[[Any, T], R], items: Sequence[T], shared: Any) -> list[R]:
+        """One Ray task per item (with :attr:`task_options`); ``shared`` is put in the object
+        store once. Returns the results in item order; the first failing task's error is
+        raised."""
         ray = self._init()
         ref = ray.put(shared)
-        remote = ray.remote(_ray_call)
+        remote = ray.remote(**self.task_options)(_ray_call)
         return list(ray.get([remote.remote(fn, ref, item) for item in items]))
 
     def imap_unordered(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[Outcome[T, R]]:
@@ -320,11 +432,24 @@ def _ray_call(fn: Callable[[Any, Any], Any], shared: Any, item: Any) -> Any:
 def make_backend(
     name: str = "process", workers: int | None = None, address: str | None = None
 ) -> Backend:
-    """Backend by name: ``"serial"``, ``"process"`` or ``"ray"``."""
+    """Backend by name: ``"serial"``, ``"process"`` (``workers`` processes) or ``"ray"`` (the
+    cluster at ``address``; ``None``: ``RAY_ADDRESS``, else a local one; see
+    :class:`RayBackend`).
+
+    Raises
+    ------
+    ValueError
+        An unknown ``name``, or ``workers`` below 1.
+    ImportError
+        ``"ray"`` where Ray is not installed.
+    """
     if name == "serial":
         return SerialBackend()
     if name == "process":
         return ProcessBackend(workers)
     if name == "ray":
         return RayBackend(address)
-    raise ValueError(f"unknown backend {name!r}; expected 'serial', 'process' or 'ray'")
+    raise ValueError(
+        f"unknown backend {name!r}; expected 'serial', 'process' or 'ray' "
+        "(--backend serial|process|ray)"
+    )

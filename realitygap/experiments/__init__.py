@@ -35,6 +35,7 @@ _MODULES = (
     "realitygap.experiments.arm",
     "realitygap.experiments.climb",
     "realitygap.experiments.diagnosis",
+    "realitygap.experiments.scaling",
     "realitygap.experiments.independent",
     "realitygap.experiments.benchmark",
 )

@@ -436,7 +436,7 @@ def simulate_run(
     dt, h = robot.cycle, robot.substep
     n_sub = int(round(dt / h))
     r0 = 0.5 * robot.diameter
-    radius = np.array([r0 * hidden.d_left, r0 * hidden.d_right])
+    rad_l, rad_r = r0 * hidden.d_left, r0 * hidden.d_right  # true wheel radii
     b = robot.wheelbase * hidden.b_true
     tau = robot.motor_tau if hidden.tau_true is None else hidden.tau_true
     cpr = robot.ticks_per_rev * np.array([hidden.cpr_left, hidden.cpr_right])
@@ -446,16 +446,22 @@ def simulate_run(
 
     setpoint = np.zeros(2)  # ramped wheel set-points, ticks/cycle
     body = np.zeros(2)  # ramped (v, ω) request of a body ramp, ticks/cycle and rad/cycle
-    history: list[FloatArray] = []  # set-points by cycle (delay line)
-    wheel_rate = np.zeros(2)  # rad/s
-    ground = np.zeros(2)  # m/s
-    phi = np.zeros(2)  # wheel angles, rad
-    pose = np.zeros(3)
+    history: list[tuple[float, float]] = []  # set-points by cycle (delay line)
+    # The fine-step state is kept in plain floats, per wheel (left, right): the same
+    # IEEE arithmetic as on length-2 arrays, without numpy's per-call cost.
+    wl = wr = 0.0  # wheel rates, rad/s
+    gl = gr = 0.0  # ground speeds, m/s
+    phl = phr = 0.0  # wheel angles, rad
+    px = py = pth = 0.0  # pose
+    alpha = 1.0 - math.exp(-h / tau)  # motor lag over one fine step
+    cap = hidden.speed_cap / r0
+    grip_step = hidden.grip * G * h if math.isfinite(hidden.grip) else None
+    slip = 1.0 - hidden.creep
     odo = np.zeros(3)
     counts_prev = np.zeros(2, dtype=np.int64)
     mocap_period = 1.0 / robot.mocap_rate
     mocap_t: list[float] = []
-    mocap_pose: list[FloatArray] = []
+    mocap_pose: list[tuple[float, float, float]] = []
     next_mocap = robot.mocap_phase
     wander = (
         (rng.uniform(2.0, 10.0, size=2), rng.uniform(0.0, 2.0 * math.pi, size=2))
@@ -488,54 +494,59 @@ def simulate_run(
             setpoint = np.array(
                 [body[0] - body[1] * half_b_ticks, body[0] + body[1] * half_b_ticks]
             )
-        history.append(setpoint.copy())
+        issued = (float(setpoint[0]), float(setpoint[1]))
+        history.append(issued)
         for j in range(n_sub):
             ts = t + j * h
             # set-point reaching the drivers now: the one issued `delay` s earlier
             lag = (ts - hidden.delay) / dt
             if lag < 0:
-                sp = np.zeros(2)
+                sp_l = sp_r = 0.0
+            elif delay_cycles > 0:
+                sp_l, sp_r = history[min(int(lag), len(history) - 1)]
             else:
-                i0 = min(int(lag), len(history) - 1)
-                sp = history[i0] if delay_cycles > 0 else setpoint
-            want = sp * rad_per_tick_nom / dt  # wheel rad/s
-            rim_want = want * r0
-            want = np.where(np.abs(rim_want) < hidden.stiction, 0.0, want)
+                sp_l, sp_r = issued
+            want_l = sp_l * rad_per_tick_nom / dt  # wheel rad/s
+            want_r = sp_r * rad_per_tick_nom / dt
+            if abs(want_l * r0) < hidden.stiction:
+                want_l = 0.0
+            if abs(want_r * r0) < hidden.stiction:
+                want_r = 0.0
             gain = 1.0 - hidden.battery_sag * min(1.0, (session_t0 + ts) / session_length)
-            want = want * gain
-            cap = hidden.speed_cap / r0
-            want = np.clip(want, -cap, cap)
-            wheel_rate = wheel_rate + (want - wheel_rate) * (1.0 - math.exp(-h / tau))
-            r_eff = radius.copy()
+            want_l = min(max(want_l * gain, -cap), cap)
+            want_r = min(max(want_r * gain, -cap), cap)
+            wl = wl + (want_l - wl) * alpha
+            wr = wr + (want_r - wr) * alpha
+            r_eff_r = rad_r
             if hidden.ellipticity:
-                r_eff[1] *= 1.0 + hidden.ellipticity * math.cos(2.0 * phi[1])
-            rim = wheel_rate * r_eff * (1.0 - hidden.creep)
-            if math.isfinite(hidden.grip):
-                step = hidden.grip * G * h
-                ground = ground + np.clip(rim - ground, -step, step)
+                r_eff_r = rad_r * (1.0 + hidden.ellipticity * math.cos(2.0 * phr))
+            rim_l = wl * rad_l * slip
+            rim_r = wr * r_eff_r * slip
+            if grip_step is not None:
+                gl = gl + min(max(rim_l - gl, -grip_step), grip_step)
+                gr = gr + min(max(rim_r - gr, -grip_step), grip_step)
             else:
-                ground = rim
-            phi = phi + wheel_rate * h
-            v = 0.5 * (ground[0] + ground[1])
-            w = (ground[1] - ground[0]) / b
+                gl, gr = rim_l, rim_r
+            phl = phl + wl * h
+            phr = phr + wr * h
+            v = 0.5 * (gl + gr)
+            w = (gr - gl) / b
             if hidden.caster_drag and abs(w) > 1e-6:
                 w -= math.copysign(min(hidden.caster_drag, abs(w)), w)
             vx, vy = v, hidden.skid * v * w
             if hidden.slope:
-                rel = hidden.slope_dir - pose[2]
+                rel = hidden.slope_dir - pth
                 pull = G * math.sin(hidden.slope) * 0.02  # creep down the slope, m/s per (m/s²)
                 vx += pull * math.cos(rel) * min(1.0, abs(v) / 0.05)
                 vy += pull * math.sin(rel) * min(1.0, abs(v) / 0.05 + abs(w) / 0.3)
-            c, s = math.cos(pose[2]), math.sin(pose[2])
-            pose = pose + h * np.array([c * vx - s * vy, s * vx + c * vy, w])
+            c, s = math.cos(pth), math.sin(pth)
+            px, py, pth = px + h * (c * vx - s * vy), py + h * (s * vx + c * vy), pth + h * w
             if ts + h >= next_mocap - 1e-12:
-                c, s = math.cos(pose[2]), math.sin(pose[2])
-                marker = np.array(
-                    [
-                        pose[0] + c * hidden.marker_dx - s * hidden.marker_dy,
-                        pose[1] + s * hidden.marker_dx + c * hidden.marker_dy,
-                        pose[2] + hidden.marker_yaw,
-                    ]
+                c, s = math.cos(pth), math.sin(pth)
+                marker = (
+                    px + c * hidden.marker_dx - s * hidden.marker_dy,
+                    py + s * hidden.marker_dx + c * hidden.marker_dy,
+                    pth + hidden.marker_yaw,
                 )
                 stamp = next_mocap + robot.mocap_latency + hidden.clock_skew
                 if wander is not None:
@@ -546,7 +557,8 @@ def simulate_run(
                 mocap_t.append(stamp)
                 mocap_pose.append(marker)
                 next_mocap += mocap_period
-        wobble = np.array([hidden.enc_wobble * math.sin(phi[0]), 0.0])
+        wobble = np.array([hidden.enc_wobble * math.sin(phl), 0.0])
+        phi = np.array([phl, phr])
         counts = np.floor((phi + wobble) * cpr / (2 * math.pi)).astype(np.int64)
         inc = counts - counts_prev
         counts_prev = counts
@@ -557,7 +569,7 @@ def simulate_run(
         rows_tl.append(int(inc[0]))
         rows_tr.append(int(inc[1]))
         rows_odo.append(odo.copy())
-        rows_truth.append(pose.copy())
+        rows_truth.append((px, py, pth))
         k += 1
     n = len(rows_t)
     time = dt * np.arange(n, dtype=np.float64)

@@ -12,6 +12,7 @@ from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.diffdrive_surrogate import (
     SURROGATE_EFFECTS,
     DiffDriveSurrogate,
+    SurrogateCalibration,
     SurrogateInputs,
     calibrate,
 )
@@ -122,6 +123,35 @@ def test_batches_match_single_runs(base) -> None:
         np.testing.assert_allclose(batch["pose_gt"][i], one["pose_gt"][0], atol=1e-12)
 
 
+def test_a_batch_sharing_a_time_shift_matches_one_of_differing_shifts(base) -> None:
+    """A delay or clock offset shared by the batch takes a faster path: the same numbers."""
+    sur, _, out = base
+    _, cmd, *_ = out["mixed"]
+    inputs = SurrogateInputs(DT, np.zeros(3), commands=cmd)
+    ratios = np.array([0.99, 1.0, 1.01])
+    for key, shift in (("command_latency.delay", 0.083), ("timestamp_offset.offset", -0.031)):
+        shared = sur.simulate(inputs, {key: np.full(3, shift), "wheel_diameter_ratio.E_d": ratios})
+        # the same shift on each row alone (a batch of one takes the general path)
+        for i, r in enumerate(ratios):
+            one = sur.simulate(inputs, {key: shift, "wheel_diameter_ratio.E_d": r})
+            for name in ("pose_gt", "ticks", "pose_cam"):
+                np.testing.assert_array_equal(shared[name][i], one[name][0])
+
+
+def test_only_the_channels_asked_for_are_computed_and_they_are_unchanged(base) -> None:
+    sur, _, out = base
+    _, cmd, *_ = out["mixed"]
+    inputs = SurrogateInputs(DT, np.zeros(3), commands=cmd)
+    values = {"camera_mount_offset.dx": np.array([0.0, 0.01]), "timestamp_offset.offset": 0.02}
+    full = sur.simulate(inputs, values)
+    some = sur.simulate(inputs, values, outputs=("pose_gt", "ticks"))
+    assert set(some) == {"pose_gt", "ticks"}
+    for name in some:
+        np.testing.assert_array_equal(some[name], full[name])
+    with pytest.raises(ValueError, match="unknown output"):
+        sur.simulate(inputs, values, outputs=("pose_gt", "lidar"))
+
+
 def test_tick_driven_runs_read_ticks_through_both_encoder_terms(base) -> None:
     sur, _, out = base
     _, cmd, *_ = out["mixed"]
@@ -135,17 +165,33 @@ def test_tick_driven_runs_read_ticks_through_both_encoder_terms(base) -> None:
     np.testing.assert_allclose(read["ticks"][0], plain["ticks"][0] * gains, rtol=1e-9, atol=1e-9)
 
 
-def test_calibration_cache_key_holds_no_source_code(tmp_path, monkeypatch) -> None:
+def test_calibration_cache_key_follows_the_body_the_solver_and_the_version(monkeypatch) -> None:
     from realitygap.robots import diffdrive_surrogate as surrogate
 
-    monkeypatch.setenv("REALITYGAP_CACHE", str(tmp_path))
-    path = surrogate._cache_path(P, 0)
-    assert path.parent == tmp_path
-    assert path == surrogate._cache_path(DiffDriveParams(), 0)
-    assert path != surrogate._cache_path(P.replace(wheelbase=0.24), 0)
-    assert path != surrogate._cache_path(P, 10)
+    key = surrogate._cache_key(P, 0)
+    assert key == surrogate._cache_key(DiffDriveParams(), 0)
+    assert key != surrogate._cache_key(P.replace(wheelbase=0.24), 0)
+    assert key != surrogate._cache_key(P, 10)
     monkeypatch.setattr(surrogate, "CALIBRATION_VERSION", surrogate.CALIBRATION_VERSION + 1)
-    assert path != surrogate._cache_path(P, 0)
+    assert key != surrogate._cache_key(P, 0)
+
+
+def test_a_stored_calibration_is_read_back_and_the_cache_can_be_turned_off(
+    tmp_path, monkeypatch
+) -> None:
+    from realitygap.core.cache import CACHE_DIR_ENV, CACHE_ENV
+    from realitygap.robots import diffdrive_surrogate as surrogate
+
+    monkeypatch.setenv(CACHE_DIR_ENV, str(tmp_path))
+    monkeypatch.delenv(CACHE_ENV, raising=False)
+    body = P.replace(wheelbase=0.241)
+    cal = SurrogateCalibration(motor_accel_common=3.25, traction_common=7.5)
+    assert surrogate._load_cached(body, 0) is None
+    surrogate._store_cached(body, 0, cal)
+    assert surrogate._load_cached(body, 0) == cal
+    assert surrogate._load_cached(body, 10) is None
+    monkeypatch.setenv(CACHE_ENV, "0")
+    assert surrogate._load_cached(body, 0) is None
 
 
 DRIVE_TRAIN = (

@@ -283,3 +283,25 @@ def test_compiled_clearance_gives_the_numpy_clearance_bits() -> None:
     assert n_inside > 10  # points inside footprints (negative distances) were among them
     empty = raycast.PrimitiveArrays([])
     assert empty.clearance(0.3, -0.2) == math.inf
+
+
+@pytest.mark.parametrize("ramp", ["body", "wheels"])
+@pytest.mark.parametrize("deceleration", ["limited", "free", "stop"])
+def test_compiled_firmware_rows_match_the_step_by_step_firmware(ramp, deceleration) -> None:
+    from realitygap.robots.diffdrive import FirmwareLimits
+
+    if not jit.numba_available():
+        pytest.skip("numba is not installed")
+    rng = np.random.default_rng(11)
+    req = rng.normal(0.0, 0.5, size=(400, 2))
+    req[rng.random(400) < 0.15] = 0.0  # zero requests: the stop convention's case
+    req[100:140, 0] = 2.0  # beyond v_max
+    for limits in (
+        FirmwareLimits(0.7, 2.0, 0.8, 3.0, ramp, deceleration, decel_factor=1.5),
+        FirmwareLimits(a_max=0.5, ramp=ramp, deceleration=deceleration),  # speed unlimited
+    ):
+        fast = limits.applied(req, 0.05, 0.23)
+        with jit.numpy_only():
+            slow = limits.applied(req, 0.05, 0.23)
+        np.testing.assert_array_equal(fast, slow)
+        assert not np.array_equal(fast, req)  # the firmware did act

@@ -60,3 +60,48 @@ def test_the_diagnosis_log_holds_the_core_channels_bit_for_bit() -> None:
         assert np.asarray(log[name]).tobytes() == values.tobytes(), name
     assert dict(log.meta) == {**meta, "name": "x"}
     assert meta["params"] == params_to_meta(params)
+
+
+def _replay_inputs() -> tuple[np.ndarray, np.ndarray]:
+    t = 0.05 * np.arange(60)
+    cmd = np.zeros((60, 2))
+    cmd[5:50] = [0.3, 0.4]
+    return t, cmd
+
+
+def test_a_cached_replay_is_the_replay_and_any_changed_input_is_simulated_again(
+    tmp_path, monkeypatch
+) -> None:
+    import realitygap.robots.diffdrive_replay as core
+    from realitygap.core.cache import CACHE_DIR_ENV, CACHE_ENV
+
+    monkeypatch.setenv(CACHE_ENV, "0")
+    t, cmd = _replay_inputs()
+    fresh, _ = simulate_channels(t, params=DiffDriveParams(), commands=cmd)
+
+    monkeypatch.setenv(CACHE_ENV, "1")
+    monkeypatch.setenv(CACHE_DIR_ENV, str(tmp_path))
+    runs = []
+    world = core.World
+
+    def counting_world(*args, **kwargs):  # counts the PyBullet runs the cache did not save
+        runs.append(1)
+        return world(*args, **kwargs)
+
+    monkeypatch.setattr(core, "World", counting_world)
+    first, _ = simulate_channels(t, params=DiffDriveParams(), commands=cmd)
+    second, _ = simulate_channels(t, params=DiffDriveParams(), commands=cmd)
+    assert len(runs) == 1  # the second came from the cache
+    for name in fresh:
+        np.testing.assert_array_equal(first[name], fresh[name])
+        np.testing.assert_array_equal(second[name], fresh[name])
+    # another wheelbase, another effect value, another command: simulated, not read back
+    simulate_channels(t, params=DiffDriveParams().replace(wheelbase=0.24), commands=cmd)
+    simulate_channels(
+        t,
+        params=DiffDriveParams(),
+        commands=cmd,
+        reality=Reality((make_effect("wheel_diameter_ratio", E_d=1.01),)),
+    )
+    simulate_channels(t, params=DiffDriveParams(), commands=cmd * 1.001)
+    assert len(runs) == 4

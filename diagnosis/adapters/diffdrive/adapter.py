@@ -36,6 +36,7 @@ command-driven replay (:meth:`DiffDriveAdapter.actuation`) in
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -69,7 +70,9 @@ from realitygap.diagnosis.adapters.diffdrive.context import (
     TURN_WINDOW_RAD,
     DiffDriveContext,
     geometry,
+    geometry_report,
     meters_per_tick,
+    twist_from_ticks,
     values_for_log,
 )
 from realitygap.diagnosis.adapters.diffdrive.firmware import (
@@ -100,7 +103,7 @@ from realitygap.diagnosis.problem.residual import robust_spread
 from realitygap.diagnosis.problem.schemas import DIFFDRIVE_SCHEMA
 from realitygap.diagnosis.stages.scales import gain_through_origin
 from realitygap.robots.diffdrive import DiffDriveParams
-from realitygap.robots.diffdrive_replay import nominal_odometry
+from realitygap.robots.diffdrive_replay import nominal_odometry, replay_rate
 from realitygap.robots.diffdrive_surrogate import (
     SURROGATE_EFFECTS,
     DiffDriveSurrogate,
@@ -251,25 +254,7 @@ class DiffDriveAdapter(WheelDrivenAdapter):
             p.replay_log = replay_log
             sur = self.surrogate_features(p, {}, drive)
             p.bias = {k: p.nominal[k] - sur[k][0] for k in p.groups}
-        rl, rr, b = ref_geom
-        return {
-            "reference": {"wheel_radius_left": rl, "wheel_radius_right": rr, "wheelbase": b},
-            "declared": [
-                {
-                    "wheel_radius_left": g[0],
-                    "wheel_radius_right": g[1],
-                    "wheelbase": g[2],
-                    "logs": n,
-                }
-                for g, n in counts.items()
-            ],
-            "relinked": relinked,
-            "summary": (
-                f"the logs declare {len(counts)} nominal geometries; geometric factors are "
-                f"relative to the most common one (wheel radii {1e3 * rl:.2f} / {1e3 * rr:.2f} mm, "
-                f"wheelbase {1e3 * b:.1f} mm); {len(relinked)} log(s) replayed on it"
-            ),
-        }
+        return geometry_report(counts, ref_geom, relinked)
 
     def actuator_conventions(self, prepared: Sequence[PreparedLog], drive: Drive) -> dict[str, str]:
         """How the firmware's rate limit acts, when the commands are requests it ramps.
@@ -359,7 +344,7 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         if drive is Drive.COMMANDS:
             twist = applied_commands(log)
         else:
-            twist = self._twist_from_ticks(log["ticks"], params, dt)
+            twist = twist_from_ticks(log["ticks"], params, dt)
         regimes = classify_regimes(twist, bounds, features_settings)
         settings = sim if sim is not None else SimSettings.for_log(log)
         start = np.asarray(log["pose_gt"][0], dtype=float)
@@ -398,6 +383,29 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         sur = self.surrogate_features(prepared, {}, drive)
         prepared.bias = {g: prepared.nominal[g] - sur[g][0] for g in prepared.groups}
         return prepared
+
+    def replay_seconds(self, prepared: Sequence[PreparedLog]) -> float | None:
+        """A short PyBullet probe of the first log's robot, scaled to all logs' duration."""
+        if not prepared:
+            return None
+        ctx = self._context(prepared[0])
+        rate = replay_rate(ctx.params, ctx.sim, prepared[0].log.dt)
+        return rate * sum(float(p.log.duration) for p in prepared)
+
+    def prepare_on_surrogate(self, prepared: PreparedLog, log: Log) -> PreparedLog | None:
+        """``prepared`` with the applied commands of ``log`` (another actuator convention or
+        limits), its nominal the surrogate's plus the PyBullet defect ``prepared`` measured."""
+        ctx = self._context(prepared)
+        if ctx.inputs.commands is None:  # a tick-driven replay: no actuator in the loop
+            return None
+        twist = applied_commands(log)
+        inputs = dataclasses.replace(ctx.inputs, commands=twist)
+        context = dataclasses.replace(ctx, inputs=inputs, twist=twist)
+        out = dataclasses.replace(prepared, log=log, context=context, replay_log=log)
+        sur = self.surrogate_features(out, {}, Drive.COMMANDS)
+        out.nominal = {g: sur[g][0] + prepared.bias[g] for g in prepared.groups}
+        out.holdout_windows = prepared.holdout_windows.copy()
+        return out
 
     def sample_noise_levels(
         self, prepared: Sequence[PreparedLog], settings: FeatureSettings
@@ -548,13 +556,6 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         return meters_per_tick(params)
 
     @staticmethod
-    def _twist_from_ticks(ticks: FloatArray, params: DiffDriveParams, dt: float) -> FloatArray:
-        d = np.diff(ticks, axis=0, append=ticks[-1:]) * (2.0 * math.pi / params.ticks_per_rev)
-        sl = d[:, 0] * params.wheel_radius_left / dt
-        sr = d[:, 1] * params.wheel_radius_right / dt
-        return np.column_stack([(sl + sr) / 2.0, (sr - sl) / params.wheelbase])
-
-    @staticmethod
     def _context(prepared: PreparedLog) -> DiffDriveContext:
         ctx = prepared.context
         assert isinstance(ctx, DiffDriveContext)
@@ -585,7 +586,9 @@ class DiffDriveAdapter(WheelDrivenAdapter):
     ) -> Features:
         """Surrogate features for a batch of effect values, (B, M, k) per group."""
         ctx = self._context(prepared)
-        out = ctx.surrogate.simulate(ctx.inputs, values_for_log(ctx, values))
+        # only the channels the log has (a feature of pose_cam also needs pose_gt)
+        wanted = {"pose_gt", *prepared.real}
+        out = ctx.surrogate.simulate(ctx.inputs, values_for_log(ctx, values), outputs=wanted)
         feats = features(out, prepared.bounds, self.meters_per_tick(ctx.params))
         return {g: v for g, v in feats.items() if g in prepared.real}
 

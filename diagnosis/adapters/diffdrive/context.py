@@ -32,7 +32,9 @@ __all__ = [
     "TURN_WINDOW_RAD",
     "DiffDriveContext",
     "geometry",
+    "geometry_report",
     "meters_per_tick",
+    "twist_from_ticks",
     "values_for_log",
 ]
 
@@ -54,6 +56,16 @@ DRIVE_RESPONSE_FLOOR = 0.05
 """s: the time constant of a DC wheel drive's speed loop that is its own response, not a
 finding, however fast the commands come (a speed loop settles in some tens of
 milliseconds; the command period bounds it only where it is longer)."""
+
+
+def twist_from_ticks(ticks: npt.ArrayLike, params: DiffDriveParams, dt: float) -> FloatArray:
+    """The body twist (N, 2) [m/s, rad/s] the nominal geometry makes of cumulative encoder
+    counts (N, 2), each row the rate until the next (the last repeats none: zero)."""
+    t = np.asarray(ticks, dtype=float)
+    d = np.diff(t, axis=0, append=t[-1:]) * (2.0 * math.pi / params.ticks_per_rev)
+    sl = d[:, 0] * params.wheel_radius_left / dt
+    sr = d[:, 1] * params.wheel_radius_right / dt
+    return np.column_stack([(sl + sr) / 2.0, (sr - sl) / params.wheelbase])
 
 
 def meters_per_tick(params: DiffDriveParams) -> tuple[float, float]:
@@ -135,6 +147,30 @@ def geometry(params: DiffDriveParams) -> tuple[float, float, float]:
         float(params.wheel_radius_right),
         float(params.wheelbase),
     )
+
+
+def geometry_report(
+    counts: Mapping[tuple[float, float, float], int],
+    reference: tuple[float, float, float],
+    relinked: list[str],
+) -> dict[str, Any]:
+    """What linking logs of different declared geometries did, as JSON (the reference,
+    each declared geometry with its number of logs, the logs replayed on the reference)
+    and a one-line ``summary``."""
+    rl, rr, b = reference
+    return {
+        "reference": {"wheel_radius_left": rl, "wheel_radius_right": rr, "wheelbase": b},
+        "declared": [
+            {"wheel_radius_left": g[0], "wheel_radius_right": g[1], "wheelbase": g[2], "logs": n}
+            for g, n in counts.items()
+        ],
+        "relinked": relinked,
+        "summary": (
+            f"the logs declare {len(counts)} nominal geometries; geometric factors are "
+            f"relative to the most common one (wheel radii {1e3 * rl:.2f} / {1e3 * rr:.2f} mm, "
+            f"wheelbase {1e3 * b:.1f} mm); {len(relinked)} log(s) replayed on it"
+        ),
+    }
 
 
 def values_for_log(ctx: DiffDriveContext, values: Mapping[str, Any]) -> dict[str, Any]:
