@@ -539,6 +539,18 @@ def coverage_report(
     return cov
 
 
+def _replay_seconds(
+    adapter: RobotAdapter, prepared: Sequence[PreparedLog], measured_s: float, workers: int
+) -> float:
+    """Seconds a replay of every log costs in this run, on one core: what the nominal
+    replays just took (on ``workers`` workers), or the adapter's probe of an uncached
+    replay if that is less (the nominal replays included one-time work); when the
+    nominal replays were read from the cache, they are what replays cost here."""
+    probe = adapter.replay_seconds(prepared)
+    taken = measured_s * min(workers, max(len(prepared), 1))
+    return taken if probe is None else min(probe, taken)
+
+
 # --------------------------------------------------------------------------- main entry
 def diagnose(
     logs: Sequence[Log],
@@ -622,7 +634,7 @@ def diagnose(
         problem,
         len(candidates),
         row_s=row_seconds(problem, candidates),
-        replay_s=adapter.replay_seconds(prepared) or timing["prepare"] * workers,
+        replay_s=_replay_seconds(adapter, prepared, timing["prepare"], workers),
         workers=workers,
         calibrate=s.calibrate,
         conventions=len(adapter.actuator_conventions(prepared, drive)),

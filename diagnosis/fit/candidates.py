@@ -3,8 +3,8 @@ fully only those that can still reach the top of the ranking.
 
 A screening fit (:func:`~realitygap.diagnosis.fit.model.fit_model` with ``screen=True``)
 holds the calibrated baseline's nuisances; it ranks the candidates at a fraction of the
-full fit's cost. :func:`settle_ranking` refines the screened optima with the nuisances
-freed, best first, until the next candidate cannot reach the top ``verify_top + 1``
+full fit's cost. :func:`settle_ranking` then fits fully (grid, starts and the nuisances
+freed, the screening optimum one more start), best first, until the next candidate cannot reach the top ``verify_top + 1``
 (its screening score, less twice the largest gain a refinement has shown, is worse
 than the score it would have to beat): branch and bound on the ranking, so the answer
 (the top, verified in PyBullet, and the runner-up it is measured against) is the one
@@ -25,20 +25,19 @@ from realitygap.robots.effects import EFFECTS
 __all__ = ["fit_candidates", "settle_ranking"]
 
 
-def _refine_task(problem: Problem, fit: ModelFit) -> ModelFit:
-    return fit_model(problem, fit.effects, starts=[fit.values], local_only=True)
+def _full_task(problem: Problem, item: tuple[tuple[str, ...], list[dict[str, float]]]) -> ModelFit:
+    """The full fit of ``item = (effects, starts)``: grid, starts and the baseline nuisances
+    refined with the model."""
+    effects, starts = item
+    return fit_model(problem, effects, starts=starts)
 
 
 def _screen_task(
     problem: Problem, item: tuple[tuple[str, ...], list[dict[str, float]]]
 ) -> ModelFit:
-    """Screening fit of ``item = (effects, starts)``; a pair's grid is anchored at its first
-    start's values of the first effect (its single-effect optimum)."""
+    """Screening fit of ``item = (effects, starts)``."""
     effects, starts = item
-    anchor = None
-    if len(effects) > 1 and starts:
-        anchor = {k: v for k, v in starts[0].items() if split_key(k)[0] == effects[0]}
-    return fit_model(problem, effects, starts=starts, screen=True, anchor=anchor)
+    return fit_model(problem, effects, starts=starts, screen=True)
 
 
 def _screen(
@@ -57,13 +56,15 @@ def _screen(
 def settle_ranking(
     problem: Problem,
     fits: list[ModelFit],
+    items: Sequence[tuple[tuple[str, ...], list[dict[str, float]]]],
     backend: Backend,
     say: Callable[[str], None],
 ) -> None:
     """Fit fully, in place, every screened model that can still reach the top of the ranking.
 
-    The full fit refines the screening optimum (its grid and start already chose the
-    basin) together with the baseline nuisances. The answer rests on the top ``verify_top + 1`` models of the ranking (those
+    The full fit is the fit every model had before screening (``items``: each model's
+    effects and starts), with the screening optimum as one more start. The answer
+    rests on the top ``verify_top + 1`` models of the ranking (those
     verified in PyBullet and the runner-up they are measured against). A full fit
     refines the baseline nuisances too, so its score is the screening score less a
     gain; the gain is measured on the models fitted so far (the largest seen, and
@@ -87,7 +88,9 @@ def settle_ranking(
                 break
         picked = order[pos : pos + batch]
         pos += len(picked)
-        done: list[ModelFit] = backend.map(_refine_task, [fits[i] for i in picked], problem)
+        # the full fit from its own starts and the screening optimum
+        jobs = [(items[i][0], [*items[i][1], fits[i].values]) for i in picked]
+        done: list[ModelFit] = backend.map(_full_task, jobs, problem)
         for i, f in zip(picked, done):
             gain = max(gain, fits[i].rank_score - f.rank_score)
             fits[i] = f
@@ -144,7 +147,7 @@ def fit_candidates(
     pairs = _screen(problem, pairs_items, backend, say, "pairs")
     finished("screen pairs")
     fits = [*singles, *pairs]
-    settle_ranking(problem, fits, backend, say)
+    settle_ranking(problem, fits, [*single_items, *pairs_items], backend, say)
     finished("refine")
     singles, pairs = fits[: len(singles)], fits[len(singles) :]
     singles.sort(key=lambda f: f.rank_score)

@@ -77,9 +77,7 @@ class AttributionSettings:
     fit_tolerance : float
         ``xtol`` and ``ftol`` of the local refinement: it stops once a step moves the
         parameters by less than this fraction of their physical ranges, or the robust
-        cost by less than this fraction of itself. A millionth of the range lies far
-        below any parameter's standard error on real logs, so tighter tolerances
-        only spend evaluations on digits no figure reports.
+        cost by less than this fraction of itself (SciPy's default).
     """
 
     pair_candidates: int = 5
@@ -99,7 +97,7 @@ class AttributionSettings:
     loss: str = "soft_l1"
     robust_scale: float = 3.0
     seed: int = 0
-    fit_tolerance: float = 1e-6
+    fit_tolerance: float = 1e-8
 
     def __post_init__(self) -> None:
         if not (0.0 < self.min_shrink <= self.dominant_shrink <= 1.0):
@@ -117,7 +115,7 @@ class AttributionSettings:
         if not (0.0 < self.fit_tolerance < 0.1):
             raise ValueError(
                 "AttributionSettings.fit_tolerance: expected a fraction in (0, 0.1), got "
-                f"{self.fit_tolerance!r}; fix: pass e.g. fit_tolerance=1e-6"
+                f"{self.fit_tolerance!r}; fix: pass e.g. fit_tolerance=1e-8"
             )
         if not (self.robust_scale > 0 and math.isfinite(self.robust_scale)):
             raise ValueError(
