@@ -32,11 +32,11 @@ from realitygap.diagnosis.problem.problem import Problem
 __all__ = ["ROWS", "Stage", "Workload", "row_seconds"]
 
 ROWS = {
-    "baseline": 900.0,  # the nuisances' fit (a few parameters, several starts)
+    "baseline": 1300.0,  # the nuisances' fit (a few parameters, several starts)
     "convention": 730.0,  # the nuisances' fit over their physical ranges, per convention
-    "screen_single": 200.0,  # grid, fine scan and three short refinements
-    "screen_pair": 200.0,  # a grid over the second effect, then refinements
-    "refine": 50.0,  # a local refinement with the nuisances freed
+    "screen_single": 220.0,  # grid, fine scan and three refinements, nuisances held
+    "screen_pair": 340.0,  # a grid over both effects, then refinements
+    "full": 940.0,  # a contender's full fit: its starts and the nuisances freed
     "verify_refit": 40.0,  # the defect-corrected refit of a verified model
     "rest": 100.0,  # judgement, whole-run figures, advice and discovery
 }
@@ -136,7 +136,7 @@ class Workload:
             )
         w.add("screen singles", w.parallel(candidates * ROWS["screen_single"] * row_s, candidates))
         w.add("screen pairs", w.parallel(pairs * ROWS["screen_pair"] * row_s, pairs))
-        w.add("refine", w.parallel(refines * ROWS["refine"] * row_s, refines))
+        w.add("refine", w.parallel(refines * ROWS["full"] * row_s, refines))
         # a verified model: its training logs replayed per defect iteration, then all logs
         train_share = sum(bool((~p.holdout_windows).any()) for p in problem.logs) / max(logs, 1)
         replays = s.verify_top * (1 + s.defect_iterations * train_share)
