@@ -22,7 +22,11 @@ from realitygap.diagnosis.problem.parameters import split_key
 from realitygap.diagnosis.problem.problem import Problem
 from realitygap.robots.effects import EFFECTS
 
-__all__ = ["fit_candidates", "settle_ranking"]
+__all__ = ["GAIN_MARGIN", "fit_candidates", "settle_ranking"]
+
+GAIN_MARGIN = 2.0
+"""A screened model is settled once its score, less this many times the largest gain a
+full fit has shown, cannot reach the top: the one bound of :func:`settle_ranking`."""
 
 
 def _full_task(problem: Problem, item: tuple[tuple[str, ...], list[dict[str, float]]]) -> ModelFit:
@@ -84,7 +88,7 @@ def settle_ranking(
     while pos < len(order):
         if len(full) >= need:
             bar = sorted(full)[need - 1]
-            if fits[order[pos]].rank_score - 2.0 * gain > bar:
+            if fits[order[pos]].rank_score - GAIN_MARGIN * gain > bar:
                 break
         picked = order[pos : pos + batch]
         pos += len(picked)

@@ -173,7 +173,6 @@ def fit_model(
     local_only: bool = False,
     box: Mapping[str, tuple[float, float]] | None = None,
     screen: bool = False,
-    anchor: Mapping[str, float] | None = None,
 ) -> ModelFit:
     """Fit one model's parameters on the training windows and score it on the held-out ones.
 
@@ -197,16 +196,11 @@ def fit_model(
         Narrower bounds (natural units) for some parameters, inside their
         physical bounds (the baseline's nuisance ranges).
     screen : bool
-        A screening fit: the baseline nuisances stay at their calibrated values. It costs a fraction of the full fit,
-        and its training cost is an upper bound on the full fit's (the full fit
+        A screening fit: the baseline nuisances stay at their calibrated values. It
+        costs a fraction of the full fit, and its training cost is an upper bound on the full fit's (the full fit
         has more freedom): it ranks candidates, and
         :func:`~realitygap.diagnosis.fit.candidates.fit_candidates` fits fully those that
         can still change the answer. The result is marked ``screened``.
-    anchor : mapping, optional
-        Parameters ``{"effect.param": value}`` held at these values on the start grid,
-        which then spans the model's other parameters only (a forward-selection step:
-        a second effect searched with the first at its single-effect optimum); the
-        local refinement moves them all.
     """
     settings = problem.settings
     held = problem.held_parameters(effects)
@@ -273,17 +267,7 @@ def fit_model(
         cand.append(np.concatenate([np.clip(u, lo_u, hi_u), np.clip(u_n, lo_n, hi_n)]))
     u_nom = np.clip(np.array([range_position(k, param_spec(k).nominal) for k in keys]), lo_u, hi_u)
     if not local_only:
-        # the grid spans the parameters not anchored; anchored ones sit at their values
-        free = [j for j, k in enumerate(keys) if not (anchor and k in anchor)]
-        G = np.repeat(u_nom[None], 1, axis=0)
-        if free:
-            G_free = _grid([keys[j] for j in free], settings, rng)
-            G = np.repeat(u_nom[None], G_free.shape[0], axis=0)
-            G[:, free] = lo_u[free] + G_free * (hi_u[free] - lo_u[free])
-            for j, k in enumerate(keys):
-                if anchor and k in anchor:
-                    G[:, j] = np.clip(range_position(k, float(anchor[k])), lo_u[j], hi_u[j])
-            G = np.vstack([G, u_nom[None]])
+        G = np.vstack([lo_u + _grid(keys, settings, rng) * (hi_u - lo_u), u_nom[None]])
         U = np.vstack([np.hstack([G, np.tile(u_base, (G.shape[0], 1))]), *cand])
         costs = _cost(U, tr)
         if p == 1:

@@ -94,21 +94,6 @@ def test_the_full_fit_never_ends_above_the_screening_fit_it_refines(problem, eff
     assert held and all(screened.values[k] == v for k, v in held.items())
 
 
-def test_a_pair_grid_anchored_at_the_first_effect_finds_the_pair(problem):
-    single = fit_model(problem, ("wheel_diameter_ratio",), screen=True)
-    anchor = {k: v for k, v in single.values.items() if k.startswith("wheel_diameter_ratio.")}
-    pair = fit_model(
-        problem,
-        ("wheel_diameter_ratio", "wheelbase_error"),
-        starts=[single.values],
-        screen=True,
-        anchor=anchor,
-    )
-    assert abs(pair.values["wheel_diameter_ratio.E_d"] - 1.01) < 1e-3
-    # a pair holds the single as a special case: its cost is no higher
-    assert robust_cost(problem, pair.values) <= robust_cost(problem, single.values) * (1 + 1e-9)
-
-
 def test_the_row_rate_is_measured_on_the_problem(problem):
     rate = row_seconds(problem, EFFECTS)
     assert 0.0 < rate < 1.0
