@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -58,8 +58,10 @@ from realitygap.core.parallel import Backend, SerialBackend
 from realitygap.core.progress import duration_words
 from realitygap.diagnosis.adapters.contract import Drive, PreparedLog, RobotAdapter
 from realitygap.diagnosis.adapters.registry import get_adapter
+from realitygap.diagnosis.budget import Budget, gap_budget
 from realitygap.diagnosis.fit.candidates import fit_candidates
 from realitygap.diagnosis.fit.model import ModelFit
+from realitygap.diagnosis.fit.status import parameter_status
 from realitygap.diagnosis.fit.verify import Verification, verify_ranking
 from realitygap.diagnosis.fit.workload import Workload, row_seconds
 from realitygap.diagnosis.logs.log import Log, LogError
@@ -69,8 +71,6 @@ from realitygap.diagnosis.problem.problem import AttributionSettings, Problem
 from realitygap.diagnosis.problem.shrink import (
     overall_shrink,
     shrink_table,
-    trajectory_gap,
-    trajectory_runs,
 )
 from realitygap.diagnosis.stages.baseline import Baseline, calibrate_baseline
 from realitygap.diagnosis.stages.clock import ClockSettings
@@ -85,18 +85,21 @@ from realitygap.diagnosis.stages.coverage import (
 )
 from realitygap.diagnosis.stages.localise import localise
 from realitygap.diagnosis.stages.reach import library_reach
-from realitygap.diagnosis.stages.scales import ScaleSettings, whole_run_figures
 from realitygap.diagnosis.stages.transients import (
     TransientReport,
     TransientSettings,
     detect_transients,
 )
-from realitygap.diagnosis.verdict.advice import advise
 from realitygap.diagnosis.verdict.conclude import conclude
-from realitygap.diagnosis.verdict.judge import judge
-from realitygap.diagnosis.verdict.rules import decide, run_discovery
-from realitygap.diagnosis.verdict.scales import judge_scales, revisits_on_whole_runs
-from realitygap.diagnosis.verdict.types import Judgement, Verdict, VerdictKind
+from realitygap.diagnosis.verdict.judge import (
+    budget_replays,
+    describe_fit_residual,
+    gap_report,
+    gap_words,
+    heldout_view,
+)
+from realitygap.diagnosis.verdict.notes import alias_notes, regime_consistency, run_discovery
+from realitygap.diagnosis.verdict.types import CoverageNote, Judgement, Verdict, VerdictKind
 from realitygap.robots.effects import EFFECTS
 from realitygap.robots.simulation import SimSettings
 
@@ -151,9 +154,6 @@ class DiagnosisSettings:
         frame (where the adapter states one as a nuisance) and re-frame the logs
         whose deviation from the common frame is their own
         (:mod:`realitygap.diagnosis.stages.frames`).
-    scales : ScaleSettings or None
-        Revisit a verdict that fails only on the window shrink on the scale of whole
-        held-out runs (:mod:`realitygap.diagnosis.stages.scales`); ``None``: windows only.
     coverage : CoverageSettings or None
         How the held-out motions are compared with the training envelope
         (:mod:`realitygap.diagnosis.stages.coverage`); ``None`` skips the comparison.
@@ -176,7 +176,6 @@ class DiagnosisSettings:
     calibrate: bool = True
     clock: ClockSettings | None = field(default_factory=ClockSettings)
     frames: bool = True
-    scales: ScaleSettings | None = field(default_factory=ScaleSettings)
     coverage: CoverageSettings | None = field(default_factory=CoverageSettings)
     reach: bool = True
 
@@ -205,7 +204,6 @@ class Diagnosis:
     baseline: Baseline = field(default_factory=Baseline)
     transients: TransientReport = field(default_factory=TransientReport)
     nominal_reference: dict[str, Any] = field(default_factory=dict)
-    scales: dict[str, Any] = field(default_factory=dict)
     coverage: Coverage | None = None
     actuation: dict[str, Any] = field(default_factory=dict)
     """How the actuators answered the commands, where the logs show it
@@ -213,19 +211,19 @@ class Diagnosis:
     command-driven replay of a differential drive's logs with encoders ``gains``, ``spread``
     and ``tracking``, :mod:`~realitygap.diagnosis.adapters.diffdrive.actuation`); else empty."""
 
+    budget: Budget | None = None
+    """The gap budget (:mod:`~realitygap.diagnosis.budget`): the answer."""
+
+    budget_model: ModelFit | None = None
+    """The budget's model (all its entries on the calibrated baseline) with its held-out
+    residual; ``None`` when the budget is empty."""
+
     @property
     def chosen(self) -> ModelFit | None:
-        """The model named by the verdict, if any (for a verdict A whose fit is a pair with
-        a partner that only refines a baseline nuisance, ``notes.nuisance_partner``, that
-        pair's fit)."""
-        if self.verdict.kind is not VerdictKind.EFFECTS:
+        """The model of the named effects (the budget's), if the verdict names any."""
+        if self.verdict.kind not in (VerdictKind.EFFECTS, VerdictKind.PARTIAL):
             return None
-        partner = self.verdict.notes.nuisance_partner
-        want = set(self.verdict.effects) | ({partner.effect} if partner is not None else set())
-        for fit in self.ranking:
-            if set(fit.effects) == want:
-                return fit
-        return None
+        return self.budget_model
 
     def ranking_rows(self) -> list[dict[str, Any]]:
         """The ranking as JSON-able rows (fitted values with units and uncertainty)."""
@@ -290,6 +288,7 @@ class Diagnosis:
             "baseline_calibration": self.baseline.to_json(),
             "transients": self.transients.to_json(),
             "verdict": v.label,
+            "budget": self.budget.to_json() if self.budget is not None else None,
             **v.notes.to_json(),
             "verdict_detail": {
                 "kind": v.kind.value,
@@ -300,7 +299,6 @@ class Diagnosis:
                 "ambiguous_with": list(v.ambiguous_with),
                 "remaining_residual": v.residual,
             },
-            "verdict_scales": self.scales,
             "coverage": self.coverage.to_json() if self.coverage is not None else None,
             "actuation": self.actuation or None,
             "ranking": self.ranking_rows(),
@@ -426,66 +424,6 @@ def observable_candidates(
         else:
             candidates.append(e)
     return candidates, not_observable
-
-
-def gap_report(
-    problem: Problem,
-    judgement: Judgement,
-    replays: Mapping[tuple[str, ...], dict[int, Log]],
-    baseline: Baseline | None = None,
-) -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    """The held-out shrink table of the verdict's model and the gap figures.
-
-    Window figures are measured against the reference (the calibrated baseline
-    when there is one) on the windows left after transient events are set
-    aside; trajectory gaps are whole replays (nominal, baseline, best model), pooled
-    and run by run (``heldout_trajectory_runs``).
-    """
-    best = judgement.best
-    z_nom, gap_mask = judgement.nominal_heldout, judgement.gap_mask
-    prepared = problem.logs
-    scales = problem.features
-    chosen = best if judgement.kind is VerdictKind.EFFECTS else None
-    z_after = chosen.z_heldout if chosen is not None else z_nom
-    rows = shrink_table(z_nom, z_after, problem.holdout, scales)
-    ho_idx = [i for i, p in enumerate(prepared) if p.holdout_windows.any()]
-    real_ho = [prepared[i].log for i in ho_idx]
-    nominal_ho = [prepared[i].replay_log for i in ho_idx]
-    gap = {
-        "heldout_rms_nominal": float(np.sqrt(np.mean(z_nom**2))),
-        "heldout_rms_best": float(best.heldout_rms),
-        "heldout_shrink_pct_best": judgement.shrink_pct_best,
-        "heldout_shrink_pct": overall_shrink(z_nom[gap_mask], z_after[gap_mask]),
-        "heldout_shrink_pct_all_channels": overall_shrink(z_nom, z_after),
-        "heldout_shrink_pct_best_all_channels": overall_shrink(z_nom, best.z_heldout),
-        "gap_channels": sorted({str(g) for g in problem.holdout.group[gap_mask]}),
-        "reference": "calibrated baseline"
-        if baseline is not None and baseline.values
-        else "nominal replay",
-    }
-    if math.isfinite(trajectory_gap(real_ho, nominal_ho)):  # a planar ground truth
-        runs = {"nominal": nominal_ho}
-        if baseline is not None and baseline.replays:
-            runs["baseline"] = [baseline.replays[i] for i in ho_idx]
-        reps_best = replays.get(best.effects)
-        if reps_best is not None:
-            runs["best"] = [reps_best[i] for i in ho_idx]
-        for name, sims in runs.items():
-            gap[f"heldout_trajectory_gap_m_{name}"] = trajectory_gap(real_ho, sims)
-        nom = gap["heldout_trajectory_gap_m_nominal"]
-        if "best" in runs and nom > 0:
-            # whole replays: what a drift-type effect integrates into, next to the window figures
-            gap["heldout_trajectory_shrink_pct_best"] = 100.0 * (
-                1.0 - gap["heldout_trajectory_gap_m_best"] / nom
-            )
-        gap["heldout_trajectory_runs"] = trajectory_runs(real_ho, runs)
-    gt_sel = problem.holdout.group == "pose_gt"
-    if gt_sel.any():
-        scale = scales.scale("pose_gt")[0]
-        xy = gt_sel & np.isin(problem.holdout.column, ["dx", "dy"])
-        gap["heldout_window_gap_m_nominal"] = float(np.sqrt(np.mean(z_nom[xy] ** 2)) * scale)
-        gap["heldout_window_gap_m_best"] = float(np.sqrt(np.mean(best.z_heldout[xy] ** 2)) * scale)
-    return rows, gap
 
 
 def coverage_report(
@@ -680,34 +618,32 @@ def diagnose(
     stage_done("verify", timing["verify"])
 
     noise = adapter.noise_levels(prepared, s.features)
-    judgement = judge(
+    t_bud = time.perf_counter()
+    budget = gap_budget(
         problem,
+        candidates,
         verification.ranking,
-        nominal_fit,
+        be,
+        say,
         noise,
-        adapter.sample_noise_levels(prepared, s.features),
+        seed=s.attribution.seed,
+        sample_noise=adapter.sample_noise_levels(prepared, s.features),
     )
-    scale_figures: dict[str, Any] = {}
-    if s.scales is not None and revisits_on_whole_runs(problem, judgement):
-        figures = whole_run_figures(
-            problem,
-            judgement.best,
-            nominal_fit,
-            judgement.shrink_pct_best,
-            verification.replays,
-            noise,
-            s.scales,
-        )
-        if figures is not None:
-            judgement, scale_figures = judge_scales(problem, judgement, figures, s.scales)
-    advice = advise(problem, verification.ranking, judgement)
+    timing["budget"] = time.perf_counter() - t_bud
+    stage_done("budget", timing["budget"])
+    say(budget.sentence())
+    judgement = heldout_view(problem, budget, nominal_fit, noise)
+    best = judgement.best
+    named = judgement.kind in (VerdictKind.EFFECTS, VerdictKind.PARTIAL)
     coverage = coverage_report(problem, judgement, s.coverage)
-    decision = decide(problem, verification.ranking, judgement, advice, coverage, noise)
-    judgement = decision.judgement
-    discovery = run_discovery(problem, judgement)
+    residual = describe_fit_residual(problem, best, noise)
+    structured = any(
+        r["structured_pct"] > 0.5 * r["remaining_pct"] for r in budget.remainder.values()
+    )
+    discovery = run_discovery(problem, judgement, structured)
     robot = None
-    if decision.kind is VerdictKind.EFFECTS:
-        robot = adapter.fitted_robot(prepared, decision.effects, judgement.best.values)
+    if named:
+        robot = adapter.fitted_robot(prepared, budget.named, budget.values)
         if robot is not None:
             say(f"fitted robot: {robot['message']}")
     actuation_note: dict[str, Any] | None = None
@@ -722,9 +658,9 @@ def diagnose(
         tracking_note = tracking
         say(f"wheels: {tracking['message']}")
     reach = None
-    if s.reach and decision.kind is VerdictKind.UNEXPLAINED:
+    if s.reach and not named and judgement.kind is VerdictKind.UNEXPLAINED:
         workload.add_reach(problem, len(candidates))
-        stage_done("rest", time.perf_counter() - t2 - timing["verify"])
+        stage_done("rest", time.perf_counter() - t2 - timing["verify"] - timing["budget"])
         t_r = time.perf_counter()
         reach = library_reach(
             problem,
@@ -740,20 +676,47 @@ def diagnose(
         stage_done("reach", timing["reach"])
         if reach is not None:
             say(f"reach: {reach.message}")
+    replays = dict(verification.replays)
+    if budget.entries and best.effects not in replays:
+        replays[best.effects] = budget_replays(problem, budget, be)
+    rows, gap = gap_report(problem, judgement, replays, baseline)
+    status: dict[str, dict[str, str]] = {}
+    for f in verification.ranking[:8]:
+        st_f = parameter_status(problem, f)
+        for k in st_f:
+            f.stderr[k] = math.nan
+        if st_f:
+            status[f.name] = st_f
+    z_nom = judgement.nominal_heldout
+    consistency = [
+        regime_consistency(problem, f, z_nom, judgement.gap_mask)
+        for f in [best, *verification.ranking[:4]]
+        if f.effects and f.z_heldout.shape == z_nom.shape
+    ]
     verdict = conclude(
-        decision,
-        discovery=discovery,
+        budget,
+        judgement,
+        residual=residual,
+        aliases=alias_notes(problem, budget, verification.ranking),
+        regime_consistency=consistency,
+        parameter_status=status,
+        discovery=discovery.to_json() if discovery is not None else None,
+        coverage=(
+            CoverageNote(coverage.summary(), coverage.suggestion())
+            if coverage is not None and coverage.beyond_training and not named
+            else None
+        ),
         robot=robot,
         actuation=actuation_note,
         tracking=tracking_note,
-        reach=reach,
+        reach=reach.to_json() if reach is not None else None,
+        gap_words=gap_words(gap),
     )
-    rows, gap = gap_report(problem, judgement, verification.replays, baseline)
+
     if coverage is not None:
         say(f"coverage: {coverage.summary()}")
     timing["total"] = time.perf_counter() - t0
     say(f"verdict: {verdict.label}")
-    z_nom, best = judgement.nominal_heldout, judgement.best
     return Diagnosis(
         settings=s,
         prepared=prepared,
@@ -762,11 +725,13 @@ def diagnose(
         localisation=loc,
         ranking=verification.ranking,
         verdict=verdict,
-        identifiability=advice.identifiability,
+        identifiability=[
+            a["identifiability"] for a in verdict.notes.aliases if "identifiability" in a
+        ],
         shrink=rows,
         gap=gap,
         agreement=verification.agreement,
-        corrected_replays=verification.replays.get(best.effects) or {},
+        corrected_replays=replays.get(best.effects) or {},
         timing=timing,
         nominal_heldout=z_nom,
         problem=problem,
@@ -775,7 +740,8 @@ def diagnose(
         baseline=baseline,
         transients=transients,
         nominal_reference=reference,
-        scales=scale_figures,
         coverage=coverage,
         actuation=actuation,
+        budget=budget,
+        budget_model=best if budget.entries else None,
     )

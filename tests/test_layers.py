@@ -66,6 +66,7 @@ DIAGNOSIS_LAYERS: tuple[tuple[str, int], ...] = (
     ("realitygap.diagnosis.adapters.contract", 1),
     ("realitygap.diagnosis.fit", 2),
     ("realitygap.diagnosis.stages", 3),
+    ("realitygap.diagnosis.budget", 3),  # the answer: reads fits and residuals, not stages
     ("realitygap.diagnosis.verdict", 4),
     ("realitygap.diagnosis.adapters.registry", 5),
     ("realitygap.diagnosis.adapters.diffdrive", 5),

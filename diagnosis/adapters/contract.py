@@ -328,6 +328,11 @@ class RobotAdapter(ABC):
     """The two stages of :meth:`stage_residuals` a command-driven gap splits into: up to the
     actuators, and after them (``None``: no such split)."""
 
+    integrates: bool = False
+    """Whether the robot's motion integrates along a run (a mobile base: a small constant
+    error of a wheel or the wheelbase grows into a drift), so that the gap budget also reads
+    residuals at run scale (:mod:`~realitygap.diagnosis.budget`)."""
+
     transient_detection: bool = False
     """Whether the logs are time series in which disturbed windows (stalls, bumps, lost
     markers) are detected and set aside (:mod:`~realitygap.diagnosis.stages.transients`)."""
@@ -440,9 +445,8 @@ class RobotAdapter(ABC):
         self, prepared: Sequence[PreparedLog], settings: FeatureSettings
     ) -> dict[str, dict[str, float]] | None:
         """Noise of window features that a sensor's own samples show, per group and column
-        in feature-scale units, or ``None`` (no such measurement): what the verdict asks
-        before it calls a residual that passes for white "noise"
-        (:func:`~realitygap.diagnosis.problem.residual.above_sample_noise`)."""
+        in feature-scale units, or ``None`` (no such measurement): the gap budget's noise
+        floor where it exists (:mod:`~realitygap.diagnosis.budget`)."""
         return None
 
     # ------------------------------------------------------------------ optional: the verdict

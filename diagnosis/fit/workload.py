@@ -36,7 +36,7 @@ ROWS = {
     "convention": 730.0,  # the nuisances' fit over their physical ranges, per convention
     "screen_single": 220.0,  # grid, fine scan and three refinements, nuisances held
     "screen_pair": 340.0,  # a grid over both effects, then refinements
-    "full": 940.0,  # a contender's full fit: its starts and the nuisances freed
+    "budget_try": 80.0,  # a candidate tried at one step of the budget's selection
     "verify_refit": 40.0,  # the defect-corrected refit of a verified model
     "rest": 100.0,  # judgement, whole-run figures, advice and discovery
 }
@@ -121,7 +121,6 @@ class Workload:
         w = cls(row_s=row_s, replay_s=replay_s, workers=max(1, int(workers)))
         k = min(s.pair_candidates, candidates)
         pairs = max(candidates - 1, 0) + max(k - 1, 0) * max(k - 2, 0) // 2 if k else 0
-        refines = min(candidates + pairs, 3 * (s.verify_top + 1))
         logs = len(problem.logs)
         if calibrate:
             # the nuisances' fit, and per actuator convention a fit of its limits and a
@@ -136,11 +135,13 @@ class Workload:
             )
         w.add("screen singles", w.parallel(candidates * ROWS["screen_single"] * row_s, candidates))
         w.add("screen pairs", w.parallel(pairs * ROWS["screen_pair"] * row_s, pairs))
-        w.add("refine", w.parallel(refines * ROWS["full"] * row_s, refines))
         # a verified model: its training logs replayed per defect iteration, then all logs
         train_share = sum(bool((~p.holdout_windows).any()) for p in problem.logs) / max(logs, 1)
         replays = s.verify_top * (1 + s.defect_iterations * train_share)
         w.add("verify", w.parallel(replays * replay_s, logs), kind="replays")
+        # the budget's selection: every candidate tried at each of its (typically two) steps
+        tries = 2 * candidates
+        w.add("budget", w.parallel(tries * ROWS["budget_try"] * row_s, tries))
         w.add("rest", (ROWS["rest"] + s.verify_top * ROWS["verify_refit"]) * row_s)
         return w
 

@@ -26,25 +26,22 @@ __all__ = ["MOTION_COLUMNS", "AttributionSettings", "Layout", "Problem", "profil
 
 @dataclass(frozen=True)
 class AttributionSettings:
-    """Settings of the fit, the ranking and the verdict.
+    """Settings of the fits, the ranking and the residual tests the budget reads.
 
     Attributes
     ----------
     pair_candidates : int
-        The best this many single effects are also fitted in pairs.
+        The best this many single effects are also fitted in pairs for the ranking (a
+        detail of the report); 0 by default: the gap budget combines effects itself, by
+        forward selection (:mod:`~realitygap.diagnosis.budget.select`).
     verify_top : int
         Models verified with PyBullet (defect-corrected refit and PyBullet
         held-out residual); the rest keep surrogate scores.
     defect_iterations : int
         PyBullet bias updates per verified model.
     min_shrink : float
-        Fraction of the held-out RMS gap the chosen model must close.
-    dominant_shrink : float
-        Fraction of the held-out gap above the noise floor from which a single effect is
-        named although what it leaves is structured: the effect carries the gap, and the small
-        systematic rest says its law differs in detail from the library's (a real
-        robot's effects never follow a model exactly). The verdict says so, at most
-        "moderate" confidence. 1 turns it off.
+        Fraction of the held-out RMS gap a model must close to count as reaching it (the
+        library's reach, :mod:`~realitygap.diagnosis.stages.reach`).
     excess_ratio : float
         A group's residual is structured if its RMS exceeds this many times
         its white, window-to-window level.
@@ -61,8 +58,8 @@ class AttributionSettings:
         |correlation| of jointly fitted parameters above which two effects are
         reported as not separable by the logged motions.
     margin_strong : float
-        Score difference to the runner-up for a "strong" attribution; also
-        the least improvement over the nominal replay that counts as a gap.
+        Score difference within which actuator conventions screened on the surrogate are
+        all replayed in PyBullet (:func:`~realitygap.diagnosis.stages.baseline.choose_convention`).
     parsimony_margin : float
         A model with one effect fewer whose score is within this of a larger
         model's is preferred (Occam's razor on held-out scores).
@@ -80,11 +77,10 @@ class AttributionSettings:
         cost by less than this fraction of itself (SciPy's default).
     """
 
-    pair_candidates: int = 5
+    pair_candidates: int = 0
     verify_top: int = 2
     defect_iterations: int = 1
     min_shrink: float = 0.5
-    dominant_shrink: float = 0.9
     excess_ratio: float = 2.5
     regime_t: float = 6.0
     trend_r2: float = 0.5
@@ -100,11 +96,10 @@ class AttributionSettings:
     fit_tolerance: float = 1e-8
 
     def __post_init__(self) -> None:
-        if not (0.0 < self.min_shrink <= self.dominant_shrink <= 1.0):
+        if not (0.0 < self.min_shrink <= 1.0):
             raise ValueError(
-                "AttributionSettings: expected 0 < min_shrink <= dominant_shrink <= 1, got "
-                f"min_shrink={self.min_shrink!r}, dominant_shrink={self.dominant_shrink!r}; "
-                "fix: pass fractions such as min_shrink=0.5, dominant_shrink=0.9"
+                f"AttributionSettings.min_shrink: expected a fraction in (0, 1], got "
+                f"{self.min_shrink!r}; fix: pass e.g. min_shrink=0.5"
             )
         allowed = ("soft_l1", "cauchy", "huber", "linear", "arctan")
         if self.loss not in allowed:

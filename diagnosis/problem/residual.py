@@ -21,7 +21,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
-from scipy.stats import chi2
 
 if TYPE_CHECKING:
     from realitygap.diagnosis.problem.features import FeatureSettings
@@ -30,7 +29,6 @@ if TYPE_CHECKING:
 FloatArray = npt.NDArray[np.float64]
 
 __all__ = [
-    "above_sample_noise",
     "column_levels",
     "describe_residual",
     "mixture_level",
@@ -105,48 +103,6 @@ def mixture_level(layout: Layout, sel: npt.NDArray[np.bool_], levels: Mapping[An
 SAMPLE_NOISE_TOLERANCE = 1.25
 """How far (as a factor) the noise a sensor's samples show may miss the noise of a window
 feature: samples not quite independent, motion left in the differences."""
-
-
-def above_sample_noise(
-    z: FloatArray,
-    layout: Layout,
-    levels: Mapping[str, Mapping[str, float]],
-    settings: AttributionSettings,
-    alpha: float = 1e-3,
-) -> list[str]:
-    r"""Columns whose residual is larger than their sensor's own noise allows.
-
-    The window-to-window level (:func:`white_level`) takes for noise whatever changes
-    as fast as the windows: a residual that oscillates within a couple of windows (a
-    wheel that is not round, an encoder disc off centre, both once or twice per wheel
-    turn) differs from window to window as much as it is large, and passes for white.
-    A sensor's own noise, measured from its samples within the windows
-    (``levels[group][column]``, feature-scale units, e.g. the adapter's
-    ``sample_noise_levels``; never below the structure ``floor``), does not move with
-    the residual. Noise alone keeps the mean square of a column's :math:`n` entries
-    below :math:`σ^2 χ^2_{n,1-α}/n`; a column whose RMS exceeds that, times
-    :data:`SAMPLE_NOISE_TOLERANCE`, holds something the sensor did not add. Returns one
-    reason per such column, largest ratio first (empty when none is).
-    """
-    found: list[tuple[float, str]] = []
-    for g, cols in levels.items():
-        for c, sigma in cols.items():
-            m = (layout.group == g) & (layout.column == c)
-            n = int(m.sum())
-            if n < 6:
-                continue
-            ratio = float(np.sqrt(np.mean(z[m] ** 2))) / max(float(sigma), settings.floor)
-            limit = SAMPLE_NOISE_TOLERANCE * math.sqrt(float(chi2.ppf(1.0 - alpha, n)) / n)
-            if ratio > limit:
-                found.append(
-                    (
-                        ratio,
-                        f"{g}: the residual of {c} is {ratio:.1f}× the noise of the sensor's own "
-                        f"samples (noise stays within {limit:.1f}× over {n} windows): it changes "
-                        "faster than the windows, not as noise does",
-                    )
-                )
-    return [why for _, why in sorted(found, key=lambda x: -x[0])]
 
 
 def shrink_above_noise(

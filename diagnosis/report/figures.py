@@ -73,6 +73,7 @@ def make_figures(d: Diagnosis, out: Path, prefix: str = "") -> list[tuple[str, s
 
     made: list[tuple[str, str]] = []
     for maker in (
+        _waterfall,
         _trajectories,
         _timeline,
         _residuals,
@@ -88,11 +89,60 @@ def make_figures(d: Diagnosis, out: Path, prefix: str = "") -> list[tuple[str, s
 
 
 def _best_label(d: Diagnosis) -> str:
-    best = d.ranking[0] if d.ranking else None
-    if best is None or not best.effects:
+    b = d.budget
+    if b is None or not b.entries:
         return "best candidate"
-    named = d.chosen is best
-    return f"with {best.name}" + ("" if named else " (best candidate, not named)")
+    return "with the budget's effects (" + " + ".join(e.effect for e in b.entries) + ")"
+
+
+def _waterfall(d: Diagnosis, out: Path, prefix: str, plt: Any) -> tuple[str, str] | None:
+    """The gap budget as a waterfall per scale: the held-out gap (100 %), each effect's share
+    with its interval, the remainder split into sensor noise and structured."""
+    b = d.budget
+    if b is None:
+        return None
+    scales = list(b.scales)
+    fig, axes = plt.subplots(
+        1, len(scales), figsize=(4.6 * len(scales), 0.5 * (len(b.entries) + 3) + 1.8), squeeze=False
+    )
+    titles = {"run": "whole-run drift", "window": "1-s windows"}
+    for ax, sc in zip(axes.flat, scales):
+        labels = ["held-out gap"]
+        rem = b.remainder[sc]
+        left = 100.0
+        ax.barh(0, 100.0, color="tab:red", alpha=0.8)
+        y = 1
+        for e in b.entries:
+            share = e.share[sc]
+            lo, hi = b.interval_of(e, sc)
+            start = left - share
+            ax.barh(y, share, left=start, color="tab:green" if share >= 0 else "tab:gray",
+                    alpha=0.9 if e.constant else 0.45)  # fmt: skip
+            ax.errorbar([start], [y], xerr=[[max(0.0, hi - share)], [max(0.0, share - lo)]],
+                        fmt="none", ecolor="k", capsize=3, lw=0.8)  # fmt: skip
+            ax.text(min(left, 100.0) + 1.0, y, f"{share:.0f} % [{lo:.0f}, {hi:.0f}]", va="center",
+                    fontsize=7)  # fmt: skip
+            labels.append(e.effect.replace("_", " ") + ("" if e.constant else " (varies)"))
+            left = start
+            y += 1
+        ax.barh(y, rem["noise_pct"], color="tab:blue", alpha=0.6, label="sensor noise")
+        ax.barh(y, rem["structured_pct"], left=rem["noise_pct"], color="tab:orange", alpha=0.8,
+                label="structured, unexplained")  # fmt: skip
+        labels.append(f"remains {rem['remaining_pct']:.0f} %")
+        ax.set_yticks(range(len(labels)), labels, fontsize=8)
+        ax.invert_yaxis()
+        ax.set_xlim(0.0, 115.0)
+        ax.set_xlabel("share of the held-out gap [%]")
+        ax.set_title(f"{titles.get(sc, sc)} (RMS {b.gap[sc]:.3g} noise units)", fontsize=10)
+        ax.legend(fontsize=7, loc="lower right")
+    fig.suptitle(f"Gap budget: {b.kind}", fontsize=11)
+    name = f"{prefix}budget.png"
+    _save(fig, out, name, plt)
+    return (
+        name,
+        "The gap budget: the held-out gap, each effect's share (interval: bootstrap over held-out "
+        "runs), and what remains, sensor noise and structured",
+    )
 
 
 def _holdout_indices(d: Diagnosis, limit: int = 6) -> list[int]:
@@ -253,16 +303,6 @@ def _ranking(d: Diagnosis, out: Path, prefix: str, plt: Any) -> tuple[str, str] 
         if v < s:  # beyond the axis: say so with the value
             ax.annotate(f"◀ {v:.0f} %", (floor, k), xytext=(3, 0), textcoords="offset points",
                         va="center", fontsize=7, color="white")  # fmt: skip
-    line = 100 * d.settings.attribution.min_shrink
-    ax.axvline(line, color="k", ls=":", lw=1)
-    ax.text(
-        line,
-        len(rows) - 0.4,
-        f"needed to be named: {line:.0f} % ",
-        fontsize=7,
-        va="bottom",
-        ha="right",
-    )
     ax.set_xlim(floor, 100.0)
     ax.set_ylim(-0.6, len(rows) + 0.2)
     ax.set_xlabel("held-out gap closed [%]  (✓ verified in PyBullet)")

@@ -145,6 +145,17 @@ def _param_descriptions(effects: Sequence[str]) -> dict[str, str]:
     return out
 
 
+def _kind_words(v: Any) -> str:
+    """The verdict's kind in words."""
+    if v.kind is VerdictKind.EFFECTS:
+        return f"{' + '.join(v.effects)} ({v.confidence.value} confidence)"
+    if v.kind is VerdictKind.PARTIAL:
+        return f"partly {' + '.join(v.effects)} ({v.confidence.value} confidence)"
+    if v.kind is VerdictKind.NONE:
+        return "no significant gap"
+    return "unexplained — no effect is named"
+
+
 def _rest_over_noise(residual: Mapping[str, Any]) -> tuple[float, str]:
     """Largest ratio of the remaining residual to its noise level, and where."""
     worst, where = 0.0, ""
@@ -252,17 +263,6 @@ def summary_sentences(d: Diagnosis) -> list[str]:
                 f"({widest['name']}), not enough to outscore it on held-out data"
             )
         out.append(sentence + ".")
-    trained = d.verdict.notes.training_only if d.verdict.kind is VerdictKind.EFFECTS else None
-    chosen = next((r for r in rows if r["effects"] == list(d.verdict.effects)), None)
-    if trained is not None and chosen is not None:
-        descs = _param_descriptions(chosen["effects"])
-        vals = "; ".join(value_words(k, p, descs.get(k, "")) for k, p in chosen["params"].items())
-        out.append(
-            "The held-out windows show no gap above their noise, the training windows one of up "
-            f"to {trained.train_gap_excess:.0f}× theirs: on the training, {chosen['name']} "
-            f"({vals}) closes {trained.train_shrink_pct_above_noise:.0f} % of it above the "
-            "noise floor."
-        )
     conc = concentrated_gap(g.get("heldout_trajectory_runs", []))
     if conc is not None:
         own = quantity(conc["before_m"], "m") + " nominal"
@@ -276,84 +276,29 @@ def summary_sentences(d: Diagnosis) -> list[str]:
             f"{conc['runs']} runs the gap is {others}."
         )
     v = d.verdict
-    st = d.settings.attribution
-    rest, where = _rest_over_noise(v.residual)
-    rule = (
-        f"An effect is named only if it closes ≥ {100 * st.min_shrink:.0f} % of the held-out gap "
-        "above the noise floor (the part any model could close) and the rest is noise-like "
-        f"(≤ {st.excess_ratio:g}× its noise level, no regime or motion dependence), or, alone, "
-        f"closes ≥ {100 * st.dominant_shrink:.0f} % of it above noise"
-    )
-    if best_row is not None and best_row["effects"]:
-        above = v.notes.heldout_shrink_pct_above_noise
-        closed = (
-            f"{float(above):.0f} % of the gap above noise "
-            f"({float(g.get('heldout_shrink_pct_best', 0.0)):.0f} % of the raw gap)"
-            if math.isfinite(float(above))
-            else f"{float(g.get('heldout_shrink_pct_best', 0.0)):.0f} %"
-        )
-        here = f"here it closes {closed} and the rest is {rest:.1f}× noise" + (
-            f" ({where})" if where else ""
-        )
-    else:
-        here = f"here no candidate improves on the nominal replay; the rest is {rest:.1f}× noise"
-    named = v.kind is VerdictKind.EFFECTS
-    whole = v.notes.whole_runs if named else None
-    if whole is not None:
-        out.append(
-            f"Verdict: {' + '.join(v.effects)} on whole runs ({v.confidence.value} confidence). "
-            f"At the 1-s window scale it closes {float(whole.window_shrink_pct):.0f} % of the "
-            f"gap; over whole held-out runs {float(whole.run_shrink_pct):.0f} %, run after run, and "
-            "what it leaves in the windows does not add up along the runs: it names the drift, "
-            "not the window residual."
-        )
-    elif trained is not None:
-        out.append(
-            f"Verdict: {' + '.join(v.effects)}, on the training alone ({v.confidence.value} "
-            "confidence): the held-out windows already look like noise, so they cannot test it; "
-            f"the training windows' gap is {trained.train_gap_excess:.0f}× their noise and "
-            "the named effect leaves noise in both. Held-out runs that exercise it would confirm "
-            "it."
-        )
-    elif named:
-        out.append(
-            f"Verdict: {' + '.join(v.effects)} ({v.confidence.value} confidence). {rule}: {here}."
-        )
-        partner = v.notes.nuisance_partner
-        if partner is not None:
-            vals = ", ".join(
-                f"{k.split('.', 1)[-1]} = {quantity(x, partner.units[k])} within "
-                f"{quantity(partner.ranges[k][0], partner.units[k])} … "
-                f"{quantity(partner.ranges[k][1], partner.units[k])}"
-                for k, x in partner.values.items()
+    budget = d.budget
+    if budget is not None:
+        out.append(v.notes.verdict_text or budget.sentence())
+        out.append(f"Verdict: {_kind_words(v)} — {budget.rule}.")
+        varying = [e for e in budget.entries if not e.constant]
+        for e in varying:
+            ranges = "; ".join(
+                f"{k.split('.', 1)[-1]} {p['min']:.4g} … {p['max']:.4g}"
+                for k, p in e.stability["parameters"].items()
             )
             out.append(
-                f"The fit pairs it with {partner.effect} ({vals}): inside the calibrated "
-                "baseline's nuisance range, a convention of the recording the baseline refines "
-                "anyway, not a finding."
+                f"{e.effect.replace('_', ' ')} varies between {e.stability['unit']}s ({ranges}): "
+                "a finding in itself, not a constant of the robot."
             )
-    elif v.kind is VerdictKind.NONE:
-        out.append(f"Verdict: no significant gap — {v.reason}.")
-    else:
-        out.append(f"Verdict: unexplained — no effect is named. {rule}: {here}.")
     reasons = v.residual.get("reasons", []) if v.kind is not VerdictKind.NONE else []
-    if whole is not None and whole.remainder:
-        out.append(
-            "What remains in the windows is unexplained: " + "; ".join(whole.remainder[:3]) + "."
-        )
-    elif named and v.residual.get("structured") and reasons:
-        out.append(
-            "What remains is small but structured, so the effect's law differs in detail from "
-            "the library's: " + "; ".join(reasons[:3]) + "."
-        )
-    elif named or not reasons:
-        out.append("What remains looks like measurement noise.")
-    else:
+    if reasons and v.residual.get("structured"):
         out.append("What remains: " + "; ".join(reasons[:3]) + ".")
+    elif v.kind is not VerdictKind.NONE:
+        out.append("What remains looks like measurement noise.")
     cov = d.coverage
     if cov is not None and cov.beyond_training:
         out.append(f"Beyond the training: {cov.summary()}.")
-    reach = v.notes.reach if v.kind is VerdictKind.UNEXPLAINED else None
+    reach = v.notes.reach
     if reach is not None:
         msg = str(reach["message"])
         out.append(

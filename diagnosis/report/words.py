@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from realitygap.diagnosis.verdict.rules import improved_words
+from realitygap.diagnosis.verdict.notes import improved_words
 from realitygap.diagnosis.verdict.types import Verdict, VerdictKind
 
 __all__ = ["explain", "explain_markdown"]
@@ -27,13 +27,27 @@ STATUS_WORDS: dict[str, str] = {
 """A parameter status of :func:`~realitygap.diagnosis.fit.status.parameter_status` in words."""
 
 
+def parameter_words(key: str) -> str:
+    """``"effect.param"`` in words: the effect's name with spaces and the parameter's
+    description where the effect states one (``truth_frame_offset.x`` → "ground-truth
+    frame offset: x")."""
+    from realitygap.robots.effects import EFFECTS
+
+    effect, _, param = key.partition(".")
+    cls = EFFECTS.get(effect)
+    spec = next((p for p in getattr(cls, "specs", ()) if p.name == param), None)
+    desc = str(getattr(spec, "description", "") or "").strip()
+    name = effect.replace("_", " ")
+    return f"{name}: {desc}" if desc else f"{name} {param}"
+
+
 def explain(verdict: Verdict, top_models: Sequence[str] = ()) -> list[str]:
     """The verdict in words, then numbers: one line each for the verdict with its
     aliases, every alias and the manoeuvre that would separate it, compensators,
     parameters that are not findings (of ``top_models``, default all) and what
     discovery found in an unexplained residual."""
     notes = verdict.notes
-    named = verdict.kind is VerdictKind.EFFECTS
+    named = verdict.kind in (VerdictKind.EFFECTS, VerdictKind.PARTIAL)
     label = notes.verdict_text or (" + ".join(verdict.effects) if named else verdict.kind.value)
     lines = [f"verdict: {label}", f"reason: {verdict.reason}"]
     for a in notes.aliases:
@@ -53,24 +67,17 @@ def explain(verdict: Verdict, top_models: Sequence[str] = ()) -> list[str]:
                 f"{', '.join(c['worsened'])} windows: it makes up for something else rather "
                 "than causing the gap"
             )
+    # one line per reason, the parameters it applies to listed (not one line each)
+    grouped: dict[str, list[str]] = {}
     for model, status in notes.parameter_status.items():
         if top_models and model not in top_models:
             continue
         for key, why in status.items():
-            what = STATUS_WORDS.get(why, why)
-            lines.append(f"not a finding: {key} of {model} {what} (no error bar)")
-    whole = notes.whole_runs
-    if whole is not None and named:
-        rest = (
-            f"is unexplained ({'; '.join(whole.remainder)})"
-            if whole.remainder
-            else "looks like noise at that scale"
-        )
-        lines.append(
-            f"window scale: {whole.window_shrink_pct:.0f} % of the 1-s window gap closed "
-            f"against {whole.run_shrink_pct:.0f} % of the whole-run gap; the rest of the "
-            f"window residual {rest}"
-        )
+            grouped.setdefault(why, []).append(f"{parameter_words(key)} ({model})")
+    for why, where in grouped.items():
+        what = STATUS_WORDS.get(why, why)
+        shown = ", ".join(where[:4]) + (f" and {len(where) - 4} more" if len(where) > 4 else "")
+        lines.append(f"not a finding (no error bar): {shown} — each {what}")
     if notes.robot is not None:
         lines.append(f"fitted robot: {notes.robot['message']}")
     if notes.actuation is not None:

@@ -31,7 +31,7 @@ from realitygap.diagnosis.report.summary import (
     regime_name,
     summary_sentences,
 )
-from realitygap.diagnosis.report.words import explain_markdown
+from realitygap.diagnosis.report.words import explain_markdown, parameter_words
 from realitygap.diagnosis.verdict.types import VerdictKind
 
 __all__ = ["jsonable", "write_json", "write_report", "write_reports"]
@@ -221,6 +221,60 @@ def _coverage_section(d: Diagnosis) -> list[str]:
     return lines
 
 
+def _budget_section(d: Diagnosis, lead: list[tuple[str, str]]) -> list[str]:
+    """The gap budget: its figures (waterfall, trajectories), then one row per entry and the
+    remainder, per scale."""
+    b = d.budget
+    if b is None:
+        return []
+    lines = ["", "## Gap budget", ""]
+    for fname, caption in lead:
+        lines += [f"![{caption}]({fname})", "", f"*{caption}*", ""]
+    scales = list(b.scales)
+    head = " | ".join(
+        f"{'whole runs' if s_ == 'run' else '1-s windows'} share [95 % interval]" for s_ in scales
+    )
+    lines += [
+        f"| # | effect | fitted at | parameters (± 1σ) | {head} | one value across {b.folds.get('unit', 'fold')}s? | aliases |",
+        "|---|---|---|---|" + "---|" * len(scales) + "---|---|",
+    ]
+    for j, e in enumerate(b.entries, start=1):
+        params = "; ".join(
+            f"{parameter_words(k)} = {v:.5g}"
+            + (f" ± {e.stderr[k]:.2g}" if math.isfinite(e.stderr.get(k, math.nan)) else "")
+            for k, v in e.values.items()
+        )
+        shares = " | ".join(
+            f"{e.share[s_]:.0f} % [{b.interval_of(e, s_)[0]:.0f}, {b.interval_of(e, s_)[1]:.0f}]"
+            for s_ in scales
+        )
+        if e.constant:
+            stable = "yes" if e.stability.get("tested") else "not tested (one run)"
+        else:
+            stable = "no: " + "; ".join(
+                f"{k.split('.', 1)[-1]} {p_['min']:.4g} … {p_['max']:.4g}"
+                for k, p_ in e.stability["parameters"].items()
+                if not p_["holds"]
+            )
+        scale = "whole runs" if e.scale == "run" else "windows"
+        lines.append(
+            f"| {j} | {e.effect.replace('_', ' ')} | {scale} | {params} | {shares} | {stable} | "
+            f"{', '.join(e.aliases) or '—'} |"
+        )
+    rem = " | ".join(
+        f"{b.remainder[s_]['remaining_pct']:.0f} % ({b.remainder[s_]['noise_pct']:.0f} noise, "
+        f"{b.remainder[s_]['structured_pct']:.0f} structured)"
+        for s_ in scales
+    )
+    lines.append(f"| | remains | | | {rem} | | |")
+    lines += [
+        "",
+        f"Rule: {b.rule}. Selection: forward, on {b.folds.get('k')} training "
+        f"{b.folds.get('unit')} folds ({b.folds.get('test')}).",
+    ]
+    return lines
+
+
 def _markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str, note: str = "") -> str:
     js = d.to_json()
     v = d.verdict
@@ -232,16 +286,20 @@ def _markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str, note: st
         f"Training logs: {', '.join(js['logs']['train']) or '—'}; held-out: "
         f"{', '.join(js['logs']['holdout']) or 'alternate blocks of windows'}."
     )
+    lead = [f for f in figures if f[0].endswith(("budget.png", "trajectories.png"))]
+    figures = [f for f in figures if f not in lead]
+    lines += _budget_section(d, lead)
     lines += ["", "## Verdict", ""]
-    named = v.kind is VerdictKind.EFFECTS
+    named = v.kind in (VerdictKind.EFFECTS, VerdictKind.PARTIAL)
     label = ", ".join(v.effects) if named else v.kind.value.upper()
-    if named and v.notes.whole_runs is not None:
-        label = v.notes.verdict_text or label
+    if v.kind is VerdictKind.PARTIAL:
+        label = "partly " + label
     lines.append(f"**{label}** — {v.reason}.  ")
     lines += explain_markdown(v, [f.name for f in d.ranking[:5]])
     if named:
         lines.append(
-            f"Confidence: {v.confidence.value} (score margin to the runner-up {_fmt(v.margin)})."
+            f"Confidence: {v.confidence.value} (mean cross-validated gain of the first named "
+            f"effect {_fmt(v.margin)}, log score ratio per fold)."
         )
         if v.ambiguous_with:
             lines.append(
@@ -268,7 +326,7 @@ def _markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str, note: st
             f"measured against the {g.get('reference', 'nominal replay')}."
         )
     lines += _run_gaps(g.get("heldout_trajectory_runs", []))
-    if (not named or v.notes.whole_runs is not None) and v.residual.get("reasons"):
+    if v.residual.get("structured") and v.residual.get("reasons"):
         lines += ["", "What remains unexplained:", ""]
         lines += [f"- {r}" for r in v.residual["reasons"]]
     lines += _baseline_and_transients(d)
@@ -301,11 +359,8 @@ def _markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str, note: st
         "the held-out gap each closes (# is the rank by score: profile likelihood + BIC "
         "penalty, lower is better). ✓ = verified with PyBullet replays; s = screening fit "
         "(the baseline nuisances held at their calibrated values: the model cannot reach the "
-        "top of the ranking, so it was not refined further). A model is named "
-        f"only if it closes ≥ {100 * d.settings.attribution.min_shrink:.0f} % and leaves a "
-        "noise-like residual, or, as a single effect, closes "
-        f"≥ {100 * d.settings.attribution.dominant_shrink:.0f} % of the gap above noise (its "
-        "law then differs in detail from the library's)."
+        "top of the ranking, so it was not refined further). The ranking is a detail: what "
+        "is named is decided by the gap budget's cross-validated selection (above)."
     )
     lines += [
         "",

@@ -37,7 +37,7 @@ from realitygap.diagnosis.adapters.registry import get_adapter, known_robots
 from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
 from realitygap.diagnosis.logs.log import Log
 from realitygap.diagnosis.problem.parameters import split_key
-from realitygap.diagnosis.verdict.rules import verdict_alternatives
+from realitygap.diagnosis.verdict.notes import verdict_alternatives
 from realitygap.diagnosis.verdict.types import VerdictKind
 from realitygap.robots.effects import EFFECTS, Reality, make_effect
 from realitygap.robots.simulation import MeasurementNoise
@@ -247,27 +247,36 @@ def run_case(settings: SuiteSettings, case: BlindCase) -> dict[str, Any]:
     open_set = case.open_set and exercised
     truth = tuple(n for n in case.truth_names if open_set or n not in case.withheld)
     named = tuple(sorted(verdict)) if isinstance(verdict, list) else None
-    top = [tuple(sorted(r["effects"])) for r in rows if r["effects"]]
+    budget = d.budget
+    entries = list(budget.entries) if budget is not None else []
+    # the budget's order: its first entry, then the cumulative models it adds up to
+    top = [tuple(sorted(e.effect for e in entries[: j + 1])) for j in range(len(entries))]
+    first = entries[0].effect if entries else None
+    unexplained_share = budget.unexplained_share if budget is not None else math.nan
     alternatives = [tuple(sorted(a)) for a in verdict_alternatives(d.verdict)]
     if open_set:
-        correct = verdict == VerdictKind.UNEXPLAINED
+        # right: nothing named, or what is named leaves half the gap or more unexplained
+        correct = verdict == VerdictKind.UNEXPLAINED or unexplained_share >= 50.0
         alias_aware = correct
     else:
         correct = named == truth
         alias_aware = truth in alternatives
+    first_right = (
+        (not open_set)
+        and first is not None
+        and (first in truth or any(a in truth for a in (entries[0].aliases if entries else ())))
+    )
     param_err: dict[str, float] = {}
+    values = budget.values if budget is not None else {}
     if not open_set and named == truth:
-        fit = next(r for r in rows if tuple(sorted(r["effects"])) == truth)
         for key, x in case.truth_values().items():
             effect, pname = split_key(key)
-            if effect not in truth:
+            if effect not in truth or key not in values:
                 continue
             nominal = EFFECTS[effect]().spec(pname).nominal
             dev = abs(x - nominal)
-            est = fit["params"][key]["value"]
-            param_err[key] = abs(est - x) / dev if dev > 0 else math.nan
+            param_err[key] = abs(values[key] - x) / dev if dev > 0 else math.nan
     best = rows[0]
-    partial = d.verdict.notes.partially_explained_by
     return {
         "index": case.index,
         "truth": {n: dict(v) for n, v in case.truth},
@@ -281,17 +290,18 @@ def run_case(settings: SuiteSettings, case: BlindCase) -> dict[str, Any]:
         "correct": bool(correct),
         "correct_alias_aware": bool(alias_aware),
         "verdict_alternatives": [list(a) for a in alternatives],
-        "top1": (not open_set) and bool(top and top[0] == truth),
-        "top2": (not open_set) and truth in top[:2],
+        "top1": (not open_set) and bool(correct),
+        "top2": (not open_set) and truth in top,
+        "first_entry": first,
+        "first_entry_right": bool(first_right),
+        "unexplained_share_pct": unexplained_share,
+        "budget_kind": budget.kind if budget is not None else None,
         "best": best["name"],
         "best_params": {k: v["value"] for k, v in best["params"].items()},
         "param_rel_err": param_err,
         "heldout_shrink_pct": float(d.gap["heldout_shrink_pct"]),
         "heldout_shrink_pct_best": float(d.gap["heldout_shrink_pct_best"]),
         "ambiguous_with": list(d.verdict.ambiguous_with),
-        # an "unexplained" verdict whose combination closed part of the gap (scored as
-        # unexplained: a wrong answer for an in-library case, the right one for an open set)
-        "partially_explained_by": partial.model if partial is not None else None,
         "seconds_record": t_rec,
         "seconds_diagnose": d.timing["total"],
     }
@@ -335,12 +345,21 @@ def summarise(outcomes: Sequence[dict[str, Any]]) -> tuple[dict[str, float], dic
         o
         for o in outcomes
         if isinstance(o["verdict"], list)
-        and (o["open_set"] or tuple(sorted(o["verdict"])) != tuple(o["truth_names"]))
+        and (
+            (o["open_set"] and not o["correct"])
+            or (not o["open_set"] and not set(o["verdict"]) <= set(o["truth_names"]))
+        )
     ]
     figures = {
         "n_cases": float(len(outcomes)),
         "top1_accuracy": float(np.mean([o["top1"] and o["correct"] for o in closed]))
         if closed
+        else math.nan,
+        "first_entry_accuracy": float(np.mean([o.get("first_entry_right", False) for o in closed]))
+        if closed
+        else math.nan,
+        "open_set_right_rate": float(np.mean([o["correct"] for o in opened]))
+        if opened
         else math.nan,
         "top1_alias_aware_accuracy": float(
             np.mean([o.get("correct_alias_aware", o["correct"]) for o in closed])
@@ -390,7 +409,8 @@ def summarise(outcomes: Sequence[dict[str, Any]]) -> tuple[dict[str, float], dic
                 "best_params": o["best_params"],
                 "param_rel_err": o["param_rel_err"],
                 "heldout_shrink_pct": o["heldout_shrink_pct"],
-                "partially_explained_by": o.get("partially_explained_by"),
+                "first_entry": o.get("first_entry"),
+                "unexplained_share_pct": o.get("unexplained_share_pct"),
                 "reason": o["reason"],
             }
             for o in outcomes

@@ -35,8 +35,10 @@ _MODULES = (
     "realitygap.experiments.arm",
     "realitygap.experiments.climb",
     "realitygap.experiments.diagnosis",
+    "realitygap.experiments.splits",
     "realitygap.experiments.scaling",
     "realitygap.experiments.independent",
+    "realitygap.experiments.teleop",
     "realitygap.experiments.benchmark",
 )
 

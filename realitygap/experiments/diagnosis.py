@@ -225,6 +225,13 @@ def _geometry_found(d: Any) -> dict[str, Any]:
     wheel diameter, so its ``E_b`` is the wheelbase factor over the radius scale.
     """
     out: dict[str, Any] = {}
+    vals = d.budget.values if d.budget is not None else {}
+    if "wheelbase_error.E_b" in vals:
+        out["E_b"] = vals["wheelbase_error.E_b"] / vals.get("wheel_radius_scale.scale", 1.0)
+        out["E_b_model"] = "gap budget"
+    if "wheel_diameter_ratio.E_d" in vals:
+        out["E_d"] = vals["wheel_diameter_ratio.E_d"]
+        out["E_d_model"] = "gap budget"
     for fit in d.ranking:
         if "wheelbase_error" in fit.effects and "E_b" not in out:
             out["E_b"] = fit.values["wheelbase_error.E_b"] / fit.values.get(
@@ -242,6 +249,8 @@ def _verdict_figure(d: Any) -> str:
     from realitygap.diagnosis.verdict.types import VerdictKind
 
     v = d.verdict
+    if v.kind is VerdictKind.PARTIAL:
+        return "partly " + "+".join(v.effects)
     return "+".join(v.effects) if v.kind is VerdictKind.EFFECTS else v.kind.value
 
 
@@ -403,19 +412,17 @@ def _real_diagnoses(
                 }
                 for r in clock.rows
             ]
-        if d.scales:
-            for k in (
-                "run_shrink_pct",
-                "run_bias_max_se",
-                "run_bias_p_family",
-                "timing_share_pct",
-                "timing_share_pct_permuted_max",
-            ):
-                figures[prefix + "scales_" + k] = d.scales[k]
-            figures[prefix + "named_on_whole_runs"] = float(d.scales["named"])
-            notes += [
-                f"{drive}: two-scale verdict not drawn: {w}" for w in d.scales.get("why_not", [])
-            ]
+        if d.budget is not None:
+            bj = d.budget.to_json()
+            figures[prefix + "budget_kind"] = bj["kind"]
+            figures[prefix + "budget_unexplained_share_pct"] = bj["unexplained_share_pct"]
+            for j, e in enumerate(bj["entries"], start=1):
+                figures[f"{prefix}budget_{j}_effect"] = e["effect"]
+                for sc, share in e["share_pct"].items():
+                    lo, hi = e["interval_pct"][sc]
+                    figures[f"{prefix}budget_{j}_{sc}_share_pct"] = share
+                    figures[f"{prefix}budget_{j}_{sc}_interval_pct"] = f"{lo:.0f} … {hi:.0f}"
+            notes.append(f"{drive}: {bj['sentence']}")
         cov = d.coverage
         if cov is not None:
             figures[prefix + "heldout_windows_beyond_training"] = float(cov.n_outside)

@@ -11,21 +11,19 @@ Scoring
 -------
 top-1 (in-library cases)
     The verdict names effects, every named effect is one the case accepts
-    (:attr:`~realitygap.independent.cases.Case.accepted`), and the top-ranked
-    model is one of them (for a verdict drawn from the training alone, whose held-out
-    windows show no gap to rank by, the training's best model:
-    :func:`~realitygap.diagnosis.verdict.judge.training_gap`). A verdict that adds an effect
-    the case does not accept is wrong.
+    (:attr:`~realitygap.independent.cases.Case.accepted`), and the gap budget's first
+    entry is one of them. A verdict that adds an effect the case does not accept is wrong.
 open set (out-of-library cases)
-    *strict*: the verdict is ``"unexplained"``; *lenient*: ``"unexplained"``,
-    or effects named with ``"weak"`` confidence (the tool does not vouch for them).
+    *strict*: the verdict is ``"unexplained"``, or the budget leaves a structured
+    unexplained share of at least 50 % of the held-out gap; *lenient*: that, or effects
+    named with ``"weak"`` confidence (the tool does not vouch for them).
 false attribution
-    The verdict names an effect the case does not accept (out-of-library cases:
-    any named effect), over every scored diagnosis.
+    The verdict names an effect the case does not accept (out-of-library cases: any named
+    effect with an unexplained share under 50 %), over every scored diagnosis.
 top-1, alias-aware (in-library cases)
     As strict top-1, or the verdict is "X or Y (aliases on this data)" and one
     of its alternatives names only accepted effects
-    (:func:`~realitygap.diagnosis.verdict.rules.verdict_alternatives`); a separate
+    (:func:`~realitygap.diagnosis.verdict.notes.verdict_alternatives`); a separate
     column, so that an alias verdict is never counted as a strict hit.
 held-out shrink
     ``gap["heldout_shrink_pct_best"]`` of the diagnosis, median over in-library cases.
@@ -214,16 +212,15 @@ def _read(path: Path, refused: list[str]) -> list[Any]:
 
 def score(case: Any, d: Any, drive: str = "commands", **extra: float) -> dict[str, Any]:
     """Score a diagnosis ``d`` of ``case`` replayed with ``drive`` (see the module notes)."""
-    from realitygap.diagnosis.verdict.rules import verdict_alternatives
+    from realitygap.diagnosis.verdict.notes import verdict_alternatives
     from realitygap.diagnosis.verdict.types import Confidence, VerdictKind
 
     v = d.verdict
-    named = list(v.effects) if v.kind is VerdictKind.EFFECTS else []
-    top = list(d.ranking[0].effects) if d.ranking else []
-    if v.kind is VerdictKind.EFFECTS and v.notes.training_only is not None:
-        # held-out windows without a gap rank every model alike: the training's best is the
-        # verdict's model (verdict.training_gap)
-        top = list(v.effects)
+    budget = d.budget
+    named = list(v.effects) if v.kind in (VerdictKind.EFFECTS, VerdictKind.PARTIAL) else []
+    # the budget's first entry is its answer's head
+    top = [budget.entries[0].effect] if budget is not None and budget.entries else []
+    share = budget.unexplained_share if budget is not None else math.nan
     accepted = set(case.accepted_for(drive))
     alternatives = verdict_alternatives(v)
     if case.in_library:
@@ -232,12 +229,14 @@ def score(case: Any, d: Any, drive: str = "commands", **extra: float) -> dict[st
         strict = lenient = math.nan
     else:
         correct = alias_aware = False
-        strict = float(v.kind is VerdictKind.UNEXPLAINED)
-        lenient = float(
-            v.kind is VerdictKind.UNEXPLAINED
-            or (v.kind is VerdictKind.EFFECTS and v.confidence is Confidence.WEAK)
-        )
-    best = d.ranking[0] if d.ranking else None
+        strict = float(v.kind is VerdictKind.UNEXPLAINED or share >= 50.0)
+        lenient = float(bool(strict) or v.confidence is Confidence.WEAK)
+    # the budget's model when it names effects, else the ranking's first candidate
+    top_values = (
+        dict(budget.values)
+        if budget is not None and budget.entries
+        else (dict(d.ranking[0].values) if d.ranking else {})
+    )
     reach = v.notes.reach or {}
     reach_top = reach.get("rows", [{}])[0] if reach.get("rows") else {}
     return {
@@ -248,13 +247,18 @@ def score(case: Any, d: Any, drive: str = "commands", **extra: float) -> dict[st
         "verdict": v.label,
         "confidence": v.confidence.value,
         "top_model": "+".join(top),
-        "top_params": {k: float(v) for k, v in best.values.items()} if best is not None else {},
+        "top_params": {k: float(v) for k, v in top_values.items()},
         "correct": correct,
         "correct_alias_aware": bool(alias_aware),
         "verdict_alternatives": [list(a) for a in alternatives],
         "open_set_strict": strict,
         "open_set_lenient": lenient,
-        "false_attribution": bool(named) and not set(named) <= accepted,
+        # an out-of-library case whose named effects leave half the gap or more is seen
+        "false_attribution": bool(named)
+        and not set(named) <= accepted
+        and not (not case.in_library and strict == 1.0),
+        "unexplained_share_pct": share,
+        "budget_kind": budget.kind if budget is not None else None,
         "heldout_shrink_pct": float(d.gap.get("heldout_shrink_pct_best", math.nan)),
         "reason": v.reason,
         "reach_top_model": reach_top.get("model", ""),

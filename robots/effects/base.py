@@ -218,6 +218,11 @@ class Effect:
     """A typical ``(param, value)`` set at which the surrogate term is checked against PyBullet."""
     surrogate_tolerance: ClassVar[float] = 0.08
     """Bound on the surrogate's relative error of the effect's change of the features."""
+    scale: ClassVar[str] = "window"
+    """Where the effect shows best: ``"run"`` for a constant factor on the distance travelled
+    or the angle turned (a wheel size, a wheelbase, an encoder's scale), whose errors add
+    up along a run; ``"window"`` for one that shapes the motion within seconds (a latency,
+    a lag, a limit). The gap budget fits and scores an effect at its scale."""
 
     def __init__(self, **values: float):
         known = {s.name: s for s in self.specs}

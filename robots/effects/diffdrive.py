@@ -173,6 +173,7 @@ class WheelRadiusScale(Effect):
     """Both wheels larger or smaller than nominal; surrogate: :math:`r_{L,R} \\mathrel{*}= s`."""
 
     name = "wheel_radius_scale"
+    scale = "run"
     robot = "diffdrive"
     stage = Stage.BODY
     observed_in = (Channel.POSE_GT, Channel.POSE_CAM)
@@ -205,6 +206,7 @@ class WheelDiameterRatio(Effect):
     :math:`r_L = \frac{2\bar r}{E_d + 1}\frac{r_L}{\bar r}`, :math:`r_R = \frac{2\bar r E_d}{E_d + 1}\frac{r_R}{\bar r}`."""
 
     name = "wheel_diameter_ratio"
+    scale = "run"
     robot = "diffdrive"
     stage = Stage.BODY
     observed_in = (Channel.POSE_GT, Channel.POSE_CAM)
@@ -240,6 +242,7 @@ class WheelbaseError(Effect):
     """Effective wheelbase off nominal; surrogate: :math:`b \\mathrel{*}= E_b`."""
 
     name = "wheelbase_error"
+    scale = "run"
     robot = "diffdrive"
     stage = Stage.BODY
     observed_in = (Channel.POSE_GT, Channel.POSE_CAM)
@@ -497,6 +500,7 @@ class EncoderScale(Effect):
     """Both encoders count off by a factor; surrogate: :math:`c_{L,R} \\mathrel{*}= s`."""
 
     name = "encoder_scale"
+    scale = "run"
     robot = "diffdrive"
     stage = Stage.SENSOR
     observed_in = (Channel.TICKS,)
@@ -579,6 +583,7 @@ class EncoderRatio(Effect):
     """
 
     name = "encoder_ratio"
+    scale = "run"
     robot = "diffdrive"
     stage = Stage.SENSOR
     observed_in = (Channel.TICKS,)

@@ -29,7 +29,6 @@ from realitygap.diagnosis.problem.problem import AttributionSettings, Problem
 from realitygap.diagnosis.problem.schemas import FeatureSchema, feature_group
 from realitygap.diagnosis.verdict.types import (
     Confidence,
-    Draft,
     Judgement,
     Verdict,
     VerdictKind,
@@ -306,28 +305,14 @@ def judgement(
     best: ModelFit,
     nominal_heldout: npt.ArrayLike,
     kind: VerdictKind = VerdictKind.EFFECTS,
-    effects: Sequence[str] | None = None,
     shrink_pct_best: float = 80.0,
     shrink_pct_above_noise: float = math.nan,
     gap_mask: npt.ArrayLike | None = None,
-    margin: float = 20.0,
-    confidence: Confidence = Confidence.STRONG,
-    reason: str = "",
 ) -> Judgement:
-    """A judgement whose draft names ``effects`` (default ``best``'s) or is of ``kind``,
-    resting on ``best`` (gap channels: every entry by default)."""
+    """The held-out figures of ``best`` of ``kind`` (gap channels: every entry by default)."""
     z_nom = np.asarray(nominal_heldout, dtype=float)
-    named = kind is VerdictKind.EFFECTS
-    draft = Draft(
-        kind=kind,
-        effects=tuple(effects if effects is not None else best.effects) if named else (),
-        reason=reason,
-        margin=margin,
-        confidence=confidence if named else Confidence.NOT_APPLICABLE,
-        residual={"structured": False, "reasons": [], "groups": {}},
-    )
     mask = np.ones(z_nom.shape, dtype=bool) if gap_mask is None else np.asarray(gap_mask, bool)
-    return Judgement(draft, best, z_nom, mask, shrink_pct_best, shrink_pct_above_noise)
+    return Judgement(kind, best, z_nom, mask, shrink_pct_best, shrink_pct_above_noise)
 
 
 def verdict(

@@ -72,7 +72,9 @@ def _diagnose(eccentric: float, seed: int) -> object:
 @pytest.mark.slow
 def test_a_planted_joint_angle_error_is_described_with_its_coefficient() -> None:
     d = _diagnose(8e-4, seed=1)
-    assert d.verdict.kind is VerdictKind.UNEXPLAINED, d.verdict.reason
+    # outside the library: nothing named, or what is named leaves half the gap or more
+    assert d.verdict.kind in (VerdictKind.UNEXPLAINED, VerdictKind.PARTIAL), d.verdict.reason
+    assert d.budget is not None and d.budget.unexplained_share >= 50.0
     disc = d.verdict.notes.discovery
     assert disc is not None and disc["found"], disc
     assert disc["fits"][0]["terms"][0]["term"] == "δq2 ∝ sin 2q2"

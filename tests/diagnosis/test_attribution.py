@@ -92,8 +92,10 @@ def test_withheld_effect_comes_out_unexplained() -> None:
         ("wheelbase_error", "wheel_diameter_ratio", "encoder_scale"),
         seed=1,
     )
-    assert d.verdict.label == VerdictKind.UNEXPLAINED
-    assert d.verdict.residual["structured"] or "closes only" in d.verdict.reason
+    # a library effect may stand in for part of it (a narrower wheelbase turns the
+    # same), but half the gap or more stays unexplained: never a plain "effects"
+    assert d.verdict.kind in (VerdictKind.UNEXPLAINED, VerdictKind.PARTIAL), d.verdict.reason
+    assert d.budget is not None and d.budget.unexplained_share >= 50.0
 
 
 @pytest.mark.slow

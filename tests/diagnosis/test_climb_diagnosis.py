@@ -80,13 +80,21 @@ def test_a_hidden_spool_scale_is_named_and_estimated(
 
 
 @pytest.mark.slow
-def test_a_withheld_spool_scale_is_left_unexplained(
+def test_a_withheld_spool_scale_leaves_a_structured_remainder(
     spool_logs: tuple[list[Log], list[Log]],
 ) -> None:
     train, holdout = spool_logs
     library = ("climber_tether_sag", "climber_adsorption_gap")
     d = diagnose(train, holdout, settings=DiagnosisSettings(robot="climber", effects=library))
-    assert d.verdict.kind is VerdictKind.UNEXPLAINED, d.verdict.reason
+    b = d.budget
+    assert b is not None
+    # the spool scale is not named, nor the surface; a sag may stand in for part of the
+    # reading's error (it lengthens it with the paid-out tether too), and what it leaves
+    # is structured far beyond the sensors' noise, stated as such
+    assert "climber_adsorption_gap" not in b.named
+    rest = b.remainder["window"]
+    assert rest["structured_pct"] > 5.0 * rest["noise_pct"]
+    assert "points structured" in b.sentence()
 
 
 def _log(**changes: object) -> Log:

@@ -11,9 +11,8 @@ from realitygap.diagnosis.adapters.diffdrive.manoeuvres import Manoeuvre
 from realitygap.diagnosis.adapters.diffdrive.replay import simulate
 from realitygap.diagnosis.diagnose import Diagnosis, DiagnosisSettings, diagnose
 from realitygap.diagnosis.logs.log import Log
-from realitygap.diagnosis.problem.problem import AttributionSettings, Layout
+from realitygap.diagnosis.problem.problem import AttributionSettings
 from realitygap.diagnosis.stages.clock import ClockSettings, restamp, timing_channel
-from realitygap.diagnosis.stages.scales import ScaleSettings, window_timing
 from realitygap.diagnosis.verdict.types import VerdictKind
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import Reality, make_effect
@@ -173,7 +172,6 @@ def test_a_common_latency_is_still_named_beside_per_log_offsets() -> None:
 def test_logs_that_differ_only_by_their_clocks_and_noise_name_no_effect() -> None:
     d, _ = _diagnose((), 0.0, seed=8, clock=ClockSettings())
     assert d.verdict.kind is not VerdictKind.EFFECTS, d.verdict.reason
-    assert not d.scales.get("named", False)
 
 
 def _independent_sessions(root: Path, seed: int) -> None:
@@ -218,56 +216,3 @@ def test_independent_generator_geometry_with_clock_skews(tmp_path: Path) -> None
     assert e_b == pytest.approx(1.012, abs=0.003)
     if "wheel_diameter_ratio" in fit.effects:
         assert fit.values["wheel_diameter_ratio.E_d"] == pytest.approx(1.003 / 0.997, abs=0.003)
-
-
-# --------------------------------------------------------------------------- two scales
-def _layout(n_logs: int, n_win: int, k: int) -> Layout:
-    from realitygap.diagnosis.adapters.diffdrive.adapter import DIFFDRIVE_SCHEMA
-
-    log = np.repeat(np.arange(n_logs), n_win * k)
-    window = np.tile(np.repeat(np.arange(n_win), k), n_logs)
-    n = log.size
-    return Layout(
-        blocks=[(i, "pose_gt", np.arange(n_win)) for i in range(n_logs)],
-        group=np.full(n, "pose_gt"),
-        column=np.tile(np.array(["dx", "dy", "dtheta"])[:k], n_logs * n_win),
-        regime=np.full(n, "straight"),
-        log=log,
-        window=window,
-        motion=np.zeros((n, 6)),
-        schema=DIFFDRIVE_SCHEMA,
-    )
-
-
-def test_window_timing_removes_a_per_window_clock_exactly_and_respects_the_bound() -> None:
-    rng = np.random.default_rng(3)
-    lay = _layout(2, 30, 3)
-    sig = rng.normal(size=lay.n) * 50.0
-    offsets = rng.uniform(-0.04, 0.04, size=60)
-    z = np.repeat(offsets, 3) * sig
-    left, fitted = window_timing(z, sig, lay, bound=0.05)
-    np.testing.assert_allclose(fitted, offsets, atol=1e-12)
-    np.testing.assert_allclose(left, 0.0, atol=1e-10)
-    _, clipped = window_timing(3.0 * z, sig, lay, bound=0.05)
-    assert np.max(np.abs(clipped)) == pytest.approx(0.05)
-    # a residual orthogonal to every window's signature is left alone
-    ortho = rng.normal(size=lay.n)
-    for w in range(60):
-        sl = slice(3 * w, 3 * w + 3)
-        s = sig[sl]
-        ortho[sl] -= s * (s @ ortho[sl]) / (s @ s)
-    left, fitted = window_timing(ortho, sig, lay, bound=0.05)
-    np.testing.assert_allclose(left, ortho, atol=1e-12)
-
-
-@pytest.mark.parametrize(
-    ("kwargs", "match"),
-    [
-        ({"bound": -1.0}, r"ScaleSettings\.bound"),
-        ({"min_timing_share": 1.0}, r"ScaleSettings\.min_timing_share"),
-        ({"permutations": 0}, r"ScaleSettings\.permutations"),
-    ],
-)
-def test_scale_settings_are_checked(kwargs: dict[str, float], match: str) -> None:
-    with pytest.raises(ValueError, match=match):
-        ScaleSettings(**kwargs)

@@ -1,5 +1,5 @@
-"""The fit stages: screen on the surrogate, fit fully only what can still reach the top of
-the ranking, and tell how long the rest takes from the work measured in the run."""
+"""The fit stages: screen every candidate on the surrogate, and tell how long the rest takes
+from the work measured in the run."""
 
 from __future__ import annotations
 
@@ -63,18 +63,14 @@ def problem() -> Problem:
     return pr
 
 
-def test_the_top_of_the_ranking_is_fully_fitted_and_nothing_screened_can_beat_it(problem):
+def test_every_single_effect_is_screened_and_the_planted_one_leads(problem):
     messages: list[str] = []
     singles, pairs, _ = fit_candidates(problem, EFFECTS, SerialBackend(), messages.append)
-    ranking = sorted([*singles, *pairs], key=lambda f: f.rank_score)
-    need = problem.settings.verify_top + 1
-    assert not any(f.screened for f in ranking[:need])
-    bar = ranking[need - 1].rank_score
-    assert all(f.rank_score > bar for f in ranking if f.screened)
-    assert ranking[0].effects == ("wheel_diameter_ratio",)
-    assert abs(ranking[0].values["wheel_diameter_ratio.E_d"] - 1.01) < 1e-3
+    assert pairs == [] and all(f.screened for f in singles)
+    assert [len(f.effects) for f in singles] == [1] * len(EFFECTS)
+    assert singles[0].effects == ("wheel_diameter_ratio",)
+    assert abs(singles[0].values["wheel_diameter_ratio.E_d"] - 1.01) < 1e-3
     assert any(m.startswith("screening 5 single effects") for m in messages)
-    assert any("cannot reach the top" in m for m in messages)
 
 
 def robust_cost(problem: Problem, values: dict[str, float]) -> float:
@@ -111,11 +107,9 @@ def test_the_plan_counts_the_work_and_spreads_parallel_stages_over_the_workers(p
     assert by_name["verify"] == pytest.approx(
         problem.settings.verify_top * (1 + problem.settings.defect_iterations) * 2.0
     )
-    # pairs: the best single with the 4 others, and the 3 pairs among the other 3 of the
-    # best 4 (pair_candidates = 5 > 5 candidates - 1)
-    k = min(problem.settings.pair_candidates, 5)
-    pairs = 4 + (k - 1) * (k - 2) // 2
-    assert by_name["screen pairs"] == pytest.approx(pairs * ROWS["screen_pair"] * 1e-3)
+    # no pairs by default (the budget combines effects): two selection steps of 5 tries
+    assert by_name["screen pairs"] == 0.0
+    assert by_name["budget"] == pytest.approx(10 * ROWS["budget_try"] * 1e-3)
     for st2, st1 in zip(two.stages, serial.stages):
         assert st2.predicted_s <= st1.predicted_s
     assert two.remaining_s() < serial.remaining_s()

@@ -29,7 +29,7 @@ def _diagnose(root: Path, drive: str, **hidden: float) -> Diagnosis:
     d = diagnose(
         train,
         held,
-        settings=DiagnosisSettings(drive=drive, effects=("wheelbase_error",), scales=None),
+        settings=DiagnosisSettings(drive=drive, effects=("wheelbase_error",)),
     )
     return d
 
@@ -228,7 +228,7 @@ def test_a_wheel_capped_beyond_the_training_speeds_is_found_by_the_encoders(
         d = diagnose(
             [lg for lg in logs if lg.meta.get("path_type") == "square"],
             [lg for lg in logs if lg.meta.get("path_type") != "square"],
-            settings=DiagnosisSettings(drive="commands", effects=("wheelbase_error",), scales=None),
+            settings=DiagnosisSettings(drive="commands", effects=("wheelbase_error",)),
         )
         results[label] = d.actuation["tracking"]
         if label == "capped":  # the report shows what the encoders say, with its table

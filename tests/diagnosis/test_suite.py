@@ -86,7 +86,7 @@ def test_alias_aware_top1_is_reported_beside_the_strict_one() -> None:
 def test_verdict_alternatives_lists_the_model_then_its_aliases(
     make_verdict: Callable[..., Verdict],
 ) -> None:
-    from realitygap.diagnosis.verdict.rules import verdict_alternatives
+    from realitygap.diagnosis.verdict.notes import verdict_alternatives
 
     aliases = (
         {"model": "wheelbase_error", "effects": ["wheelbase_error"]},
@@ -105,25 +105,24 @@ def test_verdict_alternatives_lists_the_model_then_its_aliases(
     assert verdict_alternatives(make_verdict(kind=VerdictKind.UNEXPLAINED)) == []
 
 
-def test_a_partially_explained_verdict_is_scored_as_unexplained() -> None:
-    # a combination that closed part of the gap but left structure where it acts
-    unexplained = VerdictKind.UNEXPLAINED
-    partial_open = _outcome(["torque_speed_saturation"], unexplained, True, open_set=True)
-    partial_in = _outcome(["velocity_saturation", "acceleration_limits"], unexplained, False)
-    confident_wrong = _outcome(
-        ["torque_speed_saturation"], ["velocity_saturation", "acceleration_limits"], False, True
-    )
-    for o in (partial_open, partial_in):
-        o["partially_explained_by"] = "velocity_saturation + acceleration_limits"
-    figures, tables = summarise([partial_open, partial_in])
-    assert figures["open_set_unexplained_rate"] == 1.0
-    assert figures["top1_accuracy"] == 0.0  # never a hit for an in-library case
-    assert figures["false_attribution_rate"] == 0.0
-    assert tables["cases"][0]["partially_explained_by"].startswith("velocity_saturation")
-    # a confident wrong attribution on an open set stays a failure and a false attribution
-    figures, _ = summarise([partial_open, confident_wrong])
-    assert figures["open_set_unexplained_rate"] == 0.5
-    assert figures["false_attribution_rate"] == 0.5
+def test_the_first_budget_entry_and_the_open_set_are_scored() -> None:
+    partial_open = _outcome(["torque_speed_saturation"], ["velocity_saturation"], True, open_set=True)
+    partial_open["first_entry"] = "velocity_saturation"
+    # run_case: an open set is right when the named effects leave ≥ 50 % unexplained
+    partial_open.update(correct=True, unexplained_share_pct=70.0)
+    right = _outcome(["wheelbase_error"], ["wheelbase_error"], True)
+    right["first_entry_right"] = True
+    extra = _outcome(["wheelbase_error"], ["wheelbase_error", "command_latency"], False)
+    extra["first_entry_right"] = True
+    figures, tables = summarise([partial_open, right, extra])
+    # the first entry is right in both in-library cases, the whole verdict in one
+    assert figures["first_entry_accuracy"] == 1.0
+    assert figures["top1_accuracy"] == 0.5
+    # an open set whose named effects leave half the gap or more is right, not a false
+    # attribution; an extra effect beside the truth is one
+    assert figures["open_set_right_rate"] == 1.0
+    assert figures["false_attribution_rate"] == pytest.approx(1 / 3)
+    assert tables["cases"][0]["first_entry"] == "velocity_saturation"
 
 
 @pytest.mark.slow

@@ -234,7 +234,8 @@ def test_tick_replay_recovers_planted_factors_of_the_projects_own_generator() ->
     held = [record("tour")]
     d = diagnose(train, held, settings=DiagnosisSettings(drive="ticks", effects=GEOMETRY))
     assert not d.nominal_reference  # one declared geometry: nothing to relate
-    fit = d.ranking[0]
+    fit = d.chosen  # the budget's model
+    assert fit is not None
     assert set(fit.effects) == {"wheelbase_error", "wheel_diameter_ratio"}
     # PyBullet's wheels touch the floor over their width: the body's effective wheelbase
     # is within a few tenths of a per cent of E_b · b, as for a real robot

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -18,12 +17,9 @@ from realitygap.diagnosis.problem.features import FeatureGroup, FeatureSchema, F
 from realitygap.diagnosis.problem.parameters import range_position
 from realitygap.diagnosis.problem.problem import AttributionSettings, Layout, Problem
 from realitygap.diagnosis.problem.residual import (
-    above_sample_noise,
     describe_residual,
     shrink_above_noise,
 )
-from realitygap.diagnosis.verdict.judge import judge
-from realitygap.diagnosis.verdict.types import Confidence, VerdictKind
 
 SCHEMA = FeatureSchema(
     groups=(FeatureGroup("pose_gt", ("dtheta",), ("rad",), (0.002,)),), regimes=("all_of_it",)
@@ -127,76 +123,6 @@ def _judged(
     )
 
 
-def test_a_small_true_effect_is_judged_on_the_gap_above_noise(
-    model_fit: Callable[..., ModelFit], toy_problem: Callable[..., Problem]
-) -> None:
-    """A true effect comparable with the noise closes less than half of the raw gap but
-    all of the gap above noise: the verdict names it."""
-    rng = np.random.default_rng(2)
-    n, sigma = 2000, 1.0
-    noise = rng.normal(0.0, sigma, n)
-    z_nom = 1.2 * _slow_drift(n, 4, rng) + noise
-    ratio = {"wheel_diameter_ratio.E_d": 1.01}
-    best = model_fit(effects=("wheel_diameter_ratio",), z_heldout=noise.copy(), values=ratio)
-    nominal = model_fit(z_heldout=z_nom, rank_score=500.0)
-    problem = _judged(toy_problem, z_nom)
-    j = judge(problem, [best, nominal], nominal, {"tether": sigma})
-    assert j.shrink_pct_best < 50.0
-    assert j.shrink_pct_above_noise > 90.0
-    assert j.draft.kind is VerdictKind.EFFECTS, j.draft.reason
-    # a model that closes only a fifth of the gap above noise is still refused, saying so
-    z_part = 0.8 * (z_nom - noise) + noise
-    part = model_fit(effects=("wheel_diameter_ratio",), z_heldout=z_part, values=ratio)
-    j = judge(problem, [part, nominal], nominal, {"tether": sigma})
-    assert j.draft.kind is VerdictKind.UNEXPLAINED
-    assert "of the held-out gap above the noise floor" in j.draft.reason
-
-
-def test_an_effect_that_carries_nearly_all_the_gap_is_named_despite_a_structured_rest(
-    model_fit: Callable[..., ModelFit], toy_problem: Callable[..., Problem]
-) -> None:
-    """A real effect never follows the library's law exactly: closing 97 % of the gap above
-    noise with a small systematic rest names it, saying the law differs in detail; closing
-    80 % with a systematic rest does not."""
-    rng = np.random.default_rng(5)
-    n, sigma = 2000, 1.0
-    noise = rng.normal(0.0, sigma, n)
-    drift = _slow_drift(n, 4, rng)
-    z_nom = 100.0 * drift + noise
-    nominal = model_fit(z_heldout=z_nom, rank_score=5000.0)
-    problem = _judged(toy_problem, z_nom)
-    stated = {"tether": sigma}
-    rest = 3.0 * drift + noise  # 3 % of the gap, a slow drift three times the noise
-    ratio = {"wheel_diameter_ratio.E_d": 1.01}
-    best = model_fit(effects=("wheel_diameter_ratio",), z_heldout=rest, values=ratio)
-    j = judge(problem, [best, nominal], nominal, stated)
-    assert j.draft.residual["structured"], "the planted rest must count as structure"
-    assert j.shrink_pct_above_noise > 95.0
-    assert j.draft.kind is VerdictKind.EFFECTS and j.draft.effects == ("wheel_diameter_ratio",)
-    assert "differs in detail from the library's" in j.draft.reason
-    assert j.draft.confidence is not Confidence.STRONG
-    # the same rest behind a model that closes only four fifths of the gap: unexplained
-    part = model_fit(
-        effects=("wheel_diameter_ratio",), z_heldout=20.0 * drift + noise, values=ratio
-    )
-    j = judge(problem, [part, nominal], nominal, stated)
-    assert j.draft.kind is VerdictKind.UNEXPLAINED and "still structured" in j.draft.reason
-    # a pair that leaves the same structured rest may be an effect and its compensator
-    pair = model_fit(
-        effects=("wheel_diameter_ratio", "wheelbase_error"),
-        z_heldout=rest,
-        values={**ratio, "wheelbase_error.E_b": 1.01},
-    )
-    j = judge(problem, [pair, nominal], nominal, stated)
-    assert j.draft.kind is VerdictKind.UNEXPLAINED
-    # with dominant_shrink = 1 the rule is off
-    off = _judged(toy_problem, z_nom, settings=AttributionSettings(dominant_shrink=1.0))
-    j = judge(off, [best, nominal], nominal, stated)
-    assert j.draft.kind is VerdictKind.UNEXPLAINED
-    with pytest.raises(ValueError, match="min_shrink <= dominant_shrink"):
-        AttributionSettings(dominant_shrink=0.3)
-
-
 # --------------------------------------------------------------------------- plausible range edge
 def test_range_position_is_logarithmic_for_a_parameter_spanning_decades() -> None:
     # velocity_saturation.v_limit: 0.05 … 10 m/s, searched in log units
@@ -264,29 +190,6 @@ def test_noise_in_a_group_of_unequal_columns_is_not_structure() -> None:
     assert describe_residual(z + drift, lay, settings, FeatureSettings())["structured"]
 
 
-def test_a_residual_faster_than_the_windows_is_not_taken_for_noise() -> None:
-    """A heading error that oscillates every 2.3 windows (an out-of-round wheel) differs
-    from window to window as much as it is large: the window-to-window test passes it for
-    white. Against the noise the sensor's own samples show it is several times too large;
-    noise at that level is not flagged."""
-    rng = np.random.default_rng(6)
-    n, logs = 240, 4
-    lay = _layout(n, logs)
-    sigma = 1.0
-    k = np.tile(np.arange(n // logs), logs)
-    wobble = 3.0 * np.sin(2.0 * np.pi * k / 2.3 + 0.4)
-    settings = AttributionSettings()
-    z = wobble + rng.normal(0.0, sigma, n)
-    assert not describe_residual(z, lay, settings, FeatureSettings())["structured"]
-    (why,) = above_sample_noise(z, lay, {"pose_gt": {"dtheta": sigma}}, settings)
-    assert why.startswith("pose_gt: the residual of dtheta is") and "faster than the windows" in why
-    noise = rng.normal(0.0, sigma, n)
-    assert above_sample_noise(noise, lay, {"pose_gt": {"dtheta": sigma}}, settings) == []
-    # a residual below the structure floor is never judged (0.3 here), however quiet the sensor
-    assert above_sample_noise(0.2 * noise, lay, {"pose_gt": {"dtheta": 0.01}}, settings) == []
-
-
-# --------------------------------------------------------------------------- boundary errors
 def test_adjacent_windows_that_cancel_are_not_structure() -> None:
     """A few mis-stamped samples move displacement from one window into the next
     (e_k = b_{k+1} − b_k): large against the window-to-window level, but no effect."""
@@ -399,36 +302,6 @@ def test_a_one_parameter_fit_finds_a_tread_narrower_than_its_grid() -> None:
     found = U[np.argmin(c), 0] * 0.08
     assert commands[commands < truth].max() < found <= commands[commands >= truth].min()
     assert np.all((U >= 0.0) & (U <= 1.0)) and U.shape[0] > grid.shape[0]
-
-
-@pytest.mark.slow
-def test_a_compliance_under_another_gravity_law_is_named_alone(
-    tmp_path: Path,
-) -> None:
-    """The independent generator's shoulder flex (its own gravity-torque law and masses,
-    UR10 tracker files): the library's joint compliance, with the flange load the declared
-    masses miss, carries the gap; the small terms that help it a little more are listed,
-    none singled out, and the summary describes what remains."""
-    from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-    from realitygap.diagnosis.logs.read import ReadOptions, read_logs
-    from realitygap.diagnosis.report.summary import summary_sentences
-    from realitygap.experiments.independent import generate_case
-    from realitygap.independent.cases import case_by_name
-
-    case = case_by_name("shoulder_flex")
-    train, held = generate_case(case, tmp_path, 1, "default")
-    opts = ReadOptions(check_plausible=False)
-    d = diagnose(
-        [lg for p in train for lg in read_logs(p, opts)],
-        [lg for p in held for lg in read_logs(p, opts)],
-        settings=DiagnosisSettings(robot=case.robot),
-    )
-    assert d.verdict.kind is VerdictKind.EFFECTS
-    assert d.verdict.effects == ("arm_joint_compliance",)
-    assert d.gap["heldout_shrink_pct_best"] > 90.0
-    assert d.verdict.notes.unsingled_partners, d.verdict.reason
-    rest = [s for s in summary_sentences(d) if s.startswith("What remains")]
-    assert rest, summary_sentences(d)
 
 
 class _TwoBasinProblem:

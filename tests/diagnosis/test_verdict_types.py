@@ -6,13 +6,13 @@ from __future__ import annotations
 import ast
 import dataclasses
 import json
-import math
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from realitygap.diagnosis.budget import Budget, BudgetEntry
 from realitygap.diagnosis.fit.model import ModelFit
 from realitygap.diagnosis.report.writer import jsonable
 from realitygap.diagnosis.stages.reach import Reach
@@ -20,28 +20,22 @@ from realitygap.diagnosis.verdict.conclude import conclude
 from realitygap.diagnosis.verdict.types import (
     Confidence,
     CoverageNote,
-    Decision,
     Judgement,
-    NuisancePartner,
-    PartialExplanation,
-    TrainingOnly,
     Verdict,
     VerdictKind,
     VerdictNotes,
-    WholeRuns,
 )
 
 DIAGNOSIS = Path(__file__).resolve().parents[2] / "diagnosis"
 
 
 def test_the_kinds_and_confidences_are_the_words_the_json_holds() -> None:
-    assert [k.value for k in VerdictKind] == ["effects", "unexplained", "none"]
+    assert [k.value for k in VerdictKind] == ["effects", "partial", "unexplained", "none"]
     assert {c.value for c in Confidence} == {
         "strong",
         "moderate",
         "weak",
         "not identifiable",
-        "training only",
         "n/a",
     }
     # a string enum equals its word, prints as it and serialises as it
@@ -65,108 +59,88 @@ def test_a_verdict_cannot_be_changed_once_written(make_verdict: Callable[..., Ve
 
 
 def test_the_notes_give_the_json_keys_in_their_order() -> None:
-    full = VerdictNotes(
-        verdict_text="a + b",
-        aliases=({"model": "c", "effects": ["c"], "why": ["w"], "heldout_shrink_pct": 80.0},),
-        compensators=("d",),
-        regime_consistency=({"model": "d", "compensator": True},),
-        parameter_status={"a": {"a.p": "at bound"}},
-        discovery={"found": False, "message": "m"},
-        heldout_shrink_pct_above_noise=91.0,
-        unsingled_partners=("e",),
-        training_only=TrainingOnly("a", 4.0, 95.0, ("c",)),
-        nuisance_partner=NuisancePartner(
-            "timestamp_offset",
-            {"timestamp_offset.offset": 0.01},
-            {"timestamp_offset.offset": "s"},
-            {"timestamp_offset.offset": (-0.025, 0.025)},
-        ),
-        coverage=CoverageNote("s", "t"),
-        combination_check={"model": "a + b", "passed": False},
-        partially_explained_by=PartialExplanation("a + b", ("a", "b"), 60.0),
+    notes = VerdictNotes(
+        verdict_text="t",
+        coverage=CoverageNote("beyond", "record more"),
         robot={"message": "r"},
-        actuation={"message": "q"},
-        tracking={"message": "w"},
-        reach={"message": "x"},
     )
-    js = full.to_json()
+    js = notes.to_json()
     assert list(js) == [
-        "training_only",
         "verdict_text",
         "aliases",
-        "compensators",
         "regime_consistency",
         "parameter_status",
         "discovery",
-        "heldout_shrink_pct_above_noise",
-        "unsingled_partners",
-        "nuisance_partner",
         "coverage",
-        "combination_check",
-        "partially_explained_by",
-        "robot",
-        "actuation",
-        "tracking",
-        "reach",
+        "fitted_robot",
     ]
-    assert js["training_only"] == {
-        "model": "a",
-        "train_gap_excess": 4.0,
-        "train_shrink_pct_above_noise": 95.0,
-        "aliases": ["c"],
-    }
-    assert js["nuisance_partner"]["ranges"] == {"timestamp_offset.offset": [-0.025, 0.025]}
-    assert js["partially_explained_by"] == {
-        "model": "a + b",
-        "effects": ["a", "b"],
-        "heldout_shrink_pct": 60.0,
-    }
-    assert js["coverage"] == {"summary": "s", "suggestion": "t"}
-    assert js["aliases"] == [dict(full.aliases[0])] and js["unsingled_partners"] == ["e"]
-    # JSON through and back: every value is plain data
-    assert json.loads(json.dumps(jsonable(js))) == jsonable(js)
-    # a verdict on whole runs states them first; notes that do not apply are left out, and
-    # discovery is always stated
-    whole = WholeRuns(80.0, 10.0, ("r",), True, 70.0)
-    js = VerdictNotes(verdict_text="a (on whole runs)", whole_runs=whole).to_json()
-    assert list(js) == [
-        "whole_runs",
-        "verdict_text",
-        "aliases",
-        "compensators",
-        "regime_consistency",
-        "parameter_status",
-        "discovery",
-        "heldout_shrink_pct_above_noise",
-        "unsingled_partners",
-    ]
-    assert js["whole_runs"] == {
-        "run_shrink_pct": 80.0,
-        "window_shrink_pct": 10.0,
-        "remainder": ["r"],
-        "clock_like": True,
-        "timing_share_pct": 70.0,
-    }
-    assert js["discovery"] is None and math.isnan(js["heldout_shrink_pct_above_noise"])
+    assert js["coverage"] == {"summary": "beyond", "suggestion": "record more"}
+    assert js["discovery"] is None
 
 
-def test_conclude_writes_the_decision_with_what_the_pipeline_measured(
+def _entry(
+    effect: str, *, constant: bool = True, aliases: tuple[str, ...] = (), p: float = 1e-6
+) -> BudgetEntry:
+    return BudgetEntry(
+        effect=effect,
+        scale="run",
+        values={f"{effect}.E_b": 1.01},
+        stderr={f"{effect}.E_b": 0.001},
+        share={"run": 60.0, "window": 10.0},
+        interval={"run": (50.0, 70.0), "window": (5.0, 15.0)},
+        cv_gain=0.5,
+        p_value=p,
+        folds=6,
+        aliases=aliases,
+        stability={"unit": "session", "constant": constant, "parameters": {}},
+    )
+
+
+def test_conclude_writes_the_budget_with_what_the_pipeline_measured(
     model_fit: Callable[..., ModelFit], make_judgement: Callable[..., Judgement]
 ) -> None:
+    entry = _entry("wheelbase_error", aliases=("wheel_radius_scale",))
+    remainder = {
+        s: {"remaining_pct": 30.0, "noise_pct": 25.0, "structured_pct": 5.0, "rms": 1.0}
+        for s in ("run", "window")
+    }
+    budget = Budget(
+        (entry,),
+        {"run": 3.0, "window": 2.0},
+        remainder,
+        "effects",
+        "the rule",
+        {},
+        True,
+        dict(entry.values),
+    )
     best = model_fit(effects=("wheelbase_error",), z_heldout=np.zeros(4))
-    j = make_judgement(best=best, nominal_heldout=np.ones(4), reason="closes it")
-    j = j.revised(ambiguous_with=("wheel_radius_scale",), confidence=Confidence.NOT_IDENTIFIABLE)
-    decision = Decision(j, VerdictNotes(verdict_text="wheelbase_error or wheel_radius_scale"))
+    j = make_judgement(best=best, nominal_heldout=np.ones(4))
     reach = Reach(rows=[{"model": "m"}], message="far")
-    v = conclude(decision, robot={"message": "r"}, reach=reach)
-    assert (v.kind, v.effects, v.reason) == (VerdictKind.EFFECTS, ("wheelbase_error",), "closes it")
+    v = conclude(
+        budget, j, residual={"structured": False}, robot={"message": "r"}, reach=reach.to_json()
+    )
+    assert (v.kind, v.effects, v.reason) == (VerdictKind.EFFECTS, ("wheelbase_error",), "the rule")
+    # an alias makes the first entry not identifiable
     assert v.confidence is Confidence.NOT_IDENTIFIABLE
     assert v.ambiguous_with == ("wheel_radius_scale",)
-    assert v.notes.verdict_text == decision.notes.verdict_text
+    assert v.notes.verdict_text == budget.sentence()
+    assert "wheelbase error" in v.notes.verdict_text and "60 % [50, 70]" in v.notes.verdict_text
     assert v.notes.robot == {"message": "r"} and v.notes.reach == reach.to_json()
-    assert v.notes.discovery is None and v.notes.actuation is None
-    # the decision itself is left as it was
-    assert decision.notes.robot is None
+    # an entry whose value varies between sessions is not named
+    varying = Budget(
+        (_entry("wheelbase_error", constant=False),),
+        budget.gap,
+        remainder,
+        "unexplained",
+        "r",
+        {},
+        True,
+    )
+    v2 = conclude(varying, j, residual={})
+    assert v2.kind is VerdictKind.UNEXPLAINED and v2.effects == ()
+    assert v2.confidence is Confidence.NOT_APPLICABLE
+    assert "varies between sessions" in varying.sentence()
 
 
 def _called(node: ast.Call) -> str:

@@ -146,6 +146,7 @@ class DiffDriveAdapter(WheelDrivenAdapter):
     """Motion-capture and camera noise of the blind suite's logs."""
 
     transient_detection = True
+    integrates = True
     """Time series: windows disturbed by stalls, bumps or lost markers are set aside
     (:mod:`~realitygap.diagnosis.stages.transients`)."""
 
