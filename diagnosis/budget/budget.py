@@ -19,8 +19,8 @@ One rule sets the kind (:func:`kind_of`): effects are *named* when they entered 
 value across sessions; with named effects the kind is ``"effects"`` when the structured
 remainder is under half the gap at both scales, else ``"partial"``; with none it is
 ``"unexplained"`` when the baseline's held-out residual exceeds what the sensors' noise
-gives (:math:`Σ z^2/σ^2` against :math:`χ^2_n` at either scale, :func:`beyond_noise`),
-else ``"none"``.
+gives (:math:`Σ z^2/σ^2` against :math:`χ^2_n` at either scale, :func:`beyond_noise`) and
+its structured part is larger than its noise part at some scale, else ``"none"``.
 """
 
 from __future__ import annotations
@@ -202,12 +202,16 @@ def kind_of(
                 "effects explain part of the gap but none holds one value across "
                 f"{entries[0].stability.get('unit', 'fold')}s"
             )
-        if structured:
+        # a gap: beyond the sensors' noise (significant) and more of it than the noise
+        if structured and any(r["structured_pct"] > r["noise_pct"] for r in remainder.values()):
             return "unexplained", (
-                "no effect's cross-validated gain is significant and the baseline's held-out "
-                "residual is structured beyond noise"
+                "no effect's cross-validated gain is significant and the held-out residual is "
+                "structured beyond the sensors' noise"
             )
-        return "none", "no effect's gain is significant and the held-out residual is noise"
+        return "none", (
+            "no effect's gain is significant and the held-out residual is mostly the sensors' "
+            "noise"
+        )
     worst = max(r["structured_pct"] for r in remainder.values())
     if worst < UNEXPLAINED_LIMIT:
         return "effects", (
@@ -229,11 +233,11 @@ def _unit_sums(
     if cells is not None:
         v = cells(z)
         out["run"] = (
-            np.bincount(cells.unit, v**2, minlength=n_units),
+            np.bincount(cells.unit, v**2, minlength=n_units).astype(float),
             np.bincount(cells.unit, minlength=n_units).astype(float),
         )
     out["window"] = (
-        np.bincount(unit, z**2, minlength=n_units),
+        np.bincount(unit, z**2, minlength=n_units).astype(float),
         np.bincount(unit, minlength=n_units).astype(float),
     )
     return out

@@ -148,10 +148,12 @@ class Scorer:
     def parts(self, z: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Per-fold window cost and run cost (K,) of a training residual (n,)."""
         k = self.folds.k
-        w = np.bincount(self.folds.train, _rho(z**2, self.loss, self.c), minlength=k)
+        w: FloatArray = np.bincount(
+            self.folds.train, _rho(z**2, self.loss, self.c), minlength=k
+        ).astype(float)
         if self.cells is None:
             return w, np.zeros(k)
-        r = np.bincount(self.cells.unit, self.cells(z) ** 2, minlength=k)
+        r: FloatArray = np.bincount(self.cells.unit, self.cells(z) ** 2, minlength=k).astype(float)
         return w, r
 
     def score(self, z: FloatArray) -> FloatArray:
@@ -163,15 +165,17 @@ class Scorer:
 
     def regime_scores(self, z: FloatArray, regime: npt.NDArray[np.str_]) -> dict[str, FloatArray]:
         """Per regime, the per-fold score of the entries (and run cells) of that regime."""
-        out = {}
+        out: dict[str, FloatArray] = {}
         k = self.folds.k
         cells = self.cells(z) ** 2 if self.cells is not None else None
         for r in np.unique(regime):
             sel = regime == r
-            s = np.bincount(
-                self.folds.train[sel], _rho(z[sel] ** 2, self.loss, self.c), minlength=k
+            s: FloatArray = (
+                np.bincount(
+                    self.folds.train[sel], _rho(z[sel] ** 2, self.loss, self.c), minlength=k
+                )
+                / self.w0
             )
-            s = s / self.w0
             if cells is not None and self.cells is not None and self.r0 > 0:
                 cs = self.cells.regime == r
                 s = s + np.bincount(self.cells.unit[cs], cells[cs], minlength=k) / self.r0
@@ -195,8 +199,9 @@ class Trial:
     regime_scores: dict[str, FloatArray]
     pinned: tuple[str, ...]
     exposure: FloatArray = field(default_factory=lambda: np.zeros(0))
-    """Per fold, the RMS change of the training residual the candidate makes (feature-scale
-    units): a fold where it is under the floor does not exercise the effect."""
+    """Per fold, the RMS change the candidate makes to the training residual at its scale
+    (windows, or run cells; feature-scale units): a fold where it is under the floor does
+    not exercise the effect."""
     gains: FloatArray = field(default_factory=lambda: np.zeros(0))
     t: float = 0.0
     p: float = 1.0
@@ -323,9 +328,13 @@ def _try(problem: Problem, shared: tuple[Any, ...], effect: str) -> Trial:
     U = np.repeat(u_hat[None], p + 1, axis=0)
     U[1 + np.arange(p), np.arange(p)] += h
     Z = residuals(U)
+    # how much the candidate moves each fold's residual, at its own scale (a run-scale
+    # effect adds up in the run cells where a window barely shows it)
+    moved = reading(Z[0] - z_cur)
+    where = cells.unit if (scale == "run" and cells is not None) else scorer.folds.train
     exposure = np.sqrt(
-        np.bincount(scorer.folds.train, (Z[0] - z_cur) ** 2, minlength=scorer.folds.k)
-        / np.maximum(np.bincount(scorer.folds.train, minlength=scorer.folds.k), 1)
+        np.bincount(where, moved**2, minlength=scorer.folds.k)
+        / np.maximum(np.bincount(where, minlength=scorer.folds.k), 1)
     )
     Rd = np.stack([reading(z) for z in Z])
     r0 = Rd[0]
@@ -517,6 +526,18 @@ def forward_select(
             tri.qualifies = tri.p < ALPHA / m and not tri.pinned and not worse and tri.mean_gain > 0
         ok = [tri for tri in trials if tri.qualifies]
         if not ok:
+            near = max(trials, key=lambda tri: tri.mean_gain)
+            why = (
+                f"pinned at {', '.join(near.pinned)}"
+                if near.pinned
+                else f"worsens {', '.join(near.worse_in)}"
+                if near.worse_in
+                else f"p = {near.p:.2g} against {ALPHA / m:.2g}"
+            )
+            say(
+                f"budget: step {len(chosen) + 1}: nothing qualifies (the largest gain, "
+                f"{near.effect} {near.mean_gain:+.3g}: {why})"
+            )
             break
         ok.sort(key=lambda tri: -tri.mean_gain)
         top = ok[0]

@@ -237,32 +237,42 @@ def summary_sentences(d: Diagnosis) -> list[str]:
             f"train) and {split[1]:.0f} % between the wheels and the body (the ground truth "
             "against the encoders)."
         )
-    rows = d.ranking_rows()
     g = d.gap
-    best_row = rows[0] if rows else None
-    if best_row is not None and best_row["effects"]:
-        descs = _param_descriptions(best_row["effects"])
-        vals = "; ".join(value_words(k, p, descs.get(k, "")) for k, p in best_row["params"].items())
-        closes = float(g.get("heldout_shrink_pct_best", best_row["heldout_shrink_pct"]))
-        sentence = (
-            f"The best-scoring candidate is {best_row['name']}: {vals}. "
-            f"It closes {closes:.0f} % of the held-out gap window by window"
-        )
-        if "heldout_trajectory_gap_m_best" in g:
-            traj = g.get("heldout_trajectory_shrink_pct_best")
-            sentence += (
-                "; over whole held-out runs the RMS position error goes from "
-                f"{quantity(g['heldout_trajectory_gap_m_nominal'], 'm')} nominal to "
-                f"{quantity(g['heldout_trajectory_gap_m_best'], 'm')}"
-                + (f" ({float(traj):.0f} % less)" if traj is not None else "")
+    v = d.verdict
+    budget = d.budget
+    if budget is not None:
+        # the answer first: the budget, its rule, what varies between sessions
+        answer = [v.notes.verdict_text or budget.sentence()]
+        answer.append(f"Verdict: {_kind_words(v)} — {budget.rule}.")
+        for e in budget.entries:
+            if not e.constant:
+                ranges = "; ".join(
+                    f"{k.split('.', 1)[-1]} {p['min']:.4g} … {p['max']:.4g}"
+                    for k, p in e.stability["parameters"].items()
+                )
+                answer.append(
+                    f"{e.effect.replace('_', ' ')} varies between {e.stability['unit']}s "
+                    f"({ranges}): a finding in itself, not a constant of the robot."
+                )
+        out[1:1] = answer
+        if budget.entries:
+            entries = budget.to_json()["entries"]
+            descs = _param_descriptions([e["effect"] for e in entries])
+            vals = "; ".join(
+                value_words(k, p, descs.get(k, ""))
+                for e in entries
+                for k, p in e["parameters"].items()
             )
-        widest = max(rows, key=lambda r: float(r["heldout_shrink_pct"]))
-        if float(widest["heldout_shrink_pct"]) > closes + 1.0 and widest is not best_row:
-            sentence += (
-                f"; the most any candidate closes is {float(widest['heldout_shrink_pct']):.0f} % "
-                f"({widest['name']}), not enough to outscore it on held-out data"
-            )
-        out.append(sentence + ".")
+            sentence = f"The budget's model: {vals}"
+            if "heldout_trajectory_gap_m_best" in g:
+                traj = g.get("heldout_trajectory_shrink_pct_best")
+                sentence += (
+                    "; replayed in PyBullet, the held-out runs' RMS position error goes from "
+                    f"{quantity(g['heldout_trajectory_gap_m_nominal'], 'm')} nominal to "
+                    f"{quantity(g['heldout_trajectory_gap_m_best'], 'm')}"
+                    + (f" ({float(traj):.0f} % less)" if traj is not None else "")
+                )
+            out.append(sentence + ".")
     conc = concentrated_gap(g.get("heldout_trajectory_runs", []))
     if conc is not None:
         own = quantity(conc["before_m"], "m") + " nominal"
@@ -275,21 +285,6 @@ def summary_sentences(d: Diagnosis) -> list[str]:
             f"gap (its squared position error; its own RMS error is {own}); over the other "
             f"{conc['runs']} runs the gap is {others}."
         )
-    v = d.verdict
-    budget = d.budget
-    if budget is not None:
-        out.append(v.notes.verdict_text or budget.sentence())
-        out.append(f"Verdict: {_kind_words(v)} — {budget.rule}.")
-        varying = [e for e in budget.entries if not e.constant]
-        for e in varying:
-            ranges = "; ".join(
-                f"{k.split('.', 1)[-1]} {p['min']:.4g} … {p['max']:.4g}"
-                for k, p in e.stability["parameters"].items()
-            )
-            out.append(
-                f"{e.effect.replace('_', ' ')} varies between {e.stability['unit']}s ({ranges}): "
-                "a finding in itself, not a constant of the robot."
-            )
     reasons = v.residual.get("reasons", []) if v.kind is not VerdictKind.NONE else []
     if reasons and v.residual.get("structured"):
         out.append("What remains: " + "; ".join(reasons[:3]) + ".")

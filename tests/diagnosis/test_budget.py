@@ -134,6 +134,8 @@ def _entry(constant: bool = True) -> BudgetEntry:
     [
         ((), 80.0, True, "unexplained"),
         ((), 5.0, False, "none"),
+        # significant, but most of what remains is the sensors' noise: no gap
+        ((), 20.0, True, "none"),
         ((True,), 10.0, True, "effects"),
         ((True,), 60.0, True, "partial"),
         ((False,), 10.0, True, "unexplained"),
