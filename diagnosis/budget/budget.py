@@ -157,7 +157,7 @@ class Budget:
         words = []
         for s in self.scales:
             what = (gap_words or {}).get(s) or f"{self.gap[s]:.3g} noise units RMS"
-            label = "whole-run drift" if s == "run" else "1-s windows"
+            label = "whole-run drift" if s == "run" else "windows"
             parts = []
             for e in self.entries:
                 lo, hi = self.interval_of(e, s)
@@ -209,8 +209,7 @@ def kind_of(
                 "structured beyond the sensors' noise"
             )
         return "none", (
-            "no effect's gain is significant and the held-out residual is mostly the sensors' "
-            "noise"
+            "no effect's gain is significant and the held-out residual is mostly the sensors' noise"
         )
     worst = max(r["structured_pct"] for r in remainder.values())
     if worst < UNEXPLAINED_LIMIT:
@@ -375,6 +374,7 @@ def gap_budget(
             "k": folds.k,
             "labels": list(folds.labels),
             "holdout_unit": folds.holdout_unit,
+            "stability_unit": folds.groups_unit,
             "holdout_labels": list(folds.holdout_labels),
             "test": f"paired one-sided t over folds at {ALPHA:g}/candidates (Bonferroni); "
             "aliases: paired one-sided t at the same level; stability: Cochran's Q at 0.01; "

@@ -34,9 +34,9 @@ from realitygap.diagnosis.problem.problem import Layout, Problem
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
-__all__ = ["Folds", "RunCells", "make_folds", "restrict"]
+__all__ = ["Folds", "RunCells", "make_folds"]
 
-MIN_FOLDS = 6
+MIN_FOLDS = 12
 """The fewest folds the budget's tests run on: with fewer sessions or runs than this, the
 runs are cut into contiguous segments (a paired test over 2 or 3 folds has almost no
 power)."""
@@ -150,27 +150,6 @@ def make_folds(problem: Problem, min_folds: int = MIN_FOLDS) -> Folds:
     sub_group[sub] = groups
     return Folds(
         unit, labels, train, h_unit, h_labels, holdout, g_unit, g_labels, groups, sub, sub_group
-    )
-
-
-def restrict(layout: Layout, keep: npt.NDArray[np.bool_]) -> Layout:
-    """The entries ``keep`` of ``layout`` (a layout of whole windows: ``keep`` must hold all
-    columns of a window or none)."""
-    blocks = []
-    for i, g, _ in layout.blocks:
-        sel = (layout.log == i) & (layout.group == g) & keep
-        w = np.unique(layout.window[sel])
-        if w.size:
-            blocks.append((i, g, w))
-    return Layout(
-        blocks=blocks,
-        group=layout.group[keep],
-        column=layout.column[keep],
-        regime=layout.regime[keep],
-        log=layout.log[keep],
-        window=layout.window[keep],
-        motion=layout.motion[keep],
-        schema=layout.schema,
     )
 
 

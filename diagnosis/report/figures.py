@@ -105,7 +105,7 @@ def _waterfall(d: Diagnosis, out: Path, prefix: str, plt: Any) -> tuple[str, str
     fig, axes = plt.subplots(
         1, len(scales), figsize=(4.6 * len(scales), 0.5 * (len(b.entries) + 3) + 1.8), squeeze=False
     )
-    titles = {"run": "whole-run drift", "window": "1-s windows"}
+    titles = {"run": "whole-run drift", "window": "windows"}
     for ax, sc in zip(axes.flat, scales):
         labels = ["held-out gap"]
         rem = b.remainder[sc]

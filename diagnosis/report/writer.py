@@ -232,10 +232,10 @@ def _budget_section(d: Diagnosis, lead: list[tuple[str, str]]) -> list[str]:
         lines += [f"![{caption}]({fname})", "", f"*{caption}*", ""]
     scales = list(b.scales)
     head = " | ".join(
-        f"{'whole runs' if s_ == 'run' else '1-s windows'} share [95 % interval]" for s_ in scales
+        f"{'whole runs' if s_ == 'run' else 'windows'} share [95 % interval]" for s_ in scales
     )
     lines += [
-        f"| # | effect | fitted at | parameters (± 1σ) | {head} | one value across {b.folds.get('unit', 'fold')}s? | aliases |",
+        f"| # | effect | fitted at | parameters (± 1σ) | {head} | one value across {b.folds.get('stability_unit', 'fold')}s? | aliases |",
         "|---|---|---|---|" + "---|" * len(scales) + "---|---|",
     ]
     for j, e in enumerate(b.entries, start=1):
