@@ -36,7 +36,7 @@ IntArray = npt.NDArray[np.int64]
 
 __all__ = ["Folds", "RunCells", "make_folds"]
 
-MIN_FOLDS = 12
+MIN_FOLDS = 16
 """The fewest folds the budget's tests run on: with fewer sessions or runs than this, the
 runs are cut into contiguous segments (a paired test over 2 or 3 folds has almost no
 power)."""

@@ -14,8 +14,9 @@ candidate :math:`c` added to the current model :math:`M`:
 2. **Leave one fold out.** For each training fold :math:`k` (a session, else a run, else a
    segment: :func:`~realitygap.diagnosis.budget.folds.make_folds`) the fit without the fold
    is one Gauss–Newton step from the full optimum on the other folds' rows (with the robust
-   loss's weights, inside the bounds) — the approximate leave-one-out of M-estimators; the
-   fold's residual is then evaluated exactly on the surrogate at that value.
+   loss's weights, inside the bounds) — the approximate leave-one-out of M-estimators —,
+   kept only if it lowers the other folds' cost (else the full optimum); the fold's
+   residual is then evaluated exactly on the surrogate at that value.
 3. **Score.** The fold's score is its windows' robust cost relative to the baseline's total,
    plus (for a robot whose motion integrates, ``RobotAdapter.integrates``) its run cells'
    squared sum relative to the baseline's; the gain of :math:`c` on fold :math:`k` is the
@@ -23,7 +24,7 @@ candidate :math:`c` added to the current model :math:`M`:
 4. **Test.** :math:`c` qualifies when its fold gains, over the folds that exercise it
    (where it moves the training residual by at least :attr:`AttributionSettings.floor`
    RMS at its scale: a fold it does not touch is evidence neither way), are positive by a
-   paired one-sided sign-flip test (:func:`paired_test`) at :math:`α/m`
+   paired one-sided Student :math:`t` test (:func:`paired_test`) at :math:`α/m`
    (Bonferroni over the :math:`m` candidates of the step), its parameters stay off the
    far ends of their physical ranges, and no motion regime's fold gains are negative at
    :math:`α/r` (one-sided, :math:`r` regimes). The qualifying candidate with the largest
@@ -51,6 +52,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import least_squares
 from scipy.stats import chi2
+from scipy.stats import t as student_t
 
 from realitygap.core.parallel import Backend
 from realitygap.diagnosis.budget.folds import Folds, RunCells
@@ -96,40 +98,25 @@ def effect_scale(effect: str) -> str:
     return str(EFFECTS[effect].scale)
 
 
-_EXACT_FOLDS = 16
-"""Up to this many folds the sign-flip test enumerates every sign pattern; beyond, it draws
-:data:`_FLIPS` of them from a fixed-seed generator."""
-_FLIPS = 20000
-
-
 def paired_test(gains: FloatArray) -> tuple[float, float]:
-    """One-sided paired sign-flip test that the gains (one per fold) are above zero:
-    ``(t, p)``, ``t`` the mean over its standard error (for the report), ``p`` the share of
-    sign patterns whose sum reaches the observed one.
+    r"""One-sided paired Student :math:`t` test that the gains (one per fold) are above
+    zero: ``(t, p)``. A constant positive set of gains has ``p = 0``; fewer than two folds
+    or no spread and no gain, ``p = 1``.
 
-    Under "no gain" a fold's gain is as likely negative as positive, whatever its size: the
-    test needs no normality and does not mind that folds exercising an effect more gain more
-    (a dead band acts only in the slow folds). Exact up to :data:`_EXACT_FOLDS` folds (its
-    smallest p is :math:`2^{-K}`), Monte Carlo beyond; fewer than two folds give ``p = 1``.
-    """
+    Gains are log ratios of fold scores, so folds that exercise an effect more do not
+    dominate the mean; a test on signs alone (a sign-flip test) would need
+    :math:`\log_2(m/α)` exercised folds to reach :math:`α/m` at all, more than an effect
+    acting only in fast or slow segments has."""
     g = np.asarray(gains, dtype=float)
     g = g[np.isfinite(g)]
-    k = g.size
-    if k < 2:
+    if g.size < 2:
         return 0.0, 1.0
     mean = float(np.mean(g))
     sd = float(np.std(g, ddof=1))
-    if sd > 1e-12 * max(abs(mean), 1e-300):
-        t = mean / (sd / math.sqrt(k))
-    else:
-        t = math.copysign(math.inf, mean) if mean != 0 else 0.0
-    obs = float(np.sum(g)) - 1e-12 * float(np.sum(np.abs(g)))
-    if k <= _EXACT_FOLDS:
-        signs = ((np.arange(2**k)[:, None] >> np.arange(k)) & 1) * 2.0 - 1.0
-        return t, float(np.mean(signs @ g >= obs))
-    rng = np.random.default_rng(0)
-    signs = rng.integers(0, 2, size=(_FLIPS, k)) * 2.0 - 1.0
-    return t, float((1 + np.count_nonzero(signs @ g >= obs)) / (1 + _FLIPS))
+    if sd <= 1e-12 * max(abs(mean), 1e-300):
+        return (math.inf, 0.0) if mean > 0 else (-math.inf if mean < 0 else 0.0, 1.0)
+    t = mean / (sd / math.sqrt(g.size))
+    return t, float(student_t.sf(t, g.size - 1))
 
 
 def cochran_q(values: FloatArray, errors: FloatArray) -> tuple[float, float, float]:
@@ -414,12 +401,20 @@ def _try(problem: Problem, shared: tuple[Any, ...], effect: str) -> Trial:
         else:
             S_own[g] = np.sqrt(np.maximum(np.diag(cov_g), 0.0))
     Z_cv = residuals(U_cv)
+    s_hat = scorer.score(Z[0])
     fold_scores = np.empty(K)
     regime: dict[str, FloatArray] = {}
     for k in range(K):
         s = scorer.score(Z_cv[k])
+        z_k = Z_cv[k]
+        # a safeguarded step: where the Gauss-Newton step makes the other folds' cost worse
+        # than the full optimum (a step-like parameter, a linearisation that fails), the
+        # estimate without fold k is the full optimum itself
+        others = np.arange(K) != k
+        if float(np.sum(s[others])) > float(np.sum(s_hat[others])):
+            s, z_k = s_hat, Z[0]
         fold_scores[k] = s[k]
-        for r, v in scorer.regime_scores(Z_cv[k], tr.regime).items():
+        for r, v in scorer.regime_scores(z_k, tr.regime).items():
             regime.setdefault(r, np.zeros(K))[k] = v[k]
     # parameter errors of the full fit, in natural units (the rows' own scatter)
     _, cov = _gn_step(J, r0, w, np.ones(r0.size, dtype=bool))
