@@ -185,9 +185,6 @@ def gap_report(
             gap["heldout_trajectory_shrink_pct_best"] = 100.0 * (
                 1.0 - gap["heldout_trajectory_gap_m_best"] / nom
             )
-            # the best model is the budget's: its figures under the budget's name too
-            gap["heldout_trajectory_gap_m_budget"] = gap["heldout_trajectory_gap_m_best"]
-            gap["heldout_trajectory_shrink_pct_budget"] = gap["heldout_trajectory_shrink_pct_best"]
         gap["heldout_trajectory_runs"] = trajectory_runs(real_ho, runs)
     gt_sel = problem.holdout.group == "pose_gt"
     if gt_sel.any():
