@@ -42,6 +42,13 @@ examples:
       --report out/ --json out/d.json
   realitygap diagnose drive.bag --truth-topic /mocap/robot/pose --report out/
 
+  # your own robot: inspect proposes the column map, the robot file holds the rest
+  realitygap inspect run1.txt
+  realitygap diagnose run1.txt run2.txt --holdout run3.txt --robot-file robot.yaml \
+      --columns 't=time,ticks.left=-enc_l,ticks.right=enc_r,pose_gt.x=x:mm,pose_gt.y=y:mm,pose_gt.theta=-heading:deg'
+  # two files of one recording (encoders and motion capture), aligned on their own stamps
+  realitygap diagnose enc.csv+mocap.csv --columns 't=enc::stamp,t=mocap::time,…'
+
   # an arm measured by a laser tracker (UR10 layout: Series_*/measurements_*.csv);
   # the first series trains, the last is held out
   realitygap diagnose path/to/ipa_ur10_lasertracker --report out/ur10/
@@ -72,6 +79,22 @@ def _parse_kv(text: str, what: str) -> dict[str, Any]:
         except ValueError:
             raise ValueError(f"{what}: {key.strip()} must be a number, got {value!r}") from None
     return out
+
+
+def _description(args: argparse.Namespace) -> dict[str, Any]:
+    """The importer options a ``--robot-file`` or ``--urdf`` gives (empty without either)."""
+    from realitygap.diagnosis.logs.robot_file import description_from_urdf, load_robot_file
+
+    if args.robot_file and args.urdf:
+        raise ValueError(
+            "--robot-file and --urdf both given; name the URDF inside the robot file "
+            "('urdf: robot.urdf') instead"
+        )
+    if args.robot_file:
+        return load_robot_file(args.robot_file).read_options()
+    if args.urdf:
+        return description_from_urdf(args.urdf).read_options()
+    return {}
 
 
 def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
@@ -146,6 +169,31 @@ def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
     g.add_argument("--rate", type=float, default=20.0, help="bag resampling rate, Hz (default 20)")
     g.add_argument("--resample", type=float, help="resample every log to this step, s")
     g.add_argument(
+        "--duplicates",
+        choices=("raise", "last", "mean"),
+        default="raise",
+        help="repeated time stamps in a table log: an error (default), keep the last, or average",
+    )
+    g.add_argument(
+        "--max-gap",
+        type=float,
+        metavar="SECONDS",
+        help="longest gap of a channel bridged when aligning channels at different rates or "
+        "resampling (default: 5 of the channel's own periods); a longer gap cuts the log",
+    )
+    r = p.add_argument_group("the robot")
+    r.add_argument(
+        "--robot-file",
+        metavar="FILE",
+        help="the robot's description (YAML or JSON): kind, nominal geometry, encoders, firmware "
+        "limits, where the ground truth's tracked point sits (docs/your_robot.md)",
+    )
+    r.add_argument(
+        "--urdf",
+        metavar="FILE",
+        help="the robot's URDF: wheel radii and track, or an arm's joints and links",
+    )
+    g.add_argument(
         "--no-plausibility-check",
         action="store_true",
         help="accept wheeled logs whose speeds, wheel rates or row rate look like a unit "
@@ -219,13 +267,26 @@ def _diagnose(args: argparse.Namespace) -> int:
                     f"no such file or folder: {path!r} (a LOG is an .npz log, a session folder, "
                     "a CSV file or a ROS bag; paths are relative to the current folder)"
                 )
+        if args.max_gap is not None:
+            check_finite_float(args.max_gap, "--max-gap", low=0.0, strict_low=True, unit="s")
+        described = _description(args)
+        params = dict(described.get("params") or {})
+        if args.params:
+            params.update(_parse_kv(args.params, "--params"))
+        firmware = dict(described.get("firmware") or {})
+        if args.firmware:
+            firmware.update(_parse_kv(args.firmware, "--firmware"))
         options = ReadOptions(
             columns=args.columns,
             decimal=args.decimal,
             delimiter=args.delimiter,
             nan=args.nan,
-            params=_parse_kv(args.params, "--params") if args.params else None,
-            firmware=_parse_kv(args.firmware, "--firmware") if args.firmware else None,
+            params=params or None,
+            firmware=firmware or None,
+            meta=described.get("meta") or None,
+            robot=args.robot or described.get("robot"),
+            duplicates=args.duplicates,
+            max_gap=args.max_gap,
             cmd_topic=args.cmd_topic,
             odom_topic=args.odom_topic or None,
             truth_topic=args.truth_topic,

@@ -65,6 +65,7 @@ from realitygap.diagnosis.fit.status import parameter_status
 from realitygap.diagnosis.fit.verify import Verification, verify_ranking
 from realitygap.diagnosis.fit.workload import Workload, row_seconds
 from realitygap.diagnosis.logs.log import Log, LogError
+from realitygap.diagnosis.logs.pieces import drop_short_pieces
 from realitygap.diagnosis.problem.features import FeatureSettings
 from realitygap.diagnosis.problem.parameters import split_key
 from realitygap.diagnosis.problem.problem import AttributionSettings, Problem
@@ -345,16 +346,19 @@ def candidate_library(adapter: RobotAdapter, settings: DiagnosisSettings) -> tup
                 )
     if settings.effects is None:
         return library
-    unknown = [e for e in settings.effects if e not in library]
+    # asked for by name, every registered effect of the robot is a candidate, in the default
+    # library or not (an effect outside it is a baseline nuisance unless asked for)
+    known = tuple(n for n, cls in EFFECTS.items() if cls.robot == settings.robot)
+    unknown = [e for e in settings.effects if e not in known]
     if unknown:
         import difflib
 
-        hints = [difflib.get_close_matches(u, library, n=1) for u in unknown]
+        hints = [difflib.get_close_matches(u, known, n=1) for u in unknown]
         hint = "; ".join(
             f"{u!r} (did you mean {h[0]!r}?)" if h else repr(u) for u, h in zip(unknown, hints)
         )
         raise ValueError(
-            f"unknown effect(s) {hint} for robot {settings.robot!r}; known: {', '.join(library)}"
+            f"unknown effect(s) {hint} for robot {settings.robot!r}; known: {', '.join(known)}"
         )
     return tuple(settings.effects)
 
@@ -542,10 +546,23 @@ def diagnose(
     timing: dict[str, float] = {}
     t0 = time.perf_counter()
     library = candidate_library(adapter, s)
+    logs, holdout = drop_short_pieces(logs, holdout, 2.0 * s.features.window_s, say)
+    split = _split(list(logs), list(holdout) if holdout else None, s)
+    train_in = [lg for lg, part in split if part == "train"]
+    other_in = [lg for lg, part in split if part != "train"]
+    train_in, other_in, completed = adapter.complete_nominal(train_in, other_in)
+    if completed:
+        say(completed["summary"])
+        logs, holdout = train_in, (other_in or None)
     prepared = prepare_logs(adapter, logs, holdout, s, be, say)
-    reference = adapter.link_logs(prepared, drive)
+    reference = dict(adapter.link_logs(prepared, drive))
     if reference:
         say(reference["summary"])
+    if completed:
+        reference["effective_track"] = completed
+        reference["summary"] = "; ".join(
+            x for x in (reference.get("summary"), completed["summary"]) if x
+        )
     timing["prepare"] = time.perf_counter() - t0
 
     problem = Problem(adapter, prepared, drive, s.features, s.sim, s.attribution)

@@ -342,6 +342,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_diagnose_parser(sub)
 
+    from realitygap.diagnosis.logs.inspect import add_inspect_parser
+
+    add_inspect_parser(sub)
+
     from realitygap.baselines.cli import add_benchmark_parser, add_train_parser
 
     add_benchmark_parser(sub)

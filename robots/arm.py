@@ -45,6 +45,7 @@ a pedestal at ``base_xyz``.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field, fields, replace
 from enum import Enum
 from typing import Any
@@ -116,7 +117,11 @@ def _rot_z4(angle: float) -> FloatArray:
 
 
 def _origin_xml(T: FloatArray) -> str:
-    rpy = Rotation.from_matrix(T[:3, :3]).as_euler("xyz")  # URDF rpy: R = Rz(y) Ry(p) Rx(r)
+    with warnings.catch_warnings():
+        # a pitch of ±90° (a joint axis turned onto another) has one free angle: scipy sets
+        # the third to zero and says so; the rpy still give R exactly
+        warnings.filterwarnings("ignore", message="Gimbal lock detected")
+        rpy = Rotation.from_matrix(T[:3, :3]).as_euler("xyz")  # URDF rpy: R = Rz(y) Ry(p) Rx(r)
     xyz = " ".join(repr(float(v)) for v in T[:3, 3])
     return f'<origin xyz="{xyz}" rpy="{" ".join(repr(float(v)) for v in rpy)}"/>'
 

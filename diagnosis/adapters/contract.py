@@ -342,6 +342,19 @@ class RobotAdapter(ABC):
     (:mod:`~realitygap.diagnosis.stages.coverage`); ``None``: a wheeled robot's speed and turn
     rate (:data:`~realitygap.diagnosis.stages.coverage.DEFAULT_MOTION_LABELS`)."""
 
+    # ------------------------------------------------------------------ optional: the nominal
+    def complete_nominal(
+        self, train: Sequence[Log], others: Sequence[Log]
+    ) -> tuple[list[Log], list[Log], dict[str, Any]]:
+        """Nominal parameters the logs leave to be fitted, fitted on the training logs.
+
+        A robot whose description leaves a nominal parameter open (a skid-steer's
+        effective track) fits it here on ``train`` only and writes it into every
+        log's ``meta["params"]``. Returns the logs and a report (``summary`` says
+        what was fitted); unchanged logs and ``{}`` by default.
+        """
+        return list(train), list(others), {}
+
     # ------------------------------------------------------------------ optional: the library
     def effect_names(self) -> tuple[str, ...]:
         """The effect library of :attr:`robot`."""

@@ -161,6 +161,11 @@ def convert_units(values: npt.ArrayLike, unit: str, to: str, *, what: str = "val
             f"{what}: cannot convert {unit!r} to {to!r} (a {si_from} quantity is not a {si_to} "
             "quantity); check the column map"
         )
+    inverse = f_to / f_from
+    if inverse > 1.0 and inverse == round(inverse):
+        # mm → m: dividing by the exact 1000 rounds once; multiplying by 0.001 (not exact in
+        # binary) can differ from it in the last bit
+        return arr / inverse
     return arr * (f_from / f_to)
 
 

@@ -37,8 +37,10 @@ from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.diffdrive_replay import nominal_odometry, params_to_meta
 
 __all__ = [
+    "UR10_COLUMN_MAP",
     "ReadOptions",
     "check_plausible",
+    "log_from_ur10_file",
     "log_from_ur10_series",
     "logs_from_optiodom",
     "logs_from_ur10",
@@ -52,6 +54,7 @@ _EXT_KIND = {
     ".txt": {"text"},
     ".tsv": {"text"},
     ".bag": {"rosbag1"},
+    ".mat": {"text", "binary"},
     ".db3": {"sqlite"},
     ".mcap": {"mcap"},
 }
@@ -82,6 +85,17 @@ class ReadOptions:
     check_plausible : bool
         Refuse wheeled logs whose speeds, wheel rates or row rate are physically
         implausible (:func:`check_plausible`), a sign of a wrong unit.
+    meta : mapping or None
+        Further metadata of table and bag logs (from a robot file: the declared
+        ground-truth tracked point, a skid-steer's wheel track, an arm's tool).
+    robot : str or None
+        The robot of table logs (``diffdrive``, ``arm``); default: from the column map's
+        channels.
+    duplicates : {"raise", "last", "mean"}
+        Repeated time stamps within a channel of a table log.
+    max_gap : float or None
+        Longest gap (s) of a channel that aligning channels at different rates may
+        interpolate over (default: ``REALITYGAP_MAX_GAP_STEPS`` of its own period).
     """
 
     columns: str | None = None
@@ -98,6 +112,10 @@ class ReadOptions:
     rate_hz: float = 20.0
     resample: float | None = None
     check_plausible: bool = True
+    meta: Mapping[str, Any] | None = None
+    robot: str | None = None
+    duplicates: str = "raise"
+    max_gap: float | None = None
 
 
 def logs_from_optiodom(
@@ -258,9 +276,37 @@ def log_from_ur10_series(series: Any) -> Log:
     )
 
 
+UR10_COLUMN_MAP = (
+    "joints.q1=shoulder_pan_joint,joints.q2=shoulder_lift_joint,joints.q3=elbow_joint,"
+    "joints.q4=wrist_1_joint,joints.q5=wrist_2_joint,joints.q6=wrist_3_joint,"
+    "tool_pos.x=measurement_x:mm,tool_pos.y=measurement_y:mm,tool_pos.z=measurement_z:mm"
+)
+"""The column map of a UR10 laser-tracker measurement file: the generic arm table reader
+(:func:`~realitygap.diagnosis.logs.importers.csv_log.read_table_logs`) with this map reads its
+channels; the UR10 reader adds what the folder's other files say (the probe in the flange, the
+tracker's reported noise)."""
+
+
+def log_from_ur10_file(series: Any) -> Log:
+    """The arm :class:`Log` of one UR10 series, its channels read by the generic table reader
+    with :data:`UR10_COLUMN_MAP` and its metadata from :func:`log_from_ur10_series`."""
+    from realitygap.diagnosis.logs.importers.csv_log import read_table_logs
+
+    described = log_from_ur10_series(series)
+    (log,) = read_table_logs(
+        [series.source],
+        UR10_COLUMN_MAP,
+        params=described.meta["params"],
+        meta={k: v for k, v in described.meta.items() if k != "params"},
+        robot="arm",
+    )
+    return log.replace(meta=dict(described.meta))
+
+
 def logs_from_ur10(path: str | os.PathLike[str]) -> list[Log]:
     """Arm logs from a UR10 laser-tracker folder (``Series_*/measurements_*.csv``), one
-    ``Series_*`` folder, or one ``measurements_*.csv`` file; one log per measurement file."""
+    ``Series_*`` folder, or one ``measurements_*.csv`` file; one log per measurement file
+    (:func:`log_from_ur10_file`)."""
     from realitygap.diagnosis.logs.importers.ur10 import (
         read_transform_txt,
         read_ur10_dataset,
@@ -279,7 +325,7 @@ def logs_from_ur10(path: str | os.PathLike[str]) -> list[Log]:
             series = [read_ur10_measurements(f, T0, name=f"{folder.name}/{f.stem}") for f in files]
     except ValueError as exc:
         raise LogError(str(exc)) from None
-    return [log_from_ur10_series(s) for s in series]
+    return [log_from_ur10_file(s) for s in series]
 
 
 def _looks_like_ur10(p: Path) -> bool:
@@ -317,6 +363,10 @@ def read_logs(
     """
     opt = options if options is not None else ReadOptions()
     p = Path(path)
+    parts = split_recording(path)
+    if len(parts) > 1:
+        logs = _read_tables([Path(x) for x in parts], opt, warn)
+        return _after_reading(logs, opt, warn)
     if not p.exists():
         raise FileNotFoundError(f"no such file or folder: {p}")
     if not p.is_dir():
@@ -344,35 +394,27 @@ def read_logs(
                 "a UR10 laser-tracker set (Series_*/measurements_*.csv) nor a ROS 2 bag "
                 "(metadata.yaml)"
             )
-    elif kind == "npz":
+    elif kind == "npz" and (opt.columns is None or _is_saved_log(p)):
         logs = [Log.load(p)]
     elif kind == "text" and not opt.columns and _looks_like_ur10(p):
         logs = logs_from_ur10(p)
-    elif kind == "text":
+    elif kind in ("text", "npz") or ext == ".mat":
         if not opt.columns:
-            near = _ur10_near_miss(p)
+            near = _ur10_near_miss(p) if kind == "text" else None
             if near:
                 raise LogError(near)
+            what = (
+                f"{p}: a table (with the header {_header_text(p)}) of no known layout"
+                if kind == "text"
+                else f"{p}: a table of {ext} arrays of no known layout"
+            )
             raise LogError(
-                f"{p}: a CSV file with the header {_header_text(p)}; it is not a known layout "
-                f"(a UR10 measurement file has the columns {', '.join(UR10_KEY_COLUMNS)}), so "
-                "it needs a column map saying which column is what, e.g. --columns "
-                "'t=time:s,cmd.v=v,cmd.w=w,pose_gt.x=x,pose_gt.y=y,pose_gt.theta=yaw'"
+                f"{what} (a UR10 measurement file has the columns "
+                f"{', '.join(UR10_KEY_COLUMNS)}), so it needs a column map saying which column "
+                f"is what. Fix: run 'realitygap inspect {p}', which proposes one, or pass e.g. "
+                "--columns 't=time:s,cmd.v=v,cmd.w=w,pose_gt.x=x,pose_gt.y=y,pose_gt.theta=yaw'"
             )
-        from realitygap.diagnosis.logs.importers.csv_log import read_csv_log
-
-        meta = {"firmware": dict(opt.firmware)} if opt.firmware else None
-        logs = [
-            read_csv_log(
-                p,
-                opt.columns,
-                delimiter=opt.delimiter,
-                decimal=opt.decimal,
-                params=opt.params,
-                meta=meta,
-                nan=opt.nan,
-            )
-        ]
+        logs = _read_tables([p], opt, warn)
     elif kind in ("rosbag1", "sqlite", "mcap"):
         logs = [_read_bag(p, opt)]
     else:
@@ -381,6 +423,73 @@ def read_logs(
             "expected a .npz "
             "log, a CSV file, a ROS bag or an OptiOdom session folder"
         )
+    return _after_reading(logs, opt, warn)
+
+
+def split_recording(path: str | os.PathLike[str]) -> list[str]:
+    """The files of one LOG argument: ``enc.csv+mocap.csv`` names two files of one recording
+    (aligned on their own stamps); a path that exists as written is one file."""
+    text = os.fspath(path)
+    if "+" not in text or Path(text).exists():
+        return [text]
+    parts = [x for x in text.split("+") if x]
+    missing = [x for x in parts if not Path(x).exists()]
+    if missing:
+        raise FileNotFoundError(
+            f"{text}: read as the files {', '.join(parts)} of one recording, but "
+            f"{', '.join(missing)} does not exist"
+        )
+    return parts
+
+
+def _is_saved_log(p: Path) -> bool:
+    """Whether an ``.npz`` is a log written by :meth:`Log.save` (it holds ``meta.json``)."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(p) as zf:
+            return "meta.json.npy" in zf.namelist()
+    except (OSError, zipfile.BadZipFile):
+        return False
+
+
+def _read_tables(
+    paths: list[Path], opt: ReadOptions, warn: Callable[[str], None] | None
+) -> list[Log]:
+    """Table files (text, ``.mat``, ``.npz`` arrays) of one recording, with the column map."""
+    from realitygap.diagnosis.logs.importers.column_map import ColumnMap
+    from realitygap.diagnosis.logs.importers.csv_log import POSE_ROW_CHANNELS, read_table_logs
+
+    if not opt.columns:
+        raise LogError(
+            f"{'+'.join(map(str, paths))}: table files need a column map (--columns). Fix: run "
+            "'realitygap inspect' on them, which proposes one"
+        )
+    cmap = ColumnMap.parse(opt.columns)
+    robot = opt.robot
+    if robot is None:
+        robot = "arm" if all(c in POSE_ROW_CHANNELS for c in cmap.channels()) else "diffdrive"
+    meta: dict[str, Any] = dict(opt.meta or {})
+    if opt.firmware:
+        meta["firmware"] = dict(opt.firmware)
+    return read_table_logs(
+        paths,
+        cmap,
+        delimiter=opt.delimiter,
+        decimal=opt.decimal,
+        params=opt.params,
+        meta=meta or None,
+        nan=opt.nan,
+        robot=robot,
+        duplicates=opt.duplicates,
+        max_gap=opt.max_gap,
+        warn=warn,
+    )
+
+
+def _after_reading(
+    logs: list[Log], opt: ReadOptions, warn: Callable[[str], None] | None
+) -> list[Log]:
     if opt.check_plausible:
         for lg in logs:
             try:
@@ -391,7 +500,14 @@ def read_logs(
                     "or ReadOptions(check_plausible=False))"
                 ) from None
     if opt.resample is not None:
-        logs = [piece for lg in logs for piece in resample_split(lg, opt.resample, warn)]
+        logs = [
+            piece
+            for lg in logs
+            for piece in resample_split(lg, opt.resample, warn, max_gap=opt.max_gap)
+        ]
+    if opt.meta:
+        # what a robot file declares holds for every log of the robot, whatever its reader
+        logs = [lg.replace(meta={**dict(opt.meta), **lg.meta}) for lg in logs]
     return logs
 
 
@@ -406,6 +522,9 @@ MIN_ROW_RATE = 1.0
 
 ODOMETRY_RATIO_RANGE = (0.5, 2.0)
 """Plausible ratio of wheel-odometry path length to true path length."""
+
+STRAIGHT_CHORD_RAD = 0.05
+"""A chord turns less than this (rad) to count as straight in the wheel-to-truth path ratio."""
 
 PATH_STRIDE_S = 0.5
 """Time between the samples the path lengths are measured over (s): row-to-row steps of a
@@ -422,7 +541,8 @@ def check_plausible(log: Log) -> None:
     wheel-odometry path length against the true one (within
     :data:`ODOMETRY_RATIO_RANGE` when the robot moved more than 0.5 m; both over
     chords :data:`PATH_STRIDE_S` apart, so that a fast, noisy ground truth does not
-    lengthen its path by its noise).
+    lengthen its path by its noise, and straight ones (:data:`STRAIGHT_CHORD_RAD`), so
+    that a tracked point off the axle, which circles it on every turn, does not either).
 
     Raises
     ------
@@ -439,6 +559,7 @@ def _check_plausible(log: Log) -> None:
     src = log.source or log.name
     dt = np.diff(log.t)
     rate = 1.0 / float(np.median(dt))
+    clock = _clock_hint(dt)
     if rate < MIN_ROW_RATE:
         raise LogError(
             f"{src}: rows arrive at {rate:.3g} Hz over {log.duration / 3600:.3g} h, implausible "
@@ -456,9 +577,12 @@ def _check_plausible(log: Log) -> None:
             if not speed <= MAX_BASE_SPEED:
                 raise LogError(
                     f"{src}: channel {name!r} moves at {speed:.4g} m/s (99th percentile), "
-                    f"implausible for a wheeled robot (≤ {MAX_BASE_SPEED:g} m/s). Fix: positions "
-                    "in mm or cm declared as m? give the unit in the column map, e.g. "
-                    f"'{name}.x=x:mm'"
+                    f"implausible for a wheeled robot (≤ {MAX_BASE_SPEED:g} m/s). Fix: "
+                    + (
+                        clock
+                        or "positions in mm or cm declared as m? give the unit in the "
+                        f"column map, e.g. '{name}.x=x:mm'"
+                    )
                 )
     params = log.meta.get("params", {})
     tpr = params.get("ticks_per_rev") if isinstance(params, dict) else None
@@ -469,15 +593,23 @@ def _check_plausible(log: Log) -> None:
             raise LogError(
                 f"{src}: channel 'ticks' turns a wheel at {rpm:.4g} rev/min (99th percentile, "
                 f"with ticks_per_rev={tpr:g}), implausible (≤ {MAX_WHEEL_RPM:g} rev/min). Fix: "
-                "check ticks_per_rev in --params and whether the counts are scaled"
+                + (clock or "check ticks_per_rev in --params and whether the counts are scaled")
             )
         radius = 0.5 * (
             float(params.get("wheel_radius_left", 0.0))
             + float(params.get("wheel_radius_right", 0.0))
         )
-        truth = paths.get("pose_gt", 0.0)
-        if radius > 0 and truth > 0.5:
-            wheel = float(np.sum(np.abs(np.diff(log["ticks"].mean(axis=1)[::stride]))))
+        # over straight chords only: a tracked point off the axle (a marker behind it) sweeps
+        # a circle while the robot turns in place, which the wheels' mean travel does not see
+        straight = None
+        truth = 0.0
+        if log.has("pose_gt"):
+            gt = log["pose_gt"][::stride]
+            straight = np.abs(np.diff(np.unwrap(gt[:, 2]))) < STRAIGHT_CHORD_RAD
+            truth = float(np.hypot(*np.diff(gt[:, :2], axis=0).T)[straight].sum())
+        if radius > 0 and truth > 0.5 and straight is not None:
+            mean_ticks = np.diff(log["ticks"].mean(axis=1)[::stride])
+            wheel = float(np.sum(np.abs(mean_ticks[straight])))
             ratio = wheel * 2.0 * math.pi * radius / tpr / truth
             lo, hi = ODOMETRY_RATIO_RANGE
             if not lo <= ratio <= hi:
@@ -487,6 +619,27 @@ def _check_plausible(log: Log) -> None:
                     "scaled tick counts (e.g. quadrature ×4), a wrong ticks_per_rev or wheel "
                     "radius in --params, or pose_gt in the wrong unit"
                 )
+
+
+def _clock_hint(dt: np.ndarray) -> str:
+    """What to say when the rows' own intervals explain an implausible rate: rows of streams at
+    different rates (or a clock that stalls and catches up) give intervals of two sizes, and a
+    change over a short one looks fast ("" when the 90th percentile of the intervals is within
+    :data:`UNEVEN_INTERVALS` of the 10th)."""
+    lo, hi = (float(v) for v in np.percentile(dt, [10, 90]))
+    if not hi > UNEVEN_INTERVALS * lo:
+        return ""
+    return (
+        f"the rows come at uneven intervals ({1e3 * lo:.3g} ms to {1e3 * hi:.3g} ms, 10th to "
+        "90th percentile): a clock or rate mismatch, not the robot — two streams interleaved in "
+        "one file, or stamps of another clock? Map each stream's columns (a table's channels "
+        "are aligned on their own stamps; 'realitygap inspect FILE' shows the streams and their "
+        "rates) or fix the time column"
+    )
+
+
+UNEVEN_INTERVALS = 4.0
+"""Row intervals whose 90th percentile is this many times their 10th come at two rates."""
 
 
 UR10_KEY_COLUMNS = ("Goal x", "measurement_x", "shoulder_pan_joint")
@@ -534,8 +687,13 @@ def resample_split(
     dt: float,
     warn: Callable[[str], None] | None = None,
     limits: ResourceLimits | None = None,
+    max_gap: float | None = None,
 ) -> list[Log]:
     """``log`` resampled to the step ``dt`` (s), split where its time stamps have gaps.
+
+    ``max_gap`` (s) is the longest gap bridged (default ``limits.max_gap_steps`` steps).
+    The pieces are marked ``meta["piece_of"]``; the diagnosis sets aside those too short
+    to read.
 
     A gap longer than ``limits.max_gap_steps`` steps is never bridged by
     interpolation: the log is split there, each piece is resampled on its own
@@ -556,14 +714,15 @@ def resample_split(
         check_rows_limit(int(log.duration / dt) + 1, cols, f"{log.source}: --resample {dt:g}", lim)
     except ValueError as exc:
         raise LogError(str(exc)) from None
-    gaps = np.flatnonzero(np.diff(log.t) > lim.max_gap_steps * dt)
+    longest = max_gap if max_gap is not None else lim.max_gap_steps * dt
+    gaps = np.flatnonzero(np.diff(log.t) > longest)
     bounds = [0, *(int(g) + 1 for g in gaps), log.n]
     for g in gaps:
         say(
             f"{log.source}: a gap of {log.t[g + 1] - log.t[g]:.6g} s after t={log.t[g]:.6g} s is "
-            f"longer than {lim.max_gap_steps:g} resampling steps of {dt:g} s; the run is split "
-            "there instead of inventing rows (REALITYGAP_MAX_GAP_STEPS sets how many steps may "
-            "be bridged)"
+            f"longer than {longest:g} s; the run is split "
+            "there instead of inventing rows (--max-gap SECONDS, or REALITYGAP_MAX_GAP_STEPS, "
+            "sets how long a gap may be bridged)"
         )
     out: list[Log] = []
     for k, (a, b) in enumerate(itertools.pairwise(bounds)):
@@ -573,7 +732,9 @@ def resample_split(
         piece = log.slice(a, b) if len(bounds) > 2 else log
         res = piece.resampled(dt)
         if len(bounds) > 2:
-            res = res.replace(meta={**res.meta, "name": f"{log.name}_part-{k + 1}"})
+            res = res.replace(
+                meta={**res.meta, "name": f"{log.name}_part-{k + 1}", "piece_of": log.name}
+            )
         out.append(res)
     return out
 
@@ -588,8 +749,10 @@ def _read_bag(p: Path, opt: ReadOptions) -> Log:
         truth_frame=opt.truth_frame,
         wheels=opt.wheels_topic,
     )
-    meta = {"firmware": dict(opt.firmware)} if opt.firmware else None
-    return read_bag(p, topics, rate_hz=opt.rate_hz, params=opt.params, meta=meta)
+    meta: dict[str, Any] = dict(opt.meta or {})
+    if opt.firmware:
+        meta["firmware"] = dict(opt.firmware)
+    return read_bag(p, topics, rate_hz=opt.rate_hz, params=opt.params, meta=meta or None)
 
 
 def read_many(

@@ -421,13 +421,17 @@ def calibrate_baseline(
     ranges: dict[str, NuisanceRange] = dict(
         problem.adapter.baseline_nuisances(problem.logs, problem.drive)
     )
-    # a nuisance of a library effect counts only where that effect is observable; an
-    # effect outside the default library is a nuisance only (never a candidate)
+    # a nuisance of a library effect counts only where that effect is a candidate; an effect
+    # outside the default library is a nuisance only unless asked for; and the frame the
+    # ground truth tracks is the measurement setup's convention, fitted whichever effects
+    # are candidates
     default = set(problem.adapter.effect_names())
     ranges = {
         k: r
         for k, r in ranges.items()
-        if split_key(k)[0] in candidates or split_key(k)[0] not in default
+        if split_key(k)[0] in candidates
+        or split_key(k)[0] not in default
+        or frame_channel(split_key(k)[0]) is not None
     }
     check_nuisances(ranges)
     if not ranges or problem.train.n == 0:

@@ -49,7 +49,7 @@ __all__ = [
     "register_effect",
 ]
 
-LIBRARY_VERSION = 2
+LIBRARY_VERSION = 3
 """Version of the effect library the diagnosis and the blind suite use by default.
 
 Every seeded figure of the diagnosis is stated against one library: an effect

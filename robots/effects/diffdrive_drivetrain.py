@@ -276,7 +276,7 @@ class MotorResponse(Effect):
         "firmware's wheel-speed commands (nominal geometry)."
     )
     specs = (ParamSpec("tau", "s", 0.0, 0.0, 0.5, "time constant of both wheels' velocity loops"),)
-    since = 3
+    since = 4
     surrogate_slot = SurrogateSlot.WHEEL_SPEED
     surrogate_order = 3  # with the per-wheel lags: linear lags commute
     surrogate_example = (("tau", 0.12),)

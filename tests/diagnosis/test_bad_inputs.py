@@ -182,7 +182,9 @@ def test_cut_last_line_is_flagged(tmp_path: Path) -> None:
     f = write_csv(tmp_path / "run.csv")
     text = f.read_text().rstrip("\n")
     f.write_text(text[:-3])  # "0.000" → "0.": cut inside its last field, no newline
-    with pytest.raises(LogError, match=r"run\.csv: the last line .* no newline .*cut off"):
+    with pytest.raises(
+        LogError, match=r"run\.csv, line \d+: the last line .* no newline .*cut off"
+    ):
         read_csv_log(f, CSV_MAP)
     f.write_text(text)  # complete line, only the newline missing: fine
     assert read_csv_log(f, CSV_MAP).n == 100

@@ -69,6 +69,7 @@ from realitygap.diagnosis.adapters.diffdrive.context import (
     TRUTH_YAW_RANGE,
     TURN_WINDOW_RAD,
     DiffDriveContext,
+    declared_truth_frame,
     geometry,
     geometry_report,
     meters_per_tick,
@@ -90,6 +91,7 @@ from realitygap.diagnosis.adapters.diffdrive.replay import (
     params_from_meta,
     replay,
 )
+from realitygap.diagnosis.adapters.diffdrive.skid import complete_skid_steer
 from realitygap.diagnosis.logs.channels import DIFFDRIVE_CHANNELS
 from realitygap.diagnosis.logs.log import Log, LogError
 from realitygap.diagnosis.problem.features import (
@@ -98,7 +100,7 @@ from realitygap.diagnosis.problem.features import (
     features,
     window_bounds,
 )
-from realitygap.diagnosis.problem.parameters import reality_from_values, split_key
+from realitygap.diagnosis.problem.parameters import param_spec, reality_from_values, split_key
 from realitygap.diagnosis.problem.residual import robust_spread
 from realitygap.diagnosis.problem.schemas import DIFFDRIVE_SCHEMA
 from realitygap.diagnosis.stages.scales import gain_through_origin
@@ -178,7 +180,11 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         (``truth_frame_offset``): a motion-capture rigid body defined by hand
         puts its origin within :data:`TRUTH_FRAME_RANGE` metres of the axle
         centre and its heading within :data:`TRUTH_YAW_RANGE` rad of the rolling
-        direction; that is the setup's convention, not the robot's physics.
+        direction; that is the setup's convention, not the robot's physics. Where
+        the logs declare the tracked point (``meta["truth_frame"]``, from a robot
+        file), the range is the declared point within its declared uncertainty
+        (:func:`declared_truth_frame`). A tracked point beyond the range is the
+        effect ``truth_frame_offset`` of the library, over its physical range.
         """
         if not prepared:
             return {}
@@ -186,21 +192,16 @@ class DiffDriveAdapter(WheelDrivenAdapter):
         half = 0.5 * dt
         align = max(half, TRUTH_LATENCY_FLOOR)
         out = {"timestamp_offset.offset": (-align, align, "ground-truth time alignment")}
-        out["truth_frame_offset.x"] = (
-            -TRUTH_FRAME_RANGE,
-            TRUTH_FRAME_RANGE,
-            "ground-truth body origin ahead of the axle centre",
-        )
-        out["truth_frame_offset.y"] = (
-            -TRUTH_FRAME_RANGE,
-            TRUTH_FRAME_RANGE,
-            "ground-truth body origin left of the axle centre",
-        )
-        out["truth_frame_offset.yaw"] = (
-            -TRUTH_YAW_RANGE,
-            TRUTH_YAW_RANGE,
-            "ground-truth body heading against the rolling direction",
-        )
+        centre, width = declared_truth_frame(prepared)
+        for key, what in (
+            ("x", "ground-truth body origin ahead of the axle centre"),
+            ("y", "ground-truth body origin left of the axle centre"),
+            ("yaw", "ground-truth body heading against the rolling direction"),
+        ):
+            spec = param_spec(f"truth_frame_offset.{key}")
+            lo = max(centre[key] - width[key], spec.low)
+            hi = min(centre[key] + width[key], spec.high)
+            out[f"truth_frame_offset.{key}"] = (lo, hi, what)
         if drive is Drive.COMMANDS:
             requests = bool(self.actuator_conventions(prepared, drive))
             response = dt if requests else half
@@ -256,6 +257,13 @@ class DiffDriveAdapter(WheelDrivenAdapter):
             sur = self.surrogate_features(p, {}, drive)
             p.bias = {k: p.nominal[k] - sur[k][0] for k in p.groups}
         return geometry_report(counts, ref_geom, relinked)
+
+    def complete_nominal(
+        self, train: Sequence[Log], others: Sequence[Log]
+    ) -> tuple[list[Log], list[Log], dict[str, Any]]:
+        """A skid-steer's effective track from the training logs
+        (:func:`~realitygap.diagnosis.adapters.diffdrive.skid.complete_skid_steer`)."""
+        return complete_skid_steer(train, others)
 
     def actuator_conventions(self, prepared: Sequence[PreparedLog], drive: Drive) -> dict[str, str]:
         """How the firmware's rate limit acts, when the commands are requests it ramps.

@@ -31,6 +31,7 @@ __all__ = [
     "TRUTH_YAW_RANGE",
     "TURN_WINDOW_RAD",
     "DiffDriveContext",
+    "declared_truth_frame",
     "geometry",
     "geometry_report",
     "meters_per_tick",
@@ -56,6 +57,45 @@ DRIVE_RESPONSE_FLOOR = 0.05
 """s: the time constant of a DC wheel drive's speed loop that is its own response, not a
 finding, however fast the commands come (a speed loop settles in some tens of
 milliseconds; the command period bounds it only where it is longer)."""
+
+
+def declared_truth_frame(
+    prepared: Any,
+) -> tuple[dict[str, float], dict[str, float]]:
+    """Where the logs say the ground truth's tracked point sits, and how far it may be off.
+
+    ``meta["truth_frame"]`` of a log (from a robot file: ``x``, ``y`` (m), ``yaw``
+    (rad) and their uncertainties ``sigma_xy`` (m), ``sigma_yaw`` (rad)) gives the
+    centre and half-width of the baseline's frame range; logs that declare
+    nothing give the convention: the axle centre within :data:`TRUTH_FRAME_RANGE`
+    and :data:`TRUTH_YAW_RANGE`.
+
+    Raises
+    ------
+    ValueError
+        Logs of one diagnosis that declare different tracked points (one robot, one
+        marker), naming two of them.
+    """
+    centre = {"x": 0.0, "y": 0.0, "yaw": 0.0}
+    half = {"x": TRUTH_FRAME_RANGE, "y": TRUTH_FRAME_RANGE, "yaw": TRUTH_YAW_RANGE}
+    seen: tuple[str, Mapping[str, Any]] | None = None
+    for p in prepared:
+        tf = p.log.meta.get("truth_frame")
+        if not isinstance(tf, Mapping):
+            continue
+        if seen is not None and dict(seen[1]) != dict(tf):
+            raise ValueError(
+                f"{seen[0]} and {p.log.name} declare different ground-truth tracked points "
+                f"({dict(seen[1])} and {dict(tf)}); the logs of one diagnosis come from one "
+                "robot and one marker. Fix: diagnose them separately, or declare one point"
+            )
+        seen = (p.log.name, tf)
+    if seen is not None:
+        tf = seen[1]
+        centre = {k: float(tf.get(k, 0.0)) for k in centre}
+        sxy = float(tf.get("sigma_xy", TRUTH_FRAME_RANGE))
+        half = {"x": sxy, "y": sxy, "yaw": float(tf.get("sigma_yaw", TRUTH_YAW_RANGE))}
+    return centre, half
 
 
 def twist_from_ticks(ticks: npt.ArrayLike, params: DiffDriveParams, dt: float) -> FloatArray:

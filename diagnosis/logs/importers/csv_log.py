@@ -1,42 +1,57 @@
-"""Import a log from a CSV file with a column map.
+"""Import logs from table files (CSV, TSV, ``|`` or whitespace text, ``.mat``, ``.npz``) with a
+column map.
 
-The map says which CSV column (by header name or 0-based index) feeds which
-channel column of the :class:`~realitygap.diagnosis.logs.log.Log`, and in which
-unit the file stores it; values are converted to the log's SI units::
+The map (:class:`~realitygap.diagnosis.logs.importers.column_map.ColumnMap`)
+says which file column feeds which log column, in which unit, with which sign,
+scale and offset::
 
     t=time:ms, cmd.v=vx:mm/s, cmd.w=wz:deg/s,
-    ticks.left=encL, ticks.right=encR,
-    pose_gt.x=x:mm, pose_gt.y=y:mm, pose_gt.theta=yaw:deg
+    ticks.left=-encL, ticks.right=encR,
+    pose_gt.x=x:mm, pose_gt.y=y:mm, pose_gt.theta=-yaw:deg
 
-Separators (``,``, ``;``, tab) are detected, as are decimal commas (only
-unambiguous in ``;``- or tab-separated files). Encoder columns may hold
-cumulative counts or per-row increments. Missing values (empty cells, ``nan``)
-raise by default; ``nan="interpolate"`` fills them linearly, ``nan="drop"``
-drops the rows. Every error names the file, the line or column and the fix.
+The files are read by :func:`~realitygap.diagnosis.logs.importers.table.read_table`
+(title lines, comments, delimiters and decimal commas detected). Values are
+converted to the log's SI units.
+
+**Channels at their own rates.** A channel's samples are the rows where all
+its columns hold a value; a row where they are all empty is not a sample of
+that channel (another stream's row, in a file that interleaves streams, or a
+dropout). A row where only some are empty is a missing value: an error by
+default, ``nan="interpolate"`` fills it over the channel's own samples,
+``nan="drop"`` drops the row. When every channel is sampled on the same rows
+the log keeps those rows. Otherwise each channel is aligned on its own stamps:
+the log takes the stamps of one channel (the wheel encoders, else the
+commands, else the densest), the others are interpolated there (commands held,
+angles unwrapped), never extrapolated; where a channel has a gap longer than
+``max_gap`` the log is split, so no gap is bridged by invented values.
+Several files (``read_table_logs([enc, mocap], …)``) are aligned the same way,
+each on its own time column. Repeated stamps within a channel follow
+``duplicates``: ``"raise"`` (default), ``"last"`` or ``"mean"``.
+
+Every error names the file, the line or column and the fix.
 """
 
 from __future__ import annotations
 
-import csv
-import json
 import math
 import os
 import re
-from collections.abc import Iterable, Iterator, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.core.checks import ResourceLimits, check_regular_file, check_rows_limit
+from realitygap.core.checks import ResourceLimits, check_regular_file
+from realitygap.diagnosis.logs.importers.column_map import ColumnMap, Source
+from realitygap.diagnosis.logs.importers.table import Table, read_table
 from realitygap.diagnosis.logs.log import (
     Log,
     LogError,
     convert_units,
     fill_gaps,
-    sniff_file_kind,
     standard_channels,
 )
 from realitygap.robots.diffdrive import DiffDriveParams
@@ -44,119 +59,33 @@ from realitygap.robots.diffdrive_replay import params_to_meta
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["ColumnMap", "read_csv_log"]
+__all__ = [
+    "BASE_CHANNEL_ORDER",
+    "HELD_CHANNELS",
+    "ColumnMap",
+    "read_csv_log",
+    "read_table_logs",
+    "regularise_rounded_time",
+]
 
-_TARGET = re.compile(r"^(t|[a-z_]+\.[a-z_]+)$")
+DUPLICATE_POLICIES = ("raise", "last", "mean")
+"""What to do with repeated time stamps within one channel."""
 
+BASE_CHANNEL_ORDER = ("ticks", "cmd", "joints", "pose_gt", "pose_est", "pose_cam", "tether")
+"""Whose stamps a log of channels at different rates takes: the first present (else the
+channel with the most samples). The replay is driven by the encoders or the commands, so their
+samples are kept as recorded and the rest are interpolated onto them."""
 
-@dataclass(frozen=True)
-class ColumnMap:
-    """Which CSV column feeds which log column, and its unit in the file.
+HELD_CHANNELS = ("cmd",)
+"""Channels whose value holds until the next sample (zero-order hold) when aligned; the others
+are interpolated linearly (angles unwrapped)."""
 
-    Attributes
-    ----------
-    entries : mapping of str to (str or int, str)
-        ``"t"`` or ``"channel.column"`` → ``(csv column, unit)``; the CSV column
-        is a header name or a 0-based index.
-    ticks : {"cumulative", "increments"}
-        How the encoder columns count.
-    """
+MIN_PIECE_S = 1.0
+"""Shortest piece (s) of a log split at a channel's gap that is kept as a log."""
 
-    entries: Mapping[str, tuple[str | int, str]] = field(default_factory=dict)
-    ticks: str = "cumulative"
-
-    def __post_init__(self) -> None:
-        if "t" not in self.entries:
-            raise LogError("column map: the time column 't' is required (e.g. 't=time:s')")
-        for target in self.entries:
-            if not _TARGET.match(target):
-                raise LogError(
-                    f"column map: target {target!r} must be 't' or 'channel.column' "
-                    "(e.g. 'cmd.v', 'pose_gt.theta')"
-                )
-            if target != "t":
-                chan, col = target.split(".", 1)
-                spec = standard_channels().get(chan)
-                if spec is None:
-                    raise LogError(
-                        f"column map: unknown channel {chan!r} in {target!r}; channels: "
-                        f"{', '.join(standard_channels())}"
-                    )
-                if col not in spec.columns:
-                    raise LogError(
-                        f"column map: channel {chan!r} has columns {spec.columns}, not {col!r}"
-                    )
-        if self.ticks not in ("cumulative", "increments"):
-            raise LogError(
-                f"column map: ticks must be 'cumulative' or 'increments', got {self.ticks!r}"
-            )
-
-    @classmethod
-    def parse(cls, text: str) -> ColumnMap:
-        """Parse ``"t=time:ms, cmd.v=vx:mm/s, …[, ticks=increments]"`` or a JSON file path.
-
-        A JSON file holds ``{"t": ["time", "ms"], "cmd.v": ["vx", "mm/s"], …}``
-        (a bare column name means the log's own unit) and optionally
-        ``"ticks": "increments"``.
-        """
-        text = text.strip()
-        if text.endswith(".json") and os.path.isfile(text):
-            with open(text, encoding="utf-8") as fh:
-                raw = json.load(fh)
-            return cls.from_dict(raw)
-        raw_map: dict[str, Any] = {}
-        for part in filter(None, (p.strip() for p in text.split(","))):
-            if "=" not in part:
-                raise LogError(
-                    f"column map: expected 'target=column[:unit]', got {part!r} "
-                    "(e.g. 't=time:s,cmd.v=vx,cmd.w=wz')"
-                )
-            target, source = (s.strip() for s in part.split("=", 1))
-            if target == "ticks":
-                raw_map["ticks"] = source
-                continue
-            col, _, unit = source.partition(":")
-            raw_map[target] = [col.strip(), unit.strip()] if unit else col.strip()
-        return cls.from_dict(raw_map)
-
-    @classmethod
-    def from_dict(cls, raw: Mapping[str, Any]) -> ColumnMap:
-        entries: dict[str, tuple[str | int, str]] = {}
-        ticks = str(raw.get("ticks", "cumulative"))
-        for target, value in raw.items():
-            if target == "ticks":
-                continue
-            if isinstance(value, (list, tuple)):
-                col, unit = value[0], value[1] if len(value) > 1 else ""
-            else:
-                col, unit = value, ""
-            if not unit:
-                unit = "s" if target == "t" else (_default_unit(target) if _known(target) else "1")
-            if isinstance(col, str) and col.isdigit():
-                col = int(col)
-            entries[target] = (col, str(unit))
-        return cls(entries, ticks)
-
-
-def _known(target: str) -> bool:
-    chan, _, col = target.partition(".")
-    return chan in standard_channels() and col in standard_channels()[chan].columns
-
-
-def _default_unit(target: str) -> str:
-    chan, col = target.split(".", 1)
-    spec = standard_channels()[chan]
-    return spec.units[spec.columns.index(col)]
-
-
-def _sniff_delimiter(lines: list[str]) -> str:
-    sample = "\n".join(lines[:20])
-    try:
-        return csv.Sniffer().sniff(sample, delimiters=",;\t").delimiter
-    except csv.Error:
-        counts = {d: sample.count(d) for d in (";", "\t", ",")}
-        best = max(counts, key=lambda d: counts[d])
-        return best if counts[best] else ","
+POSE_ROW_CHANNELS = ("joints", "tool_pos")
+"""Channels of logs whose rows are poses (an arm measured at rest), not instants: they are
+never interpolated, and a log of them needs no time."""
 
 
 def regularise_rounded_time(t: FloatArray, quantum: float) -> tuple[FloatArray, bool]:
@@ -182,41 +111,505 @@ def regularise_rounded_time(t: FloatArray, quantum: float) -> tuple[FloatArray, 
     return grid, True
 
 
-def _data_lines(fh: Iterable[str]) -> Iterator[str]:
-    """The lines of a CSV file that are neither blank nor ``#`` comments."""
-    for line in fh:
-        if line.strip() and not line.lstrip().startswith("#"):
-            yield line
+@dataclass
+class _Stream:
+    """One channel's samples: its stamps (s), values (SI) and file lines."""
+
+    name: str
+    table: Table
+    t: FloatArray
+    values: FloatArray
+    lines: npt.NDArray[np.int64]
+    rows: npt.NDArray[np.int64]
 
 
-def _scan_lines(path: Path, encoding: str) -> tuple[list[str], int, str, bool]:
-    """One streaming pass: the first 60 data lines, their count, the last one, and
-    whether the file ends with a newline."""
-    head: list[str] = []
-    n = 0
-    last = ""
-    with open(path, encoding=encoding, newline="") as fh:
-        for line in _data_lines(fh):
-            if n < 60:
-                head.append(line.rstrip("\r\n"))
-            n += 1
-            last = line
-    with open(path, "rb") as fb:
-        fb.seek(max(path.stat().st_size - 1, 0))
-        ends_newline = fb.read(1) in (b"\n", b"\r")
-    return head, n, last, ends_newline
+def _literal(src: Source, tables: Sequence[Table]) -> Source:
+    """``src`` read as a plain column name when a file's header holds its text exactly (a
+    column named ``x-1`` is that column, not ``x`` minus one)."""
+    if src.affine and src.body and any(src.body in t.names for t in tables):
+        return Source(column=src.body, unit=src.unit, text=src.text, body=src.body)
+    return src
 
 
-_DEC_COMMA = re.compile(r"^\s*[-+]?\d+,\d+([eE][-+]?\d+)?\s*$")
+def _resolve(tables: Sequence[Table], src: Source, target: str) -> tuple[int, int]:
+    """(table, column) of ``src``."""
+    hits: list[tuple[int, int]] = []
+    errors: list[LogError] = []
+    for k, tab in enumerate(tables):
+        if not src.matches_file(tab.source):
+            continue
+        try:
+            hits.append((k, tab.index(src.column)))
+        except LogError as exc:
+            errors.append(exc)
+    if src.file is not None and not any(src.matches_file(t.source) for t in tables):
+        names = ", ".join(t.source.name for t in tables)
+        raise LogError(
+            f"column map: {target}={src.text}: no file {src.file!r} among {names}. Fix: qualify "
+            "the column with one of those names (FILE::column)"
+        )
+    if len(hits) == 1:
+        return hits[0]
+    if not hits:
+        if len(errors) == 1:
+            raise LogError(f"column map entry {target}={src.text}: {errors[0]}") from None
+        raise LogError(
+            f"column map: {target}={src.text}: no file has that column ("
+            + "; ".join(str(e) for e in errors)
+            + "). Fix the column map"
+        )
+    names = ", ".join(tables[k].source.name for k, _ in hits)
+    raise LogError(
+        f"column map: {target}={src.text}: the column is in several files ({names}); say which "
+        f"with FILE::column (e.g. {tables[hits[0][0]].source.stem}::{src.column})"
+    )
 
 
-def _to_float(text: str, decimal: str) -> float:
-    s = text.strip()
-    if s == "" or s.lower() in ("nan", "na", "null", "none"):
-        return math.nan
-    if decimal == ",":
-        s = s.replace(".", "").replace(",", ".") if s.count(",") == 1 else s
-    return float(s)
+def _values(tab: Table, j: int, src: Source, si: str, target: str) -> FloatArray:
+    raw = tab.column(j)
+    name = tab.names[j]
+    if name in tab.text_columns and np.isnan(raw).all():
+        line, text = tab.text_columns[name]
+        raise LogError(
+            f"{tab.source}, line {line}, column {name!r} ({target}): expected numbers, got "
+            f"{text!r}. Fix: map a numeric column, or export the values as numbers"
+        )
+    if name in tab.text_columns:
+        line, text = tab.text_columns[name]
+        hint = "Fix: repair or delete that row"
+        if tab.decimal == "." and re.match(r"^\s*[-+]?\d+,\d+([eE][-+]?\d+)?\s*$", text):
+            hint = "a decimal comma; Fix: pass decimal=',' (CLI --decimal ,)"
+        raise LogError(
+            f"{tab.source}, line {line}, column {name!r} ({target}): expected a number, got "
+            f"{text!r} — {hint}"
+        )
+    with np.errstate(over="ignore", invalid="ignore"):
+        v = src.sign * raw * src.factor + src.offset
+    unit = src.unit or si
+    return convert_units(v, unit, si, what=f"{tab.source}: column {name!r} ({target})")
+
+
+def _time_of(tab: Table, src: Source | None, robot_rows: bool) -> tuple[FloatArray, str]:
+    """The stamps (s) of ``tab``'s rows and how they were made."""
+    if src is None:
+        if robot_rows:
+            return np.arange(tab.n_rows, dtype=float), "row"
+        raise LogError(
+            f"{tab.source}: the column map gives no time for this file. Fix: add 't=COLUMN[:unit]' "
+            "(or 't=FILE::COLUMN' per file, or 't=row*DT' for rows at a fixed period DT)"
+        )
+    if src.row_period is not None:
+        period = float(convert_units(src.row_period, src.unit or "s", "s", what="t=row*DT"))
+        if not (math.isfinite(period) and period > 0):
+            raise LogError(f"column map: t={src.text}: the row period must be positive")
+        return np.arange(tab.n_rows, dtype=float) * period, "row"
+    j = tab.index(src.column)
+    t = _values(tab, j, src, "s", "t")
+    ok = np.isfinite(t)
+    if ok.sum() >= 2 and np.ptp(t[ok]) == 0.0:
+        raise LogError(
+            f"{tab.source}: the time column {tab.names[j]!r} is constant ({t[ok][0]:g}) and "
+            "cannot order the rows. Fix: if the rows come at a fixed rate, give it instead: "
+            "'t=row*DT' (e.g. t=row*0.02 for 50 Hz)"
+        )
+    return t, "column"
+
+
+def _dedupe(stream: _Stream, policy: str, chan_cols: Sequence[str]) -> _Stream:
+    """``stream`` with strictly increasing stamps (``policy`` for repeated ones)."""
+    t = stream.t
+    step = np.diff(t)
+    back = np.flatnonzero(step < 0)
+    if back.size:
+        i = int(back[0]) + 1
+        raise LogError(
+            f"{stream.table.source}: time stamps must increase strictly, but line "
+            f"{stream.lines[i]} (t={t[i]:.6g} s) comes after line {stream.lines[i - 1]} "
+            f"(t={t[i - 1]:.6g} s) in channel {stream.name!r}. Fix: sort the rows by time"
+        )
+    same = np.flatnonzero(step == 0)
+    if not same.size:
+        return stream
+    if policy == "raise":
+        i = int(same[0]) + 1
+        raise LogError(
+            f"{stream.table.source}: channel {stream.name!r} has {same.size} repeated time "
+            f"stamp(s), first at line {stream.lines[i]} (t={t[i]:.6g} s, as line "
+            f"{stream.lines[i - 1]}). Fix: say what they mean with --duplicates last (a "
+            "re-sent sample: keep the last) or --duplicates mean (average them), or repair the "
+            "time column"
+        )
+    starts = np.concatenate([[0], np.flatnonzero(step > 0) + 1])
+    if policy == "last":
+        keep = np.concatenate([starts[1:] - 1, [t.shape[0] - 1]])
+        return _Stream(
+            stream.name,
+            stream.table,
+            t[keep],
+            stream.values[keep],
+            stream.lines[keep],
+            stream.rows[keep],
+        )
+    sums = np.add.reduceat(stream.values, starts, axis=0)
+    counts = np.diff(np.concatenate([starts, [t.shape[0]]]))
+    return _Stream(
+        stream.name,
+        stream.table,
+        t[starts],
+        sums / counts[:, None],
+        stream.lines[starts],
+        stream.rows[starts],
+    )
+
+
+def _align(
+    stream: _Stream, base_t: FloatArray, max_gap: float
+) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+    """``stream``'s values at ``base_t`` and where they are covered (inside its span and not in a
+    gap longer than ``max_gap``)."""
+    t, v = stream.t, stream.values
+    covered = (base_t >= t[0]) & (base_t <= t[-1])
+    gaps = np.flatnonzero(np.diff(t) > max_gap)
+    for g in gaps:
+        covered &= ~((base_t > t[g]) & (base_t < t[g + 1]))
+    out = np.empty((base_t.shape[0], v.shape[1]))
+    if stream.name in HELD_CHANNELS:
+        idx = np.clip(np.searchsorted(t, base_t, side="right") - 1, 0, t.shape[0] - 1)
+        out[:] = v[idx]
+    else:
+        for j in range(v.shape[1]):
+            out[:, j] = np.interp(base_t, t, v[:, j])
+    return out, covered
+
+
+def read_table_logs(
+    paths: Sequence[str | os.PathLike[str]],
+    column_map: ColumnMap | str | Mapping[str, Any],
+    *,
+    delimiter: str | None = None,
+    decimal: str | None = None,
+    params: DiffDriveParams | Mapping[str, Any] | None = None,
+    meta: Mapping[str, Any] | None = None,
+    nan: str = "raise",
+    robot: str = "diffdrive",
+    duplicates: str = "raise",
+    max_gap: float | None = None,
+    warn: Callable[[str], None] | None = None,
+    limits: ResourceLimits | None = None,
+) -> list[Log]:
+    """Read one recording (one file, or several files of one run) into logs.
+
+    Parameters
+    ----------
+    paths : sequence of path-like
+        The files of one recording; several files are aligned on their own stamps.
+    column_map : ColumnMap, str or mapping
+        See :mod:`~realitygap.diagnosis.logs.importers.column_map`.
+    delimiter, decimal : str, optional
+        Forced field separator and decimal mark (default: detected per file).
+    params : DiffDriveParams or mapping, optional
+        Nominal robot parameters for ``meta["params"]`` (default: the Kobuki-like
+        defaults for a differential drive; required for an arm).
+    meta : mapping, optional
+        Extra metadata (e.g. ``{"firmware": {"a_max": 1.0, "alpha_max": 4.0}}``).
+    nan : {"raise", "interpolate", "drop"}
+        Missing values within a channel's sample.
+    robot : str
+    duplicates : {"raise", "last", "mean"}
+        Repeated stamps within a channel.
+    max_gap : float, optional
+        Longest gap (s) in a channel that may be interpolated over when channels are
+        aligned; default ``limits.max_gap_steps`` of the channel's median period.
+        A longer gap splits the log.
+    warn : callable, optional
+        Receives a message for every piece split off or dropped.
+
+    Returns
+    -------
+    list of Log
+        One log, or the pieces of one split at gaps (named ``<name>_part-K``).
+
+    Raises
+    ------
+    LogError
+        With the file name, line or column and the fix.
+    """
+    if not paths:
+        raise LogError("no file given to read")
+    files = [Path(p) for p in paths]
+    for p in files:
+        if not p.exists():
+            raise FileNotFoundError(f"file not found: {p}")
+        try:
+            check_regular_file(p, "log file")
+        except ValueError as exc:
+            raise LogError(str(exc)) from None
+    cmap = (
+        column_map
+        if isinstance(column_map, ColumnMap)
+        else (
+            ColumnMap.parse(column_map)
+            if isinstance(column_map, str)
+            else ColumnMap.from_dict(column_map)
+        )
+    )
+    if nan not in ("raise", "interpolate", "drop"):
+        raise ValueError(f"nan must be 'raise', 'interpolate' or 'drop', got {nan!r}")
+    if duplicates not in DUPLICATE_POLICIES:
+        raise ValueError(
+            f"duplicates must be one of {', '.join(DUPLICATE_POLICIES)}, got {duplicates!r}"
+        )
+    if max_gap is not None and not (isinstance(max_gap, (int, float)) and max_gap > 0):
+        raise ValueError(f"max_gap must be a positive number of seconds, got {max_gap!r}")
+    lim = limits if limits is not None else ResourceLimits.from_environment()
+    say = warn if warn is not None else (lambda msg: None)
+    tables = [read_table(p, delimiter=delimiter, decimal=decimal, limits=lim) for p in files]
+    chans = cmap.channels()
+    pose_rows = bool(chans) and all(c in POSE_ROW_CHANNELS for c in chans)
+    for tab in tables:
+        if tab.n_rows < 2:
+            raise LogError(f"{tab.source}: expected at least two data rows, found {tab.n_rows}")
+
+    # ---- every channel's samples, on its own stamps
+    times: dict[int, tuple[FloatArray, str]] = {}
+    streams: dict[str, _Stream] = {}
+    drop_rows: dict[int, npt.NDArray[np.bool_]] = {
+        k: np.zeros(t.n_rows, bool) for k, t in enumerate(tables)
+    }
+    for chan, cols in chans.items():
+        spec = standard_channels()[chan]
+        missing = [c for c in spec.columns if c not in cols]
+        if missing:
+            raise LogError(
+                f"{', '.join(str(p) for p in files)}: channel {chan!r} needs columns "
+                f"{', '.join(spec.columns)}; the column map gives no {', '.join(missing)}"
+            )
+        cols = {c: _literal(src, tables) for c, src in cols.items()}
+        where = [_resolve(tables, cols[c], f"{chan}.{c}") for c in spec.columns]
+        ks = {k for k, _ in where}
+        if len(ks) > 1:
+            raise LogError(
+                f"column map: channel {chan!r} takes columns from several files "
+                f"({', '.join(tables[k].source.name for k in sorted(ks))}); a channel's columns "
+                "must come from one file (one stream)"
+            )
+        k = ks.pop()
+        tab = tables[k]
+        if k not in times:
+            times[k] = _time_of(tab, cmap.time_for(tab.source), pose_rows)
+        vals = np.column_stack(
+            [
+                _values(tab, j, cols[c], spec.units[i], f"{chan}.{c}")
+                for i, (c, (_, j)) in enumerate(zip(spec.columns, where))
+            ]
+        )
+        ok = np.isfinite(vals)
+        full, empty = ok.all(axis=1), ~ok.any(axis=1)
+        partial = ~full & ~empty
+        if partial.any():
+            if nan == "raise":
+                r = int(np.flatnonzero(partial)[0])
+                c = int(np.flatnonzero(~ok[r])[0])
+                name = tab.names[where[c][1]]
+                raise LogError(
+                    f"{tab.source}, line {tab.lines[r]}: missing or non-finite value in column "
+                    f"{name!r} for {chan + '.' + spec.columns[c]!r} ({int(partial.sum())} such "
+                    "rows). Fix: clean the file, or pass nan='interpolate' (CLI --nan "
+                    "interpolate) or nan='drop'"
+                )
+            if nan == "drop":
+                drop_rows[k] |= partial
+        streams[chan] = _Stream(chan, tab, times[k][0], vals, tab.lines, np.arange(tab.n_rows))
+    # ---- rows: drop, fill, select each channel's samples
+    for chan, s in list(streams.items()):
+        k = tables.index(s.table)
+        t_all = times[k][0]
+        vals = s.values
+        ok = np.isfinite(vals)
+        keep = ok.any(axis=1) & ~drop_rows[k]
+        if nan == "interpolate" and (keep & ~ok.all(axis=1)).any():
+            vals = vals.copy()
+            tk = t_all[keep]
+            if not np.isfinite(tk).all():
+                raise LogError(
+                    f"{s.table.source}: the time column has missing values; they cannot be "
+                    "interpolated"
+                )
+            try:
+                vals[keep] = fill_gaps(tk, vals[keep])
+            except LogError as exc:
+                raise LogError(f"{s.table.source}: channel {chan!r}: {exc}") from None
+        t_k = t_all[keep]
+        bad_t = ~np.isfinite(t_k)
+        if bad_t.any():
+            r = int(np.flatnonzero(keep)[np.flatnonzero(bad_t)[0]])
+            raise LogError(
+                f"{s.table.source}, line {s.table.lines[r]}: channel {chan!r} has a sample but "
+                "the time is missing. Fix: repair the time column or delete the row"
+            )
+        if t_k.shape[0] < 2:
+            raise LogError(
+                f"{s.table.source}: channel {chan!r} has {t_k.shape[0]} complete sample(s); a log "
+                "needs at least two. Fix: check the column map"
+            )
+        s = _Stream(chan, s.table, t_k, vals[keep], s.lines[keep], s.rows[keep])
+        streams[chan] = _dedupe(s, duplicates, standard_channels()[chan].columns)
+
+    # ---- angles continuous, encoder increments accumulated (on each channel's own samples)
+    for chan, s in streams.items():
+        spec = standard_channels()[chan]
+        for j in spec.angle_columns:
+            s.values[:, j] = np.unwrap(s.values[:, j])
+        if chan == "ticks" and cmap.ticks == "increments":
+            s.values = np.cumsum(s.values, axis=0) - s.values[0]
+
+    # ---- one time base
+    same_rows = len({id(s.table) for s in streams.values()}) == 1 and all(
+        np.array_equal(s.rows, next(iter(streams.values())).rows) for s in streams.values()
+    )
+    name = files[0].stem if len(files) == 1 else "+".join(p.stem for p in files)
+    source = ",".join(str(p) for p in files)
+    full_meta = _meta(params, meta, robot, name, source)
+    notes: list[str] = []
+    if same_rows:
+        first = next(iter(streams.values()))
+        base_t = first.t
+        k = tables.index(first.table)
+        tsrc = cmap.time_for(first.table.source)
+        regularised = False
+        if tsrc is not None and tsrc.row_period is None and times[k][1] == "column":
+            decimals, quantum = _time_quantum(first.table, tsrc)
+            base_t, regularised = regularise_rounded_time(base_t, quantum)
+        if regularised:
+            full_meta["time_regularised"] = (
+                f"time written with {decimals} decimals; stamps replaced by the regular grid "
+                "they round to"
+            )
+        channels = {c: s.values for c, s in streams.items()}
+        return [Log(t=base_t, channels=channels, meta=full_meta, source=source)]
+    if pose_rows:
+        raise LogError(
+            f"{source}: the arm's channels ({', '.join(streams)}) are not on the same rows; "
+            "each row must hold one pose's joint readings and its measurement"
+        )
+    order = [c for c in BASE_CHANNEL_ORDER if c in streams]
+    base = order[0] if order else max(streams, key=lambda c: streams[c].t.shape[0])
+    base_t = streams[base].t
+    aligned: dict[str, FloatArray] = {base: streams[base].values}
+    covered = np.ones(base_t.shape[0], bool)
+    for chan, s in streams.items():
+        if chan == base:
+            continue
+        period = float(np.median(np.diff(s.t)))
+        gap = max_gap if max_gap is not None else lim.max_gap_steps * period
+        aligned[chan], cov = _align(s, base_t, max(gap, period * 1.5))
+        covered &= cov
+        rate = 1.0 / period if period > 0 else math.inf
+        notes.append(f"{chan} at {rate:.4g} Hz")
+    full_meta["aligned"] = (
+        f"channels at their own rates aligned on the stamps of {base!r} "
+        f"({1.0 / float(np.median(np.diff(base_t))):.4g} Hz): " + ", ".join(notes)
+    )
+    pieces = _runs(covered)
+    out: list[Log] = []
+    for a, b in pieces:
+        if b - a < 3 or base_t[b - 1] - base_t[a] < MIN_PIECE_S:
+            say(
+                f"{source}: rows at t={base_t[a]:.6g}…{base_t[b - 1]:.6g} s dropped: shorter than "
+                f"{MIN_PIECE_S:g} s between gaps of the aligned channels"
+            )
+            continue
+        m = dict(full_meta)
+        if len(pieces) > 1:
+            m["name"] = f"{name}_part-{len(out) + 1}"
+            m["piece_of"] = name
+        out.append(
+            Log(
+                t=base_t[a:b],
+                channels={c: v[a:b] for c, v in aligned.items()},
+                meta=m,
+                source=source,
+            )
+        )
+    if len(pieces) > 1 or (pieces and (pieces[0][0] > 0 or pieces[0][1] < base_t.shape[0])):
+        lost = base_t.shape[0] - sum(b - a for a, b in pieces)
+        say(
+            f"{source}: {lost} of {base_t.shape[0]} rows of {base!r} lie outside another "
+            f"channel's samples or in a gap longer than its limit (--max-gap); the log is cut "
+            f"there into {len(out)} piece(s) instead of inventing values"
+        )
+    if not out:
+        spans = ", ".join(f"{c}: {s.t[0]:.6g}…{s.t[-1]:.6g} s" for c, s in streams.items())
+        raise LogError(
+            f"{source}: the channels never overlap for {MIN_PIECE_S:g} s without a gap ({spans}). "
+            "Fix: check that the files' time columns share one clock and unit, or raise "
+            "--max-gap"
+        )
+    return out
+
+
+def _runs(mask: npt.NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """``[(start, stop), …]`` of the runs of True in ``mask``."""
+    m = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    d = np.diff(m)
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
+
+
+def _time_quantum(tab: Table, src: Source) -> tuple[int, float]:
+    """The decimals and the resolution (s) the time column was written with (text files),
+    else ``(0, 0.0)``."""
+    if tab.kind != "text" or not isinstance(src.column, (str, int)):
+        return 0, 0.0
+    try:
+        with open(tab.source, encoding="utf-8-sig", errors="replace") as fh:
+            head = [fh.readline() for _ in range(80 + len(tab.skipped))]
+    except OSError:
+        return 0, 0.0
+    j = tab.index(src.column)
+    wanted = set(int(x) for x in tab.lines[:40])
+    decimals = 0
+    for no, line in enumerate(head, start=1):
+        if no not in wanted:
+            continue
+        cells = _split(line, tab.delimiter)
+        if len(cells) > j:
+            decimals = max(decimals, len(cells[j].strip().partition(".")[2]))
+    if decimals == 0:
+        return 0, 0.0
+    q = 10.0**-decimals * abs(src.factor)
+    return decimals, float(convert_units(q, src.unit or "s", "s"))
+
+
+def _split(line: str, delimiter: str | None) -> list[str]:
+    body = line.strip()
+    if delimiter in (None, " "):
+        return body.split()
+    if delimiter == "|":
+        return [c for c in body.strip("|").split("|")]
+    return body.split(delimiter)
+
+
+def _meta(
+    params: DiffDriveParams | Mapping[str, Any] | None,
+    meta: Mapping[str, Any] | None,
+    robot: str,
+    name: str,
+    source: str,
+) -> dict[str, Any]:
+    if isinstance(params, DiffDriveParams):
+        pmeta: dict[str, Any] = params_to_meta(params)
+    elif params is None:
+        if robot != "diffdrive":
+            raise LogError(
+                f"{source}: a {robot} log needs its nominal parameters. Fix: pass --robot-file "
+                "robot.yaml or --urdf robot.urdf (see docs/your_robot.md)"
+            )
+        pmeta = params_to_meta(DiffDriveParams())
+    else:
+        pmeta = dict(params)
+    full: dict[str, Any] = {"robot": robot, "params": pmeta, "name": name, "source": source}
+    full.update(dict(meta or {}))
+    return full
 
 
 def read_csv_log(
@@ -229,231 +622,33 @@ def read_csv_log(
     meta: Mapping[str, Any] | None = None,
     nan: str = "raise",
     robot: str = "diffdrive",
+    duplicates: str = "raise",
 ) -> Log:
-    """Read a CSV file into a :class:`~realitygap.diagnosis.logs.log.Log`.
-
-    Parameters
-    ----------
-    path : path-like
-    column_map : ColumnMap, str or mapping
-        See :class:`ColumnMap` (a string is parsed with :meth:`ColumnMap.parse`).
-    delimiter : str, optional
-        Field separator (default: detected).
-    decimal : {".", ","}, optional
-        Decimal mark (default: detected; ``","`` only with ``;`` or tab separators).
-    params : DiffDriveParams or mapping, optional
-        Nominal robot parameters for ``meta["params"]`` (default: the Kobuki-like defaults).
-    meta : mapping, optional
-        Extra metadata (e.g. ``{"firmware": {"a_max": 1.0, "alpha_max": 4.0}}``).
-    nan : {"raise", "interpolate", "drop"}
-        What to do with missing values.
-    robot : str
+    """Read one table file into one :class:`~realitygap.diagnosis.logs.log.Log`
+    (:func:`read_table_logs` with one file; an error if its channels' gaps would split it).
 
     Raises
     ------
     LogError
-        With the file name and the fix: not a text file, missing columns,
-        non-numeric or missing values, unknown or mismatched units,
-        non-monotonic time.
+        With the file name and the fix: not a table, missing columns, non-numeric or
+        missing values, unknown or mismatched units, non-monotonic time.
     """
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"CSV file not found: {path}")
-    try:
-        check_regular_file(path, "CSV file")
-    except ValueError as exc:
-        raise LogError(str(exc)) from None
-    cmap = (
-        column_map
-        if isinstance(column_map, ColumnMap)
-        else (
-            ColumnMap.parse(column_map)
-            if isinstance(column_map, str)
-            else ColumnMap.from_dict(column_map)
-        )
+    pieces: list[str] = []
+    logs = read_table_logs(
+        [path],
+        column_map,
+        delimiter=delimiter,
+        decimal=decimal,
+        params=params,
+        meta=meta,
+        nan=nan,
+        robot=robot,
+        duplicates=duplicates,
+        warn=pieces.append,
     )
-    if nan not in ("raise", "interpolate", "drop"):
-        raise ValueError(f"nan must be 'raise', 'interpolate' or 'drop', got {nan!r}")
-    kind = sniff_file_kind(path)
-    if kind != "text":
+    if len(logs) != 1 or pieces:
         raise LogError(
-            f"{path}: not a text CSV file (its content looks like {kind}); whatever its extension, "
-            "pass it with the matching importer (a .npz log, a ROS bag)"
+            f"{path}: its channels have gaps that split it ({'; '.join(pieces)}); read it with "
+            "read_table_logs (or the command line), which returns the pieces"
         )
-    lim = ResourceLimits.from_environment()
-    size = path.stat().st_size
-    if size > lim.max_file_bytes:
-        raise LogError(
-            f"{path}: {size / 2**20:.0f} MB is more than the {lim.max_file_bytes / 2**20:.0f} MB a "
-            "CSV log may have. Fix: split the file, or raise the limit with the environment "
-            "variable REALITYGAP_MAX_FILE_MB"
-        )
-    encoding = "utf-8-sig"
-    try:
-        head, n_lines, last, ends_newline = _scan_lines(path, encoding)
-    except UnicodeDecodeError:
-        encoding = "latin-1"
-        head, n_lines, last, ends_newline = _scan_lines(path, encoding)
-    if n_lines < 3:
-        raise LogError(f"{path}: expected a header row and at least two data rows")
-    delim = delimiter or _sniff_delimiter(head)
-    header = [h.strip() for h in next(csv.reader([head[0]], delimiter=delim))]
-    width = len(header)
-    sample_rows = list(csv.reader(head[1:], delimiter=delim))
-    if decimal is None:
-        decimal = "."
-        if delim != ",":
-            sample = [c for r in sample_rows[:50] for c in r]
-            if sum(bool(_DEC_COMMA.match(c)) for c in sample) > 0:
-                decimal = ","
-    elif decimal not in (".", ","):
-        raise ValueError(f"decimal must be '.' or ',', got {decimal!r}")
-
-    def col_index(target: str, col: str | int) -> int:
-        if isinstance(col, int):
-            if not 0 <= col < width:
-                raise LogError(
-                    f"{path}: column index {col} for {target!r} is out of range (0..{width - 1})"
-                )
-            return col
-        if col not in header:
-            import difflib
-
-            close = difflib.get_close_matches(col, header, n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
-            raise LogError(
-                f"{path}: no column {col!r} for {target!r}{hint}; the header has "
-                f"{', '.join(repr(h) for h in header)}. Fix the column map"
-            )
-        return header.index(col)
-
-    targets = list(cmap.entries)
-    index = [col_index(t, cmap.entries[t][0]) for t in targets]
-    n_rows = n_lines - 1
-    try:
-        check_rows_limit(n_rows, len(targets), str(path), lim)
-    except ValueError as exc:
-        raise LogError(str(exc)) from None
-    table = np.empty((n_rows, len(targets)))
-    widths: list[list[int]] = []
-    with open(path, encoding=encoding, newline="") as fh:
-        rows = csv.reader(_data_lines(fh), delimiter=delim)
-        next(rows)
-        for i, r in enumerate(rows):
-            line_no = i + 2
-            if len(r) != width:
-                hint = ""
-                if delim == "," and len(r) > width:
-                    hint = (
-                        " — decimal commas in a comma-separated file? Fix: export with ';' as "
-                        "the separator (decimal commas are then understood) or with '.' decimals"
-                    )
-                if i == n_rows - 1 and not ends_newline:
-                    hint += " — the last line has no newline: the file looks cut off"
-                raise LogError(
-                    f"{path}, line {line_no}: {len(r)} fields but the header has {width}{hint}"
-                )
-            if i >= n_rows - 21:
-                widths.append([len(r[j].strip()) for j in index])
-            for k, j in enumerate(index):
-                cell = r[j]
-                try:
-                    table[i, k] = _to_float(cell, decimal)
-                except ValueError:
-                    hint = ""
-                    if decimal == "." and _DEC_COMMA.match(cell):
-                        hint = " — a decimal comma; Fix: pass decimal=',' (CLI --decimal ,)"
-                    raise LogError(
-                        f"{path}, line {line_no}, column {header[j]!r} ({targets[k]}): expected "
-                        f"a number, got {cell.strip()!r}{hint}"
-                    ) from None
-    if not ends_newline and len(widths) > 1:
-        before = np.min(np.asarray(widths[:-1]), axis=0)
-        short = [k for k, w in enumerate(widths[-1]) if w < before[k]]
-        if short:
-            k = short[0]
-            raise LogError(
-                f"{path}: the last line ({last.strip()!r:.80}) has no newline and its field "
-                f"{header[index[k]]!r} is narrower than in every line before it: the file looks "
-                "cut off mid-write. Fix: delete the last line, or end the file with a newline "
-                "if the line is complete"
-            )
-    values: dict[str, FloatArray] = {}
-    for k, target in enumerate(targets):
-        unit = cmap.entries[target][1]
-        si = "s" if target == "t" else _default_unit(target)
-        values[target] = convert_units(
-            table[:, k], unit, si, what=f"{path}: column {header[index[k]]!r} ({target})"
-        )
-    del table
-
-    stacked = np.column_stack(list(values.values()))
-    bad = ~np.isfinite(stacked)
-    if bad.any():
-        names = list(values)
-        if nan == "raise":
-            row, c = (int(v) for v in np.argwhere(bad)[0])
-            raise LogError(
-                f"{path}, line {row + 2}: missing or non-finite value in column for "
-                f"{names[c]!r} ({int(bad.sum())} such cells). Fix: clean the file, or pass "
-                "nan='interpolate' (CLI --nan interpolate) or nan='drop'"
-            )
-        if nan == "drop":
-            keep = ~bad.any(axis=1)
-            values = {k: v[keep] for k, v in values.items()}
-        else:
-            t_ok = np.isfinite(values["t"])
-            if not t_ok.all():
-                raise LogError(
-                    f"{path}: the time column has missing values; they cannot be interpolated"
-                )
-            for k in values:
-                if k != "t":
-                    values[k] = fill_gaps(values["t"], values[k])
-
-    t = values.pop("t")
-    t_col = index[targets.index("t")]
-    decimals = max(
-        (len(r[t_col].strip().partition(".")[2]) for r in sample_rows if len(r) > t_col), default=0
-    )
-    quantum = float(convert_units(10.0**-decimals, cmap.entries["t"][1], "s"))
-    t, regularised = regularise_rounded_time(t, quantum)
-    channels: dict[str, FloatArray] = {}
-    by_channel: dict[str, dict[str, FloatArray]] = {}
-    for target, v in values.items():
-        chan, col = target.split(".", 1)
-        by_channel.setdefault(chan, {})[col] = v
-    for chan, cols in by_channel.items():
-        spec = standard_channels()[chan]
-        missing = [c for c in spec.columns if c not in cols]
-        if missing:
-            raise LogError(
-                f"{path}: channel {chan!r} needs columns {', '.join(spec.columns)}; the column map "
-                f"gives no {', '.join(missing)}"
-            )
-        arr = np.column_stack([cols[c] for c in spec.columns])
-        for j in spec.angle_columns:
-            arr[:, j] = np.unwrap(arr[:, j])
-        if chan == "ticks" and cmap.ticks == "increments":
-            arr = np.cumsum(arr, axis=0) - arr[0]
-        channels[chan] = arr
-
-    if isinstance(params, DiffDriveParams):
-        pmeta: dict[str, Any] = params_to_meta(params)
-    elif params is None:
-        pmeta = params_to_meta(DiffDriveParams())
-    else:
-        pmeta = dict(params)
-    full_meta: dict[str, Any] = {
-        "robot": robot,
-        "params": pmeta,
-        "name": path.stem,
-        "source": str(path),
-    }
-    full_meta.update(dict(meta or {}))
-    if regularised:
-        full_meta["time_regularised"] = (
-            f"time written with {decimals} decimals; stamps replaced by the regular grid they "
-            "round to"
-        )
-    return Log(t=t, channels=channels, meta=full_meta, source=str(path))
+    return logs[0]

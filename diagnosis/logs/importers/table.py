@@ -1,0 +1,791 @@
+"""Read any numeric table file as named columns: :func:`read_table` → :class:`Table`.
+
+A table is a file of rows of numbers: a CSV export, a whitespace-aligned text
+dump, a MATLAB ``.mat`` file or a NumPy ``.npz`` archive. :func:`read_table`
+turns each into the same :class:`Table` — column names, a float64 array and the
+line of the file each row came from — so that an importer that maps columns to
+a log's channels points its errors at the file's own line and column.
+
+Text files
+----------
+* **Delimiter** (``,`` ``;`` tab ``|`` or runs of whitespace): the one that
+  splits most sample lines into the same number of mostly numeric fields.
+  ``|`` tables may have leading / trailing bars (markdown, psql); their
+  separator rows (``|---|---|``, ``-----+----``) and a psql ``(N rows)`` footer
+  are skipped.
+* **Header**: the line just above the first block of lines with a constant
+  field count that are mostly numbers, when it has that field count (in a
+  whitespace-aligned file, names may also be separated by runs of two or more
+  spaces, so that a name may hold one space). Lines above it (a title,
+  ``key: value`` lines) are skipped and kept in :attr:`Table.skipped`. A file
+  whose first data line is numeric has no header; its columns are named
+  ``"0"``, ``"1"``, …
+* **Comments**: lines starting with ``#`` or ``%`` are skipped wherever they
+  are; a comment line just above the data with the right field count is the
+  header (``rostopic echo -p`` writes ``%time,field.header.stamp,…``).
+* **Decimal comma**: detected in ``;``-, tab-, ``|``- and whitespace-separated
+  files (never in comma-separated ones, where it would be ambiguous).
+* **Cells**: numbers; empty, ``nan``, ``NA``, ``null`` → NaN; ISO 8601 dates
+  and date-times (``2023-05-01T12:00:00.125``, also with a space, a ``Z`` or an
+  offset) → POSIX seconds (UTC when no zone is given); any other text → NaN,
+  with its first occurrence per column in :attr:`Table.text_columns` (a text
+  column does not make the file unreadable; a consumer that maps it says so).
+* **Errors** (:class:`~realitygap.diagnosis.logs.log.LogError`, naming the file and
+  line): a row with another field count than the header (with the likely cause: an
+  empty cell in a whitespace-aligned file, decimal commas in a comma-separated one),
+  a last line cut off mid-write (no newline, a field narrower than in every row
+  before it), a file with no line of numbers.
+* UTF-8 (with or without a byte-order mark), else latin-1. The file size and
+  rows × columns are checked against
+  :class:`~realitygap.core.checks.ResourceLimits` before anything is allocated.
+
+Binary files
+------------
+MATLAB v4–v7 ``.mat`` files (:func:`scipy.io.loadmat`, which creates plain
+arrays and never runs code) and NumPy ``.npz`` archives (read without
+unpickling, array headers checked first): every 1-D numeric vector is a column
+named by its variable, a 2-D numeric matrix ``M`` (n × k) gives the columns
+``M[0]`` … ``M[k-1]``, and a struct's numeric fields are ``struct.field``. The
+vectors of the longest length form the table; the others, and arrays that are
+not columns (3-D arrays, scalars, text, cell arrays), are named in
+:attr:`Table.skipped`. A saved realitygap log (``Log.save``) is refused: it is
+read by :func:`~realitygap.diagnosis.logs.read.read_logs` without a column map.
+"""
+
+from __future__ import annotations
+
+import csv
+import difflib
+import math
+import os
+import re
+import zipfile
+from collections import Counter
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+
+from realitygap.core.checks import ResourceLimits, check_regular_file, check_rows_limit
+from realitygap.diagnosis.logs.log import LogError, sniff_file_kind
+
+__all__ = ["DELIMITERS", "Table", "read_table"]
+
+DELIMITERS: dict[str, str] = {
+    ",": "comma",
+    ";": "semicolon",
+    "\t": "tab",
+    "|": "bar",
+    " ": "whitespace",  # any run of spaces or tabs
+}
+"""The delimiters :func:`read_table` knows, with their names for messages."""
+
+_ALIASES = {"tab": "\t", "\\t": "\t", "space": " ", "whitespace": " ", "comma": ",", "pipe": "|"}
+_PRIORITY = ("\t", ";", "|", ",", " ")  # on a tie, the more specific delimiter wins
+_NAN_WORDS = frozenset({"", "nan", "-nan", "na", "n/a", "null", "none"})
+_DEC_COMMA = re.compile(r"^\s*[-+]?\d+,\d+([eE][-+]?\d+)?\s*$")
+_COMMA_NUMBER = re.compile(r"^[-+]?(\d{1,3}(\.\d{3})+|\d*),\d+([eE][-+]?\d+)?$")
+_ISO = re.compile(
+    r"^(\d{4})-(\d{2})-(\d{2})(?:[T ](\d{2}):(\d{2})(?::(\d{2})([.,]\d+)?)?)?"
+    r"\s*(Z|[+-]\d{2}(?::?\d{2})?)?$"
+)
+_ISO_SPACE = re.compile(r"(\d{4}-\d{2}-\d{2}) (\d{2}:\d{2})")
+_SEPARATOR = re.compile(r"^[\s|+:=-]*[-=]{2,}[\s|+:=-]*$")
+_FOOTER = re.compile(r"^\(\d+ rows?\)$")
+HEAD_LINES = 400
+"""Lines of a text file looked at to find its layout (delimiter, header, decimal mark)."""
+
+
+@dataclass(frozen=True)
+class Table:
+    """A numeric table read from a file.
+
+    Attributes
+    ----------
+    source : Path
+        The file.
+    names : tuple of str
+        Column names: the header's, or ``"0"``, ``"1"``, … when the file has none.
+    data : ndarray, shape (n_rows, n_cols)
+        float64, NaN for empty, missing or text cells; read-only.
+    lines : ndarray, shape (n_rows,)
+        int64, the 1-based line of the file of each row (row index + 1 for binary formats).
+    kind : {"text", "mat", "npz"}
+    delimiter : str or None
+        ``","``, ``";"``, ``"\\t"``, ``"|"`` or ``" "`` (any run of whitespace); None for binary.
+    decimal : {".", ","}
+    skipped : tuple of str
+        Lines above the header (title, preamble, comments), and for binary files the
+        variables that are not columns, with the reason.
+    has_header : bool
+    text_columns : mapping of str to (int, str)
+        Column name → (line, text) of its first cell that is not a number.
+    """
+
+    source: Path
+    names: tuple[str, ...]
+    data: np.ndarray
+    lines: np.ndarray
+    kind: str
+    delimiter: str | None
+    decimal: str
+    skipped: tuple[str, ...] = ()
+    has_header: bool = True
+    text_columns: Mapping[str, tuple[int, str]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        data = np.asarray(self.data, dtype=np.float64).view()
+        lines = np.asarray(self.lines, dtype=np.int64).view()
+        if data.ndim != 2 or data.shape[1] != len(self.names) or lines.shape != data.shape[:1]:
+            raise ValueError(
+                f"Table: data {data.shape}, {len(self.names)} names and lines {lines.shape} "
+                "do not match (expected data (n_rows, n_names) and lines (n_rows,))"
+            )
+        data.flags.writeable = False
+        lines.flags.writeable = False
+        object.__setattr__(self, "data", data)
+        object.__setattr__(self, "lines", lines)
+        object.__setattr__(self, "names", tuple(self.names))
+        object.__setattr__(self, "text_columns", MappingProxyType(dict(self.text_columns)))
+
+    @property
+    def n_rows(self) -> int:
+        """Number of rows."""
+        return int(self.data.shape[0])
+
+    def index(self, column: str | int) -> int:
+        """The 0-based index of ``column``: a name, or a 0-based index (also as digits).
+
+        Raises
+        ------
+        LogError
+            Naming the file, the column asked for, the close matches and the header.
+        """
+        n = len(self.names)
+        if isinstance(column, (int, np.integer)) and not isinstance(column, bool):
+            if 0 <= int(column) < n:
+                return int(column)
+            raise LogError(
+                f"{self.source}: column index {int(column)} is out of range: the file has {n} "
+                f"column(s), 0..{n - 1} ({self._header_text()}). Fix: give a 0-based index "
+                "below the column count, or a column name"
+            )
+        text = str(column)
+        for cand in (text, text.strip()):
+            if cand in self.names:
+                return self.names.index(cand)
+        if text.strip().isdigit() and int(text) < n:
+            return int(text)
+        folded = [nm for nm in self.names if nm.casefold() == text.strip().casefold()]
+        close = folded or difflib.get_close_matches(text.strip(), self.names, n=3, cutoff=0.6)
+        hint = f" (did you mean {' or '.join(repr(c) for c in close)}?)" if close else ""
+        above = ""
+        if not self.has_header and self.skipped:
+            above = f"; lines skipped above the data: {' | '.join(self.skipped[-3:])!r:.200}"
+        raise LogError(
+            f"{self.source}: no column {text!r}{hint}; {self._header_text()}{above}. Fix: use "
+            "one of these names (or a 0-based column index)"
+        )
+
+    def column(self, column: str | int) -> np.ndarray:
+        """The values of ``column`` (a name or 0-based index), read-only."""
+        return self.data[:, self.index(column)]
+
+    def _header_text(self) -> str:
+        names = ", ".join(repr(nm) for nm in self.names[:40])
+        more = f", … ({len(self.names)} in all)" if len(self.names) > 40 else ""
+        if self.has_header:
+            return f"the {'header' if self.kind == 'text' else 'file'} has {names}{more}"
+        return f"the file has no header row; its columns are {names}{more}"
+
+
+# ------------------------------------------------------------------------------ cells
+def _iso_seconds(text: str) -> float | None:
+    """POSIX seconds of an ISO 8601 date or date-time (UTC unless it names a zone), else None."""
+    m = _ISO.match(text)
+    if m is None:
+        return None
+    y, mo, d, h, mi, s, frac, tz = m.groups()
+    try:
+        when = datetime(int(y), int(mo), int(d), int(h or 0), int(mi or 0), int(s or 0))
+    except ValueError:
+        return None
+    value = when.replace(tzinfo=timezone.utc).timestamp()
+    if frac:
+        value += float("0." + frac[1:])
+    if tz and tz != "Z":
+        digits = tz[1:].replace(":", "")
+        offset = int(digits[:2]) * 3600 + (int(digits[2:4]) * 60 if len(digits) > 2 else 0)
+        value -= offset if tz[0] == "+" else -offset
+    return value
+
+
+def _number(text: str, decimal: str) -> float | None:
+    """The value of a cell, NaN for a missing one, None for text."""
+    s = text.strip().strip('"').strip()
+    if s.lower() in _NAN_WORDS:
+        return math.nan
+    if decimal == "," and _COMMA_NUMBER.match(s):
+        s = s.replace(".", "").replace(",", ".")
+    try:
+        return float(s)
+    except ValueError:
+        return _iso_seconds(s)
+
+
+def _numeric_share(fields: list[str], decimal: str | None) -> float:
+    """Share of ``fields`` that are numbers, dates or missing (either decimal mark if None)."""
+    if not fields:
+        return 0.0
+    marks = (".", ",") if decimal is None else (decimal,)
+    good = sum(any(_number(f, m) is not None for m in marks) for f in fields)
+    return good / len(fields)
+
+
+# ------------------------------------------------------------------------------ text layout
+def _splitter(delim: str, iso_space: bool = False) -> Callable[[str], list[str]]:
+    """A function that splits one line (without its line break) into fields."""
+    if delim == " ":
+
+        def split_ws(line: str) -> list[str]:
+            return (_ISO_SPACE.sub(r"\1T\2", line) if iso_space else line).split()
+
+        return split_ws
+    if delim == "|":
+
+        def split_bar(line: str) -> list[str]:
+            s = line.strip()
+            s = s[1:] if s.startswith("|") else s
+            s = s[:-1] if s.endswith("|") else s
+            return s.split("|")
+
+        return split_bar
+
+    def split_csv(line: str) -> list[str]:
+        if '"' in line:
+            return next(csv.reader([line], delimiter=delim), [])
+        return line.split(delim)
+
+    return split_csv
+
+
+def _is_significant(stripped: str) -> bool:
+    """A line that holds data or a header: not blank, a comment, a separator row or a footer."""
+    if not stripped or stripped[0] in "#%":
+        return False
+    return not (_SEPARATOR.match(stripped) or _FOOTER.match(stripped))
+
+
+@dataclass
+class _Scan:
+    head: list[tuple[int, str]]  # (line, text) of the first lines: significant and comments
+    n_significant: int
+    last: tuple[int, str]
+    ends_newline: bool
+
+
+def _scan(path: Path, encoding: str) -> _Scan:
+    """One streaming pass: the first lines, the count of data-like lines, the last one."""
+    head: list[tuple[int, str]] = []
+    n = 0
+    last = (0, "")
+    with open(path, encoding=encoding, newline="") as fh:
+        for line_no, raw in enumerate(fh, 1):
+            text = raw.rstrip("\r\n")
+            stripped = text.strip()
+            if _is_significant(stripped):
+                n += 1
+                last = (line_no, text)
+            elif not stripped or stripped[0] not in "#%":
+                continue
+            if len(head) < HEAD_LINES:
+                head.append((line_no, text))
+    with open(path, "rb") as fb:
+        fb.seek(max(path.stat().st_size - 1, 0))
+        ends_newline = fb.read(1) in (b"\n", b"\r")
+    return _Scan(head, n, last, ends_newline)
+
+
+@dataclass
+class _Layout:
+    delimiter: str
+    decimal: str
+    width: int
+    names: tuple[str, ...] | None  # None: no header
+    header_line: int  # the header's line, or the line before the first data line
+    skipped: tuple[str, ...]
+    trailing: bool  # every row ends with a delimiter (an empty last field to drop)
+    iso_space: bool
+
+
+def _choose_delimiter(lines: list[str], decimal: str | None) -> tuple[str, int]:
+    """The delimiter that splits most lines into the same count of numeric fields, and it."""
+    best: tuple[float, int, str, int] | None = None
+    for rank, delim in enumerate(_PRIORITY):
+        if delim == "," and decimal == ",":
+            continue
+        split = _splitter(delim, iso_space=True)
+        rows = [split(line) for line in lines]
+        share = [_numeric_share(r, decimal) for r in rows]
+        widths = Counter(len(r) for r, s in zip(rows, share, strict=True) if s >= 0.5)
+        if not widths:
+            continue
+        width = max(widths, key=lambda w: (widths[w] * (w > 1), w))
+        score = sum(s for r, s in zip(rows, share, strict=True) if len(r) == width and s >= 0.5)
+        key = (score * (width > 1), -rank, delim, width)
+        if best is None or key[:2] > best[:2]:
+            best = key
+    if best is None:
+        return ",", 1
+    return best[2], best[3]
+
+
+def _layout(path: Path, scan: _Scan, delimiter: str | None, decimal: str | None) -> _Layout:
+    """Delimiter, decimal mark, header and preamble of a text file from its first lines."""
+    sig = [(no, t) for no, t in scan.head if _is_significant(t.strip())]
+    if not sig:
+        raise LogError(
+            f"{path}: no data rows (only blank, comment or separator lines). Fix: pass the "
+            "file that holds the numbers"
+        )
+    texts = [t for _, t in sig]
+    delim, width = (
+        (delimiter, 0) if delimiter is not None else _choose_delimiter(texts[-200:], decimal)
+    )
+    iso_space = delim == " " and any(_ISO_SPACE.search(t) for t in texts)
+    split = _splitter(delim, iso_space)
+    rows = [split(t) for t in texts]
+    share = [_numeric_share(r, decimal) for r in rows]
+    if not width:
+        counts = Counter(len(r) for r, s in zip(rows, share, strict=True) if s >= 0.5)
+        width = max(counts, key=lambda w: (counts[w], w)) if counts else len(rows[-1])
+
+    def data_like(i: int) -> bool:
+        return len(rows[i]) == width and share[i] >= 0.5
+
+    def block(i: int) -> bool:  # mostly numeric lines of the data's width from line i on
+        ahead = range(i, min(i + 5, len(rows)))
+        return data_like(i) and sum(map(data_like, ahead)) >= min(3, len(ahead))
+
+    start = next((i for i in range(len(rows)) if block(i)), None)
+    if start is None and decimal == ".":
+        for no, text in sig:
+            if any(_DEC_COMMA.match(c) for c in re.split(r"[;\t|]", text)):
+                raise LogError(
+                    f"{path}, line {no}: the numbers are written with a decimal comma "
+                    f"({text.strip()!r:.60}) but decimal='.' was given. Fix: pass decimal=',' "
+                    "(CLI --decimal ,), or leave the decimal mark to be detected"
+                )
+    if start is None:
+        raise LogError(
+            f"{path}: no line of numbers with a constant field count ({DELIMITERS[delim]}-"
+            f"separated); first line: {texts[0]!r:.120}. Fix: pass a numeric table, or "
+            f"{'check' if delimiter else 'give'} the delimiter (CLI --delimiter)"
+        )
+    data_rows = [rows[i] for i in range(start, len(rows)) if data_like(i)]
+    if decimal is None:
+        decimal = "."
+        if delim != ",":
+            cells = (c for r in data_rows[:50] for c in r)
+            if any(_DEC_COMMA.match(c) for c in cells):
+                decimal = ","
+    # every row ending with a delimiter: an empty last field, dropped unless the header names it
+    trailing = width > 1 and all(not r[-1].strip() for r in data_rows)
+    first_data = sig[start][0]
+    above = [(no, t) for no, t in scan.head if no < first_data]
+    names: tuple[str, ...] | None = None
+    header_line = above[-1][0] if above else 0
+    for no, text in reversed(above):  # the nearest header-like line above the data
+        fields = _header_fields(text, split, width, decimal, delim)
+        if fields is not None and trailing and fields[-1]:
+            trailing = False
+        elif fields is not None and trailing:
+            fields = fields[:-1]
+        elif fields is None and trailing:
+            fields = _header_fields(text, split, width - 1, decimal, delim)
+        if fields is not None:
+            names, header_line = _unique(fields), no
+            break
+        if _is_significant(text.strip()):
+            # the nearest non-comment line above the data is no header of the data's width;
+            # a line of names with another count there is a header the rows do not fit
+            # (decimal commas in a comma-separated file, a column added or lost), not a title
+            names_there = [f.strip() for f in split(text)]
+            if (
+                delim != " "
+                and len(names_there) >= 2
+                and all(names_there)
+                and _numeric_share(names_there, decimal) == 0.0
+            ):
+                got = len(data_rows[0])
+                header_like = _Layout(
+                    delim, decimal, len(names_there), tuple(names_there), no, (), False, False
+                )
+                raise _width_error(
+                    path, first_data, got, len(names_there), header_like, False, scan
+                )
+            break  # a title or preamble line: the file has no header
+    skipped = tuple(t.strip() for no, t in above if no < header_line or names is None)
+    return _Layout(delim, decimal, width, names, header_line, skipped, trailing, iso_space)
+
+
+def _header_fields(
+    text: str, split: Callable[[str], list[str]], width: int, decimal: str, delim: str
+) -> list[str] | None:
+    """The column names if ``text`` is a header of ``width`` fields, else None."""
+    stripped = text.strip()
+    variants = [text]
+    if stripped[:1] in "#%":
+        rest = stripped[1:].strip()
+        variants = [rest, text] if stripped[0] == "#" else [text, rest]
+    for v in variants:
+        candidates = [split(v)]
+        if delim == " ":
+            candidates.append(re.split(r"\s{2,}|\t", v.strip()))
+        for fields in candidates:
+            if len(fields) == width + 1 and not fields[-1].strip():
+                fields = fields[:-1]
+            if len(fields) == width and _numeric_share(fields, decimal) < 0.5:
+                return [f.strip().strip('"').strip() for f in fields]
+    return None
+
+
+def _unique(names: list[str]) -> tuple[str, ...]:
+    """Names made unique (``x``, ``x.1``, …); an empty name becomes its index."""
+    out: list[str] = []
+    for j, nm in enumerate(names):
+        base = nm or str(j)
+        cand, k = base, 0
+        while cand in out:
+            k += 1
+            cand = f"{base}.{k}"
+        out.append(cand)
+    return tuple(out)
+
+
+# ------------------------------------------------------------------------------ reading
+def _check_args(delimiter: str | None, decimal: str | None) -> tuple[str | None, str | None]:
+    if delimiter is not None:
+        if delimiter not in DELIMITERS:
+            delimiter = _ALIASES.get(delimiter.lower(), " " if delimiter.isspace() else delimiter)
+        if delimiter not in DELIMITERS:
+            allowed = ", ".join(f"{d!r} ({n})" for d, n in DELIMITERS.items())
+            raise ValueError(f"delimiter must be one of {allowed}; got {delimiter!r}")
+    if decimal is not None and decimal not in (".", ","):
+        raise ValueError(f"decimal must be '.' or ',', got {decimal!r}")
+    if decimal == "," and delimiter == ",":
+        raise ValueError(
+            "decimal=',' with delimiter=',' is ambiguous: a decimal comma needs another "
+            "delimiter (';', tab, '|' or whitespace). Fix: export the file with ';' as the "
+            "separator, or with '.' decimals"
+        )
+    return delimiter, decimal
+
+
+def read_table(
+    path: str | os.PathLike[str],
+    *,
+    delimiter: str | None = None,
+    decimal: str | None = None,
+    limits: ResourceLimits | None = None,
+) -> Table:
+    """Read a numeric table file (text, ``.mat`` or ``.npz``) into a :class:`Table`.
+
+    Parameters
+    ----------
+    path : path-like
+    delimiter : {",", ";", "\\t", "|", " "}, optional
+        Field separator of a text file (``" "``: any run of whitespace; also ``"tab"``,
+        ``"space"``); default: detected.
+    decimal : {".", ","}, optional
+        Decimal mark of a text file; default: detected (``","`` only with a delimiter
+        other than ``","``).
+    limits : ResourceLimits, optional
+        Default: :meth:`ResourceLimits.from_environment`.
+
+    Raises
+    ------
+    FileNotFoundError
+        Nothing at ``path``.
+    ValueError
+        A ``delimiter`` or ``decimal`` that is not allowed.
+    LogError
+        A file that is not a table, a row with the wrong field count, a file cut off
+        mid-write, a MATLAB v7.3 file, a saved log, a file beyond the limits: the
+        message names the file, the line and column, and the fix.
+    """
+    delimiter, decimal = _check_args(delimiter, decimal)
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"table file not found: {p}")
+    try:
+        check_regular_file(p, "table file")
+    except ValueError as exc:
+        raise LogError(str(exc)) from None
+    lim = limits if limits is not None else ResourceLimits.from_environment()
+    size = p.stat().st_size
+    if size > lim.max_file_bytes:
+        raise LogError(
+            f"{p}: {size / 2**20:.0f} MB is more than the {lim.max_file_bytes / 2**20:.0f} MB a "
+            "table file may have. Fix: split the file, or raise the limit with the environment "
+            "variable REALITYGAP_MAX_FILE_MB"
+        )
+    kind = sniff_file_kind(p)
+    with open(p, "rb") as fh:
+        magic = fh.read(20)
+    if kind == "text":
+        return _read_text(p, delimiter, decimal, lim)
+    if magic.startswith(b"MATLAB") or (kind == "binary" and p.suffix.lower() == ".mat"):
+        return _read_mat(p, lim)
+    if kind == "npz":
+        return _read_npz(p, lim)
+    hints = {
+        "npy": "a single NumPy array (.npy). Fix: save it in an archive, np.savez(path, name=a)",
+        "rosbag1": "a ROS 1 bag, read by the bag importer (realitygap diagnose BAG …)",
+        "sqlite": "an SQLite file (a ROS 2 .db3 bag?); pass the bag folder to the bag importer",
+        "mcap": "an MCAP file (a ROS 2 bag?); pass the bag folder to the bag importer",
+        "pickle": "a Python pickle, which is never loaded (unsafe). Fix: export CSV or .npz",
+        "empty": "an empty file",
+    }
+    raise LogError(
+        f"{p}: not a table file: {hints.get(kind, f'its content looks like {kind}')}. Tables are "
+        "text (CSV, TSV, whitespace-aligned), MATLAB .mat (v4 to v7) or NumPy .npz files"
+    )
+
+
+def _read_text(
+    path: Path, delimiter: str | None, decimal: str | None, lim: ResourceLimits
+) -> Table:
+    encoding = "utf-8-sig"
+    try:
+        scan = _scan(path, encoding)
+    except UnicodeDecodeError:
+        encoding = "latin-1"
+        scan = _scan(path, encoding)
+    lay = _layout(path, scan, delimiter, decimal)
+    above = sum(1 for no, t in scan.head if no <= lay.header_line and _is_significant(t.strip()))
+    n_rows = scan.n_significant - above
+    width = lay.width - lay.trailing
+    try:
+        check_rows_limit(n_rows, width, str(path), lim)
+    except ValueError as exc:
+        raise LogError(str(exc)) from None
+    data = np.full((n_rows, width), np.nan)
+    lines = np.zeros(n_rows, dtype=np.int64)
+    text_columns: dict[str, tuple[int, str]] = {}
+    names = lay.names if lay.names is not None else tuple(str(j) for j in range(width))
+    split = _splitter(lay.delimiter, lay.iso_space)
+    comma = lay.decimal == ","
+    tail: list[list[int]] = []
+    i = 0
+    with open(path, encoding=encoding, newline="") as fh:
+        for line_no, raw in _rows_after(fh, lay.header_line):
+            fields = split(raw)
+            if len(fields) == width + 1 and not fields[-1].strip():
+                fields.pop()  # a trailing delimiter
+            if len(fields) != width:
+                raise _width_error(path, line_no, len(fields), width, lay, i == n_rows - 1, scan)
+            if i >= n_rows:
+                raise LogError(f"{path}: the file grew while it was read. Fix: read a copy")
+            row = data[i]
+            for j, cell in enumerate(fields):
+                try:
+                    row[j] = float(cell.replace(",", ".") if comma else cell)
+                except ValueError:
+                    value = _number(cell, lay.decimal)
+                    if value is None:
+                        value = math.nan
+                        text_columns.setdefault(names[j], (line_no, cell.strip()))
+                    row[j] = value
+            lines[i] = line_no
+            if i >= n_rows - 21:
+                tail.append([len(c.strip()) for c in fields])
+            i += 1
+    if not scan.ends_newline and len(tail) > 1:
+        # a writer stopped mid-line leaves every field but the one it was writing complete:
+        # only the last field of the last line can be cut (``…,51,6`` for ``…,51,66``); an
+        # earlier field that happens to be short (trailing zeros trimmed) is not a cut
+        before = np.min(np.asarray(tail[:-1]), axis=0)
+        j_last = len(tail[-1]) - 1
+        while j_last > 0 and tail[-1][j_last] == 0 and before[j_last] == 0:
+            j_last -= 1  # an empty trailing field is no field
+        short = [j_last] if tail[-1][j_last] < before[j_last] else []
+        if short:
+            raise LogError(
+                f"{path}, line {scan.last[0]}: the last line ({scan.last[1].strip()!r:.80}) has "
+                f"no newline and its field {names[short[0]]!r} is narrower than in every line "
+                "before it: the file looks cut off mid-write. Fix: delete the last line, or end "
+                "the file with a newline if the line is complete"
+            )
+    return Table(
+        source=path,
+        names=names,
+        data=data,
+        lines=lines,
+        kind="text",
+        delimiter=lay.delimiter,
+        decimal=lay.decimal,
+        skipped=lay.skipped,
+        has_header=lay.names is not None,
+        text_columns=text_columns,
+    )
+
+
+def _rows_after(fh: Any, header_line: int) -> Iterator[tuple[int, str]]:
+    """``(line, text)`` of the data-like lines after ``header_line``."""
+    for line_no, raw in enumerate(fh, 1):
+        if line_no <= header_line:
+            continue
+        text = raw.rstrip("\r\n")
+        if _is_significant(text.strip()):
+            yield line_no, text
+
+
+def _width_error(
+    path: Path, line_no: int, got: int, width: int, lay: _Layout, last: bool, scan: _Scan
+) -> LogError:
+    which = "the header has" if lay.names is not None else "the rows above have"
+    hint = ""
+    if lay.delimiter == " ":
+        hint = (
+            " — in a whitespace-aligned file an empty cell shifts the columns after it. Fix: "
+            "export the file with a delimiter (',' or ';') so that empty cells keep their place"
+        )
+    elif lay.delimiter == "," and got > width:
+        hint = (
+            " — decimal commas in a comma-separated file? Fix: export with ';' as the separator "
+            "(decimal commas are then understood) or with '.' decimals"
+        )
+    if last and not scan.ends_newline:
+        hint += " — the last line has no newline: the file looks cut off mid-write"
+    return LogError(
+        f"{path}, line {line_no}: {got} fields ({DELIMITERS[lay.delimiter]}-separated) but "
+        f"{which} {width}{hint}"
+    )
+
+
+# ------------------------------------------------------------------------------ binary
+def _read_mat(path: Path, lim: ResourceLimits) -> Table:
+    from scipy.io import loadmat, whosmat
+    from scipy.io.matlab import matfile_version
+
+    try:
+        major, _ = matfile_version(str(path))
+    except Exception as exc:  # scipy raises several types on foreign content
+        raise LogError(f"{path}: not a readable MATLAB file ({exc})") from None
+    if major == 2:
+        raise LogError(
+            f"{path}: a MATLAB v7.3 file (HDF5), which this reader does not open. Fix: save it "
+            "again in MATLAB with save(FILE, ..., '-v7'), or export CSV (writetable)"
+        )
+    try:
+        listing = whosmat(str(path))
+        cells = sum(int(np.prod(shape, dtype=np.float64)) for _, shape, _ in listing)
+        check_rows_limit(cells, 1, f"{path} (all variables together)", lim)
+        raw = loadmat(str(path), squeeze_me=True, struct_as_record=False)
+    except ValueError as exc:
+        raise LogError(f"{path}: {exc}") from None
+    except Exception as exc:  # a damaged file: scipy raises many types
+        raise LogError(f"{path}: unreadable MATLAB file ({type(exc).__name__}: {exc})") from None
+    arrays = [(k, v) for k, v in raw.items() if not k.startswith("__")]
+    return _arrays_table(path, "mat", arrays, lim)
+
+
+def _read_npz(path: Path, lim: ResourceLimits) -> Table:
+    from realitygap.diagnosis.logs.importers.archive import ArchiveError, read_log_archive
+
+    try:
+        with zipfile.ZipFile(path) as zf:
+            members = set(zf.namelist())
+        if {"t.npy", "meta.json.npy"} <= members:
+            raise LogError(
+                f"{path}: a saved realitygap log (Log.save), not a table; it needs no column "
+                f"map: read it with read_logs (realitygap diagnose {path})"
+            )
+        raw = read_log_archive(path, lim)
+    except zipfile.BadZipFile as exc:
+        raise LogError(f"{path}: unreadable or truncated .npz archive ({exc})") from None
+    except ArchiveError as exc:
+        raise LogError(str(exc).replace("; not a realitygap log", "")) from None
+    return _arrays_table(path, "npz", list(raw.items()), lim)
+
+
+def _collect(
+    name: str, value: Any, out: list[tuple[str, np.ndarray]], notes: list[str], depth: int = 0
+) -> None:
+    """Numeric vectors and matrices of one variable (struct fields recursively)."""
+    if hasattr(value, "_fieldnames") and depth < 4:  # a MATLAB struct
+        for f in value._fieldnames:
+            _collect(f"{name}.{f}", getattr(value, f), out, notes, depth + 1)
+        return
+    if isinstance(value, str):
+        notes.append(f"variable {name} not read: text")
+        return
+    arr = np.asarray(value)
+    arr = np.squeeze(arr) if arr.ndim > 1 else arr
+    if arr.dtype.kind not in "biuf":
+        what = {"c": "complex numbers", "O": "a cell or struct array", "U": "text", "S": "text"}
+        notes.append(f"variable {name} not read: {what.get(arr.dtype.kind, str(arr.dtype))}")
+    elif arr.ndim == 0 or arr.size == 1:
+        notes.append(f"variable {name} not read: a single value ({arr.reshape(-1)[0]!r:.30})")
+    elif arr.ndim > 2:
+        shape = "×".join(map(str, arr.shape))
+        notes.append(f"variable {name} ({shape}) not read: a {arr.ndim}-D array, not columns")
+    else:
+        out.append((name, arr))
+
+
+def _arrays_table(
+    path: Path, kind: str, arrays: list[tuple[str, Any]], lim: ResourceLimits
+) -> Table:
+    found: list[tuple[str, np.ndarray]] = []
+    notes: list[str] = []
+    for name, value in arrays:
+        _collect(name, value, found, notes)
+    lengths = {a.shape[0] for _, a in found if a.ndim == 1}
+    columns: list[tuple[str, np.ndarray]] = []
+    for name, a in found:
+        if a.ndim == 1:
+            columns.append((name, a))
+            continue
+        rows_first = a.shape[0] in lengths or not (
+            a.shape[1] in lengths or (a.shape[0] <= 16 and a.shape[1] >= 10 * a.shape[0])
+        )
+        m = a if rows_first else a.T
+        if not rows_first:
+            notes.append(f"matrix {name} ({a.shape[0]}×{a.shape[1]}) read as {m.shape[0]} rows")
+        columns += [(f"{name}[{j}]", m[:, j]) for j in range(m.shape[1])]
+    if not columns:
+        listing = "; ".join(notes) or "none"
+        raise LogError(
+            f"{path}: no numeric vector or matrix to read as columns (variables: {listing}). "
+            "Fix: store the signals as numeric vectors of one length, or export CSV"
+        )
+    n = max(len(c) for _, c in columns)
+    for name, c in columns:
+        if len(c) != n:
+            notes.append(
+                f"variable {name} ({len(c)} rows) not read: its length differs from the "
+                f"{n} rows of the table"
+            )
+    keep = [(name, c) for name, c in columns if len(c) == n]
+    try:
+        check_rows_limit(n, len(keep), str(path), lim)
+    except ValueError as exc:
+        raise LogError(str(exc)) from None
+    data = np.column_stack([np.asarray(c, dtype=np.float64) for _, c in keep])
+    return Table(
+        source=path,
+        names=_unique([name for name, _ in keep]),
+        data=data,
+        lines=np.arange(1, n + 1, dtype=np.int64),
+        kind=kind,
+        delimiter=None,
+        decimal=".",
+        skipped=tuple(notes),
+        has_header=True,
+    )
