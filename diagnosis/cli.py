@@ -166,7 +166,12 @@ def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
     g.add_argument("--truth-topic", help="ground-truth pose topic, or /tf with --truth-frame")
     g.add_argument("--truth-frame", help="tracked frame in /tf")
     g.add_argument("--wheels-topic", help="JointState topic with the wheel joints")
-    g.add_argument("--rate", type=float, default=20.0, help="bag resampling rate, Hz (default 20)")
+    g.add_argument(
+        "--rate",
+        type=float,
+        help="resample bags to this rate, Hz (default: align the topics on the wheel joints' "
+        "own stamps, else the commands')",
+    )
     g.add_argument("--resample", type=float, help="resample every log to this step, s")
     g.add_argument(
         "--duplicates",
@@ -260,7 +265,8 @@ def _diagnose(args: argparse.Namespace) -> int:
         if args.workers is not None:
             check_positive_int(args.workers, "--workers")
         check_finite_float(args.window, "--window", low=0.0, strict_low=True, unit="s")
-        check_finite_float(args.rate, "--rate", low=0.0, strict_low=True, unit="Hz")
+        if args.rate is not None:
+            check_finite_float(args.rate, "--rate", low=0.0, strict_low=True, unit="Hz")
         for path in [*args.logs, *args.holdout]:
             if not Path(path).exists():
                 raise FileNotFoundError(

@@ -5,7 +5,9 @@ top of the effects already chosen, and adds the best one if the data hold it up.
 candidate :math:`c` added to the current model :math:`M`:
 
 1. **Fit at its own scale.** The parameters of :math:`c` are fitted on all training
-   windows with those of :math:`M` held (a forward-stagewise fit): an effect that acts at
+   windows together with those of :math:`M` that act at the same scale (the others
+   held): an entry that stood in for part of :math:`c` moves back as :math:`c` enters.
+   An effect that acts at
    run scale (``Effect.scale == "run"``: a wheel size, a wheelbase, an encoder's scale) on
    the run cells of :class:`~realitygap.diagnosis.budget.folds.RunCells`, where it adds up
    and a clock's window-to-window scatter averages out; every other effect on the windows
@@ -259,14 +261,30 @@ def _gn_step(
 
 
 def _try(problem: Problem, shared: tuple[Any, ...], effect: str) -> Trial:
-    """Fit ``effect`` on top of the held values, then its leave-one-fold-out scores."""
-    held, starts, scorer, integrates, z_cur = shared
+    """Fit ``effect`` on top of the held values, then its leave-one-fold-out scores.
+
+    ``shared`` may end with the keys of the effects already chosen: those of them fitted at
+    the candidate's scale are fitted with it (the model with the candidate, not the candidate
+    alone on the others' values): an entry that stood in for part of the candidate — a
+    wheelbase factor that took up a wheel-scale error through the heading — moves back when
+    the candidate enters, as the joint refit after the entry would move it. Only the
+    candidate's parameters are reported."""
+    held, starts, scorer, integrates, z_cur, *more = shared
+    entered: tuple[str, ...] = tuple(more[0]) if more else ()
     scale = effect_scale(effect) if integrates else "window"
     hp = problem.held_parameters([effect])
-    keys = tuple(k for k in model_keys([effect]) if k not in hp)
+    own = tuple(k for k in model_keys([effect]) if k not in hp)
+    co = tuple(
+        k
+        for k in entered
+        if k not in own
+        and k in held
+        and (effect_scale(split_key(k)[0]) if integrates else "window") == scale
+    )
+    keys = own + co
     tr = problem.train
     cells = scorer.cells
-    fixed = {k: np.array([v]) for k, v in held.items()}
+    fixed = {k: np.array([v]) for k, v in held.items() if k not in co}
 
     def residuals(U: FloatArray) -> FloatArray:
         vals = dict(fixed)
@@ -295,13 +313,15 @@ def _try(problem: Problem, shared: tuple[Any, ...], effect: str) -> Trial:
         )
     loss = "linear" if scale == "run" else problem.settings.loss
     c = scorer.c
-    u_starts = [np.array([range_position(k, param_spec(k).nominal) for k in keys])]
-    if all(k in held for k in keys):
-        u_starts.append(np.array([range_position(k, held[k]) for k in keys]))
+    u_co = [range_position(k, held[k]) for k in co]  # the entries start where they are
+    u_starts = [np.array([range_position(k, param_spec(k).nominal) for k in own] + u_co)]
+    if all(k in held for k in own):
+        u_starts.append(np.array([range_position(k, held[k]) for k in own] + u_co))
     if effect in starts:
         u_starts.append(
             np.array(
-                [range_position(k, starts[effect].get(k, param_spec(k).nominal)) for k in keys]
+                [range_position(k, starts[effect].get(k, param_spec(k).nominal)) for k in own]
+                + u_co
             )
         )
     cache: dict[bytes, FloatArray] = {}
@@ -419,6 +439,11 @@ def _try(problem: Problem, shared: tuple[Any, ...], effect: str) -> Trial:
     # parameter errors of the full fit, in natural units (the rows' own scatter)
     _, cov = _gn_step(J, r0, w, np.ones(r0.size, dtype=bool))
     se_u = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    # the candidate's own parameters are its result; the co-fitted entries are refitted
+    # jointly when it enters
+    n_own = len(own)
+    keys, u_hat, se_u = own, u_hat[:n_own], se_u[:n_own]
+    U_own, S_own = U_own[:, :n_own], S_own[:, :n_own]
     values = {k: float(from_range_position(k, np.array([u_hat[j]]))[0]) for j, k in enumerate(keys)}
     # an error wider than the parameter's whole range is no error bar (a dead band between
     # the commanded speeds: the data bound it to an interval, :func:`fit_model`)
@@ -524,8 +549,11 @@ def forward_select(
             f"budget: step {len(chosen) + 1}, {len(remaining)} candidate(s) on {folds.k} {folds.unit} fold(s)"
         )
         z_cur = problem.surrogate_residuals(tr, as_arrays(held), 1)[0]
+        entered = tuple(model_keys([sel.trial.effect for sel in chosen]))
         trials: list[Trial] = backend.map(
-            _try_task, remaining, (problem, dict(held), starts, scorer, integrates, z_cur)
+            _try_task,
+            remaining,
+            (problem, dict(held), starts, scorer, integrates, z_cur, entered),
         )
         m = len(trials)
         for tri in trials:

@@ -647,7 +647,10 @@ def inspect_paths(
             "frame and the instrument's noise (see docs/your_robot.md)"
         )
     if any(f.kind == "bag" for f in good):
-        checks.append("bags are resampled to --rate (default 20 Hz): give the control rate")
+        checks.append(
+            "bag topics are aligned on the wheel joints' (else the commands') own stamps; "
+            "--rate HZ resamples them instead"
+        )
     checks += [f"{f.path} could not be read: fix it first (see above)" for f in files if f.error]
     return Inspection(files, " ".join(words), missing, checks)
 

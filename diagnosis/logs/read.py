@@ -78,8 +78,9 @@ class ReadOptions:
         ``{"a_max", "alpha_max"}`` if the commands are requests the firmware rate-limits.
     cmd_topic, odom_topic, truth_topic, truth_frame, wheels_topic : str or None
         ROS bag topics.
-    rate_hz : float
-        Resampling rate of bags.
+    rate_hz : float or None
+        Resample bags to this rate (Hz); ``None`` (default) aligns their topics on the wheel
+        joints' (else the commands') own stamps.
     resample : float or None
         Resample every log to this step (s) — for jittery time stamps.
     check_plausible : bool
@@ -109,7 +110,7 @@ class ReadOptions:
     truth_topic: str | None = None
     truth_frame: str | None = None
     wheels_topic: str | None = None
-    rate_hz: float = 20.0
+    rate_hz: float | None = None
     resample: float | None = None
     check_plausible: bool = True
     meta: Mapping[str, Any] | None = None
@@ -383,7 +384,7 @@ def read_logs(
         )
     if kind == "directory":
         if (p / "metadata.yaml").is_file():
-            logs = [_read_bag(p, opt)]
+            logs = _read_bag(p, opt, warn)
         elif _looks_like_optiodom(p):
             logs = logs_from_optiodom(p, warn)
         elif _looks_like_ur10(p):
@@ -416,7 +417,7 @@ def read_logs(
             )
         logs = _read_tables([p], opt, warn)
     elif kind in ("rosbag1", "sqlite", "mcap"):
-        logs = [_read_bag(p, opt)]
+        logs = _read_bag(p, opt, warn)
     else:
         raise LogError(
             f"{p}: not a log the diagnosis can read (content looks like {kind}, not text); "
@@ -739,8 +740,8 @@ def resample_split(
     return out
 
 
-def _read_bag(p: Path, opt: ReadOptions) -> Log:
-    from realitygap.diagnosis.logs.importers.rosbag import BagTopics, read_bag
+def _read_bag(p: Path, opt: ReadOptions, warn: Callable[[str], None] | None = None) -> list[Log]:
+    from realitygap.diagnosis.logs.importers.rosbag import BagTopics, read_bag_logs
 
     topics = BagTopics(
         cmd=opt.cmd_topic,
@@ -752,7 +753,15 @@ def _read_bag(p: Path, opt: ReadOptions) -> Log:
     meta: dict[str, Any] = dict(opt.meta or {})
     if opt.firmware:
         meta["firmware"] = dict(opt.firmware)
-    return read_bag(p, topics, rate_hz=opt.rate_hz, params=opt.params, meta=meta or None)
+    return read_bag_logs(
+        p,
+        topics,
+        rate_hz=opt.rate_hz,
+        params=opt.params,
+        meta=meta or None,
+        max_gap=opt.max_gap,
+        warn=warn,
+    )
 
 
 def read_many(

@@ -242,6 +242,13 @@ def test_ros2_bag_with_its_urdf(tmp_path: Path) -> None:
     )
     assert log.has("ticks") and log.has("pose_gt") and log.has("cmd")
     assert log.duration == pytest.approx(w.answer["runs"][0]["duration_s"], abs=0.2)
+    # the topics keep their own stamps: the log is on the wheel joints' (50 Hz), the 100 Hz
+    # motion capture and the 20 Hz commands aligned there, no resampling
+    rates = {t: v["rate_hz"] for t, v in w.answer["topics"].items()}
+    assert log.dt == pytest.approx(1 / rates["/joint_states"], rel=1e-3)
+    assert "aligned on the stamps of 'ticks'" in log.meta["aligned"]
+    # the encoder counts come back exactly from the joint angles
+    assert np.all(log["ticks"] == np.rint(log["ticks"]))
 
 
 def test_arm_csv_with_its_urdf_is_diagnosed(tmp_path: Path) -> None:

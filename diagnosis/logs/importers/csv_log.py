@@ -45,6 +45,12 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.core.checks import ResourceLimits, check_regular_file
+from realitygap.diagnosis.logs.align import (
+    BASE_CHANNEL_ORDER,
+    HELD_CHANNELS,
+    MIN_PIECE_S,
+    align_streams,
+)
 from realitygap.diagnosis.logs.importers.column_map import ColumnMap, Source
 from realitygap.diagnosis.logs.importers.table import Table, read_table
 from realitygap.diagnosis.logs.log import (
@@ -62,6 +68,7 @@ FloatArray = npt.NDArray[np.float64]
 __all__ = [
     "BASE_CHANNEL_ORDER",
     "HELD_CHANNELS",
+    "MIN_PIECE_S",
     "ColumnMap",
     "read_csv_log",
     "read_table_logs",
@@ -70,18 +77,6 @@ __all__ = [
 
 DUPLICATE_POLICIES = ("raise", "last", "mean")
 """What to do with repeated time stamps within one channel."""
-
-BASE_CHANNEL_ORDER = ("ticks", "cmd", "joints", "pose_gt", "pose_est", "pose_cam", "tether")
-"""Whose stamps a log of channels at different rates takes: the first present (else the
-channel with the most samples). The replay is driven by the encoders or the commands, so their
-samples are kept as recorded and the rest are interpolated onto them."""
-
-HELD_CHANNELS = ("cmd",)
-"""Channels whose value holds until the next sample (zero-order hold) when aligned; the others
-are interpolated linearly (angles unwrapped)."""
-
-MIN_PIECE_S = 1.0
-"""Shortest piece (s) of a log split at a channel's gap that is kept as a log."""
 
 POSE_ROW_CHANNELS = ("joints", "tool_pos")
 """Channels of logs whose rows are poses (an arm measured at rest), not instants: they are
@@ -260,26 +255,6 @@ def _dedupe(stream: _Stream, policy: str, chan_cols: Sequence[str]) -> _Stream:
         stream.lines[starts],
         stream.rows[starts],
     )
-
-
-def _align(
-    stream: _Stream, base_t: FloatArray, max_gap: float
-) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
-    """``stream``'s values at ``base_t`` and where they are covered (inside its span and not in a
-    gap longer than ``max_gap``)."""
-    t, v = stream.t, stream.values
-    covered = (base_t >= t[0]) & (base_t <= t[-1])
-    gaps = np.flatnonzero(np.diff(t) > max_gap)
-    for g in gaps:
-        covered &= ~((base_t > t[g]) & (base_t < t[g + 1]))
-    out = np.empty((base_t.shape[0], v.shape[1]))
-    if stream.name in HELD_CHANNELS:
-        idx = np.clip(np.searchsorted(t, base_t, side="right") - 1, 0, t.shape[0] - 1)
-        out[:] = v[idx]
-    else:
-        for j in range(v.shape[1]):
-            out[:, j] = np.interp(base_t, t, v[:, j])
-    return out, covered
 
 
 def read_table_logs(
@@ -470,7 +445,6 @@ def read_table_logs(
     name = files[0].stem if len(files) == 1 else "+".join(p.stem for p in files)
     source = ",".join(str(p) for p in files)
     full_meta = _meta(params, meta, robot, name, source)
-    notes: list[str] = []
     if same_rows:
         first = next(iter(streams.values()))
         base_t = first.t
@@ -492,67 +466,15 @@ def read_table_logs(
             f"{source}: the arm's channels ({', '.join(streams)}) are not on the same rows; "
             "each row must hold one pose's joint readings and its measurement"
         )
-    order = [c for c in BASE_CHANNEL_ORDER if c in streams]
-    base = order[0] if order else max(streams, key=lambda c: streams[c].t.shape[0])
-    base_t = streams[base].t
-    aligned: dict[str, FloatArray] = {base: streams[base].values}
-    covered = np.ones(base_t.shape[0], bool)
-    for chan, s in streams.items():
-        if chan == base:
-            continue
-        period = float(np.median(np.diff(s.t)))
-        gap = max_gap if max_gap is not None else lim.max_gap_steps * period
-        aligned[chan], cov = _align(s, base_t, max(gap, period * 1.5))
-        covered &= cov
-        rate = 1.0 / period if period > 0 else math.inf
-        notes.append(f"{chan} at {rate:.4g} Hz")
-    full_meta["aligned"] = (
-        f"channels at their own rates aligned on the stamps of {base!r} "
-        f"({1.0 / float(np.median(np.diff(base_t))):.4g} Hz): " + ", ".join(notes)
+    return align_streams(
+        {c: (st.t, st.values) for c, st in streams.items()},
+        name=name,
+        source=source,
+        meta=full_meta,
+        max_gap=max_gap,
+        limits=lim,
+        warn=say,
     )
-    pieces = _runs(covered)
-    out: list[Log] = []
-    for a, b in pieces:
-        if b - a < 3 or base_t[b - 1] - base_t[a] < MIN_PIECE_S:
-            say(
-                f"{source}: rows at t={base_t[a]:.6g}…{base_t[b - 1]:.6g} s dropped: shorter than "
-                f"{MIN_PIECE_S:g} s between gaps of the aligned channels"
-            )
-            continue
-        m = dict(full_meta)
-        if len(pieces) > 1:
-            m["name"] = f"{name}_part-{len(out) + 1}"
-            m["piece_of"] = name
-        out.append(
-            Log(
-                t=base_t[a:b],
-                channels={c: v[a:b] for c, v in aligned.items()},
-                meta=m,
-                source=source,
-            )
-        )
-    if len(pieces) > 1 or (pieces and (pieces[0][0] > 0 or pieces[0][1] < base_t.shape[0])):
-        lost = base_t.shape[0] - sum(b - a for a, b in pieces)
-        say(
-            f"{source}: {lost} of {base_t.shape[0]} rows of {base!r} lie outside another "
-            f"channel's samples or in a gap longer than its limit (--max-gap); the log is cut "
-            f"there into {len(out)} piece(s) instead of inventing values"
-        )
-    if not out:
-        spans = ", ".join(f"{c}: {s.t[0]:.6g}…{s.t[-1]:.6g} s" for c, s in streams.items())
-        raise LogError(
-            f"{source}: the channels never overlap for {MIN_PIECE_S:g} s without a gap ({spans}). "
-            "Fix: check that the files' time columns share one clock and unit, or raise "
-            "--max-gap"
-        )
-    return out
-
-
-def _runs(mask: npt.NDArray[np.bool_]) -> list[tuple[int, int]]:
-    """``[(start, stop), …]`` of the runs of True in ``mask``."""
-    m = np.concatenate([[False], mask, [False]]).astype(np.int8)
-    d = np.diff(m)
-    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
 
 
 def _time_quantum(tab: Table, src: Source) -> tuple[int, float]:

@@ -14,8 +14,10 @@ log channel        topic and message types                              default
                    (positions in rad → counts)
 =================  ==================================================  ============
 
-Every stream is resampled to a fixed rate (commands held, poses
-interpolated with continuous headings). The bag is only read — messages are
+Each topic keeps its own stamps: the log takes those of the wheel joints (else the
+commands) and the others are aligned there (commands held, poses interpolated with
+continuous headings, a long gap cutting the log rather than bridged); a fixed
+``rate_hz`` resamples every topic instead. The bag is only read — messages are
 deserialised by ``rosbags``; nothing is unpickled. A bag without the expected
 topics raises :class:`~realitygap.diagnosis.logs.log.LogError` listing the topics
 it has and the option to pass.
@@ -25,7 +27,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -35,13 +37,14 @@ import numpy.typing as npt
 
 from realitygap.core.checks import check_rows_limit
 from realitygap.core.geometry import yaw_from_quat_xyzw
+from realitygap.diagnosis.logs.align import align_streams
 from realitygap.diagnosis.logs.log import Log, LogError, sniff_file_kind
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.diffdrive_replay import params_to_meta
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["BagTopics", "read_bag"]
+__all__ = ["BagTopics", "read_bag", "read_bag_logs"]
 
 
 @dataclass(frozen=True)
@@ -139,20 +142,57 @@ def read_bag(
     path: str | os.PathLike[str],
     topics: BagTopics | None = None,
     *,
-    rate_hz: float = 20.0,
+    rate_hz: float | None = None,
     params: DiffDriveParams | Mapping[str, Any] | None = None,
     meta: Mapping[str, Any] | None = None,
     use_header_stamps: bool = True,
 ) -> Log:
-    """Read a ROS 1 (``.bag``) or ROS 2 (folder, ``.db3``, ``.mcap``) bag into a :class:`Log`.
+    """Read a bag into one :class:`Log` (:func:`read_bag_logs`; an error if a topic's gaps
+    would cut it into pieces)."""
+    said: list[str] = []
+    logs = read_bag_logs(
+        path,
+        topics,
+        rate_hz=rate_hz,
+        params=params,
+        meta=meta,
+        use_header_stamps=use_header_stamps,
+        warn=said.append,
+    )
+    if len(logs) != 1 or said:
+        raise LogError(
+            f"{path}: its topics have gaps that cut it ({'; '.join(said)}); read it with "
+            "read_bag_logs (or the command line), which returns the pieces"
+        )
+    return logs[0]
+
+
+def read_bag_logs(
+    path: str | os.PathLike[str],
+    topics: BagTopics | None = None,
+    *,
+    rate_hz: float | None = None,
+    params: DiffDriveParams | Mapping[str, Any] | None = None,
+    meta: Mapping[str, Any] | None = None,
+    use_header_stamps: bool = True,
+    max_gap: float | None = None,
+    warn: Callable[[str], None] | None = None,
+) -> list[Log]:
+    """Read a ROS 1 (``.bag``) or ROS 2 (folder, ``.db3``, ``.mcap``) bag into logs.
+
+    Each topic keeps its own stamps: the log takes those of the wheel joints (else the
+    commands) and the other topics are aligned there
+    (:func:`~realitygap.diagnosis.logs.align.align_streams`: commands held, poses
+    interpolated with continuous headings, a gap longer than ``max_gap`` cutting the log);
+    ``rate_hz`` resamples every topic to a fixed rate instead.
 
     Parameters
     ----------
     path : path-like
         The bag file or ROS 2 bag folder.
     topics : BagTopics, optional
-    rate_hz : float
-        Rate of the resampled log (the control rate).
+    rate_hz : float, optional
+        Resample to this rate (Hz) instead of aligning on a topic's own stamps.
     params : DiffDriveParams or mapping, optional
         Nominal robot parameters (default: the Kobuki-like defaults); needed to
         turn wheel angles into counts.
@@ -196,7 +236,7 @@ def read_bag(
             f"{p}: not a ROS bag (its content looks like {kind}); whatever its extension, pass "
             "it with the matching importer"
         )
-    if not (rate_hz > 0 and math.isfinite(rate_hz)):
+    if rate_hz is not None and not (rate_hz > 0 and math.isfinite(rate_hz)):
         raise ValueError(f"rate_hz must be a positive number, got {rate_hz!r}")
     params_obj = (
         params
@@ -291,6 +331,35 @@ def read_bag(
         keep = np.concatenate([[True], np.diff(ts) > 0])
         arrays[key] = (ts[keep], vals[keep])
 
+    k_ticks = params_obj.ticks_per_rev / (2.0 * math.pi)
+    full_meta: dict[str, Any] = {
+        "robot": "diffdrive",
+        "params": params_to_meta(params_obj),
+        "name": Path(path).stem,
+        "source": str(path),
+        "topics": {k: v for k, v in wanted.items()},
+    }
+    full_meta.update(dict(meta or {}))
+    if rate_hz is None:
+        own: dict[str, tuple[FloatArray, FloatArray]] = {"cmd": arrays["cmd"]}
+        for key, chan in (("truth", "pose_gt"), ("odom", "pose_est")):
+            if key in arrays:
+                ts, vals = arrays[key]
+                own[chan] = (ts, np.column_stack([vals[:, :2], np.unwrap(vals[:, 2])]))
+        if "wheels" in arrays:
+            wt, wv = arrays["wheels"]
+            # a JointState angle is a count times 2π/N: rounding gives the count back (flooring
+            # would lose one wherever the division leaves 2.9999…)
+            own["ticks"] = (wt, np.rint((wv - wv[0]) * k_ticks))
+        return align_streams(
+            own,
+            name=Path(path).stem,
+            source=str(path),
+            meta=full_meta,
+            max_gap=max_gap,
+            warn=warn,
+            shift_time=True,
+        )
     starts = [arrays[k][0][0] for k in arrays]
     ends = [arrays[k][0][-1] for k in arrays if k != "cmd"] or [arrays["cmd"][0][-1]]
     t0, t1 = max(starts), min(ends)
@@ -322,15 +391,6 @@ def read_bag(
         channels["pose_est"] = interp_pose(*arrays["odom"])
     if "wheels" in arrays:
         wt, wv = arrays["wheels"]
-        k = params_obj.ticks_per_rev / (2.0 * math.pi)
         ang = np.column_stack([np.interp(t, wt, wv[:, 0]), np.interp(t, wt, wv[:, 1])])
-        channels["ticks"] = np.floor((ang - ang[0]) * k)
-    full_meta: dict[str, Any] = {
-        "robot": "diffdrive",
-        "params": params_to_meta(params_obj),
-        "name": Path(path).stem,
-        "source": str(path),
-        "topics": {k: v for k, v in wanted.items()},
-    }
-    full_meta.update(dict(meta or {}))
-    return Log(t=t - t0, channels=channels, meta=full_meta, source=str(path))
+        channels["ticks"] = np.floor((ang - ang[0]) * k_ticks)
+    return [Log(t=t - t0, channels=channels, meta=full_meta, source=str(path))]
