@@ -247,3 +247,44 @@ def test_interleaved_rows_read_as_one_stream_blame_the_clock_not_the_encoder() -
     with pytest.raises(LogError, match=r"uneven intervals.*clock or rate mismatch") as err:
         check_plausible(log)
     assert "ticks_per_rev" not in str(err.value).split("Fix:")[1]
+
+
+def test_pieces_too_short_to_read_are_set_aside_not_fatal() -> None:
+    from realitygap.diagnosis.logs.log import Log
+    from realitygap.diagnosis.logs.pieces import drop_short_pieces
+
+    def log(name: str, seconds: float, piece_of: str | None = None) -> Log:
+        t = np.arange(0, seconds, 0.05)
+        meta = {"name": name, **({"piece_of": piece_of} if piece_of else {})}
+        return Log(t=t, channels={"cmd": np.zeros((t.size, 2))}, meta=meta)
+
+    said: list[str] = []
+    train, held = drop_short_pieces(
+        [log("a_part-1", 10.0, "a"), log("a_part-2", 0.43, "a"), log("b", 0.43)],
+        [log("c_part-1", 0.5, "c")],
+        2.0,
+        said.append,
+    )
+    # the importer's short piece goes, the user's own short log stays (and is refused later
+    # with its own message); held-out pieces all too short: the training is split instead
+    assert [lg.name for lg in train] == ["a_part-1", "b"] and held is None
+    assert any("a_part-2" in s and "set aside" in s for s in said)
+    with pytest.raises(LogError, match="every training log is a piece too short"):
+        drop_short_pieces([log("a_part-2", 0.43, "a")], None, 2.0, said.append)
+
+
+def test_effects_outside_the_default_library_are_accepted_when_named() -> None:
+    from realitygap.diagnosis.adapters.registry import get_adapter
+    from realitygap.diagnosis.diagnose import DiagnosisSettings, candidate_library
+    from realitygap.robots.effects import EFFECTS, library
+
+    outside = [
+        n for n, c in EFFECTS.items() if c.robot == "diffdrive" and n not in library("diffdrive")
+    ]
+    assert outside, "the test needs an effect outside the default library"
+    s = DiagnosisSettings(effects=(outside[0], "truth_frame_offset"))
+    assert candidate_library(get_adapter("diffdrive"), s) == (outside[0], "truth_frame_offset")
+    with pytest.raises(ValueError, match=r"unknown effect.*'truth_frame_ofset'.*did you mean"):
+        candidate_library(
+            get_adapter("diffdrive"), DiagnosisSettings(effects=("truth_frame_ofset",))
+        )
