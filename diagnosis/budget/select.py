@@ -5,8 +5,12 @@ top of the effects already chosen, and adds the best one if the data hold it up.
 candidate :math:`c` added to the current model :math:`M`:
 
 1. **Fit at its own scale.** The parameters of :math:`c` are fitted on all training
-   windows together with those of :math:`M` that act at the same scale (the others
-   held): an entry that stood in for part of :math:`c` moves back as :math:`c` enters.
+   windows with those of :math:`M` held, except that a run-scale candidate is fitted
+   together with the run-scale entries of :math:`M` (geometric factors add up through the
+   same integrated motion: an entry that stood in for part of :math:`c` moves back as
+   :math:`c` enters); its gains are then measured against :math:`M` with those entries
+   refitted the same way without :math:`c` (:func:`_reference`), so that :math:`c` is
+   credited only with what it adds.
    An effect that acts at
    run scale (``Effect.scale == "run"``: a wheel size, a wheelbase, an encoder's scale) on
    the run cells of :class:`~realitygap.diagnosis.budget.folds.RunCells`, where it adds up
@@ -263,12 +267,14 @@ def _gn_step(
 def _try(problem: Problem, shared: tuple[Any, ...], effect: str) -> Trial:
     """Fit ``effect`` on top of the held values, then its leave-one-fold-out scores.
 
-    ``shared`` may end with the keys of the effects already chosen: those of them fitted at
-    the candidate's scale are fitted with it (the model with the candidate, not the candidate
-    alone on the others' values): an entry that stood in for part of the candidate — a
-    wheelbase factor that took up a wheel-scale error through the heading — moves back when
-    the candidate enters, as the joint refit after the entry would move it. Only the
-    candidate's parameters are reported."""
+    ``shared`` may end with the keys of the effects already chosen. A candidate that acts on
+    whole runs is fitted together with the chosen ones that act on whole runs (the model with
+    the candidate, not the candidate alone on the others' values): geometric factors add up
+    over a run through the same integrated motion, so an entry stood in for part of the
+    candidate — a wheelbase factor that took up a wheel-scale error through the heading —
+    and moves back when the candidate enters. Window effects (lags, slips, clocks) stay held:
+    refitted beside each other they trade places among aliases rather than reveal a missed
+    one. Only the candidate's parameters are reported."""
     held, starts, scorer, integrates, z_cur, *more = shared
     entered: tuple[str, ...] = tuple(more[0]) if more else ()
     scale = effect_scale(effect) if integrates else "window"
@@ -277,9 +283,10 @@ def _try(problem: Problem, shared: tuple[Any, ...], effect: str) -> Trial:
     co = tuple(
         k
         for k in entered
-        if k not in own
+        if scale == "run"
+        and k not in own
         and k in held
-        and (effect_scale(split_key(k)[0]) if integrates else "window") == scale
+        and effect_scale(split_key(k)[0]) == "run"
     )
     keys = own + co
     tr = problem.train
@@ -473,6 +480,56 @@ def _try(problem: Problem, shared: tuple[Any, ...], effect: str) -> Trial:
     )
 
 
+def _reference(
+    problem: Problem,
+    held: Mapping[str, float],
+    entered: Sequence[str],
+    scale: str,
+    scorer: Scorer,
+    integrates: bool,
+) -> tuple[FloatArray, dict[str, FloatArray]] | None:
+    """The current model's fold and regime scores with its entries of ``scale`` refitted on
+    that scale's reading, as :func:`_try` refits them beside a candidate (``None`` when none
+    is at that scale): the reference a candidate's gains are measured against, so that a
+    candidate is credited with what it adds, not with what refitting the others alone does."""
+    co = [
+        k
+        for k in entered
+        if scale == "run" and integrates and k in held and effect_scale(split_key(k)[0]) == "run"
+    ]
+    if not co:
+        return None
+    tr = problem.train
+    cells = scorer.cells
+    fixed = {k: np.array([v]) for k, v in held.items() if k not in co}
+    on_cells = scale == "run" and cells is not None
+
+    def residual(u: FloatArray) -> FloatArray:
+        vals = dict(fixed)
+        for j, k in enumerate(co):
+            vals[k] = from_range_position(k, u[j : j + 1])
+        return problem.surrogate_residuals(tr, vals, 1)[0]
+
+    def fun(u: FloatArray) -> FloatArray:
+        z = residual(u)
+        return cells(z) if on_cells and cells is not None else z
+
+    u0 = np.clip([range_position(k, held[k]) for k in co], 1e-9, 1 - 1e-9)
+    res = least_squares(
+        fun,
+        u0,
+        bounds=(np.zeros(len(co)), np.ones(len(co))),
+        x_scale=0.1,
+        diff_step=1e-3,
+        loss="linear" if scale == "run" else problem.settings.loss,
+        f_scale=scorer.c,
+        max_nfev=20 * (len(co) + 1),
+        method="trf",
+    )
+    z = residual(res.x)
+    return scorer.score(z), scorer.regime_scores(z, tr.regime)
+
+
 def _try_task(shared: tuple[Any, ...], effect: str) -> Trial:
     problem, rest = shared[0], shared[1:]
     return _try(problem, rest, effect)
@@ -556,15 +613,21 @@ def forward_select(
             (problem, dict(held), starts, scorer, integrates, z_cur, entered),
         )
         m = len(trials)
+        refs = {
+            sc: _reference(problem, held, entered, sc, scorer, integrates)
+            for sc in {tri.scale for tri in trials}
+        }
         for tri in trials:
-            tri.gains = fold_gains(current, tri.fold_scores)
+            ref = refs.get(tri.scale)
+            ref_scores, ref_regimes = ref if ref is not None else (current, current_regimes)
+            tri.gains = fold_gains(ref_scores, tri.fold_scores)
             # only the folds that exercise the effect are evidence, either way
             exercised = tri.exposure >= problem.settings.floor if tri.exposure.size else None
             tested = tri.gains[exercised] if exercised is not None else tri.gains
             tri.t, tri.p = paired_test(tested) if tested.size >= MIN_TESTED else (0.0, 1.0)
             worse = []
             for r, s in tri.regime_scores.items():
-                base_r = current_regimes.get(r)
+                base_r = ref_regimes.get(r)
                 if base_r is None:
                     continue
                 g = fold_gains(base_r, s)

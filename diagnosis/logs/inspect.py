@@ -566,6 +566,20 @@ def _inspect_one(p: Path, delimiter: str | None, decimal: str | None) -> FileIns
             what = f"UR10 laser-tracker {'set' if p.is_dir() else 'measurement file'}"
             summary = f"{what}: joints and tracker positions, read without a column map"
             return FileInspection(str(p), "ur10", summary, options=["--robot", "arm"])
+        if p.is_file() and _looks_like_ur10(p.parent):
+            # a transform or hand-eye file of a UR10 series: the set's reader reads it
+            note = (
+                f"part of the UR10 laser-tracker series {p.parent}, whose reader takes this "
+                "file with its measurements; no column map"
+            )
+            return FileInspection(
+                str(p),
+                "ur10",
+                "a file of a UR10 series",
+                notes=[note],
+                options=["--robot", "arm"],
+                diagnose=str(p.parent),
+            )
         if kind == "npz":
             with zipfile.ZipFile(p) as zf:
                 kind = "log" if {"t.npy", "meta.json.npy"} <= set(zf.namelist()) else kind

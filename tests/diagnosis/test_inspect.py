@@ -300,6 +300,10 @@ def test_real_optiodom_session_ur10_and_fr3() -> None:
     assert one(session).kind == "optiodom"
     ur10 = one(_data("ipa_ur10_lasertracker/Series_A/measurements_grid.csv"))
     assert ur10.kind == "ur10" and "--robot" in ur10.options
+    # a series' transform file is read with the series (a 4×4 matrix without a last newline
+    # is no cut-off table either)
+    trafo = one(_data("ipa_ur10_lasertracker/Series_A/Trafo_TM_F_init.txt"))
+    assert trafo.kind == "ur10" and trafo.diagnose == str(DATA / "ipa_ur10_lasertracker/Series_A")
     result = inspect_path(_data("franka_fr3_eyeinhand/fr3_calib_data.npz"))
     fr3 = result.files[0]
     assert [fr3.mapping[f"joints.q{j}"] for j in range(1, 8)] == [

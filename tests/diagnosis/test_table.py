@@ -272,3 +272,15 @@ def test_a_multi_rate_file_keeps_its_empty_cells(tmp_path) -> None:
     table = read_table(write(tmp_path / "multi.csv", text))
     assert np.isfinite(table.data).sum(axis=0).tolist() == [5, 3, 2]
     assert math.isnan(table.column("x")[0]) and table.column("enc")[2] == 3
+
+
+def test_a_short_last_number_without_newline_is_no_cut_off_line(tmp_path) -> None:
+    # a 4×4 transform whose last line is '0. 0. 0. 1.' and has no newline: too few lines to
+    # tell a short number from a cut, so it is read
+    path = tmp_path / "T.txt"
+    path.write_text(
+        "-0.0008 0.99 -0. -0.\n-0.99 -0.0008 -0.0008 0.0868\n"
+        "-0.0008 -0.0000006 0.99 -108.99996544\n0. 0. 0. 1."
+    )
+    table = read_table(path)
+    assert table.n_rows == 4 and table.data[3, 3] == 1.0

@@ -605,7 +605,7 @@ def _read_text(
             if i >= n_rows - 21:
                 tail.append([len(c.strip()) for c in fields])
             i += 1
-    if not scan.ends_newline and len(tail) > 1:
+    if not scan.ends_newline and len(tail) > CUT_HISTORY:
         # a writer stopped mid-line leaves every field but the one it was writing complete:
         # only the last field of the last line can be cut (``…,51,6`` for ``…,51,66``); an
         # earlier field that happens to be short (trailing zeros trimmed) is not a cut
@@ -643,6 +643,12 @@ def _rows_after(fh: Any, header_line: int) -> Iterator[tuple[int, str]]:
         text = raw.rstrip("\r\n")
         if _is_significant(text.strip()):
             yield line_no, text
+
+
+CUT_HISTORY = 10
+"""Lines before the last one that its width is judged against: a last field narrower than in
+every one of them (at least this many) looks cut off; against fewer, a short number (``1.``
+under ``-108.99996544``) is as likely as a cut."""
 
 
 def _width_error(
