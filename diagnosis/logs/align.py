@@ -27,7 +27,7 @@ from realitygap.diagnosis.logs.log import Log, LogError
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["BASE_CHANNEL_ORDER", "HELD_CHANNELS", "MIN_PIECE_S", "align_streams"]
+__all__ = ["BASE_CHANNEL_ORDER", "HELD_CHANNELS", "MIN_PIECE_S", "align_streams", "whole"]
 
 BASE_CHANNEL_ORDER = ("ticks", "cmd", "joints", "pose_gt", "pose_est", "pose_cam", "tether")
 """Whose stamps a log of channels at different rates takes: the first present (else the
@@ -155,3 +155,16 @@ def align_streams(
             "Fix: check that the channels' stamps share one clock and unit, or raise --max-gap"
         )
     return out
+
+
+def whole(read: Callable[[Callable[[str], None]], list[Log]], path: Any, reader: str) -> Log:
+    """The one log ``read(warn)`` returns for ``path``, or a :class:`LogError` when the
+    recording's gaps cut it (what ``warn`` heard, and ``reader``, which returns the pieces)."""
+    said: list[str] = []
+    logs = read(said.append)
+    if len(logs) != 1 or said:
+        raise LogError(
+            f"{path}: its channels have gaps that cut it ({'; '.join(said)}); read it with "
+            f"{reader} (or the command line), which returns the pieces"
+        )
+    return logs[0]

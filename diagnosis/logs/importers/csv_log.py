@@ -50,6 +50,7 @@ from realitygap.diagnosis.logs.align import (
     HELD_CHANNELS,
     MIN_PIECE_S,
     align_streams,
+    whole,
 )
 from realitygap.diagnosis.logs.importers.column_map import ColumnMap, Source
 from realitygap.diagnosis.logs.importers.table import Table, read_table
@@ -555,22 +556,19 @@ def read_csv_log(
         With the file name and the fix: not a table, missing columns, non-numeric or
         missing values, unknown or mismatched units, non-monotonic time.
     """
-    pieces: list[str] = []
-    logs = read_table_logs(
-        [path],
-        column_map,
-        delimiter=delimiter,
-        decimal=decimal,
-        params=params,
-        meta=meta,
-        nan=nan,
-        robot=robot,
-        duplicates=duplicates,
-        warn=pieces.append,
+    return whole(
+        lambda warn: read_table_logs(
+            [path],
+            column_map,
+            delimiter=delimiter,
+            decimal=decimal,
+            params=params,
+            meta=meta,
+            nan=nan,
+            robot=robot,
+            duplicates=duplicates,
+            warn=warn,
+        ),
+        path,
+        "read_table_logs",
     )
-    if len(logs) != 1 or pieces:
-        raise LogError(
-            f"{path}: its channels have gaps that split it ({'; '.join(pieces)}); read it with "
-            "read_table_logs (or the command line), which returns the pieces"
-        )
-    return logs[0]

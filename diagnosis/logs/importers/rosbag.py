@@ -37,7 +37,7 @@ import numpy.typing as npt
 
 from realitygap.core.checks import check_rows_limit
 from realitygap.core.geometry import yaw_from_quat_xyzw
-from realitygap.diagnosis.logs.align import align_streams
+from realitygap.diagnosis.logs.align import align_streams, whole
 from realitygap.diagnosis.logs.log import Log, LogError, sniff_file_kind
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.diffdrive_replay import params_to_meta
@@ -149,22 +149,19 @@ def read_bag(
 ) -> Log:
     """Read a bag into one :class:`Log` (:func:`read_bag_logs`; an error if a topic's gaps
     would cut it into pieces)."""
-    said: list[str] = []
-    logs = read_bag_logs(
+    return whole(
+        lambda warn: read_bag_logs(
+            path,
+            topics,
+            rate_hz=rate_hz,
+            params=params,
+            meta=meta,
+            use_header_stamps=use_header_stamps,
+            warn=warn,
+        ),
         path,
-        topics,
-        rate_hz=rate_hz,
-        params=params,
-        meta=meta,
-        use_header_stamps=use_header_stamps,
-        warn=said.append,
+        "read_bag_logs",
     )
-    if len(logs) != 1 or said:
-        raise LogError(
-            f"{path}: its topics have gaps that cut it ({'; '.join(said)}); read it with "
-            "read_bag_logs (or the command line), which returns the pieces"
-        )
-    return logs[0]
 
 
 def read_bag_logs(
