@@ -87,6 +87,21 @@ class BudgetEntry:
     def constant(self) -> bool:
         return bool(self.stability.get("constant", True))
 
+    @property
+    def carries(self) -> bool:
+        """Whether the entry helps the held-out data at some scale: an entry whose held-out
+        share lies wholly below zero at every scale (its 95 % interval included) made the
+        held-out runs worse — fitted on the training runs, it does not carry over."""
+        if not self.interval:
+            return True
+        return any(iv[1] > 0.0 for iv in self.interval.values())
+
+    @property
+    def named(self) -> bool:
+        """Named as a finding: one value across sessions (:attr:`constant`) that carries over
+        to the held-out runs (:attr:`carries`)."""
+        return self.constant and self.carries
+
     def to_json(self) -> dict[str, Any]:
         return {
             "effect": self.effect,
@@ -106,7 +121,8 @@ class BudgetEntry:
             "p_value": self.p_value,
             "aliases": list(self.aliases),
             "stability": self.stability,
-            "named": self.constant,
+            "named": self.named,
+            "carries_over": self.carries,
         }
 
 
@@ -126,7 +142,7 @@ class Budget:
 
     @property
     def named(self) -> tuple[str, ...]:
-        return tuple(e.effect for e in self.entries if e.constant)
+        return tuple(e.effect for e in self.entries if e.named)
 
     @property
     def unexplained_share(self) -> float:
@@ -195,8 +211,13 @@ def kind_of(
     entries: Sequence[BudgetEntry], remainder: Mapping[str, Mapping[str, float]], structured: bool
 ) -> tuple[str, str]:
     """The budget's kind and the rule that set it (module docstring)."""
-    named = [e.effect for e in entries if e.constant]
+    named = [e.effect for e in entries if e.named]
     if not named:
+        if any(e.constant and not e.carries for e in entries):
+            return "unexplained", (
+                "the effects fitted on the training runs make the held-out runs worse: they do "
+                "not carry over"
+            )
         if entries:
             return "unexplained", (
                 "effects explain part of the gap but none holds one value across "

@@ -117,12 +117,15 @@ def _waterfall(d: Diagnosis, out: Path, prefix: str, plt: Any) -> tuple[str, str
             lo, hi = b.interval_of(e, sc)
             start = left - share
             ax.barh(y, share, left=start, color="tab:green" if share >= 0 else "tab:gray",
-                    alpha=0.9 if e.constant else 0.45)  # fmt: skip
+                    alpha=0.9 if e.named else 0.45)  # fmt: skip
             ax.errorbar([start], [y], xerr=[[max(0.0, hi - share)], [max(0.0, share - lo)]],
                         fmt="none", ecolor="k", capsize=3, lw=0.8)  # fmt: skip
             ax.text(min(left, 100.0) + 1.0, y, f"{share:.0f} % [{lo:.0f}, {hi:.0f}]", va="center",
                     fontsize=7)  # fmt: skip
-            labels.append(e.effect.replace("_", " ") + ("" if e.constant else " (varies)"))
+            labels.append(
+                e.effect.replace("_", " ")
+                + ("" if e.named else " (varies)" if not e.constant else " (does not carry over)")
+            )
             left = start
             y += 1
         ax.barh(y, rem["noise_pct"], color="tab:blue", alpha=0.6, label="sensor noise")

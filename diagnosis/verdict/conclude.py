@@ -31,7 +31,7 @@ def confidence_of(budget: Budget) -> Confidence:
     """The confidence of a budget's first named effect: not identifiable when it has
     aliases, else graded by its cross-validated test's p-value (strong below 10⁻⁴, moderate
     below 10⁻², weak above); not applicable when nothing is named."""
-    named = [e for e in budget.entries if e.constant]
+    named = [e for e in budget.entries if e.named]
     if not named:
         return Confidence.NOT_APPLICABLE
     first = named[0]
@@ -80,7 +80,7 @@ def conclude(
     """
     kind = VerdictKind(budget.kind)
     named = budget.named if kind in (VerdictKind.EFFECTS, VerdictKind.PARTIAL) else ()
-    first = next((e for e in budget.entries if e.constant), None)
+    first = next((e for e in budget.entries if e.named), None)
     notes = VerdictNotes(
         verdict_text=budget.sentence(gap_words),
         aliases=tuple(aliases),

@@ -130,7 +130,7 @@ def alias_notes(
     """The first named entry's aliases (effects whose cross-validated gain at its step is
     not significantly smaller), each with why and, where the logged motions cannot tell
     the two apart, the manoeuvre that would (from the single fits of the ranking)."""
-    first = next((e for e in budget.entries if e.constant), None)
+    first = next((e for e in budget.entries if e.named), None)
     if first is None:
         return []
     singles = {f.effects[0]: f for f in ranking if len(f.effects) == 1}

@@ -58,7 +58,7 @@ def _lag_gain(tau: Any, dt: float) -> Any:
 def _inverse_rate(t_per_unit: Any) -> Any:
     """Rate limit from its inverse (time per unit change): ``1 / t``, infinite at ``t = 0``."""
     t = np.asarray(t_per_unit, dtype=float)
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", over="ignore"):  # a subnormal t: an infinite rate, as t = 0
         return np.where(t > 0.0, 1.0 / np.where(t > 0.0, t, 1.0), np.inf)
 
 

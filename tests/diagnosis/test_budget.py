@@ -3,6 +3,7 @@ rule on planted logs (a geometry effect named with its value; a nominal robot: n
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 
@@ -149,6 +150,21 @@ def test_one_rule_sets_the_kind(
     }
     got, rule = kind_of([_entry(c) for c in entries], rem, structured)
     assert got == kind and rule
+
+
+def test_an_entry_that_worsens_the_held_out_runs_is_not_named() -> None:
+    worse = dataclasses.replace(_entry(), share={"run": -38.0}, interval={"run": (-54.0, -25.0)})
+    assert worse.constant and not worse.carries and not worse.named
+    rem = {"run": {"remaining_pct": 138.0, "noise_pct": 0.0, "structured_pct": 138.0}}
+    got, rule = kind_of([worse], rem, True)
+    assert got == "unexplained" and "do not carry over" in rule
+    # an interval that reaches above zero at some scale still carries
+    mixed = dataclasses.replace(
+        worse,
+        share={"run": -5.0, "window": 2.0},
+        interval={"run": (-9.0, -1.0), "window": (-1.0, 4.0)},
+    )
+    assert mixed.carries and mixed.named
 
 
 # --------------------------------------------------------------------------- on planted logs
