@@ -64,7 +64,7 @@ from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
-from collections.abc import Iterable, Sequence
+from collections.abc import Collection, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from xml.parsers import expat
@@ -260,6 +260,22 @@ class UrdfModel:
                 "no such link",
                 f"use one of {_listing(self.links)}",
             )
+
+
+def _unique_name(source: str, el: ET.Element, kind: str, seen: Collection[str]) -> str:
+    """The ``name`` of a ``<link>`` or ``<joint>`` element, refused when absent or repeated."""
+    name = el.get("name")
+    if not name:
+        raise _error(source, f"<{kind}>", "a name attribute", "none", f"name the {kind}")
+    if name in seen:
+        raise _error(
+            source,
+            f"{kind} '{name}'",
+            f"a unique {kind} name",
+            f"a second {kind} of that name",
+            "rename or remove one of them",
+        )
+    return str(name)
 
 
 def _listing(names: Iterable[str], limit: int = 40) -> str:
@@ -560,17 +576,7 @@ def parse_urdf(path: str | Path) -> UrdfModel:
         )
     links: dict[str, UrdfLink] = {}
     for el in root.findall("link"):
-        name = el.get("name")
-        if not name:
-            raise _error(source, "<link>", "a name attribute", "none", "name the link")
-        if name in links:
-            raise _error(
-                source,
-                f"link '{name}'",
-                "a unique link name",
-                "a second link of that name",
-                "rename or remove one of them",
-            )
+        name = _unique_name(source, el, "link", links)
         links[name] = _parse_link(source, el, name)
     if not links:
         raise _error(
@@ -586,17 +592,7 @@ def parse_urdf(path: str | Path) -> UrdfModel:
     parent_joint: dict[str, UrdfJoint] = {}
     child_joints: dict[str, list[UrdfJoint]] = {}
     for el in root.findall("joint"):
-        name = el.get("name")
-        if not name:
-            raise _error(source, "<joint>", "a name attribute", "none", "name the joint")
-        if name in joints:
-            raise _error(
-                source,
-                f"joint '{name}'",
-                "a unique joint name",
-                "a second joint of that name",
-                "rename or remove one of them",
-            )
+        name = _unique_name(source, el, "joint", joints)
         j = _parse_joint(source, el, name, links)
         if j.child in parent_joint:
             raise _error(

@@ -28,13 +28,12 @@ import numpy as np
 
 from realitygap.diagnosis.logs.guesses import (
     _TIME_FACTOR,
+    cumulative,
+    name_meaning,
+    name_unit,
+    time_unit,
+    turn_agreement,
 )
-from realitygap.diagnosis.logs.guesses import CUMULATIVE_SPAN_STEPS as CUMULATIVE_SPAN_STEPS
-from realitygap.diagnosis.logs.guesses import cumulative as _cumulative
-from realitygap.diagnosis.logs.guesses import name_meaning as _name_meaning
-from realitygap.diagnosis.logs.guesses import name_unit as _name_unit
-from realitygap.diagnosis.logs.guesses import time_unit as _time_unit
-from realitygap.diagnosis.logs.guesses import turn_agreement as _turn_agreement
 from realitygap.diagnosis.logs.importers.table import DELIMITERS, Table, read_table
 from realitygap.diagnosis.logs.log import LogError, sniff_file_kind, standard_channels
 
@@ -236,7 +235,7 @@ def _pick_time(table: Table, cols: list[ColumnInfo]) -> int | None:
 
 def _units(c: ColumnInfo, v: np.ndarray, kind: str) -> str:
     """Unit of a column: stated by its name, else from the range of its values."""
-    stated = _name_unit(c.name)
+    stated = name_unit(c.name)
     ok = v[np.isfinite(v)]
     if stated or ok.size == 0:
         return stated
@@ -254,12 +253,12 @@ def _units(c: ColumnInfo, v: np.ndarray, kind: str) -> str:
     return "count" if kind == "ticks" else ""
 
 
-def _encoder_directions(t: Any, enc: list[Any], cumulative: bool, pose: Any) -> list[float]:
+def _encoder_directions(t: Any, enc: list[Any], counts_up: bool, pose: Any) -> list[float]:
     """Net count of each encoder over the rows where the robot moves forward (along its
     heading when ``pose`` has one; any displacement otherwise; every row without a pose)."""
     rows = np.all([np.isfinite(e) for e in enc], axis=0) & np.isfinite(t)
     te = t[rows]
-    inc = [np.diff(e[rows]) if cumulative else e[rows][1:] for e in enc]
+    inc = [np.diff(e[rows]) if counts_up else e[rows][1:] for e in enc]
     ok = np.isfinite(pose[0]) & np.isfinite(pose[1]) & np.isfinite(pose[2]) if pose else None
     if pose is None or ok is None or ok.sum() < 3 or te.size < 3:
         return [float(np.sum(i)) for i in inc]
@@ -293,13 +292,13 @@ def _inspect_table(path: Path, table: Table) -> FileInspection:
     cols = f.columns = [_column_info(table, j) for j in range(len(table.names))]
     details: dict[int, str] = {}
     for c in cols:
-        c.meaning, details[c.index] = _name_meaning(c.name)
+        c.meaning, details[c.index] = name_meaning(c.name)
     tj = _pick_time(table, cols)
     t_s = np.arange(n, dtype=float)
     t_ok = False
     if tj is not None:
         tc = cols[tj]
-        unit, how = _time_unit(table.data[:, tj], _name_unit(tc.name))
+        unit, how = time_unit(table.data[:, tj], name_unit(tc.name))
         tc.meaning, tc.unit, tc.note = "t", unit, tc.note or how
         t_s = (table.data[:, tj] - np.nanmin(table.data[:, tj])) * _TIME_FACTOR[unit]
         steps = np.diff(t_s[np.isfinite(t_s)])
@@ -308,7 +307,7 @@ def _inspect_table(path: Path, table: Table) -> FileInspection:
     for c in cols:  # the other time candidates' own timing
         if c.meaning == "time" and c.index != tj and c.count > 2:
             v = table.data[:, c.index]
-            unit, _ = _time_unit(v, _name_unit(c.name))
+            unit, _ = time_unit(v, name_unit(c.name))
             t_c = (v - np.nanmin(v)) * _TIME_FACTOR[unit]
             f.streams.append(_timing(f"time candidate {c.name} [{unit}]", (c.name,), t_c))
     _assign(table, cols, tj, details, f)
@@ -402,7 +401,7 @@ def _conventions(table: Table, cols: list[ColumnInfo], t_s: Any, f: FileInspecti
         if x is None or y is None or th is None:
             continue
         theta = table.data[:, th.index] * (math.pi / 180.0 if th.unit == "deg" else 1.0)
-        agree = _turn_agreement(table.data[:, x.index], table.data[:, y.index], theta)
+        agree = turn_agreement(table.data[:, x.index], table.data[:, y.index], theta)
         if agree is not None and agree < -0.5:
             th.sign = -1
             use = f"use {chan}.theta=-{_ref(table, th.index)}"
@@ -412,13 +411,13 @@ def _conventions(table: Table, cols: list[ColumnInfo], t_s: Any, f: FileInspecti
     if left is None or right is None:
         return
     enc = [table.data[:, left.index], table.data[:, right.index]]
-    cumulative = _cumulative(enc[0]) and _cumulative(enc[1])
-    left.note = right.note = "cumulative" if cumulative else "counts per row"
+    counts_up = cumulative(enc[0]) and cumulative(enc[1])
+    left.note = right.note = "cumulative" if counts_up else "counts per row"
     found = [(ch, _col(cols, f"{ch}.x"), _col(cols, f"{ch}.y")) for ch in ("pose_gt", "pose_est")]
     ch, x, y = next(((ch, x, y) for ch, x, y in found if x and y), ("", None, None))
     d = table.data
     pose = (t_s, d[:, x.index], d[:, y.index], headings.get(ch)) if x and y else None
-    net = _encoder_directions(t_s, enc, cumulative, pose)
+    net = _encoder_directions(t_s, enc, counts_up, pose)
     big = max(abs(net[0]), abs(net[1]))
     if big == 0 or min(abs(net[0]), abs(net[1])) < 0.3 * big:
         return

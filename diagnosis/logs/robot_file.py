@@ -423,7 +423,9 @@ def description_from_urdf(
                 raise RobotFileError(str(exc)) from None
         else:
             found = "skid_steer" if w.drive == "skid_steer" else "diffdrive"
-            if kind is not None and kind != found and not (kind == "skid_steer"):
+            # a skid-steer may be described by a two-wheel URDF (its wheel track); a
+            # differential drive cannot have two wheels per side
+            if kind == "diffdrive" and found == "skid_steer":
                 raise RobotFileError(
                     f"{p}: the robot file says {kind} but the URDF has {w.n_wheels} driven "
                     f"wheels ({w.drive}). Fix: 'robot: {found}'"

@@ -31,7 +31,7 @@ from __future__ import annotations
 import json
 import os
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -213,14 +213,6 @@ class ColumnMap:
                 _add(entries, times, str(target), parse_source(src_text, str(target)))
         return cls(entries, tuple(times), str(raw.get("ticks", "cumulative")))
 
-    def describe(self) -> str:
-        """The map back as text (the form :meth:`parse` reads)."""
-        parts = [f"t={s.text}" for s in self.times]
-        parts += [f"{k}={s.text}" for k, s in self.entries.items()]
-        if self.ticks != "cumulative":
-            parts.append(f"ticks={self.ticks}")
-        return ",".join(parts)
-
 
 def _is_list_of_sources(value: Any) -> bool:
     """Whether a JSON time entry lists one source per file: a list of ``[column, unit]`` lists,
@@ -385,8 +377,3 @@ def parse_source(source: str, target: str) -> Source:
         text=source,
         body=body,
     )
-
-
-def targets_of(cmap: ColumnMap) -> Sequence[str]:
-    """Every target of the map, the time first."""
-    return (["t"] if cmap.times else []) + list(cmap.entries)

@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.core.checks import ResourceLimits, check_regular_file
+from realitygap.core.checks import ResourceLimits
 from realitygap.diagnosis.logs.align import (
     BASE_CHANNEL_ORDER,
     HELD_CHANNELS,
@@ -211,7 +211,7 @@ def _time_of(tab: Table, src: Source | None, robot_rows: bool) -> tuple[FloatArr
     return t, "column"
 
 
-def _dedupe(stream: _Stream, policy: str, chan_cols: Sequence[str]) -> _Stream:
+def _dedupe(stream: _Stream, policy: str) -> _Stream:
     """``stream`` with strictly increasing stamps (``policy`` for repeated ones)."""
     t = stream.t
     step = np.diff(t)
@@ -313,13 +313,6 @@ def read_table_logs(
     if not paths:
         raise LogError("no file given to read")
     files = [Path(p) for p in paths]
-    for p in files:
-        if not p.exists():
-            raise FileNotFoundError(f"file not found: {p}")
-        try:
-            check_regular_file(p, "log file")
-        except ValueError as exc:
-            raise LogError(str(exc)) from None
     cmap = (
         column_map
         if isinstance(column_map, ColumnMap)
@@ -429,7 +422,7 @@ def read_table_logs(
                 "needs at least two. Fix: check the column map"
             )
         s = _Stream(chan, s.table, t_k, vals[keep], s.lines[keep], s.rows[keep])
-        streams[chan] = _dedupe(s, duplicates, standard_channels()[chan].columns)
+        streams[chan] = _dedupe(s, duplicates)
 
     # ---- angles continuous, encoder increments accumulated (on each channel's own samples)
     for chan, s in streams.items():
@@ -481,35 +474,13 @@ def read_table_logs(
 def _time_quantum(tab: Table, src: Source) -> tuple[int, float]:
     """The decimals and the resolution (s) the time column was written with (text files),
     else ``(0, 0.0)``."""
-    if tab.kind != "text" or not isinstance(src.column, (str, int)):
+    if not tab.decimals or src.column is None:
         return 0, 0.0
-    try:
-        with open(tab.source, encoding="utf-8-sig", errors="replace") as fh:
-            head = [fh.readline() for _ in range(80 + len(tab.skipped))]
-    except OSError:
-        return 0, 0.0
-    j = tab.index(src.column)
-    wanted = set(int(x) for x in tab.lines[:40])
-    decimals = 0
-    for no, line in enumerate(head, start=1):
-        if no not in wanted:
-            continue
-        cells = _split(line, tab.delimiter)
-        if len(cells) > j:
-            decimals = max(decimals, len(cells[j].strip().partition(".")[2]))
+    decimals = tab.decimals[tab.index(src.column)]
     if decimals == 0:
         return 0, 0.0
     q = 10.0**-decimals * abs(src.factor)
     return decimals, float(convert_units(q, src.unit or "s", "s"))
-
-
-def _split(line: str, delimiter: str | None) -> list[str]:
-    body = line.strip()
-    if delimiter in (None, " "):
-        return body.split()
-    if delimiter == "|":
-        return [c for c in body.strip("|").split("|")]
-    return body.split(delimiter)
 
 
 def _meta(

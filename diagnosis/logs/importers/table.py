@@ -59,7 +59,6 @@ import difflib
 import math
 import os
 import re
-import zipfile
 from collections import Counter
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -124,6 +123,10 @@ class Table:
     has_header : bool
     text_columns : mapping of str to (int, str)
         Column name → (line, text) of its first cell that is not a number.
+    decimals : tuple of int
+        Text files: per column, the most digits written after the decimal mark in the
+        first :data:`DECIMALS_ROWS` rows (the resolution the values were written with);
+        empty for binary files.
     """
 
     source: Path
@@ -136,6 +139,7 @@ class Table:
     skipped: tuple[str, ...] = ()
     has_header: bool = True
     text_columns: Mapping[str, tuple[int, str]] = field(default_factory=dict)
+    decimals: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         data = np.asarray(self.data, dtype=np.float64).view()
@@ -540,9 +544,13 @@ def read_table(
     if kind == "text":
         return _read_text(p, delimiter, decimal, lim)
     if magic.startswith(b"MATLAB") or (kind == "binary" and p.suffix.lower() == ".mat"):
-        return _read_mat(p, lim)
+        from realitygap.diagnosis.logs.importers.table_arrays import read_mat
+
+        return _arrays_table(p, "mat", *read_mat(p, lim))
     if kind == "npz":
-        return _read_npz(p, lim)
+        from realitygap.diagnosis.logs.importers.table_arrays import read_npz
+
+        return _arrays_table(p, "npz", *read_npz(p, lim))
     hints = {
         "npy": "a single NumPy array (.npy). Fix: save it in an archive, np.savez(path, name=a)",
         "rosbag1": "a ROS 1 bag, read by the bag importer (realitygap diagnose BAG …)",
@@ -582,6 +590,7 @@ def _read_text(
     comma = lay.decimal == ","
     tail: list[list[int]] = []
     i = 0
+    digits = [0] * width
     with open(path, encoding=encoding, newline="") as fh:
         for line_no, raw in _rows_after(fh, lay.header_line):
             fields = split(raw)
@@ -602,6 +611,9 @@ def _read_text(
                         text_columns.setdefault(names[j], (line_no, cell.strip()))
                     row[j] = value
             lines[i] = line_no
+            if i < DECIMALS_ROWS:
+                for j, cell in enumerate(fields):
+                    digits[j] = max(digits[j], len(cell.strip().partition(lay.decimal)[2]))
             if i >= n_rows - 21:
                 tail.append([len(c.strip()) for c in fields])
             i += 1
@@ -632,6 +644,7 @@ def _read_text(
         skipped=lay.skipped,
         has_header=lay.names is not None,
         text_columns=text_columns,
+        decimals=tuple(digits),
     )
 
 
@@ -644,6 +657,9 @@ def _rows_after(fh: Any, header_line: int) -> Iterator[tuple[int, str]]:
         if _is_significant(text.strip()):
             yield line_no, text
 
+
+DECIMALS_ROWS = 40
+"""Rows whose cells give each column's written resolution (:attr:`Table.decimals`)."""
 
 CUT_HISTORY = 10
 """Lines before the last one that its width is judged against: a last field narrower than in
@@ -674,124 +690,18 @@ def _width_error(
     )
 
 
-# ------------------------------------------------------------------------------ binary
-def _read_mat(path: Path, lim: ResourceLimits) -> Table:
-    from scipy.io import loadmat, whosmat
-    from scipy.io.matlab import matfile_version
-
-    try:
-        major, _ = matfile_version(str(path))
-    except Exception as exc:  # scipy raises several types on foreign content
-        raise LogError(f"{path}: not a readable MATLAB file ({exc})") from None
-    if major == 2:
-        raise LogError(
-            f"{path}: a MATLAB v7.3 file (HDF5), which this reader does not open. Fix: save it "
-            "again in MATLAB with save(FILE, ..., '-v7'), or export CSV (writetable)"
-        )
-    try:
-        listing = whosmat(str(path))
-        cells = sum(int(np.prod(shape, dtype=np.float64)) for _, shape, _ in listing)
-        check_rows_limit(cells, 1, f"{path} (all variables together)", lim)
-        raw = loadmat(str(path), squeeze_me=True, struct_as_record=False)
-    except ValueError as exc:
-        raise LogError(f"{path}: {exc}") from None
-    except Exception as exc:  # a damaged file: scipy raises many types
-        raise LogError(f"{path}: unreadable MATLAB file ({type(exc).__name__}: {exc})") from None
-    arrays = [(k, v) for k, v in raw.items() if not k.startswith("__")]
-    return _arrays_table(path, "mat", arrays, lim)
-
-
-def _read_npz(path: Path, lim: ResourceLimits) -> Table:
-    from realitygap.diagnosis.logs.importers.archive import ArchiveError, read_log_archive
-
-    try:
-        with zipfile.ZipFile(path) as zf:
-            members = set(zf.namelist())
-        if {"t.npy", "meta.json.npy"} <= members:
-            raise LogError(
-                f"{path}: a saved realitygap log (Log.save), not a table; it needs no column "
-                f"map: read it with read_logs (realitygap diagnose {path})"
-            )
-        raw = read_log_archive(path, lim)
-    except zipfile.BadZipFile as exc:
-        raise LogError(f"{path}: unreadable or truncated .npz archive ({exc})") from None
-    except ArchiveError as exc:
-        raise LogError(str(exc).replace("; not a realitygap log", "")) from None
-    return _arrays_table(path, "npz", list(raw.items()), lim)
-
-
-def _collect(
-    name: str, value: Any, out: list[tuple[str, np.ndarray]], notes: list[str], depth: int = 0
-) -> None:
-    """Numeric vectors and matrices of one variable (struct fields recursively)."""
-    if hasattr(value, "_fieldnames") and depth < 4:  # a MATLAB struct
-        for f in value._fieldnames:
-            _collect(f"{name}.{f}", getattr(value, f), out, notes, depth + 1)
-        return
-    if isinstance(value, str):
-        notes.append(f"variable {name} not read: text")
-        return
-    arr = np.asarray(value)
-    arr = np.squeeze(arr) if arr.ndim > 1 else arr
-    if arr.dtype.kind not in "biuf":
-        what = {"c": "complex numbers", "O": "a cell or struct array", "U": "text", "S": "text"}
-        notes.append(f"variable {name} not read: {what.get(arr.dtype.kind, str(arr.dtype))}")
-    elif arr.ndim == 0 or arr.size == 1:
-        notes.append(f"variable {name} not read: a single value ({arr.reshape(-1)[0]!r:.30})")
-    elif arr.ndim > 2:
-        shape = "×".join(map(str, arr.shape))
-        notes.append(f"variable {name} ({shape}) not read: a {arr.ndim}-D array, not columns")
-    else:
-        out.append((name, arr))
-
-
 def _arrays_table(
-    path: Path, kind: str, arrays: list[tuple[str, Any]], lim: ResourceLimits
+    path: Path, kind: str, names: list[str], data: np.ndarray, notes: tuple[str, ...]
 ) -> Table:
-    found: list[tuple[str, np.ndarray]] = []
-    notes: list[str] = []
-    for name, value in arrays:
-        _collect(name, value, found, notes)
-    lengths = {a.shape[0] for _, a in found if a.ndim == 1}
-    columns: list[tuple[str, np.ndarray]] = []
-    for name, a in found:
-        if a.ndim == 1:
-            columns.append((name, a))
-            continue
-        rows_first = a.shape[0] in lengths or not (
-            a.shape[1] in lengths or (a.shape[0] <= 16 and a.shape[1] >= 10 * a.shape[0])
-        )
-        m = a if rows_first else a.T
-        if not rows_first:
-            notes.append(f"matrix {name} ({a.shape[0]}×{a.shape[1]}) read as {m.shape[0]} rows")
-        columns += [(f"{name}[{j}]", m[:, j]) for j in range(m.shape[1])]
-    if not columns:
-        listing = "; ".join(notes) or "none"
-        raise LogError(
-            f"{path}: no numeric vector or matrix to read as columns (variables: {listing}). "
-            "Fix: store the signals as numeric vectors of one length, or export CSV"
-        )
-    n = max(len(c) for _, c in columns)
-    for name, c in columns:
-        if len(c) != n:
-            notes.append(
-                f"variable {name} ({len(c)} rows) not read: its length differs from the "
-                f"{n} rows of the table"
-            )
-    keep = [(name, c) for name, c in columns if len(c) == n]
-    try:
-        check_rows_limit(n, len(keep), str(path), lim)
-    except ValueError as exc:
-        raise LogError(str(exc)) from None
-    data = np.column_stack([np.asarray(c, dtype=np.float64) for _, c in keep])
+    """The :class:`Table` of a binary file's columns (one row per sample)."""
     return Table(
         source=path,
-        names=_unique([name for name, _ in keep]),
+        names=_unique(names),
         data=data,
-        lines=np.arange(1, n + 1, dtype=np.int64),
+        lines=np.arange(1, data.shape[0] + 1, dtype=np.int64),
         kind=kind,
         delimiter=None,
         decimal=".",
-        skipped=tuple(notes),
+        skipped=notes,
         has_header=True,
     )
