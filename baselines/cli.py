@@ -20,6 +20,13 @@ from pathlib import Path
 from typing import Any
 
 from realitygap.core.checks import int_option
+from realitygap.core.outputs import Outputs, command_line
+from realitygap.core.parallel import cap_workers
+
+DEFAULT_EVAL_EVERY = 50_000
+"""``--eval-every`` when not given (a shorter budget just has no evaluation before the end)."""
+DEFAULT_CHECKPOINT_EVERY = 100_000
+"""``--checkpoint-every`` when not given."""
 
 
 def show_progress(logger_name: str, stream: Any) -> None:
@@ -84,8 +91,8 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument(
         "--workers",
         type=int_option(1),
-        default=1,
-        help="local worker processes (default 1: in-process)",
+        default=None,
+        help="local worker processes (default 1: in-process; --backend local only)",
     )
     p.add_argument("--fresh", action="store_true", help="discard finished episodes in --out")
     p.add_argument(
@@ -98,9 +105,13 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
         "--train-timesteps",
         type=int_option(1),
         default=None,
-        help="training budget (default: files)",
+        help="training budget with --train (default: files)",
     )
-    p.add_argument("--train-seeds", default="0", help="training seeds, comma-separated")
+    p.add_argument(
+        "--train-seeds",
+        default=None,
+        help="training seeds with --train, comma-separated (default 0)",
+    )
     p.add_argument("--silent", action="store_true", help="no progress output")
     p.set_defaults(func=cmd_benchmark)
     return p
@@ -142,13 +153,16 @@ def add_train_parser(subparsers: Any) -> argparse.ArgumentParser:
         ),
     )
     p.add_argument(
-        "--eval-every", type=int_option(1), default=50_000, help="steps between evaluations"
+        "--eval-every",
+        type=int_option(1),
+        default=None,
+        help=f"steps between evaluations (default {DEFAULT_EVAL_EVERY}; at most --timesteps)",
     )
     p.add_argument(
         "--checkpoint-every",
         type=int_option(0),
-        default=100_000,
-        help="steps between checkpoints (0: none)",
+        default=None,
+        help=f"steps between checkpoints (0: none; default {DEFAULT_CHECKPOINT_EVERY})",
     )
     p.add_argument("--eval-episodes", type=int_option(1), default=20)
     p.add_argument(
@@ -162,21 +176,36 @@ def add_train_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 # --------------------------------------------------------------------------- commands
-def cmd_train(args: argparse.Namespace) -> int:
-    from realitygap.baselines import rl
+def _error(exc: BaseException) -> int:
+    print(f"error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
+    return 2
 
-    try:
-        vector = bool(getattr(args, "vector", False))
-        by_vector = {v: k for k, v in rl.VECTOR_ENVS.items()}
-        env_arg = by_vector.get(args.env, by_vector.get(f"realitygap/{args.env}", args.env))
-        vector = vector or env_arg != args.env
-        env_id = rl.check_env_id(env_arg)
-        hp_id = rl.vector_env_id(env_id) if vector else env_id
-        hp = rl.load_hyperparams(args.algo, hp_id, args.hyperparams)
-        rl.require_sb3()
-    except (ValueError, KeyError, FileNotFoundError, ImportError) as exc:
-        print(f"error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
-        return 2
+
+def _warn(message: str) -> None:
+    print(f"warning: {message}", file=sys.stderr, flush=True)
+
+
+def train_config_from_args(args: argparse.Namespace) -> tuple[Any, Any]:
+    """The checked :class:`~realitygap.baselines.rl.TrainConfig` of ``realitygap train`` and
+    its :class:`~realitygap.baselines.rl.checks.TrainPlan`: every option, the hyperparameter
+    file, the model to continue and the cost of the envs checked, nothing started.
+
+    Raises
+    ------
+    ValueError, TypeError, KeyError, FileNotFoundError, ImportError
+        A bad option, naming it.
+    """
+    from realitygap.baselines import rl
+    from realitygap.baselines.rl.checks import check_training
+
+    vector = bool(getattr(args, "vector", False))
+    by_vector = {v: k for k, v in rl.VECTOR_ENVS.items()}
+    env_arg = by_vector.get(args.env, by_vector.get(f"realitygap/{args.env}", args.env))
+    vector = vector or env_arg != args.env
+    env_id = rl.check_env_id(env_arg)
+    hp_id = rl.vector_env_id(env_id) if vector else env_id
+    hp = rl.load_hyperparams(args.algo, hp_id, args.hyperparams)
+    rl.require_sb3()
     out = (
         Path(args.out)
         if args.out
@@ -191,51 +220,152 @@ def cmd_train(args: argparse.Namespace) -> int:
         n_envs=args.n_envs,
         vec_env=args.vec_env,
         hyperparams=hp,
-        eval_every=args.eval_every,
-        checkpoint_every=args.checkpoint_every,
+        eval_every=DEFAULT_EVAL_EVERY if args.eval_every is None else args.eval_every,
+        checkpoint_every=(
+            DEFAULT_CHECKPOINT_EVERY if args.checkpoint_every is None else args.checkpoint_every
+        ),
         eval_episodes=args.eval_episodes,
-        init_model=Path(args.init_model) if args.init_model else None,
+        init_model=Path(args.init_model) if args.init_model is not None else None,
         vector=vector,
     )
+    explicit = [
+        name
+        for name, given in (
+            ("eval_every", args.eval_every is not None),
+            ("checkpoint_every", args.checkpoint_every is not None),
+        )
+        if given
+    ]
+    return cfg, check_training(cfg, explicit=explicit, warn=_warn)
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from realitygap.baselines import rl
+
+    try:
+        cfg, _ = train_config_from_args(args)  # every input, before any work
+    except (ValueError, TypeError, KeyError, FileNotFoundError, ImportError) as exc:
+        return _error(exc)
+    outputs = Outputs(overwrite=args.overwrite, command=command_line())
+    try:
+        outputs.workdir(cfg.out_dir, "--out")
+    except ValueError as exc:
+        return _error(exc)
+    with outputs:
+        return _train(args, rl, cfg)
+
+
+def _train(args: argparse.Namespace, rl: Any, cfg: Any) -> int:
     show_progress("realitygap.baselines.rl", sys.stdout)
     try:
         result = rl.train(cfg)
     except (ValueError, FileNotFoundError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return _error(exc)
     print(f"model: {result.model_path}\nwall-clock: {result.wall_seconds / 60:.1f} min")
     for key, value in result.final_eval.items():
         print(f"final eval {key}: {value:.3f}")
     if args.ship:
-        dest = rl.ship_policy(out, env_id, args.algo, "vector" if vector else None)
+        dest = rl.ship_policy(cfg.out_dir, cfg.env_id, cfg.algo, "vector" if cfg.vector else None)
         print(f"shipped: {dest}")
     return 0
 
 
-def cmd_benchmark(args: argparse.Namespace) -> int:
+def benchmark_config_from_args(args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
+    """The checked :class:`~realitygap.baselines.benchmark.BenchmarkConfig` of
+    ``realitygap benchmark`` (policies as given: shipped files not yet filled in) and the
+    run's other options, checked: ``backend``, ``workers``, ``address``, and with
+    ``--train`` the seeds and every training run (:func:`plan_training_jobs`).
+
+    Raises
+    ------
+    ValueError, TypeError, FileNotFoundError, ImportError
+        A bad option, naming it.
+    """
     import realitygap
     from realitygap.baselines import benchmark as bm
-    from realitygap.baselines import rl
+    from realitygap.baselines.rl.checks import check_seed_list
+
+    envs = args.envs.strip()
+    env_ids = list(realitygap.ENV_IDS) if envs == "all" else _csv_list(envs)
+    reality = args.reality.strip()
+    realities = [] if reality in ("none", "") else _csv_list(reality)
+    if args.workers is not None and args.backend == "ray":
+        raise ValueError(
+            f"--workers {args.workers} sets local worker processes, but --backend ray runs on "
+            "the Ray cluster's CPUs. Fix: drop --workers, or use --backend local"
+        )
+    workers = bm.check_run_options(args.backend, args.workers or 1, args.address)
+    if not args.train:
+        for option, value in (
+            ("--train-seeds", args.train_seeds),
+            ("--train-timesteps", args.train_timesteps),
+        ):
+            if value is not None:
+                raise ValueError(
+                    f"{option} {value} is a setting of --train, which is not given: nothing is "
+                    f"trained. Fix: add --train, or drop {option}"
+                )
+    seeds = check_seed_list("0" if args.train_seeds is None else args.train_seeds)
+    cfg = bm.BenchmarkConfig(
+        env_ids=tuple(env_ids),
+        policies=tuple(bm.parse_policies(args.policies)),
+        episodes=args.episodes,
+        realities=tuple(realities),
+        sensor_modes=tuple(_csv_list(args.sensor_modes)),
+        seed=args.seed,
+        episode_counts={"image": args.image_episodes} if args.image_episodes is not None else {},
+    )
+    run = {"workers": workers, "seeds": seeds, "jobs": []}
+    if args.train:
+        jobs, notes = plan_training_jobs(
+            cfg.policies, list(cfg.env_ids), seeds, args.train_timesteps, Path(args.out) / "train"
+        )
+        if not jobs:
+            raise ValueError(
+                "--train trains the ppo and sac policies, but "
+                + (
+                    "--policies names neither"
+                    if not any(p.kind in ("ppo", "sac") for p in cfg.policies)
+                    else "no env of --envs has hyperparameters for them"
+                )
+                + ". Fix: add ppo and/or sac to --policies, or drop --train"
+            )
+        run["jobs"] = jobs
+        run["notes"] = notes
+    return cfg, run
+
+
+def cmd_benchmark(args: argparse.Namespace) -> int:
+    from realitygap.baselines import benchmark as bm
 
     try:
-        env_ids = (
-            list(realitygap.ENV_IDS)
-            if args.envs == "all"
-            else [rl.check_env_id(e) for e in _csv_list(args.envs)]
-        )
-        policies = bm.parse_policies(args.policies)
-        realities = [] if args.reality in ("none", "") else _csv_list(args.reality)
-        modes = tuple(_csv_list(args.sensor_modes))
-        if args.episodes < 1:
-            raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
-        if args.backend == "ray":
-            bm.require_ray()
+        cfg, run = benchmark_config_from_args(args)  # every input, before any work
+    except (ValueError, TypeError, FileNotFoundError, ImportError) as exc:
+        return _error(exc)
+    outputs = Outputs(overwrite=args.overwrite, command=command_line())
+    try:
+        outputs.workdir(args.out, "--out")
+        args.workers = cap_workers(run["workers"], "--workers", _warn)
+    except ValueError as exc:
+        return _error(exc)
+    with outputs:
+        return _benchmark(args, bm, cfg, run)
+
+
+def _benchmark(args: argparse.Namespace, bm: Any, cfg: Any, run: dict[str, Any]) -> int:
+    import dataclasses
+
+    try:
+        policies: list[Any] = list(cfg.policies)
+        env_ids = list(cfg.env_ids)
         curves: list[tuple[str, Path | None, Path | None]] = []
         if args.train:
+            for note in run.get("notes", []):
+                print(f"note: {note}", file=sys.stderr)
             policies, curves = train_for_benchmark(
                 policies,
                 env_ids,
-                seeds=[int(s) for s in _csv_list(args.train_seeds)],
+                seeds=run["seeds"],
                 timesteps=args.train_timesteps,
                 out_dir=Path(args.out) / "train",
                 backend=args.backend,
@@ -247,16 +377,12 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
             print(f"note: {note}", file=sys.stderr)
         if not args.train:
             curves = shipped_curves(policies, env_ids)
-        counts = {"image": args.image_episodes} if args.image_episodes is not None else {}
-        cfg = bm.BenchmarkConfig(
-            env_ids=tuple(env_ids),
-            policies=tuple(policies),
-            episodes=args.episodes,
-            realities=tuple(realities),
-            sensor_modes=modes,
-            seed=args.seed,
-            episode_counts=counts,
-        )
+        if not policies:
+            raise ValueError(
+                "--policies: no policy is left to run (see the notes above). Fix: add "
+                "classical or random, or train the learned ones with --train"
+            )
+        cfg = dataclasses.replace(cfg, policies=tuple(policies))
         if not args.silent:
             show_progress("realitygap.baselines.benchmark", sys.stderr)
         result = bm.run_benchmark(
@@ -271,8 +397,7 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
             notes=notes,
         )
     except (ValueError, FileNotFoundError, ImportError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return _error(exc)
     print(result.files["markdown"].read_text(encoding="utf-8"))
     for name, path in result.files.items():
         print(f"wrote {name}: {path}")
@@ -317,29 +442,9 @@ def train_for_benchmark(
     from realitygap.baselines import rl
     from realitygap.baselines.benchmark import PolicySpec
 
-    jobs = []
-    for spec in policies:
-        if spec.kind not in ("ppo", "sac"):
-            continue
-        for env_id in env_ids:
-            try:
-                rl.load_hyperparams(spec.kind, env_id)
-            except KeyError:
-                print(
-                    f"note: no {spec.kind} hyperparameters for {env_id}; not trained",
-                    file=sys.stderr,
-                )
-                continue
-            for seed in seeds:
-                jobs.append(
-                    rl.TrainConfig(
-                        env_id=env_id,
-                        algo=spec.kind,
-                        seed=seed,
-                        total_timesteps=timesteps,
-                        out_dir=out_dir / rl.env_slug(env_id) / spec.kind / f"seed{seed}",
-                    )
-                )
+    jobs, notes = plan_training_jobs(policies, env_ids, seeds, timesteps, out_dir)
+    for note in notes:
+        print(f"note: {note}", file=sys.stderr)
     results = run_training_jobs(jobs, backend, address)
     new_specs: list[Any] = []
     curves = []
@@ -366,6 +471,44 @@ def train_for_benchmark(
             )
         )
     return new_specs, curves
+
+
+def plan_training_jobs(
+    policies: Any,
+    env_ids: list[str],
+    seeds: list[int],
+    timesteps: int | None,
+    out_dir: Path,
+) -> tuple[list[Any], list[str]]:
+    """The training runs of ``benchmark --train``, each checked
+    (:func:`~realitygap.baselines.rl.checks.check_training`) before any starts: one
+    :class:`~realitygap.baselines.rl.TrainConfig` per ``ppo``/``sac`` policy, env with
+    hyperparameters, and seed. Returns them and notes on envs without hyperparameters."""
+    from realitygap.baselines import rl
+    from realitygap.baselines.rl.checks import check_training
+
+    jobs: list[Any] = []
+    notes: list[str] = []
+    for spec in policies:
+        if spec.kind not in ("ppo", "sac"):
+            continue
+        for env_id in env_ids:
+            try:
+                rl.load_hyperparams(spec.kind, env_id)
+            except KeyError:
+                notes.append(f"no {spec.kind} hyperparameters for {env_id}; not trained")
+                continue
+            for seed in seeds:
+                cfg = rl.TrainConfig(
+                    env_id=env_id,
+                    algo=spec.kind,
+                    seed=seed,
+                    total_timesteps=timesteps,
+                    out_dir=out_dir / rl.env_slug(env_id) / spec.kind / f"seed{seed}",
+                )
+                check_training(cfg, warn=_warn)
+                jobs.append(cfg)
+    return jobs, notes
 
 
 def run_training_jobs(

@@ -16,7 +16,6 @@ a CSV file (with ``--columns``) or a ROS bag (with ``--truth-topic`` …).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
@@ -25,9 +24,14 @@ from typing import Any
 from realitygap.core.checks import (
     check_disjoint,
     check_finite_float,
-    check_output_path,
+    check_input_path,
     check_positive_int,
-    parse_json_option,
+    load_json_or_yaml,
+)
+
+LOG_KINDS = (
+    "an .npz log, a session folder, a CSV or text table, a .mat file or a ROS bag (paths are "
+    "relative to the current folder)"
 )
 
 __all__ = ["add_diagnose_parser", "main", "run_diagnose"]
@@ -56,19 +60,10 @@ examples:
 
 
 def _parse_kv(text: str, what: str) -> dict[str, Any]:
-    """``"a=1,b=2"`` or a JSON object / JSON file → dict."""
+    """``"a=1,b=2"``, a JSON object, or a JSON/YAML file of one → dict."""
     text = text.strip()
-    if text.endswith(".json") and Path(text).is_file():
-        with open(text, encoding="utf-8") as fh:
-            data = json.load(fh)
-        if not isinstance(data, dict):
-            raise ValueError(f"{what}: {text} must hold a JSON object")
-        return data
-    if text.startswith("{"):
-        data = parse_json_option(text, what)
-        if not isinstance(data, dict):
-            raise ValueError(f"{what}: expected a JSON object")
-        return data
+    if text.startswith("{") or text.endswith((".json", ".yaml", ".yml")) or Path(text).is_file():
+        return dict(load_json_or_yaml(text, what, expect=dict, example='{"wheelbase": 0.23}'))
     out: dict[str, Any] = {}
     for part in filter(None, (p.strip() for p in text.split(","))):
         key, sep, value = part.partition("=")
@@ -234,11 +229,12 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
 
 def _diagnose(args: argparse.Namespace) -> int:
-    from realitygap.core.parallel import make_backend
+    from realitygap.core.outputs import Outputs, command_line
+    from realitygap.core.parallel import cap_workers, make_backend
     from realitygap.core.progress import Countdown
-    from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
+    from realitygap.diagnosis.diagnose import DiagnosisSettings, check_request, diagnose
     from realitygap.diagnosis.logs.log import LogError
-    from realitygap.diagnosis.logs.read import ReadOptions, read_many
+    from realitygap.diagnosis.logs.read import ReadOptions, read_many, split_recording
     from realitygap.diagnosis.problem.features import FeatureSettings
     from realitygap.diagnosis.problem.problem import AttributionSettings
     from realitygap.diagnosis.report.writer import write_json, write_reports
@@ -252,96 +248,102 @@ def _diagnose(args: argparse.Namespace) -> int:
     def warn(msg: str) -> None:
         print(f"warning: {msg}", file=sys.stderr, flush=True)
 
-    try:
-        inputs = [*args.logs, *args.holdout]
-        if args.json:
-            check_output_path(args.json, "--json", inputs=inputs)
-        if args.report:
-            check_output_path(args.report, "--report", inputs=inputs, folder=True)
-        if args.holdout:
-            check_disjoint(args.logs, args.holdout)
-        if args.resample is not None:
-            check_finite_float(args.resample, "--resample", low=0.0, strict_low=True, unit="s")
-        if args.workers is not None:
-            check_positive_int(args.workers, "--workers")
-        check_finite_float(args.window, "--window", low=0.0, strict_low=True, unit="s")
-        if args.rate is not None:
-            check_finite_float(args.rate, "--rate", low=0.0, strict_low=True, unit="Hz")
-        for path in [*args.logs, *args.holdout]:
-            if not Path(path).exists():
-                raise FileNotFoundError(
-                    f"no such file or folder: {path!r} (a LOG is an .npz log, a session folder, "
-                    "a CSV file or a ROS bag; paths are relative to the current folder)"
+    inputs = [*args.logs, *args.holdout]
+    with Outputs(inputs=inputs, overwrite=args.overwrite, command=command_line()) as out:
+        try:
+            json_stage = out.file(args.json, "--json") if args.json else None
+            report_stage = out.folder(args.report, "--report") if args.report else None
+            if args.holdout:
+                check_disjoint(args.logs, args.holdout)
+            if args.workers is not None:
+                check_positive_int(args.workers, "--workers")
+            check_finite_float(args.window, "--window", low=0.0, strict_low=True, unit="s")
+            for name, paths in (("LOG", args.logs), ("--holdout", args.holdout)):
+                for path in paths:
+                    for part in split_recording(path):
+                        check_input_path(part, name, expected=LOG_KINDS)
+            workers = cap_workers(args.workers, "--workers", warn)
+            described = _description(args)
+            params = dict(described.get("params") or {})
+            if args.params:
+                params.update(_parse_kv(args.params, "--params"))
+            firmware = dict(described.get("firmware") or {})
+            if args.firmware:
+                firmware.update(_parse_kv(args.firmware, "--firmware"))
+            options = ReadOptions(
+                columns=args.columns,
+                decimal=args.decimal,
+                delimiter=args.delimiter,
+                nan=args.nan,
+                params=params or None,
+                firmware=firmware or None,
+                meta=described.get("meta") or None,
+                robot=args.robot or described.get("robot"),
+                duplicates=args.duplicates,
+                max_gap=args.max_gap,
+                cmd_topic=args.cmd_topic,
+                odom_topic=args.odom_topic or None,
+                truth_topic=args.truth_topic,
+                truth_frame=args.truth_frame,
+                wheels_topic=args.wheels_topic,
+                rate_hz=args.rate,
+                resample=args.resample,
+                check_plausible=not args.no_plausibility_check,
+            )
+            train = read_many(args.logs, options, warn=warn)
+            holdout = read_many(args.holdout, options, warn=warn) if args.holdout else None
+            effects = (
+                tuple(e.strip() for e in args.effects.split(",") if e.strip())
+                if args.effects
+                else None
+            )
+            robot = args.robot
+            if robot is None:
+                default = DiagnosisSettings.robot
+                named = {str(lg.meta.get("robot", default)) for lg in train + list(holdout or [])}
+                robot = named.pop() if len(named) == 1 else default
+            settings = DiagnosisSettings(
+                robot=robot,
+                drive=args.drive,
+                effects=effects,
+                features=FeatureSettings(window_s=args.window),
+                attribution=AttributionSettings(pair_candidates=0, verify_top=1)
+                if args.quick
+                else AttributionSettings(),
+            )
+            check_request(train, holdout, settings)
+            backend = make_backend(args.backend, workers=workers, address=args.ray_address)
+            for line in _plan(train, holdout, settings, backend):
+                say(line)
+
+            def estimate(left_s: float) -> None:
+                clock.estimate_s = clock.elapsed_s() + left_s
+
+            try:
+                result = diagnose(
+                    train,
+                    holdout,
+                    settings=settings,
+                    backend=backend,
+                    progress=say,
+                    on_estimate=estimate,
                 )
-        if args.max_gap is not None:
-            check_finite_float(args.max_gap, "--max-gap", low=0.0, strict_low=True, unit="s")
-        described = _description(args)
-        params = dict(described.get("params") or {})
-        if args.params:
-            params.update(_parse_kv(args.params, "--params"))
-        firmware = dict(described.get("firmware") or {})
-        if args.firmware:
-            firmware.update(_parse_kv(args.firmware, "--firmware"))
-        options = ReadOptions(
-            columns=args.columns,
-            decimal=args.decimal,
-            delimiter=args.delimiter,
-            nan=args.nan,
-            params=params or None,
-            firmware=firmware or None,
-            meta=described.get("meta") or None,
-            robot=args.robot or described.get("robot"),
-            duplicates=args.duplicates,
-            max_gap=args.max_gap,
-            cmd_topic=args.cmd_topic,
-            odom_topic=args.odom_topic or None,
-            truth_topic=args.truth_topic,
-            truth_frame=args.truth_frame,
-            wheels_topic=args.wheels_topic,
-            rate_hz=args.rate,
-            resample=args.resample,
-            check_plausible=not args.no_plausibility_check,
-        )
-        train = read_many(args.logs, options, warn=warn)
-        holdout = read_many(args.holdout, options, warn=warn) if args.holdout else None
-        effects = (
-            tuple(e.strip() for e in args.effects.split(",") if e.strip()) if args.effects else None
-        )
-        robot = args.robot
-        if robot is None:
-            default = DiagnosisSettings.robot
-            named = {str(lg.meta.get("robot", default)) for lg in train + list(holdout or [])}
-            robot = named.pop() if len(named) == 1 else default
-        settings = DiagnosisSettings(
-            robot=robot,
-            drive=args.drive,
-            effects=effects,
-            features=FeatureSettings(window_s=args.window),
-            attribution=AttributionSettings(pair_candidates=0, verify_top=1)
-            if args.quick
-            else AttributionSettings(),
-        )
-        backend = make_backend(args.backend, workers=args.workers, address=args.ray_address)
-        for line in _plan(train, holdout, settings, backend):
-            say(line)
-
-        def estimate(left_s: float) -> None:
-            clock.estimate_s = clock.elapsed_s() + left_s
-
-        result = diagnose(
-            train, holdout, settings=settings, backend=backend, progress=say, on_estimate=estimate
-        )
-    except (LogError, ValueError, FileNotFoundError, ImportError, KeyError) as exc:
-        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-        print(f"error: {msg}", file=sys.stderr)
-        return 2
+            finally:
+                getattr(backend, "shutdown", lambda: None)()
+        except (LogError, ValueError, FileNotFoundError, ImportError, KeyError) as exc:
+            msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+            print(f"error: {msg}", file=sys.stderr)
+            return 2
+        if json_stage is not None:
+            write_json(json_stage, result.to_json())
+        if report_stage is not None:
+            write_reports([("", result)], report_stage)
+        out.commit()
     if args.json:
-        write_json(args.json, result.to_json())
         say(f"wrote {args.json}")
-    report = write_reports([("", result)], args.report) if args.report else None
     print_result(result, verbose=args.verbose)
-    if report is not None:
-        print(f"report: {report}")
+    if args.report:
+        print(f"report: {Path(args.report) / 'report.html'}")
     return 0
 
 
@@ -379,11 +381,12 @@ def _plan(train: list[Any], holdout: list[Any] | None, settings: Any, backend: A
             f"{settings.block_windows} windows of {train[0].name}; a held-out log of another "
             "path is a stronger test"
         )
+    from realitygap.diagnosis.report.summary import data_extent
+
     library = _library(settings)
-    seconds_of_motion = sum(float(lg.duration) for lg in [*train, *(holdout or [])])
     workers = max(1, int(getattr(backend, "workers", 1) or 1))
     lines.append(
-        f"{len(train) + len(holdout or [])} log(s), {seconds_of_motion:.0f} s of motion × "
+        f"{len(train) + len(holdout or [])} log(s), {data_extent([*train, *(holdout or [])])} × "
         f"{len(library)} candidate effect(s) on {workers} worker(s)"
     )
     return lines
@@ -423,12 +426,17 @@ def print_result(result: Any, verbose: bool = False, file: Any = None) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Stand-alone entry point (``python -m realitygap.diagnosis.cli``)."""
+    """Stand-alone entry point (``python -m realitygap.diagnosis.cli diagnose …``), with the
+    exit statuses and signal handling of the ``realitygap`` command
+    (:func:`~realitygap.core.stops.run_command`)."""
+    from realitygap.core.stops import run_command
+
     parser = argparse.ArgumentParser(prog="realitygap")
     sub = parser.add_subparsers(dest="command", required=True)
-    add_diagnose_parser(sub)
+    p = add_diagnose_parser(sub)
+    p.add_argument("--overwrite", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
-    return int(args.func(args))
+    return run_command(lambda: int(args.func(args)), verbose=bool(args.verbose))
 
 
 if __name__ == "__main__":  # pragma: no cover

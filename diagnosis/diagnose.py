@@ -494,6 +494,39 @@ def _replay_seconds(
 
 
 # --------------------------------------------------------------------------- main entry
+def check_request(
+    logs: Sequence[Log],
+    holdout: Sequence[Log] | None,
+    settings: DiagnosisSettings,
+    say: Callable[[str], None] | None = None,
+) -> tuple[RobotAdapter, list[str], list[Log], list[Log] | None]:
+    """Everything about a diagnosis request that can be checked before its work: the robot
+    has an adapter, the candidate effects exist for it, the drive is known, every log is of
+    that robot and long enough for at least two windows of at least two samples each.
+    :func:`diagnose` calls it first; a command line calls it before saying what it will do.
+
+    Returns
+    -------
+    adapter, library, logs, holdout
+        The robot's adapter, the candidate effects, and the logs without the importer's
+        pieces too short to read (:func:`~realitygap.diagnosis.logs.pieces.drop_short_pieces`).
+
+    Raises
+    ------
+    ValueError
+        An unknown robot, effect or drive; :class:`LogError` a log that does not fit.
+    """
+    if not logs:
+        raise ValueError("diagnose needs at least one log")
+    adapter: RobotAdapter = get_adapter(settings.robot)
+    drive = Drive(settings.drive)
+    library = candidate_library(adapter, settings)
+    quiet = say if say is not None else (lambda msg: None)
+    logs, holdout = drop_short_pieces(logs, holdout, 2.0 * settings.features.window_s, quiet)
+    adapter.check_request([*logs, *(holdout or [])], settings.features, drive)
+    return adapter, list(library), list(logs), holdout
+
+
 def diagnose(
     logs: Sequence[Log],
     holdout: Sequence[Log] | None = None,
@@ -539,14 +572,10 @@ def diagnose(
     s = settings if settings is not None else DiagnosisSettings()
     be = backend if backend is not None else SerialBackend()
     say = progress if progress is not None else (lambda msg: None)
-    if not logs:
-        raise ValueError("diagnose needs at least one log")
-    adapter: RobotAdapter = get_adapter(s.robot)
-    drive = Drive(s.drive)
     timing: dict[str, float] = {}
     t0 = time.perf_counter()
-    library = candidate_library(adapter, s)
-    logs, holdout = drop_short_pieces(logs, holdout, 2.0 * s.features.window_s, say)
+    adapter, library, logs, holdout = check_request(logs, holdout, s, say)
+    drive = Drive(s.drive)
     split = _split(list(logs), list(holdout) if holdout else None, s)
     train_in = [lg for lg, part in split if part == "train"]
     other_in = [lg for lg, part in split if part != "train"]

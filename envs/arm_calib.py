@@ -76,6 +76,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Mapping
 from typing import Any
 
 import gymnasium as gym
@@ -95,7 +96,16 @@ from realitygap.envs.arm_calib_pipeline import (
     MDHCalibrationEstimator,
     observation_from_corners,
 )
-from realitygap.envs.common import check_action_array, check_bool
+from realitygap.envs.common import (
+    check_action_array,
+    check_bool,
+    check_estimator,
+    check_instance,
+    check_reality,
+    check_render_mode,
+    check_seed,
+    check_vector,
+)
 from realitygap.envs.tasks.arm_calib import (
     ArmCalibRewardWeights,
     ArmCalibTask,
@@ -128,6 +138,20 @@ MAX_BUDGET = 10_000
 
 MAX_VALIDATION_POSES = 10_000
 """Most validation poses an env accepts (each costs a forward-kinematics evaluation per step)."""
+
+MIN_POSES = 3
+"""Fewest poses an identification can use (``min_poses``; the pairs need three)."""
+
+DEFAULT_MIN_POSES = 8
+"""``min_poses`` when none is given; it must not exceed ``budget``."""
+
+ARM_ESTIMATOR_METHODS = {
+    "reset": "reset()",
+    "update": "update(measurement, force=False)",
+}
+"""The methods an ``estimator=`` plug-in of ArmCalib must have (as
+:class:`~realitygap.envs.arm_calib_pipeline.MDHCalibrationEstimator`), besides an
+``estimate`` property."""
 
 DEFAULT_JOINT_CENTER: tuple[float, ...] = (0.0, -1.3, 1.6, -1.87, -1.57, 0.0)
 """Centre of the action box (rad): the camera looks down at the board from about 0.3 m."""
@@ -232,7 +256,7 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         pairs, displacements and identification downstream are the same.
     params : ArmParams, optional
         The nominal arm (what the controller believes).
-    reality : Reality, optional
+    reality : Reality or its dict form (:meth:`Reality.from_dict`), optional
         Effects that make the simulated arm differ from ``params``;
         :func:`default_arm_reality` when omitted.
     randomize_reality : bool
@@ -246,7 +270,8 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         Validation poses (drawn once, with ``validation_seed``, where the nominal
         model expects a good view; collision-free).
     min_poses, identify_every : int
-        When the pipeline identifies (:class:`MDHCalibrationEstimator`).
+        When the pipeline identifies (:class:`MDHCalibrationEstimator`): ``min_poses`` in
+        ``[3, budget]``.
     identification : IdentificationSettings, optional
     measurement : BoardMeasurementSettings, optional
     board : CodedBoard, optional
@@ -255,7 +280,8 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     invalid_penalty : float
         Reward lost by an attempt that yields no measurement.
     estimator : MDHCalibrationEstimator, optional
-        A configured pipeline instead of the default one.
+        A configured pipeline instead of the default one: any object with
+        ``reset()``, ``update(measurement, force=False)`` and an ``estimate`` property.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}  # noqa: RUF012 (gymnasium's name)
@@ -267,14 +293,14 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         render_mode: str | None = None,
         sensor_mode: str | SensorMode = SensorMode.GEOMETRIC,
         params: ArmParams | None = None,
-        reality: Reality | None = None,
+        reality: Reality | Mapping[str, Any] | None = None,
         randomize_reality: bool = False,
         budget: int = 20,
         joint_center: npt.ArrayLike = DEFAULT_JOINT_CENTER,
         joint_half_range: npt.ArrayLike = DEFAULT_JOINT_HALF_RANGE,
         n_validation: int = 40,
         validation_seed: int = 20240,
-        min_poses: int = 8,
+        min_poses: int = DEFAULT_MIN_POSES,
         identify_every: int = 1,
         identification: IdentificationSettings | None = None,
         measurement: BoardMeasurementSettings | None = None,
@@ -284,46 +310,67 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         invalid_penalty: float = 0.2,
         estimator: MDHCalibrationEstimator | None = None,
     ):
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        render_mode = check_render_mode(render_mode, self.metadata["render_modes"])
         self.sensor_mode = check_sensor_mode(sensor_mode, self.sensor_modes)
         budget = check_positive_int(budget, "budget", high=MAX_BUDGET)
         n_validation = check_int(n_validation, "n_validation", low=4, high=MAX_VALIDATION_POSES)
         validation_seed = check_nonnegative_int(validation_seed, "validation_seed")
-        min_poses = check_positive_int(min_poses, "min_poses")
+        too_many = isinstance(min_poses, (int, float)) and min_poses > budget >= MIN_POSES
+        min_poses = check_int(
+            min_poses,
+            "min_poses",
+            low=MIN_POSES,
+            high=max(budget, MIN_POSES),
+            what="a whole number of poses",
+            fix=(
+                f"min_poses (default {DEFAULT_MIN_POSES}) must not exceed budget={budget}, the "
+                "attempts per campaign, or the campaign never identifies: lower min_poses or "
+                "raise budget"
+                if too_many
+                else f"identification needs at least {MIN_POSES} poses, so budget >= {MIN_POSES}"
+            ),
+        )
+        if min_poses > budget:
+            raise ValueError(
+                f"budget must be at least min_poses={min_poses} (identification needs "
+                f"{MIN_POSES} poses or more), got {budget}. Fix: raise budget"
+            )
         identify_every = check_positive_int(identify_every, "identify_every")
         invalid_penalty = check_finite_float(
             invalid_penalty, "invalid_penalty", low=0.0, high=100.0
         )
         check_bool(randomize_reality, "randomize_reality")
-        for arg_name, arg, kind in (
-            ("params", params, ArmParams),
-            ("reality", reality, Reality),
-            ("identification", identification, IdentificationSettings),
-            ("measurement", measurement, BoardMeasurementSettings),
-            ("board", board, CodedBoard),
-            ("placement", placement, BoardPlacement),
-            ("view", view, ViewConstraints),
-        ):
-            if arg is not None and not isinstance(arg, kind):
-                raise TypeError(f"{arg_name} must be a {kind.__name__}, got {type(arg).__name__}")
+        params = check_instance(params, "params", ArmParams, default=ArmParams)
+        reality = check_reality(reality, "arm", default=default_arm_reality)
+        check_instance(identification, "identification", IdentificationSettings, optional=True)
+        measurement = check_instance(
+            measurement, "measurement", BoardMeasurementSettings, default=BoardMeasurementSettings
+        )
+        board = check_instance(board, "board", CodedBoard, default=CodedBoard)
+        placement = check_instance(placement, "placement", BoardPlacement, default=BoardPlacement)
+        view = check_instance(view, "view", ViewConstraints, default=ViewConstraints)
+        if estimator is not None:
+            check_estimator(
+                estimator,
+                ARM_ESTIMATOR_METHODS,
+                attributes={"estimate": "an estimate property"},
+                protocol="as MDHCalibrationEstimator",
+            )
         self.render_mode = render_mode
-        self.params = params if params is not None else ArmParams()
+        self.params = params
         self.randomize_reality = bool(randomize_reality)
-        self.reality = reality if reality is not None else default_arm_reality()
+        self.reality = reality
         self.true_params: ArmParams = self.reality.apply_params(self.params)
         self.joint_center = _check_vec("joint_center", joint_center)
-        self.joint_half_range = _check_vec("joint_half_range", joint_half_range)
-        if np.any(self.joint_half_range <= 0):
-            raise ValueError("joint_half_range must be positive (rad)")
-        self.board = board or CodedBoard()
-        self.placement = placement or BoardPlacement()
-        self.measurement_settings = measurement or BoardMeasurementSettings()
+        self.joint_half_range = _check_vec("joint_half_range", joint_half_range, positive=True)
+        self.board = board
+        self.placement = placement
+        self.measurement_settings = measurement
         self.task = ArmCalibTask(
             params=self.params,
             board=self.board,
             placement=self.placement,
-            view=view or ViewConstraints(),
+            view=view,
             joint_center=self.joint_center,
             joint_half_range=self.joint_half_range,
             budget=budget,
@@ -435,7 +482,7 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[npt.NDArray[np.float32], dict[str, Any]]:
         """Start a campaign at the home configuration (the action box centre)."""
-        super().reset(seed=seed)
+        super().reset(seed=check_seed(seed))
         if options:
             raise ValueError(f"ArmCalib-v0 takes no reset options, got {sorted(options)}")
         self._was_reset = True
@@ -586,8 +633,5 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         }
 
 
-def _check_vec(name: str, value: npt.ArrayLike) -> FloatArray:
-    arr = np.asarray(value, dtype=float).reshape(-1)
-    if arr.shape != (6,) or not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be 6 finite joint angles (rad), got {value!r}")
-    return arr
+def _check_vec(name: str, value: npt.ArrayLike, positive: bool = False) -> FloatArray:
+    return check_vector(value, name, (6,), what="one joint angle per joint, rad", positive=positive)

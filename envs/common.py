@@ -5,7 +5,11 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import math
-from typing import Any
+import numbers
+import os
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -15,13 +19,31 @@ from realitygap.core.checks import check_finite_float, check_positive_int
 FloatArray = npt.NDArray[np.float64]
 
 __all__ = [
+    "ESTIMATOR_METHODS",
+    "ESTIMATOR_PROTOCOL",
     "MAX_PHYSICS_HZ",
+    "available_memory_bytes",
     "check_action_array",
     "check_bool",
+    "check_estimator",
+    "check_finite_fields",
+    "check_instance",
+    "check_obstacles",
     "check_rates",
+    "check_reality",
+    "check_render_mode",
+    "check_seed",
     "check_twist_action",
+    "check_vector",
     "release_freed_memory",
 ]
+
+T = TypeVar("T")
+
+ESTIMATOR_METHODS = {"reset": "reset(initial=None)", "update": "update(measurement)"}
+"""The methods an ``estimator=`` plug-in of WheeledNav and WallClimb must have
+(:class:`~realitygap.estimators.base.Estimator`)."""
+ESTIMATOR_PROTOCOL = "the realitygap.estimators.base.Estimator protocol"
 
 MAX_PHYSICS_HZ = 10_000.0
 """Highest physics rate an env accepts (Hz): beyond it a second of simulation takes minutes."""
@@ -47,6 +69,33 @@ def release_freed_memory() -> None:
 
 
 _LIBC: Any = None
+
+
+def available_memory_bytes() -> int | None:
+    """Bytes this process may still allocate: ``MemAvailable`` of ``/proc/meminfo`` (else
+    the free physical pages), capped by the cgroup's ``memory.max - memory.current``
+    when a container limits memory; ``None`` when the platform tells neither."""
+    avail: int | None = None
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                avail = int(line.split()[1]) * 1024
+                break
+    except (OSError, ValueError, IndexError):
+        pass
+    if avail is None:
+        try:
+            avail = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        except (AttributeError, OSError, ValueError):
+            return None
+    try:
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if limit != "max":
+            used = int(Path("/sys/fs/cgroup/memory.current").read_text().strip())
+            avail = min(avail, max(int(limit) - used, 0))
+    except (OSError, ValueError):
+        pass
+    return avail
 
 
 def check_action_array(action: Any, shape: tuple[int, ...], name: str = "action") -> FloatArray:
@@ -128,3 +177,227 @@ def check_rates(physics_hz: Any, control_hz: Any) -> tuple[float, float, int]:
             f"{ratio:g}. Fix: choose a control rate that divides the physics rate"
         )
     return ph, ch, check_positive_int(round(ratio), "physics_hz / control_hz")
+
+
+def _describe(value: Any) -> str:
+    text = repr(value)
+    if len(text) > 60:
+        text = text[:57] + "..."
+    return f"{text} ({type(value).__name__})"
+
+
+def check_seed(seed: Any, name: str = "seed") -> int | None:
+    """``seed`` for ``reset``: ``None`` or a non-negative whole number, as a Python ``int``.
+
+    Called before ``super().reset(seed=seed)``, so that a bad seed is refused with a
+    ``TypeError``/``ValueError`` naming it rather than Gymnasium's ``error.Error``.
+    NumPy integers are accepted (and converted); ``bool``, floats (even ``1.0``) and
+    strings are not.
+
+    Raises
+    ------
+    TypeError
+        Not ``None`` and not an integer.
+    ValueError
+        A negative integer.
+    """
+    fix = f"Fix: pass {name}=None (fresh entropy) or a whole number such as {name}=0"
+    if seed is None:
+        return None
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, numbers.Integral):
+        raise TypeError(
+            f"{name} must be None or a non-negative integer, got {_describe(seed)}. {fix}"
+        )
+    if seed < 0:
+        raise ValueError(f"{name} must be None or a non-negative integer, got {int(seed)}. {fix}")
+    return int(seed)
+
+
+def check_render_mode(render_mode: Any, modes: Sequence[str]) -> str | None:
+    """``render_mode`` if it is ``None`` or one of ``modes``, else ``ValueError`` listing them."""
+    if render_mode is None or (isinstance(render_mode, str) and render_mode in modes):
+        return render_mode
+    options = " or ".join(["None", *(repr(m) for m in modes)])
+    raise ValueError(
+        f"render_mode must be {options}, got {_describe(render_mode)}. Fix: pass one of them"
+    )
+
+
+def check_instance(
+    value: Any,
+    name: str,
+    kind: type[T],
+    default: Callable[[], T] | None = None,
+    *,
+    optional: bool = False,
+) -> Any:
+    """``value`` if it is a ``kind``, else ``TypeError`` naming the argument, the class and
+    what came. ``None`` gives ``default()`` when a default is given, stays ``None`` when
+    ``optional``, and is refused otherwise."""
+    if value is None and (default is not None or optional):
+        return default() if default is not None else None
+    if isinstance(value, kind):
+        return value
+    none = " or None (the default)" if (default is not None or optional) else ""
+    raise TypeError(
+        f"{name} must be a {kind.__name__}{none}, got {_describe(value)}. "
+        f"Fix: pass {kind.__name__}(...) with the fields to change"
+    )
+
+
+def check_vector(
+    value: Any,
+    name: str,
+    sizes: Sequence[int],
+    *,
+    what: str = "",
+    positive: bool = False,
+) -> FloatArray:
+    """``value`` as a finite 1-D float array whose length is one of ``sizes``.
+
+    ``what`` describes the entries with their units (``"x [m], y [m], θ [rad]"``);
+    ``positive`` refuses entries ≤ 0.
+
+    Raises
+    ------
+    TypeError
+        A string, ``None``, a mapping or anything that is not a list of numbers.
+    ValueError
+        A wrong length, NaN/inf or (with ``positive``) an entry ≤ 0.
+    """
+    n_text = " or ".join(str(n) for n in sizes)
+    kind = f"{n_text} finite{' positive' if positive else ''} numbers"
+    expected = f"{kind} ({what})" if what else kind
+    raw: Any = None
+    if not isinstance(value, (str, bytes, Mapping)) and value is not None:
+        try:
+            raw = np.asarray(value)
+        except (TypeError, ValueError):
+            raw = None
+    if raw is None or raw.dtype.kind not in "iuf":
+        raise TypeError(f"{name} must be {expected}, got {_describe(value)}")
+    arr = np.asarray(raw, dtype=np.float64).reshape(-1)
+    if raw.ndim != 1 or arr.size not in sizes:
+        raise ValueError(f"{name} must be {expected}, got shape {raw.shape}: {value!r:.80}")
+    if not np.all(np.isfinite(arr)) or (positive and np.any(arr <= 0.0)):
+        raise ValueError(f"{name} must be {expected}, got {arr.tolist()}")
+    return arr.copy()
+
+
+def check_obstacles(obstacles: Any, name: str = "obstacles") -> list[Any] | None:
+    """A fixed obstacle layout: ``None`` (random layouts) or a sequence of
+    :class:`~realitygap.robots.world.Primitive` footprints, as a list.
+
+    Raises
+    ------
+    TypeError
+        Anything else: a string, a number, or an entry that is no ``Primitive``.
+    """
+    from realitygap.robots.world import Primitive
+
+    if obstacles is None:
+        return None
+    fix = (
+        f"Fix: pass {name}=None for random layouts (n_obstacles of them), [] for an empty "
+        "room, or a list of realitygap.robots.world.Primitive"
+    )
+    if isinstance(obstacles, (str, bytes, Mapping)) or not isinstance(
+        obstacles, (Sequence, np.ndarray, tuple, list)
+    ):
+        raise TypeError(
+            f"{name} must be None or a list of Primitive footprints, got {_describe(obstacles)}. "
+            f"{fix}"
+        )
+    out = list(obstacles)
+    for i, p in enumerate(out):
+        if not isinstance(p, Primitive):
+            raise TypeError(f"{name}[{i}] must be a Primitive footprint, got {_describe(p)}. {fix}")
+    return out
+
+
+def check_estimator(
+    estimator: Any,
+    methods: Mapping[str, str],
+    *,
+    attributes: Mapping[str, str] | None = None,
+    protocol: str = "",
+    name: str = "estimator",
+) -> Any:
+    """``estimator`` if it follows the plug-in protocol: every one of ``methods`` callable
+    and every one of ``attributes`` present (checked on the class, so that a property
+    is not evaluated), else ``TypeError`` listing what the protocol requires and what
+    the object lacks.
+
+    ``methods`` and ``attributes`` map a name to its signature for the message
+    (``{"reset": "reset(initial=None)"}``).
+    """
+    attributes = attributes or {}
+    missing = [sig for m, sig in methods.items() if not callable(getattr(estimator, m, None))]
+    missing += [
+        sig
+        for a, sig in attributes.items()
+        if not hasattr(type(estimator), a) and not hasattr(estimator, a)
+    ]
+    if not missing:
+        return estimator
+    required = ", ".join([*methods.values(), *attributes.values()])
+    where = f" ({protocol})" if protocol else ""
+    raise TypeError(
+        f"{name} must be an object with {required}{where}; got {_describe(estimator)}, "
+        f"which lacks {', '.join(missing)}. Fix: pass an estimator object that has them, or "
+        f"leave {name} out for the default pipeline"
+    )
+
+
+def check_reality(
+    reality: Any, robot: str, default: Callable[[], Any] | None = None, name: str = "reality"
+) -> Any:
+    """``reality`` as a :class:`~realitygap.robots.effects.Reality` for a ``robot`` robot.
+
+    Accepts a ``Reality``, a mapping in either form :meth:`Reality.from_dict` reads
+    (``{"effects": [...]}`` or ``{"effect_name": {"param": value}}``), or ``None``
+    (``default()``, else the nominal ``Reality()``).
+
+    Raises
+    ------
+    TypeError
+        Anything else (a string, a list of effects).
+    ValueError
+        An unknown effect, a bad parameter, or an effect for another robot, naming it.
+    """
+    from realitygap.robots.effects import Reality
+
+    if reality is None:
+        reality = default() if default is not None else Reality()
+    elif isinstance(reality, Mapping):
+        try:
+            reality = Reality.from_dict(reality)
+        except (KeyError, ValueError, TypeError) as exc:
+            msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
+            raise ValueError(f"{name}: {msg}") from None
+    elif not isinstance(reality, Reality):
+        raise TypeError(
+            f"{name} must be a Reality (or its dict form), got {_describe(reality)}. Fix: "
+            f"pass Reality((make_effect(name, **values), ...)) or "
+            "{'effect_name': {'param': value}}"
+        )
+    try:
+        reality.check_robot(robot)
+    except ValueError as exc:
+        raise ValueError(f"{name}: {exc}") from None
+    return reality
+
+
+def check_finite_fields(obj: Any) -> None:
+    """Every field of the dataclass ``obj`` (a settings or weights class) is a finite real
+    number, else ``TypeError``/``ValueError`` naming the class and the field. Called by
+    their ``__post_init__``, so that a NaN weight is refused where it is written."""
+    import dataclasses
+
+    kind = type(obj).__name__
+    for f in dataclasses.fields(obj):
+        check_finite_float(
+            getattr(obj, f.name),
+            f"{kind}.{f.name}",
+            fix=f"pass a real number, e.g. {kind}({f.name}={f.default!r})",
+        )

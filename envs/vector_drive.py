@@ -17,18 +17,27 @@ definitions of the single-robot code it mirrors:
   builds) into padded arrays and ray-casts and measures clearance on them with
   the equations of :class:`~realitygap.robots.world.PrimitiveArrays` and
   :meth:`~realitygap.robots.world.Primitive.footprint_distance`.
+* :class:`RobotStreams`, :func:`sample_start_goals`, :func:`random_layouts` and
+  :func:`free_routes` draw ``N`` robots' episodes at once: the draws of
+  :meth:`~realitygap.envs.tasks.nav.NavTask.sample_start_goal` and
+  :func:`~realitygap.envs.layouts.random_layout` (same constraints, same batched
+  rejection: only rejected rows are drawn again) from each robot's own seeded
+  stream, so robot ``i`` gets exactly the episode the single-robot code draws
+  from the same generator. :class:`EpisodeLayouts` keeps the layouts as arrays
+  and builds a robot's :class:`~realitygap.robots.world.Primitive` tuple on demand.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from typing import Any
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, overload
 
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.envs.layouts import room_walls
+from realitygap.envs.layouts import obstacle_capacity, room_grid, room_walls
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import EFFECTS, Effect, Reality, pipeline_key
 from realitygap.robots.effects.diffdrive import SurrogateContext, SurrogateSlot
@@ -41,7 +50,13 @@ __all__ = [
     "SEQUENCE_SLOTS",
     "BatchDrive",
     "BatchScenery",
+    "EpisodeLayouts",
+    "LayoutArrays",
+    "RobotStreams",
     "effect_values",
+    "free_routes",
+    "random_layouts",
+    "sample_start_goals",
     "vector_effects",
 ]
 
@@ -379,6 +394,39 @@ class BatchScenery:
             self.cyl_center[i, k] = c.center
             self.cyl_radius[i, k] = c.radius
 
+    def set_shared(self, idx: npt.NDArray[np.intp], primitives: Sequence[Primitive]) -> None:
+        """Robots ``idx`` all get the scenery ``primitives`` (as :meth:`set`, row copied)."""
+        if idx.size == 0:
+            return
+        first = int(idx[0])
+        self.set(first, primitives)
+        for arr in (self.in_room, self.box_center, self.box_cos, self.box_sin, self.box_half):
+            arr[idx] = arr[first]
+        self.cyl_center[idx], self.cyl_radius[idx] = self.cyl_center[first], self.cyl_radius[first]
+
+    def set_layouts(self, idx: npt.NDArray[np.intp], layouts: LayoutArrays) -> None:
+        """Robots ``idx`` get the room's four walls and the obstacles ``layouts`` (rows
+        aligned with ``idx``), boxes and cylinders each in layout order (as :meth:`set`)."""
+        is_box = layouts.is_box
+        is_cyl = ~is_box
+        box_rank = np.cumsum(is_box, axis=1) - 1
+        cyl_rank = np.cumsum(is_cyl, axis=1) - 1
+        self._grow(int(is_box.sum(axis=1).max(initial=0)), int(is_cyl.sum(axis=1).max(initial=0)))
+        self.in_room[idx] = True
+        self.box_center[idx] = self.FAR
+        self.box_cos[idx], self.box_sin[idx], self.box_half[idx] = 1.0, 0.0, 0.1
+        self.cyl_center[idx], self.cyl_radius[idx] = self.FAR, 0.1
+        r, k = np.nonzero(is_box)
+        row, col = idx[r], box_rank[r, k]
+        self.box_center[row, col] = layouts.center[r, k]
+        self.box_cos[row, col] = np.cos(layouts.yaw[r, k])
+        self.box_sin[row, col] = np.sin(layouts.yaw[r, k])
+        self.box_half[row, col] = layouts.half_extents[r, k]
+        r, k = np.nonzero(is_cyl)
+        row, col = idx[r], cyl_rank[r, k]
+        self.cyl_center[row, col] = layouts.center[r, k]
+        self.cyl_radius[row, col] = layouts.radius[r, k]
+
     def _grow(self, n_boxes: int, n_cyls: int) -> None:
         extra_b = n_boxes - self.box_center.shape[1]
         if extra_b > 0:
@@ -512,3 +560,470 @@ class BatchScenery:
             t = -b - np.sqrt(np.maximum(disc, 0.0))
             t = np.where(cc < 0, 0.0, t)
             return np.where((disc >= 0) & (t >= 0), t, np.inf)
+
+
+# ---------------------------------------------------------------------- episodes
+class RobotStreams:
+    """One stream of uniform doubles in ``[0, 1)`` per robot, drawn in batches.
+
+    Robot ``i``'s stream is exactly what ``np.random.default_rng(seeds[i]).random()``
+    returns call after call (and so what ``uniform(low, high)`` maps to
+    ``low + (high - low) * u``, as NumPy does): the generators fill a buffer of
+    ``width`` doubles per robot, and :meth:`take` hands out each robot's next
+    ones with one indexing; a robot whose buffer runs short is refilled from its
+    own generator (the unused doubles kept first), so no draw is lost or reordered.
+
+    Parameters
+    ----------
+    seeds : (N,) one seed per robot.
+    width : doubles buffered per robot (at least the largest :meth:`take`).
+    """
+
+    def __init__(self, seeds: npt.ArrayLike, width: int = 64):
+        seeds = np.asarray(seeds).reshape(-1)
+        self.width = int(width)
+        self.rngs = [np.random.default_rng(int(s)) for s in seeds.tolist()]
+        self.buffer = np.empty((len(self.rngs), self.width))
+        for row, rng in zip(self.buffer, self.rngs, strict=True):
+            rng.random(out=row)
+        self.position = np.zeros(len(self.rngs), dtype=np.intp)
+
+    def take(self, rows: npt.NDArray[np.intp], k: int) -> FloatArray:
+        """The next ``k`` doubles (M, k) of each robot in ``rows`` (distinct), consumed."""
+        if k > self.width:
+            raise ValueError(f"take(k={k}) exceeds the buffer width {self.width}")
+        for i in rows[self.position[rows] + k > self.width].tolist():
+            rest = self.buffer[i, self.position[i] :].copy()
+            self.buffer[i, : rest.size] = rest
+            self.rngs[i].random(out=self.buffer[i, rest.size :])
+            self.position[i] = 0
+        out = self.buffer[rows[:, None], self.position[rows, None] + np.arange(k)]
+        self.position[rows] += k
+        return out
+
+    def uniform(
+        self, rows: npt.NDArray[np.intp], low: float, high: float, k: int = 1
+    ) -> FloatArray:
+        """``k`` draws (M, k) uniform in ``[low, high)`` per robot, as ``Generator.uniform``."""
+        return low + (high - low) * self.take(rows, k)
+
+
+@dataclass
+class LayoutArrays:
+    """Obstacles of ``M`` robots' episodes, ``K`` per robot, as arrays.
+
+    ``is_box`` (M, K); ``center`` (M, K, 2) m; ``height`` (M, K) m; ``yaw`` (M, K)
+    rad (boxes; 0 for cylinders); ``half_extents`` (M, K, 2) m (boxes; 0 for
+    cylinders); ``radius`` (M, K) m (cylinders; 0 for boxes).
+    """
+
+    is_box: npt.NDArray[np.bool_]
+    center: FloatArray
+    height: FloatArray
+    yaw: FloatArray
+    half_extents: FloatArray
+    radius: FloatArray
+
+    @classmethod
+    def empty(cls, m: int, k: int) -> LayoutArrays:
+        return cls(
+            np.zeros((m, k), dtype=bool),
+            np.zeros((m, k, 2)),
+            np.zeros((m, k)),
+            np.zeros((m, k)),
+            np.zeros((m, k, 2)),
+            np.zeros((m, k)),
+        )
+
+    def select(self, rows: Any) -> LayoutArrays:
+        """The layouts of ``rows`` (an index or mask on the leading axis)."""
+        return LayoutArrays(
+            self.is_box[rows],
+            self.center[rows],
+            self.height[rows],
+            self.yaw[rows],
+            self.half_extents[rows],
+            self.radius[rows],
+        )
+
+    @property
+    def reach(self) -> FloatArray:
+        """Bounding radius (M, K) of each footprint about its centre, m."""
+        return np.where(
+            self.is_box, np.hypot(self.half_extents[..., 0], self.half_extents[..., 1]), self.radius
+        )
+
+    def footprint_distance(self, px: FloatArray, py: FloatArray) -> FloatArray:
+        """Signed distance (m) of points at offsets ``(px, py)`` from the centres, broadcast
+        against the (M, K) footprints on their leading axes (negative inside), with the
+        operations of :meth:`~realitygap.robots.world.Primitive.footprint_distance`."""
+        extra = (None,) * (np.ndim(px) - 2)
+        sel = (slice(None), slice(None), *extra)
+        c, s = np.cos(self.yaw)[sel], np.sin(self.yaw)[sel]
+        qx = np.abs(c * px + s * py) - self.half_extents[..., 0][sel]
+        qy = np.abs(-s * px + c * py) - self.half_extents[..., 1][sel]
+        ox, oy = np.maximum(qx, 0.0), np.maximum(qy, 0.0)
+        box = np.sqrt(ox * ox + oy * oy) + np.minimum(np.maximum(qx, qy), 0.0)
+        cyl = np.sqrt(px * px + py * py) - self.radius[sel]
+        return np.where(self.is_box[sel], box, cyl)
+
+    def primitives(self, row: int) -> list[Primitive]:
+        """Robot ``row``'s obstacles as the :class:`Primitive` list ``random_layout`` returns."""
+        out = []
+        for k in range(self.is_box.shape[1]):
+            center = (float(self.center[row, k, 0]), float(self.center[row, k, 1]))
+            height = float(self.height[row, k])
+            if self.is_box[row, k]:
+                hx, hy = self.half_extents[row, k].tolist()
+                prim = Primitive(
+                    f"obstacle_{k}",
+                    Shape.BOX,
+                    center,
+                    height,
+                    yaw=float(self.yaw[row, k]),
+                    half_extents=(hx, hy),
+                )
+            else:
+                prim = Primitive(
+                    f"obstacle_{k}",
+                    Shape.CYLINDER,
+                    center,
+                    height,
+                    radius=float(self.radius[row, k]),
+                )
+            out.append(prim)
+        return out
+
+
+class EpisodeLayouts(Sequence[tuple[Primitive, ...]]):
+    """Walls and obstacles of each robot's episode; ``layouts[i]`` is robot ``i``'s tuple
+    of :class:`Primitive` (empty before its first reset), built when asked for."""
+
+    def __init__(self, n: int, n_obstacles: int, walls: Sequence[Primitive]):
+        self.walls = tuple(walls)
+        self.arrays = LayoutArrays.empty(n, n_obstacles)
+        self._shared: tuple[Primitive, ...] | None = None
+        self._set = np.zeros(n, dtype=bool)
+
+    def set_arrays(self, idx: npt.NDArray[np.intp], layouts: LayoutArrays) -> None:
+        """Robots ``idx`` get the walls and the obstacles ``layouts`` (rows aligned with ``idx``)."""
+        a = self.arrays
+        for name in ("is_box", "center", "height", "yaw", "half_extents", "radius"):
+            getattr(a, name)[idx] = getattr(layouts, name)
+        self._shared = None
+        self._set[idx] = True
+
+    def set_shared(self, idx: npt.NDArray[np.intp], primitives: Sequence[Primitive]) -> None:
+        """Robots ``idx`` (every robot of a fixed-layout env) get ``primitives``."""
+        self._shared = tuple(primitives)
+        self._set[idx] = True
+
+    def __len__(self) -> int:
+        return int(self._set.size)
+
+    @overload
+    def __getitem__(self, i: int) -> tuple[Primitive, ...]: ...
+    @overload
+    def __getitem__(self, i: slice) -> list[tuple[Primitive, ...]]: ...
+    def __getitem__(self, i: int | slice) -> Any:
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        j = range(len(self))[i]  # IndexError and negative indices as a list's
+        if not self._set[j]:
+            return ()
+        if self._shared is not None:
+            return self._shared
+        return (*self.walls, *self.arrays.primitives(j))
+
+    def __iter__(self) -> Iterator[tuple[Primitive, ...]]:
+        return (self[j] for j in range(len(self)))
+
+
+def sample_start_goals(
+    streams: RobotStreams,
+    rows: npt.NDArray[np.intp],
+    room_half_size: float,
+    start: FloatArray | None = None,
+    goal: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray]:
+    """Start and goal poses (M, 3) ``[x, y, θ]`` of robots ``rows``: the given ones, else drawn
+    as :meth:`~realitygap.envs.tasks.nav.NavTask.sample_start_goal` draws them.
+
+    A drawn pose lies in ``[-(h - 0.6), h - 0.6]²``; a drawn goal more than 1 m from the
+    start (batched rejection: only the rows still too close draw again, up to 100 draws,
+    after which the last one stands). The caller checks given poses.
+    """
+    lim = room_half_size - 0.6
+    m = rows.size
+    if start is None:
+        xy = streams.uniform(rows, -lim, lim, 2)
+        start = np.column_stack([xy, streams.uniform(rows, -math.pi, math.pi)[:, 0]])
+    if goal is None:
+        goal = np.empty((m, 3))
+        pending = np.arange(m)
+        for _ in range(100):
+            r = rows[pending]
+            xy = streams.uniform(r, -lim, lim, 2)
+            goal[pending, :2] = xy
+            goal[pending, 2] = streams.uniform(r, -math.pi, math.pi)[:, 0]
+            d = goal[pending, :2] - start[pending, :2]
+            pending = pending[~(np.hypot(d[:, 0], d[:, 1]) > 1.0)]
+            if pending.size == 0:
+                break
+    return np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
+
+
+ROUTE_CHUNK = 256
+"""Robots whose route grids :func:`free_routes` builds at once (bounds its memory to ~100 MB)."""
+
+
+def _block_footprints(
+    free: npt.NDArray[np.bool_],
+    layouts: LayoutArrays,
+    boxes: bool,
+    ax: FloatArray,
+    ay: FloatArray,
+    spacing: float,
+    radius: float,
+    half_size: float,
+) -> None:
+    """Clear ``free[m, i, j]`` where a box (``boxes``) or cylinder footprint of robot ``m`` is
+    within ``radius`` of cell ``(ax[i], ay[j])``, over the patch of cells around each
+    centre that its bounding circle can reach. The products are taken per axis and
+    summed on the patch, which gives the values of ``Primitive.footprint_distance``."""
+    r, q = np.nonzero(layouts.is_box == boxes)
+    if r.size == 0:
+        return
+    n = ax.size
+    cx, cy = layouts.center[r, q, 0], layouts.center[r, q, 1]
+    reach = layouts.reach[r, q]
+    w = int(math.ceil((float(reach.max()) + radius) / spacing)) + 2
+    offsets = np.arange(-w, w + 1)
+    ii = np.clip(np.rint((cx + half_size) / spacing).astype(np.intp)[:, None] + offsets, 0, n - 1)
+    jj = np.clip(np.rint((cy + half_size) / spacing).astype(np.intp)[:, None] + offsets, 0, n - 1)
+    px = ax[ii] - cx[:, None]  # (Q, P)
+    py = ay[jj] - cy[:, None]
+    if boxes:
+        yaw = layouts.yaw[r, q][:, None]
+        c, s = np.cos(yaw), np.sin(yaw)
+        qx = (c * px)[:, :, None] + (s * py)[:, None, :]
+        qy = (-s * px)[:, :, None] + (c * py)[:, None, :]
+        np.abs(qx, out=qx)
+        np.abs(qy, out=qy)
+        qx -= layouts.half_extents[r, q, 0][:, None, None]
+        qy -= layouts.half_extents[r, q, 1][:, None, None]
+        inside = np.maximum(qx, qy)
+        np.minimum(inside, 0.0, out=inside)
+        np.maximum(qx, 0.0, out=qx)
+        np.maximum(qy, 0.0, out=qy)
+        qx *= qx
+        qy *= qy
+        qx += qy
+        d = np.sqrt(qx, out=qx)
+        d += inside
+    else:
+        d = (px * px)[:, :, None] + (py * py)[:, None, :]
+        np.sqrt(d, out=d)
+        d -= layouts.radius[r, q][:, None, None]
+    z, p1, p2 = np.nonzero(~(d > radius))
+    free[r[z], ii[z, p1], jj[z, p2]] = False
+
+
+def _l_path_free(
+    free: npt.NDArray[np.bool_], s: npt.NDArray[np.intp], g: npt.NDArray[np.intp]
+) -> npt.NDArray[np.bool_]:
+    """Whether grid ``m``'s cells ``s[m]`` and ``g[m]`` are joined by free cells along one
+    of the two L-shaped paths (first along ``i``, then ``j``, or the other way round):
+    a 4-connected route, so the two share a component."""
+    m, n = free.shape[0], free.shape[1]
+    t = np.arange(n)
+    rows = np.arange(m)[:, None]
+
+    def run(fixed_i: Any, fixed_j: Any, a: Any, b: Any, along_i: bool) -> Any:
+        lo, hi = np.minimum(a, b)[:, None], np.maximum(a, b)[:, None]
+        cells = free[rows, t, fixed_j[:, None]] if along_i else free[rows, fixed_i[:, None], t]
+        return np.all(cells | (t < lo) | (t > hi), axis=1)
+
+    si, sj, gi, gj = s[:, 0], s[:, 1], g[:, 0], g[:, 1]
+    i_first = run(None, sj, si, gi, True) & run(gi, None, sj, gj, False)
+    j_first = run(si, None, sj, gj, False) & run(None, gj, si, gi, True)
+    return i_first | j_first
+
+
+def free_routes(
+    layouts: LayoutArrays,
+    start_xy: FloatArray,
+    goal_xy: FloatArray,
+    radius: float,
+    half_size: float,
+    resolution: float = 0.05,
+) -> npt.NDArray[np.bool_]:
+    """Whether a disc of ``radius`` (m) can move from ``start_xy`` to ``goal_xy`` (M, 2) among
+    each robot's obstacles, for ``M`` robots at once.
+
+    The test of :func:`~realitygap.envs.layouts.free_route_exists` on the same grid: a
+    cell is free when it is inside the room by more than ``radius`` and every footprint
+    is farther than ``radius`` (each footprint is rasterised only over the patch of cells
+    its bounding circle can block), the start and goal cells count as free, and the two
+    must share a 4-connected component (one :func:`scipy.ndimage.label` call per chunk).
+    """
+    from scipy import ndimage
+
+    grid = room_grid(half_size, resolution)
+    ax, ay = grid[:, 0, 0], grid[0, :, 1]
+    n = ax.size
+    spacing = float(ax[1] - ax[0])
+    inside = (np.abs(grid[..., 0]) < half_size - radius) & (
+        np.abs(grid[..., 1]) < half_size - radius
+    )
+    structure = np.zeros((3, 3, 3), dtype=bool)
+    structure[1] = ndimage.generate_binary_structure(2, 1)
+    m = layouts.is_box.shape[0]
+    out = np.zeros(m, dtype=bool)
+    cells = []
+    for xy in (start_xy, goal_xy):
+        c = np.rint((np.asarray(xy, dtype=float) + half_size) / resolution)
+        ok = np.all((c >= 0) & (c < n), axis=1)
+        cells.append((np.where(ok[:, None], c, 0).astype(np.intp), ok))
+    (s_cell, s_ok), (g_cell, g_ok) = cells
+    for lo in range(0, m, ROUTE_CHUNK):
+        sl = slice(lo, min(lo + ROUTE_CHUNK, m))
+        b = sl.stop - sl.start
+        free = np.broadcast_to(inside, (b, n, n)).copy()
+        part = layouts.select(sl)
+        for shape_is_box in (True, False):
+            _block_footprints(free, part, shape_is_box, ax, ay, spacing, radius, half_size)
+        rows = np.arange(b)
+        sc, gc = s_cell[sl], g_cell[sl]
+        free[rows, sc[:, 0], sc[:, 1]] = True
+        free[rows, gc[:, 0], gc[:, 1]] = True
+        same = _l_path_free(free, sc, gc)  # enough to join them; else label the grid
+        hard = np.flatnonzero(~same)
+        if hard.size:
+            labels, _ = ndimage.label(free[hard], structure=structure)
+            sub, sh, gh = np.arange(hard.size), sc[hard], gc[hard]
+            same[hard] = labels[sub, sh[:, 0], sh[:, 1]] == labels[sub, gh[:, 0], gh[:, 1]]
+        out[sl] = same & s_ok[sl] & g_ok[sl]
+    return out
+
+
+def random_layouts(
+    streams: RobotStreams,
+    rows: npt.NDArray[np.intp],
+    n_obstacles: int,
+    half_size: float,
+    keep_clear: FloatArray,
+    clear_radius: float,
+    robot_radius: float,
+    max_tries: int = 200,
+) -> LayoutArrays:
+    """``n_obstacles`` boxes and cylinders for each robot of ``rows``, drawn from its stream
+    with the draws, constraints and errors of :func:`~realitygap.envs.layouts.random_layout`.
+
+    ``keep_clear`` (M, P, 2): points each robot's obstacles stay ``clear_radius`` (m)
+    from; its first two are the start and goal a free route must join. Batched
+    rejection: every robot still placing draws one candidate per round; rejected
+    candidates are drawn again, accepted ones fill the robot's next slot; a finished
+    layout whose route :func:`free_routes` finds blocked is drawn again whole.
+
+    Raises
+    ------
+    ValueError
+        If ``n_obstacles`` exceeds :func:`~realitygap.envs.layouts.obstacle_capacity`, or
+        a robot's three draws in a row could not place them all.
+    RuntimeError
+        If a robot's layout finds no free route within ``max_tries``.
+    """
+    capacity = obstacle_capacity(half_size)
+    if n_obstacles > capacity:
+        raise ValueError(
+            f"n_obstacles={n_obstacles}: a room of half-size {half_size:g} m cannot hold more "
+            f"than {capacity} obstacles. Fix: fewer obstacles or a larger room_half_size"
+        )
+    m, k = rows.size, int(n_obstacles)
+    out = LayoutArrays.empty(m, k)
+    reach = np.zeros((m, k))
+    placed = np.zeros(m, dtype=np.intp)
+    attempts = np.zeros(m, dtype=np.intp)
+    crowded = np.zeros(m, dtype=np.intp)
+    tries = np.zeros(m, dtype=np.intp)
+    active = np.arange(m)
+    max_attempts = 50 * max(k, 1)
+    lo, hi = -half_size + 0.4, half_size - 0.4
+    slots = np.arange(k)
+    while active.size:
+        r = rows[active]
+        u = streams.take(r, 4)
+        cx, cy = lo + (hi - lo) * u[:, 0], lo + (hi - lo) * u[:, 1]
+        height = 0.5 + (0.9 - 0.5) * u[:, 2]
+        box = u[:, 3] < 0.5
+        half = np.zeros((active.size, 2))
+        yaw, radius = np.zeros(active.size), np.zeros(active.size)
+        if box.any():
+            v = streams.take(r[box], 3)
+            half[box] = 0.12 + (0.4 - 0.12) * v[:, :2]
+            yaw[box] = -math.pi + (math.pi - -math.pi) * v[:, 2]
+        if (~box).any():
+            radius[~box] = 0.1 + (0.3 - 0.1) * streams.take(r[~box], 1)[:, 0]
+        attempts[active] += 1
+        cand = LayoutArrays(
+            box[:, None],
+            np.column_stack([cx, cy])[:, None, :],
+            height[:, None],
+            yaw[:, None],
+            half[:, None, :],
+            radius[:, None],
+        )
+        pts = keep_clear[active]  # (A, P, 2)
+        d_keep = cand.footprint_distance(pts[..., 0] - cx[:, None], pts[..., 1] - cy[:, None])
+        reject = np.any(d_keep < clear_radius, axis=1)
+        if k:
+            mine = slots < placed[active, None]  # (A, K) slots already filled
+            dx, dy = out.center[active, :, 0] - cx[:, None], out.center[active, :, 1] - cy[:, None]
+            near = mine & (np.hypot(dx, dy) - reach[active] < 0.3)
+            d_obs = out.select(active).footprint_distance(-dx, -dy)
+            reject |= np.any(near & (d_obs < 0.3), axis=1)
+        acc = np.flatnonzero(~reject & (placed[active] < k))
+        a, slot = active[acc], placed[active[acc]]
+        out.is_box[a, slot] = box[acc]
+        out.center[a, slot] = np.column_stack([cx[acc], cy[acc]])
+        out.height[a, slot] = height[acc]
+        out.yaw[a, slot] = yaw[acc]
+        out.half_extents[a, slot] = half[acc]
+        out.radius[a, slot] = radius[acc]
+        reach[a, slot] = np.where(box[acc], np.hypot(half[acc, 0], half[acc, 1]), radius[acc])
+        placed[a] += 1
+
+        full = active[placed[active] >= k]
+        stuck = active[(placed[active] < k) & (attempts[active] >= max_attempts)]
+        if stuck.size:
+            crowded[stuck] += 1
+            worst = stuck[crowded[stuck] >= 3]
+            if worst.size:
+                raise ValueError(
+                    f"n_obstacles={n_obstacles}: the room (half-size {half_size:g} m) cannot hold "
+                    f"them; at most {int(placed[worst[0]])} fitted with 0.3 m clearance and the "
+                    "start and goal kept clear. Fix: fewer obstacles or a larger room_half_size"
+                )
+        retry = stuck
+        if full.size:
+            ok = free_routes(
+                out.select(full),
+                keep_clear[full, 0],
+                keep_clear[full, 1],
+                robot_radius + 0.02,
+                half_size,
+            )
+            retry = np.concatenate([stuck, full[~ok]])
+            finished = full[ok]
+            active = np.setdiff1d(active, finished, assume_unique=True)
+        if retry.size:
+            tries[retry] += 1
+            placed[retry] = 0
+            attempts[retry] = 0
+            if np.any(tries[retry] >= max_tries):
+                raise RuntimeError(
+                    f"could not draw a passable layout with {n_obstacles} obstacles in "
+                    f"{max_tries} tries"
+                )
+    return out

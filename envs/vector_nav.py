@@ -15,10 +15,16 @@ in the PyBullet env; what differs is the simulator:
   the same depth-noise model, at the same rate;
 * the estimate is wheel odometry on the quantised encoder counts, as the fast
   env's default :class:`~realitygap.estimators.diffdrive_model.WheelOdometry`;
-* episodes are drawn by :class:`~realitygap.envs.tasks.nav.NavTask` from a
-  generator per robot: robot ``i`` reset with seed ``s + i`` starts the episode
-  that ``WheeledNav-v0`` starts with ``reset(seed=s + i)`` (same start, goal and
-  obstacles).
+* episodes are drawn as :class:`~realitygap.envs.tasks.nav.NavTask` draws them,
+  from a generator per robot, for all robots at once (batched rejection sampling,
+  :func:`~realitygap.envs.vector_drive.random_layouts`): robot ``i`` reset with
+  seed ``s + i`` starts the episode that ``WheeledNav-v0`` starts with
+  ``reset(seed=s + i)`` (same start, goal and obstacles).
+
+Cost is said before it is spent: the constructor estimates the memory and the
+reset and step times of ``num_envs`` robots (:func:`estimate_vector_cost`),
+refuses a size whose state does not fit in the available memory and warns
+about a large one, before allocating anything.
 
 Known limits (stated fidelity, measured by ``tests/envs/test_vector_nav.py``
 and the ``bench-vec`` experiment):
@@ -44,7 +50,9 @@ and the ``bench-vec`` experiment):
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
@@ -53,6 +61,20 @@ import numpy.typing as npt
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
 
+from realitygap.core.checks import (
+    check_finite_float,
+    check_int,
+    check_positive_int,
+)
+from realitygap.core.geometry import check_finite
+from realitygap.envs.common import (
+    MAX_PHYSICS_HZ,
+    available_memory_bytes,
+    check_instance,
+    check_reality,
+    check_seed,
+)
+from realitygap.envs.layouts import clearance, free_route_exists, room_grid, room_walls
 from realitygap.envs.tasks.nav import (
     CONTROL_HZ,
     N_BEAMS,
@@ -65,9 +87,14 @@ from realitygap.envs.tasks.nav import (
     NavTask,
 )
 from realitygap.envs.vector_drive import (
+    ROUTE_CHUNK,
     BatchDrive,
     BatchScenery,
+    EpisodeLayouts,
+    RobotStreams,
     effect_values,
+    random_layouts,
+    sample_start_goals,
     vector_effects,
 )
 from realitygap.robots.diffdrive import DiffDriveParams
@@ -76,34 +103,194 @@ from realitygap.robots.world import Primitive
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["CONTACT_MARGIN", "MAX_NUM_ENVS", "WheeledNavVecEnv", "check_num_envs"]
+__all__ = [
+    "CONTACT_MARGIN",
+    "WARN_BYTES",
+    "WARN_RESET_S",
+    "WARN_STEP_S",
+    "VectorCost",
+    "WheeledNavVecEnv",
+    "check_num_envs",
+    "check_vector_cost",
+    "estimate_vector_cost",
+]
+
+MAX_BEAMS = 4096
+"""Most range beams per scan (as WheeledNav-v0)."""
+
+MAX_CONTROL_HZ = MAX_PHYSICS_HZ
+"""Highest control rate (Hz): the PyBullet twin's highest physics rate."""
+
+MAX_HISTORY_STEPS = 10_000
+"""Longest window of applied twists (control steps) the time-series effect terms may read."""
 
 CONTACT_MARGIN = 0.0
 """Distance (m) between the body disc and a footprint at which a collision is reported."""
 
-MAX_NUM_ENVS = 1 << 20
-"""Largest number of robots per vector env (about 1 GB of state)."""
+WARN_BYTES = 1 << 30
+"""Estimated memory (bytes) above which the constructor warns (1 GiB)."""
+
+WARN_RESET_S = 10.0
+"""Estimated time (s) of one reset of every robot above which the constructor warns."""
+
+WARN_STEP_S = 1.0
+"""Estimated time (s) of one step of every robot above which the constructor warns."""
+
+# Cost model: arrays counted from the shapes the env allocates, in float64 entries per
+# robot, and times per robot measured on one core of a 2-core x86-64 VM (NumPy 2).
+_PYTHON_BYTES_PER_ROBOT = 1_000
+"""A robot's generator and stream (``np.random.Generator`` with its ``PCG64``), bytes."""
+_STREAM_WIDTH = 64
+"""Doubles buffered per robot by :class:`~realitygap.envs.vector_drive.RobotStreams`."""
+_RESET_S_PER_ROBOT = (25e-6, 250e-6)
+"""Reset time per robot (s): base, and extra with random obstacles (the route check's grid
+labelling and footprint rasterising dominate); measured 0.21-0.27 s for 1000 robots."""
+_STEP_S_PER_ROBOT_BEAM = 0.25e-6
+"""Step time per robot and scan beam (s); the ray cast dominates a step (measured ~1.1 s
+per step for 100 000 robots and 64 beams)."""
+
+
+@dataclass(frozen=True)
+class VectorCost:
+    """Estimated cost of a vector env of ``num_envs`` robots.
+
+    ``bytes_per_robot`` and ``bytes`` of state and working arrays (reset and
+    step temporaries included); ``reset_s`` and ``step_s``, seconds for one
+    reset / step of every robot; ``available_bytes``, memory the process may
+    still allocate (``None``: unknown).
+    """
+
+    num_envs: int
+    bytes_per_robot: int
+    bytes: int
+    reset_s: float
+    step_s: float
+    available_bytes: int | None
+
+    def summary(self) -> str:
+        return (
+            f"~{self.bytes / 2**30:.2f} GiB ({self.bytes_per_robot / 1024:.1f} KiB per robot), "
+            f"~{self.reset_s:.1f} s per reset and ~{self.step_s:.2f} s per step"
+        )
+
+
+def estimate_vector_cost(
+    num_envs: int,
+    *,
+    n_beams: int = N_BEAMS,
+    n_obstacles: int = N_OBSTACLES,
+    history_steps: int = 40,
+) -> VectorCost:
+    """Memory and time of ``num_envs`` robots, from the per-robot arrays' shapes.
+
+    Float64 entries per robot, with ``B`` beams, ``K`` obstacles and a window of
+    ``H`` twists: state (pose, estimate, goal, ticks, previous errors, steps)
+    14 + B; drive constants, state and effect values ~30 + 2 H; scenery
+    9 K (boxes 6, cylinders 3); layouts 9 K; stream buffer 64; a step's
+    temporaries (ray-cast directions and ranges, observation in float64 and
+    float32, ``final_obs``, info copies) ~12 B + 60; a reset's sampling
+    arrays ~40 K. Plus the robot's generator (~1 kB) and the route check's
+    fixed chunk of grids.
+    """
+    n = int(num_envs)
+    b, k, h = int(n_beams), max(int(n_obstacles), 0), int(history_steps)
+    floats = (14 + b) + (30 + 2 * h) + 9 * k + 9 * k + _STREAM_WIDTH + (12 * b + 60) + 40 * k
+    per_robot = 8 * floats + _PYTHON_BYTES_PER_ROBOT
+    fixed = ROUTE_CHUNK * 25 * 141 * 141 if k else 0  # route grids, labels and patches
+    reset_s = n * (_RESET_S_PER_ROBOT[0] + (_RESET_S_PER_ROBOT[1] if k else 0.0))
+    step_s = n * b * _STEP_S_PER_ROBOT_BEAM
+    return VectorCost(
+        n, per_robot, n * per_robot + fixed, reset_s, step_s, available_memory_bytes()
+    )
 
 
 def check_num_envs(num_envs: Any) -> int:
-    """``num_envs`` as an int in ``[1, MAX_NUM_ENVS]``, else a ``ValueError`` saying so."""
-    if (
-        isinstance(num_envs, bool)
-        or not isinstance(num_envs, (int, np.integer))
-        or not 1 <= int(num_envs) <= MAX_NUM_ENVS
-    ):
+    """``num_envs`` as a positive int, else a ``ValueError`` saying what came and the fix.
+
+    ``bool``, ``float`` (even ``64.0``) and ``str`` are refused rather than converted.
+    """
+    if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)):
         raise ValueError(
-            f"num_envs must be a whole number of robots in [1, {MAX_NUM_ENVS}], got {num_envs!r}; "
-            "pass e.g. gym.make_vec('realitygap/WheeledNavVec-v0', num_envs=64)"
+            f"num_envs must be a whole number of robots (a positive int), got {num_envs!r} "
+            f"({type(num_envs).__name__}). Fix: pass an int, e.g. "
+            "gym.make_vec('realitygap/WheeledNavVec-v0', num_envs=64)"
+        )
+    if num_envs < 1:
+        raise ValueError(
+            f"num_envs must be a whole number of robots >= 1, got {int(num_envs)}. Fix: pass "
+            "at least one robot, e.g. gym.make_vec('realitygap/WheeledNavVec-v0', num_envs=64)"
         )
     return int(num_envs)
 
 
+def check_vector_cost(num_envs: int, **shape: int) -> VectorCost:
+    """The estimated cost of ``num_envs`` robots (:func:`estimate_vector_cost` with ``shape``),
+    said before anything is allocated.
+
+    Raises
+    ------
+    ValueError
+        If the estimated memory exceeds the memory available, naming both and the
+        largest ``num_envs`` that fits.
+
+    Warns
+    -----
+    UserWarning
+        If the estimate exceeds
+        :data:`WARN_BYTES`, :data:`WARN_RESET_S` or :data:`WARN_STEP_S`.
+    """
+    cost = estimate_vector_cost(num_envs, **shape)
+    avail = cost.available_bytes
+    if avail is not None and cost.bytes > avail:
+        fits = max((avail - (cost.bytes - cost.num_envs * cost.bytes_per_robot)), 0)
+        fits //= cost.bytes_per_robot
+        raise ValueError(
+            f"num_envs must be a whole number of robots whose state fits in memory: expected "
+            f"num_envs <= {fits} ({avail / 2**30:.1f} GiB available, "
+            f"~{cost.bytes_per_robot / 1024:.1f} KiB per robot), got {cost.num_envs} "
+            f"(~{cost.bytes / 2**30:.1f} GiB). Fix: pass num_envs={max(fits // 2, 1)} or "
+            "fewer, or run several vector envs in separate processes"
+        )
+    if cost.bytes > WARN_BYTES or cost.reset_s > WARN_RESET_S or cost.step_s > WARN_STEP_S:
+        warnings.warn(
+            f"WheeledNavVec with num_envs={cost.num_envs}: estimated {cost.summary()} "
+            f"(warned above {WARN_BYTES / 2**30:g} GiB, {WARN_RESET_S:g} s per reset or "
+            f"{WARN_STEP_S:g} s per step)",
+            UserWarning,
+            stacklevel=3,
+        )
+    return cost
+
+
 def _check_randomize(randomize: Mapping[str, Any] | None) -> dict[str, tuple[float, float]]:
-    """``{"effect.param": (low, high)}`` checked against the effects' physical bounds."""
+    """``{"effect.param": (low, high)}`` (or ``{"effect": {"param": (low, high)}}``) checked
+    against the effects' physical bounds."""
     out: dict[str, tuple[float, float]] = {}
     known = vector_effects()
-    for key, bounds in dict(randomize or {}).items():
+    if randomize is None:
+        return out
+    if not isinstance(randomize, Mapping):
+        raise TypeError(
+            f"randomize must be None or a mapping {{'effect.param': (low, high)}}, got "
+            f"{randomize!r:.60} ({type(randomize).__name__}). Fix: e.g. "
+            "randomize={'command_latency.delay': (0.0, 0.1)}"
+        )
+    flat: dict[str, Any] = {}
+    for key, value in randomize.items():
+        if isinstance(value, Mapping):  # nested form: effect -> {param: (low, high)}
+            if str(key) not in known:
+                flat[str(key)] = value  # refused below, naming the effect
+                continue
+            if not value:
+                raise ValueError(
+                    f"randomize[{key!r}] names no parameter; effect {key!r} has parameters "
+                    f"{', '.join(s.name for s in EFFECTS[str(key)].specs)}"
+                )
+            for param, bounds in value.items():
+                flat[f"{key}.{param}"] = bounds
+        else:
+            flat[str(key)] = value
+    for key, bounds in flat.items():
         name, _, param = str(key).partition(".")
         if name not in known:
             raise ValueError(
@@ -142,7 +329,10 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
 
     Parameters
     ----------
-    num_envs : number of robots ``N``.
+    num_envs : number of robots ``N`` (a positive int). Its estimated cost
+        (:func:`estimate_vector_cost`, kept as :attr:`cost`) is checked before anything
+        is allocated: a ``ValueError`` if it does not fit in the available memory, a
+        ``UserWarning`` above :data:`WARN_BYTES`, :data:`WARN_RESET_S` or :data:`WARN_STEP_S`.
     params : nominal robot parameters.
     reality : effects applied to every robot (each must have a surrogate term); a
         :class:`Reality` or its :meth:`~Reality.to_dict` form.
@@ -189,28 +379,60 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
             raise ValueError(
                 f"the vector env does not render; render_mode must be None, got {render_mode!r}"
             )
-        if not (isinstance(n_beams, (int, np.integer)) and n_beams >= 2):
-            raise ValueError(f"n_beams must be a whole number >= 2, got {n_beams!r}")
-        if not (control_hz > 0 and math.isfinite(control_hz)):
-            raise ValueError(f"control_hz must be a positive number of Hz, got {control_hz!r}")
-        k = control_hz / scan_hz if scan_hz > 0 else -1.0
-        if k < 1 or abs(k - round(k)) > 1e-9:
+        # every argument is checked before the cost is estimated and anything is allocated;
+        # the episode settings by the task (as WheeledNav-v0 checks them)
+        task = NavTask(
+            room_half_size=room_half_size,
+            n_obstacles=n_obstacles,
+            obstacles=obstacles,
+            start=start,
+            goal=goal,
+            success_pos_tol=success_pos_tol,
+            success_ang_tol=success_ang_tol,
+            terminate_on_success=terminate_on_success,
+            weights=reward_weights,
+        )
+        n_beams = check_int(
+            n_beams, "n_beams", low=2, high=MAX_BEAMS, what="a whole number of beams"
+        )
+        control_hz = check_finite_float(
+            control_hz, "control_hz", low=0.0, high=MAX_CONTROL_HZ, strict_low=True, unit="Hz"
+        )
+        scan_hz = check_finite_float(
+            scan_hz,
+            "scan_hz",
+            low=0.0,
+            high=control_hz,
+            strict_low=True,
+            unit="Hz",
+            fix="the scan rate cannot exceed control_hz",
+        )
+        k = control_hz / scan_hz
+        if abs(k - round(k)) > 1e-9:
             raise ValueError(
-                f"scan_hz must divide control_hz={control_hz} (whole ratio >= 1), got {scan_hz!r}"
+                f"scan_hz must divide control_hz={control_hz:g} Hz (a whole ratio >= 1), got "
+                f"{scan_hz:g} Hz. Fix: choose a scan rate such as {control_hz / 2:g} Hz"
             )
-        if not (isinstance(max_episode_steps, (int, np.integer)) and max_episode_steps >= 1):
-            raise ValueError(
-                f"max_episode_steps must be a whole number >= 1, got {max_episode_steps!r}"
-            )
+        max_episode_steps = check_positive_int(max_episode_steps, "max_episode_steps")
+        history_steps = check_int(
+            history_steps,
+            "history_steps",
+            low=1,
+            high=MAX_HISTORY_STEPS,
+            what="a whole number of control steps",
+            fix="the window of applied twists the time-series effect terms read; 40 is default",
+        )
+        params = check_instance(params, "params", DiffDriveParams, default=DiffDriveParams)
+        reality = check_reality(reality, "diffdrive")
+        n_layout = (
+            len(task.fixed_obstacles) if task.fixed_obstacles is not None else task.n_obstacles
+        )
+        self.cost = check_vector_cost(
+            n, n_beams=n_beams, n_obstacles=n_layout, history_steps=history_steps
+        )
         self.num_envs = n
-        self.params = params if params is not None else DiffDriveParams()
-        if isinstance(reality, Mapping):
-            reality = Reality.from_dict(reality)  # JSON form, e.g. from a hyperparameter file
-        if reality is not None and not isinstance(reality, Reality):
-            raise TypeError(
-                f"reality must be a Reality or its to_dict() form, got {type(reality).__name__}"
-            )
-        self.reality = reality if reality is not None else Reality()
+        self.params = params
+        self.reality = reality
         self.fixed_values = effect_values(self.reality)
         self.randomize = _check_randomize(randomize)
         self.true_params = self.reality.apply_params(self.params)
@@ -218,21 +440,8 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
         self.n_beams = int(n_beams)
         self.max_episode_steps = int(max_episode_steps)
         self._scan_every = int(round(k))
-        self.tasks = [
-            NavTask(
-                room_half_size=room_half_size,
-                n_obstacles=n_obstacles,
-                obstacles=obstacles,
-                start=start,
-                goal=goal,
-                success_pos_tol=success_pos_tol,
-                success_ang_tol=success_ang_tol,
-                terminate_on_success=terminate_on_success,
-                weights=reward_weights,
-            )
-            for _ in range(n)
-        ]
-        task = self.tasks[0]
+        # one task holds the episode settings of every robot (its draws are batched here)
+        self.task = task
         self.weights = task.weights
         self.room_half_size = task.room_half_size
         self.success_pos_tol, self.success_ang_tol = task.success_pos_tol, task.success_ang_tol
@@ -247,11 +456,9 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
             key=vector_effects().index,
         )
         self.drive = BatchDrive(
-            self.params, calibration, n, self.dt, effects, history_steps=int(history_steps)
+            self.params, calibration, n, self.dt, effects, history_steps=history_steps
         )
-        self.scenery = BatchScenery(
-            n, max(0, int(n_obstacles)), max(0, int(n_obstacles)), self.room_half_size
-        )
+        self.scenery = BatchScenery(n, task.n_obstacles, task.n_obstacles, self.room_half_size)
 
         # spaces: WheeledNav's, fast mode
         self.single_action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
@@ -281,7 +488,7 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
         self._ticks_per_rad = self.params.ticks_per_rev / (2.0 * math.pi)
 
         # state
-        self.rngs = [np.random.default_rng(i) for i in range(n)]
+        self.streams: RobotStreams | None = None  # robot i's draws; seeds 0..N-1 by default
         self.noise_rng = np.random.default_rng(0)
         self.pose = np.zeros((n, 3))
         self.estimate = np.zeros((n, 3))
@@ -290,7 +497,8 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
         self.prev = np.zeros((n, 2))  # previous (distance, heading error)
         self.steps = np.zeros(n, dtype=np.int64)
         self.scan = np.full((n, self.n_beams), np.inf)
-        self.obstacles: list[tuple[Primitive, ...]] = [() for _ in range(n)]
+        self.obstacles = EpisodeLayouts(n, task.n_obstacles, room_walls(self.room_half_size))
+        self._fixed_routes: tuple[npt.NDArray[np.bool_], npt.NDArray[np.int32]] | None = None
         self._started = False
 
     @property
@@ -306,24 +514,29 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
         ``seed[i]``). ``options`` may hold ``start`` / ``goal`` poses, (3,) or (N, 3)."""
         n = self.num_envs
         if seed is not None:
-            seeds = (
-                [int(s) for s in seed]
-                if isinstance(seed, (list, tuple))
-                else [int(seed) + i for i in range(n)]
-            )
+            if isinstance(seed, (list, tuple, np.ndarray)):
+                seeds = np.array(
+                    [check_seed(s, f"seed[{i}]") for i, s in enumerate(seed)], dtype=object
+                )
+            else:
+                first = check_seed(seed)
+                assert first is not None
+                seeds = np.array([first + i for i in range(n)], dtype=object)
             if len(seeds) != n:
                 raise ValueError(f"reset(seed=...) needs {n} seeds, got {len(seeds)}")
-            self.rngs = [np.random.default_rng(s) for s in seeds]
+            self.streams = RobotStreams(seeds, _STREAM_WIDTH)
             self.noise_rng = np.random.default_rng(
-                np.random.SeedSequence([seeds[0], n]).generate_state(2)
+                np.random.SeedSequence([int(seeds[0]), n]).generate_state(2)
             )
+        elif self.streams is None:
+            self.streams = RobotStreams(np.arange(n), _STREAM_WIDTH)
         options = dict(options or {})
         unknown = set(options) - {"start", "goal"}
         if unknown:
             raise ValueError(
                 f"unknown reset option(s) {sorted(unknown)}; expected 'start' and/or 'goal'"
             )
-        per_robot: list[dict[str, Any]] = [{} for _ in range(n)]
+        poses: dict[str, FloatArray] = {}
         for key, value in options.items():
             arr = np.asarray(value, dtype=float)
             if arr.shape == (3,):
@@ -332,9 +545,8 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
                 raise ValueError(
                     f"reset option {key!r} must have shape (3,) or ({n}, 3), got {arr.shape}"
                 )
-            for i in range(n):
-                per_robot[i][key] = arr[i]
-        self._reset_robots(np.arange(n), per_robot)
+            poses[key] = arr
+        self._reset_robots(np.arange(n), poses)
         self._started = True
         return self._observation(), self._info(np.zeros(n, bool), np.zeros(n, bool))
 
@@ -396,7 +608,7 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
                 if k not in ("final_obs", "_final_obs")
             }
             info["_final_info"] = terminated | truncated
-            self._reset_robots(done, [{} for _ in done])
+            self._reset_robots(done, {})
             fresh = self._observation()
             obs[done] = fresh[done]
             start_info = self._info(np.zeros(self.num_envs, bool), np.zeros(self.num_envs, bool))
@@ -444,23 +656,51 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
         self._started = False
 
     # ------------------------------------------------------------------ internals
-    def _reset_robots(self, idx: npt.NDArray[np.intp], options: list[dict[str, Any]]) -> None:
+    def _reset_robots(self, idx: npt.NDArray[np.intp], poses: Mapping[str, FloatArray]) -> None:
+        """New episodes for robots ``idx``, all drawn at once: start and goal (``poses`` (M, 3)
+        rows aligned with ``idx``, else the task's fixed ones, else drawn), obstacles, and
+        domain-randomised values, each robot from its own stream in
+        :class:`~realitygap.envs.tasks.nav.NavTask`'s order of draws."""
+        assert self.streams is not None
+        task, streams = self.task, self.streams
         radius = self.true_params.body_radius
+        given = {
+            key: poses.get(key, None if fixed is None else np.broadcast_to(fixed, (idx.size, 3)))
+            for key, fixed in (("start", task.fixed_start), ("goal", task.fixed_goal))
+        }
+        start, goal = sample_start_goals(
+            streams, idx, self.room_half_size, given["start"], given["goal"]
+        )
+        self._check_poses(start, goal, radius)
+        if task.fixed_obstacles is not None:
+            self._check_fixed_layout(start, goal, radius)
+            layout = (*room_walls(self.room_half_size), *task.fixed_obstacles)
+            self.obstacles.set_shared(idx, layout)
+            self.scenery.set_shared(idx, layout)
+        elif task.n_obstacles > 0:
+            layouts = random_layouts(
+                streams,
+                idx,
+                task.n_obstacles,
+                self.room_half_size,
+                keep_clear=np.stack([start[:, :2], goal[:, :2]], axis=1),
+                clear_radius=radius + 0.25,
+                robot_radius=radius,
+            )
+            self.obstacles.set_arrays(idx, layouts)
+            self.scenery.set_layouts(idx, layouts)
+        else:
+            walls = tuple(room_walls(self.room_half_size))
+            self.obstacles.set_shared(idx, walls)
+            self.scenery.set_shared(idx, walls)
+        self.pose[idx] = start
+        self.estimate[idx] = start
+        self.goal[idx] = goal
         values: dict[str, FloatArray] = {
             k: np.full(idx.size, v) for k, v in self.fixed_values.items()
         }
-        for j, i in enumerate(idx):
-            rng, task = self.rngs[i], self.tasks[i]
-            start, goal = task.sample_start_goal(rng, options[j], radius)
-            arena = task.sample_arena(rng, start, goal, radius)
-            self.obstacles[i] = arena
-            self.scenery.set(int(i), arena)
-            self.pose[i] = start
-            self.estimate[i] = start
-            self.goal[i] = goal
-            task.goal = goal
-            for key, (lo, hi) in self.randomize.items():
-                values.setdefault(key, np.full(idx.size, np.nan))[j] = rng.uniform(lo, hi)
+        for key, (lo, hi) in self.randomize.items():
+            values[key] = streams.uniform(idx, lo, hi)[:, 0]
         if self.randomize or self.fixed_values:
             self.drive.set_values(idx, values)
         self.drive.reset(idx)
@@ -469,6 +709,63 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
         self._measure_scan(idx)
         dist, ang = self._pose_error()
         self.prev[idx, 0], self.prev[idx, 1] = dist[idx], ang[idx]
+
+    def _check_poses(self, start: FloatArray, goal: FloatArray, radius: float) -> None:
+        """The errors of :meth:`NavTask.sample_start_goal` for given poses that are not
+        finite or lie outside the room (raised for the first such robot)."""
+        limit = self.room_half_size - radius
+        for name, pose in (("start", start), ("goal", goal)):
+            bad = ~np.all(np.isfinite(pose), axis=1)
+            if bad.any():
+                check_finite(name, pose[np.flatnonzero(bad)[0]], (3,))
+            out = np.any(np.abs(pose[:, :2]) > limit, axis=1)
+            if out.any():
+                xy = pose[np.flatnonzero(out)[0], :2]
+                raise ValueError(
+                    f"{name} {xy.tolist()} lies outside the room (|x|, |y| must be < {limit:.3f} m)"
+                )
+
+    def _check_fixed_layout(self, start: FloatArray, goal: FloatArray, radius: float) -> None:
+        """The checks of :meth:`NavTask.sample_arena` on a fixed layout, for every robot: the
+        start clear of the obstacles, and a route to the goal (the layout's grid labelled
+        once; a robot whose start or goal cell is blocked there is checked on its own)."""
+        layout = list(self.task.fixed_obstacles or [])
+        h = self.room_half_size
+        if layout:
+            clear = np.min(np.stack([p.footprint_distance(start[:, :2]) for p in layout]), 0)
+            bad = np.flatnonzero(clear <= radius)
+            if bad.size:
+                raise ValueError(
+                    f"the start pose {start[bad[0]].tolist()} overlaps an obstacle of the "
+                    "given layout"
+                )
+        prims = layout + room_walls(h)
+        resolution = 0.05
+        if self._fixed_routes is None:
+            from scipy import ndimage
+
+            xy = room_grid(h, resolution)
+            free = clearance(prims, xy) > radius
+            free &= (np.abs(xy[..., 0]) < h - radius) & (np.abs(xy[..., 1]) < h - radius)
+            self._fixed_routes = (free, ndimage.label(free)[0])
+        free, labels = self._fixed_routes
+        n = free.shape[0]
+        cells = [np.rint((p[:, :2] + h) / resolution).astype(np.intp) for p in (start, goal)]
+        inside = np.all((cells[0] >= 0) & (cells[0] < n) & (cells[1] >= 0) & (cells[1] < n), 1)
+        s = np.where(inside[:, None], cells[0], 0)
+        g = np.where(inside[:, None], cells[1], 0)
+        plain = inside & free[s[:, 0], s[:, 1]] & free[g[:, 0], g[:, 1]]
+        ok = plain & (labels[s[:, 0], s[:, 1]] == labels[g[:, 0], g[:, 1]])
+        for j in np.flatnonzero(inside & ~plain):
+            ok[j] = free_route_exists(prims, start[j, :2], goal[j, :2], radius, h, resolution)
+        bad = np.flatnonzero(~ok)
+        if bad.size:
+            j = bad[0]
+            raise ValueError(
+                f"the given obstacle layout leaves no collision-free route from start "
+                f"{start[j, :2].tolist()} to goal {goal[j, :2].tolist()} for a robot of radius "
+                f"{radius:.3f} m"
+            )
 
     def _pose_error(self) -> tuple[FloatArray, FloatArray]:
         d = self.pose - self.goal

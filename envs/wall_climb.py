@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -62,9 +63,20 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
 
-from realitygap.core.checks import check_finite_float
+from realitygap.core.checks import check_choice, check_finite_float
 from realitygap.core.geometry import quat_xyzw_from_matrix, so3_exp
-from realitygap.envs.common import check_rates, check_twist_action, release_freed_memory
+from realitygap.envs.common import (
+    ESTIMATOR_METHODS,
+    ESTIMATOR_PROTOCOL,
+    check_estimator,
+    check_instance,
+    check_rates,
+    check_reality,
+    check_render_mode,
+    check_seed,
+    check_twist_action,
+    release_freed_memory,
+)
 from realitygap.envs.tasks.wall_climb import WallClimbRewardWeights, WallClimbTask
 from realitygap.estimators.climb import (
     ClimbEstimate,
@@ -208,6 +220,10 @@ class DockedClimbPipeline:
         return self._last
 
 
+ESTIMATOR_NAMES = ("docked", "localiser")
+"""The built-in observation pipelines ``estimator=`` may name."""
+
+
 class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     """Reach a goal point on the blade; see the module docstring for the spaces.
 
@@ -222,7 +238,8 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     params
         Nominal robot and blade (what the estimator believes).
     reality
-        Effects that make the simulated robot differ from ``params``.
+        Effects that make the simulated robot differ from ``params``: a :class:`Reality` or
+        its dict form (:meth:`Reality.from_dict`).
     faults
         :class:`.ClimbFaults` (bad-input injection).
     start, goal
@@ -252,7 +269,7 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         sensor_mode: str | SensorMode = SensorMode.FAST,
         estimator: str | Any = "docked",
         params: ClimberParams | None = None,
-        reality: Reality | None = None,
+        reality: Reality | Mapping[str, Any] | None = None,
         faults: ClimbFaults | None = None,
         start: npt.ArrayLike | None = None,
         goal: npt.ArrayLike | None = None,
@@ -263,8 +280,7 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         vio_config: VioConfig | None = None,
         reward_weights: WallClimbRewardWeights | None = None,
     ) -> None:
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        render_mode = check_render_mode(render_mode, self.metadata["render_modes"])
         self.sensor_mode = check_sensor_mode(sensor_mode, self.sensor_modes)
         physics_hz, control_hz, ratio = check_rates(physics_hz, control_hz)
         success_tol = check_finite_float(
@@ -273,36 +289,33 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         detach_margin = check_finite_float(
             detach_margin, "detach_margin", low=0.0, high=0.5, strict_low=True, unit="m"
         )
-        if faults is not None and not isinstance(faults, ClimbFaults):
-            raise TypeError(f"faults must be ClimbFaults, got {type(faults).__name__}")
-        if reality is not None and not isinstance(reality, Reality):
-            raise TypeError(f"reality must be a Reality, got {type(reality).__name__}")
-        if reward_weights is not None and not isinstance(reward_weights, WallClimbRewardWeights):
-            raise TypeError(
-                "reward_weights must be WallClimbRewardWeights, got "
-                f"{type(reward_weights).__name__}"
-            )
-        if not isinstance(estimator, str) and not (
-            hasattr(estimator, "reset") and hasattr(estimator, "update")
-        ):
-            raise TypeError(
-                "estimator must be a name or have reset() and update() methods, got "
-                f"{type(estimator).__name__}"
+        faults = check_instance(faults, "faults", ClimbFaults, default=ClimbFaults)
+        reality = check_reality(reality, "climber")
+        reward_weights = check_instance(
+            reward_weights, "reward_weights", WallClimbRewardWeights, default=WallClimbRewardWeights
+        )
+        vio_config = check_instance(vio_config, "vio_config", VioConfig, optional=True)
+        params = check_instance(params, "params", ClimberParams, default=ClimberParams)
+        if isinstance(estimator, str):
+            check_choice(estimator, "estimator", ESTIMATOR_NAMES)
+        else:
+            check_estimator(
+                estimator,
+                ESTIMATOR_METHODS,
+                protocol=f"{ESTIMATOR_PROTOCOL}; or a name: {', '.join(ESTIMATOR_NAMES)}",
             )
         self.render_mode = render_mode
-        self.params = params if params is not None else ClimberParams()
-        if not isinstance(self.params, ClimberParams):
-            raise TypeError(f"params must be ClimberParams, got {type(self.params).__name__}")
-        self.reality = reality if reality is not None else Reality()
+        self.params = params
+        self.reality = reality
         self.true_params: ClimberParams = self.reality.apply_params(self.params)
-        self.faults = faults if faults is not None else ClimbFaults()
+        self.faults = faults
         self.task = WallClimbTask(
             blade_length=self.params.blade.length,
             start=start,
             goal=goal,
             success_tol=success_tol,
             detach_margin=detach_margin,
-            weights=reward_weights if reward_weights is not None else WallClimbRewardWeights(),
+            weights=reward_weights,
         )
         imu_every = physics_hz / self.params.imu_rate
         if abs(imu_every - round(imu_every)) > 1e-9:
@@ -381,19 +394,7 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
                 config=nominal.constrained_config(),
                 localiser_config=LocaliserConfig(init_path_length=2.0, init_max_path_length=6.0),
             )
-        if isinstance(estimator, str):
-            raise ValueError(
-                f"estimator must be 'docked', 'localiser' or an estimator object, got {estimator!r}"
-            )
-        if not (
-            callable(getattr(estimator, "reset", None))
-            and callable(getattr(estimator, "update", None))
-        ):
-            raise TypeError(
-                "estimator must have reset(initial=None) and update(measurement) methods, "
-                f"got {type(estimator).__name__}"
-            )
-        return estimator
+        return estimator  # a plug-in, checked by the constructor
 
     @property
     def dt(self) -> float:
@@ -418,7 +419,7 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[npt.NDArray[np.float32], dict[str, Any]]:
         """Start an episode; ``options`` may hold ``start`` ``(x, ξ[, heading])`` and ``goal`` ``(x, ξ)``."""
-        super().reset(seed=seed)
+        super().reset(seed=check_seed(seed))
         if self._closed:
             raise RuntimeError("this env is closed; create a new one")
         options = dict(options or {})

@@ -42,6 +42,7 @@ success and termination.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import gymnasium as gym
@@ -49,10 +50,19 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
 
-from realitygap.core.checks import check_finite_float, check_nonnegative_int, check_positive_int
+from realitygap.core.checks import check_finite_float, check_positive_int
 from realitygap.core.jit import KERNELS, compiled
-from realitygap.envs.common import check_bool, check_rates, check_twist_action
-from realitygap.envs.layouts import MAX_ROOM_HALF_SIZE, MIN_ROOM_HALF_SIZE, obstacle_capacity
+from realitygap.envs.common import (
+    ESTIMATOR_METHODS,
+    ESTIMATOR_PROTOCOL,
+    check_estimator,
+    check_instance,
+    check_rates,
+    check_reality,
+    check_render_mode,
+    check_seed,
+    check_twist_action,
+)
 from realitygap.envs.tasks.nav import (
     CONTROL_HZ,
     N_BEAMS,
@@ -133,7 +143,9 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         :func:`default_estimator` (odometry + RGB-D VO fusion in image mode, wheel odometry
         in fast mode), with the nominal geometry.
     params : nominal robot parameters (what the robot is believed to be).
-    reality : effects that make the simulated robot differ from ``params`` ("the real robot").
+    reality : effects that make the simulated robot differ from ``params`` ("the real robot"):
+        a :class:`~realitygap.robots.effects.Reality` or its dict form
+        (:meth:`~realitygap.robots.effects.Reality.from_dict`).
     n_obstacles : random obstacles per episode (0: empty room).
     obstacles : a fixed layout instead of random ones.
     room_half_size : half the side of the square room (m).
@@ -166,7 +178,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         sensor_mode: str | SensorMode = SensorMode.FAST,
         estimator: Estimator | None = None,
         params: DiffDriveParams | None = None,
-        reality: Reality | None = None,
+        reality: Reality | Mapping[str, Any] | None = None,
         n_obstacles: int = N_OBSTACLES,
         obstacles: list[Primitive] | None = None,
         room_half_size: float = ROOM_HALF_SIZE,
@@ -182,57 +194,12 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         terminate_on_success: bool = True,
         reward_weights: NavRewardWeights = NavRewardWeights(),  # noqa: B008 (frozen)
     ):
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        render_mode = check_render_mode(render_mode, self.metadata["render_modes"])
         self.sensor_mode = check_sensor_mode(sensor_mode, self.sensor_modes)
         physics_hz, control_hz, ratio = check_rates(physics_hz, control_hz)
-        room_half_size = check_finite_float(
-            room_half_size,
-            "room_half_size",
-            low=MIN_ROOM_HALF_SIZE,
-            high=MAX_ROOM_HALF_SIZE,
-            unit="m",
-        )
-        n_obstacles = check_nonnegative_int(
-            n_obstacles,
-            "n_obstacles",
-            high=obstacle_capacity(room_half_size),
-            fix=(
-                f"a room of half-size {room_half_size:g} m holds at most that many obstacles"
-                if isinstance(n_obstacles, (int, float)) and n_obstacles > 0
-                else ""
-            ),
-        )
-        success_pos_tol = check_finite_float(
-            success_pos_tol,
-            "success_pos_tol",
-            low=0.0,
-            high=room_half_size,
-            strict_low=True,
-            unit="m",
-        )
-        success_ang_tol = check_finite_float(
-            success_ang_tol,
-            "success_ang_tol",
-            low=0.0,
-            high=math.pi,
-            strict_low=True,
-            unit="rad",
-        )
-        n_beams = check_positive_int(n_beams, "n_beams", high=MAX_BEAMS)
-        for rate_name, rate in (("scan_hz", scan_hz), ("camera_hz", camera_hz)):
-            check_finite_float(
-                rate, rate_name, low=0.0, high=control_hz, strict_low=True, unit="Hz"
-            )
-        check_bool(terminate_on_success, "terminate_on_success")
-        if not isinstance(reward_weights, NavRewardWeights):
-            raise TypeError(
-                f"reward_weights must be NavRewardWeights, got {type(reward_weights).__name__}"
-            )
-        if params is not None and not isinstance(params, DiffDriveParams):
-            raise TypeError(f"params must be DiffDriveParams, got {type(params).__name__}")
-        if reality is not None and not isinstance(reality, Reality):
-            raise TypeError(f"reality must be a Reality, got {type(reality).__name__}")
+        # room_half_size, n_obstacles, obstacles, start, goal, success tolerances,
+        # terminate_on_success and reward_weights: checked by the task (shared with the
+        # vector env)
         self.task = NavTask(
             room_half_size=room_half_size,
             n_obstacles=n_obstacles,
@@ -244,14 +211,18 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             terminate_on_success=terminate_on_success,
             weights=reward_weights,
         )
-        if estimator is not None and not isinstance(estimator, Estimator):
-            raise TypeError(
-                "estimator must have reset(initial=None) and update(measurement) methods, "
-                f"got {type(estimator).__name__}"
+        n_beams = check_positive_int(n_beams, "n_beams", high=MAX_BEAMS)
+        for rate_name, rate in (("scan_hz", scan_hz), ("camera_hz", camera_hz)):
+            check_finite_float(
+                rate, rate_name, low=0.0, high=control_hz, strict_low=True, unit="Hz"
             )
+        params = check_instance(params, "params", DiffDriveParams, default=DiffDriveParams)
+        reality = check_reality(reality, "diffdrive")
+        if estimator is not None:
+            check_estimator(estimator, ESTIMATOR_METHODS, protocol=ESTIMATOR_PROTOCOL)
         self.render_mode = render_mode
-        self.params = params if params is not None else DiffDriveParams()
-        self.reality = reality if reality is not None else Reality()
+        self.params = params
+        self.reality = reality
         self.true_params = self.reality.apply_params(self.params)
         self.n_beams = int(n_beams)
         self._scan_every = self._divisor("scan_hz", scan_hz, control_hz)
@@ -355,7 +326,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[npt.NDArray[np.float32], dict[str, Any]]:
         """Start an episode. ``options`` may hold ``start`` and ``goal`` poses ``[x, y, θ]``."""
-        super().reset(seed=seed)
+        super().reset(seed=check_seed(seed))
         options = dict(options or {})
         unknown = set(options) - {"start", "goal"}
         if unknown:

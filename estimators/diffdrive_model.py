@@ -41,6 +41,7 @@ evaluates in vectorised form.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -54,6 +55,7 @@ from realitygap.estimators.base import DiffDriveMeasurement, Estimate, WheelTick
 FloatArray = npt.NDArray[np.float64]
 
 __all__ = [
+    "UMBMARK_RATIO_BOUNDS",
     "DiffDriveKinematics",
     "OdometryNoise",
     "WheelOdometry",
@@ -242,6 +244,35 @@ def _check_positive(name: str, value: float) -> float:
     return v
 
 
+UMBMARK_RATIO_BOUNDS = (0.5, 2.0)
+"""Physical bounds of the UMBmark ratios ``E_d`` and ``E_b`` (:meth:`DiffDriveKinematics.with_umbmark`).
+
+Both are ratios of a true to a nominal length, near 1: a wheel twice the size of
+the other, or a wheelbase half the nominal one, is another robot, not a
+systematic odometry error."""
+
+
+def _check_ratio(name: str, value: object, meaning: str) -> float:
+    """``value`` as a ratio near 1 within :data:`UMBMARK_RATIO_BOUNDS` (dimensionless)."""
+    low, high = UMBMARK_RATIO_BOUNDS
+    fix = (
+        f"Fix: pass {name} = {meaning} (unit 1; 1 when the robot is as declared); "
+        "if a UMBmark result is this far from 1, check the errors' sign convention and units"
+    )
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(
+            f"{name} must be a finite positive number near 1 in [{low:g}, {high:g}], "
+            f"got {value!r} ({type(value).__name__}). {fix}"
+        )
+    v = float(value)
+    if not (math.isfinite(v) and low <= v <= high):
+        raise ValueError(
+            f"{name} must be a finite positive number near 1 in [{low:g}, {high:g}], "
+            f"got {value!r}. {fix}"
+        )
+    return v
+
+
 @dataclass(frozen=True)
 class DiffDriveKinematics:
     """Wheel geometry of a differential drive.
@@ -402,9 +433,17 @@ class DiffDriveKinematics:
             Radii scaled by ``c_L = 2/(E_d + 1)`` and ``c_R = 2/(1/E_d + 1)``
             (their mean is 1, so the average wheel size, which UMBmark cannot
             observe, is unchanged) and wheelbase scaled by ``E_b``.
+
+        Raises
+        ------
+        ValueError
+            ``E_d`` or ``E_b`` is not finite or outside :data:`UMBMARK_RATIO_BOUNDS`
+            (a ratio ``≤ 0`` has no wheel behind it).
+        TypeError
+            Not a real number.
         """
-        e_d = _check_positive("E_d", E_d)
-        e_b = _check_positive("E_b", E_b)
+        e_d = _check_ratio("E_d", E_d, "D_R / D_L, the right over the left wheel diameter")
+        e_b = _check_ratio("E_b", E_b, "the actual over the nominal wheelbase")
         c_left = 2.0 / (e_d + 1.0)
         c_right = 2.0 / (1.0 / e_d + 1.0)
         return self.scaled(left=c_left, right=c_right, wheelbase=e_b)

@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import math
+import shlex
 import sys
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
@@ -45,6 +46,7 @@ __all__ = [
     "SessionCalibration",
     "add_calibrate_parser",
     "calibrate_session",
+    "check_session_folder",
     "format_calibrations",
     "pool_calibrations",
     "session_time",
@@ -170,6 +172,62 @@ def _recorded(session_id: str) -> str:
     return "" if when is None else when.strftime("%Y-%m-%dT%H:%M")
 
 
+SESSION_LAYOUT = """\
+an OptiOdom session folder of square runs:
+  <ID>/<ID>_metadata.csv        wheel diameters, wheelbase, ticks per revolution, side L
+  <ID>/<ID>_run-01.csv, …       one run each: wheel ticks and the ground-truth pose"""
+"""The folder layout ``calibrate umbmark`` reads, for messages."""
+
+
+def check_session_folder(folder: str | Path, name: str = "SESSION_DIR") -> Path:
+    """``folder`` if it exists as a readable folder, else an error that says what is there
+    (a file, a link loop, nothing) and shows :data:`SESSION_LAYOUT`.
+
+    A file of a session (its metadata or a run) gets the command with its folder; a folder
+    that holds sessions below it gets the command with them.
+
+    Raises
+    ------
+    FileNotFoundError
+        Nothing at ``folder``.
+    ValueError
+        Something other than a folder, or a folder that holds no session.
+    """
+    from realitygap.core.checks import check_input_path
+
+    p = Path(folder)
+    try:
+        check_input_path(p, name, kind="folder", expected=SESSION_LAYOUT.partition(":")[0])
+    except FileNotFoundError as exc:
+        raise FileNotFoundError(f"{exc}\nExpected {SESSION_LAYOUT}") from None
+    except ValueError as exc:
+        parent = p.parent
+        if p.is_file() and (parent / f"{parent.name}_metadata.csv").is_file():
+            fix = (
+                f"{p.name} is a file of the session {parent}; pass the folder:\n  realitygap "
+                f"calibrate umbmark {shlex.quote(str(parent))}"
+            )
+        else:
+            fix = f"Expected {SESSION_LAYOUT}"
+        raise ValueError(f"{exc}\n{fix}") from None
+    if not (p / f"{p.name}_metadata.csv").is_file():
+        from realitygap.diagnosis.logs.importers.optiodom import find_sessions
+
+        below = find_sessions(p)
+        if below:
+            shown = " ".join(shlex.quote(str(s)) for s in below[:6])
+            more = f" (and {len(below) - 6} more)" if len(below) > 6 else ""
+            raise ValueError(
+                f"{name}: {p} is not a session folder but holds {len(below)} below it; pass "
+                f"them:\n  realitygap calibrate umbmark {shown}{more}"
+            )
+        raise ValueError(
+            f"{name}: {p} is not an OptiOdom session folder (no {p.name}_metadata.csv in "
+            f"it, none below it). Expected {SESSION_LAYOUT}"
+        )
+    return p
+
+
 def calibrate_session(folder: str | Path, side_length: float | None = None) -> SessionCalibration:
     """UMBmark for one OptiOdom square session.
 
@@ -187,17 +245,16 @@ def calibrate_session(folder: str | Path, side_length: float | None = None) -> S
     Raises
     ------
     FileNotFoundError
-        If ``folder`` does not exist or is not a session (no metadata file).
+        If ``folder`` does not exist.
     ValueError
-        If the session is not a square session, has no side length, or does not
+        If ``folder`` is a file or no session folder (:func:`check_session_folder`), if
+        the session is not a square session, has no side length, or does not
         hold runs in both directions.
     """
     from realitygap.diagnosis.logs.importers.optiodom import PathType, read_session
     from realitygap.estimators.umbmark import UMBmarkRun, umbmark_from_runs
 
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise FileNotFoundError(f"{folder}: no such folder (expected an OptiOdom session <ID>/)")
+    folder = check_session_folder(folder)
     session = read_session(folder)
     meta = session.metadata
     L = side_length if side_length is not None else meta.side_length
@@ -303,7 +360,8 @@ def format_calibrations(
 
 
 def _cmd_umbmark(args: argparse.Namespace) -> int:
-    from realitygap.experiments import write_json_atomic
+    from realitygap.core.io import write_json
+    from realitygap.core.outputs import Outputs, command_line
 
     if args.side_length is not None and not (
         math.isfinite(args.side_length) and args.side_length > 0
@@ -314,25 +372,26 @@ def _cmd_umbmark(args: argparse.Namespace) -> int:
         )
         return 2
     calibrations = []
-    for folder in args.sessions:
+    overwrite = bool(getattr(args, "overwrite", False))
+    with Outputs(inputs=args.sessions, overwrite=overwrite, command=command_line()) as out:
         try:
-            calibrations.append(calibrate_session(folder, args.side_length))
+            stage = out.file(args.json, "--json") if args.json else None
+            for folder in args.sessions:
+                calibrations.append(calibrate_session(folder, args.side_length))
         except (FileNotFoundError, ValueError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
-    pooled = pool_calibrations(calibrations)
+        pooled = pool_calibrations(calibrations)
+        if stage is not None:
+            payload = {
+                "method": "UMBmark (Borenstein & Feng 1996), end-pose errors absolute − odometry",
+                "sessions": [c.to_dict() for c in calibrations],
+                "pooled": pooled.to_dict(),
+            }
+            write_json(stage, payload)
+        out.commit()
     print(format_calibrations(calibrations, pooled))
     if args.json:
-        payload = {
-            "method": "UMBmark (Borenstein & Feng 1996), end-pose errors absolute − odometry",
-            "sessions": [c.to_dict() for c in calibrations],
-            "pooled": pooled.to_dict(),
-        }
-        try:
-            write_json_atomic(args.json, payload)
-        except OSError as exc:
-            print(f"error: cannot write {args.json}: {exc}", file=sys.stderr)
-            return 2
         print(f"wrote {args.json}")
     return 0
 

@@ -18,6 +18,9 @@ from pathlib import Path
 
 import realitygap
 from realitygap import experiments
+from realitygap.core.io import write_json
+from realitygap.core.outputs import Outputs, command_line
+from realitygap.core.parallel import cap_workers
 from realitygap.core.progress import Countdown, duration_words
 
 
@@ -144,7 +147,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.backend is not None:
         options["backend"] = args.backend
     if args.workers is not None:
-        options["workers"] = args.workers
+        if args.workers < 1:
+            print(
+                f"error: --workers must be a positive integer, got {args.workers}", file=sys.stderr
+            )
+            return 2
+        options["workers"] = cap_workers(
+            args.workers, "--workers", lambda m: print(f"warning: {m}", file=sys.stderr)
+        )
     ctx = _TimedContext(
         quick=args.quick, seed=args.seed, data_dir=data, verbose=not args.silent, options=options
     )
@@ -160,14 +170,25 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if report_dir is None:
         stamp = time.strftime("%Y%m%d-%H%M%S")
         report_dir = str(Path("realitygap-reports") / f"{args.experiment}-{stamp}")
-    try:
-        result = experiments.run(args.experiment, ctx, json_path=args.json, report_dir=report_dir)
-    except KeyError as exc:
-        print(f"error: {exc.args[0]}", file=sys.stderr)
-        return 2
-    except (FileNotFoundError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    inputs = [data] if args.data else []
+    with Outputs(inputs=inputs, overwrite=args.overwrite, command=command_line()) as out:
+        try:
+            json_stage = out.file(args.json, "--json") if args.json else None
+            report_stage = out.folder(report_dir, "--report")
+            result = experiments.run(args.experiment, ctx, report_dir=report_stage)
+        except KeyError as exc:
+            print(f"error: {exc.args[0]}", file=sys.stderr)
+            return 2
+        except (FileNotFoundError, ValueError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        if "report" in result:
+            result["report"] = str(Path(report_dir) / Path(result["report"]).name)
+        else:
+            _remove_empty(report_stage)
+        if json_stage is not None:
+            write_json(json_stage, result)
+        out.commit()
     _remember_duration(key, float(result["wall_seconds"]))
     _print_diagnoses(ctx, verbose=args.verbose)
     print(experiments.format_figures(result))
@@ -183,6 +204,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
     elif args.report is not None:
         print(f"note: {args.experiment} makes no diagnosis, so --report wrote nothing")
     return 0
+
+
+def _remove_empty(stage: Path) -> None:
+    """An experiment that made no diagnosis writes no report: its staged folder, still
+    empty, is not put in place."""
+    if stage.is_dir() and not any(stage.iterdir()):
+        stage.rmdir()
 
 
 def _cmd_sample(args: argparse.Namespace) -> int:
@@ -353,6 +381,7 @@ def build_parser() -> argparse.ArgumentParser:
     for choice in _subparsers(parser):
         _fill_help(choice)
         _add_verbosity(choice)
+        _add_overwrite(choice)
     return parser
 
 
@@ -367,14 +396,74 @@ def _subparsers(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParser
     return found
 
 
+def _add_overwrite(parser: argparse.ArgumentParser) -> None:
+    """``--overwrite`` on every sub-command that writes a ``--json``, ``--report`` or ``--out``
+    target (:mod:`realitygap.core.outputs`)."""
+    options = parser._option_string_actions
+    if "--overwrite" in options or not {"--json", "--report", "--out"} & set(options):
+        return
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an output target realitygap did not write (a folder with other files "
+        "is replaced whole); without it such a target is refused",
+    )
+
+
+def _add_overwrite(parser: argparse.ArgumentParser) -> None:
+    """``--overwrite`` on every sub-command that writes a ``--json``, ``--report`` or ``--out``
+    target (:mod:`realitygap.core.outputs`)."""
+    options = parser._option_string_actions
+    if "--overwrite" in options or not {"--json", "--report", "--out"} & set(options):
+        return
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an output target realitygap did not write (a folder with other files "
+        "is replaced whole); without it such a target is refused",
+    )
+
+
+def _is_console_script() -> bool:
+    """Whether this process is the ``realitygap`` command (not a test calling :func:`main`)."""
+    return Path(sys.argv[0]).name in ("realitygap", "cli.py") or sys.argv[0].endswith(
+        "realitygap/cli.py"
+    )
+
+
+def _os_error_words(exc: OSError) -> str:
+    """An operating-system error in words: the file, the cause, the fix where one is known."""
+    import errno
+
+    where = f"{exc.filename}: " if exc.filename else ""
+    fixes = {
+        errno.ENOSPC: "the disk is full. Fix: free some space or write to another disk",
+        errno.EDQUOT: "the disk quota is used up. Fix: free some space or write elsewhere",
+        errno.EROFS: "the file system is read-only. Fix: write to a writable folder",
+        errno.EACCES: "permission denied. Fix: choose a path you may write, or fix its mode",
+        errno.EMFILE: "too many open files. Fix: raise the limit (ulimit -n) or use fewer workers",
+    }
+    cause = fixes.get(exc.errno or -1, exc.strerror or str(exc))
+    return f"{where}{cause}; outputs not yet complete were not put in place"
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status.
+
+    0: done; 1: done with failed parts, or an operating-system error (disk full, …); 2: a
+    bad input or option (the message names it and the fix); 130 / 143: stopped by Ctrl-C /
+    SIGTERM (outputs left as they were); 70: an internal error (a bug: the message says so;
+    ``--verbose`` shows the traceback).
+    """
+    from realitygap.core.stops import run_command
+
     parser = build_parser()
     args = parser.parse_args(argv)
     if getattr(args, "verbose", False):  # every module's INFO messages on stderr
         import logging
 
         logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
-    return int(args.func(args))
+    return run_command(lambda: int(args.func(args)), verbose=bool(getattr(args, "verbose", False)))
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -9,7 +9,7 @@ y left, z up; the camera's optical frame is x right, y down, z forward.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields, replace
 from enum import Enum
 from functools import partial
@@ -75,6 +75,56 @@ class RGBDCameraParams:
         return T
 
 
+PARAM_RANGES: dict[str, tuple[float, float, str]] = {
+    "wheel_radius_left": (1e-3, 2.0, "m"),
+    "wheel_radius_right": (1e-3, 2.0, "m"),
+    "wheelbase": (1e-2, 10.0, "m"),
+    "wheel_width": (1e-4, 1.0, "m"),
+    "body_radius": (5e-3, 10.0, "m"),
+    "body_height": (5e-3, 10.0, "m"),
+    "body_mass": (1e-2, 1e4, "kg"),
+    "wheel_mass": (1e-3, 1e3, "kg"),
+    "caster_radius": (5e-4, 1.0, "m"),
+    "caster_offset": (5e-4, 10.0, "m"),
+    "wheel_friction": (1e-3, 10.0, "1"),
+    "motor_max_torque": (1e-4, 1e4, "N·m"),
+    "ticks_per_rev": (1.0, 1e8, "ticks"),
+    "v_max": (1e-3, 100.0, "m/s"),
+    "w_max": (1e-3, 100.0, "rad/s"),
+    "a_max": (1e-3, 1e3, "m/s²"),
+    "alpha_max": (1e-3, 1e4, "rad/s²"),
+}
+"""Physical range and unit of each number of :class:`DiffDriveParams`: wide enough for any
+wheeled base from a toy to a truck, narrow enough to catch a wrong unit (a radius in mm given
+as m is 1000× too large)."""
+
+
+def check_param(name: str, value: object, prefix: str = "") -> float:
+    """``value`` of the :class:`DiffDriveParams` field ``name`` as a float, or a
+    ``ValueError`` naming it, its unit and physical range, what came and the fix.
+
+    A bool, text or ``None`` is no number; NaN, infinity and values outside
+    :data:`PARAM_RANGES` are refused.
+    """
+    low, high, unit = PARAM_RANGES[name]
+    number = isinstance(value, int | float | np.integer | np.floating) and not isinstance(
+        value, bool | np.bool_
+    )
+    x = float(value) if number else math.nan  # type: ignore[arg-type]
+    if not (number and low <= x <= high):
+        got = f"{value!r}" if number else f"{value!r} ({type(value).__name__})"
+        hint = (
+            " (a length in mm given as m is 1000× too large)"
+            if unit == "m" and number and x > high
+            else ""
+        )
+        raise ValueError(
+            f"{prefix}{name} must be a number in [{low:g}, {high:g}] {unit} (SI units), got "
+            f"{got}{hint}. Fix: give {name} in {unit}"
+        )
+    return x
+
+
 @dataclass(frozen=True)
 class DiffDriveParams:
     """Physical parameters of a Kobuki-like base, SI units.
@@ -104,13 +154,8 @@ class DiffDriveParams:
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, float | int) and not isinstance(value, bool):
-                if not math.isfinite(value) or value <= 0:
-                    raise ValueError(
-                        f"DiffDriveParams.{f.name} must be a positive finite number (SI units), "
-                        f"got {value!r}"
-                    )
+            if f.name in PARAM_RANGES:
+                check_param(f.name, getattr(self, f.name), "DiffDriveParams.")
         if self.wheelbase <= self.wheel_width:
             raise ValueError(
                 f"wheelbase ({self.wheelbase} m) must exceed the wheel width ({self.wheel_width} m)"
@@ -207,6 +252,41 @@ class FirmwareLimits:
                 f"one of {[d.value for d in Deceleration]}, got ramp {self.ramp!r}, "
                 f"deceleration {self.deceleration!r}"
             ) from None
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, object], name: str = "firmware") -> FirmwareLimits:
+        """The limits a user states (``--firmware``, a robot file): known keys only, each limit
+        a positive number (``inf``: none); a ``ValueError`` naming ``name`` and the key
+        otherwise."""
+        if not isinstance(values, Mapping):
+            raise ValueError(
+                f"{name} must be a mapping of limits (e.g. {{'a_max': 1.0}}), got "
+                f"{type(values).__name__}"
+            )
+        known = [f.name for f in fields(cls)]
+        unknown = sorted(set(map(str, values)) - set(known))
+        if unknown:
+            raise ValueError(
+                f"{name}: unknown key(s) {unknown}; known: {', '.join(known)}. Fix: use those names"
+            )
+        kwargs: dict[str, object] = {}
+        for key, value in values.items():
+            if key in ("ramp", "deceleration"):
+                kwargs[key] = value
+                continue
+            ok = isinstance(value, int | float | np.integer | np.floating) and not isinstance(
+                value, bool | np.bool_
+            )
+            if not ok or not float(value) > 0.0:  # type: ignore[arg-type]
+                raise ValueError(
+                    f"{name}: {key} must be a positive number (inf: no limit), got {value!r}. "
+                    f"Fix: give {key} in SI units, e.g. {key}=1.0"
+                )
+            kwargs[key] = float(value)  # type: ignore[arg-type]
+        try:
+            return cls(**kwargs)  # type: ignore[arg-type]
+        except ValueError as exc:
+            raise ValueError(f"{name}: {exc}") from None
 
     @property
     def convention(self) -> str:

@@ -39,7 +39,12 @@ import numpy.typing as npt
 from realitygap.core.cache import ArrayCache, content_key, default_cache
 from realitygap.core.geometry import reframe_track
 from realitygap.estimators.diffdrive_model import DiffDriveKinematics
-from realitygap.robots.diffdrive import DiffDriveParams, DiffDriveRobot, RGBDCameraParams
+from realitygap.robots.diffdrive import (
+    DiffDriveParams,
+    DiffDriveRobot,
+    RGBDCameraParams,
+    check_param,
+)
 from realitygap.robots.effects import Reality
 from realitygap.robots.simulation import MeasurementNoise, SimSettings
 from realitygap.robots.world import World
@@ -101,7 +106,10 @@ def params_from_meta(meta: Mapping[str, Any], source: str = "") -> DiffDrivePara
             f"{where}unknown robot parameter(s) {unknown} in metadata; known: {sorted(known)}"
         )
     cam_raw = raw.pop("camera", None)
-    kwargs: dict[str, Any] = {k: float(v) for k, v in raw.items()}
+    try:
+        kwargs: dict[str, Any] = {k: check_param(k, v) for k, v in raw.items()}
+    except ValueError as exc:
+        raise MetaError(f"{where}robot parameter {exc}") from None
     if isinstance(cam_raw, Mapping):
         cam_fields = {f.name for f in dataclasses.fields(RGBDCameraParams)}
         cam_kw = {k: v for k, v in cam_raw.items() if k in cam_fields}

@@ -8,6 +8,7 @@ import re
 import pytest
 
 from realitygap import cli, experiments
+from realitygap.core.io import write_json
 
 
 def test_list_shows_envs_experiments_and_effects(capsys: pytest.CaptureFixture[str]) -> None:
@@ -54,7 +55,7 @@ def test_run_writes_json_atomically(
 def test_failed_write_leaves_nothing(tmp_path) -> None:
     target = tmp_path / "x.json"
     with pytest.raises(TypeError):
-        experiments.write_json_atomic(target, {"bad": object()})
+        write_json(target, {"bad": object()})
     assert list(tmp_path.iterdir()) == []
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -80,9 +81,18 @@ def parse_policies(text: str | Sequence[str]) -> list[PolicySpec]:
     for item in items:
         if "=" in item:
             name, path = (s.strip() for s in item.split("=", 1))
-            if not Path(path).is_file():
-                raise FileNotFoundError(f"policy {name!r}: no file {path}")
-            out.append(PolicySpec(name, "file", (("*", path),)))
+            if not name or not path:
+                raise ValueError(
+                    f"--policies: {item!r} needs a name and a path, name=path/to/model.zip. "
+                    "Fix: e.g. mine=runs/train/WheeledNav-v0/ppo/seed0/model.zip"
+                )
+            if not os.path.lexists(path):
+                where = "" if Path(path).is_absolute() else f" (relative to {Path.cwd()})"
+                raise FileNotFoundError(
+                    f"--policies {name}: no file {path}{where}. Fix: give the path of a "
+                    "model.zip written by `realitygap train`, or of exported weights (.pth)"
+                )
+            out.append(check_policy_spec(PolicySpec(name, "file", (("*", path),))))
             continue
         if item not in POLICY_KINDS:
             import difflib
@@ -98,6 +108,40 @@ def parse_policies(text: str | Sequence[str]) -> list[PolicySpec]:
     if len(set(names)) != len(names):
         raise ValueError(f"policy names must be unique, got {names}")
     return out
+
+
+def check_policy_spec(spec: Any) -> PolicySpec:
+    """``spec`` if it is a :class:`PolicySpec` of a known kind whose model files are readable
+    policy files (an SB3 zip with its ``data`` entry, or ``.pth`` weights with their
+    ``.json``), read without unpickling anything.
+
+    Raises
+    ------
+    TypeError
+        Not a :class:`PolicySpec`.
+    FileNotFoundError, ValueError
+        An unknown kind or name, or a model file that is missing or no policy file; the
+        message names ``--policies`` and the policy.
+    """
+    from realitygap.baselines.rl import read_policy_meta
+
+    if not isinstance(spec, PolicySpec):
+        raise TypeError(
+            f"--policies (policies) must hold PolicySpec objects (parse_policies), got "
+            f"{type(spec).__name__}"
+        )
+    if not isinstance(spec.name, str) or not spec.name.strip():
+        raise ValueError(f"--policies (policies): a policy needs a name, got {spec.name!r}")
+    if spec.kind not in (*POLICY_KINDS, "file"):
+        raise ValueError(
+            f"--policies (policies): policy {spec.name!r} has unknown kind {spec.kind!r}; "
+            f"expected one of {', '.join(POLICY_KINDS)} or 'file'"
+        )
+    if spec.kind == "file" and not spec.paths:
+        raise ValueError(f"--policies (policies): policy {spec.name!r} names no model file")
+    for _, path in spec.paths:
+        read_policy_meta(path, f"--policies {spec.name}")
+    return spec
 
 
 def build_policy(spec: PolicySpec, env: gym.Env[Any, Any], env_id: str, seed: int = 0) -> Any:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -72,31 +72,108 @@ REALITY_PROFILES: dict[str, dict[str, Any]] = {
 
 
 # --------------------------------------------------------------------------- realities
-def reality_from_profile(name: str) -> Any:
-    """The :class:`~realitygap.robots.effects.Reality` of profile ``name`` (or a JSON file).
+_REALITY_EXAMPLE = (
+    '{"name": "mine", "effects": [{"name": "command_latency", "values": {"delay": 0.06}}]}'
+)
 
-    ``"nominal"`` is the nominal robot. A path to a JSON file is read in
-    :meth:`Reality.to_dict` format.
+
+def _looks_like_file(name: str) -> bool:
+    return (
+        name.lower().endswith((".json", ".yaml", ".yml"))
+        or os.sep in name
+        or "/" in name
+        or os.path.lexists(name)
+    )
+
+
+def reality_from_profile(name: str, option: str = "--reality") -> Any:
+    """The :class:`~realitygap.robots.effects.Reality` of profile ``name`` (or a file).
+
+    ``"nominal"`` is the nominal robot. A path (ending in ``.json``, ``.yaml`` or ``.yml``,
+    or naming an existing file) is read by :func:`load_reality_file`.
+
+    Raises
+    ------
+    FileNotFoundError
+        A path to nothing.
+    ValueError
+        An unknown profile name (with close names), or a file that is no valid reality;
+        the message names ``option``.
     """
     import difflib
 
     from realitygap.robots.effects import Reality
 
+    if not isinstance(name, str) or not name.strip():
+        raise ValueError(
+            f"{option}: expected a reality profile name or a Reality JSON file, got {name!r}. "
+            f"Known: nominal, {', '.join(REALITY_PROFILES)}"
+        )
     if name == "nominal":
         return Reality()
     if name in REALITY_PROFILES:
         prof = REALITY_PROFILES[name]
         return Reality.from_dict({"name": name, "effects": prof["effects"]})
-    path = Path(name)
-    if path.suffix == ".json" and path.is_file():
-        data = json.loads(path.read_text(encoding="utf-8"))
-        return Reality.from_dict({"name": data.get("name", path.stem), **data})
+    if _looks_like_file(name):
+        return load_reality_file(name, option)
     close = difflib.get_close_matches(name, list(REALITY_PROFILES), n=2)
     hint = f" Did you mean {', '.join(map(repr, close))}?" if close else ""
     raise ValueError(
-        f"unknown reality profile {name!r}.{hint} Known: nominal, {', '.join(REALITY_PROFILES)} "
-        "(or a JSON file in Reality.to_dict() format)"
+        f"{option}: unknown reality profile {name!r}.{hint} Known: nominal, "
+        f"{', '.join(REALITY_PROFILES)} (or a JSON file in Reality.to_dict() format). Fix: "
+        "give one of these names, or the path of a reality file"
     )
+
+
+def load_reality_file(path: str | os.PathLike[str], option: str = "--reality") -> Any:
+    """A :class:`~realitygap.robots.effects.Reality` from a JSON or YAML file in
+    :meth:`Reality.to_dict` format, every effect and parameter checked (bounds included).
+
+    Read with :func:`~realitygap.core.checks.load_json_or_yaml` (errors name the file and
+    line); each message names ``option`` and the file.
+    """
+    from realitygap.core.checks import load_json_or_yaml
+    from realitygap.robots.effects import Reality, make_effect
+
+    data = load_json_or_yaml(Path(path), option, expect=dict, example=_REALITY_EXAMPLE)
+    where = f"{option} {path}"
+    unknown = sorted(set(map(str, data)) - {"name", "effects", "meta"})
+    if unknown:
+        raise ValueError(
+            f"{where}: unknown key(s) {unknown}; a reality file has 'name' and 'effects', e.g. "
+            f"{_REALITY_EXAMPLE}. Fix: remove or rename them"
+        )
+    effects = data.get("effects", [])
+    if not isinstance(effects, list):
+        raise ValueError(
+            f'{where}: \'effects\' must be a list of {{"name": ..., "values": {{...}}}} '
+            f"objects, got {type(effects).__name__}. Fix: write it as in {_REALITY_EXAMPLE}"
+        )
+    built = []
+    for i, item in enumerate(effects):
+        at = f"{where}: effects[{i}]"
+        if not isinstance(item, dict) or not isinstance(item.get("name"), str):
+            raise ValueError(
+                f"{at} must be an object with a 'name' (str) and 'values', got {item!r:.60}. "
+                f"Fix: write it as in {_REALITY_EXAMPLE}"
+            )
+        values = item.get("values", {})
+        if not isinstance(values, dict):
+            raise ValueError(
+                f"{at} ({item['name']!r}): 'values' must be an object of parameter: number, "
+                f"got {values!r:.60}"
+            )
+        try:
+            built.append(make_effect(item["name"], **{str(k): v for k, v in values.items()}))
+        except KeyError as exc:
+            raise ValueError(f"{at}: {exc.args[0]}") from None
+        except (ValueError, TypeError) as exc:
+            raise ValueError(f"{at}: {exc}") from None
+    name = data.get("name", Path(path).stem)
+    try:
+        return Reality(effects=tuple(built), name=str(name))
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{where}: {exc}") from None
 
 
 def reality_for(env_id: str, name: str) -> Any:
@@ -124,6 +201,12 @@ def env_sensor_mode(env_id: str, mode: str) -> str:
 
 
 def profile_robot(name: str) -> str | None:
-    """The robot a named profile is for (``None`` for ``nominal`` and JSON files)."""
+    """The robot a profile is for: a named profile's, or the effects' of a reality file
+    (``None`` for ``nominal`` and a file without effects)."""
     prof = REALITY_PROFILES.get(name)
-    return None if prof is None else str(prof["robot"])
+    if prof is not None:
+        return str(prof["robot"])
+    if name == "nominal":
+        return None
+    robot = reality_from_profile(name).robot
+    return None if robot is None else str(robot)

@@ -20,11 +20,9 @@ from realitygap.baselines.benchmark.config import BenchmarkConfig, episode_seeds
 from realitygap.baselines.benchmark.policies import PolicySpec, build_policy
 from realitygap.baselines.benchmark.profiles import (
     REALITY_PROFILES,
-    SENSOR_MODES,
     env_sensor_mode,
     profile_robot,
     reality_for,
-    reality_from_profile,
 )
 from realitygap.baselines.benchmark.report import markdown_report, plot_success
 from realitygap.baselines.benchmark.stats import (
@@ -36,7 +34,6 @@ from realitygap.baselines.benchmark.stats import (
     transfer_rows,
 )
 from realitygap.baselines.rl import (
-    check_env_id,
     env_slug,
     write_csv_atomic,
 )
@@ -426,6 +423,42 @@ def _execute_streaming(
     return errors
 
 
+def check_run_options(backend: Any, workers: Any = 1, address: Any = None) -> int:
+    """The options of a benchmark run besides its :class:`BenchmarkConfig`, checked before
+    any work: ``backend`` ``"local"`` or ``"ray"`` (Ray importable), ``workers`` a positive
+    integer (local processes), ``address`` only with Ray. Returns ``workers``.
+
+    Raises
+    ------
+    ValueError, TypeError
+        Naming the option, what was expected, what came and the fix.
+    ImportError
+        ``backend="ray"`` without Ray (with the install command).
+    """
+    from realitygap.core.checks import check_int
+
+    if backend not in ("local", "ray"):
+        raise ValueError(
+            f"--backend: backend must be 'local' or 'ray', got {backend!r}. Fix: "
+            "--backend local (this machine) or --backend ray (a Ray cluster)"
+        )
+    workers = check_int(workers, "--workers (workers)", low=1, what="a positive integer")
+    if address is not None:
+        if not isinstance(address, str) or not address.strip():
+            raise ValueError(
+                f"--address (address) must be a Ray cluster address such as ray://head:10001 "
+                f"or auto, got {address!r}"
+            )
+        if backend != "ray":
+            raise ValueError(
+                f"--address {address} is a Ray cluster's address, but --backend is {backend!r}, "
+                "which runs on this machine. Fix: add --backend ray, or drop --address"
+            )
+    if backend == "ray":
+        require_ray()  # fail before any work with the install hint
+    return workers
+
+
 # --------------------------------------------------------------------------- the whole run
 @dataclass(frozen=True)
 class BenchmarkResult:
@@ -460,19 +493,12 @@ def run_benchmark(
     given), ``config.json``.
     """
     t0 = time.perf_counter()
+    if not isinstance(cfg, BenchmarkConfig):
+        raise TypeError(f"cfg must be a BenchmarkConfig, got {type(cfg).__name__}")
+    # the config checked its fields when it was made; the run's options before any work
+    workers = check_run_options(backend, workers, address)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    if backend == "ray":
-        require_ray()  # fail before any work with the install hint
-    elif backend != "local":
-        raise ValueError(f"backend must be 'local' or 'ray', got {backend!r}")
-    for env_id in cfg.env_ids:
-        check_env_id(env_id)
-    for mode in cfg.sensor_modes:
-        if mode not in SENSOR_MODES:
-            raise ValueError(f"sensor mode must be one of {SENSOR_MODES}, got {mode!r}")
-    for r in cfg.realities:
-        reality_from_profile(r)
     store = ResultStore(out / "episodes.jsonl")
     if not resume and store.path.exists():
         store.path.unlink()

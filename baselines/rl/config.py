@@ -51,7 +51,6 @@ env as registered, with its default success criterion.
 
 from __future__ import annotations
 
-import json
 import os
 import re
 from collections.abc import Mapping
@@ -149,24 +148,31 @@ def env_slug(env_id: str) -> str:
 def load_hyperparams(
     algo: str, env_id: str, path: str | os.PathLike[str] | None = None
 ) -> dict[str, Any]:
-    """The hyperparameters of ``algo`` on ``env_id`` from its file (``hyperparams/<algo>.json``).
+    """The hyperparameters of ``algo`` on ``env_id`` from its file (``hyperparams/<algo>.json``,
+    or ``path``: ``--hyperparams``), read with
+    :func:`~realitygap.core.checks.load_json_or_yaml` and type-checked
+    (:func:`~realitygap.baselines.rl.checks.check_hyperparams_table`).
 
     Raises
     ------
     FileNotFoundError
         If the file does not exist.
+    ValueError, TypeError
+        If it is no JSON/YAML mapping of env id → hyperparameters of the right types; the
+        message names the option, the file and (a syntax error) the line.
     KeyError
         If the file has no entry for ``env_id``.
     """
+    from realitygap.baselines.rl.checks import load_hyperparams_file
+
     algo = check_algo(algo)
     file = Path(path) if path is not None else HYPERPARAMS_DIR / f"{algo}.json"
-    if not file.is_file():
-        raise FileNotFoundError(f"no hyperparameter file {file}")
-    table = json.loads(file.read_text(encoding="utf-8"))
+    option = "--hyperparams" if path is not None else "hyperparameter file"
+    table = load_hyperparams_file(file, option, algo=algo)
     if env_id not in table:
         raise KeyError(
-            f"{file.name} has no hyperparameters for {env_id!r}; it has: "
-            f"{', '.join(sorted(k for k in table if not k.startswith('_')))}. Add an entry "
+            f"{option} {file.name} has no hyperparameters for {env_id!r}; it has: "
+            f"{', '.join(sorted(table)) or 'none'}. Add an entry "
             "(rl-zoo style) to train this env."
         )
     return dict(table[env_id])
@@ -301,6 +307,106 @@ class TrainConfig:
     progress_every_s: float = 30.0
     init_model: Path | None = None
     vector: bool = False
+
+    def __post_init__(self) -> None:
+        """Check and convert every field (see :func:`check_train_fields`)."""
+        for name, value in check_train_fields(self).items():
+            object.__setattr__(self, name, value)
+
+
+MAX_SEED = 2**32 - 1
+"""Largest seed: NumPy's legacy generator (which SB3 seeds) takes seeds below 2³²."""
+
+TRAIN_OPTIONS: dict[str, str] = {
+    "env_id": "--env",
+    "algo": "--algo",
+    "out_dir": "--out",
+    "seed": "--seed",
+    "total_timesteps": "--timesteps",
+    "n_envs": "--n-envs",
+    "vec_env": "--vec-env",
+    "hyperparams": "--hyperparams",
+    "checkpoint_every": "--checkpoint-every",
+    "eval_every": "--eval-every",
+    "eval_episodes": "--eval-episodes",
+    "init_model": "--init-model",
+    "vector": "--vector",
+}
+"""The ``realitygap train`` option of each :class:`TrainConfig` field."""
+
+
+def option_of(name: str) -> str:
+    """How messages name field ``name``: its option and the field (``--n-envs (n_envs)``)."""
+    opt = TRAIN_OPTIONS.get(name)
+    return f"{opt} ({name})" if opt else name
+
+
+def check_train_fields(cfg: TrainConfig) -> dict[str, Any]:
+    """Every field of ``cfg`` checked and converted, before any work (the config calls it
+    when it is made). What needs files or the hyperparameters is checked by
+    :func:`~realitygap.baselines.rl.checks.check_training`.
+
+    Raises
+    ------
+    TypeError, ValueError
+        Naming the option and field, what was expected, what came and the fix.
+    """
+    from realitygap.core.checks import check_finite_float, check_int
+
+    def count(name: str, low: int, *, none: bool = False, high: int | None = None) -> Any:
+        value = getattr(cfg, name)
+        if value is None and none:
+            return None
+        what = {0: "a non-negative integer", 1: "a positive integer"}[low]
+        return check_int(value, option_of(name), low=low, high=high, what=what)
+
+    out: dict[str, Any] = {
+        "env_id": check_env_id(cfg.env_id) if isinstance(cfg.env_id, str) else None,
+        "algo": None,
+        "seed": count("seed", 0, high=MAX_SEED),
+        "total_timesteps": count("total_timesteps", 1, none=True),
+        "n_envs": count("n_envs", 1, none=True),
+        "checkpoint_every": count("checkpoint_every", 0),
+        "eval_every": count("eval_every", 0),
+        "eval_episodes": count("eval_episodes", 0),
+        "progress_every_s": check_finite_float(
+            cfg.progress_every_s, "progress_every_s", low=0.0, strict_low=True, unit="s"
+        ),
+        "vector": cfg.vector,
+    }
+    if out["env_id"] is None:
+        raise TypeError(f"{option_of('env_id')} must be an env id (str), got {cfg.env_id!r}")
+    if not isinstance(cfg.algo, str):
+        raise TypeError(f"{option_of('algo')} must be 'ppo' or 'sac', got {cfg.algo!r}")
+    out["algo"] = check_algo(cfg.algo)
+    if not isinstance(cfg.out_dir, (str, os.PathLike)) or not str(cfg.out_dir).strip():
+        raise TypeError(
+            f"{option_of('out_dir')} must be a folder path, got {cfg.out_dir!r}. Fix: give the "
+            "folder for the model, its curves and checkpoints"
+        )
+    out["out_dir"] = Path(cfg.out_dir)
+    if cfg.vec_env is not None and cfg.vec_env not in ("subproc", "dummy"):
+        raise ValueError(
+            f"{option_of('vec_env')} must be 'subproc' (one process per env) or 'dummy' (all in "
+            f"this process), got {cfg.vec_env!r}"
+        )
+    if not isinstance(cfg.vector, bool):
+        raise TypeError(f"{option_of('vector')} must be true or false, got {cfg.vector!r}")
+    if cfg.vector:
+        vector_env_id(out["env_id"])
+    if cfg.hyperparams is not None and not isinstance(cfg.hyperparams, Mapping):
+        raise TypeError(
+            f"{option_of('hyperparams')} must be a mapping of hyperparameters (one env's entry), "
+            f"got {type(cfg.hyperparams).__name__}"
+        )
+    if cfg.init_model is not None:
+        if not isinstance(cfg.init_model, (str, os.PathLike)) or not str(cfg.init_model):
+            raise TypeError(
+                f"{option_of('init_model')} must be the path of a model.zip or .pth, got "
+                f"{cfg.init_model!r}"
+            )
+        out["init_model"] = Path(cfg.init_model)
+    return out
 
 
 VECTOR_ENVS: dict[str, str] = {"realitygap/WheeledNav-v0": "realitygap/WheeledNavVec-v0"}

@@ -82,29 +82,47 @@ def save_policy(
     return meta_path
 
 
-def read_policy_meta(path: str | os.PathLike[str]) -> dict[str, Any]:
+def read_policy_meta(path: str | os.PathLike[str], name: str = "policy") -> dict[str, Any]:
     """The JSON metadata of a saved policy (``model.zip`` → ``model.json``), without unpickling.
 
     Falls back to the readable part of the SB3 zip's ``data`` entry when the metadata
-    file is missing.
+    file is missing; exported weights (``.pth``) need theirs.
+
+    Raises
+    ------
+    FileNotFoundError
+        No file at ``path``, or a ``.pth`` without its ``.json``.
+    ValueError
+        Unreadable, empty, or not a policy file; the message names ``name`` and the path.
     """
     import zipfile
 
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no policy file {path}")
+    from realitygap.core.checks import check_input_path, load_json_or_yaml
+
+    path = check_input_path(path, name, kind="file", needs="a saved policy needs content")
     meta_path = path.with_suffix(".json")
-    if meta_path.is_file():
-        return dict(json.loads(meta_path.read_text(encoding="utf-8")))
+    if meta_path.is_file() and meta_path != path:
+        return dict(load_json_or_yaml(meta_path, f"{name} metadata", expect=dict))
+    if path.suffix.lower() == ".pth":
+        raise FileNotFoundError(
+            f"{name}: exported weights {path} need their metadata {meta_path.name} beside "
+            "them. Fix: copy the .json along with the .pth"
+        )
     try:
         with zipfile.ZipFile(path) as archive:
             data = json.loads(archive.read("data").decode())
-    except (zipfile.BadZipFile, KeyError) as exc:
+    except (zipfile.BadZipFile, KeyError, OSError, UnicodeDecodeError, ValueError) as exc:
         raise ValueError(
-            f"{path} is not a stable-baselines3 policy file (zip with 'data')"
-        ) from exc
+            f"{name}: {path} is not a stable-baselines3 policy file (a zip archive with a "
+            f"'data' entry): {exc}. Fix: pass a model.zip written by `realitygap train`, or "
+            "exported weights (.pth with its .json)"
+        ) from None
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{name}: {path}: the 'data' entry is not SB3's JSON object")
     obs = data.get("observation_space", {})
     act = data.get("action_space", {})
+    obs = obs if isinstance(obs, Mapping) else {}
+    act = act if isinstance(act, Mapping) else {}
     return {
         "format": "sb3-zip",
         "env_id": None,

@@ -32,6 +32,7 @@ import gymnasium as gym
 import numpy as np
 
 from realitygap.baselines.rl.callbacks import evaluate_model, make_callback
+from realitygap.baselines.rl.checks import check_training
 from realitygap.baselines.rl.config import (
     EVAL_SEED_OFFSET,
     TRAIN_KEYS,
@@ -41,7 +42,6 @@ from realitygap.baselines.rl.config import (
     algo_class,
     check_algo,
     check_env_id,
-    load_hyperparams,
     resolve_policy_kwargs,
     vector_env_id,
 )
@@ -95,9 +95,8 @@ def _resolve_settings(cfg: TrainConfig) -> _RunSettings:
     algo_class(algo)
     import torch  # noqa: F401  (after the install hint of algo_class)
 
-    hp_id = vector_env_id(env_id) if cfg.vector else env_id
-    hp = dict(cfg.hyperparams) if cfg.hyperparams is not None else load_hyperparams(algo, hp_id)
-    hp = {k: v for k, v in hp.items() if not k.startswith("_")}
+    plan = check_training(cfg)  # every input, before any env starts
+    hp = {k: v for k, v in plan.hp.items() if not k.startswith("_")}
     budget = int(hp["n_timesteps"])
     env_kwargs = dict(hp.get("env_kwargs", {}))
     curriculum = Curriculum.from_dict(hp["curriculum"]) if hp.get("curriculum") else None
@@ -114,9 +113,9 @@ def _resolve_settings(cfg: TrainConfig) -> _RunSettings:
         algo=algo,
         hp=hp,
         budget=budget,
-        total=int(cfg.total_timesteps if cfg.total_timesteps is not None else budget),
-        n_envs=int(cfg.n_envs if cfg.n_envs is not None else hp.get("n_envs", 1)),
-        vec_kind=str(cfg.vec_env if cfg.vec_env is not None else hp.get("vec_env", "dummy")),
+        total=plan.total_timesteps,
+        n_envs=plan.n_envs,
+        vec_kind=plan.vec_env,
         env_kwargs=env_kwargs,
         curriculum=curriculum,
         normalize=normalize,

@@ -41,6 +41,7 @@ The adapters are :class:`~realitygap.diagnosis.adapters.diffdrive.adapter.DiffDr
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -547,6 +548,20 @@ class RobotAdapter(ABC):
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    # ------------------------------------------------------------------ checks before work
+    uses_time_windows: bool = True
+    """Whether the features cut each log into time windows (:meth:`time_windows`); an
+    adapter whose logs are poses at stations sets it ``False``."""
+
+    def check_request(self, logs: Sequence[Log], settings: FeatureSettings, drive: Drive) -> None:
+        """Refuse, before any work, logs this adapter cannot diagnose: what :meth:`check` finds
+        (another robot, missing channels, irregular time, no nominal parameters) and, for
+        time-series features, a log too short or too coarse for the window."""
+        for log in logs:
+            self.check(log, drive)
+            if self.uses_time_windows:
+                self.time_windows(log, settings)
+
     # ------------------------------------------------------------------ helpers of subclasses
     def check_robot(self, log: Log, drive: Drive, replayed_from: str | None = None) -> None:
         """The log names this robot; ``replayed_from`` (e.g. "its joint readings"): only the
@@ -564,7 +579,14 @@ class RobotAdapter(ABC):
 
     @staticmethod
     def time_windows(log: Log, settings: FeatureSettings) -> npt.NDArray[np.int64]:
-        """Window bounds of a time series; at least two windows or a :class:`LogError`."""
+        """Window bounds of a time series: at least two samples per window and at least two
+        windows, or a :class:`LogError`."""
+        if settings.window_s < 2.0 * log.dt:
+            raise LogError(
+                f"{log.source}: a {settings.window_s:g}-s window (--window) holds fewer than two "
+                f"samples of this log (one every {log.dt:.4g} s); a window needs at least two. "
+                f"Fix: --window {_round_up(2.0 * log.dt):g} or longer"
+            )
         bounds = window_bounds(log.n, log.dt, settings.window_s)
         if bounds.shape[0] < 2:
             raise LogError(
@@ -572,6 +594,12 @@ class RobotAdapter(ABC):
                 f"two {settings.window_s:g}-s windows. Fix: record longer episodes"
             )
         return bounds
+
+
+def _round_up(x: float) -> float:
+    """``x`` rounded up to two significant digits."""
+    scale = 10.0 ** (math.floor(math.log10(x)) - 1)
+    return math.ceil(x / scale - 1e-9) * scale
 
 
 class WheelDrivenAdapter(RobotAdapter):

@@ -18,7 +18,6 @@ import math
 import re
 import shlex
 import sys
-import zipfile
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -26,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from realitygap.core.checks import check_input_path
 from realitygap.diagnosis.logs.guesses import (
     _TIME_FACTOR,
     cumulative,
@@ -34,6 +34,7 @@ from realitygap.diagnosis.logs.guesses import (
     time_unit,
     turn_agreement,
 )
+from realitygap.diagnosis.logs.importers.archive import ArchiveError, archive_members
 from realitygap.diagnosis.logs.importers.table import DELIMITERS, Table, read_table
 from realitygap.diagnosis.logs.log import LogError, sniff_file_kind, standard_channels
 
@@ -289,6 +290,16 @@ def _inspect_table(path: Path, table: Table) -> FileInspection:
         summary = f"{'MATLAB' if table.kind == 'mat' else 'NumPy'} file, {n} rows"
     f = FileInspection(str(path), "table", summary)
     f.notes += list(table.skipped) if table.kind != "text" else []
+    if table.encoding.startswith("UTF-16") or table.encoding.startswith("UTF-32"):
+        # diagnose reads UTF-8 text only: the command names the converted copy
+        utf8 = path.with_name(f"{path.stem}-utf8{path.suffix}")
+        f.summary += f"; {table.encoding} text"
+        f.diagnose = str(utf8)
+        f.notes.append(
+            f"{table.encoding} text: realitygap diagnose reads UTF-8. Fix: convert it first, "
+            f"iconv -f {table.encoding.split()[0]} -t UTF-8 {shlex.quote(str(path))} > "
+            f"{shlex.quote(str(utf8))} (the command below names the converted file)"
+        )
     cols = f.columns = [_column_info(table, j) for j in range(len(table.names))]
     details: dict[int, str] = {}
     for c in cols:
@@ -512,6 +523,8 @@ def _inspect_bag(path: Path) -> FileInspection:
         types = {c.topic: c.msgtype for c in reader.connections}
         for conn, t_ns, _ in reader.messages():
             stamps.setdefault(conn.topic, []).append(t_ns)
+    except Exception as exc:  # rosbags' own errors (a cut chunk): said with the file
+        raise LogError(f"{p}: cannot read the bag ({type(exc).__name__}: {exc})") from None
     finally:
         reader.close()
     f = FileInspection(str(path), "bag", f"ROS bag, {len(types)} topic(s)")
@@ -552,8 +565,10 @@ def _inspect_one(p: Path, delimiter: str | None, decimal: str | None) -> FileIns
     from realitygap.diagnosis.logs.log import Log
     from realitygap.diagnosis.logs.read import _looks_like_optiodom, _looks_like_ur10
 
-    if not p.exists():
-        raise FileNotFoundError(f"no such file or folder: {p}")
+    try:  # FileNotFoundError goes on; what is there but unreadable is said per file
+        check_input_path(p, "FILE", needs="a log needs rows of data", unicode="accept")
+    except ValueError as exc:
+        return FileInspection(str(p), "unreadable", "not readable", error=str(exc))
     session = p.is_file() and p.name.startswith(p.parent.name) and _looks_like_optiodom(p.parent)
     kind = sniff_file_kind(p)
     try:
@@ -580,8 +595,7 @@ def _inspect_one(p: Path, delimiter: str | None, decimal: str | None) -> FileIns
                 diagnose=str(p.parent),
             )
         if kind == "npz":
-            with zipfile.ZipFile(p) as zf:
-                kind = "log" if {"t.npy", "meta.json.npy"} <= set(zf.namelist()) else kind
+            kind = "log" if {"t.npy", "meta.json.npy"} <= archive_members(p) else kind
         if kind == "log":
             log = Log.load(p)
             chans = ", ".join(f"{k} ({', '.join(log.spec(k).columns)})" for k in log.channels)
@@ -593,7 +607,7 @@ def _inspect_one(p: Path, delimiter: str | None, decimal: str | None) -> FileIns
             raise LogError(f"{p}: a folder of no known layout. Fix: inspect its files")
         table = read_table(p, delimiter=delimiter, decimal=decimal)
         f = _inspect_table(p, table)
-    except (LogError, zipfile.BadZipFile) as exc:
+    except (LogError, ArchiveError) as exc:
         if not session:
             return FileInspection(str(p), "unreadable", "not readable", error=str(exc))
         f = FileInspection(str(p), "", "not a table")
@@ -714,21 +728,23 @@ def add_inspect_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 def run_inspect(args: argparse.Namespace) -> int:
     """Run the ``inspect`` sub-command; the exit status is 2 when an input cannot be read."""
-    from realitygap.core.checks import check_output_path
-    from realitygap.core.io import atomic_write_text
+    from realitygap.core.io import write_json
+    from realitygap.core.outputs import Outputs, command_line
 
-    try:
-        if args.json:
-            check_output_path(args.json, "--json", inputs=args.paths)
-        result = inspect_paths(args.paths, delimiter=args.delimiter, decimal=args.decimal)
-    except (ValueError, FileNotFoundError, ImportError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    overwrite = bool(getattr(args, "overwrite", False))
+    with Outputs(inputs=args.paths, overwrite=overwrite, command=command_line()) as out:
+        try:
+            stage = out.file(args.json, "--json") if args.json else None
+            result = inspect_paths(args.paths, delimiter=args.delimiter, decimal=args.decimal)
+        except (ValueError, FileNotFoundError, ImportError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        if stage is not None:
+            write_json(stage, result.to_json())
+        out.commit()
     print(result.to_text(verbose=bool(getattr(args, "verbose", False))), end="")
-    if args.json:
-        atomic_write_text(args.json, json.dumps(result.to_json(), indent=2) + "\n")
-        if not getattr(args, "quiet", False):
-            print(f"wrote {args.json}", file=sys.stderr)
+    if args.json and not getattr(args, "quiet", False):
+        print(f"wrote {args.json}", file=sys.stderr)
     for f in result.files:
         if f.error:
             print(f"error: {f.error}", file=sys.stderr)

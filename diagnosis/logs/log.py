@@ -95,6 +95,7 @@ import numpy.typing as npt
 from realitygap.core.checks import check_regular_file
 from realitygap.core.io import atomic_write
 from realitygap.diagnosis.logs.channels import ChannelSpec, Role, standard_channels
+from realitygap.diagnosis.logs.schema import SchemaError, as_real, clock_resets
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -220,9 +221,12 @@ class Log:
     Parameters
     ----------
     t : array_like, shape (N,)
-        Time stamps, s, strictly increasing.
+        Time stamps, s, strictly increasing (``datetime64`` stamps are converted to POSIX
+        seconds, ``timedelta64`` ones to seconds).
     channels : mapping of str to array_like, shape (N, k) or (N,)
-        Channel values; a 1-D array is one column.
+        Channel values, real numbers (float or integer arrays; booleans, complex numbers,
+        text, objects and dates are refused by their dtype, see
+        :mod:`~realitygap.diagnosis.logs.schema`); a 1-D array is one column.
     specs : mapping of str to ChannelSpec, optional
         Columns, units and role of non-standard channels (standard ones are
         known); a standard channel given with other units is an error.
@@ -234,7 +238,8 @@ class Log:
     Raises
     ------
     LogError
-        Non-monotonic or non-finite time, a channel of the wrong length or
+        Non-monotonic (a clock reset named as such) or non-finite time, a channel of a dtype
+        its schema refuses, a channel of the wrong length or
         column count, NaN/inf values, a standard channel in other units, or
         metadata that is not JSON-able. The message names the file (``source``),
         the channel and the fix.
@@ -249,7 +254,9 @@ class Log:
     def __post_init__(self) -> None:
         where = _where(self.source)
         try:
-            t = np.array(self.t, dtype=float)
+            t = as_real(self.t, "t", where)
+        except SchemaError as exc:
+            raise LogError(str(exc)) from None
         except (TypeError, ValueError) as exc:
             raise LogError(f"{where}time stamps must be numbers ({exc})") from None
         if t.ndim != 1 or t.shape[0] < 2:
@@ -264,6 +271,15 @@ class Log:
             )
         step = np.diff(t)
         if np.any(step <= 0):
+            resets, _ = clock_resets(t)
+            if resets:
+                i = resets[0]
+                raise LogError(
+                    f"{where}the clock was reset at sample {i}: time goes from "
+                    f"{t[i - 1]:.6g} s back to {t[i]:.6g} s. Fix: split the log there "
+                    f"(log pieces of rows 0..{i - 1} and {i}.., e.g. Log.slice), or read the file "
+                    "with read_logs, whose table reader splits a recording at its clock resets"
+                )
             i = int(np.flatnonzero(step <= 0)[0]) + 1
             raise LogError(
                 f"{where}time stamps must increase strictly, but row {i} (t={t[i]:.6g} s) "
@@ -300,7 +316,9 @@ class Log:
                         )
                 spec = std
             try:
-                arr = np.array(values, dtype=float)
+                arr = as_real(values, name, where)
+            except SchemaError as exc:
+                raise LogError(str(exc)) from None
             except (TypeError, ValueError) as exc:
                 raise LogError(f"{where}channel {name!r} must be numeric ({exc})") from None
             if arr.ndim == 1:

@@ -33,7 +33,8 @@ from realitygap.core.checks import (
     check_rows_limit,
 )
 from realitygap.diagnosis.logs.log import Log, LogError, sniff_file_kind
-from realitygap.robots.diffdrive import DiffDriveParams
+from realitygap.diagnosis.logs.schema import SchemaError, check_log
+from realitygap.robots.diffdrive import PARAM_RANGES, DiffDriveParams, FirmwareLimits, check_param
 from realitygap.robots.diffdrive_replay import nominal_odometry, params_to_meta
 
 __all__ = [
@@ -84,8 +85,8 @@ class ReadOptions:
     resample : float or None
         Resample every log to this step (s) — for jittery time stamps.
     check_plausible : bool
-        Refuse wheeled logs whose speeds, wheel rates or row rate are physically
-        implausible (:func:`check_plausible`), a sign of a wrong unit.
+        Refuse logs whose numbers do not fit their channels' schema (:func:`check_plausible`:
+        speeds, turn rates, wheel rates, row rate, an arm's reach), a sign of a wrong unit.
     meta : mapping or None
         Further metadata of table and bag logs (from a robot file: the declared
         ground-truth tracked point, a skid-steer's wheel track, an arm's tool).
@@ -117,6 +118,99 @@ class ReadOptions:
     robot: str | None = None
     duplicates: str = "raise"
     max_gap: float | None = None
+
+    def __post_init__(self) -> None:
+        """Every option checked when given, before any file is read: its type, its choices,
+        its range; the message names the option as in Python and on the command line."""
+        from realitygap.diagnosis.logs.importers.table import check_format
+
+        if self.columns is not None and not isinstance(self.columns, str | Mapping):
+            raise TypeError(
+                f"columns (--columns) must be a column map as text ('t=time,cmd.v=v,…'), a "
+                f"mapping or a JSON file name, got {type(self.columns).__name__} {self.columns!r}"
+            )
+        check_format(self.delimiter, self.decimal)
+        for name, value, choices in (
+            ("nan", self.nan, ("raise", "interpolate", "drop")),
+            ("duplicates", self.duplicates, ("raise", "last", "mean")),
+        ):
+            if value not in choices:
+                raise ValueError(
+                    f"{name} (--{name}) must be one of {', '.join(choices)}, got {value!r}"
+                )
+        for name, option, value, unit in (
+            ("rate_hz", "--rate", self.rate_hz, "Hz"),
+            ("resample", "--resample", self.resample, "s"),
+            ("max_gap", "--max-gap", self.max_gap, "s"),
+        ):
+            if value is not None:
+                check_finite_float(value, f"{name} ({option})", low=0.0, strict_low=True, unit=unit)
+        if self.robot is not None:
+            _check_robot_name(self.robot)
+        if self.params is not None:
+            check_robot_params(self.params)
+        if self.firmware is not None:
+            FirmwareLimits.from_mapping(self.firmware, "firmware (--firmware)")
+
+
+ARM_PARAMS = ("mdh", "mdh_name", "link_masses", "payload_mass", "joint_lower", "joint_upper")
+"""Nominal parameters an arm's logs may state: the MDH table (``{name: value}``, m and rad)
+and its name, link and payload masses (kg), joint limits (rad)."""
+
+
+def check_robot_params(params: Mapping[str, Any], name: str = "params (--params)") -> None:
+    """Refuse nominal robot parameters that no robot has or that are no physical value: a
+    differential drive's :class:`~realitygap.robots.diffdrive.DiffDriveParams` fields (each in
+    its :data:`~realitygap.robots.diffdrive.PARAM_RANGES`), or an arm's :data:`ARM_PARAMS`."""
+    if not isinstance(params, Mapping):
+        raise TypeError(
+            f"{name} must be a mapping of parameter → value (e.g. {{'wheelbase': 0.23}}), got "
+            f"{type(params).__name__} {params!r}"
+        )
+    drive = set(PARAM_RANGES) | {"camera"}
+    keys = set(map(str, params))
+    if keys <= drive:
+        for key, value in params.items():
+            if key != "camera":
+                try:
+                    check_param(key, value)
+                except ValueError as exc:
+                    raise ValueError(f"{name}: {exc}") from None
+        return
+    if keys <= set(ARM_PARAMS):
+        for key, value in params.items():
+            if key == "mdh_name":
+                continue
+            if key == "mdh":
+                if not isinstance(value, Mapping):
+                    raise ValueError(f"{name}: mdh must be a mapping of MDH parameter → value")
+                for k, v in value.items():
+                    check_finite_float(v, f"{name} mdh.{k}")
+                continue
+            values = value if isinstance(value, list | tuple | np.ndarray) else [value]
+            mass = key in ("link_masses", "payload_mass")
+            for v in values:
+                check_finite_float(
+                    v, f"{name} {key}", low=0.0 if mass else None, unit="kg" if mass else "rad"
+                )
+        return
+    unknown = sorted(keys - drive - set(ARM_PARAMS))
+    raise ValueError(
+        f"{name}: unknown robot parameter(s) {unknown}; a differential drive has "
+        f"{', '.join(PARAM_RANGES)}; an arm has {', '.join(ARM_PARAMS)}. Fix: use those names"
+    )
+
+
+def _check_robot_name(robot: object) -> None:
+    import realitygap.robots.effects  # noqa: F401 - each robot's effect module registers it
+    from realitygap.robots.effects.base import ROBOT_PARAMS
+
+    known = sorted(ROBOT_PARAMS)
+    if robot not in known:
+        raise ValueError(
+            f"robot (--robot) must be one of {', '.join(known)}, got {robot!r}. Fix: name the "
+            "robot the logs come from"
+        )
 
 
 def logs_from_optiodom(
@@ -512,135 +606,24 @@ def _after_reading(
     return logs
 
 
-MAX_BASE_SPEED = 10.0
-"""Fastest plausible speed of a wheeled base (m/s)."""
-
-MAX_WHEEL_RPM = 3000.0
-"""Fastest plausible wheel rotation (rev/min)."""
-
-MIN_ROW_RATE = 1.0
-"""Slowest plausible row rate of a wheeled log (Hz); slower suggests a time unit mix-up."""
-
-ODOMETRY_RATIO_RANGE = (0.5, 2.0)
-"""Plausible ratio of wheel-odometry path length to true path length."""
-
-STRAIGHT_CHORD_RAD = 0.05
-"""A chord turns less than this (rad) to count as straight in the wheel-to-truth path ratio."""
-
-PATH_STRIDE_S = 0.5
-"""Time between the samples the path lengths are measured over (s): row-to-row steps of a
-fast, noisy ground truth add its noise to the path; half-second chords do not."""
-
-
 def check_plausible(log: Log) -> None:
-    """Refuse a wheeled log whose numbers are physically implausible (a unit mix-up).
+    """Refuse a log whose numbers do not fit the schema of its channels (a unit mix-up).
 
-    Checked, with the unit in the message: the 99th-percentile speed of
-    ``pose_gt`` and ``pose_est`` (≤ :data:`MAX_BASE_SPEED`), the
-    99th-percentile wheel rate from ``ticks`` and ``ticks_per_rev``
-    (≤ :data:`MAX_WHEEL_RPM`), the row rate (≥ :data:`MIN_ROW_RATE`), and the
-    wheel-odometry path length against the true one (within
-    :data:`ODOMETRY_RATIO_RANGE` when the robot moved more than 0.5 m; both over
-    chords :data:`PATH_STRIDE_S` apart, so that a fast, noisy ground truth does not
-    lengthen its path by its noise, and straight ones (:data:`STRAIGHT_CHORD_RAD`), so
-    that a tracked point off the axle, which circles it on every turn, does not either).
+    The checks are declared once per channel in :mod:`~realitygap.diagnosis.logs.schema`
+    (:func:`~realitygap.diagnosis.logs.schema.check_log`): the row rate, a tick counter that
+    wraps, speeds and turn rates against the robot's limits (a heading or turn rate in
+    degrees), wheel rates and the wheel path against the true one, joint angles, and an arm's
+    measured tool points against its reach.
 
     Raises
     ------
     LogError
         Naming the file, the channel, the value with its unit, the bound and the likely fix.
     """
-    if str(log.meta.get("robot", "diffdrive")) != "diffdrive" or log.n < 3:
-        return
-    with np.errstate(over="ignore", invalid="ignore"):  # overflow → inf, which is refused
-        _check_plausible(log)
-
-
-def _check_plausible(log: Log) -> None:
-    src = log.source or log.name
-    dt = np.diff(log.t)
-    rate = 1.0 / float(np.median(dt))
-    clock = _clock_hint(dt)
-    if rate < MIN_ROW_RATE:
-        raise LogError(
-            f"{src}: rows arrive at {rate:.3g} Hz over {log.duration / 3600:.3g} h, implausible "
-            f"for a wheeled log (at least {MIN_ROW_RATE:g} Hz expected). Fix: a time column in "
-            "ms or µs declared as s? give its unit in the column map, e.g. 't=time:ms'"
-        )
-    paths: dict[str, float] = {}
-    stride = max(1, int(round(PATH_STRIDE_S * rate)))
-    for name in ("pose_gt", "pose_est"):
-        if log.has(name):
-            xy = log[name][:, :2]
-            step = np.hypot(*np.diff(xy, axis=0).T)
-            paths[name] = float(np.hypot(*np.diff(xy[::stride], axis=0).T).sum())
-            speed = float(np.percentile(step / dt, 99))
-            if not speed <= MAX_BASE_SPEED:
-                raise LogError(
-                    f"{src}: channel {name!r} moves at {speed:.4g} m/s (99th percentile), "
-                    f"implausible for a wheeled robot (≤ {MAX_BASE_SPEED:g} m/s). Fix: "
-                    + (
-                        clock
-                        or "positions in mm or cm declared as m? give the unit in the "
-                        f"column map, e.g. '{name}.x=x:mm'"
-                    )
-                )
-    params = log.meta.get("params", {})
-    tpr = params.get("ticks_per_rev") if isinstance(params, dict) else None
-    if log.has("ticks") and isinstance(tpr, (int, float)) and tpr > 0:
-        dticks = np.abs(np.diff(log["ticks"], axis=0))
-        rpm = float(np.percentile(dticks.max(axis=1) / dt, 99)) / tpr * 60.0
-        if not rpm <= MAX_WHEEL_RPM:
-            raise LogError(
-                f"{src}: channel 'ticks' turns a wheel at {rpm:.4g} rev/min (99th percentile, "
-                f"with ticks_per_rev={tpr:g}), implausible (≤ {MAX_WHEEL_RPM:g} rev/min). Fix: "
-                + (clock or "check ticks_per_rev in --params and whether the counts are scaled")
-            )
-        radius = 0.5 * (
-            float(params.get("wheel_radius_left", 0.0))
-            + float(params.get("wheel_radius_right", 0.0))
-        )
-        # over straight chords only: a tracked point off the axle (a marker behind it) sweeps
-        # a circle while the robot turns in place, which the wheels' mean travel does not see
-        straight = None
-        truth = 0.0
-        if log.has("pose_gt"):
-            gt = log["pose_gt"][::stride]
-            straight = np.abs(np.diff(np.unwrap(gt[:, 2]))) < STRAIGHT_CHORD_RAD
-            truth = float(np.hypot(*np.diff(gt[:, :2], axis=0).T)[straight].sum())
-        if radius > 0 and truth > 0.5 and straight is not None:
-            mean_ticks = np.diff(log["ticks"].mean(axis=1)[::stride])
-            wheel = float(np.sum(np.abs(mean_ticks[straight])))
-            ratio = wheel * 2.0 * math.pi * radius / tpr / truth
-            lo, hi = ODOMETRY_RATIO_RANGE
-            if not lo <= ratio <= hi:
-                raise LogError(
-                    f"{src}: the wheels travelled {ratio:.3g} × the true path length "
-                    f"({truth:.3g} m of 'pose_gt'), outside the plausible {lo:g}–{hi:g}. Fix: "
-                    "scaled tick counts (e.g. quadrature ×4), a wrong ticks_per_rev or wheel "
-                    "radius in --params, or pose_gt in the wrong unit"
-                )
-
-
-def _clock_hint(dt: np.ndarray) -> str:
-    """What to say when the rows' own intervals explain an implausible rate: rows of streams at
-    different rates (or a clock that stalls and catches up) give intervals of two sizes, and a
-    change over a short one looks fast ("" when the 90th percentile of the intervals is within
-    :data:`UNEVEN_INTERVALS` of the 10th)."""
-    lo, hi = (float(v) for v in np.percentile(dt, [10, 90]))
-    if not hi > UNEVEN_INTERVALS * lo:
-        return ""
-    return (
-        f"the rows come at uneven intervals ({1e3 * lo:.3g} ms to {1e3 * hi:.3g} ms, 10th to "
-        "90th percentile): a clock or rate mismatch, not the robot — two streams interleaved in "
-        "one file, or stamps of another clock? Map each stream's columns (a table's channels "
-        "are aligned on their own stamps; 'realitygap inspect FILE' shows the streams and their "
-        "rates) or fix the time column"
-    )
-
-
-UNEVEN_INTERVALS = 4.0
-"""Row intervals whose 90th percentile is this many times their 10th come at two rates."""
+    try:
+        check_log(log)
+    except SchemaError as exc:
+        raise LogError(str(exc)) from None
 
 
 UR10_KEY_COLUMNS = ("Goal x", "measurement_x", "shoulder_pan_joint")
@@ -711,6 +694,12 @@ def resample_split(
     say = warn if warn is not None else (lambda msg: None)
     try:
         dt = check_finite_float(dt, "--resample", low=0.0, strict_low=True, unit="s")
+        if dt > log.duration / 2.0:
+            raise ValueError(
+                f"{log.source}: --resample {dt:g} s leaves fewer than 3 samples of this "
+                f"{log.duration:.3g}-s log (one every {log.dt:.3g} s now). Fix: a step near "
+                f"the log's own, e.g. --resample {log.dt:.2g}"
+            )
         cols = sum(a.shape[1] for a in log.channels.values()) + 1
         check_rows_limit(int(log.duration / dt) + 1, cols, f"{log.source}: --resample {dt:g}", lim)
     except ValueError as exc:

@@ -33,7 +33,6 @@ known ones, so a misspelt key is never silently ignored.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from collections.abc import Mapping
@@ -41,7 +40,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from realitygap.core.checks import check_regular_file
+from realitygap.core.checks import load_json_or_yaml
 
 __all__ = [
     "DEFAULT_TRUTH_UNCERTAINTY",
@@ -175,44 +174,21 @@ def _section(source: str, raw: Mapping[str, Any], key: str) -> dict[str, Any]:
 
 
 def _read_mapping(path: Path) -> dict[str, Any]:
-    if not path.exists():
-        raise FileNotFoundError(f"robot file not found: {path}")
+    """The robot file's top-level mapping (:func:`~realitygap.core.checks.load_json_or_yaml`:
+    a ``.json`` file as JSON, any other as YAML, plain data only)."""
     try:
-        check_regular_file(path, "robot file")
+        raw = load_json_or_yaml(
+            path,
+            "robot file",
+            expect=dict,
+            example="'robot: diffdrive' with a 'wheels:' section",
+            max_bytes=MAX_FILE_BYTES,
+        )
+    except FileNotFoundError:
+        raise
     except ValueError as exc:
         raise RobotFileError(str(exc)) from None
-    size = path.stat().st_size
-    if size > MAX_FILE_BYTES:
-        raise RobotFileError(
-            f"{path}: {size} bytes, more than the {MAX_FILE_BYTES} a robot file may have"
-        )
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise RobotFileError(f"{path}: expected UTF-8 text ({exc})") from None
-    if path.suffix.lower() == ".json":
-        try:
-            raw = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise RobotFileError(f"{path}: not valid JSON ({exc})") from None
-    else:
-        try:
-            import yaml
-        except ImportError:  # pragma: no cover - a core dependency
-            raise RobotFileError(
-                f"{path}: reading YAML needs PyYAML (pip install pyyaml), or write the file as "
-                "JSON (robot.json)"
-            ) from None
-        try:
-            raw = yaml.safe_load(text)  # plain data only: no object construction
-        except yaml.YAMLError as exc:
-            raise RobotFileError(f"{path}: not valid YAML ({exc})") from None
-    if not isinstance(raw, dict):
-        raise RobotFileError(
-            f"{path}: expected a mapping with at least 'robot: diffdrive|skid_steer|arm', got "
-            f"{type(raw).__name__}"
-        )
-    return raw
+    return dict(raw)
 
 
 def load_robot_file(path: str | os.PathLike[str]) -> RobotDescription:

@@ -30,7 +30,9 @@ if TYPE_CHECKING:
     from realitygap.diagnosis.diagnose import Diagnosis
 
 __all__ = [
+    "change_words",
     "channel_name",
+    "data_words",
     "group_name",
     "quantity",
     "ranking_by_shrink",
@@ -79,6 +81,82 @@ DRIVE_WORDS: dict[str, str] = {
     "commands": "driven by the logged velocity commands (what the simulated robot was told)",
     "ticks": "driven by the logged wheel rotation (what the encoders counted)",
 }
+
+
+def change_words(
+    shrink_pct: float | None, *, less: str = "less", more: str = "more", digits: int = 0
+) -> str:
+    """A shrink in percent (positive: the gap got smaller) in words whose direction comes
+    from its sign: ``"70 % less"``, ``"worse: 70 % more"``, ``"about the same"``.
+
+    Every sentence that states a signed change says it through this function, so that a
+    candidate that makes the gap larger is never said to make it smaller ("-70 % less").
+
+    Parameters
+    ----------
+    shrink_pct : float or None
+        ``100 · (before − after) / before``; None or NaN when unknown.
+    less, more : str
+        The words after the number for a smaller and a larger gap (``"closed"``,
+        ``"wider"``).
+    digits : int
+        Decimals shown.
+    """
+    if shrink_pct is None or not math.isfinite(float(shrink_pct)):
+        return "change unknown"
+    pct = float(shrink_pct)
+    if round(abs(pct), digits) == 0:
+        return "about the same"
+    if pct > 0:
+        return f"{pct:.{digits}f} % {less}"
+    return f"worse: {-pct:.{digits}f} % {more}"
+
+
+def _pose_indexed(channels: set[str]) -> bool:
+    """Whether logs with these channels are poses at stations, not samples in time (the rule
+    of the table importer: only joint readings and measured points)."""
+    from realitygap.diagnosis.logs.importers.csv_log import POSE_ROW_CHANNELS
+
+    return bool(channels) and channels <= set(POSE_ROW_CHANNELS)
+
+
+def data_extent(logs: Sequence[Any]) -> str:
+    """How much data the logs hold, in the unit their rows have: ``"598 s of motion"`` for
+    logs in time, ``"1,200 measured poses"`` for pose-indexed ones (an arm's tracker
+    measurements, whose row times only number the poses)."""
+    channels = {c for lg in logs for c in lg.channels}
+    if _pose_indexed(channels):
+        return f"{sum(int(lg.n) for lg in logs):,} measured poses"
+    return f"{sum(float(lg.duration) for lg in logs):.0f} s of motion"
+
+
+def data_words(logs: Sequence[Any], drive: str, window_s: float) -> str:
+    """What the replay was driven by and how it was cut, from what the logs hold: logged
+    commands or wheel rotation over time windows, or joint readings at measured poses.
+
+    Parameters
+    ----------
+    logs : sequence of Log
+        The real logs (their :attr:`channels`).
+    drive : str
+        The requested drive (``"commands"`` or ``"ticks"``).
+    window_s : float
+        Window length, s (for logs in time).
+    """
+    channels = {c for lg in logs for c in lg.channels}
+    if _pose_indexed(channels):
+        return (
+            f"replayed from the logged joint readings at {data_extent(logs)} (the rows are "
+            "poses at stations, not instants in time: no commands), group of poses by group "
+            "of poses"
+        )
+    source = {"commands": "cmd", "ticks": "ticks"}.get(drive)
+    if source in channels:
+        words = DRIVE_WORDS[drive]
+    else:
+        held = ", ".join(sorted(channels)) or "no channel"
+        words = f"replayed from what the logs hold ({held}; no {drive} channel)"
+    return f"{words}, window by window ({window_s:g} s windows)"
 
 
 def group_name(group: str) -> str:
@@ -210,7 +288,7 @@ def summary_sentences(d: Diagnosis) -> list[str]:
     robot = {"diffdrive": "differential drive", "arm": "arm", "climber": "climbing robot"}.get(
         d.settings.robot, d.settings.robot
     )
-    drive = DRIVE_WORDS.get(d.settings.drive, f"driven by the logged {d.settings.drive}")
+    drive = data_words([p.log for p in d.prepared], d.settings.drive, d.settings.features.window_s)
     held = (
         f"{len(js_logs['holdout'])} held-out run(s)"
         if js_logs["holdout"]
@@ -218,8 +296,7 @@ def summary_sentences(d: Diagnosis) -> list[str]:
     )
     out = [
         f"Compared {len(js_logs['train'])} recorded training run(s) and {held} of the real "
-        f"{robot} with its nominal PyBullet simulation, {drive}, window by window "
-        f"({d.settings.features.window_s:g} s windows)."
+        f"{robot} with its nominal PyBullet simulation, {drive}."
     ]
     cells = where_rows(d)
     if cells:
@@ -270,7 +347,7 @@ def summary_sentences(d: Diagnosis) -> list[str]:
                     "; replayed in PyBullet, the held-out runs' RMS position error goes from "
                     f"{quantity(g['heldout_trajectory_gap_m_nominal'], 'm')} nominal to "
                     f"{quantity(g['heldout_trajectory_gap_m_best'], 'm')}"
-                    + (f" ({float(traj):.0f} % less)" if traj is not None else "")
+                    + (f" ({change_words(float(traj))})" if traj is not None else "")
                 )
             out.append(sentence + ".")
     conc = concentrated_gap(g.get("heldout_trajectory_runs", []))

@@ -11,20 +11,18 @@ writes :meth:`Diagnosis.to_json`. Every file is written atomically.
 
 from __future__ import annotations
 
-import json
 import math
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import IO, Any
 
-import numpy as np
-
-from realitygap.core.io import atomic_write
+from realitygap.core.io import atomic_write, jsonable, write_json
 from realitygap.diagnosis.diagnose import Diagnosis
 from realitygap.diagnosis.report.figures import make_figures
 from realitygap.diagnosis.report.html import markdown_to_html
 from realitygap.diagnosis.report.summary import (
+    change_words,
     channel_name,
     quantity,
     ranking_by_shrink,
@@ -35,33 +33,6 @@ from realitygap.diagnosis.report.words import explain_markdown, parameter_words
 from realitygap.diagnosis.verdict.types import VerdictKind
 
 __all__ = ["jsonable", "write_json", "write_report", "write_reports"]
-
-
-def jsonable(value: Any) -> Any:
-    """``value`` with arrays as lists, non-finite floats as ``None``/``"inf"``/``"-inf"``."""
-    if isinstance(value, Mapping):
-        return {str(k): jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return jsonable(value.tolist())
-    if isinstance(value, np.generic):
-        return jsonable(value.item())
-    if isinstance(value, float) and not math.isfinite(value):
-        return None if math.isnan(value) else ("inf" if value > 0 else "-inf")
-    if isinstance(value, Path):
-        return str(value)
-    return value
-
-
-def write_json(path: str | os.PathLike[str], payload: Any) -> Path:
-    """Write ``payload`` as indented JSON, atomically."""
-    text = json.dumps(jsonable(payload), indent=2) + "\n"
-
-    def writer(fh: IO[bytes]) -> None:
-        fh.write(text.encode("utf-8"))
-
-    return atomic_write(path, writer)
 
 
 def _write_text(path: Path, text: str) -> None:
@@ -105,8 +76,8 @@ def _baseline_and_transients(d: Diagnosis) -> list[str]:
             )
         lines.append("")
         lines.append(
-            f"The baseline removes {b.train_shrink_pct:.1f} % of the nominal replay's training "
-            "residual."
+            "Against the nominal replay, the baseline leaves the training residual "
+            f"{change_words(b.train_shrink_pct, less='smaller', more='larger', digits=1)}."
         )
     else:
         lines.append("None applied (no nuisances stated, or they did not improve the replay).")
@@ -308,10 +279,12 @@ def _markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str, note: st
     g = d.gap
     lines.append("")
     lines.append(
-        f"Held-out gap in the channels that show one ({', '.join(g.get('gap_channels', []))}): "
-        f"{_fmt(g['heldout_shrink_pct_best'])} % closed by the best candidate "
-        f"({_fmt(g['heldout_shrink_pct_best_all_channels'])} % over all channels; normalised window "
-        f"RMS {_fmt(g['heldout_rms_nominal'])} nominal → {_fmt(g['heldout_rms_best'])})."
+        f"Held-out gap in the channels that show one ({', '.join(g.get('gap_channels', []))}) "
+        "with the best candidate: "
+        f"{change_words(g['heldout_shrink_pct_best'], less='closed', more='wider', digits=1)} "
+        f"({change_words(g['heldout_shrink_pct_best_all_channels'], less='closed', more='wider', digits=1)}"
+        f" over all channels; normalised window RMS {_fmt(g['heldout_rms_nominal'])} nominal → "
+        f"{_fmt(g['heldout_rms_best'])})."
     )
     if "heldout_trajectory_gap_m_best" in g:
         lines.append(

@@ -18,6 +18,7 @@ from enum import Enum
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.envs.common import check_finite_fields
 from realitygap.estimators.arm.calibration import registered_position_errors
 from realitygap.estimators.arm.coded_board import CodedBoard
 from realitygap.estimators.arm.mdh import MDHTable, joint_frames, tool_positions
@@ -65,6 +66,7 @@ class ViewConstraints:
     board_margin: float = 0.12
 
     def __post_init__(self) -> None:
+        check_finite_fields(self)
         if not 0.0 < self.max_tilt_deg < 90.0:
             raise ValueError(f"max_tilt_deg must be in (0, 90), got {self.max_tilt_deg}")
         if not 0.0 < self.min_distance < self.max_distance:
@@ -122,6 +124,9 @@ class ArmCalibRewardWeights:
 
     error_drop: float = 1e3
     invalid_pose: float = 0.2
+
+    def __post_init__(self) -> None:
+        check_finite_fields(self)
 
 
 class ArmCalibTask:

@@ -16,8 +16,24 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.checks import check_finite_float, check_nonnegative_int
 from realitygap.core.geometry import check_finite
-from realitygap.envs.layouts import clearance, free_route_exists, random_layout, room_walls
+from realitygap.envs.common import (
+    check_bool,
+    check_finite_fields,
+    check_instance,
+    check_obstacles,
+    check_vector,
+)
+from realitygap.envs.layouts import (
+    MAX_ROOM_HALF_SIZE,
+    MIN_ROOM_HALF_SIZE,
+    clearance,
+    free_route_exists,
+    obstacle_capacity,
+    random_layout,
+    room_walls,
+)
 from realitygap.robots.world import Primitive
 
 FloatArray = npt.NDArray[np.float64]
@@ -77,6 +93,9 @@ class NavRewardWeights:
     collision: float = 5.0
     success: float = 5.0
 
+    def __post_init__(self) -> None:
+        check_finite_fields(self)
+
 
 class NavTask:
     """Reach a goal pose ``[x, y, θ]`` in a square room, at rest.
@@ -105,20 +124,57 @@ class NavTask:
         terminate_on_success: bool = True,
         weights: NavRewardWeights = NavRewardWeights(),
     ):
-        if n_obstacles < 0:
-            raise ValueError(f"n_obstacles must be >= 0, got {n_obstacles}")
-        self.room_half_size = float(room_half_size)
-        self.n_obstacles = int(n_obstacles)
-        self.fixed_obstacles = list(obstacles) if obstacles is not None else None
-        self.fixed_start = None if start is None else check_finite("start", start, (3,))
-        self.fixed_goal = None if goal is None else check_finite("goal", goal, (3,))
-        self.success_pos_tol = float(success_pos_tol)
-        self.success_ang_tol = float(success_ang_tol)
-        self.terminate_on_success = bool(terminate_on_success)
-        self.weights = weights
+        self.room_half_size = check_finite_float(
+            room_half_size,
+            "room_half_size",
+            low=MIN_ROOM_HALF_SIZE,
+            high=MAX_ROOM_HALF_SIZE,
+            unit="m",
+            fix="a room whose side is 2 to 100 m (the route check's grid grows with its area)",
+        )
+        self.n_obstacles = check_nonnegative_int(
+            n_obstacles,
+            "n_obstacles",
+            high=obstacle_capacity(self.room_half_size),
+            fix=(
+                f"a room of half-size {self.room_half_size:g} m holds at most that many obstacles"
+                if isinstance(n_obstacles, (int, float)) and n_obstacles > 0
+                else ""
+            ),
+        )
+        self.fixed_obstacles = check_obstacles(obstacles)
+        self.fixed_start = self._check_pose("start", start)
+        self.fixed_goal = self._check_pose("goal", goal)
+        self.success_pos_tol = check_finite_float(
+            success_pos_tol,
+            "success_pos_tol",
+            low=0.0,
+            high=self.room_half_size,
+            strict_low=True,
+            unit="m",
+        )
+        self.success_ang_tol = check_finite_float(
+            success_ang_tol, "success_ang_tol", low=0.0, high=math.pi, strict_low=True, unit="rad"
+        )
+        self.terminate_on_success = check_bool(terminate_on_success, "terminate_on_success")
+        self.weights = check_instance(weights, "reward_weights", NavRewardWeights)
         self.goal = np.zeros(3)
         self._prev_dist = 0.0
         self._prev_ang = 0.0
+
+    def _check_pose(self, name: str, pose: Any) -> FloatArray | None:
+        """A fixed pose ``[x, y, θ]`` (m, m, rad) inside the room, or ``None``."""
+        if pose is None:
+            return None
+        arr = check_vector(pose, name, (3,), what="x [m], y [m], θ [rad]")
+        h = self.room_half_size
+        if np.any(np.abs(arr[:2]) >= h):
+            raise ValueError(
+                f"{name} {arr[:2].tolist()} lies outside the room: |x|, |y| must be < "
+                f"room_half_size = {h:g} m (less the robot's radius). Fix: pass a pose inside "
+                "the room, or None for a random one"
+            )
+        return arr
 
     # ------------------------------------------------------------------ episode set-up
     def sample_start_goal(

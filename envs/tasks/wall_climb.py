@@ -15,6 +15,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from realitygap.core.checks import check_finite_float
+from realitygap.envs.common import check_finite_fields, check_instance, check_vector
+
 FloatArray = npt.NDArray[np.float64]
 
 __all__ = ["WallClimbRewardWeights", "WallClimbTask"]
@@ -52,6 +55,9 @@ class WallClimbRewardWeights:
     detach: float = 5.0
     success: float = 5.0
 
+    def __post_init__(self) -> None:
+        check_finite_fields(self)
+
 
 class WallClimbTask:
     """Reach a goal point on the suction side, on the surface.
@@ -77,12 +83,22 @@ class WallClimbTask:
         detach_margin: float = 0.03,
         weights: WallClimbRewardWeights = WallClimbRewardWeights(),
     ) -> None:
-        self.blade_length = float(blade_length)
-        self.fixed_start = None if start is None else np.asarray(start, dtype=float)
-        self.fixed_goal = None if goal is None else np.asarray(goal, dtype=float)
-        self.success_tol = float(success_tol)
-        self.detach_margin = float(detach_margin)
-        self.weights = weights
+        self.blade_length = check_finite_float(
+            blade_length, "blade_length", low=0.6, strict_low=True, unit="m"
+        )
+        self.fixed_start = (
+            None if start is None else self.check_chart("start", start, allow_heading=True)
+        )
+        self.fixed_goal = (
+            None if goal is None else self.check_chart("goal", goal, allow_heading=False)
+        )
+        self.success_tol = check_finite_float(
+            success_tol, "success_tol", low=0.0, strict_low=True, unit="m"
+        )
+        self.detach_margin = check_finite_float(
+            detach_margin, "detach_margin", low=0.0, strict_low=True, unit="m"
+        )
+        self.weights = check_instance(weights, "reward_weights", WallClimbRewardWeights)
         self._prev_dist = 0.0
 
     # ------------------------------------------------------------------ episode set-up
@@ -118,13 +134,9 @@ class WallClimbTask:
 
     def check_chart(self, name: str, value: Any, *, allow_heading: bool) -> FloatArray:
         """``value`` as a chart point on the suction side, or a ``ValueError`` saying why not."""
-        arr = np.asarray(value, dtype=float).reshape(-1)
         sizes = (2, 3) if allow_heading else (2,)
-        if arr.shape[0] not in sizes or not np.all(np.isfinite(arr)):
-            raise ValueError(
-                f"{name} must be {' or '.join(str(s) for s in sizes)} finite numbers (x [m], ξ"
-                f"{', heading [rad]' if allow_heading else ''}), got {value!r}"
-            )
+        what = f"x [m], ξ{', heading [rad]' if allow_heading else ''}"
+        arr = check_vector(value, name, sizes, what=what)
         L = self.blade_length
         if not (0.3 < arr[0] < L - 0.3 and 0.05 <= arr[1] <= 0.9):
             raise ValueError(

@@ -15,10 +15,12 @@ raises it.
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import math
 import numbers
 import os
+import shlex
 import stat
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
@@ -31,6 +33,7 @@ __all__ = [
     "check_choice",
     "check_disjoint",
     "check_finite_float",
+    "check_input_path",
     "check_int",
     "check_nonnegative_int",
     "check_output_path",
@@ -38,7 +41,9 @@ __all__ = [
     "check_regular_file",
     "check_rows_limit",
     "int_option",
+    "load_json_or_yaml",
     "parse_json_option",
+    "text_encoding_of",
 ]
 
 
@@ -176,30 +181,176 @@ def check_choice(value: Any, name: str, choices: Iterable[Any]) -> Any:
     return value
 
 
-def check_regular_file(path: str | os.PathLike[str], name: str) -> Path:
-    """``path`` if it is an existing regular file (not a folder, FIFO, socket or device).
+def check_regular_file(
+    path: str | os.PathLike[str],
+    name: str,
+    *,
+    needs: str = "",
+    unicode: str = "refuse",
+) -> Path:
+    """``path`` if it is an existing, readable, non-empty regular file.
 
-    A FIFO would block the reader forever and a device could stream without end,
-    so neither is opened.
+    :func:`check_input_path` with ``kind="file"``: a folder, FIFO, socket or device
+    is refused (a FIFO would block the reader forever and a device could stream
+    without end, so neither is opened), and so are a symbolic-link loop, an
+    unreadable file, an empty one and UTF-16/32 text (unless ``unicode="accept"``).
 
     Raises
     ------
     FileNotFoundError
-        Nothing at ``path``.
+        Nothing at ``path`` (or a link to nothing).
     ValueError
-        Something that is not a regular file.
+        Something else that cannot be read as a file; the message names ``name``, the
+        path, what it is and the fix.
     """
+    return check_input_path(path, name, kind="file", needs=needs, unicode=unicode)
+
+
+_BOMS: tuple[tuple[bytes, str, str], ...] = (
+    (b"\xff\xfe\x00\x00", "utf-32", "UTF-32 LE"),  # before UTF-16 LE, whose BOM it starts with
+    (b"\x00\x00\xfe\xff", "utf-32", "UTF-32 BE"),
+    (b"\xff\xfe", "utf-16", "UTF-16 LE"),
+    (b"\xfe\xff", "utf-16", "UTF-16 BE"),
+)
+
+
+def text_encoding_of(head: bytes) -> tuple[str, str] | None:
+    """``(codec, label)`` of text that starts with a UTF-16 or UTF-32 byte-order mark
+    (``("utf-16", "UTF-16 LE")``), else None. The codec reads the mark and drops it.
+
+    Such text holds NUL bytes, so a sniffer that only knows UTF-8 takes it for binary.
+    """
+    for bom, codec, label in _BOMS:
+        if head.startswith(bom):
+            return codec, label
+    return None
+
+
+def _link_chain(p: Path, steps: int = 6) -> str:
+    """``a → b → a`` for a symbolic link (up to ``steps`` links)."""
+    chain = [str(p)]
+    seen = {os.path.abspath(p)}
+    cur = p
+    for _ in range(steps):
+        try:
+            target = os.readlink(cur)
+        except OSError:
+            break
+        cur = cur.parent / target
+        chain.append(target)
+        if os.path.abspath(cur) in seen:
+            return " → ".join(chain)
+        seen.add(os.path.abspath(cur))
+    return " → ".join(chain) + " → …"
+
+
+DEFAULT_NEEDS = "a log needs rows of data (a header line and rows of numbers)"
+"""What an empty input lacks, said by :func:`check_input_path` unless the caller says more."""
+
+
+def check_input_path(
+    path: str | os.PathLike[str],
+    name: str,
+    *,
+    kind: str = "file or folder",
+    needs: str = "",
+    expected: str = "",
+    unicode: str = "refuse",
+) -> Path:
+    """Check an input path before it is read: it exists, is no symbolic-link loop, is
+    a regular file or a folder as ``kind`` asks, is readable, and (a file) is not empty.
+
+    Parameters
+    ----------
+    path : path-like
+    name : str
+        The argument or option the path came from (``"LOG"``, ``"--robot-file"``), named
+        in every message.
+    kind : {"file or folder", "file", "folder"}
+        What may be there.
+    needs : str
+        What an empty file lacks (default :data:`DEFAULT_NEEDS`).
+    expected : str
+        What is expected there, for the message when the kind is wrong (e.g. the layout
+        of a folder of runs).
+    unicode : {"refuse", "accept"}
+        A file of UTF-16/32 text (:func:`text_encoding_of`) is refused with the command
+        that converts it to UTF-8, unless the caller decodes it (``"accept"``).
+
+    Raises
+    ------
+    FileNotFoundError
+        Nothing at ``path``, or a symbolic link to nothing.
+    ValueError
+        A link loop, the wrong kind, no permission, an empty file, UTF-16/32 text: the
+        message names ``name``, the path, what was expected, what is there and the fix.
+    """
+    if kind not in ("file or folder", "file", "folder"):
+        raise ValueError(f"kind must be 'file or folder', 'file' or 'folder', got {kind!r}")
+    if unicode not in ("refuse", "accept"):
+        raise ValueError(f"unicode must be 'refuse' or 'accept', got {unicode!r}")
     p = Path(path)
+    q = shlex.quote(str(p))
+    want = expected or f"a {kind}"
     try:
         mode = os.stat(p).st_mode
     except FileNotFoundError:
-        raise FileNotFoundError(f"{name}: no such file: {p}") from None
+        if os.path.islink(p):
+            raise FileNotFoundError(
+                f"{name}: {p} is a symbolic link to {os.readlink(p)}, which does not exist. "
+                f"Fix: point the link at the real {kind} (ln -sfn TARGET {q}) or pass it itself"
+            ) from None
+        where = "" if p.is_absolute() else f" (relative to the current folder {Path.cwd()})"
+        raise FileNotFoundError(f"{name}: no such {kind}: {p}{where}") from None
     except OSError as exc:
-        raise ValueError(f"{name}: cannot read {p} ({exc.strerror})") from None
+        if exc.errno == errno.ELOOP:
+            raise ValueError(
+                f"{name}: {p} is a symbolic link loop ({_link_chain(p)}): it never reaches a "
+                f"{kind}. Fix: point the link at the real {kind} (ln -sfn TARGET {q}), or "
+                f"pass the {kind} itself"
+            ) from None
+        if exc.errno in (errno.EACCES, errno.EPERM):
+            raise ValueError(
+                f"{name}: {p} cannot be reached (permission denied on a folder above it). "
+                "Fix: give yourself read and search permission on its folders, or copy it"
+            ) from None
+        raise ValueError(f"{name}: cannot read {p} ({exc.strerror or exc})") from None
+    if stat.S_ISDIR(mode):
+        if kind == "file":
+            raise ValueError(f"{name}: {p} is a folder, but {want} is expected. Fix: pass a file")
+        if not os.access(p, os.R_OK | os.X_OK):
+            raise ValueError(
+                f"{name}: the folder {p} is not readable (permission denied). Fix: chmod u+rx {q}"
+            )
+        return p
     if not stat.S_ISREG(mode):
         raise ValueError(
-            f"{name}: {p} is {_kind_of_mode(mode)}, not a regular file. Fix: pass a file "
-            "(copy a stream to a file first)"
+            f"{name}: {p} is {_kind_of_mode(mode)}, not a regular {kind}. Fix: pass a "
+            f"{kind} (copy a stream to a file first)"
+        )
+    if kind == "folder":
+        raise ValueError(f"{name}: {p} is a file, but {want} is expected. Fix: pass the folder")
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(4)
+    except OSError as exc:
+        raise ValueError(
+            f"{name}: {p} is not readable ({exc.strerror or exc}). Fix: chmod u+r {q}, or "
+            "read a copy you own"
+        ) from None
+    if not head:
+        raise ValueError(
+            f"{name}: {p} is empty (0 bytes); {needs or DEFAULT_NEEDS}. Fix: pass the file the "
+            "recording was written to (an empty file is often a recording stopped before it "
+            "was flushed, or a failed copy)"
+        )
+    bom = text_encoding_of(head)
+    if bom is not None and unicode == "refuse":
+        out = shlex.quote(str(p.with_name(f"{p.stem}-utf8{p.suffix}")))
+        raise ValueError(
+            f"{name}: {p} is {bom[1]} text (it starts with the byte-order mark "
+            f"{head[: 4 if bom[0] == 'utf-32' else 2].hex(' ')}), not UTF-8. Fix: save it as "
+            f"UTF-8, e.g. iconv -f {bom[1].split()[0]} -t UTF-8 {q} > {out}, and pass {out}"
         )
     return p
 
@@ -222,7 +373,10 @@ def _same_or_inside(a: Path, b: Path) -> bool:
             return True
     except OSError:
         pass
-    ra, rb = a.resolve(), b.resolve()
+    try:
+        ra, rb = a.resolve(), b.resolve()
+    except (OSError, RuntimeError):  # a symbolic-link loop: compare the paths as written
+        ra, rb = Path(os.path.abspath(a)), Path(os.path.abspath(b))
     return ra == rb or rb in ra.parents
 
 
@@ -320,24 +474,217 @@ def check_disjoint(
         )
 
 
-def parse_json_option(text: str, name: str) -> Any:
+def parse_json_option(text: str, name: str, *, expect: type | tuple[type, ...] = object) -> Any:
     """Parse ``text`` as JSON; on a syntax error name the option and point at the place.
+
+    :func:`load_json_or_yaml` of an option's text (never a file).
 
     Raises
     ------
     ValueError
         ``"--params: invalid JSON at line 1 column 2: Expecting property name …"``
-        followed by the text and a caret under the column.
+        followed by the text and a caret under the column; or a top-level value not of
+        type ``expect``.
     """
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        line = text.splitlines()[exc.lineno - 1] if text.splitlines() else ""
+    return load_json_or_yaml(text, name, expect=expect, files=False)
+
+
+_TYPE_WORDS = {
+    dict: "{fmt} object ({{...}})",
+    list: "{fmt} list ([...])",
+    str: "a string",
+    float: "a number",
+    int: "an integer",
+    bool: "true or false",
+    type(None): "null",
+}
+
+
+def _type_word(value: object) -> str:
+    if isinstance(value, Mapping):
+        return "an object (mapping)"
+    if isinstance(value, list):
+        return f"a list of {len(value)} item(s)"
+    if value is None:
+        return "nothing (null, or an empty document)"
+    return f"{type(value).__name__} {value!r:.40}"
+
+
+def _syntax_error(
+    where: str, fmt: str, text: str, line: int, col: int, msg: str, fix: str, in_file: bool
+) -> str:
+    lines = text.splitlines()
+    shown = lines[line - 1] if 0 < line <= len(lines) else ""
+    caret = f"\n  {shown[:200]}\n  {' ' * min(max(col - 1, 0), 200)}^" if shown.strip() else ""
+    if not caret and line >= len(lines):
+        caret = " (at the end of the text: something is left open)"
+    what = f"not valid {fmt}, syntax error" if in_file else f"invalid {fmt}"
+    return f"{where}: {what} at line {line} column {col}: {msg}{caret}\nFix: {fix}"
+
+
+MAX_DATA_FILE_BYTES = 16 * 2**20
+"""Largest JSON/YAML file :func:`load_json_or_yaml` reads (16 MiB)."""
+
+
+def load_json_or_yaml(
+    source: str | os.PathLike[str],
+    name: str,
+    *,
+    expect: type | tuple[type, ...] = dict,
+    example: str = "",
+    files: bool = True,
+    max_bytes: int = MAX_DATA_FILE_BYTES,
+) -> Any:
+    """Load JSON or YAML from a file or from an option's text, and check its top-level type.
+
+    The one reader of configuration a user writes (a column map, ``--params``, a robot
+    file): every error names the option and the file, a syntax error its line and
+    column with the line and a caret under the place.
+
+    Parameters
+    ----------
+    source : str or path-like
+        A path (a :class:`os.PathLike`, or text naming a file: anything ending in
+        ``.json``, ``.yaml`` or ``.yml``, or an existing file) or the JSON text itself.
+        A ``.json`` file is read as JSON, any other file as YAML (of which JSON is a
+        subset); text is read as JSON.
+    name : str
+        The option or argument (``"--params"``, ``"robot file"``), named in messages.
+    expect : type or tuple of types
+        The top-level type (``dict`` for an object / mapping; ``object`` for any).
+    example : str
+        An example of the expected content, shown when the type is wrong.
+    files : bool
+        Whether ``source`` may name a file (``False``: it is always text).
+    max_bytes : int
+        Largest file read.
+
+    Raises
+    ------
+    FileNotFoundError
+        ``source`` names a file (by its extension) that does not exist.
+    ValueError
+        Unreadable file (see :func:`check_input_path`), too large, not UTF-8, a syntax
+        error, or a top-level value not of type ``expect``.
+    """
+    is_path = isinstance(source, os.PathLike)
+    text = os.fspath(source) if is_path else str(source)
+    if files and not is_path:
+        stripped = text.strip()
+        is_path = not stripped.startswith(("{", "[")) and (
+            stripped.lower().endswith((".json", ".yaml", ".yml")) or os.path.lexists(stripped)
+        )
+        text = stripped if is_path else text
+    if is_path:
+        p = check_input_path(
+            text, name, kind="file", needs=f"{name} needs content", unicode="accept"
+        )
+        size = p.stat().st_size
+        if size > max_bytes:
+            raise ValueError(
+                f"{name}: {p} has {size:,} bytes, more than the {max_bytes:,} a configuration "
+                "file may have. Fix: pass the right file"
+            )
+        raw = p.read_bytes()
+        bom = text_encoding_of(raw[:4])
+        try:
+            body = raw.decode(bom[0] if bom else "utf-8-sig")
+        except UnicodeDecodeError as exc:
+            line = raw[: exc.start].count(b"\n") + 1
+            raise ValueError(
+                f"{name}: {p} is not UTF-8 text (byte {raw[exc.start]:#04x} on line {line}). "
+                "Fix: save it as UTF-8"
+            ) from None
+        where = f"{name} {p}"
+        fmt = "JSON" if p.suffix.lower() == ".json" else "YAML"
+    else:
+        body, where, fmt = text, name, "JSON"
+    if fmt == "JSON":
+        try:
+            value = json.loads(body, object_pairs_hook=_refuse_twice(where))
+        except json.JSONDecodeError as exc:
+            fix = (
+                "quote keys and strings with double quotes, separate items with commas and "
+                "close every brace"
+                + ("" if is_path else ", e.g. '{\"wheelbase\": 0.23}', or use 'k=v,k=v'")
+            )
+            raise ValueError(
+                _syntax_error(where, fmt, body, exc.lineno, exc.colno, exc.msg, fix, is_path)
+            ) from None
+        except RecursionError:
+            raise ValueError(f"{where}: JSON nested too deeply to read") from None
+    else:
+        import yaml
+
+        try:
+            value = yaml.load(body, Loader=_unique_key_loader(where))
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+            fix = "indent nested keys by spaces (no tabs) and write 'key: value' pairs"
+            if mark is None:
+                raise ValueError(f"{where}: not valid YAML: {problem}. Fix: {fix}") from None
+            raise ValueError(
+                _syntax_error(
+                    where, fmt, body, mark.line + 1, mark.column + 1, problem, fix, is_path
+                )
+            ) from None
+        except RecursionError:
+            raise ValueError(f"{where}: YAML nested too deeply to read") from None
+    if expect is not object and not isinstance(value, expect):
+        kinds = expect if isinstance(expect, tuple) else (expect,)
+        art = "a JSON" if fmt == "JSON" else "a YAML"
+        wanted = " or ".join(
+            _TYPE_WORDS[k].format(fmt=art) if k in (dict, list) else _TYPE_WORDS.get(k, k.__name__)
+            for k in kinds
+        )
+        if dict in kinds and fmt == "YAML":
+            wanted = wanted.replace("YAML object ({...})", "YAML mapping (key: value lines)")
+        eg = f", e.g. {example}" if example else ""
         raise ValueError(
-            f"{name}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}\n"
-            f"  {line}\n  {' ' * (exc.colno - 1)}^\n"
-            "Fix: quote keys and close braces, e.g. '{\"wheelbase\": 0.23}', or use 'k=v,k=v'"
-        ) from None
+            f"{where}: expected {wanted} at the top level{eg}, got {_type_word(value)}. Fix: "
+            f"write the entries as {wanted.split(' (')[0]}"
+        )
+    return value
+
+
+def _refuse_twice(where: str) -> Any:
+    """A :func:`json.loads` object hook that refuses a key given twice (JSON keeps the last
+    silently: a typo'd copy of an entry would win without a word)."""
+
+    def hook(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for key, value in pairs:
+            if key in out:
+                raise ValueError(
+                    f"{where}: the key {key!r} is given twice ({out[key]!r} and {value!r}); "
+                    "only one can hold. Fix: keep the one you mean"
+                )
+            out[key] = value
+        return out
+
+    return hook
+
+
+def _unique_key_loader(where: str) -> Any:
+    """A YAML ``SafeLoader`` (plain data only) that refuses a key given twice in a mapping."""
+    import yaml
+
+    class UniqueKeyLoader(yaml.SafeLoader):
+        def construct_mapping(self, node: Any, deep: bool = False) -> Any:
+            seen: set[Any] = set()
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node, deep=deep)
+                if key in seen:
+                    raise ValueError(
+                        f"{where}: the key {key!r} is given twice (line "
+                        f"{key_node.start_mark.line + 1}); only one can hold. Fix: keep the one "
+                        "you mean"
+                    )
+                seen.add(key)
+            return super().construct_mapping(node, deep=deep)
+
+    return UniqueKeyLoader
 
 
 def _env_number(var: str, default: float) -> float:
@@ -367,16 +714,20 @@ class ResourceLimits:
     max_gap_steps : float
         Longest time gap, in resampling steps, that resampling may bridge
         (default 5); a longer one splits the run. ``REALITYGAP_MAX_GAP_STEPS``.
+    max_cell_chars : int
+        Longest cell of a text table (default 128 KiB characters, the limit of
+        Python's CSV reader); ``REALITYGAP_MAX_CELL_KB``.
     """
 
     max_cells: int = 50_000_000
     max_file_bytes: int = 512 * 1024 * 1024
     max_gap_steps: float = 5.0
+    max_cell_chars: int = 128 * 1024
 
     @classmethod
     def from_environment(cls, environ: Mapping[str, str] | None = None) -> ResourceLimits:
-        """The defaults, changed by ``REALITYGAP_MAX_CELLS``, ``REALITYGAP_MAX_FILE_MB`` and
-        ``REALITYGAP_MAX_GAP_STEPS``."""
+        """The defaults, changed by ``REALITYGAP_MAX_CELLS``, ``REALITYGAP_MAX_FILE_MB``,
+        ``REALITYGAP_MAX_GAP_STEPS`` and ``REALITYGAP_MAX_CELL_KB``."""
         base = cls()
         return cls(
             max_cells=int(_env_number("REALITYGAP_MAX_CELLS", base.max_cells)),
@@ -384,6 +735,9 @@ class ResourceLimits:
                 _env_number("REALITYGAP_MAX_FILE_MB", base.max_file_bytes / 2**20) * 2**20
             ),
             max_gap_steps=_env_number("REALITYGAP_MAX_GAP_STEPS", base.max_gap_steps),
+            max_cell_chars=int(
+                _env_number("REALITYGAP_MAX_CELL_KB", base.max_cell_chars / 1024) * 1024
+            ),
         )
 
 

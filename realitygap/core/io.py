@@ -9,13 +9,15 @@ flushed to disk, and the temporary file is renamed over the target with
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
-__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text"]
+__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text", "jsonable", "write_json"]
 
 
 def atomic_write(path: str | os.PathLike[str], writer: Callable[[IO[bytes]], object]) -> Path:
@@ -74,3 +76,34 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
 def atomic_write_text(path: str | os.PathLike[str], text: str, encoding: str = "utf-8") -> Path:
     """:func:`atomic_write` of a string, encoded with ``encoding``."""
     return atomic_write_bytes(path, text.encode(encoding))
+
+
+def jsonable(value: Any) -> Any:
+    """``value`` with arrays as lists, non-finite floats as ``None``/``"inf"``/``"-inf"``,
+    paths as strings: what :func:`json.dumps` can write."""
+    if isinstance(value, Mapping):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if hasattr(value, "tolist") and callable(value.tolist):  # numpy arrays and scalars
+        return jsonable(value.tolist())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def write_json(path: str | os.PathLike[str], payload: Any) -> Path:
+    """Write ``payload`` (made :func:`jsonable`) as indented JSON to ``path``, atomically.
+
+    A mapping gets a first key ``"written_by": "realitygap VERSION"``: the mark by which a
+    later run knows the file as its own output and may replace it
+    (:mod:`realitygap.core.outputs`). Returns ``path``.
+    """
+    from realitygap import __version__
+
+    data = jsonable(payload)
+    if isinstance(data, dict):
+        data = {"written_by": f"realitygap {__version__}", **data}
+    return atomic_write_text(path, json.dumps(data, indent=2) + "\n")

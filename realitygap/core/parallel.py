@@ -21,6 +21,7 @@ A backend maps a module-level function over items in two ways:
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -34,6 +35,8 @@ __all__ = [
     "ProcessBackend",
     "RayBackend",
     "SerialBackend",
+    "available_cpus",
+    "cap_workers",
     "limit_blas_threads",
     "make_backend",
     "require_ray",
@@ -163,8 +166,30 @@ def _blas_controller() -> Any:
     return _CONTROLLER
 
 
+def _quiet_worker_signals() -> None:
+    """Signals in a worker process: Ctrl-C (sent by a terminal to the whole process group) is
+    the main process's to handle, so a worker ignores it and prints no traceback; SIGTERM
+    ends the worker at once; and a worker ends when its parent dies (Linux), so that a
+    killed run leaves no orphan processes."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        pr_set_pdeathsig = 1
+        libc.prctl(pr_set_pdeathsig, signal.SIGTERM)
+        if os.getppid() == 1:  # the parent died before the line above
+            os._exit(1)
+    except (OSError, AttributeError):  # pragma: no cover - not Linux
+        pass
+
+
 def _init_worker(shared: Any, blas_threads: int | None = None) -> None:
     global _SHARED
+    _quiet_worker_signals()
     if blas_threads is not None:
         limit_blas_threads(blas_threads)
     _SHARED = shared
@@ -173,6 +198,27 @@ def _init_worker(shared: Any, blas_threads: int | None = None) -> None:
 def _call(job: tuple[Callable[[Any, Any], Any], Any]) -> Any:
     fn, item = job
     return fn(_SHARED, item)
+
+
+@contextlib.contextmanager
+def _stopping(pool: ProcessPoolExecutor) -> Iterator[ProcessPoolExecutor]:
+    """``pool`` for a ``with`` block that, when left by an error or an interruption (Ctrl-C,
+    SIGTERM), cancels the pending items and terminates the running workers at once instead
+    of waiting for them to finish."""
+    try:
+        yield pool
+    except BaseException:
+        processes = list((getattr(pool, "_processes", None) or {}).values())
+        pool.shutdown(wait=False, cancel_futures=True)
+        for proc in processes:
+            with contextlib.suppress(Exception):
+                proc.terminate()
+        for proc in processes:
+            with contextlib.suppress(Exception):
+                proc.join(timeout=5)
+        raise
+    else:
+        pool.shutdown(wait=True)
 
 
 class ProcessBackend:
@@ -204,10 +250,7 @@ class ProcessBackend:
         blas_threads: int | None = 1,
     ):
         if workers is None:
-            try:
-                workers = len(os.sched_getaffinity(0))
-            except AttributeError:  # pragma: no cover - not Linux
-                workers = os.cpu_count() or 1
+            workers = available_cpus()
         if workers < 1:
             raise ValueError(f"workers must be >= 1, got {workers}")
         if blas_threads is not None and (
@@ -233,11 +276,13 @@ class ProcessBackend:
         n = min(self.workers, len(items))
         if self.blas_threads is not None:
             _blas_controller()  # found once here; the forked workers inherit it
-        with ProcessPoolExecutor(
-            max_workers=n,
-            mp_context=self._context(),
-            initializer=_init_worker,
-            initargs=(shared, self.blas_threads),
+        with _stopping(
+            ProcessPoolExecutor(
+                max_workers=n,
+                mp_context=self._context(),
+                initializer=_init_worker,
+                initargs=(shared, self.blas_threads),
+            )
         ) as pool:
             return list(pool.map(_call, [(fn, item) for item in items]))
 
@@ -250,11 +295,13 @@ class ProcessBackend:
         items = list(items)
         if self.blas_threads is not None:
             _blas_controller()
-        with ProcessPoolExecutor(
-            max_workers=self.workers,
-            mp_context=self._context(),
-            initializer=_init_worker,
-            initargs=(None, self.blas_threads),
+        with _stopping(
+            ProcessPoolExecutor(
+                max_workers=self.workers,
+                mp_context=self._context(),
+                initializer=_init_worker,
+                initargs=(None, self.blas_threads),
+            )
         ) as pool:
             futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
             for fut in as_completed(futures):
@@ -327,7 +374,18 @@ class RayBackend:
         if ray.is_initialized():
             self._check_same_cluster(ray.get_runtime_context().gcs_address)
             return ray
+        import signal
+        import threading
+
+        # ray.init installs its own SIGTERM handler (sys.exit(15)); the caller's handlers,
+        # which stop a run cleanly (realitygap.core.stops), come back after it
+        main = threading.current_thread() is threading.main_thread()
+        sigs = (signal.SIGINT, signal.SIGTERM)
+        handlers = {sig: signal.getsignal(sig) for sig in sigs} if main else {}
         ray.init(address=self.address, log_to_driver=self.log_to_driver)
+        for sig, handler in handlers.items():
+            if handler is not None:
+                signal.signal(sig, handler)
         self._connected_here = True
         return ray
 
@@ -427,6 +485,36 @@ class RayBackend:
 
 def _ray_call(fn: Callable[[Any, Any], Any], shared: Any, item: Any) -> Any:
     return fn(shared, item)
+
+
+def available_cpus() -> int:
+    """CPUs this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+def cap_workers(
+    workers: int | None, option: str = "--workers", warn: Callable[[str], None] | None = None
+) -> int | None:
+    """``workers`` capped at the CPUs available, said before any work starts.
+
+    Every item here is CPU-bound: processes beyond the cores only add their start-up (about
+    0.1 s each, so 1 000 workers on 2 cores spend two minutes starting) and their memory.
+    ``None`` (the default: one per CPU) is returned as is.
+    """
+    if workers is None:
+        return None
+    cpus = available_cpus()
+    if workers > cpus:
+        if warn is not None:
+            warn(
+                f"{option} {workers} on {cpus} CPU(s): workers beyond the cores only add "
+                f"start-up time and memory; using {cpus}"
+            )
+        return cpus
+    return workers
 
 
 def make_backend(

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import difflib
 import importlib
-import json
 import math
 import os
 import sys
@@ -25,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from realitygap.core.checks import check_nonnegative_int
-from realitygap.core.io import atomic_write_text
+from realitygap.core.io import write_json
 
 _MODULES = (
     "realitygap.experiments.nav",
@@ -174,26 +173,6 @@ def get(name: str) -> Experiment:
     return registry[name]
 
 
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if hasattr(value, "tolist"):
-        return _jsonable(value.tolist())
-    if isinstance(value, float) and not math.isfinite(value):
-        return None if math.isnan(value) else ("inf" if value > 0 else "-inf")
-    if isinstance(value, Path):
-        return str(value)
-    return value
-
-
-def write_json_atomic(path: str | os.PathLike[str], payload: Any) -> None:
-    """Write ``payload`` as indented JSON to ``path`` with :func:`~realitygap.core.io.atomic_write_text`."""
-    text = json.dumps(_jsonable(payload), indent=2, sort_keys=False) + "\n"
-    atomic_write_text(path, text)
-
-
 def format_figures(result: dict[str, Any]) -> str:
     """A readable two-column table of an experiment's figures."""
     figures = result.get("figures", {})
@@ -255,5 +234,5 @@ def run(
             )
         )
     if json_path is not None:
-        write_json_atomic(json_path, result)
+        write_json(json_path, result)
     return result

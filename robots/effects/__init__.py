@@ -30,6 +30,7 @@ from realitygap.robots.effects.base import (
     Channel,
     CommandHook,
     Effect,
+    EffectArgumentError,
     ParamSpec,
     Reality,
     Stage,
@@ -39,6 +40,8 @@ from realitygap.robots.effects.base import (
     pipeline_key,
     pipeline_order,
     register_effect,
+    register_robot,
+    robot_of_params,
 )
 
 __all__ = [
@@ -48,6 +51,7 @@ __all__ = [
     "Channel",
     "CommandHook",
     "Effect",
+    "EffectArgumentError",
     "ParamSpec",
     "Reality",
     "Stage",
@@ -62,6 +66,8 @@ __all__ = [
     "pipeline_key",
     "pipeline_order",
     "register_effect",
+    "register_robot",
+    "robot_of_params",
 ]
 
 # The blind suite of library version 1 draws in this order; it is kept so that

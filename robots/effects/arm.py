@@ -21,6 +21,7 @@ from realitygap.robots.effects.base import (
     Reality,
     Stage,
     register_effect,
+    register_robot,
 )
 
 
@@ -32,6 +33,9 @@ def _arm_mdh_delta(params: Any, deltas: Mapping[str, float]) -> Any:
     if not names:
         return params
     return params.replace(mdh=table.with_params([cur[n] + deltas[n] for n in names], names))
+
+
+register_robot("arm", "realitygap.robots.arm.ArmParams")
 
 
 @register_effect

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import numbers
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
@@ -34,10 +35,12 @@ from typing import Any, ClassVar, NamedTuple, Protocol
 __all__ = [
     "EFFECTS",
     "LIBRARY_VERSION",
+    "ROBOT_PARAMS",
     "BlindRange",
     "Channel",
     "CommandHook",
     "Effect",
+    "EffectArgumentError",
     "ParamSpec",
     "Reality",
     "Stage",
@@ -47,6 +50,8 @@ __all__ = [
     "pipeline_key",
     "pipeline_order",
     "register_effect",
+    "register_robot",
+    "robot_of_params",
 ]
 
 LIBRARY_VERSION = 3
@@ -137,6 +142,40 @@ class ParamSpec:
     log_scale: bool = False
 
 
+class EffectArgumentError(ValueError, TypeError):
+    """An effect parameter of the wrong kind: an unknown name, or a value that is no real number.
+
+    A :class:`ValueError`, as every refused effect parameter is, and a :class:`TypeError`,
+    as Python's own unexpected keyword argument and wrong-typed value are.
+    """
+
+
+_ROUND_OFF = 1e-9
+"""Relative slack (of a parameter's range) within which a value past a bound is that bound:
+a fit's transform to and from range positions may land an ulp outside."""
+
+
+def _check_param(effect: str, spec: ParamSpec, value: Any) -> float:
+    """``value`` of parameter ``spec`` of effect ``effect`` as a float within its bounds."""
+    unit = "" if spec.unit == "1" else f" {spec.unit}"
+    bounds = f"[{spec.low:g}, {spec.high:g}]{unit}"
+    where = f"effect {effect!r}: parameter {spec.name!r} ({spec.description}; unit {spec.unit!r})"
+    fix = f"Fix: pass a real number in {bounds}; {spec.nominal:g}{unit} is nominal (no effect)"
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        shown = repr(value) if len(repr(value)) <= 60 else repr(value)[:57] + "..."
+        raise EffectArgumentError(
+            f"{where} must be a real finite number in {bounds}, got {shown} "
+            f"({type(value).__name__}). {fix}"
+        )
+    v = float(value)
+    if not math.isfinite(v):
+        raise ValueError(f"{where} must be a real finite number in {bounds}, got {v!r}. {fix}")
+    slack = _ROUND_OFF * (spec.high - spec.low)
+    if not spec.low - slack <= v <= spec.high + slack:
+        raise ValueError(f"{where} = {v:g}{unit} is outside its physical bounds {bounds}. {fix}")
+    return min(max(v, spec.low), spec.high)
+
+
 class BlindRange(NamedTuple):
     """Magnitude of one parameter in the blind suite.
 
@@ -194,10 +233,9 @@ class Effect:
 
     Raises
     ------
-    TypeError
-        An unknown parameter name (the message suggests a close one).
     ValueError
-        A non-finite value.
+        An unknown parameter name, or a value that is not a real finite number
+        within the parameter's physical bounds (:meth:`checked_values`).
     """
 
     name: ClassVar[str] = ""
@@ -225,21 +263,48 @@ class Effect:
     a lag, a limit). The gap budget fits and scores an effect at its scale."""
 
     def __init__(self, **values: float):
-        known = {s.name: s for s in self.specs}
-        unknown = set(values) - set(known)
+        self.values: dict[str, float] = self.checked_values(values)
+
+    @classmethod
+    def checked_values(cls, values: Mapping[str, Any]) -> dict[str, float]:
+        """Every parameter's value, checked against its :class:`ParamSpec`; absent ones nominal.
+
+        The one check of an effect's parameters: the constructor (and so
+        :func:`make_effect` and :meth:`Reality.from_dict`) calls it.
+
+        Parameters
+        ----------
+        values : mapping of str to float
+            Parameter name → value in the parameter's unit.
+
+        Returns
+        -------
+        dict of str to float
+            Every parameter of :attr:`specs`, in their order. A value within
+            round-off (``1e-9`` of the range) outside a bound is the bound.
+
+        Raises
+        ------
+        EffectArgumentError
+            (a :class:`ValueError` and a :class:`TypeError`) An unknown parameter
+            name (the message lists the known ones and suggests a close one), or a
+            value that is not a real number (``bool``, ``str``, ``complex``).
+        ValueError
+            A NaN or infinite value, or one outside the parameter's physical bounds
+            ``[low, high]``.
+        """
+        known = {s.name: s for s in cls.specs}
+        unknown = [k for k in values if k not in known]
         if unknown:
-            bad = sorted(unknown)[0]
-            close = difflib.get_close_matches(bad, list(known), n=1)
+            bad = unknown[0]
+            close = difflib.get_close_matches(str(bad), list(known), n=1)
             hint = f"; did you mean {close[0]!r}?" if close else ""
-            raise TypeError(
-                f"effect {self.name!r} has no parameter {bad!r}{hint} (parameters: {', '.join(known)})"
+            listing = ", ".join(f"{s.name} ({s.unit}, {s.low:g} … {s.high:g})" for s in cls.specs)
+            raise EffectArgumentError(
+                f"effect {cls.name!r} has no parameter {bad!r}{hint} "
+                f"(parameters: {listing or 'none'}). Fix: pass only these names"
             )
-        self.values: dict[str, float] = {}
-        for spec in self.specs:
-            value = float(values.get(spec.name, spec.nominal))
-            if not math.isfinite(value):
-                raise ValueError(f"effect {self.name!r}: {spec.name} must be finite, got {value!r}")
-            self.values[spec.name] = value
+        return {s.name: _check_param(cls.name, s, values.get(s.name, s.nominal)) for s in cls.specs}
 
     # realisations (identity by default) ---------------------------------------
     def apply_params(self, params: Any) -> Any:
@@ -361,6 +426,36 @@ EFFECTS: dict[str, type[Effect]] = {}
 """Every registered effect class by name, in registration order."""
 
 
+ROBOT_PARAMS: dict[str, str] = {}
+"""Robot kind → qualified name of the physical-parameter class its effects act on
+(``"diffdrive"`` → ``"realitygap.robots.diffdrive.DiffDriveParams"``); each robot's
+effect module registers its robot (:func:`register_robot`)."""
+
+
+def register_robot(robot: str, params_class: str) -> None:
+    """Declare that ``robot``'s effects act on instances of ``params_class``.
+
+    Parameters
+    ----------
+    robot : str
+        The robot kind, as the effects' :attr:`Effect.robot` names it.
+    params_class : str
+        Qualified name ``"package.module.Class"`` of its physical parameters (a name,
+        so that registering does not import the robot's simulation).
+    """
+    ROBOT_PARAMS[robot] = params_class
+
+
+def robot_of_params(params: Any) -> str | None:
+    """The robot kind whose physical parameters ``params`` are, or ``None`` if unregistered."""
+    names = {f"{c.__module__}.{c.__qualname__}" for c in type(params).__mro__}
+    return next((robot for robot, cls in ROBOT_PARAMS.items() if cls in names), None)
+
+
+def _robot_effects(robot: str) -> str:
+    return ", ".join(n for n, c in EFFECTS.items() if c.robot == robot) or "none"
+
+
 def register_effect(cls: type[Effect]) -> type[Effect]:
     """Class decorator adding an effect to the library."""
     if not cls.name:
@@ -374,7 +469,23 @@ def register_effect(cls: type[Effect]) -> type[Effect]:
 
 
 def make_effect(name: str, **values: float) -> Effect:
-    """Instantiate library effect ``name``; suggests close names on a typo."""
+    """Instantiate library effect ``name``; suggests close names on a typo.
+
+    Raises
+    ------
+    KeyError
+        An unknown effect name.
+    TypeError
+        A name that is not a string.
+    ValueError
+        A parameter the effect does not have, or a value outside its physical
+        bounds (:meth:`Effect.checked_values`).
+    """
+    if not isinstance(name, str):
+        raise TypeError(
+            f"make_effect's effect name must be a str, got {name!r} ({type(name).__name__}). "
+            f"Known effects: {', '.join(sorted(EFFECTS))}"
+        )
     if name not in EFFECTS:
         close = difflib.get_close_matches(name, list(EFFECTS), n=3)
         hint = f" Did you mean {', '.join(map(repr, close))}?" if close else ""
@@ -425,10 +536,69 @@ class Reality:
         for e in effects:
             if not isinstance(e, Effect):
                 raise TypeError(f"Reality.effects must hold Effect objects, got {type(e).__name__}")
+        seen: set[str] = set()
+        for e in effects:
+            if e.name in seen:
+                values = [dict(x.values) for x in effects if x.name == e.name]
+                raise ValueError(
+                    f"a reality holds each effect once, but effect {e.name!r} comes "
+                    f"{len(values)} times ({values}). Fix: keep one {e.name!r} with the "
+                    "combined values"
+                )
+            seen.add(e.name)
+        robots = {e.robot for e in effects}
+        if len(robots) > 1:
+            first = effects[0]
+            other = next(e for e in effects if e.robot != first.robot)
+            raise ValueError(
+                f"a reality describes one robot, but effect {first.name!r} is for the "
+                f"{first.robot} and effect {other.name!r} for the {other.robot}. Fix: build one "
+                f"Reality per robot; effects for {first.robot}: {_robot_effects(first.robot)}"
+            )
         self.effects = pipeline_order(effects)
 
+    @property
+    def robot(self) -> str | None:
+        """The robot kind the effects are for; ``None`` for the nominal reality (no effects)."""
+        return self.effects[0].robot if self.effects else None
+
+    def check_robot(self, robot: str) -> None:
+        """Refuse effects that are not for ``robot``.
+
+        Parameters
+        ----------
+        robot : str
+            The kind of the robot this reality is built onto (``"diffdrive"``, ``"arm"``,
+            ``"climber"``).
+
+        Raises
+        ------
+        ValueError
+            An effect whose :attr:`Effect.robot` is another kind.
+        """
+        for e in self.effects:
+            if e.robot != robot:
+                raise ValueError(
+                    f"effect {e.name!r} is for the {e.robot}; this reality is built onto a "
+                    f"{robot} robot. Fix: use effects for {robot}: {_robot_effects(robot)}"
+                )
+
+    def _check_onto(self, params: Any) -> None:
+        """:meth:`check_robot` against the robot whose parameters ``params`` are, if registered."""
+        robot = robot_of_params(params)
+        if robot is not None:
+            self.check_robot(robot)
+
     def apply_params(self, params: Any) -> Any:
-        """The physical parameters of the real robot, built from the nominal ``params``."""
+        """The physical parameters of the real robot, built from the nominal ``params``.
+
+        Raises
+        ------
+        ValueError
+            ``params`` are a registered robot's (:func:`register_robot`) and an effect is
+            for another robot (:meth:`check_robot`).
+        """
+        self._check_onto(params)
         for effect in self.effects:
             params = effect.apply_params(params)
         return params
@@ -442,11 +612,19 @@ class Reality:
             Control period, s.
         nominal : robot parameters
             The nominal parameters the firmware believes (not the real body's).
+
+        Raises
+        ------
+        ValueError
+            An effect for another robot than ``nominal``'s (:meth:`check_robot`).
         """
+        self._check_onto(nominal)
         return [h for e in self.effects if (h := e.make_command_hook(dt, nominal)) is not None]
 
     def wheel_hooks(self, dt: float, nominal: Any) -> list[WheelHook]:
-        """Fresh per-wheel hooks for one episode, in effect order."""
+        """Fresh per-wheel hooks for one episode, in effect order (checked as
+        :meth:`command_hooks`)."""
+        self._check_onto(nominal)
         return [h for e in self.effects if (h := e.make_wheel_hook(dt, nominal)) is not None]
 
     def ticks_hooks(self) -> list[TicksHook]:
@@ -504,8 +682,50 @@ class Reality:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Reality:
-        """Rebuild a :class:`Reality` from :meth:`to_dict` output."""
-        effects = tuple(
-            make_effect(e["name"], **e.get("values", {})) for e in data.get("effects", ())
-        )
-        return cls(effects=effects, name=str(data.get("name", "custom")))
+        """A :class:`Reality` from its dict form: :meth:`to_dict` output
+        (``{"name": ..., "effects": [{"name": ..., "values": {...}}, ...]}``) or the short
+        form ``{"effect_name": {"param": value, ...}, ...}``.
+
+        Raises
+        ------
+        KeyError
+            An unknown effect name (with close names).
+        TypeError, ValueError
+            Not a mapping, an entry of the wrong shape, an unknown key, or a parameter
+            value the effect refuses (:func:`make_effect`).
+        """
+        if not isinstance(data, Mapping):
+            raise TypeError(f"a Reality's dict form must be a mapping, got {type(data).__name__}")
+        if "effects" in data:  # to_dict() form
+            extra = sorted(set(data) - {"name", "effects", "meta"})
+            if extra:
+                raise ValueError(
+                    f"a Reality's to_dict() form holds 'name' and 'effects', got also {extra}"
+                )
+            entries = data["effects"]
+            if isinstance(entries, (str, bytes, Mapping)) or not isinstance(entries, Sequence):
+                raise TypeError(
+                    "a Reality's 'effects' must be a list of {'name': ..., 'values': {...}}, "
+                    f"got {type(entries).__name__}"
+                )
+            pairs: list[tuple[Any, Any]] = []
+            for e in entries:
+                if not isinstance(e, Mapping) or "name" not in e:
+                    raise TypeError(
+                        "each of a Reality's 'effects' must be {'name': ..., 'values': {...}}, "
+                        f"got {e!r}"
+                    )
+                pairs.append((e["name"], e.get("values", {})))
+            name = str(data.get("name", "custom"))
+        else:  # short form: effect name -> parameter values
+            pairs = list(data.items())
+            name = "custom"
+        effects = []
+        for effect_name, values in pairs:
+            if not isinstance(values, Mapping):
+                raise TypeError(
+                    f"effect {effect_name!r}: its values must be a mapping "
+                    f"{{'param': value}}, got {values!r} ({type(values).__name__})"
+                )
+            effects.append(make_effect(effect_name, **dict(values)))
+        return cls(effects=tuple(effects), name=name)

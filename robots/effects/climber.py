@@ -20,7 +20,10 @@ from realitygap.robots.effects.base import (
     ParamSpec,
     Stage,
     register_effect,
+    register_robot,
 )
+
+register_robot("climber", "realitygap.robots.climber.ClimberParams")
 
 
 @register_effect

@@ -33,6 +33,7 @@ from realitygap.robots.effects.base import (
     Stage,
     TicksHook,
     register_effect,
+    register_robot,
 )
 
 FloatArray = npt.NDArray[np.float64]
@@ -166,6 +167,9 @@ def _shift_back(t_idx_shift: FloatArray, series: FloatArray) -> FloatArray:
     f = (pos - i0)[..., None]
     rows = np.arange(B)[:, None]
     return (1.0 - f) * series[rows, i0] + f * series[rows, i1]
+
+
+register_robot("diffdrive", "realitygap.robots.diffdrive.DiffDriveParams")
 
 
 @register_effect

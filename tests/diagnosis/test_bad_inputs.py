@@ -120,7 +120,7 @@ def test_cli_refuses_output_over_input_before_reading(tmp_path: Path, capsys) ->
     )
     assert rc == 2 and "--params: invalid JSON at line 1 column 2" in capsys.readouterr().err
     rc = main(["diagnose", str(log), "--json", str(tmp_path / "d.json"), "--resample", "-1"])
-    assert rc == 2 and "--resample must be a finite number > 0 s" in capsys.readouterr().err
+    assert rc == 2 and "(--resample) must be a finite number > 0 s" in capsys.readouterr().err
     assert not (tmp_path / "d.json").exists()
 
 

@@ -102,7 +102,7 @@ def test_bad_input_is_refused_and_nothing_is_written(saved_logs, tmp_path, capsy
     assert not js.exists()
     # a CSV that lacks the ground truth: the channel and the fix are named
     rc = main(
-        ["diagnose", str(csv), "--columns", "t=t,cmd.v=v,cmd.w=v", "--json", str(js), "--quiet"]
+        ["diagnose", str(csv), "--columns", "t=t,cmd.v=v,cmd.w=!v", "--json", str(js), "--quiet"]
     )
     assert rc == 2
     err = capsys.readouterr().err

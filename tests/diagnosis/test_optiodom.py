@@ -304,7 +304,7 @@ def test_missing_and_empty_files(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="no run file, expected"):
         read_session(folder)
     (folder / f"{sid}_metadata.csv").write_text("")
-    with pytest.raises(ValueError, match="empty metadata file"):
+    with pytest.raises(ValueError, match=r"_metadata\.csv is empty \(0 bytes\)"):
         read_session(folder)
     (folder / f"{sid}_metadata.csv").unlink()
     with pytest.raises(FileNotFoundError, match=r"missing .*_metadata\.csv"):
@@ -325,5 +325,8 @@ def test_byte_order_marks_everywhere_are_accepted(tmp_path: Path) -> None:
 def test_non_utf8_file_is_reported(tmp_path: Path) -> None:
     folder = _write_session(tmp_path)
     (folder / f"{folder.name}_run-01.csv").write_bytes(b"\xff\xfe0,0,0")
+    with pytest.raises(ValueError, match=r"run-01\.csv is UTF-16 LE text.*iconv"):
+        read_session(folder)
+    (folder / f"{folder.name}_run-01.csv").write_bytes(b"0,0,\xff\xff0")
     with pytest.raises(ValueError, match=r"run-01\.csv: expected UTF-8 text"):
         read_session(folder)

@@ -111,7 +111,7 @@ def test_forced_arguments_are_checked_and_used(tmp_path) -> None:
     path = write(tmp_path / "run.txt", "t\tx\n0\t1,5\n1\t2,5\n2\t3,5\n")
     table = read_table(path, delimiter="tab", decimal=",")
     np.testing.assert_allclose(table.column("x"), [1.5, 2.5, 3.5])
-    with pytest.raises(ValueError, match=r"delimiter must be one of .*got ':'"):
+    with pytest.raises(ValueError, match=r"delimiter \(--delimiter\) must be one of .*got ':'"):
         read_table(path, delimiter=":")
     with pytest.raises(ValueError, match=r"decimal must be '\.' or ',', got ';'"):
         read_table(path, decimal=";")

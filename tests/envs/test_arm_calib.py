@@ -201,7 +201,7 @@ def test_geometric_measurement_rejects_what_a_detector_could_not_read(env: ArmCa
 
 @pytest.mark.slow
 def test_rendered_capture_feeds_the_same_pipeline() -> None:
-    e = ArmCalibEnv(sensor_mode="fast", budget=2, n_validation=8)
+    e = ArmCalibEnv(sensor_mode="fast", budget=3, min_poses=3, n_validation=8)
     try:
         e.reset(seed=0)
         for q in e.candidate_pool(2, seed=4):
@@ -216,7 +216,7 @@ def test_rendered_capture_feeds_the_same_pipeline() -> None:
 
 
 def test_randomised_reality_redraws_the_real_arm() -> None:
-    e = ArmCalibEnv(randomize_reality=True, budget=2, n_validation=12)
+    e = ArmCalibEnv(randomize_reality=True, budget=3, min_poses=3, n_validation=12)
     try:
         n0 = e.reset(seed=1)[1]["nominal_validation_rms_mm"]
         n1 = e.reset(seed=2)[1]["nominal_validation_rms_mm"]

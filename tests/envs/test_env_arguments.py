@@ -25,9 +25,17 @@ COMMON_RATES = {
     "physics_hz": [*BAD_TYPES, NAN, INF, 0, -240.0, 1e9],
     "control_hz": [*BAD_TYPES, NAN, 0, -20.0, 1e6, 7.0],
 }
+BAD_POSE3 = ["origin", [NAN, 0.0, 0.0], [0.0, 0.0], [[0.0, 0.0, 0.0]], [100.0, 0.0, 0.0]]
+BAD_ESTIMATOR = ["ekf", 42, object()]
 TABLE: dict[str, dict[str, list[object]]] = {
     "realitygap/WheeledNav-v0": {
         **COMMON_RATES,
+        "obstacles": ["none", "a", 3, [1, 2], {"a": 1}],
+        "start": BAD_POSE3,
+        "goal": BAD_POSE3,
+        "estimator": BAD_ESTIMATOR,
+        "sensor_mode": ["xray", 3],
+        "render_mode": ["human3d"],  # a non-str fails in gym.make itself
         "n_obstacles": [*BAD_TYPES, NAN, -1, 2.5, 10_000, 1e18],
         "room_half_size": [*BAD_TYPES, NAN, INF, 0, -3.5, 1e6],
         "success_pos_tol": [*BAD_TYPES, NAN, 0, -1.0, 1e6],
@@ -49,20 +57,60 @@ TABLE: dict[str, dict[str, list[object]]] = {
         "invalid_penalty": [*BAD_TYPES, NAN, INF, -1.0, 1e9],
         "randomize_reality": ["yes", 1, None],
         "params": ["a", 1.0],
-        "reality": ["a", 1.0],
+        "reality": ["a", 1.0, {"no_such_effect": {}}, {"command_latency": {"delay": 0.05}}],
         "board": ["a", 1.0],
         "view": ["a", 1.0],
+        "identification": ["lm", 1.0],
+        "measurement": ["a", 1.0],
+        "placement": ["a", 1.0],
+        "joint_center": ["home", [NAN] * 6, [0.0, 0.0], None],
+        "joint_half_range": ["a", [-0.1] * 6, [0.0] * 6, [INF] * 6, [0.1] * 5],
+        "estimator": ["mdh", 42, object()],
+        "sensor_mode": ["xray", 3],
     },
     "realitygap/WallClimb-v0": {
         **COMMON_RATES,
         "success_tol": [*BAD_TYPES, NAN, 0, -1.0, 1e6],
         "detach_margin": [*BAD_TYPES, NAN, 0, -1.0, 1e6],
         "faults": ["a", 1.0],
-        "reality": ["a", 1.0],
+        "reality": ["a", 1.0, {"wheelbase_error": {"E_b": 1.02}}],
         "reward_weights": ["a", 1.0],
-        "estimator": [1.0, None],
+        "estimator": [1.0, None, "psychic", object()],
+        "start": ["dock", [NAN, 0.0], [0.0], [1.0, 0.5, 0.0, 0.0], [100.0, 100.0]],
+        "goal": ["dock", [INF, 0.0], [1.0, 0.5, 0.0], [100.0, 100.0]],
+        "vio_config": ["default", 1.0],
+        "params": ["a", 1.0],
+        "sensor_mode": ["xray", 3],
     },
 }
+
+VEC_ID = "realitygap/WheeledNavVec-v0"
+VEC_TABLE: dict[str, list[object]] = {
+    "num_envs": [*BAD_TYPES, NAN, 0, -1, 2.5],
+    "n_obstacles": [*BAD_TYPES, NAN, -1, 2.5, 10**6],
+    "room_half_size": [*BAD_TYPES, NAN, INF, 0, -3.5, 1e6],
+    "success_pos_tol": [*BAD_TYPES, NAN, 0, -1.0, 1e6],
+    "success_ang_tol": [*BAD_TYPES, NAN, 0, -1.0, 100.0],
+    "control_hz": [*BAD_TYPES, NAN, INF, 0, -20.0, 1e9],
+    "scan_hz": [*BAD_TYPES, NAN, 0, -10.0, 1e6, 7.3],
+    "n_beams": [*BAD_TYPES, NAN, 0, 1, 2.5, 10**9],
+    "max_episode_steps": [*BAD_TYPES, NAN, 0, -1, 2.5],
+    "history_steps": [*BAD_TYPES, NAN, 0, -1, 2.5, 10**9],
+    "terminate_on_success": ["yes", 1, None],
+    "reward_weights": ["a", 1.0],
+    "params": ["a", 1.0],
+    "obstacles": ["none", 3, [1, 2]],
+    "start": BAD_POSE3,
+    "goal": BAD_POSE3,
+    "reality": ["worn", 1.0, {"no_such_effect": {}}, {"command_latency": {"delay": -1.0}}],
+    "randomize": ["yes", 1.0, {"no_such_effect": {}}, {"command_latency": {"delay": (0.5, 0.1)}}],
+    "render_mode": ["human"],
+}
+VEC_CASES = [
+    pytest.param(arg, value, id=f"vec-{arg}-{value!r}")
+    for arg, values in VEC_TABLE.items()
+    for value in values
+]
 
 CASES = [
     pytest.param(env_id, arg, value, id=f"{env_id.split('/')[1]}-{arg}-{value!r}")
@@ -85,6 +133,119 @@ def test_bad_argument_is_refused_at_construction(env_id: str, arg: str, value: o
     assert arg in message, message
     if isinstance(value, (int, float)) and not isinstance(value, bool) and arg != "control_hz":
         assert (repr(value) in message) or (f"{value:g}" in message) or str(value) in message
+
+
+@pytest.mark.parametrize(("arg", "value"), VEC_CASES)
+def test_bad_vector_argument_is_refused_at_construction(arg: str, value: object) -> None:
+    kwargs: dict[str, object] = {"num_envs": 2, arg: value}
+    with pytest.raises((TypeError, ValueError)) as info:
+        env = gym.make_vec(VEC_ID, **kwargs)
+        env.close()
+    assert arg in str(info.value), str(info.value)
+
+
+@pytest.mark.parametrize("value", [0, math.nan])
+def test_room_half_size_names_its_physical_range(value: float) -> None:
+    for make in (
+        lambda: gym.make("realitygap/WheeledNav-v0", room_half_size=value),
+        lambda: gym.make_vec(VEC_ID, num_envs=2, room_half_size=value),
+    ):
+        with pytest.raises(ValueError, match=r"room_half_size must be .* in \[1, 50\] m"):
+            make()
+
+
+BAD_SEEDS = [-1, "zero", 1.5, True, [0], np.float64(1.0)]
+
+
+@pytest.fixture(scope="module", params=ENV_IDS)
+def made_env(request: pytest.FixtureRequest) -> object:
+    env = gym.make(request.param)
+    yield env
+    env.close()
+
+
+@pytest.mark.parametrize("seed", BAD_SEEDS, ids=repr)
+def test_bad_seed_is_refused_by_reset(made_env: gym.Env, seed: object) -> None:
+    with pytest.raises((TypeError, ValueError), match="seed"):
+        made_env.reset(seed=seed)
+
+
+def test_numpy_integer_seed_is_a_seed() -> None:
+    env = gym.make("realitygap/WheeledNav-v0")
+    try:
+        a, _ = env.reset(seed=np.int64(3))
+        b, _ = env.reset(seed=3)
+        np.testing.assert_array_equal(a, b)
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("seed", [*BAD_SEEDS, [0, -1], [0, "a"]], ids=repr)
+def test_bad_seed_is_refused_by_vector_reset(seed: object) -> None:
+    env = gym.make_vec(VEC_ID, num_envs=2)
+    try:
+        with pytest.raises((TypeError, ValueError), match="seed"):
+            env.reset(seed=seed)
+    finally:
+        env.close()
+
+
+def test_vector_env_applies_a_reality_mapping() -> None:
+    from realitygap.robots.effects import Reality, make_effect
+
+    env = gym.make_vec(VEC_ID, num_envs=2, reality={"command_latency": {"delay": 0.05}})
+    try:
+        assert env.unwrapped.reality.effect_names == ("command_latency",)
+        assert env.unwrapped.fixed_values["command_latency.delay"] == 0.05
+    finally:
+        env.close()
+    full = Reality((make_effect("command_latency", delay=0.05),)).to_dict()
+    env = gym.make_vec(VEC_ID, num_envs=2, reality=full)
+    try:
+        assert env.unwrapped.fixed_values["command_latency.delay"] == 0.05
+    finally:
+        env.close()
+
+
+def test_min_poses_above_budget_names_both() -> None:
+    with pytest.raises(ValueError, match=r"min_poses.*budget=20"):
+        gym.make("realitygap/ArmCalib-v0", min_poses=1000)
+    with pytest.raises(ValueError, match=r"min_poses.*budget=5"):
+        gym.make("realitygap/ArmCalib-v0", budget=5)
+
+
+@pytest.mark.parametrize("env_id", ["realitygap/WheeledNav-v0", "realitygap/WallClimb-v0"])
+def test_estimator_protocol_lists_the_missing_methods(env_id: str) -> None:
+    class HalfEstimator:
+        def reset(self, initial: object = None) -> None: ...
+
+    with pytest.raises(TypeError, match=r"estimator must .*lacks update\(measurement\)"):
+        gym.make(env_id, estimator=HalfEstimator())
+
+
+def test_arm_estimator_protocol_lists_the_missing_methods() -> None:
+    with pytest.raises(TypeError, match=r"estimator .*reset\(\).*update\(measurement.*estimate"):
+        gym.make("realitygap/ArmCalib-v0", estimator="mdh")
+
+
+@pytest.mark.parametrize(
+    ("module", "cls"),
+    [
+        ("realitygap.envs.tasks.nav", "NavRewardWeights"),
+        ("realitygap.envs.tasks.wall_climb", "WallClimbRewardWeights"),
+        ("realitygap.envs.tasks.arm_calib", "ArmCalibRewardWeights"),
+        ("realitygap.envs.tasks.arm_calib", "ViewConstraints"),
+    ],
+)
+@pytest.mark.parametrize("value", [NAN, INF, "a", None, True])
+def test_settings_fields_are_finite_numbers(module: str, cls: str, value: object) -> None:
+    import dataclasses
+    import importlib
+
+    kind = getattr(importlib.import_module(module), cls)
+    field = dataclasses.fields(kind)[0].name
+    with pytest.raises((TypeError, ValueError), match=field):
+        kind(**{field: value})
 
 
 def test_room_that_cannot_hold_the_obstacles_is_named() -> None:

@@ -213,6 +213,7 @@ class ArmAdapter(RobotAdapter):
     """
 
     robot = "arm"
+    uses_time_windows = False  # tool points at stations, not windows of a time series
     channels = ARM_CHANNELS
     schema = ARM_SCHEMA
     surrogate_effects = _SURROGATE_EFFECTS

@@ -54,6 +54,20 @@ def _member_header(
     return tuple(int(n) for n in shape), dtype
 
 
+def archive_members(path: str | os.PathLike[str]) -> set[str]:
+    """The member names of an ``.npz`` (zip) archive, or an :class:`ArchiveError` naming the
+    file when it is no readable zip (damaged, truncated, another format)."""
+    p = Path(path)
+    try:
+        with zipfile.ZipFile(p) as zf:
+            return set(zf.namelist())
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error, EOFError, OSError) as exc:
+        raise ArchiveError(
+            f"{p}: not a readable .npz archive ({type(exc).__name__}: {exc}); the file is "
+            "damaged, truncated or of another format. Fix: copy or save it again"
+        ) from None
+
+
 def read_log_archive(
     path: str | os.PathLike[str], limits: ResourceLimits | None = None
 ) -> dict[str, np.ndarray]:

@@ -21,6 +21,12 @@ A column map is a comma-separated list of ``target=SOURCE[:unit]`` entries::
   t=mocap::time``). An unqualified name is looked up in every file.
 * ``ticks=increments`` says the encoder columns count per row instead of
   cumulatively.
+* **One source per target, one target per source.** A target given twice is an
+  error (in a JSON file too: its last value would silently win). A column that
+  feeds two targets (``cmd.v=v, cmd.w=v``: usually a slip) is an error unless the
+  map says so: mark every further use with ``!`` before the column
+  (``pose_gt.theta=yaw, pose_est.theta=!yaw``); a name that starts with ``!`` goes
+  in double quotes.
 
 :meth:`ColumnMap.parse` reads that text (or a JSON file of the same entries);
 every error names the entry, what was expected and an example.
@@ -28,7 +34,6 @@ every error names the entry, what was expected and an example.
 
 from __future__ import annotations
 
-import json
 import os
 import re
 from collections.abc import Mapping
@@ -36,6 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from realitygap.core.checks import load_json_or_yaml
 from realitygap.diagnosis.logs.log import LogError, standard_channels
 
 __all__ = ["ColumnMap", "Source", "split_entries"]
@@ -64,6 +70,8 @@ class Source:
         The file that holds the column (its name or stem), or ``None`` for any.
     row_period : float or None
         For the time only: rows at this fixed period (in ``unit``).
+    shared : bool
+        The entry is marked ``!``: the column may also feed another target.
     text : str
         The entry as written (for messages).
     body : str
@@ -78,6 +86,7 @@ class Source:
     offset: float = 0.0
     file: str | None = None
     row_period: float | None = None
+    shared: bool = False
     text: str = ""
     body: str = ""
 
@@ -128,6 +137,7 @@ class ColumnMap:
                 "column map: the time is given more than once; with several files, qualify each "
                 "with its file (e.g. 't=enc::stamp,t=mocap::time')"
             )
+        check_one_target_per_source(self.entries)
 
     @property
     def time(self) -> Source | None:
@@ -157,16 +167,22 @@ class ColumnMap:
         (or the entries as strings: ``{"ticks.left": "-enc_l"}``) and optionally
         ``"ticks": "increments"``.
         """
+        if not isinstance(text, str):
+            raise LogError(
+                f"column map (--columns) must be text like {EXAMPLE!r} or a JSON file name, got "
+                f"{type(text).__name__} {text!r}"
+            )
         text = text.strip()
-        if text.endswith(".json") and os.path.isfile(text):
-            with open(text, encoding="utf-8") as fh:
-                try:
-                    raw = json.load(fh)
-                except json.JSONDecodeError as exc:
-                    raise LogError(f"column map {text}: not valid JSON ({exc})") from None
-            if not isinstance(raw, dict):
-                raise LogError(f"column map {text}: expected a JSON object of target → column")
-            return cls.from_dict(raw)
+        if text.endswith((".json", ".yaml", ".yml")) or os.path.isfile(text):
+            try:
+                raw = load_json_or_yaml(
+                    text, "column map (--columns)", expect=dict, example='{"t": ["time", "ms"]}'
+                )
+                return cls.from_dict(raw)
+            except LogError as exc:
+                raise LogError(str(exc).replace("column map:", f"column map {text}:", 1)) from None
+            except ValueError as exc:
+                raise LogError(str(exc)) from None
         entries: dict[str, Source] = {}
         times: list[Source] = []
         ticks = "cumulative"
@@ -188,6 +204,11 @@ class ColumnMap:
     def from_dict(cls, raw: Mapping[str, Any]) -> ColumnMap:
         """A map from ``{target: source}`` (source: ``"col"``, ``"-col*2:mm"``, ``[col, unit]``
         or a list of those for a time given per file)."""
+        if not isinstance(raw, Mapping):
+            raise LogError(
+                f"column map must be a mapping of target → column (e.g. {{'t': 'time'}}), got "
+                f"{type(raw).__name__} {raw!r}"
+            )
         entries: dict[str, Source] = {}
         times: list[Source] = []
         for target, value in raw.items():
@@ -212,6 +233,29 @@ class ColumnMap:
                     )
                 _add(entries, times, str(target), parse_source(src_text, str(target)))
         return cls(entries, tuple(times), str(raw.get("ticks", "cumulative")))
+
+
+def check_one_target_per_source(entries: Mapping[str, Source]) -> None:
+    """Refuse a column that feeds several targets unless every use but one is marked ``!``.
+
+    Raises
+    ------
+    LogError
+        Naming the column, its targets and the fix.
+    """
+    uses: dict[tuple[str | None, str | int | None], list[tuple[str, Source]]] = {}
+    for target, src in entries.items():
+        uses.setdefault((src.file, src.column), []).append((target, src))
+    for (file, column), targets in uses.items():
+        unmarked = [t for t, src in targets if not src.shared]
+        if len(targets) > 1 and len(unmarked) > 1:
+            name = f"{file}::{column}" if file else str(column)
+            raise LogError(
+                f"column map: the column {name!r} feeds {', '.join(t for t, _ in targets)}; one "
+                "column is one quantity (is one of them a slip?). Fix: map each target to its "
+                f"own column, or, if the column really is both, mark the further use with '!' "
+                f"(e.g. '{unmarked[-1]}=!{column}')"
+            )
 
 
 def _is_list_of_sources(value: Any) -> bool:
@@ -311,6 +355,9 @@ def parse_source(source: str, target: str) -> Source:
     """One entry's ``SOURCE[:unit]`` (see the module docstring)."""
     body, unit = _split_unit(source)
     where = f"column map: {target}={source}"
+    shared = body.startswith("!")
+    if shared:
+        body = body[1:].lstrip()
     if not body:
         raise LogError(f"{where}: no column given (e.g. {EXAMPLE!r})")
     file: str | None = None
@@ -374,6 +421,7 @@ def parse_source(source: str, target: str) -> Source:
         offset=offset,
         file=file,
         row_period=row_period,
+        shared=shared,
         text=source,
         body=body,
     )

@@ -33,6 +33,7 @@ Every error names the file, the line or column and the fix.
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import re
@@ -60,6 +61,14 @@ from realitygap.diagnosis.logs.log import (
     convert_units,
     fill_gaps,
     standard_channels,
+)
+from realitygap.diagnosis.logs.schema import (
+    RESET_PERIODS,
+    SchemaError,
+    check_counts,
+    clock_resets,
+    fill_time,
+    unwrap_counter,
 )
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.diffdrive_replay import params_to_meta
@@ -147,6 +156,9 @@ def _resolve(tables: Sequence[Table], src: Source, target: str) -> tuple[int, in
     if len(hits) == 1:
         return hits[0]
     if not hits:
+        refused = _refused_dtype(tables, src)
+        if refused:
+            raise LogError(f"column map entry {target}={src.text}: {refused}")
         if len(errors) == 1:
             raise LogError(f"column map entry {target}={src.text}: {errors[0]}") from None
         raise LogError(
@@ -159,6 +171,23 @@ def _resolve(tables: Sequence[Table], src: Source, target: str) -> tuple[int, in
         f"column map: {target}={src.text}: the column is in several files ({names}); say which "
         f"with FILE::column (e.g. {tables[hits[0][0]].source.stem}::{src.column})"
     )
+
+
+def _refused_dtype(tables: Sequence[Table], src: Source) -> str | None:
+    """What an array file said about the variable ``src`` names when its dtype kept it out of
+    the table (booleans, complex numbers, objects: see
+    :func:`~realitygap.diagnosis.logs.schema.dtype_problem`), else ``None``."""
+    if src.column is None:
+        return None
+    base = str(src.column).split("[", 1)[0]
+    for tab in tables:
+        if tab.kind == "text" or not src.matches_file(tab.source):
+            continue
+        for note in tab.skipped:
+            head = f"variable {base} not read: "
+            if note.startswith(head) and "expected" in note:
+                return f"{tab.source}: variable {base!r}: {note[len(head) :]}"
+    return None
 
 
 def _values(tab: Table, j: int, src: Source, si: str, target: str) -> FloatArray:
@@ -179,6 +208,11 @@ def _values(tab: Table, j: int, src: Source, si: str, target: str) -> FloatArray
             f"{tab.source}, line {line}, column {name!r} ({target}): expected a number, got "
             f"{text!r} — {hint}"
         )
+    if target.startswith("ticks.") and src.factor == 1.0 and src.unit in ("", "count"):
+        try:  # counts are whole numbers, unless the map scales them (derived values)
+            check_counts(raw, f"{tab.source}: column {name!r} ({target})", tab.lines)
+        except SchemaError as exc:
+            raise LogError(str(exc)) from None
     with np.errstate(over="ignore", invalid="ignore"):
         v = src.sign * raw * src.factor + src.offset
     unit = src.unit or si
@@ -221,7 +255,9 @@ def _dedupe(stream: _Stream, policy: str) -> _Stream:
         raise LogError(
             f"{stream.table.source}: time stamps must increase strictly, but line "
             f"{stream.lines[i]} (t={t[i]:.6g} s) comes after line {stream.lines[i - 1]} "
-            f"(t={t[i - 1]:.6g} s) in channel {stream.name!r}. Fix: sort the rows by time"
+            f"(t={t[i - 1]:.6g} s) in channel {stream.name!r}: rows out of order (a step back "
+            f"of at most {RESET_PERIODS:g} periods; a longer one is read as a clock reset and "
+            "splits the recording). Fix: sort the rows by time"
         )
     same = np.flatnonzero(step == 0)
     if not same.size:
@@ -389,86 +425,207 @@ def read_table_logs(
             if nan == "drop":
                 drop_rows[k] |= partial
         streams[chan] = _Stream(chan, tab, times[k][0], vals, tab.lines, np.arange(tab.n_rows))
+    # ---- missing stamps of rows that hold a sample: filled (between regular neighbours),
+    # dropped or refused, per nan=
+    for k, tab in enumerate(tables):
+        if k not in times:
+            continue
+        t_all, how = times[k]
+        sample = np.zeros(tab.n_rows, bool)
+        for s in streams.values():
+            if s.table is tab:
+                sample |= np.isfinite(s.values).any(axis=1)
+        bad_t = sample & ~np.isfinite(t_all)
+        if not bad_t.any():
+            continue
+        r = int(np.flatnonzero(bad_t)[0])
+        if nan == "interpolate":
+            try:
+                times[k] = (fill_time(t_all, str(tab.source), tab.lines), how)
+            except SchemaError as exc:
+                raise LogError(str(exc)) from None
+            say(
+                f"{tab.source}: {int(bad_t.sum())} missing time stamp(s), the first at line "
+                f"{tab.lines[r]}, interpolated between their regular neighbours (nan='interpolate')"
+            )
+        elif nan == "drop":
+            drop_rows[k] |= bad_t
+        else:
+            raise LogError(
+                f"{tab.source}, line {tab.lines[r]}: a row holds a sample but its time stamp is "
+                f"missing ({int(bad_t.sum())} such rows). Fix: repair the time column, or pass "
+                "nan='interpolate' (CLI --nan interpolate: fills a stamp between regular "
+                "neighbours) or nan='drop' (CLI --nan drop)"
+            )
+    for chan, s in list(streams.items()):
+        k = tables.index(s.table)
+        streams[chan] = _Stream(chan, s.table, times[k][0], s.values, s.lines, s.rows)
+
     # ---- rows: drop, fill, select each channel's samples
     for chan, s in list(streams.items()):
         k = tables.index(s.table)
-        t_all = times[k][0]
         vals = s.values
         ok = np.isfinite(vals)
-        keep = ok.any(axis=1) & ~drop_rows[k]
+        keep = ok.any(axis=1) & ~drop_rows[k] & np.isfinite(s.t)
         if nan == "interpolate" and (keep & ~ok.all(axis=1)).any():
             vals = vals.copy()
-            tk = t_all[keep]
-            if not np.isfinite(tk).all():
-                raise LogError(
-                    f"{s.table.source}: the time column has missing values; they cannot be "
-                    "interpolated"
-                )
             try:
-                vals[keep] = fill_gaps(tk, vals[keep])
+                vals[keep] = fill_gaps(s.t[keep], vals[keep])
             except LogError as exc:
                 raise LogError(f"{s.table.source}: channel {chan!r}: {exc}") from None
-        t_k = t_all[keep]
-        bad_t = ~np.isfinite(t_k)
-        if bad_t.any():
-            r = int(np.flatnonzero(keep)[np.flatnonzero(bad_t)[0]])
+        if int(keep.sum()) < 2:
             raise LogError(
-                f"{s.table.source}, line {s.table.lines[r]}: channel {chan!r} has a sample but "
-                "the time is missing. Fix: repair the time column or delete the row"
+                f"{s.table.source}: channel {chan!r} has {int(keep.sum())} complete sample(s); a "
+                "log needs at least two. Fix: check the column map"
             )
-        if t_k.shape[0] < 2:
-            raise LogError(
-                f"{s.table.source}: channel {chan!r} has {t_k.shape[0]} complete sample(s); a log "
-                "needs at least two. Fix: check the column map"
-            )
-        s = _Stream(chan, s.table, t_k, vals[keep], s.lines[keep], s.rows[keep])
-        streams[chan] = _dedupe(s, duplicates)
+        streams[chan] = _Stream(chan, s.table, s.t[keep], vals[keep], s.lines[keep], s.rows[keep])
 
-    # ---- angles continuous, encoder increments accumulated (on each channel's own samples)
-    for chan, s in streams.items():
-        spec = standard_channels()[chan]
-        for j in spec.angle_columns:
-            s.values[:, j] = np.unwrap(s.values[:, j])
-        if chan == "ticks" and cmap.ticks == "increments":
-            s.values = np.cumsum(s.values, axis=0) - s.values[0]
-
-    # ---- one time base
-    same_rows = len({id(s.table) for s in streams.values()}) == 1 and all(
-        np.array_equal(s.rows, next(iter(streams.values())).rows) for s in streams.values()
-    )
     name = files[0].stem if len(files) == 1 else "+".join(p.stem for p in files)
     source = ",".join(str(p) for p in files)
     full_meta = _meta(params, meta, robot, name, source)
-    if same_rows:
-        first = next(iter(streams.values()))
-        base_t = first.t
-        k = tables.index(first.table)
-        tsrc = cmap.time_for(first.table.source)
-        regularised = False
-        if tsrc is not None and tsrc.row_period is None and times[k][1] == "column":
-            decimals, quantum = _time_quantum(first.table, tsrc)
-            base_t, regularised = regularise_rounded_time(base_t, quantum)
-        if regularised:
-            full_meta["time_regularised"] = (
-                f"time written with {decimals} decimals; stamps replaced by the regular grid "
-                "they round to"
-            )
-        channels = {c: s.values for c, s in streams.items()}
-        return [Log(t=base_t, channels=channels, meta=full_meta, source=source)]
-    if pose_rows:
+    read = _Assembly(cmap, times, tables, duplicates, pose_rows, max_gap, lim, say)
+
+    # ---- clock resets: the recording is read as the pieces between them
+    pieces = _reset_pieces(streams, tables, say)
+    if len(pieces) == 1:
+        return read.logs(streams, name, source, full_meta)
+    out: list[Log] = []
+    for p, part in enumerate(pieces):
+        pname = f"{name}_part-{p + 1}"
+        if any(s.t.shape[0] < 2 for s in part.values()):
+            say(f"{source}: piece {p + 1} between clock resets dropped: fewer than two samples")
+            continue
+        out += read.logs(part, pname, source, {**full_meta, "name": pname, "piece_of": name})
+    if not out:
+        raise LogError(f"{source}: no piece between the clock resets holds a log")
+    return out
+
+
+def _reset_pieces(
+    streams: dict[str, _Stream], tables: Sequence[Table], say: Callable[[str], None]
+) -> list[dict[str, _Stream]]:
+    """The streams cut at the file's clock resets (a backward jump of the time longer than
+    :data:`~realitygap.diagnosis.logs.schema.RESET_PERIODS` periods: a logger restarted), one
+    mapping per piece; a warning names each reset. Several files with a reset are refused:
+    which piece of one file goes with which of another is not known."""
+    cuts: dict[int, list[int]] = {}
+    for k, tab in enumerate(tables):
+        own = [s for s in streams.values() if s.table is tab]
+        if not own:
+            continue
+        # the table's stamps on the rows any channel samples, in row order
+        idx = np.unique(np.concatenate([s.rows for s in own]))
+        t = np.full(tab.n_rows, np.nan)
+        for s in own:
+            t[s.rows] = s.t
+        resets, _ = clock_resets(t[idx])
+        if resets:
+            cuts[k] = [int(idx[i]) for i in resets]
+            for i in resets:
+                say(
+                    f"{tab.source}: the clock was reset at line {tab.lines[idx[i]]} (time goes "
+                    f"from {t[idx[i - 1]]:.6g} s back to {t[idx[i]]:.6g} s); the recording is "
+                    "read as pieces split there, like a gap (if the rows are only out of order, "
+                    "sort them by time instead)"
+                )
+    if not cuts:
+        return [streams]
+    if len(tables) > 1:
+        k, at = next(iter(cuts.items()))
+        tab = tables[k]
         raise LogError(
-            f"{source}: the arm's channels ({', '.join(streams)}) are not on the same rows; "
-            "each row must hold one pose's joint readings and its measurement"
+            f"{tab.source}, line {tab.lines[at[0]]}: the clock was reset there (the time goes "
+            "back) in a recording of several files, whose pieces cannot be paired up. Fix: "
+            "split the file at that line and pass each piece with its partner file"
         )
-    return align_streams(
-        {c: (st.t, st.values) for c, st in streams.items()},
-        name=name,
-        source=source,
-        meta=full_meta,
-        max_gap=max_gap,
-        limits=lim,
-        warn=say,
-    )
+    bounds = [0, *next(iter(cuts.values())), tables[0].n_rows]
+    out: list[dict[str, _Stream]] = []
+    for a, b in itertools.pairwise(bounds):
+        part: dict[str, _Stream] = {}
+        for chan, s in streams.items():
+            m = (s.rows >= a) & (s.rows < b)
+            part[chan] = _Stream(chan, s.table, s.t[m], s.values[m], s.lines[m], s.rows[m])
+        out.append(part)
+    return out
+
+
+@dataclass(frozen=True)
+class _Assembly:
+    """What turns one run's channel samples into logs (:meth:`logs`)."""
+
+    cmap: ColumnMap
+    times: Mapping[int, tuple[FloatArray, str]]
+    tables: Sequence[Table]
+    duplicates: str
+    pose_rows: bool
+    max_gap: float | None
+    lim: ResourceLimits
+    say: Callable[[str], None]
+
+    def logs(
+        self, streams: dict[str, _Stream], name: str, source: str, meta: Mapping[str, Any]
+    ) -> list[Log]:
+        """One run's streams (repeated stamps resolved, angles unwrapped, counters unwrapped
+        and accumulated) on one time base: one log, or the pieces of one split at gaps."""
+        streams = {c: _dedupe(s, self.duplicates) for c, s in streams.items()}
+        full_meta = dict(meta)
+        # ---- angles continuous, counters unwrapped, increments accumulated (own samples)
+        for chan, s in streams.items():
+            spec = standard_channels()[chan]
+            values = s.values.copy()
+            for j in spec.angle_columns:
+                values[:, j] = np.unwrap(values[:, j])
+            if chan == "ticks" and self.cmap.ticks == "increments":
+                values = np.cumsum(values, axis=0) - values[0]
+            elif chan == "ticks":
+                wraps = []
+                for j, col in enumerate(spec.columns):
+                    values[:, j], m = unwrap_counter(values[:, j])
+                    if m is not None:
+                        wraps.append(f"ticks.{col} at {m}")
+                if wraps:
+                    note = (
+                        f"the tick counter wraps ({', '.join(wraps)}); unwrapped into "
+                        "cumulative counts"
+                    )
+                    full_meta["ticks_unwrapped"] = note
+                    self.say(f"{s.table.source}: {note}")
+            streams[chan] = _Stream(chan, s.table, s.t, values, s.lines, s.rows)
+
+        # ---- one time base
+        first = next(iter(streams.values()))
+        same_rows = len({id(s.table) for s in streams.values()}) == 1 and all(
+            np.array_equal(s.rows, first.rows) for s in streams.values()
+        )
+        if same_rows:
+            base_t = first.t
+            k = self.tables.index(first.table)
+            tsrc = self.cmap.time_for(first.table.source)
+            regularised = False
+            if tsrc is not None and tsrc.row_period is None and self.times[k][1] == "column":
+                decimals, quantum = _time_quantum(first.table, tsrc)
+                base_t, regularised = regularise_rounded_time(base_t, quantum)
+            if regularised:
+                full_meta["time_regularised"] = (
+                    f"time written with {decimals} decimals; stamps replaced by the regular grid "
+                    "they round to"
+                )
+            channels = {c: s.values for c, s in streams.items()}
+            return [Log(t=base_t, channels=channels, meta=full_meta, source=source)]
+        if self.pose_rows:
+            raise LogError(
+                f"{source}: the arm's channels ({', '.join(streams)}) are not on the same rows; "
+                "each row must hold one pose's joint readings and its measurement"
+            )
+        return align_streams(
+            {c: (st.t, st.values) for c, st in streams.items()},
+            name=name,
+            source=source,
+            meta=full_meta,
+            max_gap=self.max_gap,
+            limits=self.lim,
+            warn=self.say,
+        )
 
 
 def _time_quantum(tab: Table, src: Source) -> tuple[int, float]:

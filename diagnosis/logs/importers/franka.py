@@ -24,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from realitygap.diagnosis.logs.importers.archive import ArchiveError, read_log_archive
+from realitygap.diagnosis.logs.schema import SchemaError, check_values, dtype_problem
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -81,6 +82,24 @@ def _check_transforms(name: str, T: FloatArray, n: int, path: Path) -> None:
         )
 
 
+def _check_reach(T_base_tcp: FloatArray, path: Path) -> None:
+    """Refuse TCP positions beyond twice the FR3's reach (its MDH table's link lengths): a
+    translation in mm stored as m."""
+    from realitygap.estimators.arm.mdh import MDHTable
+
+    table = MDHTable.franka_fr3()
+    reach = float(np.hypot(table.a, table.d).sum())
+    dist = np.linalg.norm(T_base_tcp[:, :3, 3], axis=1)
+    far = np.flatnonzero(dist > 2.0 * reach)
+    if far.size:
+        k = int(far[0])
+        raise ValueError(
+            f"{path.name}: tcp_poses[{k}] puts the TCP {dist[k]:.4g} m from the base, beyond the "
+            f"FR3's reach ({reach:.3g} m; {far.size} such pose(s)): the translations look like "
+            "millimetres, expected metres. Fix: divide the translations by 1000 before saving"
+        )
+
+
 def read_franka_npz(path: str | Path) -> FrankaEyeInHandData:
     """Read and check an eye-in-hand ``.npz`` file.
 
@@ -116,8 +135,9 @@ def read_franka_npz(path: str | Path) -> FrankaEyeInHandData:
     arrays = {k: z[k] for k in REQUIRED_KEYS}
     out: dict[str, FloatArray] = {}
     for k, a in arrays.items():
-        if not np.issubdtype(a.dtype, np.number):
-            raise ValueError(f"{p.name}: {k!r} must be numeric, got dtype {a.dtype}")
+        problem = dtype_problem(a.dtype, "joints")
+        if problem is not None:
+            raise ValueError(f"{p.name}: {k!r}: {problem}")
         a = a.astype(float)
         if not np.all(np.isfinite(a)):
             raise ValueError(f"{p.name}: {k!r} contains non-finite values")
@@ -126,8 +146,13 @@ def read_franka_npz(path: str | Path) -> FrankaEyeInHandData:
     if q.ndim != 2 or q.shape[0] == 0 or q.shape[1] < 1:
         raise ValueError(f"{p.name}: 'joint_positions' must have shape (N, n), got {q.shape}")
     n = q.shape[0]
+    try:
+        check_values("joints", q, f"{p.name}: 'joint_positions'")
+    except SchemaError as exc:
+        raise ValueError(str(exc)) from None
     _check_transforms("tcp_poses", out["tcp_poses"], n, p)
     _check_transforms("camera_poses", out["camera_poses"], n, p)
+    _check_reach(out["tcp_poses"], p)
     return FrankaEyeInHandData(
         source=str(p),
         joint_positions=q,

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from realitygap.core.checks import check_rows_limit
+from realitygap.core.checks import check_input_path, check_rows_limit
 from realitygap.core.geometry import yaw_from_quat_xyzw
 from realitygap.diagnosis.logs.align import align_streams, whole
 from realitygap.diagnosis.logs.log import Log, LogError, sniff_file_kind
@@ -215,8 +215,10 @@ def read_bag_logs(
         ) from None
     topics = topics if topics is not None else BagTopics()
     p = Path(path)
-    if not p.exists():
-        raise FileNotFoundError(f"bag not found: {p}")
+    try:
+        check_input_path(p, "bag", needs="a bag needs messages")
+    except ValueError as exc:
+        raise LogError(str(exc)) from None
     kind = sniff_file_kind(p)
     if kind == "directory":
         if not (p / "metadata.yaml").is_file():
@@ -269,47 +271,59 @@ def read_bag_logs(
             series.pop("odom")
         by_topic = {t: k for k, t in wanted.items()}
         conns = [c for c in reader.connections if c.topic in by_topic]
-        for conn, t_bag, raw in reader.messages(connections=conns):
-            key = by_topic[conn.topic]
-            msg: Any = reader.deserialize(raw, conn.msgtype)
-            if key == "cmd":
-                tw = _twist_of(msg, conn.msgtype)
-                if tw is None:
-                    raise LogError(
-                        f"{p}: topic {conn.topic} is {conn.msgtype}, expected geometry_msgs/Twist "
-                        "or TwistStamped"
-                    )
-                series[key].append((_stamp(msg, t_bag, use_header_stamps), tw))
-            elif key == "wheels":
-                names = list(msg.name)
-                try:
-                    il, ir = (names.index(j) for j in topics.wheel_joints)
-                except ValueError:
-                    raise LogError(
-                        f"{p}: {conn.topic} has joints {names}, not the wheel joints "
-                        f"{topics.wheel_joints}. Fix: pass wheel_joints (CLI --wheel-joints)"
-                    ) from None
-                pos = msg.position
-                series[key].append((_stamp(msg, t_bag, use_header_stamps), (pos[il], pos[ir])))
-            elif conn.msgtype.endswith("TFMessage"):
-                if not topics.truth_frame:
-                    raise LogError(
-                        f"{p}: ground truth from {conn.topic} needs the tracked frame. Fix: pass "
-                        "truth_frame (CLI --truth-frame)"
-                    )
-                for tr in msg.transforms:
-                    if tr.child_frame_id.strip("/") == topics.truth_frame.strip("/"):
-                        pose = _pose_of(tr, "geometry_msgs/msg/TransformStamped")
-                        assert pose is not None
-                        series[key].append((_stamp(tr, t_bag, use_header_stamps), pose))
-            else:
-                pose = _pose_of(msg, conn.msgtype)
-                if pose is None:
-                    raise LogError(
-                        f"{p}: topic {conn.topic} is {conn.msgtype}; expected a pose (PoseStamped, "
-                        "Odometry, TransformStamped) or tf2_msgs/TFMessage"
-                    )
-                series[key].append((_stamp(msg, t_bag, use_header_stamps), pose))
+        topic = ""
+        try:
+            for conn, t_bag, raw in reader.messages(connections=conns):
+                topic = conn.topic
+                key = by_topic[conn.topic]
+                msg: Any = reader.deserialize(raw, conn.msgtype)
+                if key == "cmd":
+                    tw = _twist_of(msg, conn.msgtype)
+                    if tw is None:
+                        raise LogError(
+                            f"{p}: topic {conn.topic} is {conn.msgtype}, expected geometry_msgs/Twist "
+                            "or TwistStamped"
+                        )
+                    series[key].append((_stamp(msg, t_bag, use_header_stamps), tw))
+                elif key == "wheels":
+                    names = list(msg.name)
+                    try:
+                        il, ir = (names.index(j) for j in topics.wheel_joints)
+                    except ValueError:
+                        raise LogError(
+                            f"{p}: {conn.topic} has joints {names}, not the wheel joints "
+                            f"{topics.wheel_joints}. Fix: pass wheel_joints (CLI --wheel-joints)"
+                        ) from None
+                    pos = msg.position
+                    series[key].append((_stamp(msg, t_bag, use_header_stamps), (pos[il], pos[ir])))
+                elif conn.msgtype.endswith("TFMessage"):
+                    if not topics.truth_frame:
+                        raise LogError(
+                            f"{p}: ground truth from {conn.topic} needs the tracked frame. Fix: pass "
+                            "truth_frame (CLI --truth-frame)"
+                        )
+                    for tr in msg.transforms:
+                        if tr.child_frame_id.strip("/") == topics.truth_frame.strip("/"):
+                            pose = _pose_of(tr, "geometry_msgs/msg/TransformStamped")
+                            assert pose is not None
+                            series[key].append((_stamp(tr, t_bag, use_header_stamps), pose))
+                else:
+                    pose = _pose_of(msg, conn.msgtype)
+                    if pose is None:
+                        raise LogError(
+                            f"{p}: topic {conn.topic} is {conn.msgtype}; expected a pose (PoseStamped, "
+                            "Odometry, TransformStamped) or tf2_msgs/TFMessage"
+                        )
+                    series[key].append((_stamp(msg, t_bag, use_header_stamps), pose))
+        except LogError:
+            raise
+        except Exception as exc:  # rosbags' own errors: a cut chunk, an unknown message type
+            at = f" in topic {topic}" if topic else ""
+            raise LogError(
+                f"{p}: cannot read the bag{at} ({type(exc).__name__}: {exc}). Fix: check the "
+                "bag (ros2 bag info / rosbag info; rosbag reindex repairs an unclosed ROS 1 bag), "
+                "or leave that topic out"
+            ) from None
     finally:
         reader.close()
 

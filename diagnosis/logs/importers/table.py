@@ -35,9 +35,11 @@ Text files
   empty cell in a whitespace-aligned file, decimal commas in a comma-separated one),
   a last line cut off mid-write (no newline, a field narrower than in every row
   before it), a file with no line of numbers.
-* UTF-8 (with or without a byte-order mark), else latin-1. The file size and
-  rows × columns are checked against
-  :class:`~realitygap.core.checks.ResourceLimits` before anything is allocated.
+* UTF-8 (with or without a byte-order mark), UTF-16 or UTF-32 with a byte-order
+  mark (little- or big-endian), else latin-1. The file size, the length of each line
+  and cell, and rows × columns are checked against
+  :class:`~realitygap.core.checks.ResourceLimits` before anything is allocated; an
+  error of the CSV parser is reported with the file and line, never passed on.
 
 Binary files
 ------------
@@ -62,17 +64,27 @@ import re
 from collections import Counter
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
 import numpy as np
 
-from realitygap.core.checks import ResourceLimits, check_regular_file, check_rows_limit
+from realitygap.core.checks import (
+    ResourceLimits,
+    check_regular_file,
+    check_rows_limit,
+    text_encoding_of,
+)
+from realitygap.diagnosis.logs.importers.table_cells import (
+    DEC_COMMA,
+    ISO_SPACE,
+    cell_number,
+    numeric_share,
+)
 from realitygap.diagnosis.logs.log import LogError, sniff_file_kind
 
-__all__ = ["DELIMITERS", "Table", "read_table"]
+__all__ = ["DELIMITERS", "Table", "check_format", "read_table"]
 
 DELIMITERS: dict[str, str] = {
     ",": "comma",
@@ -85,14 +97,6 @@ DELIMITERS: dict[str, str] = {
 
 _ALIASES = {"tab": "\t", "\\t": "\t", "space": " ", "whitespace": " ", "comma": ",", "pipe": "|"}
 _PRIORITY = ("\t", ";", "|", ",", " ")  # on a tie, the more specific delimiter wins
-_NAN_WORDS = frozenset({"", "nan", "-nan", "na", "n/a", "null", "none"})
-_DEC_COMMA = re.compile(r"^\s*[-+]?\d+,\d+([eE][-+]?\d+)?\s*$")
-_COMMA_NUMBER = re.compile(r"^[-+]?(\d{1,3}(\.\d{3})+|\d*),\d+([eE][-+]?\d+)?$")
-_ISO = re.compile(
-    r"^(\d{4})-(\d{2})-(\d{2})(?:[T ](\d{2}):(\d{2})(?::(\d{2})([.,]\d+)?)?)?"
-    r"\s*(Z|[+-]\d{2}(?::?\d{2})?)?$"
-)
-_ISO_SPACE = re.compile(r"(\d{4}-\d{2}-\d{2}) (\d{2}:\d{2})")
 _SEPARATOR = re.compile(r"^[\s|+:=-]*[-=]{2,}[\s|+:=-]*$")
 _FOOTER = re.compile(r"^\(\d+ rows?\)$")
 HEAD_LINES = 400
@@ -127,6 +131,9 @@ class Table:
         Text files: per column, the most digits written after the decimal mark in the
         first :data:`DECIMALS_ROWS` rows (the resolution the values were written with);
         empty for binary files.
+    encoding : str
+        Text files: the encoding read (``"UTF-8"``, ``"latin-1"``, ``"UTF-16 LE"`` …);
+        empty for binary files.
     """
 
     source: Path
@@ -140,6 +147,7 @@ class Table:
     has_header: bool = True
     text_columns: Mapping[str, tuple[int, str]] = field(default_factory=dict)
     decimals: tuple[int, ...] = ()
+    encoding: str = ""
 
     def __post_init__(self) -> None:
         data = np.asarray(self.data, dtype=np.float64).view()
@@ -208,55 +216,13 @@ class Table:
 
 
 # ------------------------------------------------------------------------------ cells
-def _iso_seconds(text: str) -> float | None:
-    """POSIX seconds of an ISO 8601 date or date-time (UTC unless it names a zone), else None."""
-    m = _ISO.match(text)
-    if m is None:
-        return None
-    y, mo, d, h, mi, s, frac, tz = m.groups()
-    try:
-        when = datetime(int(y), int(mo), int(d), int(h or 0), int(mi or 0), int(s or 0))
-    except ValueError:
-        return None
-    value = when.replace(tzinfo=timezone.utc).timestamp()
-    if frac:
-        value += float("0." + frac[1:])
-    if tz and tz != "Z":
-        digits = tz[1:].replace(":", "")
-        offset = int(digits[:2]) * 3600 + (int(digits[2:4]) * 60 if len(digits) > 2 else 0)
-        value -= offset if tz[0] == "+" else -offset
-    return value
-
-
-def _number(text: str, decimal: str) -> float | None:
-    """The value of a cell, NaN for a missing one, None for text."""
-    s = text.strip().strip('"').strip()
-    if s.lower() in _NAN_WORDS:
-        return math.nan
-    if decimal == "," and _COMMA_NUMBER.match(s):
-        s = s.replace(".", "").replace(",", ".")
-    try:
-        return float(s)
-    except ValueError:
-        return _iso_seconds(s)
-
-
-def _numeric_share(fields: list[str], decimal: str | None) -> float:
-    """Share of ``fields`` that are numbers, dates or missing (either decimal mark if None)."""
-    if not fields:
-        return 0.0
-    marks = (".", ",") if decimal is None else (decimal,)
-    good = sum(any(_number(f, m) is not None for m in marks) for f in fields)
-    return good / len(fields)
-
-
 # ------------------------------------------------------------------------------ text layout
 def _splitter(delim: str, iso_space: bool = False) -> Callable[[str], list[str]]:
     """A function that splits one line (without its line break) into fields."""
     if delim == " ":
 
         def split_ws(line: str) -> list[str]:
-            return (_ISO_SPACE.sub(r"\1T\2", line) if iso_space else line).split()
+            return (ISO_SPACE.sub(r"\1T\2", line) if iso_space else line).split()
 
         return split_ws
     if delim == "|":
@@ -271,10 +237,76 @@ def _splitter(delim: str, iso_space: bool = False) -> Callable[[str], list[str]]
 
     def split_csv(line: str) -> list[str]:
         if '"' in line:
-            return next(csv.reader([line], delimiter=delim), [])
+            try:
+                return next(csv.reader([line], delimiter=delim), [])
+            except csv.Error as exc:  # the parser's own error: told with the file and line
+                raise _SplitError(str(exc)) from None
         return line.split(delim)
 
     return split_csv
+
+
+class _DecodeError(LogError):
+    """Text that is not in the encoding it was read with."""
+
+
+class _SplitError(ValueError):
+    """A line the CSV parser refuses (the caller adds the file and line)."""
+
+
+def _fields(
+    split: Callable[[str], list[str]], path: Path, line_no: int, text: str, lim: ResourceLimits
+) -> list[str]:
+    """``split(text)``, refusing a cell longer than ``lim.max_cell_chars`` and a line the
+    CSV parser cannot read, with the file, line and cause."""
+    try:
+        fields = split(text)
+    except _SplitError as exc:
+        raise LogError(
+            f"{path}, line {line_no}: the CSV parser cannot read this line ({exc}): "
+            f"{text.strip()!r:.80}. Fix: close the quotes of that line, or export the file again"
+        ) from None
+    longest = max((len(f) for f in fields), default=0)
+    if longest > lim.max_cell_chars:
+        j = next(j for j, f in enumerate(fields) if len(f) == longest)
+        raise LogError(
+            f"{path}, line {line_no}, field {j + 1}: a cell of {longest:,} characters "
+            f"({fields[j].strip()[:40]!r}…), more than the {lim.max_cell_chars // 1024} KiB a "
+            "table cell may hold; a table's cells are numbers or short text. Fix: drop that "
+            "column from the export (an image or blob field), or raise the limit with the "
+            "environment variable REALITYGAP_MAX_CELL_KB"
+        )
+    return fields
+
+
+def _max_line_chars(lim: ResourceLimits) -> int:
+    """Longest line read: a wide table's row, far below what would exhaust memory."""
+    return max(8 * 2**20, 4 * lim.max_cell_chars)
+
+
+def _lines(fh: Any, path: Path, lim: ResourceLimits) -> Iterator[tuple[int, str]]:
+    """``(line, raw text)`` of an open text file, refusing a line longer than
+    :func:`_max_line_chars` before it is read whole."""
+    limit = _max_line_chars(lim)
+    line_no = 0
+    while True:
+        try:
+            raw = fh.readline(limit + 1)
+        except UnicodeDecodeError as exc:
+            raise _DecodeError(
+                f"{path}, after line {line_no}: cannot be decoded as {fh.encoding} ({exc.reason})."
+                " Fix: save the file as UTF-8 text"
+            ) from None
+        if not raw:
+            return
+        line_no += 1
+        if len(raw) > limit and not raw.endswith(("\n", "\r")):
+            raise LogError(
+                f"{path}, line {line_no}: longer than {limit:,} characters (a table row is "
+                "far shorter; is this a binary file, or one without line breaks?). Fix: pass a "
+                "table with one row per line, or raise REALITYGAP_MAX_CELL_KB"
+            )
+        yield line_no, raw
 
 
 def _is_significant(stripped: str) -> bool:
@@ -292,13 +324,15 @@ class _Scan:
     ends_newline: bool
 
 
-def _scan(path: Path, encoding: str) -> _Scan:
+def _scan(path: Path, encoding: str, lim: ResourceLimits) -> _Scan:
     """One streaming pass: the first lines, the count of data-like lines, the last one."""
     head: list[tuple[int, str]] = []
     n = 0
     last = (0, "")
+    ends_newline = False
     with open(path, encoding=encoding, newline="") as fh:
-        for line_no, raw in enumerate(fh, 1):
+        for line_no, raw in _lines(fh, path, lim):
+            ends_newline = raw.endswith(("\n", "\r"))
             text = raw.rstrip("\r\n")
             stripped = text.strip()
             if _is_significant(stripped):
@@ -308,9 +342,6 @@ def _scan(path: Path, encoding: str) -> _Scan:
                 continue
             if len(head) < HEAD_LINES:
                 head.append((line_no, text))
-    with open(path, "rb") as fb:
-        fb.seek(max(path.stat().st_size - 1, 0))
-        ends_newline = fb.read(1) in (b"\n", b"\r")
     return _Scan(head, n, last, ends_newline)
 
 
@@ -333,8 +364,8 @@ def _choose_delimiter(lines: list[str], decimal: str | None) -> tuple[str, int]:
         if delim == "," and decimal == ",":
             continue
         split = _splitter(delim, iso_space=True)
-        rows = [split(line) for line in lines]
-        share = [_numeric_share(r, decimal) for r in rows]
+        rows = [_split_or_whole(split, line) for line in lines]
+        share = [numeric_share(r, decimal) for r in rows]
         widths = Counter(len(r) for r, s in zip(rows, share, strict=True) if s >= 0.5)
         if not widths:
             continue
@@ -348,7 +379,18 @@ def _choose_delimiter(lines: list[str], decimal: str | None) -> tuple[str, int]:
     return best[2], best[3]
 
 
-def _layout(path: Path, scan: _Scan, delimiter: str | None, decimal: str | None) -> _Layout:
+def _split_or_whole(split: Callable[[str], list[str]], line: str) -> list[str]:
+    """``split(line)``, or the line as one field where the CSV parser refuses it (the
+    reading pass then reports it with its line)."""
+    try:
+        return split(line)
+    except _SplitError:
+        return [line]
+
+
+def _layout(
+    path: Path, scan: _Scan, delimiter: str | None, decimal: str | None, lim: ResourceLimits
+) -> _Layout:
     """Delimiter, decimal mark, header and preamble of a text file from its first lines."""
     sig = [(no, t) for no, t in scan.head if _is_significant(t.strip())]
     if not sig:
@@ -360,10 +402,10 @@ def _layout(path: Path, scan: _Scan, delimiter: str | None, decimal: str | None)
     delim, width = (
         (delimiter, 0) if delimiter is not None else _choose_delimiter(texts[-200:], decimal)
     )
-    iso_space = delim == " " and any(_ISO_SPACE.search(t) for t in texts)
+    iso_space = delim == " " and any(ISO_SPACE.search(t) for t in texts)
     split = _splitter(delim, iso_space)
-    rows = [split(t) for t in texts]
-    share = [_numeric_share(r, decimal) for r in rows]
+    rows = [_fields(split, path, no, t, lim) for no, t in sig]
+    share = [numeric_share(r, decimal) for r in rows]
     if not width:
         counts = Counter(len(r) for r, s in zip(rows, share, strict=True) if s >= 0.5)
         width = max(counts, key=lambda w: (counts[w], w)) if counts else len(rows[-1])
@@ -378,7 +420,7 @@ def _layout(path: Path, scan: _Scan, delimiter: str | None, decimal: str | None)
     start = next((i for i in range(len(rows)) if block(i)), None)
     if start is None and decimal == ".":
         for no, text in sig:
-            if any(_DEC_COMMA.match(c) for c in re.split(r"[;\t|]", text)):
+            if any(DEC_COMMA.match(c) for c in re.split(r"[;\t|]", text)):
                 raise LogError(
                     f"{path}, line {no}: the numbers are written with a decimal comma "
                     f"({text.strip()!r:.60}) but decimal='.' was given. Fix: pass decimal=',' "
@@ -395,7 +437,7 @@ def _layout(path: Path, scan: _Scan, delimiter: str | None, decimal: str | None)
         decimal = "."
         if delim != ",":
             cells = (c for r in data_rows[:50] for c in r)
-            if any(_DEC_COMMA.match(c) for c in cells):
+            if any(DEC_COMMA.match(c) for c in cells):
                 decimal = ","
     # every row ending with a delimiter: an empty last field, dropped unless the header names it
     trailing = width > 1 and all(not r[-1].strip() for r in data_rows)
@@ -418,12 +460,12 @@ def _layout(path: Path, scan: _Scan, delimiter: str | None, decimal: str | None)
             # the nearest non-comment line above the data is no header of the data's width;
             # a line of names with another count there is a header the rows do not fit
             # (decimal commas in a comma-separated file, a column added or lost), not a title
-            names_there = [f.strip() for f in split(text)]
+            names_there = [f.strip() for f in _split_or_whole(split, text)]
             if (
                 delim != " "
                 and len(names_there) >= 2
                 and all(names_there)
-                and _numeric_share(names_there, decimal) == 0.0
+                and numeric_share(names_there, decimal) == 0.0
             ):
                 got = len(data_rows[0])
                 header_like = _Layout(
@@ -447,13 +489,13 @@ def _header_fields(
         rest = stripped[1:].strip()
         variants = [rest, text] if stripped[0] == "#" else [text, rest]
     for v in variants:
-        candidates = [split(v)]
+        candidates = [_split_or_whole(split, v)]
         if delim == " ":
             candidates.append(re.split(r"\s{2,}|\t", v.strip()))
         for fields in candidates:
             if len(fields) == width + 1 and not fields[-1].strip():
                 fields = fields[:-1]
-            if len(fields) == width and _numeric_share(fields, decimal) < 0.5:
+            if len(fields) == width and numeric_share(fields, decimal) < 0.5:
                 return [f.strip().strip('"').strip() for f in fields]
     return None
 
@@ -472,15 +514,19 @@ def _unique(names: list[str]) -> tuple[str, ...]:
 
 
 # ------------------------------------------------------------------------------ reading
-def _check_args(delimiter: str | None, decimal: str | None) -> tuple[str | None, str | None]:
+def check_format(delimiter: str | None, decimal: str | None) -> tuple[str | None, str | None]:
+    """The ``delimiter`` (a name like ``tab`` resolved) and ``decimal`` mark of a text table,
+    or a ``ValueError`` naming the option."""
     if delimiter is not None:
+        if not isinstance(delimiter, str):
+            raise TypeError(f"delimiter (--delimiter) must be text, got {delimiter!r}")
         if delimiter not in DELIMITERS:
             delimiter = _ALIASES.get(delimiter.lower(), " " if delimiter.isspace() else delimiter)
         if delimiter not in DELIMITERS:
             allowed = ", ".join(f"{d!r} ({n})" for d, n in DELIMITERS.items())
-            raise ValueError(f"delimiter must be one of {allowed}; got {delimiter!r}")
+            raise ValueError(f"delimiter (--delimiter) must be one of {allowed}; got {delimiter!r}")
     if decimal is not None and decimal not in (".", ","):
-        raise ValueError(f"decimal must be '.' or ',', got {decimal!r}")
+        raise ValueError(f"decimal (--decimal) must be '.' or ',', got {decimal!r}")
     if decimal == "," and delimiter == ",":
         raise ValueError(
             "decimal=',' with delimiter=',' is ambiguous: a decimal comma needs another "
@@ -522,12 +568,10 @@ def read_table(
         mid-write, a MATLAB v7.3 file, a saved log, a file beyond the limits: the
         message names the file, the line and column, and the fix.
     """
-    delimiter, decimal = _check_args(delimiter, decimal)
+    delimiter, decimal = check_format(delimiter, decimal)
     p = Path(path)
-    if not p.exists():
-        raise FileNotFoundError(f"table file not found: {p}")
     try:
-        check_regular_file(p, "table file")
+        check_regular_file(p, "table file", needs="a table needs rows of numbers", unicode="accept")
     except ValueError as exc:
         raise LogError(str(exc)) from None
     lim = limits if limits is not None else ResourceLimits.from_environment()
@@ -541,8 +585,9 @@ def read_table(
     kind = sniff_file_kind(p)
     with open(p, "rb") as fh:
         magic = fh.read(20)
-    if kind == "text":
-        return _read_text(p, delimiter, decimal, lim)
+    bom = text_encoding_of(magic)
+    if kind == "text" or bom is not None:  # UTF-16/32 text holds NUL bytes: no binary
+        return _read_text(p, delimiter, decimal, lim, bom[0] if bom else None)
     if magic.startswith(b"MATLAB") or (kind == "binary" and p.suffix.lower() == ".mat"):
         from realitygap.diagnosis.logs.importers.table_arrays import read_mat
 
@@ -557,7 +602,6 @@ def read_table(
         "sqlite": "an SQLite file (a ROS 2 .db3 bag?); pass the bag folder to the bag importer",
         "mcap": "an MCAP file (a ROS 2 bag?); pass the bag folder to the bag importer",
         "pickle": "a Python pickle, which is never loaded (unsafe). Fix: export CSV or .npz",
-        "empty": "an empty file",
     }
     raise LogError(
         f"{p}: not a table file: {hints.get(kind, f'its content looks like {kind}')}. Tables are "
@@ -566,15 +610,27 @@ def read_table(
 
 
 def _read_text(
-    path: Path, delimiter: str | None, decimal: str | None, lim: ResourceLimits
+    path: Path,
+    delimiter: str | None,
+    decimal: str | None,
+    lim: ResourceLimits,
+    encoding: str | None = None,
 ) -> Table:
-    encoding = "utf-8-sig"
-    try:
-        scan = _scan(path, encoding)
-    except UnicodeDecodeError:
-        encoding = "latin-1"
-        scan = _scan(path, encoding)
-    lay = _layout(path, scan, delimiter, decimal)
+    if csv.field_size_limit() <= _max_line_chars(lim):  # _lines and _fields limit instead
+        csv.field_size_limit(_max_line_chars(lim) + 1)
+    if encoding is not None:  # UTF-16/32 by its byte-order mark
+        scan = _scan(path, encoding, lim)
+        with open(path, "rb") as fb:
+            label = (text_encoding_of(fb.read(4)) or ("", encoding))[1]
+    else:
+        encoding = "utf-8-sig"
+        try:
+            scan = _scan(path, encoding, lim)
+        except _DecodeError:
+            encoding = "latin-1"
+            scan = _scan(path, encoding, lim)
+        label = "UTF-8" if encoding == "utf-8-sig" else encoding
+    lay = _layout(path, scan, delimiter, decimal, lim)
     above = sum(1 for no, t in scan.head if no <= lay.header_line and _is_significant(t.strip()))
     n_rows = scan.n_significant - above
     width = lay.width - lay.trailing
@@ -592,8 +648,8 @@ def _read_text(
     i = 0
     digits = [0] * width
     with open(path, encoding=encoding, newline="") as fh:
-        for line_no, raw in _rows_after(fh, lay.header_line):
-            fields = split(raw)
+        for line_no, raw in _rows_after(_lines(fh, path, lim), lay.header_line):
+            fields = _fields(split, path, line_no, raw, lim)
             if len(fields) == width + 1 and not fields[-1].strip():
                 fields.pop()  # a trailing delimiter
             if len(fields) != width:
@@ -605,7 +661,7 @@ def _read_text(
                 try:
                     row[j] = float(cell.replace(",", ".") if comma else cell)
                 except ValueError:
-                    value = _number(cell, lay.decimal)
+                    value = cell_number(cell, lay.decimal)
                     if value is None:
                         value = math.nan
                         text_columns.setdefault(names[j], (line_no, cell.strip()))
@@ -645,12 +701,13 @@ def _read_text(
         has_header=lay.names is not None,
         text_columns=text_columns,
         decimals=tuple(digits),
+        encoding=label,
     )
 
 
-def _rows_after(fh: Any, header_line: int) -> Iterator[tuple[int, str]]:
+def _rows_after(lines: Iterator[tuple[int, str]], header_line: int) -> Iterator[tuple[int, str]]:
     """``(line, text)`` of the data-like lines after ``header_line``."""
-    for line_no, raw in enumerate(fh, 1):
+    for line_no, raw in lines:
         if line_no <= header_line:
             continue
         text = raw.rstrip("\r\n")

@@ -2,11 +2,14 @@
 ``.mat`` files and NumPy ``.npz`` archives as named columns (see that module's docstring).
 
 Each reader returns :data:`Columns`: the column names, the ``(n, k)`` float array and the
-notes on what was not read; ``read_table`` makes the :class:`Table` of them."""
+notes on what was not read; ``read_table`` makes the :class:`Table` of them. The dtypes follow
+:mod:`~realitygap.diagnosis.logs.schema`: float and integer arrays are columns, ``datetime64``
+and ``timedelta64`` arrays are converted to seconds (POSIX seconds for dates), booleans and
+complex numbers are not read (a column map that names one is told why), and object arrays are
+never unpickled (``allow_pickle=False``)."""
 
 from __future__ import annotations
 
-import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +17,7 @@ import numpy as np
 
 from realitygap.core.checks import ResourceLimits, check_rows_limit
 from realitygap.diagnosis.logs.log import LogError
+from realitygap.diagnosis.logs.schema import as_seconds, dtype_problem
 
 __all__ = ["Columns", "read_mat", "read_npz"]
 
@@ -48,19 +52,20 @@ def read_mat(path: Path, lim: ResourceLimits) -> Columns:
 
 
 def read_npz(path: Path, lim: ResourceLimits) -> Columns:
-    from realitygap.diagnosis.logs.importers.archive import ArchiveError, read_log_archive
+    from realitygap.diagnosis.logs.importers.archive import (
+        ArchiveError,
+        archive_members,
+        read_log_archive,
+    )
 
     try:
-        with zipfile.ZipFile(path) as zf:
-            members = set(zf.namelist())
+        members = archive_members(path)
         if {"t.npy", "meta.json.npy"} <= members:
             raise LogError(
                 f"{path}: a saved realitygap log (Log.save), not a table; it needs no column "
                 f"map: read it with read_logs (realitygap diagnose {path})"
             )
         raw = read_log_archive(path, lim)
-    except zipfile.BadZipFile as exc:
-        raise LogError(f"{path}: unreadable or truncated .npz archive ({exc})") from None
     except ArchiveError as exc:
         raise LogError(str(exc).replace("; not a realitygap log", "")) from None
     return _columns(path, list(raw.items()), lim)
@@ -79,8 +84,18 @@ def _collect(
         return
     arr = np.asarray(value)
     arr = np.squeeze(arr) if arr.ndim > 1 else arr
-    if arr.dtype.kind not in "biuf":
-        what = {"c": "complex numbers", "O": "a cell or struct array", "U": "text", "S": "text"}
+    if arr.dtype.kind in "Mm" and arr.ndim >= 1 and arr.size > 1:
+        # dates and durations are time stamps: seconds (POSIX seconds for dates)
+        notes.append(
+            f"variable {name}: {'dates' if arr.dtype.kind == 'M' else 'durations'} "
+            f"({arr.dtype}) read as {'POSIX ' if arr.dtype.kind == 'M' else ''}seconds"
+        )
+        arr = as_seconds(arr)
+    if arr.dtype.kind in "bc":
+        # the schema's dtypes: a flag is no measurement, a complex number no real one
+        notes.append(f"variable {name} not read: {dtype_problem(arr.dtype, '')}")
+    elif arr.dtype.kind not in "iuf":
+        what = {"O": "a cell or struct array", "U": "text", "S": "text"}
         notes.append(f"variable {name} not read: {what.get(arr.dtype.kind, str(arr.dtype))}")
     elif arr.ndim == 0 or arr.size == 1:
         notes.append(f"variable {name} not read: a single value ({arr.reshape(-1)[0]!r:.30})")

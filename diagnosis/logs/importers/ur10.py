@@ -34,6 +34,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
+from realitygap.diagnosis.logs.schema import check_values
+
 FloatArray = npt.NDArray[np.float64]
 
 __all__ = [
@@ -332,9 +334,7 @@ def read_ur10_measurements(
     p = Path(path)
     cols, first, _ = _read_table(p, _REQUIRED, _STD)
     q = np.column_stack([cols[c] for c in JOINT_COLUMNS])
-    if np.any(np.abs(q) > 4 * np.pi):
-        ln = int(np.nonzero(np.any(np.abs(q) > 4 * np.pi, axis=1))[0][0]) + 2
-        raise ValueError(f"{p.name}, line {ln}: joint angle beyond ±4π rad; expected radians")
+    check_values("joints", q, p.name, lines=np.arange(2, q.shape[0] + 2))
     pos = np.column_stack([cols["measurement_x"], cols["measurement_y"], cols["measurement_z"]])
     eul = np.column_stack([cols["measurement_rx"], cols["measurement_ry"], cols["measurement_rz"]])
     has_std = all(c in cols for c in _STD)
