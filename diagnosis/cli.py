@@ -23,6 +23,7 @@ from typing import Any
 
 from realitygap.core.checks import (
     check_disjoint,
+    check_distinct,
     check_finite_float,
     check_input_path,
     check_positive_int,
@@ -253,6 +254,8 @@ def _diagnose(args: argparse.Namespace) -> int:
         try:
             json_stage = out.file(args.json, "--json") if args.json else None
             report_stage = out.folder(args.report, "--report") if args.report else None
+            check_distinct(args.logs, "LOG")
+            check_distinct(args.holdout, "--holdout")
             if args.holdout:
                 check_disjoint(args.logs, args.holdout)
             if args.workers is not None:

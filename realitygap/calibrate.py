@@ -360,6 +360,7 @@ def format_calibrations(
 
 
 def _cmd_umbmark(args: argparse.Namespace) -> int:
+    from realitygap.core.checks import check_distinct
     from realitygap.core.io import write_json
     from realitygap.core.outputs import Outputs, command_line
 
@@ -376,6 +377,7 @@ def _cmd_umbmark(args: argparse.Namespace) -> int:
     with Outputs(inputs=args.sessions, overwrite=overwrite, command=command_line()) as out:
         try:
             stage = out.file(args.json, "--json") if args.json else None
+            check_distinct(args.sessions, "SESSION_DIR")
             for folder in args.sessions:
                 calibrations.append(calibrate_session(folder, args.side_length))
         except (FileNotFoundError, ValueError) as exc:

@@ -109,7 +109,7 @@ def params_from_meta(meta: Mapping[str, Any], source: str = "") -> DiffDrivePara
     try:
         kwargs: dict[str, Any] = {k: check_param(k, v) for k, v in raw.items()}
     except ValueError as exc:
-        raise MetaError(f"{where}robot parameter {exc}") from None
+        raise MetaError(f"{where}invalid robot parameters in metadata: {exc}") from None
     if isinstance(cam_raw, Mapping):
         cam_fields = {f.name for f in dataclasses.fields(RGBDCameraParams)}
         cam_kw = {k: v for k, v in cam_raw.items() if k in cam_fields}

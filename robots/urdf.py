@@ -795,6 +795,7 @@ def wheels_from_urdf(
         return _Wheel(j, radius, float(T[0, 3]), float(T[1, 3]), axis, T[:3, 3].copy())
 
     wheels: list[_Wheel] = []
+    centred: list[_Wheel] = []  # wheels on the base's axis: no side, no track
     for j in model.joints.values():
         if j.type not in _REVOLUTE:
             continue
@@ -807,6 +808,7 @@ def wheels_from_urdf(
         if math.isnan(w.radius) and not any("wheel" in n for n in names):
             continue
         if abs(w.y) <= _SIDE_EPS:
+            centred.append(w)
             continue
         wheels.append(w)
 
@@ -841,13 +843,18 @@ def wheels_from_urdf(
     left = sorted((w for w in wheels if w.y > 0), key=lambda w: -w.x)
     right = sorted((w for w in wheels if w.y < 0), key=lambda w: -w.x)
     if not left or not right:
+        track = (
+            f" ({len(centred)} wheel joint(s) at y = 0: a track of 0 m, no differential drive)"
+            if centred
+            else ""
+        )
         raise _error(
             src,
             f"wheels of base '{base}'",
             "a left/right pair of continuous or revolute wheel joints (child link with "
             "a cylinder along the joint axis or a sphere, or named *wheel*; not *caster*) "
             "on both sides of the base (y > 0 and y < 0)",
-            f"{len(left)} left and {len(right)} right; joints seen: "
+            f"{len(left)} left and {len(right)} right{track}; joints seen: "
             f"{_describe_joints(model, poses, T_inv)}",
             "pass left_joint= and right_joint=, or base_link= if the base frame is another "
             "link, or give the wheel links a <collision> cylinder",

@@ -73,7 +73,7 @@ def available_memory_bytes() -> int | None:
 
 
 def _gb(n: float) -> str:
-    return f"{n / 1e9:.1f} GB"
+    return f"{n / 1e9:,.1f} GB"
 
 
 def check_env_count(
@@ -327,6 +327,12 @@ def check_init_model(
             f"{option}: {p} is neither a model.zip (stable-baselines3) nor exported weights "
             "(.pth with its .json). Fix: pass the model.zip a training run wrote, or a .pth"
         )
+    meta = p.with_suffix(".json")
+    if suffix == ".pth" and not meta.is_file():
+        raise FileNotFoundError(
+            f"{option}: exported weights {p} need their metadata {meta.name} beside them "
+            "(written together by export_policy). Fix: copy the .json along with the .pth"
+        )
     if not zipfile.is_zipfile(p):
         raise ValueError(
             f"{option}: {p} is not a zip archive, so not a "
@@ -357,12 +363,6 @@ def check_init_model(
                 f"{option}: {p}: its 'data' entry is not SB3's JSON object. Fix: pass the "
                 "model.zip a training run wrote"
             )
-    meta = p.with_suffix(".json")
-    if suffix == ".pth" and not meta.is_file():
-        raise FileNotFoundError(
-            f"{option}: exported weights {p} need their metadata {meta.name} beside them "
-            "(written together by export_policy). Fix: copy the .json along with the .pth"
-        )
     if meta.is_file():
         got = load_json_or_yaml(meta, f"{option} metadata", expect=dict)
         algo = got.get("algo")

@@ -99,6 +99,11 @@ def read_policy_meta(path: str | os.PathLike[str], name: str = "policy") -> dict
 
     from realitygap.core.checks import check_input_path, load_json_or_yaml
 
+    if not os.path.lexists(path):
+        raise FileNotFoundError(
+            f"{name}: no policy file {path}. Fix: give a model.zip written by `realitygap "
+            "train`, or exported weights (.pth with its .json)"
+        )
     path = check_input_path(path, name, kind="file", needs="a saved policy needs content")
     meta_path = path.with_suffix(".json")
     if meta_path.is_file() and meta_path != path:

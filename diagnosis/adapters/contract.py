@@ -591,7 +591,8 @@ class RobotAdapter(ABC):
         if bounds.shape[0] < 2:
             raise LogError(
                 f"{log.source}: the log is {log.duration:.2f} s long; the diagnosis needs at least "
-                f"two {settings.window_s:g}-s windows. Fix: record longer episodes"
+                f"two {settings.window_s:g}-s windows (--window). Fix: a shorter --window "
+                f"(at most {log.duration / 2:.3g} s), or record longer episodes"
             )
         return bounds
 

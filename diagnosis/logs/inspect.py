@@ -573,6 +573,13 @@ def _inspect_one(p: Path, delimiter: str | None, decimal: str | None) -> FileIns
     kind = sniff_file_kind(p)
     try:
         if p.is_dir() and _looks_like_optiodom(p):
+            from realitygap.diagnosis.logs.importers.optiodom import read_metadata
+
+            for meta in sorted(p.rglob("*_metadata.csv")):  # cheap: the rest is read whole
+                try:
+                    read_metadata(meta)
+                except ValueError as exc:
+                    raise LogError(str(exc)) from None
             runs = sorted(p.rglob("*_run-[0-9][0-9].csv"))
             what = f"OptiOdom data: {len({r.parent for r in runs})} session(s), {len(runs)} run(s)"
             return FileInspection(str(p), "optiodom", f"{what}; read without a column map")

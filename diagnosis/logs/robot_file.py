@@ -389,14 +389,25 @@ def description_from_urdf(
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"URDF not found: {p}")
-    if kind in (None, "diffdrive", "skid_steer"):
+    if kind is not None and kind not in ROBOT_KINDS:
+        raise RobotFileError(
+            f"{p}: kind must be one of {', '.join(ROBOT_KINDS)}, got {kind!r}. Fix: name the "
+            "kind of robot the URDF describes, or leave it out to detect it"
+        )
+    if kind is None and (left_joint or right_joint):
+        kind_wheels: str | None = "wheels"  # wheel joints named: a wheeled robot
+    else:
+        kind_wheels = kind
+    wheels_error = ""
+    if kind_wheels in (None, "wheels", "diffdrive", "skid_steer"):
         try:
             w = urdf_mod.wheels_from_urdf(
                 p, base_link=base_link, left_joint=left_joint, right_joint=right_joint
             )
         except ValueError as exc:
-            if kind is not None:
+            if kind_wheels is not None:
                 raise RobotFileError(str(exc)) from None
+            wheels_error = str(exc)
         else:
             found = "skid_steer" if w.drive == "skid_steer" else "diffdrive"
             # a skid-steer may be described by a two-wheel URDF (its wheel track); a
@@ -414,17 +425,16 @@ def description_from_urdf(
             return RobotDescription(
                 kind=k, robot="diffdrive", params=dict(w.params()), meta=meta, source=str(p)
             )
+    neither = f" Nor is it a wheeled robot: {wheels_error}" if wheels_error else ""
     try:
         a = urdf_mod.arm_from_urdf(p, base_link=base_link, tip_link=tip_link)
     except ValueError as exc:
-        raise RobotFileError(
-            f"{exc}" + ("" if kind == "arm" else " (and no pair of driven wheels was found)")
-        ) from None
+        raise RobotFileError(f"{exc}.{neither}") from None
     if a.mdh.n_joints != 6:
         raise RobotFileError(
             f"{p}: the chain has {a.mdh.n_joints} revolute joints "
             f"({', '.join(a.joint_names)}); the arm diagnosis reads 6-joint arms. Fix: give "
-            "tip_link / base_link to choose a 6-joint chain"
+            f"tip_link / base_link to choose a 6-joint chain.{neither}"
         )
     from realitygap.robots.arm import ArmParams, arm_params_to_meta
 

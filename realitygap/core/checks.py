@@ -32,6 +32,7 @@ __all__ = [
     "ResourceLimits",
     "check_choice",
     "check_disjoint",
+    "check_distinct",
     "check_finite_float",
     "check_input_path",
     "check_int",
@@ -471,6 +472,31 @@ def check_disjoint(
         raise ValueError(
             f"the same data is given as {names[0]} and as {names[1]} ({listed}); a held-out "
             f"score needs logs not used for fitting. Fix: remove them from one of the two sets"
+        )
+
+
+def check_distinct(paths: Iterable[str | os.PathLike[str]], name: str) -> None:
+    """Refuse a path given twice in one list of inputs (or one inside another): its data
+    would count twice (a run pooled twice weighs double; a log trained on twice is not
+    more evidence).
+
+    Raises
+    ------
+    ValueError
+        Naming ``name`` and every repeated pair.
+    """
+    ps = [Path(p) for p in paths]
+    pairs = [
+        (a, b)
+        for i, a in enumerate(ps)
+        for b in ps[i + 1 :]
+        if _same_or_inside(a, b) or _same_or_inside(b, a)
+    ]
+    if pairs:
+        listed = "; ".join(f"{a} and {b}" for a, b in pairs)
+        raise ValueError(
+            f"{name}: the same data is given twice ({listed}); it would count twice. Fix: give "
+            "each input once"
         )
 
 

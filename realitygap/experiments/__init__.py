@@ -110,7 +110,9 @@ class RunContext:
         path = Path(self.data_dir) / name
         if not path.is_dir():
             raise FileNotFoundError(
-                f"expected a folder '{path}' with recorded data; it does not exist"
+                f"--data {self.data_dir}: expected its sub-folder '{name}/' with recorded data "
+                f"(a folder laid out like shared/data/); {path} does not exist. Fix: pass the "
+                "data folder that holds it, or leave --data out to use the embedded sample"
             )
         self.data_used[name] = str(path)
         self.progress(f"data: {name}: {path}")
@@ -209,6 +211,8 @@ def run(
     """
     exp = get(name)
     ctx.check()
+    if exp.data_subdir is not None:  # the data the experiment reads is there, before its work
+        ctx.data_subdir(exp.data_subdir)
     start = time.perf_counter()
     out = exp.func(ctx)
     if "figures" not in out:

@@ -113,7 +113,7 @@ def test_forced_arguments_are_checked_and_used(tmp_path) -> None:
     np.testing.assert_allclose(table.column("x"), [1.5, 2.5, 3.5])
     with pytest.raises(ValueError, match=r"delimiter \(--delimiter\) must be one of .*got ':'"):
         read_table(path, delimiter=":")
-    with pytest.raises(ValueError, match=r"decimal must be '\.' or ',', got ';'"):
+    with pytest.raises(ValueError, match=r"decimal \(--decimal\) must be '\.' or ',', got ';'"):
         read_table(path, decimal=";")
     with pytest.raises(ValueError, match=r"decimal=',' with delimiter=','.*ambiguous"):
         read_table(path, delimiter=",", decimal=",")

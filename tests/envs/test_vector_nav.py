@@ -235,8 +235,10 @@ def test_domain_randomisation_draws_per_robot_from_its_generator() -> None:
 def test_effects_without_a_surrogate_term_are_refused() -> None:
     from realitygap.robots.effects import EFFECTS
 
+    # every differential-drive effect has a surrogate term; another robot's effect is
+    # refused as such, naming it, by the reality check shared with WheeledNav-v0
     other = next(n for n, c in EFFECTS.items() if c.robot != "diffdrive")
-    with pytest.raises(ValueError, match="has no surrogate term"):
+    with pytest.raises(ValueError, match=rf"reality: effect '{other}' is for the"):
         WheeledNavVecEnv(num_envs=1, reality=Reality((make_effect(other),)))
 
 

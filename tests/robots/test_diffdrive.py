@@ -36,7 +36,7 @@ def drive(
 
 
 def test_negative_wheel_radius_is_rejected() -> None:
-    with pytest.raises(ValueError, match="wheel_radius_left must be a positive"):
+    with pytest.raises(ValueError, match="wheel_radius_left must be a number in"):
         DiffDriveParams(wheel_radius_left=-0.035)
 
 

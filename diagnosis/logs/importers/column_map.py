@@ -34,6 +34,7 @@ every error names the entry, what was expected and an example.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import re
 from collections.abc import Mapping
@@ -122,6 +123,8 @@ class ColumnMap:
     entries: Mapping[str, Source] = field(default_factory=dict)
     times: tuple[Source, ...] = ()
     ticks: str = "cumulative"
+    source: str = ""
+    """The file the map was read from (empty for a map given as text)."""
 
     def __post_init__(self) -> None:
         if not self.entries:
@@ -178,7 +181,7 @@ class ColumnMap:
                 raw = load_json_or_yaml(
                     text, "column map (--columns)", expect=dict, example='{"t": ["time", "ms"]}'
                 )
-                return cls.from_dict(raw)
+                return dataclasses.replace(cls.from_dict(raw), source=text)
             except LogError as exc:
                 raise LogError(str(exc).replace("column map:", f"column map {text}:", 1)) from None
             except ValueError as exc:

@@ -358,6 +358,42 @@ def read_table_logs(
             else ColumnMap.from_dict(column_map)
         )
     )
+    try:
+        return _read_mapped(
+            files,
+            cmap,
+            delimiter,
+            decimal,
+            params,
+            meta,
+            nan,
+            robot,
+            duplicates,
+            max_gap,
+            warn,
+            limits,
+        )
+    except LogError as exc:
+        if cmap.source and cmap.source not in str(exc) and "column map" in str(exc):
+            raise LogError(f"{exc} (the column map is {cmap.source})") from None
+        raise
+
+
+def _read_mapped(
+    files: list[Path],
+    cmap: ColumnMap,
+    delimiter: str | None,
+    decimal: str | None,
+    params: DiffDriveParams | Mapping[str, Any] | None,
+    meta: Mapping[str, Any] | None,
+    nan: str,
+    robot: str,
+    duplicates: str,
+    max_gap: float | None,
+    warn: Callable[[str], None] | None,
+    limits: ResourceLimits | None,
+) -> list[Log]:
+    """:func:`read_table_logs` once the column map is parsed."""
     if nan not in ("raise", "interpolate", "drop"):
         raise ValueError(f"nan must be 'raise', 'interpolate' or 'drop', got {nan!r}")
     if duplicates not in DUPLICATE_POLICIES:

@@ -323,7 +323,7 @@ class OptiOdomSession:
 # ---------------------------------------------------------------------------
 
 
-def _read_metadata(path: Path) -> OptiOdomMetadata:
+def read_metadata(path: Path) -> OptiOdomMetadata:
     lines = read_text_lines(path)
     values: dict[str, tuple[str, ...]] = {}
     where: dict[str, int] = {}
@@ -725,7 +725,7 @@ def read_session(folder: str | Path) -> OptiOdomSession:
             f"{folder} is not an OptiOdom session: missing {meta_path.name} "
             "(expected <ID>/<ID>_metadata.csv)"
         )
-    meta = _read_metadata(meta_path)
+    meta = read_metadata(meta_path)
     log_path = folder / f"{sid}.csv"
     header: dict[str, tuple[str, ...]] = {}
     logs: dict[int, OptiOdomRobotLog] = {}
