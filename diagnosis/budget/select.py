@@ -283,10 +283,7 @@ def _try(problem: Problem, shared: tuple[Any, ...], effect: str) -> Trial:
     co = tuple(
         k
         for k in entered
-        if scale == "run"
-        and k not in own
-        and k in held
-        and effect_scale(split_key(k)[0]) == "run"
+        if scale == "run" and k not in own and k in held and effect_scale(split_key(k)[0]) == "run"
     )
     keys = own + co
     tr = problem.train

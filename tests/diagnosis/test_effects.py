@@ -137,7 +137,10 @@ def test_library_versions_keep_earlier_suites_reproducible() -> None:
     # within the setup's convention, an effect beyond it
     assert {n for n in library("diffdrive") if EFFECTS[n].since == 3} == {"truth_frame_offset"}
     assert LIBRARY_VERSION == 3
-    old, new = list(blind_ranges("diffdrive", version=1)), list(blind_ranges("diffdrive", version=2))
+    old, new = (
+        list(blind_ranges("diffdrive", version=1)),
+        list(blind_ranges("diffdrive", version=2)),
+    )
     assert new[: len(old)] == old and set(new[len(old) :]) == added
     later = [n for n, c in EFFECTS.items() if c.robot == "diffdrive" and c.since > LIBRARY_VERSION]
     assert not set(later) & set(new)

@@ -106,7 +106,9 @@ def test_verdict_alternatives_lists_the_model_then_its_aliases(
 
 
 def test_the_first_budget_entry_and_the_open_set_are_scored() -> None:
-    partial_open = _outcome(["torque_speed_saturation"], ["velocity_saturation"], True, open_set=True)
+    partial_open = _outcome(
+        ["torque_speed_saturation"], ["velocity_saturation"], True, open_set=True
+    )
     partial_open["first_entry"] = "velocity_saturation"
     # run_case: an open set is right when the named effects leave ≥ 50 % unexplained
     partial_open.update(correct=True, unexplained_share_pct=70.0)
