@@ -31,6 +31,7 @@ __all__ = [
     "descendants",
     "end_descendants",
     "run_command",
+    "stop_of",
     "stop_on_signals",
 ]
 
@@ -56,11 +57,33 @@ class Stopped(BaseException):
         return 128 + self.signum
 
 
+_RECEIVED: list[int] = []
+"""The signal that stopped the run, once one came: an exception that an extension module
+raises while :class:`Stopped` unwinds through it (a ``SystemError`` "returned a result with
+an exception set") is still that stop."""
+
+
 def _raise(signum: int, _frame: FrameType | None) -> None:
     # a second signal while the first unwinds is ignored: the unwinding is the stop
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, signal.SIG_IGN)
+    _RECEIVED.append(int(signum))
     raise Stopped(signum)
+
+
+def stop_of(exc: BaseException) -> Stopped | None:
+    """The stop behind ``exc``: itself, a ``KeyboardInterrupt``, one in its cause or context
+    chain, or any exception raised after a stop signal came; else ``None``."""
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        if isinstance(e, Stopped):
+            return e
+        if isinstance(e, KeyboardInterrupt):
+            return Stopped(signal.SIGINT)
+        e = e.__cause__ or e.__context__
+    return Stopped(_RECEIVED[-1]) if _RECEIVED else None
 
 
 @contextlib.contextmanager
@@ -71,6 +94,7 @@ def stop_on_signals() -> Iterator[None]:
         yield
         return
     previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    _RECEIVED.clear()
     for sig in previous:
         signal.signal(sig, _raise)
     try:
@@ -184,23 +208,30 @@ def run_command(command: Callable[[], int], *, verbose: bool = False) -> int:
             if _is_console_script():
                 adopt_orphans()
             return int(command())
-    except (Stopped, KeyboardInterrupt) as exc:
-        stop = exc if isinstance(exc, Stopped) else Stopped(signal.SIGINT)
+    except BaseException as exc:
+        stop = stop_of(exc)
+        if stop is None:
+            if isinstance(exc, OSError):
+                print(f"error: {_os_error_words(exc)}", file=sys.stderr)
+                return 1
+            if not isinstance(exc, Exception):  # SystemExit and the like go on
+                raise
+            return _internal_error(exc, verbose)
         end_descendants()
         print(f"\nrealitygap: stopped by {stop.name}; no output was changed", file=sys.stderr)
         return stop.exit_code
-    except OSError as exc:
-        print(f"error: {_os_error_words(exc)}", file=sys.stderr)
-        return 1
-    except Exception as exc:
-        if verbose:
-            import traceback
 
-            traceback.print_exc()
-        print(
-            f"error: internal error ({type(exc).__name__}: {exc}). This is a bug in realitygap, "
-            "not in your input; please report it with the command line"
-            + ("" if verbose else " and the output of --verbose"),
-            file=sys.stderr,
-        )
-        return 70
+
+def _internal_error(exc: Exception, verbose: bool) -> int:
+    """Say that an exception escaped a command: a bug of this package (exit 70)."""
+    if verbose:
+        import traceback
+
+        traceback.print_exception(exc)
+    print(
+        f"error: internal error ({type(exc).__name__}: {exc}). This is a bug in realitygap, "
+        "not in your input; please report it with the command line"
+        + ("" if verbose else " and the output of --verbose"),
+        file=sys.stderr,
+    )
+    return 70

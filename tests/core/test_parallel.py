@@ -64,3 +64,14 @@ def test_bad_backend_names_and_worker_counts_are_refused() -> None:
         ProcessBackend(0)
     with pytest.raises(ValueError, match="blas_threads must be a positive integer"):
         ProcessBackend(2, blas_threads=0)
+
+
+def test_workers_beyond_the_cores_are_said_first_and_capped() -> None:
+    from realitygap.core.parallel import available_cpus, cap_workers
+
+    said: list[str] = []
+    cpus = available_cpus()
+    assert cap_workers(cpus + 1000, "--workers", said.append) == cpus
+    assert len(said) == 1 and "--workers" in said[0] and f"using {cpus}" in said[0]
+    assert cap_workers(1, "--workers", said.append) == 1 and len(said) == 1
+    assert cap_workers(None) is None

@@ -22,12 +22,17 @@ from realitygap.samples import sample_dir
 CHILDREN_TIMEOUT_S = 120.0
 
 
-def _children(pid: int) -> list[int]:
-    try:
-        text = Path(f"/proc/{pid}/task/{pid}/children").read_text()
-    except OSError:
-        return []
-    return [int(c) for c in text.split()]
+def _alive(pids: set[int]) -> list[int]:
+    """The ones of ``pids`` still running (zombies are dead)."""
+    out = []
+    for pid in pids:
+        try:
+            stat = Path(f"/proc/{pid}/stat").read_text()
+        except OSError:
+            continue
+        if stat[stat.rindex(")") + 2 :].split()[0] != "Z":
+            out.append(pid)
+    return out
 
 
 def _group_alive(pgid: int) -> bool:
@@ -38,15 +43,45 @@ def _group_alive(pgid: int) -> bool:
     return True
 
 
+def _has_ray() -> bool:
+    try:
+        import ray  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+CASES = [
+    pytest.param("process", signal.SIGINT, True, 130, 1, id="process-ctrl-c-to-group"),
+    pytest.param("process", signal.SIGTERM, False, 143, 1, id="process-sigterm-to-main"),
+    pytest.param(
+        "ray",
+        signal.SIGINT,
+        True,
+        130,
+        3,
+        id="ray-ctrl-c-to-group",
+        marks=pytest.mark.skipif(not _has_ray(), reason="ray is not installed"),
+    ),
+    pytest.param(
+        "ray",
+        signal.SIGTERM,
+        False,
+        143,
+        3,
+        id="ray-sigterm-to-main",
+        marks=pytest.mark.skipif(not _has_ray(), reason="ray is not installed"),
+    ),
+]
+
+
 @pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs Linux /proc")
-@pytest.mark.parametrize(
-    ("sig", "to_group", "code"),
-    [(signal.SIGINT, True, 130), (signal.SIGTERM, False, 143)],
-    ids=["ctrl-c-to-group", "sigterm-to-main"],
-)
+@pytest.mark.parametrize(("backend", "sig", "to_group", "code", "started"), CASES)
 def test_signal_stops_a_pool_run_cleanly(
-    tmp_path: Path, sig: signal.Signals, to_group: bool, code: int
+    tmp_path: Path, backend: str, sig: signal.Signals, to_group: bool, code: int, started: int
 ) -> None:
+    from realitygap.core.stops import descendants
+
     sample = sample_dir("optiodom_diffdrive")
     report = tmp_path / "report"
     report.mkdir()
@@ -62,9 +97,8 @@ def test_signal_stops_a_pool_run_cleanly(
         "--holdout",
         str(sample / "circular" / "231220200157"),
         "--backend",
-        "process",
-        "--workers",
-        "2",
+        backend,
+        *(["--workers", "2"] if backend == "process" else []),
         "--quick",
         "--report",
         str(report),
@@ -72,13 +106,16 @@ def test_signal_stops_a_pool_run_cleanly(
     proc = subprocess.Popen(
         cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
     )
+    seen: set[int] = set()
     try:
         start = time.monotonic()
-        while not _children(proc.pid) and proc.poll() is None:
-            assert time.monotonic() - start < CHILDREN_TIMEOUT_S, "the worker pool never started"
+        while len(seen) < started and proc.poll() is None:
+            assert time.monotonic() - start < CHILDREN_TIMEOUT_S, "the workers never started"
+            seen |= set(descendants(proc.pid))
             time.sleep(0.1)
-        assert proc.poll() is None, f"the run ended before the pool started: {proc.stderr}"
-        time.sleep(0.5)
+        assert proc.poll() is None, f"the run ended before its workers started: {proc.stderr}"
+        time.sleep(0.5 if backend == "process" else 8.0)
+        seen |= set(descendants(proc.pid))
         if to_group:
             os.killpg(proc.pid, sig)
         else:
@@ -91,9 +128,10 @@ def test_signal_stops_a_pool_run_cleanly(
     assert "Traceback" not in err, err
     assert err.count(f"stopped by {sig.name}") == 1, err
     deadline = time.monotonic() + 10.0
-    while _group_alive(proc.pid) and time.monotonic() < deadline:
+    while (_group_alive(proc.pid) or _alive(seen)) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not _group_alive(proc.pid), "worker processes outlived the run"
+    assert not _alive(seen), f"processes the run started outlived it: {_alive(seen)}"
     # the target is as it was: the old report, no new file, no staging folder beside it
     assert sorted(p.name for p in report.iterdir()) == [".realitygap-output", "report.md"]
     assert old.read_text() == "a previous report\n"
