@@ -28,6 +28,7 @@ from realitygap.core.checks import (
     check_input_path,
     check_positive_int,
     load_json_or_yaml,
+    set_path_types,
 )
 
 LOG_KINDS = (
@@ -68,13 +69,39 @@ def _parse_kv(text: str, what: str) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for part in filter(None, (p.strip() for p in text.split(","))):
         key, sep, value = part.partition("=")
+        key = key.strip()
         if not sep:
             raise ValueError(f"{what}: expected key=value pairs, got {part!r}")
+        if key in out:
+            raise ValueError(
+                f"{what}: {key} is given twice ({out[key]} and {value.strip()}); only one can "
+                "hold. Fix: keep the one you mean"
+            )
         try:
-            out[key.strip()] = float(value)
+            out[key] = float(value)
         except ValueError:
-            raise ValueError(f"{what}: {key.strip()} must be a number, got {value!r}") from None
+            raise ValueError(f"{what}: {key} must be a number, got {value!r}") from None
     return out
+
+
+def _effect_names(text: str) -> tuple[str, ...]:
+    """``--effects a,b`` → names; a name given twice is refused."""
+    names = tuple(e.strip() for e in text.split(",") if e.strip())
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ValueError(f"--effects: {', '.join(twice)} given twice. Fix: name each effect once")
+    if not names:
+        raise ValueError("--effects: no effect named. Fix: --effects NAME[,NAME…]")
+    return names
+
+
+def _merged(described: dict[str, Any], given: dict[str, Any], option: str, say: Any) -> dict:
+    """``given`` (an option's values) over ``described`` (the robot file's): a value the
+    option changes is said, so that it is never silently one or the other."""
+    for key, value in given.items():
+        if key in described and described[key] != value:
+            say(f"{option} {key}={value} replaces the robot file's {key} = {described[key]}")
+    return {**described, **given}
 
 
 def _description(args: argparse.Namespace) -> dict[str, Any]:
@@ -269,10 +296,12 @@ def _diagnose(args: argparse.Namespace) -> int:
             described = _description(args)
             params = dict(described.get("params") or {})
             if args.params:
-                params.update(_parse_kv(args.params, "--params"))
+                params = _merged(params, _parse_kv(args.params, "--params"), "--params", warn)
             firmware = dict(described.get("firmware") or {})
             if args.firmware:
-                firmware.update(_parse_kv(args.firmware, "--firmware"))
+                firmware = _merged(
+                    firmware, _parse_kv(args.firmware, "--firmware"), "--firmware", warn
+                )
             options = ReadOptions(
                 columns=args.columns,
                 decimal=args.decimal,
@@ -295,11 +324,7 @@ def _diagnose(args: argparse.Namespace) -> int:
             )
             train = read_many(args.logs, options, warn=warn)
             holdout = read_many(args.holdout, options, warn=warn) if args.holdout else None
-            effects = (
-                tuple(e.strip() for e in args.effects.split(",") if e.strip())
-                if args.effects
-                else None
-            )
+            effects = _effect_names(args.effects) if args.effects else None
             robot = args.robot
             if robot is None:
                 default = DiagnosisSettings.robot
@@ -342,11 +367,12 @@ def _diagnose(args: argparse.Namespace) -> int:
         if report_stage is not None:
             write_reports([("", result)], report_stage)
         out.commit()
-    if args.json:
+    human = sys.stderr if args.json == "-" else sys.stdout  # stdout holds the JSON
+    if args.json and args.json != "-":
         say(f"wrote {args.json}")
-    print_result(result, verbose=args.verbose)
+    print_result(result, verbose=args.verbose, file=human)
     if args.report:
-        print(f"report: {Path(args.report) / 'report.html'}")
+        print(f"report: {Path(args.report).resolve() / 'report.html'}", file=human)
     return 0
 
 
@@ -438,6 +464,7 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     p = add_diagnose_parser(sub)
     p.add_argument("--overwrite", action="store_true", help=argparse.SUPPRESS)
+    set_path_types(p)
     args = parser.parse_args(argv)
     return run_command(lambda: int(args.func(args)), verbose=bool(args.verbose))
 

@@ -228,6 +228,28 @@ def check_session_folder(folder: str | Path, name: str = "SESSION_DIR") -> Path:
     return p
 
 
+SIDE_LENGTH_TOLERANCE = 0.25
+"""Largest relative difference between the stated square side and the side the ground truth
+shows (its path length over four) before the side is refused as a wrong number or unit."""
+
+
+def _check_side_length(L: float, runs: list[Any], session: str, given: bool) -> None:
+    """Refuse a square side that the driven squares contradict (a side in mm given as m)."""
+    sides = [
+        float(np.sum(np.hypot(*np.diff(np.asarray(r.gt_poses)[:, :2], axis=0).T))) / 4.0
+        for r in runs
+    ]
+    measured = float(np.median(sides))
+    if measured > 0 and abs(L / measured - 1.0) > SIDE_LENGTH_TOLERANCE:
+        source = f"--side-length {L:g}" if given else f"the metadata's L = {L:g} m"
+        raise ValueError(
+            f"session {session}: {source} disagrees with the squares its ground truth shows "
+            f"(about {measured:.2f} m a side: path length / 4, median of {len(sides)} runs). "
+            "Fix: give the side in metres"
+            + (", or leave --side-length out to use the metadata's L" if given else "")
+        )
+
+
 def calibrate_session(folder: str | Path, side_length: float | None = None) -> SessionCalibration:
     """UMBmark for one OptiOdom square session.
 
@@ -287,6 +309,7 @@ def calibrate_session(folder: str | Path, side_length: float | None = None) -> S
             f"session {session.session_id} holds only {have} runs ({count}); UMBmark needs "
             "squares driven in both directions (clockwise and counter-clockwise)"
         )
+    _check_side_length(float(L), runs, session.session_id, side_length is not None)
     kin = session.kinematics()
     res = umbmark_from_runs(runs, kin, float(L))
     d_left, d_right, b = meta.wheel_diameter_left, meta.wheel_diameter_right, meta.wheelbase
@@ -392,9 +415,10 @@ def _cmd_umbmark(args: argparse.Namespace) -> int:
             }
             write_json(stage, payload)
         out.commit()
-    print(format_calibrations(calibrations, pooled))
-    if args.json:
-        print(f"wrote {args.json}")
+    human = sys.stderr if args.json == "-" else sys.stdout  # stdout holds the JSON
+    print(format_calibrations(calibrations, pooled), file=human)
+    if args.json and args.json != "-":
+        print(f"wrote {args.json}", file=human)
     return 0
 
 

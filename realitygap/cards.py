@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
+from realitygap.core.checks import UnknownNameError
+
 __all__ = ["ENV_CARDS", "EnvCard", "InfoKey", "card_for", "load_object"]
 
 
@@ -206,6 +208,6 @@ def card_for(env_id: str) -> EnvCard:
     except KeyError:
         close = difflib.get_close_matches(env_id, list(ENV_CARDS), n=2)
         hint = f" Did you mean {', '.join(map(repr, close))}?" if close else ""
-        raise KeyError(
+        raise UnknownNameError(
             f"no environment card for {env_id!r}.{hint} Known: {', '.join(ENV_CARDS)}"
         ) from None

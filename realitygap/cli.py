@@ -10,6 +10,7 @@ takes ``--quiet`` and ``--verbose``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import sys
@@ -18,6 +19,7 @@ from pathlib import Path
 
 import realitygap
 from realitygap import experiments
+from realitygap.core.checks import set_path_types
 from realitygap.core.io import write_json
 from realitygap.core.outputs import Outputs, command_line
 from realitygap.core.parallel import cap_workers
@@ -190,19 +192,22 @@ def _cmd_run(args: argparse.Namespace) -> int:
             write_json(json_stage, result)
         out.commit()
     _remember_duration(key, float(result["wall_seconds"]))
-    _print_diagnoses(ctx, verbose=args.verbose)
-    print(experiments.format_figures(result))
-    if args.verbose:
-        for name, rows in result.get("tables", {}).items():
-            print(f"table {name}:")
-            for row in rows:
-                print(f"  {row}")
-    if args.json:
-        print(f"wrote {args.json}")
-    if "report" in result:
-        print(f"report: {Path(result['report']).resolve()}")
-    elif args.report is not None:
-        print(f"note: {args.experiment} makes no diagnosis, so --report wrote nothing")
+    # with --json - standard output holds the JSON; the words go to standard error
+    words = contextlib.redirect_stdout(sys.stderr) if args.json == "-" else contextlib.nullcontext()
+    with words:
+        _print_diagnoses(ctx, verbose=args.verbose)
+        print(experiments.format_figures(result))
+        if args.verbose:
+            for name, rows in result.get("tables", {}).items():
+                print(f"table {name}:")
+                for row in rows:
+                    print(f"  {row}")
+        if args.json and args.json != "-":
+            print(f"wrote {args.json}")
+        if "report" in result:
+            print(f"report: {Path(result['report']).resolve()}")
+        elif args.report is not None:
+            print(f"note: {args.experiment} makes no diagnosis, so --report wrote nothing")
     return 0
 
 
@@ -382,6 +387,7 @@ def build_parser() -> argparse.ArgumentParser:
         _fill_help(choice)
         _add_verbosity(choice)
         _add_overwrite(choice)
+        set_path_types(choice)
     return parser
 
 

@@ -51,12 +51,17 @@ env as registered, with its default success criterion.
 
 from __future__ import annotations
 
+import difflib
+import math
+import numbers
 import os
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from realitygap.core.checks import load_json_or_yaml
 
 ALGOS: tuple[str, ...] = ("ppo", "sac")
 """Learning algorithms with hyperparameter files."""
@@ -151,7 +156,7 @@ def load_hyperparams(
     """The hyperparameters of ``algo`` on ``env_id`` from its file (``hyperparams/<algo>.json``,
     or ``path``: ``--hyperparams``), read with
     :func:`~realitygap.core.checks.load_json_or_yaml` and type-checked
-    (:func:`~realitygap.baselines.rl.checks.check_hyperparams_table`).
+    (:func:`check_hyperparams_table`).
 
     Raises
     ------
@@ -163,7 +168,6 @@ def load_hyperparams(
     KeyError
         If the file has no entry for ``env_id``.
     """
-    from realitygap.baselines.rl.checks import load_hyperparams_file
 
     algo = check_algo(algo)
     file = Path(path) if path is not None else HYPERPARAMS_DIR / f"{algo}.json"
@@ -448,3 +452,169 @@ def resolve_policy_kwargs(kwargs: dict[str, Any]) -> dict[str, Any]:
     if pk:
         out["policy_kwargs"] = pk
     return out
+
+
+# --------------------------------------------------------------------------- hyperparameters
+def _kind(value: Any) -> str:
+    text = repr(value)
+    return f"{text if len(text) <= 50 else text[:47] + '...'} ({type(value).__name__})"
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, numbers.Integral) and not isinstance(v, bool)
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(float(v))
+
+
+_EXAMPLE = '{"realitygap/ArmCalib-v0": {"n_timesteps": 20000, "n_envs": 2, "policy": "MlpPolicy"}}'
+
+# key → (what it must be, test)
+_TRAIN_KEY_TYPES: dict[str, tuple[str, Any]] = {
+    "n_timesteps": ("a positive integer", lambda v: _is_int(v) and v >= 1),
+    "n_envs": ("a positive integer", lambda v: _is_int(v) and v >= 1),
+    "vec_env": ('"subproc" or "dummy"', lambda v: v in ("subproc", "dummy")),
+    "env_kwargs": ("an object of gym.make keyword arguments", lambda v: isinstance(v, Mapping)),
+    "vector_env_kwargs": ("an object of keyword arguments", lambda v: isinstance(v, Mapping)),
+    "policy": ('an SB3 policy name such as "MlpPolicy"', lambda v: isinstance(v, str) and v),
+    "curriculum": ("an object or null", lambda v: v is None or isinstance(v, Mapping)),
+    "normalize": (
+        'an object {"obs": true/false, "reward": true/false} or null',
+        lambda v: (
+            v is None
+            or (
+                isinstance(v, Mapping)
+                and set(v) <= {"obs", "reward"}
+                and all(isinstance(x, bool) for x in v.values())
+            )
+        ),
+    ),
+    "action_deadband": (
+        "a number ≥ 0 or null",
+        lambda v: v is None or (_is_number(v) and v >= 0),
+    ),
+    "action_stop_gate": ("true or false", lambda v: isinstance(v, bool)),
+    "train_max_episode_steps": (
+        "a positive integer or null",
+        lambda v: v is None or (_is_int(v) and v >= 1),
+    ),
+    "obs_features": ("a feature map name or null", lambda v: v is None or isinstance(v, str)),
+    "log_std_max": (
+        "a list [start, end] of two numbers, or null",
+        lambda v: (
+            v is None
+            or (isinstance(v, (list, tuple)) and len(v) == 2 and all(_is_number(x) for x in v))
+        ),
+    ),
+    "train_wrappers": (
+        'a list of objects {"name": ..., ...}',
+        lambda v: (
+            v is None
+            or (
+                isinstance(v, (list, tuple))
+                and all(isinstance(x, Mapping) and isinstance(x.get("name"), str) for x in v)
+            )
+        ),
+    ),
+    "obs_memory": ("an object or null", lambda v: v is None or isinstance(v, Mapping)),
+    "obs_rest_timer": ("an object or null", lambda v: v is None or isinstance(v, Mapping)),
+    "obs_scene_fade": ("a number ≥ 0 or null", lambda v: v is None or (_is_number(v) and v >= 0)),
+    "demonstrations": ("an object or null", lambda v: v is None or isinstance(v, Mapping)),
+}
+
+
+def _algo_parameters(algo: str | None) -> set[str] | None:
+    """Keyword arguments of the SB3 class of ``algo`` (``None`` when SB3 is missing)."""
+    if algo is None:
+        return None
+    try:
+        import inspect
+
+        cls = algo_class(algo)
+    except (ImportError, ValueError):
+        return None
+    return set(inspect.signature(cls.__init__).parameters) - {"self", "policy", "env"}
+
+
+def check_hyperparams(entry: Any, where: str, *, algo: str | None = None) -> dict[str, Any]:
+    """One env's hyperparameter entry, type-checked.
+
+    Parameters
+    ----------
+    entry : mapping
+        ``{"n_timesteps": ..., "n_envs": ..., "policy": ..., <algorithm arguments>}``.
+    where : str
+        Where it came from (``"--hyperparams hp.json, entry 'realitygap/ArmCalib-v0'"``).
+    algo : str, optional
+        The algorithm: its arguments are checked by name (a typo gets a suggestion).
+
+    Raises
+    ------
+    TypeError
+        Not a mapping.
+    ValueError
+        A key of the wrong type or value, or a name the algorithm does not take.
+    """
+    if not isinstance(entry, Mapping):
+        raise TypeError(
+            f"{where}: expected an object of hyperparameters (key: value), got "
+            f"{_kind(entry)}. Fix: write the entry as an object, e.g. {_EXAMPLE}"
+        )
+    out = {str(k): v for k, v in entry.items()}
+
+    algo_params = _algo_parameters(algo)
+    for key, value in out.items():
+        if key.startswith("_"):
+            continue  # comments
+        if key in _TRAIN_KEY_TYPES:
+            what, ok = _TRAIN_KEY_TYPES[key]
+            if not ok(value):
+                raise ValueError(
+                    f"{where}: {key!r} must be {what}, got {_kind(value)}. Fix: give {key!r} "
+                    f"as {what}"
+                )
+        elif key not in TRAIN_KEYS and algo_params is not None and key not in algo_params:
+            close = difflib.get_close_matches(key, sorted(algo_params | TRAIN_KEYS), n=1)
+            hint = f" Did you mean {close[0]!r}?" if close else ""
+            raise ValueError(
+                f"{where}: {key!r} is neither a training key nor an argument of "
+                f"{algo.upper() if algo else 'the algorithm'}.{hint} Fix: correct or remove it"
+            )
+    if "n_timesteps" not in out:
+        raise ValueError(
+            f"{where}: no 'n_timesteps' (the training budget). Fix: add "
+            '"n_timesteps": <steps>, or give the budget with --timesteps'
+        )
+    return out
+
+
+def check_hyperparams_table(
+    table: Any, where: str, *, algo: str | None = None
+) -> dict[str, dict[str, Any]]:
+    """A hyperparameter file's content: a mapping of env id → entry (:func:`check_hyperparams`;
+    keys starting with ``_`` are comments). ``where`` names the option and file."""
+    if not isinstance(table, Mapping):
+        raise TypeError(
+            f"{where}: expected an object mapping env ids to hyperparameters at the top level, "
+            f"got {_kind(table)}. Fix: write it as {_EXAMPLE}"
+        )
+    out: dict[str, dict[str, Any]] = {}
+    for env_id, entry in table.items():
+        if str(env_id).startswith("_"):
+            continue
+        out[str(env_id)] = check_hyperparams(entry, f"{where}, entry {env_id!r}", algo=algo)
+    return out
+
+
+def load_hyperparams_file(
+    path: str | os.PathLike[str], option: str = "--hyperparams", *, algo: str | None = None
+) -> dict[str, dict[str, Any]]:
+    """Read and check a hyperparameter file (JSON, or YAML) with
+    :func:`~realitygap.core.checks.load_json_or_yaml`: errors name ``option``, the file and
+    the line."""
+    table = load_json_or_yaml(Path(path), option, expect=dict, example=_EXAMPLE)
+    return check_hyperparams_table(table, f"{option} {path}", algo=algo)
+
+
+# --------------------------------------------------------------------------- models

@@ -20,6 +20,7 @@ __all__ = [
     "ARM_CHANNELS",
     "CLIMBER_CHANNELS",
     "DIFFDRIVE_CHANNELS",
+    "ROBOT_CHANNELS",
     "ChannelSpec",
     "Role",
     "standard_channels",
@@ -140,6 +141,12 @@ CLIMBER_CHANNELS: tuple[ChannelSpec, ...] = (
     ChannelSpec("tether", ("length",), ("m",), Role.SENSOR, "tether length reported by the spool"),
 )
 """Channels of a climber log."""
+
+
+ROBOT_CHANNELS: Mapping[str, tuple[ChannelSpec, ...]] = MappingProxyType(
+    {"diffdrive": DIFFDRIVE_CHANNELS, "arm": ARM_CHANNELS, "climber": CLIMBER_CHANNELS}
+)
+"""Each robot's channels, by robot name: a log of a robot holds some of them."""
 
 
 def _by_name(*robots: tuple[ChannelSpec, ...]) -> Mapping[str, ChannelSpec]:

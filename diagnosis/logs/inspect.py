@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from realitygap.core.checks import check_input_path
+from realitygap.core.checks import check_distinct, check_input_path
 from realitygap.diagnosis.logs.guesses import (
     _TIME_FACTOR,
     cumulative,
@@ -569,7 +569,8 @@ def _inspect_one(p: Path, delimiter: str | None, decimal: str | None) -> FileIns
         check_input_path(p, "FILE", needs="a log needs rows of data", unicode="accept")
     except ValueError as exc:
         return FileInspection(str(p), "unreadable", "not readable", error=str(exc))
-    session = p.is_file() and p.name.startswith(p.parent.name) and _looks_like_optiodom(p.parent)
+    folder = p.absolute().parent
+    session = p.is_file() and p.name.startswith(f"{folder.name}_") and _looks_like_optiodom(folder)
     kind = sniff_file_kind(p)
     try:
         if p.is_dir() and _looks_like_optiodom(p):
@@ -641,6 +642,7 @@ def inspect_paths(
     its :class:`FileInspection` (``error``). Raises FileNotFoundError (no such path),
     ValueError (a bad ``delimiter`` or ``decimal``) or ImportError (a bag without ``rosbags``).
     """
+    check_distinct(paths, "FILE")  # the command proposed would be refused so
     files = [_inspect_one(Path(p), delimiter, decimal) for p in paths]
     good = [f for f in files if f.kind != "unreadable"]
     tables = [f for f in good if f.kind == "table"]
@@ -749,8 +751,9 @@ def run_inspect(args: argparse.Namespace) -> int:
         if stage is not None:
             write_json(stage, result.to_json())
         out.commit()
-    print(result.to_text(verbose=bool(getattr(args, "verbose", False))), end="")
-    if args.json and not getattr(args, "quiet", False):
+    human = sys.stderr if args.json == "-" else sys.stdout  # stdout holds the JSON
+    print(result.to_text(verbose=bool(getattr(args, "verbose", False))), end="", file=human)
+    if args.json and args.json != "-" and not getattr(args, "quiet", False):
         print(f"wrote {args.json}", file=sys.stderr)
     for f in result.files:
         if f.error:

@@ -106,6 +106,7 @@ __all__ = [
     "Role",
     "convert_units",
     "fill_gaps",
+    "known_units",
     "sniff_file_kind",
     "standard_channels",
 ]
@@ -139,6 +140,11 @@ _UNITS: dict[str, tuple[str, float]] = {
     "count": ("count", 1.0),
     "1": ("1", 1.0),
 }
+
+
+def known_units() -> frozenset[str]:
+    """The units :func:`convert_units` knows."""
+    return frozenset(_UNITS)
 
 
 def convert_units(values: npt.ArrayLike, unit: str, to: str, *, what: str = "value") -> FloatArray:

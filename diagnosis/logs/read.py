@@ -20,7 +20,6 @@ import itertools
 import math
 import os
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -29,18 +28,21 @@ import numpy as np
 from realitygap.core.checks import (
     ResourceLimits,
     check_finite_float,
-    check_regular_file,
+    check_input_path,
     check_rows_limit,
 )
 from realitygap.diagnosis.logs.log import Log, LogError, sniff_file_kind
-from realitygap.diagnosis.logs.schema import SchemaError, check_log
-from realitygap.robots.diffdrive import PARAM_RANGES, DiffDriveParams, FirmwareLimits, check_param
+from realitygap.diagnosis.logs.options import ReadOptions, check_read_options
+from realitygap.diagnosis.logs.plausibility import check_log
+from realitygap.diagnosis.logs.schema import SchemaError
+from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.diffdrive_replay import nominal_odometry, params_to_meta
 
 __all__ = [
     "UR10_COLUMN_MAP",
     "ReadOptions",
     "check_plausible",
+    "check_read_options",
     "log_from_ur10_file",
     "log_from_ur10_series",
     "logs_from_optiodom",
@@ -59,158 +61,6 @@ _EXT_KIND = {
     ".db3": {"sqlite"},
     ".mcap": {"mcap"},
 }
-
-
-@dataclass(frozen=True)
-class ReadOptions:
-    """Options for the importers (all optional).
-
-    Attributes
-    ----------
-    columns : str or None
-        CSV column map (see :class:`~realitygap.diagnosis.logs.importers.csv_log.ColumnMap`).
-    decimal, delimiter : str or None
-        CSV number format (default: detected).
-    nan : {"raise", "interpolate", "drop"}
-        Missing CSV values.
-    params : mapping or None
-        Nominal robot parameters for CSV and bag logs.
-    firmware : mapping or None
-        ``{"a_max", "alpha_max"}`` if the commands are requests the firmware rate-limits.
-    cmd_topic, odom_topic, truth_topic, truth_frame, wheels_topic : str or None
-        ROS bag topics.
-    rate_hz : float or None
-        Resample bags to this rate (Hz); ``None`` (default) aligns their topics on the wheel
-        joints' (else the commands') own stamps.
-    resample : float or None
-        Resample every log to this step (s) — for jittery time stamps.
-    check_plausible : bool
-        Refuse logs whose numbers do not fit their channels' schema (:func:`check_plausible`:
-        speeds, turn rates, wheel rates, row rate, an arm's reach), a sign of a wrong unit.
-    meta : mapping or None
-        Further metadata of table and bag logs (from a robot file: the declared
-        ground-truth tracked point, a skid-steer's wheel track, an arm's tool).
-    robot : str or None
-        The robot of table logs (``diffdrive``, ``arm``); default: from the column map's
-        channels.
-    duplicates : {"raise", "last", "mean"}
-        Repeated time stamps within a channel of a table log.
-    max_gap : float or None
-        Longest gap (s) of a channel that aligning channels at different rates may
-        interpolate over (default: ``REALITYGAP_MAX_GAP_STEPS`` of its own period).
-    """
-
-    columns: str | None = None
-    decimal: str | None = None
-    delimiter: str | None = None
-    nan: str = "raise"
-    params: Mapping[str, Any] | None = None
-    firmware: Mapping[str, Any] | None = None
-    cmd_topic: str = "/cmd_vel"
-    odom_topic: str | None = "/odom"
-    truth_topic: str | None = None
-    truth_frame: str | None = None
-    wheels_topic: str | None = None
-    rate_hz: float | None = None
-    resample: float | None = None
-    check_plausible: bool = True
-    meta: Mapping[str, Any] | None = None
-    robot: str | None = None
-    duplicates: str = "raise"
-    max_gap: float | None = None
-
-    def __post_init__(self) -> None:
-        """Every option checked when given, before any file is read: its type, its choices,
-        its range; the message names the option as in Python and on the command line."""
-        from realitygap.diagnosis.logs.importers.table import check_format
-
-        if self.columns is not None and not isinstance(self.columns, str | Mapping):
-            raise TypeError(
-                f"columns (--columns) must be a column map as text ('t=time,cmd.v=v,…'), a "
-                f"mapping or a JSON file name, got {type(self.columns).__name__} {self.columns!r}"
-            )
-        check_format(self.delimiter, self.decimal)
-        for name, value, choices in (
-            ("nan", self.nan, ("raise", "interpolate", "drop")),
-            ("duplicates", self.duplicates, ("raise", "last", "mean")),
-        ):
-            if value not in choices:
-                raise ValueError(
-                    f"{name} (--{name}) must be one of {', '.join(choices)}, got {value!r}"
-                )
-        for name, option, value, unit in (
-            ("rate_hz", "--rate", self.rate_hz, "Hz"),
-            ("resample", "--resample", self.resample, "s"),
-            ("max_gap", "--max-gap", self.max_gap, "s"),
-        ):
-            if value is not None:
-                check_finite_float(value, f"{name} ({option})", low=0.0, strict_low=True, unit=unit)
-        if self.robot is not None:
-            _check_robot_name(self.robot)
-        if self.params is not None:
-            check_robot_params(self.params)
-        if self.firmware is not None:
-            FirmwareLimits.from_mapping(self.firmware, "firmware (--firmware)")
-
-
-ARM_PARAMS = ("mdh", "mdh_name", "link_masses", "payload_mass", "joint_lower", "joint_upper")
-"""Nominal parameters an arm's logs may state: the MDH table (``{name: value}``, m and rad)
-and its name, link and payload masses (kg), joint limits (rad)."""
-
-
-def check_robot_params(params: Mapping[str, Any], name: str = "params (--params)") -> None:
-    """Refuse nominal robot parameters that no robot has or that are no physical value: a
-    differential drive's :class:`~realitygap.robots.diffdrive.DiffDriveParams` fields (each in
-    its :data:`~realitygap.robots.diffdrive.PARAM_RANGES`), or an arm's :data:`ARM_PARAMS`."""
-    if not isinstance(params, Mapping):
-        raise TypeError(
-            f"{name} must be a mapping of parameter → value (e.g. {{'wheelbase': 0.23}}), got "
-            f"{type(params).__name__} {params!r}"
-        )
-    drive = set(PARAM_RANGES) | {"camera"}
-    keys = set(map(str, params))
-    if keys <= drive:
-        for key, value in params.items():
-            if key != "camera":
-                try:
-                    check_param(key, value)
-                except ValueError as exc:
-                    raise ValueError(f"{name}: {exc}") from None
-        return
-    if keys <= set(ARM_PARAMS):
-        for key, value in params.items():
-            if key == "mdh_name":
-                continue
-            if key == "mdh":
-                if not isinstance(value, Mapping):
-                    raise ValueError(f"{name}: mdh must be a mapping of MDH parameter → value")
-                for k, v in value.items():
-                    check_finite_float(v, f"{name} mdh.{k}")
-                continue
-            values = value if isinstance(value, list | tuple | np.ndarray) else [value]
-            mass = key in ("link_masses", "payload_mass")
-            for v in values:
-                check_finite_float(
-                    v, f"{name} {key}", low=0.0 if mass else None, unit="kg" if mass else "rad"
-                )
-        return
-    unknown = sorted(keys - drive - set(ARM_PARAMS))
-    raise ValueError(
-        f"{name}: unknown robot parameter(s) {unknown}; a differential drive has "
-        f"{', '.join(PARAM_RANGES)}; an arm has {', '.join(ARM_PARAMS)}. Fix: use those names"
-    )
-
-
-def _check_robot_name(robot: object) -> None:
-    import realitygap.robots.effects  # noqa: F401 - each robot's effect module registers it
-    from realitygap.robots.effects.base import ROBOT_PARAMS
-
-    known = sorted(ROBOT_PARAMS)
-    if robot not in known:
-        raise ValueError(
-            f"robot (--robot) must be one of {', '.join(known)}, got {robot!r}. Fix: name the "
-            "robot the logs come from"
-        )
 
 
 def logs_from_optiodom(
@@ -434,6 +284,54 @@ def _looks_like_ur10(p: Path) -> bool:
     return "Goal x" in head and "measurement_x" in head and "shoulder_pan_joint" in head
 
 
+def _session_id_of(folder: Path) -> str | None:
+    """The ID of the OptiOdom session files in ``folder`` (its ``<ID>_metadata.csv``), or None."""
+    found = sorted(folder.glob("*_metadata.csv"))
+    return found[0].name[: -len("_metadata.csv")] if len(found) == 1 else None
+
+
+def _renamed_session(p: Path) -> str | None:
+    """The message for a folder of OptiOdom session files named other than their ID."""
+    sid = _session_id_of(p)
+    if sid is None or sid == p.name or not sid:
+        return None
+    return (
+        f"{p}: holds the files of the OptiOdom session {sid} ({sid}_metadata.csv, "
+        f"{sid}_run-NN.csv), but a session folder must be named after the ID in its files' "
+        f"names (<ID>/<ID>_metadata.csv), and this one is named {p.name!r}. Fix: rename the "
+        f"folder: mv {p} {p.parent / sid}"
+    )
+
+
+def _part_of_dataset(p: Path) -> str | None:
+    """The message for a file that is one part of a dataset folder read as a whole (an
+    OptiOdom session's metadata, run or robot-log file; a file of a UR10 laser-tracker set
+    other than its measurements), else None."""
+    folder = p.parent
+    sid = _session_id_of(folder)
+    if sid and p.name.startswith(sid):
+        fix = f"pass the folder: realitygap diagnose {folder}"
+        if folder.name != sid:
+            fix = (
+                f"rename the folder after the session ID first (mv {folder} "
+                f"{folder.parent / sid}), then pass the folder"
+            )
+        return (
+            f"{p}: a file of the OptiOdom session folder {folder} (session {sid}), not a log "
+            "on its own: a session's runs are read together with its metadata and robot log. "
+            f"Fix: {fix}"
+        )
+    for root, series in ((folder.parent, folder), (folder, None)):
+        if any(root.glob("Series_*/measurements_*.csv")):
+            where = f"{series} (one series) or {root}" if series is not None else str(root)
+            return (
+                f"{p}: a file of the UR10 laser-tracker set {root}, not a log on its own: "
+                "its measurement files are read with each series' transforms. Fix: pass the "
+                f"folder {where}"
+            )
+    return None
+
+
 def _looks_like_optiodom(p: Path) -> bool:
     if (p / f"{p.name}_metadata.csv").is_file():
         return True
@@ -456,19 +354,24 @@ def read_logs(
         without a column map, or an importer's own error (which names the
         file, the channel and the fix).
     """
-    opt = options if options is not None else ReadOptions()
+    opt = check_read_options(options, warn, "read_logs")
+    if not isinstance(path, str | os.PathLike):
+        raise TypeError(
+            f"read_logs: path must be a file or folder name (str or path-like), got "
+            f"{type(path).__name__} {path!r:.80}; e.g. read_logs('run.csv', ReadOptions(columns="
+            "'t=time,…'))"
+        )
     p = Path(path)
     parts = split_recording(path)
     if len(parts) > 1:
         logs = _read_tables([Path(x) for x in parts], opt, warn)
         return _after_reading(logs, opt, warn)
-    if not p.exists():
-        raise FileNotFoundError(f"no such file or folder: {p}")
-    if not p.is_dir():
-        try:
-            check_regular_file(p, "LOG")
-        except ValueError as exc:
-            raise LogError(str(exc)) from None
+    try:  # one input-path check: missing, a link loop, a FIFO, unreadable, empty
+        check_input_path(p, "LOG")
+    except FileNotFoundError:
+        raise
+    except ValueError as exc:
+        raise LogError(str(exc)) from None
     kind = sniff_file_kind(p)
     ext = p.suffix.lower()
     if kind != "directory" and ext in _EXT_KIND and kind not in _EXT_KIND[ext]:
@@ -484,6 +387,9 @@ def read_logs(
         elif _looks_like_ur10(p):
             logs = logs_from_ur10(p)
         else:
+            renamed = _renamed_session(p)
+            if renamed:
+                raise LogError(renamed)
             raise LogError(
                 f"{p}: a folder that is neither an OptiOdom session (<ID>/<ID>_metadata.csv), "
                 "a UR10 laser-tracker set (Series_*/measurements_*.csv) nor a ROS 2 bag "
@@ -495,6 +401,13 @@ def read_logs(
         logs = logs_from_ur10(p)
     elif kind in ("text", "npz") or ext == ".mat":
         if not opt.columns:
+            part = _part_of_dataset(p)
+            if part:
+                raise LogError(part)
+            # a file that cannot be parsed at all is unreadable first, whatever else is missing
+            from realitygap.diagnosis.logs.importers.table import read_table
+
+            read_table(p, delimiter=opt.delimiter, decimal=opt.decimal)
             near = _ur10_near_miss(p) if kind == "text" else None
             if near:
                 raise LogError(near)
@@ -586,9 +499,10 @@ def _after_reading(
     logs: list[Log], opt: ReadOptions, warn: Callable[[str], None] | None
 ) -> list[Log]:
     if opt.check_plausible:
+        entries = _map_entries(opt.columns)
         for lg in logs:
             try:
-                check_plausible(lg)
+                check_plausible(lg, entries)
             except LogError as exc:
                 raise LogError(
                     f"{exc} (if these numbers are right, skip the check: --no-plausibility-check, "
@@ -606,11 +520,27 @@ def _after_reading(
     return logs
 
 
-def check_plausible(log: Log) -> None:
+def _map_entries(columns: str | Mapping[str, Any] | None) -> dict[str, str]:
+    """``{"ticks.left": "-enc_l", …}``: the column map's entries as written, for fixes that
+    name them (empty when there is no map)."""
+    if not columns:
+        return {}
+    from realitygap.diagnosis.logs.importers.column_map import ColumnMap
+
+    try:
+        cmap = (
+            ColumnMap.parse(columns) if isinstance(columns, str) else ColumnMap.from_dict(columns)
+        )
+    except (LogError, ValueError, TypeError):
+        return {}
+    return {target: src.text for target, src in cmap.entries.items() if src.text}
+
+
+def check_plausible(log: Log, columns: Mapping[str, str] | None = None) -> None:
     """Refuse a log whose numbers do not fit the schema of its channels (a unit mix-up).
 
     The checks are declared once per channel in :mod:`~realitygap.diagnosis.logs.schema`
-    (:func:`~realitygap.diagnosis.logs.schema.check_log`): the row rate, a tick counter that
+    (:func:`~realitygap.diagnosis.logs.plausibility.check_log`): the row rate, a tick counter that
     wraps, speeds and turn rates against the robot's limits (a heading or turn rate in
     degrees), wheel rates and the wheel path against the true one, joint angles, and an arm's
     measured tool points against its reach.
@@ -621,7 +551,7 @@ def check_plausible(log: Log) -> None:
         Naming the file, the channel, the value with its unit, the bound and the likely fix.
     """
     try:
-        check_log(log)
+        check_log(log, columns)
     except SchemaError as exc:
         raise LogError(str(exc)) from None
 
@@ -765,6 +695,12 @@ def read_many(
     LogError
         If no path gave a log (every run dropped), naming the paths.
     """
+    check_read_options(options, warn, "read_many")
+    if isinstance(paths, str | os.PathLike):
+        raise TypeError(
+            f"read_many: paths must be a list of file or folder names, got one: {paths!r:.80}. "
+            "Fix: read_many([path]) or read_logs(path)"
+        )
     out: list[Log] = []
     for path in paths:
         out += read_logs(path, options, warn)

@@ -35,7 +35,24 @@ column map scales it (a factor says the values are derived).
 
 **Counters.** An encoder counter that wraps (at 2¹⁵, 2¹⁶, 2²⁴ or 2³²) is unwrapped by the
 table reader (:func:`unwrap_counter`, with a note); a log whose ticks still wrap is refused
-by :func:`check_log`, naming the modulus.
+by :func:`~realitygap.diagnosis.logs.plausibility.check_log`, naming the modulus.
+
+**Discontinuities.** A single step of a position (``pose_*.x, y``) or a tick count no robot
+can make — more than :data:`JUMP_FACTOR` times what the schema's rate limit (10 m/s; 3000
+rev/min) allows over that step's interval, in a channel whose ordinary steps keep to the limit
+— is a discontinuity: two recordings joined with continuous time (a teleport). It is handled
+like a clock reset, by the same principle: the rows on either side are each a consistent
+recording, only the join is not, so a table file is read as the pieces split there, with a
+warning naming the line and the jump (:func:`discontinuities`); nothing is bridged or dropped
+silently. More than :data:`MAX_JUMPS` such steps in one channel are no join but a broken
+channel (a glitching tracker, a wrong column) and are refused, naming the first line.
+Ordinary steps beyond the limit are a unit mistake, which :func:`~realitygap.diagnosis.logs.plausibility.check_log` names instead.
+
+**Conventions.** A heading that turns the other way than its path (a clockwise-positive
+heading mapped without ``-``, :func:`~realitygap.diagnosis.logs.guesses.turn_agreement`, the
+same test ``realitygap inspect`` makes) is refused when the path turns enough to tell
+(:data:`MIN_TURN_RAD`); a wheel path that matches the truth only with one wheel's ticks negated
+is named as a mirrored encoder first.
 
 **Clock resets.** A time column that jumps back by more than :data:`RESET_PERIODS` of its
 periods was reset (a logger restarted): a table file is read as the pieces between resets, as
@@ -77,10 +94,10 @@ __all__ = [
     "as_real",
     "as_seconds",
     "check_counts",
-    "check_log",
     "check_values",
     "clock_resets",
     "counter_wrap",
+    "discontinuities",
     "dtype_problem",
     "fill_time",
     "unwrap_counter",
@@ -223,6 +240,17 @@ HEADING_PATH_RATIO = 10.0
 MIN_TURN_RAD = 0.5
 """Least total turning of a path (rad) for its heading to be compared with it."""
 
+HEADING_AGREEMENT = 0.5
+"""A heading whose turns agree with its path's at most ``-HEADING_AGREEMENT`` (−1: always
+against) turns the other way (:func:`~realitygap.diagnosis.logs.guesses.turn_agreement`)."""
+
+JUMP_FACTOR = 10.0
+"""A step this many times longer than the schema's rate limit allows over its interval is a
+discontinuity (:func:`discontinuities`), not motion."""
+
+MAX_JUMPS = 5
+"""More discontinuities than this in one channel are a broken channel, refused."""
+
 UNEVEN_INTERVALS = 4.0
 """Row intervals whose 90th percentile is this many times their 10th come at two rates."""
 
@@ -279,7 +307,7 @@ SCHEMAS: Mapping[str, ChannelSchema] = MappingProxyType({s.name: s for s in _SCH
 
 
 # --------------------------------------------------------------------------- dtypes
-_UNIT_WORDS = {"rad": "radians", "m": "metres", "m/s": "metres per second", "rad/s": "radians "
+UNIT_WORDS = {"rad": "radians", "m": "metres", "m/s": "metres per second", "rad/s": "radians "
                "per second"}  # fmt: skip
 _KIND_TEXT = {"b": "booleans (True/False)", "c": "complex numbers", "O": "Python objects",
               "U": "text", "S": "bytes", "V": "raw records", "M": "dates (datetime64)",
@@ -392,7 +420,7 @@ def check_values(
             unit = schema.spec.units[schema.spec.columns.index(b.columns[0])]
             raise SchemaError(
                 f"{where}{at}: {schema.what} {float(v[i].max()):.4g} {unit} is beyond ±{how} "
-                f"{unit} ({beyond.size} such row(s)); expected {_UNIT_WORDS.get(unit, unit)}: it "
+                f"{unit} ({beyond.size} such row(s)); expected {UNIT_WORDS.get(unit, unit)}: it "
                 + b.mistake.format(channel=channel, column=b.columns[0])
             )
 
@@ -455,6 +483,85 @@ def clock_resets(t: npt.ArrayLike) -> tuple[list[int], int | None]:
     return resets, (disorder[0] if disorder else None)
 
 
+def discontinuities(
+    channel: str, t: npt.ArrayLike, values: npt.ArrayLike, params: Mapping[str, Any] | None = None
+) -> list[tuple[int, str]]:
+    """Where a pose or tick channel makes a step no robot can make (see the module docstring).
+
+    Parameters
+    ----------
+    channel : str
+        ``pose_gt``, ``pose_est``, ``pose_cam`` (positions x, y, m) or ``ticks`` (cumulative,
+        unwrapped counts); any other channel has none.
+    t : array, shape (N,)
+        The channel's stamps (s), increasing.
+    values : array, shape (N, k)
+        The channel's values in SI units (the standard columns).
+    params : mapping, optional
+        ``meta["params"]`` (``ticks_per_rev``; the defaults when absent).
+
+    Returns
+    -------
+    list of (int, str)
+        The rows (indices into ``t``) after each jump and what jumped (for the warning).
+
+    Raises
+    ------
+    SchemaError
+        More than :data:`MAX_JUMPS` jumps: a broken channel, not joined recordings.
+    """
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        return _discontinuities(channel, t, values, params)
+
+
+def _discontinuities(
+    channel: str, t: npt.ArrayLike, values: npt.ArrayLike, params: Mapping[str, Any] | None
+) -> list[tuple[int, str]]:
+    t = np.asarray(t, dtype=float)
+    v = np.asarray(values, dtype=float)
+    if t.size < 3:
+        return []
+    if channel in ("pose_gt", "pose_est", "pose_cam"):
+        step = np.hypot(*np.diff(v[:, :2], axis=0).T)
+        limit, unit, what = MAX_BASE_SPEED, "m", "the position jumps"
+    elif channel == "ticks":
+        tpr = (params or {}).get("ticks_per_rev", 2578.33)
+        tpr = float(tpr) if isinstance(tpr, (int, float)) and tpr > 0 else 2578.33
+        step = np.abs(np.diff(v, axis=0)).max(axis=1)
+        limit, unit, what = MAX_WHEEL_RPM / 60.0 * tpr, "counts", "the encoders jump"
+    else:
+        return []
+    dt = np.diff(t)
+    ok = np.isfinite(step) & np.isfinite(dt) & (dt > 0)
+    if ok.sum() < 2:
+        return []
+    ok &= np.isfinite(step / np.where(dt > 0, dt, 1.0))
+    if ok.sum() < 2:
+        return []
+    period = float(np.median(dt[ok]))
+    rate = step[ok] / dt[ok]
+    if not float(np.percentile(rate, 99)) <= limit:
+        return []  # ordinary steps beyond the limit: a unit mistake, for check_log to name
+    allowed = JUMP_FACTOR * limit * np.maximum(dt, period)
+    jumps = np.flatnonzero(ok & (step > allowed))
+    if jumps.size > MAX_JUMPS:
+        i = int(jumps[0])
+        raise SchemaError(
+            f"channel {channel!r}: {what} at {jumps.size} steps, first by "
+            f"{step[i]:.4g} {unit} in {dt[i] * 1e3:.3g} ms (row {i + 1}); more than {MAX_JUMPS} "
+            "joins of recordings: a broken channel (a tracker losing its body, a wrong column). "
+            "Fix: map the right column, or clean the channel"
+        )
+    return [
+        (
+            int(i) + 1,
+            f"{channel}: {what} by {step[i]:.4g} {unit} in one {dt[i] * 1e3:.3g}-ms step "
+            f"(at most {limit * max(dt[i], period):.3g} {unit} at {limit:.4g} {unit}/s)",
+        )
+        for i in jumps
+    ]
+
+
 def fill_time(t: npt.ArrayLike, where: str, lines: npt.ArrayLike | None = None) -> FloatArray:
     """Missing (NaN) time stamps interpolated over the row number between regular neighbours.
 
@@ -507,293 +614,3 @@ def fill_time(t: npt.ArrayLike, where: str, lines: npt.ArrayLike | None = None) 
         else:
             t[a:b] = t[after[0]] - med * (after[0] - rows)
     return t
-
-
-# --------------------------------------------------------------------------- plausibility
-def check_log(log: Any) -> None:
-    """Check a log's numbers against the schema of its time and of each standard channel.
-
-    Checked, in order: the row rate (robots whose rows are instants, :class:`TimeSchema`),
-    ticks that still wrap, then every :class:`Bound` of every standard channel the log holds
-    (:data:`SCHEMAS`), the wheel path against the true one last.
-
-    Raises
-    ------
-    SchemaError
-        Naming the file, the channel, the value with its unit, the bound and the likely fix.
-    """
-    if log.n < 3:
-        return
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        _check_log(log)
-
-
-def _check_log(log: Any) -> None:
-    src = log.source or log.name
-    robot = str(log.meta.get("robot", "diffdrive"))
-    raw_params = log.meta.get("params", {})
-    params: Mapping[str, Any] = raw_params if isinstance(raw_params, Mapping) else {}
-    dt = np.diff(log.t)
-    rate = 1.0 / float(np.median(dt))
-    clock = _clock_hint(dt)
-    low = dict(TIME.min_rate_hz).get(robot)
-    if low is not None and rate < low:
-        raise SchemaError(
-            f"{src}: rows arrive at {rate:.3g} Hz over {log.duration / 3600:.3g} h, implausible "
-            f"for a {robot} log (at least {low:g} Hz expected). Fix: a time column in ms or µs "
-            "declared as s? give its unit in the column map, e.g. 't=time:ms'"
-        )
-    if log.has("ticks"):
-        for j, col in enumerate(SCHEMAS["ticks"].spec.columns):
-            m = counter_wrap(log["ticks"][:, j])
-            if m is not None:
-                raise SchemaError(
-                    f"{src}: channel 'ticks' column {col!r}: the tick counter wraps at {m} (it "
-                    f"jumps by about ±{m}); expected cumulative counts. Fix: unwrap it "
-                    f"(numpy.unwrap(ticks, period={m})); the table reader (CSV, .mat, .npz with "
-                    "a column map) does so itself"
-                )
-    checks = {
-        Measure.VALUE: _check_value,
-        Measure.SPEED: _check_speed,
-        Measure.TURN_RATE: _check_turn_rate,
-        Measure.WHEEL_RATE: _check_wheel_rate,
-        Measure.SPREAD: _check_spread,
-    }
-    last: list[tuple[ChannelSchema, Bound]] = []
-    for name in log.channels:
-        schema = SCHEMAS.get(name)
-        if schema is None or name not in standard_channels():
-            continue
-        for b in schema.bounds:
-            if b.measure is Measure.WHEEL_PATH:
-                last.append((schema, b))
-                continue
-            if b.measure in (Measure.TURN_RATE, Measure.WHEEL_RATE) and robot != "diffdrive":
-                continue
-            if name == "cmd" and robot != "diffdrive":
-                continue
-            checks[b.measure](log, schema, b, params, src, clock)
-    for schema, b in last:
-        if robot == "diffdrive":
-            _check_wheel_path(log, schema, b, params, src, clock)
-
-
-def _cols(log: Any, schema: ChannelSchema, b: Bound) -> FloatArray:
-    idx = [schema.spec.columns.index(c) for c in b.columns]
-    return np.asarray(log[schema.name][:, idx], dtype=float)
-
-
-def _target(schema: ChannelSchema, b: Bound) -> str:
-    return ", ".join(f"{schema.name}.{c}" for c in b.columns)
-
-
-def _check_value(
-    log: Any, schema: ChannelSchema, b: Bound, params: Mapping[str, Any], src: str, clock: str
-) -> None:
-    vals = np.abs(_cols(log, schema, b))
-    limit, how = b.bound(params)
-    tops = np.percentile(vals, 99, axis=0)
-    j = int(np.argmax(tops))
-    col = b.columns[j]
-    unit = schema.spec.units[schema.spec.columns.index(col)]
-    if not float(tops[j]) <= limit:
-        raise SchemaError(
-            f"{src}: {schema.name}.{col} reaches {float(tops[j]):.4g} {unit} ({schema.what}, 99th "
-            f"percentile), implausible (expected {_UNIT_WORDS.get(unit, unit)}, ≤ {how} {unit}): "
-            "it " + b.mistake.format(channel=schema.name, column=col)
-        )
-
-
-def _check_speed(
-    log: Any, schema: ChannelSchema, b: Bound, params: Mapping[str, Any], src: str, clock: str
-) -> None:
-    pos = _cols(log, schema, b)
-    dt = np.diff(log.t)
-    step = np.linalg.norm(np.diff(pos, axis=0), axis=1)
-    speed = float(np.percentile(step / dt, 99))
-    limit, _ = b.bound(params)
-    if not speed <= limit:
-        raise SchemaError(
-            f"{src}: channel {schema.name!r} moves at {speed:.4g} m/s (99th percentile), "
-            f"implausible for a robot (≤ {limit:g} m/s). Fix: "
-            + (clock or b.mistake.format(channel=schema.name, column=b.columns[0]))
-        )
-
-
-def _stride(log: Any, seconds: float) -> int:
-    return max(1, int(round(seconds / float(np.median(np.diff(log.t))))))
-
-
-def _check_turn_rate(
-    log: Any, schema: ChannelSchema, b: Bound, params: Mapping[str, Any], src: str, clock: str
-) -> None:
-    th = _cols(log, schema, b)[:, 0]
-    limit, how = b.bound(params)
-    mistake = b.mistake.format(channel=schema.name, column=b.columns[0])
-    k = _stride(log, TURN_STRIDE_S)
-    t = log.t
-    rate = np.abs(np.diff(th[::k])) / np.diff(t[::k])
-    if rate.size:
-        top = float(np.percentile(rate, 99))
-        if not top <= limit:
-            raise SchemaError(
-                f"{src}: {schema.name}.theta turns at {top:.4g} rad/s (99th percentile over "
-                f"{TURN_STRIDE_S:g} s), beyond the robot's limit ({how} rad/s): the heading "
-                f"{mistake}" + (f" (or: {clock})" if clock else "")
-            )
-    # the heading of a differential drive follows the direction of its path
-    xy = log[schema.name][:, :2]
-    k = _stride(log, PATH_STRIDE_S)
-    chord = np.diff(xy[::k], axis=0)
-    length = np.hypot(chord[:, 0], chord[:, 1])
-    moving = length > 0.02
-    psi = np.arctan2(chord[:, 1], chord[:, 0])
-    mid = 0.5 * (th[::k][:-1] + th[::k][1:])
-    pair = moving[:-1] & moving[1:]
-    if not pair.any():
-        return
-    dpsi = np.diff(psi)[pair]
-    dpsi = (dpsi + 0.5 * math.pi) % math.pi - 0.5 * math.pi  # driving backwards flips ψ by π
-    dth = np.diff(mid)[pair]
-    path_turn = float(np.abs(dpsi).sum())
-    head_turn = float(np.abs(dth).sum())
-    if path_turn >= MIN_TURN_RAD and head_turn > HEADING_PATH_RATIO * path_turn:
-        raise SchemaError(
-            f"{src}: {schema.name}.theta turns {head_turn:.4g} rad while the path of "
-            f"{schema.name}.x, y turns {path_turn:.3g} rad ({head_turn / path_turn:.3g} × as "
-            f"much; a heading follows its path): the heading {mistake}"
-        )
-
-
-def _check_wheel_rate(
-    log: Any, schema: ChannelSchema, b: Bound, params: Mapping[str, Any], src: str, clock: str
-) -> None:
-    tpr = params.get("ticks_per_rev")
-    if not isinstance(tpr, (int, float)) or not tpr > 0:
-        return
-    dt = np.diff(log.t)
-    dticks = np.abs(np.diff(_cols(log, schema, b), axis=0))
-    rpm = float(np.percentile(dticks.max(axis=1) / dt, 99)) / tpr * 60.0
-    limit, _ = b.bound(params)
-    if not rpm <= limit:
-        raise SchemaError(
-            f"{src}: channel 'ticks' turns a wheel at {rpm:.4g} rev/min (99th percentile, "
-            f"with ticks_per_rev={tpr:g}), implausible (≤ {limit:g} rev/min). Fix: "
-            + (clock or b.mistake)
-        )
-
-
-def _check_wheel_path(
-    log: Any, schema: ChannelSchema, b: Bound, params: Mapping[str, Any], src: str, clock: str
-) -> None:
-    """Wheel travel against the true path, over straight chords :data:`PATH_STRIDE_S` apart (a
-    tracked point off the axle circles it on every turn, which the wheels' mean travel does not
-    see; a fast, noisy truth lengthens its row-to-row path by its noise)."""
-    tpr = params.get("ticks_per_rev")
-    if not log.has("pose_gt") or not isinstance(tpr, (int, float)) or not tpr > 0:
-        return
-    radius = 0.5 * (
-        float(params.get("wheel_radius_left", 0.0)) + float(params.get("wheel_radius_right", 0.0))
-    )
-    k = _stride(log, PATH_STRIDE_S)
-    gt = log["pose_gt"][::k]
-    straight = np.abs(np.diff(np.unwrap(gt[:, 2]))) < STRAIGHT_CHORD_RAD
-    truth = float(np.hypot(*np.diff(gt[:, :2], axis=0).T)[straight].sum())
-    if not (radius > 0 and truth > 0.5):
-        return
-    mean_ticks = np.diff(log["ticks"].mean(axis=1)[::k])
-    wheel = float(np.sum(np.abs(mean_ticks[straight])))
-    ratio = wheel * 2.0 * math.pi * radius / tpr / truth
-    lo, hi = ODOMETRY_RATIO_RANGE
-    if not lo <= ratio <= hi:
-        raise SchemaError(
-            f"{src}: the wheels travelled {ratio:.3g} × the true path length "
-            f"({truth:.3g} m of 'pose_gt'), outside the plausible {lo:g}–{hi:g}. Fix: " + b.mistake
-        )
-
-
-def _arm_points(log: Any, params: Mapping[str, Any]) -> tuple[FloatArray | None, float | None]:
-    """The forward kinematics of the log's joints (N, 3) (m) with the nominal MDH table and
-    tool, and the arm's reach (m): each ``None`` when the metadata does not say."""
-    from realitygap.estimators.arm.mdh import MDHTable, tool_positions
-
-    reach = params.get("reach")
-    reach_m = float(reach) if isinstance(reach, (int, float)) and reach > 0 else None
-    mdh = params.get("mdh")
-    if not isinstance(mdh, Mapping):
-        return None, reach_m
-    try:
-        base = MDHTable(np.zeros(6), np.zeros(6), np.zeros(6), np.zeros(6), np.zeros(6))
-        names = base.param_names()
-        table = base.with_params([float(mdh[n]) for n in names], names)
-        tool = np.asarray(log.meta.get("tool", (0.0, 0.0, 0.0)), dtype=float).reshape(3)
-    except (KeyError, TypeError, ValueError):
-        return None, reach_m
-    if reach_m is None:
-        reach_m = float(np.hypot(table.a, table.d).sum() + np.linalg.norm(tool))
-    if not log.has("joints"):
-        return None, reach_m
-    return tool_positions(table, log["joints"], tool), reach_m
-
-
-def _spread(points: FloatArray) -> float:
-    """RMS distance (m) of points (N, 3) from their centroid."""
-    return float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1))))
-
-
-def _unit_word(ratio: float) -> str:
-    """The unit mix-up a length ratio (measured / expected) points at."""
-    for factor, text in (
-        (1000.0, "millimetres declared as metres"),
-        (100.0, "centimetres declared as metres"),
-        (1e-3, "metres declared as millimetres"),
-        (1e-2, "metres declared as centimetres"),
-    ):
-        if 0.3 * factor <= ratio <= 3.0 * factor:
-            return f"looks like {text} (×{factor:g})"
-    return "a wrong unit or the wrong columns"
-
-
-def _check_spread(
-    log: Any, schema: ChannelSchema, b: Bound, params: Mapping[str, Any], src: str, clock: str
-) -> None:
-    pts = _cols(log, schema, b)
-    measured = _spread(pts)
-    fk, reach = _arm_points(log, params)
-    mistake = b.mistake.format(channel=schema.name, column=b.columns[0])
-    if fk is not None:
-        expected = _spread(fk)
-        if expected > 1e-3 and measured > 0:
-            ratio = measured / expected
-            lo, hi = SPREAD_RATIO_RANGE
-            if not lo <= ratio <= hi:
-                raise SchemaError(
-                    f"{src}: the points of {_target(schema, b)} spread {measured:.4g} m about "
-                    f"their centre, but the arm's joints put its tool {expected:.4g} m about "
-                    f"theirs ({ratio:.3g} ×, expected {lo:g}–{hi:g} ×: a rigid tracker frame "
-                    f"keeps distances): {_unit_word(ratio)}. Fix: {mistake}"
-                )
-    if reach is not None and measured > 2.0 * reach:
-        raise SchemaError(
-            f"{src}: the points of {_target(schema, b)} spread {measured:.4g} m about their "
-            f"centre, beyond what an arm of reach {reach:.3g} m can ({2 * reach:.3g} m): "
-            f"{_unit_word(measured / reach)}. Fix: {mistake}"
-        )
-
-
-def _clock_hint(dt: FloatArray) -> str:
-    """What to say when the rows' own intervals explain an implausible rate: rows of streams at
-    different rates (or a clock that stalls and catches up) give intervals of two sizes, and a
-    change over a short one looks fast ("" when the 90th percentile of the intervals is within
-    :data:`UNEVEN_INTERVALS` of the 10th)."""
-    lo, hi = (float(v) for v in np.percentile(dt, [10, 90]))
-    if not hi > UNEVEN_INTERVALS * lo:
-        return ""
-    return (
-        f"the rows come at uneven intervals ({1e3 * lo:.3g} ms to {1e3 * hi:.3g} ms, 10th to "
-        "90th percentile): a clock or rate mismatch, not the robot — two streams interleaved in "
-        "one file, or stamps of another clock? Map each stream's columns (a table's channels "
-        "are aligned on their own stamps; 'realitygap inspect FILE' shows the streams and their "
-        "rates) or fix the time column"
-    )

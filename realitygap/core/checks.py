@@ -30,6 +30,7 @@ from typing import Any
 __all__ = [
     "LIMITS",
     "ResourceLimits",
+    "UnknownNameError",
     "check_choice",
     "check_disjoint",
     "check_distinct",
@@ -44,6 +45,8 @@ __all__ = [
     "int_option",
     "load_json_or_yaml",
     "parse_json_option",
+    "path_option",
+    "set_path_types",
     "text_encoding_of",
 ]
 
@@ -340,11 +343,14 @@ def check_input_path(
             "read a copy you own"
         ) from None
     if not head:
-        raise ValueError(
-            f"{name}: {p} is empty (0 bytes); {needs or DEFAULT_NEEDS}. Fix: pass the file the "
-            "recording was written to (an empty file is often a recording stopped before it "
-            "was flushed, or a failed copy)"
+        why = (
+            "pass the file the recording was written to (an empty file is often a recording "
+            "stopped before it was flushed, or a failed copy)"
+            if not needs or needs == DEFAULT_NEEDS
+            else "write its content, or pass the file that has it (an empty file is often a "
+            "failed copy or a file created but never saved)"
         )
+        raise ValueError(f"{name}: {p} is empty (0 bytes); {needs or DEFAULT_NEEDS}. Fix: {why}")
     bom = text_encoding_of(head)
     if bom is not None and unicode == "refuse":
         out = shlex.quote(str(p.with_name(f"{p.stem}-utf8{p.suffix}")))
@@ -473,6 +479,53 @@ def check_disjoint(
             f"the same data is given as {names[0]} and as {names[1]} ({listed}); a held-out "
             f"score needs logs not used for fitting. Fix: remove them from one of the two sets"
         )
+
+
+class UnknownNameError(KeyError, ValueError):
+    """A name that a registry (effects, experiments, environments, samples) does not hold:
+    a ``KeyError`` for a lookup and a ``ValueError`` for the argument that named it, so that
+    either ``except`` catches it. Its text is the message, not its quoted repr."""
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ""
+
+
+PATH_OPTIONS = frozenset(
+    {
+        "json",
+        "report",
+        "out",
+        "data",
+        "robot_file",
+        "urdf",
+        "hyperparams",
+        "init_model",
+        "logs",
+        "holdout",
+        "paths",
+        "sessions",
+    }
+)
+"""Destinations of the command line's path arguments (:func:`set_path_types`)."""
+
+
+def path_option(text: str) -> str:
+    """The ``argparse`` type of a path argument: not empty, ``~`` expanded (a quoted
+    ``'~/x'`` reaches the program unexpanded and would otherwise make a folder named ``~``).
+    ``-`` is kept: standard output where an option allows it."""
+    import argparse
+
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a path, got an empty string")
+    return os.path.expanduser(text) if text.startswith("~") else text
+
+
+def set_path_types(parser: Any) -> None:
+    """Give every path argument of ``parser`` (:data:`PATH_OPTIONS`, by destination) the
+    type :func:`path_option`, where it has no type of its own."""
+    for action in parser._actions:
+        if action.dest in PATH_OPTIONS and action.type is None:
+            action.type = path_option
 
 
 def check_distinct(paths: Iterable[str | os.PathLike[str]], name: str) -> None:

@@ -42,6 +42,7 @@ import json
 import os
 import shutil
 import stat
+import sys
 import tempfile
 import time
 from collections.abc import Iterable
@@ -88,17 +89,20 @@ class OutputError(ValueError):
 def command_line() -> str:
     """This process's command line, quoted as a shell would need it."""
     import shlex
-    import sys
 
     return " ".join(shlex.quote(a) for a in ["realitygap", *sys.argv[1:]])
 
 
-def free_bytes(path: str | os.PathLike[str]) -> int:
-    """Free bytes on the file system of ``path`` or of its nearest existing ancestor."""
+def _existing_ancestor(path: str | os.PathLike[str]) -> Path:
     p = Path(path).absolute()
     while not p.exists() and p.parent != p:
         p = p.parent
-    return int(shutil.disk_usage(p).free)
+    return p
+
+
+def free_bytes(path: str | os.PathLike[str]) -> int:
+    """Free bytes on the file system of ``path`` or of its nearest existing ancestor."""
+    return int(shutil.disk_usage(_existing_ancestor(path)).free)
 
 
 def _words_bytes(n: float) -> str:
@@ -134,8 +138,17 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+def _ours(name: str) -> bool:
+    """A name this tool gives its own files beside or in a target (lock, staging, marker)."""
+    return name == MARKER or name.endswith(_LOCK_SUFFIX) or _STAGING in name
+
+
+def _user_entries(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if not _ours(p.name))
+
+
 def _listing(folder: Path, limit: int = 4) -> str:
-    names = sorted(p.name for p in folder.iterdir())
+    names = _user_entries(folder)
     shown = ", ".join(names[:limit])
     return shown + (f", … ({len(names)} entries)" if len(names) > limit else "")
 
@@ -144,7 +157,7 @@ def _listing(folder: Path, limit: int = 4) -> str:
 class _Target:
     path: Path
     option: str
-    kind: str  # "folder" | "file" | "workdir"
+    kind: str  # "folder" | "file" | "workdir" | "stdout"
     staging: Path | None
     lock: int | None
     lock_path: Path | None
@@ -188,6 +201,11 @@ class Outputs:
     ) -> Path:
         """Claim the folder ``path`` (the argument ``option``) to be written whole; return
         the staging folder to write into."""
+        if os.fspath(path) == "-":
+            raise OutputError(
+                f"{option} -: standard output cannot hold a folder of files. Fix: give "
+                f"{option} a folder path"
+            )
         target = self._claim(Path(path), option, "folder", need_bytes)
         parent = target.path.parent
         target.staging = Path(
@@ -199,7 +217,15 @@ class Outputs:
         self, path: str | os.PathLike[str], option: str, *, need_bytes: int = FILE_BYTES
     ) -> Path:
         """Claim the file ``path`` (the argument ``option``); return the staging path to write
-        (the file there is renamed to ``path`` on commit)."""
+        (the file there is renamed to ``path`` on commit). ``-`` is standard output: the
+        staged file is printed there on commit."""
+        if os.fspath(path) == "-":
+            fd, tmp = tempfile.mkstemp(prefix="realitygap-stdout-", suffix=".tmp")
+            os.close(fd)
+            os.unlink(tmp)
+            target = _Target(Path("-"), option, "stdout", Path(tmp), None, None)
+            self._targets.append(target)
+            return Path(tmp)
         target = self._claim(Path(path), option, "file", need_bytes)
         target.staging = target.path.with_name(
             f".{target.path.name}{_STAGING}{os.getpid()}-{time.monotonic_ns()}"
@@ -222,17 +248,35 @@ class Outputs:
         if self._done:
             raise RuntimeError("Outputs: this run's outputs are already committed or closed")
         for other in self._targets:
+            if other.kind == "stdout":
+                continue
             if other.path == path.absolute():
                 raise OutputError(
                     f"{option} {path} is also the target of {other.option}; two outputs "
                     f"cannot be one path. Fix: give {option} another path"
                 )
+            here = path.absolute()
+            for inner, outer in ((here, other), (other.path, None)):
+                folder = other.path if outer is not None else here
+                if folder in inner.parents:
+                    a = option if outer is not None else other.option
+                    b = other.option if outer is not None else option
+                    raise OutputError(
+                        f"{a} {inner} lies inside the folder of {b}, which is written whole "
+                        f"(and replaced on the next run). Fix: give {a} a path outside it"
+                    )
         try:
             check_output_path(path, option, inputs=self.inputs, folder=kind != "file")
         except ValueError as exc:
             raise OutputError(str(exc)) from None
         self._check_owner(path, option, kind)
-        free = free_bytes(path)
+        usage = shutil.disk_usage(_existing_ancestor(path))
+        if usage.total == 0:
+            raise OutputError(
+                f"{option} {path} lies on a pseudo file system ({_existing_ancestor(path)}: no "
+                f"disk behind it, like /proc or /sys). Fix: give {option} a folder on a disk"
+            )
+        free = int(usage.free)
         if free < need_bytes:
             raise OutputError(
                 f"{option} {path}: only {_words_bytes(free)} free on its file system, and "
@@ -262,7 +306,7 @@ class Outputs:
                 f"{option} {path} is an existing file that realitygap did not write; refusing to "
                 f"overwrite it. Fix: choose another {option} path, or pass --overwrite to replace it"
             )
-        if not any(path.iterdir()) or written_by_us(path):
+        if not _user_entries(path) or written_by_us(path):
             return
         what = (
             "to write into it anyway (files of the same names are replaced)"
@@ -303,6 +347,11 @@ class Outputs:
                 elif target.kind == "file" and target.staging is not None:
                     if target.staging.exists():
                         os.replace(target.staging, target.path)
+                elif target.kind == "stdout" and target.staging is not None:
+                    if target.staging.exists():
+                        sys.stdout.write(target.staging.read_text(encoding="utf-8"))
+                        sys.stdout.flush()
+                        target.staging.unlink()
                 target.staging = None
         except BaseException:
             self.close()

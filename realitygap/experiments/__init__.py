@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from realitygap.core.checks import check_nonnegative_int
+from realitygap.core.checks import UnknownNameError, check_nonnegative_int
 from realitygap.core.io import write_json
 
 _MODULES = (
@@ -171,7 +171,9 @@ def get(name: str) -> Experiment:
     if name not in registry:
         close = difflib.get_close_matches(name, list(registry), n=3)
         hint = f" Did you mean {', '.join(repr(c) for c in close)}?" if close else ""
-        raise KeyError(f"no experiment named {name!r}.{hint} Known: {', '.join(sorted(registry))}")
+        raise UnknownNameError(
+            f"no experiment named {name!r}.{hint} Known: {', '.join(sorted(registry))}"
+        )
     return registry[name]
 
 

@@ -24,6 +24,8 @@ import tarfile
 import tempfile
 from pathlib import Path
 
+from realitygap.core.checks import UnknownNameError
+
 __all__ = ["SAMPLES", "cache_root", "sample_dir"]
 
 _HERE = Path(__file__).resolve().parent
@@ -38,7 +40,7 @@ SAMPLES: dict[str, str] = {
 
 def _archive(name: str) -> Path:
     if name not in SAMPLES:
-        raise KeyError(
+        raise UnknownNameError(
             f"no embedded sample named {name!r}; embedded samples: {', '.join(sorted(SAMPLES))}"
         )
     return _HERE / f"{name}.tar.xz"

@@ -32,6 +32,8 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any, ClassVar, NamedTuple, Protocol
 
+from realitygap.core.checks import UnknownNameError
+
 __all__ = [
     "EFFECTS",
     "LIBRARY_VERSION",
@@ -489,7 +491,9 @@ def make_effect(name: str, **values: float) -> Effect:
     if name not in EFFECTS:
         close = difflib.get_close_matches(name, list(EFFECTS), n=3)
         hint = f" Did you mean {', '.join(map(repr, close))}?" if close else ""
-        raise KeyError(f"unknown effect {name!r}.{hint} Known: {', '.join(sorted(EFFECTS))}")
+        raise UnknownNameError(
+            f"unknown effect {name!r}.{hint} Known: {', '.join(sorted(EFFECTS))}"
+        )
     return EFFECTS[name](**values)
 
 

@@ -218,7 +218,7 @@ class WheelDiameterRatio(Effect):
         "Unequal wheel diameters, E_d = D_R / D_L (Borenstein): the robot curves when driving straight. "
         "The mean diameter is kept. Realised as a body with other wheel radii."
     )
-    specs = (ParamSpec("E_d", "1", 1.0, 0.95, 1.05, "right / left wheel diameter"),)
+    specs = (ParamSpec("E_d", "1", 1.0, 0.9, 1.1, "right / left wheel diameter"),)
     blind = (BlindRange("E_d", 0.004, 0.015, True),)
     surrogate_slot = SurrogateSlot.WHEEL_RADII
     surrogate_example = (("E_d", 1.01),)

@@ -13,7 +13,7 @@ import pytest
 
 from realitygap.baselines import benchmark as bm
 from realitygap.baselines import rl
-from realitygap.baselines.rl import checks
+from realitygap.baselines.rl import checks, config
 
 ARM = "realitygap/ArmCalib-v0"
 BENCH = ["benchmark", "--envs", ARM, "--policies", "random", "--episodes", "1"]
@@ -280,7 +280,7 @@ def test_env_count_cost() -> None:
 def test_shipped_hyperparameter_files_pass_their_checks() -> None:
     pytest.importorskip("stable_baselines3")
     for algo in rl.ALGOS:
-        table = checks.load_hyperparams_file(rl.HYPERPARAMS_DIR / f"{algo}.json", algo=algo)
+        table = config.load_hyperparams_file(rl.HYPERPARAMS_DIR / f"{algo}.json", algo=algo)
         assert table
 
 

@@ -33,7 +33,6 @@ Every error names the file, the line or column and the fix.
 
 from __future__ import annotations
 
-import itertools
 import math
 import os
 import re
@@ -53,7 +52,14 @@ from realitygap.diagnosis.logs.align import (
     align_streams,
     whole,
 )
+from realitygap.diagnosis.logs.channels import ROBOT_CHANNELS
 from realitygap.diagnosis.logs.importers.column_map import ColumnMap, Source
+from realitygap.diagnosis.logs.importers.streams import (
+    DUPLICATE_POLICIES,
+    Stream,
+    dedupe,
+    reset_pieces,
+)
 from realitygap.diagnosis.logs.importers.table import Table, read_table
 from realitygap.diagnosis.logs.log import (
     Log,
@@ -63,10 +69,8 @@ from realitygap.diagnosis.logs.log import (
     standard_channels,
 )
 from realitygap.diagnosis.logs.schema import (
-    RESET_PERIODS,
     SchemaError,
     check_counts,
-    clock_resets,
     fill_time,
     unwrap_counter,
 )
@@ -85,7 +89,6 @@ __all__ = [
     "regularise_rounded_time",
 ]
 
-DUPLICATE_POLICIES = ("raise", "last", "mean")
 """What to do with repeated time stamps within one channel."""
 
 POSE_ROW_CHANNELS = ("joints", "tool_pos")
@@ -114,18 +117,6 @@ def regularise_rounded_time(t: FloatArray, quantum: float) -> tuple[FloatArray, 
     if np.allclose(step, dt, rtol=1e-9, atol=0.0):
         return t, False
     return grid, True
-
-
-@dataclass
-class _Stream:
-    """One channel's samples: its stamps (s), values (SI) and file lines."""
-
-    name: str
-    table: Table
-    t: FloatArray
-    values: FloatArray
-    lines: npt.NDArray[np.int64]
-    rows: npt.NDArray[np.int64]
 
 
 def _literal(src: Source, tables: Sequence[Table]) -> Source:
@@ -204,6 +195,13 @@ def _values(tab: Table, j: int, src: Source, si: str, target: str) -> FloatArray
         hint = "Fix: repair or delete that row"
         if tab.decimal == "." and re.match(r"^\s*[-+]?\d+,\d+([eE][-+]?\d+)?\s*$", text):
             hint = "a decimal comma; Fix: pass decimal=',' (CLI --decimal ,)"
+            if tab.delimiter == ",":  # quoted; digit groups of three are read as thousands
+                hint = (
+                    "a decimal comma in a comma-separated file with '.' decimals elsewhere "
+                    "(a number with ',' between groups of three digits, '19,548', is read as "
+                    "thousands); Fix: export the column with '.' decimals, or the file with ';' "
+                    "as the separator and pass decimal=','"
+                )
         raise LogError(
             f"{tab.source}, line {line}, column {name!r} ({target}): expected a number, got "
             f"{text!r} — {hint}"
@@ -215,8 +213,12 @@ def _values(tab: Table, j: int, src: Source, si: str, target: str) -> FloatArray
             raise LogError(str(exc)) from None
     with np.errstate(over="ignore", invalid="ignore"):
         v = src.sign * raw * src.factor + src.offset
-    unit = src.unit or si
-    return convert_units(v, unit, si, what=f"{tab.source}: column {name!r} ({target})")
+    row_unit = tab.units[j] if tab.units else ""
+    unit = src.unit or row_unit or si
+    what = f"{tab.source}: column {name!r} ({target})"
+    if not src.unit and row_unit:
+        what += f" in {row_unit!r} by the units row under the header"
+    return convert_units(v, unit, si, what=what)
 
 
 def _time_of(tab: Table, src: Source | None, robot_rows: bool) -> tuple[FloatArray, str]:
@@ -243,55 +245,6 @@ def _time_of(tab: Table, src: Source | None, robot_rows: bool) -> tuple[FloatArr
             "'t=row*DT' (e.g. t=row*0.02 for 50 Hz)"
         )
     return t, "column"
-
-
-def _dedupe(stream: _Stream, policy: str) -> _Stream:
-    """``stream`` with strictly increasing stamps (``policy`` for repeated ones)."""
-    t = stream.t
-    step = np.diff(t)
-    back = np.flatnonzero(step < 0)
-    if back.size:
-        i = int(back[0]) + 1
-        raise LogError(
-            f"{stream.table.source}: time stamps must increase strictly, but line "
-            f"{stream.lines[i]} (t={t[i]:.6g} s) comes after line {stream.lines[i - 1]} "
-            f"(t={t[i - 1]:.6g} s) in channel {stream.name!r}: rows out of order (a step back "
-            f"of at most {RESET_PERIODS:g} periods; a longer one is read as a clock reset and "
-            "splits the recording). Fix: sort the rows by time"
-        )
-    same = np.flatnonzero(step == 0)
-    if not same.size:
-        return stream
-    if policy == "raise":
-        i = int(same[0]) + 1
-        raise LogError(
-            f"{stream.table.source}: channel {stream.name!r} has {same.size} repeated time "
-            f"stamp(s), first at line {stream.lines[i]} (t={t[i]:.6g} s, as line "
-            f"{stream.lines[i - 1]}). Fix: say what they mean with --duplicates last (a "
-            "re-sent sample: keep the last) or --duplicates mean (average them), or repair the "
-            "time column"
-        )
-    starts = np.concatenate([[0], np.flatnonzero(step > 0) + 1])
-    if policy == "last":
-        keep = np.concatenate([starts[1:] - 1, [t.shape[0] - 1]])
-        return _Stream(
-            stream.name,
-            stream.table,
-            t[keep],
-            stream.values[keep],
-            stream.lines[keep],
-            stream.rows[keep],
-        )
-    sums = np.add.reduceat(stream.values, starts, axis=0)
-    counts = np.diff(np.concatenate([starts, [t.shape[0]]]))
-    return _Stream(
-        stream.name,
-        stream.table,
-        t[starts],
-        sums / counts[:, None],
-        stream.lines[starts],
-        stream.rows[starts],
-    )
 
 
 def read_table_logs(
@@ -402,6 +355,7 @@ def _read_mapped(
         )
     if max_gap is not None and not (isinstance(max_gap, (int, float)) and max_gap > 0):
         raise ValueError(f"max_gap must be a positive number of seconds, got {max_gap!r}")
+    _check_robot_channels(cmap, robot, files)
     lim = limits if limits is not None else ResourceLimits.from_environment()
     say = warn if warn is not None else (lambda msg: None)
     tables = [read_table(p, delimiter=delimiter, decimal=decimal, limits=lim) for p in files]
@@ -413,7 +367,7 @@ def _read_mapped(
 
     # ---- every channel's samples, on its own stamps
     times: dict[int, tuple[FloatArray, str]] = {}
-    streams: dict[str, _Stream] = {}
+    streams: dict[str, Stream] = {}
     drop_rows: dict[int, npt.NDArray[np.bool_]] = {
         k: np.zeros(t.n_rows, bool) for k, t in enumerate(tables)
     }
@@ -460,7 +414,7 @@ def _read_mapped(
                 )
             if nan == "drop":
                 drop_rows[k] |= partial
-        streams[chan] = _Stream(chan, tab, times[k][0], vals, tab.lines, np.arange(tab.n_rows))
+        streams[chan] = Stream(chan, tab, times[k][0], vals, tab.lines, np.arange(tab.n_rows))
     # ---- missing stamps of rows that hold a sample: filled (between regular neighbours),
     # dropped or refused, per nan=
     for k, tab in enumerate(tables):
@@ -495,7 +449,7 @@ def _read_mapped(
             )
     for chan, s in list(streams.items()):
         k = tables.index(s.table)
-        streams[chan] = _Stream(chan, s.table, times[k][0], s.values, s.lines, s.rows)
+        streams[chan] = Stream(chan, s.table, times[k][0], s.values, s.lines, s.rows)
 
     # ---- rows: drop, fill, select each channel's samples
     for chan, s in list(streams.items()):
@@ -514,74 +468,26 @@ def _read_mapped(
                 f"{s.table.source}: channel {chan!r} has {int(keep.sum())} complete sample(s); a "
                 "log needs at least two. Fix: check the column map"
             )
-        streams[chan] = _Stream(chan, s.table, s.t[keep], vals[keep], s.lines[keep], s.rows[keep])
+        streams[chan] = Stream(chan, s.table, s.t[keep], vals[keep], s.lines[keep], s.rows[keep])
 
     name = files[0].stem if len(files) == 1 else "+".join(p.stem for p in files)
     source = ",".join(str(p) for p in files)
     full_meta = _meta(params, meta, robot, name, source)
     read = _Assembly(cmap, times, tables, duplicates, pose_rows, max_gap, lim, say)
 
-    # ---- clock resets: the recording is read as the pieces between them
-    pieces = _reset_pieces(streams, tables, say)
+    # ---- clock resets and discontinuities: the recording is read as the pieces between them
+    pieces = reset_pieces(streams, tables, say, full_meta.get("params"), cmap.ticks)
     if len(pieces) == 1:
         return read.logs(streams, name, source, full_meta)
     out: list[Log] = []
     for p, part in enumerate(pieces):
         pname = f"{name}_part-{p + 1}"
         if any(s.t.shape[0] < 2 for s in part.values()):
-            say(f"{source}: piece {p + 1} between clock resets dropped: fewer than two samples")
+            say(f"{source}: piece {p + 1} between the splits dropped: fewer than two samples")
             continue
         out += read.logs(part, pname, source, {**full_meta, "name": pname, "piece_of": name})
     if not out:
-        raise LogError(f"{source}: no piece between the clock resets holds a log")
-    return out
-
-
-def _reset_pieces(
-    streams: dict[str, _Stream], tables: Sequence[Table], say: Callable[[str], None]
-) -> list[dict[str, _Stream]]:
-    """The streams cut at the file's clock resets (a backward jump of the time longer than
-    :data:`~realitygap.diagnosis.logs.schema.RESET_PERIODS` periods: a logger restarted), one
-    mapping per piece; a warning names each reset. Several files with a reset are refused:
-    which piece of one file goes with which of another is not known."""
-    cuts: dict[int, list[int]] = {}
-    for k, tab in enumerate(tables):
-        own = [s for s in streams.values() if s.table is tab]
-        if not own:
-            continue
-        # the table's stamps on the rows any channel samples, in row order
-        idx = np.unique(np.concatenate([s.rows for s in own]))
-        t = np.full(tab.n_rows, np.nan)
-        for s in own:
-            t[s.rows] = s.t
-        resets, _ = clock_resets(t[idx])
-        if resets:
-            cuts[k] = [int(idx[i]) for i in resets]
-            for i in resets:
-                say(
-                    f"{tab.source}: the clock was reset at line {tab.lines[idx[i]]} (time goes "
-                    f"from {t[idx[i - 1]]:.6g} s back to {t[idx[i]]:.6g} s); the recording is "
-                    "read as pieces split there, like a gap (if the rows are only out of order, "
-                    "sort them by time instead)"
-                )
-    if not cuts:
-        return [streams]
-    if len(tables) > 1:
-        k, at = next(iter(cuts.items()))
-        tab = tables[k]
-        raise LogError(
-            f"{tab.source}, line {tab.lines[at[0]]}: the clock was reset there (the time goes "
-            "back) in a recording of several files, whose pieces cannot be paired up. Fix: "
-            "split the file at that line and pass each piece with its partner file"
-        )
-    bounds = [0, *next(iter(cuts.values())), tables[0].n_rows]
-    out: list[dict[str, _Stream]] = []
-    for a, b in itertools.pairwise(bounds):
-        part: dict[str, _Stream] = {}
-        for chan, s in streams.items():
-            m = (s.rows >= a) & (s.rows < b)
-            part[chan] = _Stream(chan, s.table, s.t[m], s.values[m], s.lines[m], s.rows[m])
-        out.append(part)
+        raise LogError(f"{source}: no piece between the splits (clock resets, jumps) holds a log")
     return out
 
 
@@ -599,11 +505,11 @@ class _Assembly:
     say: Callable[[str], None]
 
     def logs(
-        self, streams: dict[str, _Stream], name: str, source: str, meta: Mapping[str, Any]
+        self, streams: dict[str, Stream], name: str, source: str, meta: Mapping[str, Any]
     ) -> list[Log]:
         """One run's streams (repeated stamps resolved, angles unwrapped, counters unwrapped
         and accumulated) on one time base: one log, or the pieces of one split at gaps."""
-        streams = {c: _dedupe(s, self.duplicates) for c, s in streams.items()}
+        streams = {c: dedupe(s, self.duplicates) for c, s in streams.items()}
         full_meta = dict(meta)
         # ---- angles continuous, counters unwrapped, increments accumulated (own samples)
         for chan, s in streams.items():
@@ -626,7 +532,7 @@ class _Assembly:
                     )
                     full_meta["ticks_unwrapped"] = note
                     self.say(f"{s.table.source}: {note}")
-            streams[chan] = _Stream(chan, s.table, s.t, values, s.lines, s.rows)
+            streams[chan] = Stream(chan, s.table, s.t, values, s.lines, s.rows)
 
         # ---- one time base
         first = next(iter(streams.values()))
@@ -676,6 +582,38 @@ def _time_quantum(tab: Table, src: Source) -> tuple[int, float]:
     return decimals, float(convert_units(q, src.unit or "s", "s"))
 
 
+def _a(word: str) -> str:
+    return f"{'an' if word[:1] in 'aeiou' else 'a'} {word}"
+
+
+def _check_robot_channels(cmap: ColumnMap, robot: str, files: Sequence[Path]) -> None:
+    """Refuse a column map that gives none of ``robot``'s channels (a log of another robot, or
+    the wrong robot named), before anything else is asked of that robot."""
+    own = ROBOT_CHANNELS.get(robot)
+    chans = list(cmap.channels())
+    if own is None or not chans or any(c.name in chans for c in own):
+        return
+    other = next(
+        (
+            r
+            for r, specs in ROBOT_CHANNELS.items()
+            if all(c in {s.name for s in specs} for c in chans)
+        ),
+        None,
+    )
+    fix = (
+        f"the map's channels are {_a(other)} log's: read it as one (robot={other!r}, CLI --robot "
+        f"{other}, or leave the robot to the column map)"
+        if other
+        else f"map the {robot} log's channels"
+    )
+    raise LogError(
+        f"{', '.join(map(str, files))}: read as {_a(robot)} log (robot={robot!r}), but the column "
+        f"map gives none of its channels ({', '.join(c.name for c in own)}); it gives "
+        f"{', '.join(chans)}. Fix: {fix}"
+    )
+
+
 def _meta(
     params: DiffDriveParams | Mapping[str, Any] | None,
     meta: Mapping[str, Any] | None,
@@ -688,7 +626,7 @@ def _meta(
     elif params is None:
         if robot != "diffdrive":
             raise LogError(
-                f"{source}: a {robot} log needs its nominal parameters. Fix: pass --robot-file "
+                f"{source}: {_a(robot)} log needs its nominal parameters. Fix: pass --robot-file "
                 "robot.yaml or --urdf robot.urdf (see docs/your_robot.md)"
             )
         pmeta = params_to_meta(DiffDriveParams())

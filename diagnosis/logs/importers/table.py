@@ -79,8 +79,11 @@ from realitygap.core.checks import (
 from realitygap.diagnosis.logs.importers.table_cells import (
     DEC_COMMA,
     ISO_SPACE,
+    SplitError,
     cell_number,
     numeric_share,
+    split_fields,
+    splitter,
 )
 from realitygap.diagnosis.logs.log import LogError, sniff_file_kind
 
@@ -134,6 +137,9 @@ class Table:
     encoding : str
         Text files: the encoding read (``"UTF-8"``, ``"latin-1"``, ``"UTF-16 LE"`` …);
         empty for binary files.
+    units : tuple of str
+        Per column, the unit a units row under the header gives (``""`` where it gives
+        none); empty when the file has no units row.
     """
 
     source: Path
@@ -148,6 +154,7 @@ class Table:
     text_columns: Mapping[str, tuple[int, str]] = field(default_factory=dict)
     decimals: tuple[int, ...] = ()
     encoding: str = ""
+    units: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         data = np.asarray(self.data, dtype=np.float64).view()
@@ -217,66 +224,8 @@ class Table:
 
 # ------------------------------------------------------------------------------ cells
 # ------------------------------------------------------------------------------ text layout
-def _splitter(delim: str, iso_space: bool = False) -> Callable[[str], list[str]]:
-    """A function that splits one line (without its line break) into fields."""
-    if delim == " ":
-
-        def split_ws(line: str) -> list[str]:
-            return (ISO_SPACE.sub(r"\1T\2", line) if iso_space else line).split()
-
-        return split_ws
-    if delim == "|":
-
-        def split_bar(line: str) -> list[str]:
-            s = line.strip()
-            s = s[1:] if s.startswith("|") else s
-            s = s[:-1] if s.endswith("|") else s
-            return s.split("|")
-
-        return split_bar
-
-    def split_csv(line: str) -> list[str]:
-        if '"' in line:
-            try:
-                return next(csv.reader([line], delimiter=delim), [])
-            except csv.Error as exc:  # the parser's own error: told with the file and line
-                raise _SplitError(str(exc)) from None
-        return line.split(delim)
-
-    return split_csv
-
-
 class _DecodeError(LogError):
     """Text that is not in the encoding it was read with."""
-
-
-class _SplitError(ValueError):
-    """A line the CSV parser refuses (the caller adds the file and line)."""
-
-
-def _fields(
-    split: Callable[[str], list[str]], path: Path, line_no: int, text: str, lim: ResourceLimits
-) -> list[str]:
-    """``split(text)``, refusing a cell longer than ``lim.max_cell_chars`` and a line the
-    CSV parser cannot read, with the file, line and cause."""
-    try:
-        fields = split(text)
-    except _SplitError as exc:
-        raise LogError(
-            f"{path}, line {line_no}: the CSV parser cannot read this line ({exc}): "
-            f"{text.strip()!r:.80}. Fix: close the quotes of that line, or export the file again"
-        ) from None
-    longest = max((len(f) for f in fields), default=0)
-    if longest > lim.max_cell_chars:
-        j = next(j for j, f in enumerate(fields) if len(f) == longest)
-        raise LogError(
-            f"{path}, line {line_no}, field {j + 1}: a cell of {longest:,} characters "
-            f"({fields[j].strip()[:40]!r}…), more than the {lim.max_cell_chars // 1024} KiB a "
-            "table cell may hold; a table's cells are numbers or short text. Fix: drop that "
-            "column from the export (an image or blob field), or raise the limit with the "
-            "environment variable REALITYGAP_MAX_CELL_KB"
-        )
-    return fields
 
 
 def _max_line_chars(lim: ResourceLimits) -> int:
@@ -355,6 +304,7 @@ class _Layout:
     skipped: tuple[str, ...]
     trailing: bool  # every row ends with a delimiter (an empty last field to drop)
     iso_space: bool
+    units: tuple[str, ...] = ()  # a units row under the header, normalised ("" where none)
 
 
 def _choose_delimiter(lines: list[str], decimal: str | None) -> tuple[str, int]:
@@ -363,9 +313,9 @@ def _choose_delimiter(lines: list[str], decimal: str | None) -> tuple[str, int]:
     for rank, delim in enumerate(_PRIORITY):
         if delim == "," and decimal == ",":
             continue
-        split = _splitter(delim, iso_space=True)
+        split = splitter(delim, iso_space=True)
         rows = [_split_or_whole(split, line) for line in lines]
-        share = [numeric_share(r, decimal) for r in rows]
+        share = [numeric_share(r, decimal, thousands=delim == ",") for r in rows]
         widths = Counter(len(r) for r, s in zip(rows, share, strict=True) if s >= 0.5)
         if not widths:
             continue
@@ -384,7 +334,7 @@ def _split_or_whole(split: Callable[[str], list[str]], line: str) -> list[str]:
     reading pass then reports it with its line)."""
     try:
         return split(line)
-    except _SplitError:
+    except SplitError:
         return [line]
 
 
@@ -403,9 +353,9 @@ def _layout(
         (delimiter, 0) if delimiter is not None else _choose_delimiter(texts[-200:], decimal)
     )
     iso_space = delim == " " and any(ISO_SPACE.search(t) for t in texts)
-    split = _splitter(delim, iso_space)
-    rows = [_fields(split, path, no, t, lim) for no, t in sig]
-    share = [numeric_share(r, decimal) for r in rows]
+    split = splitter(delim, iso_space)
+    rows = [split_fields(split, path, no, t, lim) for no, t in sig]
+    share = [numeric_share(r, decimal, thousands=delim == ",") for r in rows]
     if not width:
         counts = Counter(len(r) for r, s in zip(rows, share, strict=True) if s >= 0.5)
         width = max(counts, key=lambda w: (counts[w], w)) if counts else len(rows[-1])
@@ -426,6 +376,14 @@ def _layout(
                     f"({text.strip()!r:.60}) but decimal='.' was given. Fix: pass decimal=',' "
                     "(CLI --decimal ,), or leave the decimal mark to be detected"
                 )
+    if start is None and decimal == "," and delimiter is None:
+        if _choose_delimiter(texts[-200:], ".")[0] == ",":
+            raise LogError(
+                f"{path}: decimal=',' (CLI --decimal ,) was given, but the file is "
+                f"comma-separated with '.' decimals (line {sig[-1][0]}: {texts[-1].strip()!r:.60}):"
+                " a decimal comma clashes with the commas between the columns. Fix: leave the "
+                "decimal mark to be detected (drop --decimal ,)"
+            )
     if start is None:
         raise LogError(
             f"{path}: no line of numbers with a constant field count ({DELIMITERS[delim]}-"
@@ -444,6 +402,8 @@ def _layout(
     first_data = sig[start][0]
     above = [(no, t) for no, t in scan.head if no < first_data]
     names: tuple[str, ...] | None = None
+    units: tuple[str, ...] = ()
+    notes: list[str] = []
     header_line = above[-1][0] if above else 0
     for no, text in reversed(above):  # the nearest header-like line above the data
         fields = _header_fields(text, split, width, decimal, delim)
@@ -455,6 +415,19 @@ def _layout(
             fields = _header_fields(text, split, width - 1, decimal, delim)
         if fields is not None:
             names, header_line = _unique(fields), no
+            units = _units_row(fields)
+            names_above = [
+                _header_fields(t, split, width, decimal, delim) for n2, t in above if n2 < no
+            ]
+            if units and names_above and names_above[-1] and not _units_row(names_above[-1]):
+                # a row of unit words right under the header: the columns' units
+                names = _unique(names_above[-1])
+                notes.append(
+                    f"line {no}: a units row under the header ({', '.join(fields)}), used as "
+                    "the columns' units where the column map gives none"
+                )
+            else:
+                units = ()
             break
         if _is_significant(text.strip()):
             # the nearest non-comment line above the data is no header of the data's width;
@@ -467,16 +440,17 @@ def _layout(
                 and all(names_there)
                 and numeric_share(names_there, decimal) == 0.0
             ):
-                got = len(data_rows[0])
                 header_like = _Layout(
                     delim, decimal, len(names_there), tuple(names_there), no, (), False, False
                 )
                 raise _width_error(
-                    path, first_data, got, len(names_there), header_like, False, scan
+                    path, first_data, data_rows[0], len(names_there), header_like, False, scan
                 )
             break  # a title or preamble line: the file has no header
     skipped = tuple(t.strip() for no, t in above if no < header_line or names is None)
-    return _Layout(delim, decimal, width, names, header_line, skipped, trailing, iso_space)
+    if units:
+        skipped = tuple(notes)
+    return _Layout(delim, decimal, width, names, header_line, skipped, trailing, iso_space, units)
 
 
 def _header_fields(
@@ -498,6 +472,34 @@ def _header_fields(
             if len(fields) == width and numeric_share(fields, decimal) < 0.5:
                 return [f.strip().strip('"').strip() for f in fields]
     return None
+
+
+UNIT_ALIASES: Mapping[str, str] = MappingProxyType(
+    {"sec": "s", "secs": "s", "msec": "ms", "counts": "count", "ticks": "count", "tick": "count",
+     "cnt": "count", "degrees": "deg", "°": "deg", "deg/sec": "deg/s", "rad/sec": "rad/s",
+     "mps": "m/s", "-": "", "": ""}
+)  # fmt: skip
+"""Unit words of a units row beyond the units of
+:func:`~realitygap.diagnosis.logs.log.convert_units` (``""``: no unit)."""
+
+
+def _unit_word(field: str) -> str | None:
+    """The unit a cell of a units row names (``s``, ``[mm]``, ``(deg)``, ``counts``), ``""``
+    for none (``-`` or empty), None for a word that is no unit."""
+    from realitygap.diagnosis.logs.log import known_units
+
+    w = field.strip().strip("[]()").strip()
+    if w in known_units():
+        return w
+    return UNIT_ALIASES.get(w.lower())
+
+
+def _units_row(fields: list[str]) -> tuple[str, ...]:
+    """The units of a row of unit words (at least two, every cell a unit or empty), else ()."""
+    units = [_unit_word(f) for f in fields]
+    if any(u is None for u in units) or sum(bool(u) for u in units) < 2:
+        return ()
+    return tuple(u or "" for u in units)
 
 
 def _unique(names: list[str]) -> tuple[str, ...]:
@@ -642,26 +644,31 @@ def _read_text(
     lines = np.zeros(n_rows, dtype=np.int64)
     text_columns: dict[str, tuple[int, str]] = {}
     names = lay.names if lay.names is not None else tuple(str(j) for j in range(width))
-    split = _splitter(lay.delimiter, lay.iso_space)
+    split = splitter(lay.delimiter, lay.iso_space)
     comma = lay.decimal == ","
+    thousands = lay.delimiter == "," and lay.decimal == "."
     tail: list[list[int]] = []
     i = 0
     digits = [0] * width
     with open(path, encoding=encoding, newline="") as fh:
         for line_no, raw in _rows_after(_lines(fh, path, lim), lay.header_line):
-            fields = _fields(split, path, line_no, raw, lim)
+            fields = split_fields(split, path, line_no, raw, lim)
             if len(fields) == width + 1 and not fields[-1].strip():
                 fields.pop()  # a trailing delimiter
-            if len(fields) != width:
-                raise _width_error(path, line_no, len(fields), width, lay, i == n_rows - 1, scan)
             if i >= n_rows:
-                raise LogError(f"{path}: the file grew while it was read. Fix: read a copy")
+                raise LogError(
+                    f"{path}, line {line_no}: the file grew while it was read (it had "
+                    f"{scan.last[0]} lines when reading began). Fix: read a copy made once the "
+                    "recording is finished"
+                )
+            if len(fields) != width:
+                raise _width_error(path, line_no, fields, width, lay, i == n_rows - 1, scan)
             row = data[i]
             for j, cell in enumerate(fields):
                 try:
                     row[j] = float(cell.replace(",", ".") if comma else cell)
                 except ValueError:
-                    value = cell_number(cell, lay.decimal)
+                    value = cell_number(cell, lay.decimal, thousands)
                     if value is None:
                         value = math.nan
                         text_columns.setdefault(names[j], (line_no, cell.strip()))
@@ -702,6 +709,7 @@ def _read_text(
         text_columns=text_columns,
         decimals=tuple(digits),
         encoding=label,
+        units=lay.units[:width] if lay.units else (),
     )
 
 
@@ -724,17 +732,27 @@ every one of them (at least this many) looks cut off; against fewer, a short num
 under ``-108.99996544``) is as likely as a cut."""
 
 
+_INTEGER = re.compile(r"^\s*[-+]?\d+\s*$")
+
+
 def _width_error(
-    path: Path, line_no: int, got: int, width: int, lay: _Layout, last: bool, scan: _Scan
+    path: Path, line_no: int, fields: list[str], width: int, lay: _Layout, last: bool, scan: _Scan
 ) -> LogError:
+    """The error for a line of ``fields`` where the header (or the rows above) has ``width``;
+    the likely cause named only on evidence: decimal commas in a comma-separated file only
+    when every cell of the line is a whole number (``0,02`` split into ``0`` and ``02``)."""
+    got = len(fields)
     which = "the header has" if lay.names is not None else "the rows above have"
-    hint = ""
+    hint = (
+        f" — a stray delimiter, a cell or line cut short, or a line run into the next (a file "
+        f"written while it was read?). Fix: repair or delete line {line_no}"
+    )
     if lay.delimiter == " ":
         hint = (
             " — in a whitespace-aligned file an empty cell shifts the columns after it. Fix: "
             "export the file with a delimiter (',' or ';') so that empty cells keep their place"
         )
-    elif lay.delimiter == "," and got > width:
+    elif lay.delimiter == "," and got > width and all(_INTEGER.match(f) for f in fields):
         hint = (
             " — decimal commas in a comma-separated file? Fix: export with ';' as the separator "
             "(decimal commas are then understood) or with '.' decimals"
