@@ -416,43 +416,6 @@ def _add_overwrite(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _add_overwrite(parser: argparse.ArgumentParser) -> None:
-    """``--overwrite`` on every sub-command that writes a ``--json``, ``--report`` or ``--out``
-    target (:mod:`realitygap.core.outputs`)."""
-    options = parser._option_string_actions
-    if "--overwrite" in options or not {"--json", "--report", "--out"} & set(options):
-        return
-    parser.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace an output target realitygap did not write (a folder with other files "
-        "is replaced whole); without it such a target is refused",
-    )
-
-
-def _is_console_script() -> bool:
-    """Whether this process is the ``realitygap`` command (not a test calling :func:`main`)."""
-    return Path(sys.argv[0]).name in ("realitygap", "cli.py") or sys.argv[0].endswith(
-        "realitygap/cli.py"
-    )
-
-
-def _os_error_words(exc: OSError) -> str:
-    """An operating-system error in words: the file, the cause, the fix where one is known."""
-    import errno
-
-    where = f"{exc.filename}: " if exc.filename else ""
-    fixes = {
-        errno.ENOSPC: "the disk is full. Fix: free some space or write to another disk",
-        errno.EDQUOT: "the disk quota is used up. Fix: free some space or write elsewhere",
-        errno.EROFS: "the file system is read-only. Fix: write to a writable folder",
-        errno.EACCES: "permission denied. Fix: choose a path you may write, or fix its mode",
-        errno.EMFILE: "too many open files. Fix: raise the limit (ulimit -n) or use fewer workers",
-    }
-    cause = fixes.get(exc.errno or -1, exc.strerror or str(exc))
-    return f"{where}{cause}; outputs not yet complete were not put in place"
-
-
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status.
 
