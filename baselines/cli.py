@@ -74,7 +74,7 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--reality",
-        default="kobuki-worn,arm-worn,climber-worn",
+        default=None,
         help="reality profile(s) besides nominal, comma-separated (each applies to the envs of "
         "its robot), or a Reality JSON file (default: the worn profile of each robot; 'none' "
         "for nominal only)",
@@ -270,6 +270,10 @@ def _train(args: argparse.Namespace, rl: Any, cfg: Any) -> int:
     return 0
 
 
+DEFAULT_REALITIES = ("kobuki-worn", "arm-worn", "climber-worn")
+"""``--reality`` when not given: of these, the profiles for the requested envs' robots."""
+
+
 def benchmark_config_from_args(args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
     """The checked :class:`~realitygap.baselines.benchmark.BenchmarkConfig` of
     ``realitygap benchmark`` (policies as given: shipped files not yet filled in) and the
@@ -287,14 +291,20 @@ def benchmark_config_from_args(args: argparse.Namespace) -> tuple[Any, dict[str,
 
     envs = args.envs.strip()
     env_ids = list(realitygap.ENV_IDS) if envs == "all" else _csv_list(envs)
-    reality = args.reality.strip()
-    realities = [] if reality in ("none", "") else _csv_list(reality)
-    if args.workers is not None and args.backend == "ray":
-        raise ValueError(
-            f"--workers {args.workers} sets local worker processes, but --backend ray runs on "
-            "the Ray cluster's CPUs. Fix: drop --workers, or use --backend local"
-        )
-    workers = bm.check_run_options(args.backend, args.workers or 1, args.address)
+    if args.reality is None:  # the default: the worn profile of each requested env's robot
+        from realitygap.baselines.rl import check_env_id
+
+        ids = []
+        for e in env_ids:
+            try:
+                ids.append(check_env_id(e))
+            except ValueError:
+                pass  # refused by the config check below, naming --envs
+        realities = list(bm.default_realities(ids, DEFAULT_REALITIES))
+    else:
+        reality = args.reality.strip()
+        realities = [] if reality in ("none", "") else _csv_list(reality)
+    workers = bm.check_run_options(args.backend, args.workers, args.address)
     if not args.train:
         for option, value in (
             ("--train-seeds", args.train_seeds),
@@ -389,7 +399,7 @@ def _benchmark(args: argparse.Namespace, bm: Any, cfg: Any, run: dict[str, Any])
             cfg,
             args.out,
             backend=args.backend,
-            workers=args.workers,
+            workers=args.workers if args.backend == "local" else None,
             address=args.address,
             resume=not args.fresh,
             verbose=not args.silent,

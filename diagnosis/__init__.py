@@ -50,7 +50,7 @@ _EXPORTS = {
     "SimSettings": "realitygap.robots.simulation",
     "diagnose": "realitygap.diagnosis.diagnose",
     "Diagnosis": "realitygap.diagnosis.diagnose",
-    "DiagnosisSettings": "realitygap.diagnosis.diagnose",
+    "DiagnosisSettings": "realitygap.diagnosis.settings",
     "AttributionSettings": "realitygap.diagnosis.problem.problem",
     "FeatureSettings": "realitygap.diagnosis.problem.features",
     "write_report": "realitygap.diagnosis.report.writer",

@@ -66,15 +66,14 @@ from realitygap.diagnosis.fit.verify import Verification, verify_ranking
 from realitygap.diagnosis.fit.workload import Workload, row_seconds
 from realitygap.diagnosis.logs.log import Log, LogError
 from realitygap.diagnosis.logs.pieces import drop_short_pieces
-from realitygap.diagnosis.problem.features import FeatureSettings
 from realitygap.diagnosis.problem.parameters import split_key
-from realitygap.diagnosis.problem.problem import AttributionSettings, Problem
+from realitygap.diagnosis.problem.problem import Problem
 from realitygap.diagnosis.problem.shrink import (
     overall_shrink,
     shrink_table,
 )
+from realitygap.diagnosis.settings import DiagnosisSettings
 from realitygap.diagnosis.stages.baseline import Baseline, calibrate_baseline
-from realitygap.diagnosis.stages.clock import ClockSettings
 from realitygap.diagnosis.stages.coverage import (
     Coverage,
     CoverageSettings,
@@ -88,7 +87,6 @@ from realitygap.diagnosis.stages.localise import localise
 from realitygap.diagnosis.stages.reach import library_reach
 from realitygap.diagnosis.stages.transients import (
     TransientReport,
-    TransientSettings,
     detect_transients,
 )
 from realitygap.diagnosis.verdict.conclude import conclude
@@ -102,7 +100,6 @@ from realitygap.diagnosis.verdict.judge import (
 from realitygap.diagnosis.verdict.notes import alias_notes, regime_consistency, run_discovery
 from realitygap.diagnosis.verdict.types import CoverageNote, Judgement, Verdict, VerdictKind
 from realitygap.robots.effects import EFFECTS
-from realitygap.robots.simulation import SimSettings
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -118,67 +115,53 @@ __all__ = [
 ]
 
 
-@dataclass(frozen=True)
-class DiagnosisSettings:
-    """Settings of :func:`diagnose`.
-
-    Attributes
-    ----------
-    robot : str
-        Adapter name (``"diffdrive"``).
-    drive : {"commands", "ticks"}
-        What drives the replay: the logged commands, or the logged wheel
-        rotation (then only effects after the wheels can be attributed).
-    effects : tuple of str or None
-        Candidate library; ``None`` means every effect of the robot.
-    features : FeatureSettings
-    attribution : AttributionSettings
-    sim : SimSettings or None
-        Replay fidelity (default: a simulated log's own settings, else
-        :class:`SimSettings` ()).
-    holdout_fraction : float
-        Without explicit held-out logs and with several logs, the last
-        ``ceil(fraction · n)`` logs are held out.
-    block_windows : int
-        With a single log, alternate blocks of this many windows are held out; the library
-        reach splits the held-out windows two-fold in blocks of this many.
-    transients : TransientSettings or None
-        Thresholds of the transient-event detector; ``None`` switches it off.
-    calibrate : bool
-        Fit the adapter's baseline nuisances first (the calibrated baseline).
-    clock : ClockSettings or None
-        With ``calibrate``: fit each log's own clock offset first and re-stamp the
-        logs whose deviation from the common offset is a synchronisation error
-        (:mod:`realitygap.diagnosis.stages.clock`); ``None`` leaves every log's clock alone.
-    frames : bool
-        With ``calibrate`` and a tick-driven replay: fit each log's own ground-truth
-        frame (where the adapter states one as a nuisance) and re-frame the logs
-        whose deviation from the common frame is their own
-        (:mod:`realitygap.diagnosis.stages.frames`).
-    coverage : CoverageSettings or None
-        How the held-out motions are compared with the training envelope
-        (:mod:`realitygap.diagnosis.stages.coverage`); ``None`` skips the comparison.
-    reach : bool
-        For an unexplained verdict, fit every single candidate on the held-out windows
-        themselves and say how far the library could reach there
-        (:mod:`realitygap.diagnosis.stages.reach`): whether the training or the library falls
-        short. Never changes the verdict.
-    """
-
-    robot: str = "diffdrive"
-    drive: str = "commands"
-    effects: tuple[str, ...] | None = None
-    features: FeatureSettings = field(default_factory=FeatureSettings)
-    attribution: AttributionSettings = field(default_factory=AttributionSettings)
-    sim: SimSettings | None = None
-    holdout_fraction: float = 1.0 / 3.0
-    block_windows: int = 10
-    transients: TransientSettings | None = field(default_factory=TransientSettings)
-    calibrate: bool = True
-    clock: ClockSettings | None = field(default_factory=ClockSettings)
-    frames: bool = True
-    coverage: CoverageSettings | None = field(default_factory=CoverageSettings)
-    reach: bool = True
+def _check_arguments(
+    logs: Sequence[Log], holdout: Sequence[Log] | None, settings: object, backend: object
+) -> None:
+    """:func:`diagnose`'s arguments of the right kinds, and no log both trained on and held
+    out (a held-out score on training data is no test)."""
+    for name, group in (("logs", logs), ("holdout", holdout or [])):
+        if isinstance(group, str | Log) or not isinstance(group, Sequence):
+            raise TypeError(f"diagnose: {name} must be a list of Log, got {type(group).__name__}")
+        for i, lg in enumerate(group):
+            if not isinstance(lg, Log):
+                hint = (
+                    " (a path? read it first: read_logs(path) or Log.load(path))"
+                    if isinstance(lg, str | bytes) or hasattr(lg, "__fspath__")
+                    else ""
+                )
+                raise TypeError(
+                    f"diagnose: {name}[{i}] must be a Log, got {type(lg).__name__}{hint}"
+                )
+    if settings is not None and not isinstance(settings, DiagnosisSettings):
+        raise TypeError(
+            f"diagnose: settings must be a DiagnosisSettings (e.g. DiagnosisSettings(robot="
+            f"'diffdrive')), got {type(settings).__name__}"
+        )
+    if backend is not None and not callable(getattr(backend, "map", None)):
+        raise TypeError(
+            f"diagnose: backend must be a Backend (make_backend('process')), got "
+            f"{type(backend).__name__}"
+        )
+    both = [
+        lg.name
+        for lg in holdout or []
+        if any(
+            lg is t
+            or (
+                lg.n == t.n
+                and np.array_equal(lg.t, t.t)
+                and lg.channels.keys() == t.channels.keys()
+                and all(np.array_equal(lg.channels[c], t.channels[c]) for c in lg.channels)
+            )
+            for t in logs
+        )
+    ]
+    if both:
+        raise ValueError(
+            f"diagnose: {', '.join(both)} given both as training and as held-out log(s); a "
+            "held-out score needs logs not used for fitting. Fix: remove them from one set"
+        )
 
 
 @dataclass
@@ -569,6 +552,7 @@ def diagnose(
     ValueError
         Unknown robot or effect names.
     """
+    _check_arguments(logs, holdout, settings, backend)
     s = settings if settings is not None else DiagnosisSettings()
     be = backend if backend is not None else SerialBackend()
     say = progress if progress is not None else (lambda msg: None)

@@ -101,9 +101,12 @@ from realitygap.envs.common import (
     check_bool,
     check_estimator,
     check_instance,
+    check_open,
     check_reality,
     check_render_mode,
+    check_reset_options,
     check_seed,
+    check_started,
     check_vector,
 )
 from realitygap.envs.tasks.arm_calib import (
@@ -243,6 +246,10 @@ def random_arm_reality(
 
 
 # =========================================================================== env
+_ENV_ID = "realitygap/ArmCalib-v0"
+"""The id the env is registered under (named in its state errors)."""
+
+
 class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     """Kinematic calibration campaign; see the module docstring for spaces and reward.
 
@@ -287,6 +294,9 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}  # noqa: RUF012 (gymnasium's name)
     sensor_modes: tuple[SensorMode, ...] = (SensorMode.GEOMETRIC, SensorMode.FAST, SensorMode.IMAGE)
     """Accepted ``sensor_mode`` values, fastest first."""
+
+    closed: bool = False
+    """True once :meth:`close` ran (reset, step and render then refuse)."""
 
     def __init__(
         self,
@@ -482,9 +492,9 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[npt.NDArray[np.float32], dict[str, Any]]:
         """Start a campaign at the home configuration (the action box centre)."""
+        check_open(self, "reset", _ENV_ID)
         super().reset(seed=check_seed(seed))
-        if options:
-            raise ValueError(f"ArmCalib-v0 takes no reset options, got {sorted(options)}")
+        check_reset_options(options, (), "ArmCalib-v0")
         self._was_reset = True
         rng = self.np_random
         if self.randomize_reality:
@@ -503,8 +513,9 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     def step(
         self, action: npt.ArrayLike
     ) -> tuple[npt.NDArray[np.float32], float, bool, bool, dict[str, Any]]:
-        if not self._was_reset:
-            raise RuntimeError("call reset() before step() (a campaign starts at reset)")
+        if not self._was_reset or self.closed:
+            check_open(self, "step", _ENV_ID)
+            check_started(self, False, _ENV_ID)
         a = check_action_array(action, (6,))
         if np.shape(action) != (6,):
             raise ValueError(f"action must have shape (6,), got {np.shape(action)}")
@@ -520,6 +531,7 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         return self._observation(est), reward, self.task.is_terminated(), False, info
 
     def render(self) -> npt.NDArray[np.uint8] | None:
+        check_open(self, "render", _ENV_ID)
         if self.render_mode != "rgb_array":
             return None
         return self.world.render_rgb(
@@ -528,6 +540,7 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
 
     def close(self) -> None:
         self.world.close()
+        self.closed = True
 
     # ------------------------------------------------------------------ internals
     def _rebuild(self, reality: Reality) -> None:

@@ -13,6 +13,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
+from gymnasium import error as gym_error
 
 from realitygap.core.checks import check_finite_float, check_positive_int
 
@@ -29,10 +30,13 @@ __all__ = [
     "check_finite_fields",
     "check_instance",
     "check_obstacles",
+    "check_open",
     "check_rates",
     "check_reality",
     "check_render_mode",
+    "check_reset_options",
     "check_seed",
+    "check_started",
     "check_twist_action",
     "check_vector",
     "release_freed_memory",
@@ -211,6 +215,65 @@ def check_seed(seed: Any, name: str = "seed") -> int | None:
     if seed < 0:
         raise ValueError(f"{name} must be None or a non-negative integer, got {int(seed)}. {fix}")
     return int(seed)
+
+
+def _make_fix(env: Any, default_id: str) -> tuple[str, str]:
+    spec = getattr(env, "spec", None)
+    env_id = getattr(spec, "id", None) or default_id
+    make = "gymnasium.make_vec" if "Vec" in env_id else "gymnasium.make"
+    return env_id, f"{make}({env_id!r}, ...)"
+
+
+def check_open(env: Any, call: str, default_id: str) -> None:
+    """``RuntimeError`` when ``env`` was closed (its ``closed`` attribute true): ``call``
+    (``"step"``, ``"reset"``, ``"render"``) cannot run on a closed env. The one check every
+    env's ``step``, ``reset`` and ``render`` make first; ``default_id`` names the env when it
+    was built without ``gymnasium.make``."""
+    if getattr(env, "closed", False):
+        env_id, make = _make_fix(env, default_id)
+        raise RuntimeError(
+            f"{env_id}: {call}() on a closed env; close() released its simulation and the env "
+            f"cannot be used again. Fix: make a new env with {make}"
+        )
+
+
+class ResetNeeded(gym_error.ResetNeeded, RuntimeError):
+    """``step()`` before the first ``reset()``: Gymnasium's :class:`~gymnasium.error.ResetNeeded`
+    (also a ``RuntimeError``)."""
+
+
+def check_started(env: Any, started: bool, default_id: str) -> None:
+    """:class:`ResetNeeded` when ``env`` has not been reset yet (``started`` false), as
+    Gymnasium does, with the fix."""
+    if not started:
+        env_id, _ = _make_fix(env, default_id)
+        raise ResetNeeded(
+            f"{env_id}: call reset() before step(); an episode starts at reset(). Fix: call "
+            "env.reset(seed=...) first (and again after an episode ends)"
+        )
+
+
+def check_reset_options(options: Any, allowed: Sequence[str], env_name: str) -> dict[str, Any]:
+    """``reset(options=...)`` as a dict: ``None`` (no options) or a mapping whose keys are
+    among ``allowed``; else ``TypeError``/``ValueError`` naming ``options``. Every env's
+    ``reset`` calls it."""
+    known = " and/or ".join(map(repr, allowed)) if allowed else "none"
+    if options is None:
+        return {}
+    if not isinstance(options, Mapping):
+        raise TypeError(
+            f"{env_name}.reset: options must be None or a dict with keys {known}, got "
+            f"{_describe(options)}. Fix: pass options=None"
+            + (f" or e.g. options={{{allowed[0]!r}: ...}}" if allowed else "")
+        )
+    unknown = sorted(str(k) for k in options if k not in allowed)
+    if unknown:
+        raise ValueError(
+            f"{env_name}.reset: unknown reset option(s) {unknown} in options; "
+            + (f"known keys: {known}" if allowed else f"{env_name} takes no reset options")
+            + ". Fix: remove or rename them"
+        )
+    return dict(options)
 
 
 def check_render_mode(render_mode: Any, modes: Sequence[str]) -> str | None:

@@ -71,8 +71,11 @@ from realitygap.envs.common import (
     MAX_PHYSICS_HZ,
     available_memory_bytes,
     check_instance,
+    check_open,
     check_reality,
+    check_reset_options,
     check_seed,
+    check_started,
 )
 from realitygap.envs.layouts import clearance, free_route_exists, room_grid, room_walls
 from realitygap.envs.tasks.nav import (
@@ -318,6 +321,10 @@ def _check_randomize(randomize: Mapping[str, Any] | None) -> dict[str, tuple[flo
     return out
 
 
+_ENV_ID = "realitygap/WheeledNavVec-v0"
+"""The id the env is registered under (named in its state errors)."""
+
+
 class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
     """WheeledNav for ``num_envs`` robots on the batched surrogate (see the module docstring).
 
@@ -512,6 +519,8 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
     ) -> tuple[npt.NDArray[np.float32], dict[str, Any]]:
         """Start an episode for every robot; robot ``i`` is seeded ``seed + i`` (or
         ``seed[i]``). ``options`` may hold ``start`` / ``goal`` poses, (3,) or (N, 3)."""
+        check_open(self, "reset", _ENV_ID)
+        options = check_reset_options(options, ("start", "goal"), "WheeledNavVec-v0")
         n = self.num_envs
         if seed is not None:
             if isinstance(seed, (list, tuple, np.ndarray)):
@@ -530,12 +539,6 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
             )
         elif self.streams is None:
             self.streams = RobotStreams(np.arange(n), _STREAM_WIDTH)
-        options = dict(options or {})
-        unknown = set(options) - {"start", "goal"}
-        if unknown:
-            raise ValueError(
-                f"unknown reset option(s) {sorted(unknown)}; expected 'start' and/or 'goal'"
-            )
         poses: dict[str, FloatArray] = {}
         for key, value in options.items():
             arr = np.asarray(value, dtype=float)
@@ -560,7 +563,8 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
         dict[str, Any],
     ]:
         if not self._started:
-            raise RuntimeError("call reset() before step()")
+            check_open(self, "step", _ENV_ID)
+            check_started(self, False, _ENV_ID)
         a = np.asarray(actions, dtype=np.float64)
         if a.shape != (self.num_envs, 2):
             raise ValueError(f"actions must have shape ({self.num_envs}, 2), got {a.shape}")
@@ -651,6 +655,10 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
         self.prev[rows, 0], self.prev[rows, 1] = dist[rows], ang[rows]
         zeros = np.zeros(self.num_envs, bool)
         return self._observation(), self._info(zeros, zeros)
+
+    def render(self) -> Any:
+        check_open(self, "render", _ENV_ID)
+        return super().render()
 
     def close_extras(self, **kwargs: Any) -> None:
         self._started = False

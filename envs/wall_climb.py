@@ -70,10 +70,13 @@ from realitygap.envs.common import (
     ESTIMATOR_PROTOCOL,
     check_estimator,
     check_instance,
+    check_open,
     check_rates,
     check_reality,
     check_render_mode,
+    check_reset_options,
     check_seed,
+    check_started,
     check_twist_action,
     release_freed_memory,
 )
@@ -224,6 +227,10 @@ ESTIMATOR_NAMES = ("docked", "localiser")
 """The built-in observation pipelines ``estimator=`` may name."""
 
 
+_ENV_ID = "realitygap/WallClimb-v0"
+"""The id the env is registered under (named in its state errors)."""
+
+
 class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     """Reach a goal point on the blade; see the module docstring for the spaces.
 
@@ -262,6 +269,9 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}  # noqa: RUF012 (gymnasium's name)
     sensor_modes: tuple[SensorMode, ...] = (SensorMode.FAST, SensorMode.IMAGE)
     """Accepted ``sensor_mode`` values, fastest first."""
+
+    closed: bool = False
+    """True once :meth:`close` ran (reset, step and render then refuse)."""
 
     def __init__(
         self,
@@ -372,7 +382,6 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._tether_len = 0.0
         self._visual_ok = True
         self._flags: dict[str, int] = {}
-        self._closed = False
 
     # ------------------------------------------------------------------ helpers
     def _make_estimator(self, estimator: str | Any) -> Any:
@@ -419,13 +428,9 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[npt.NDArray[np.float32], dict[str, Any]]:
         """Start an episode; ``options`` may hold ``start`` ``(x, ξ[, heading])`` and ``goal`` ``(x, ξ)``."""
+        check_open(self, "reset", _ENV_ID)
         super().reset(seed=check_seed(seed))
-        if self._closed:
-            raise RuntimeError("this env is closed; create a new one")
-        options = dict(options or {})
-        unknown = set(options) - {"start", "goal"}
-        if unknown:
-            raise ValueError(f"unknown reset option(s) {sorted(unknown)}; expected 'start', 'goal'")
+        options = check_reset_options(options, ("start", "goal"), "WallClimb-v0")
         rng = self.np_random
         start, goal = self.task.sample_start_goal(rng, options)
         tp = self.true_params
@@ -485,7 +490,8 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self, action: npt.ArrayLike
     ) -> tuple[npt.NDArray[np.float32], float, bool, bool, dict[str, Any]]:
         if self._state is None:
-            raise RuntimeError("call reset() before step()")
+            check_open(self, "step", _ENV_ID)
+            check_started(self, False, _ENV_ID)
         a0, a1 = check_twist_action(action)
         prm = self.params
         v, w = self._firmware.limit(
@@ -538,6 +544,7 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         return out
 
     def render(self) -> npt.NDArray[np.uint8] | None:
+        check_open(self, "render", _ENV_ID)
         if self.render_mode != "rgb_array" or self._state is None:
             return None
         pos = self._state.position
@@ -548,7 +555,7 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     def close(self) -> None:
         self.scene.close()
         self._state = None
-        self._closed = True
+        self.closed = True
         release_freed_memory()
 
     # ------------------------------------------------------------------ internals

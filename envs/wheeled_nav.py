@@ -57,10 +57,13 @@ from realitygap.envs.common import (
     ESTIMATOR_PROTOCOL,
     check_estimator,
     check_instance,
+    check_open,
     check_rates,
     check_reality,
     check_render_mode,
+    check_reset_options,
     check_seed,
+    check_started,
     check_twist_action,
 )
 from realitygap.envs.tasks.nav import (
@@ -130,6 +133,10 @@ def default_estimator(
     return WheelOdometry(kin)
 
 
+_ENV_ID = "realitygap/WheeledNav-v0"
+"""The id the env is registered under (named in its state errors)."""
+
+
 class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     """Differential-drive navigation to a goal pose; see the module docstring for the spaces.
 
@@ -171,6 +178,9 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}  # noqa: RUF012 (gymnasium's name)
     sensor_modes: tuple[SensorMode, ...] = (SensorMode.FAST, SensorMode.IMAGE)
     """The sensor fidelities this env accepts, fastest first."""
+
+    closed: bool = False
+    """True once :meth:`close` ran (reset, step and render then refuse)."""
 
     def __init__(
         self,
@@ -326,13 +336,9 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[npt.NDArray[np.float32], dict[str, Any]]:
         """Start an episode. ``options`` may hold ``start`` and ``goal`` poses ``[x, y, θ]``."""
+        check_open(self, "reset", _ENV_ID)
         super().reset(seed=check_seed(seed))
-        options = dict(options or {})
-        unknown = set(options) - {"start", "goal"}
-        if unknown:
-            raise ValueError(
-                f"unknown reset option(s) {sorted(unknown)}; expected 'start' and/or 'goal'"
-            )
+        options = check_reset_options(options, ("start", "goal"), "WheeledNav-v0")
         rng = self.np_random
         radius = self.true_params.body_radius
         start, goal = self.task.sample_start_goal(rng, options, radius)
@@ -361,7 +367,8 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     ) -> tuple[npt.NDArray[np.float32], float, bool, bool, dict[str, Any]]:
         robot, task = self.robot, self.task  # read once: the step's hot path
         if robot is None:
-            raise RuntimeError("call reset() before step()")
+            check_open(self, "step", _ENV_ID)
+            check_started(self, False, _ENV_ID)
         a0, a1 = check_twist_action(action)
         dt, v_max, w_max = self._episode_consts
         robot.command_twist(a0 * v_max, a1 * w_max)
@@ -385,6 +392,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         )
 
     def render(self) -> npt.NDArray[np.uint8] | None:
+        check_open(self, "render", _ENV_ID)
         if self.render_mode != "rgb_array" or self.robot is None:
             return None
         x, y, _ = self.robot.pose2d()
@@ -395,6 +403,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     def close(self) -> None:
         self.world.close()
         self.robot = None
+        self.closed = True
 
     # ------------------------------------------------------------------ internals
     @staticmethod

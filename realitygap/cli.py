@@ -222,8 +222,8 @@ def _cmd_sample(args: argparse.Namespace) -> int:
     from realitygap.samples import SAMPLES, sample_dir
 
     try:
-        path = sample_dir(args.name)
-    except KeyError as exc:
+        path = sample_dir(args.name, persistent=True)
+    except (KeyError, ValueError) as exc:
         print(f"error: {exc.args[0]}", file=sys.stderr)
         return 2
     if args.verbose:

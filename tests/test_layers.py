@@ -72,6 +72,7 @@ DIAGNOSIS_LAYERS: tuple[tuple[str, int], ...] = (
     ("realitygap.diagnosis.adapters.diffdrive", 5),
     ("realitygap.diagnosis.adapters.arm", 5),
     ("realitygap.diagnosis.adapters.climber", 5),
+    ("realitygap.diagnosis.settings", 6),
     ("realitygap.diagnosis.diagnose", 6),
     ("realitygap.diagnosis.validation", 7),
     ("realitygap.diagnosis.report", 7),

@@ -58,6 +58,8 @@ from realitygap.baselines.benchmark.policies import (
 from realitygap.baselines.benchmark.profiles import (
     REALITY_PROFILES,
     SENSOR_MODES,
+    check_reality_applies,
+    default_realities,
     env_sensor_mode,
     profile_robot,
     reality_for,
@@ -109,7 +111,9 @@ __all__ = [
     "RandomPolicy",
     "ResultStore",
     "build_policy",
+    "check_reality_applies",
     "check_run_options",
+    "default_realities",
     "env_sensor_mode",
     "episode_seeds",
     "execute",

@@ -41,7 +41,7 @@ class BenchmarkConfig:
     env_ids: tuple[str, ...]
     policies: tuple[PolicySpec, ...]
     episodes: int = 20
-    realities: tuple[str, ...] = ("kobuki-worn",)
+    realities: tuple[str, ...] | None = None
     sensor_modes: tuple[str, ...] = ("fast",)
     seed: int = 0
     env_kwargs: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
@@ -113,7 +113,7 @@ def check_benchmark_config(cfg: BenchmarkConfig) -> dict[str, Any]:
         Naming the option and field, what was expected, what came and the fix.
     """
     from realitygap.baselines.benchmark.policies import POLICY_KINDS, check_policy_spec
-    from realitygap.baselines.benchmark.profiles import SENSOR_MODES, reality_from_profile
+    from realitygap.baselines.benchmark.profiles import SENSOR_MODES, check_reality_applies
     from realitygap.baselines.rl import check_env_id
     from realitygap.core.checks import check_int
 
@@ -150,9 +150,15 @@ def check_benchmark_config(cfg: BenchmarkConfig) -> dict[str, Any]:
         cfg.seed, _opt("seed"), low=0, high=MAX_BENCHMARK_SEED, what="a non-negative integer"
     )
     out["chunk"] = check_int(cfg.chunk, "chunk", low=1, what="a positive integer")
-    realities = _names(cfg.realities, "realities", "reality profiles", "('kobuki-worn',)")
+    if cfg.realities is None:  # the default: kobuki-worn where a requested env drives it
+        from realitygap.baselines.benchmark.profiles import default_realities
+
+        realities = default_realities(out["env_ids"], ("kobuki-worn",))
+    else:
+        realities = _names(cfg.realities, "realities", "reality profiles", "('kobuki-worn',)")
     for r in realities:
-        reality_from_profile(r, _opt("realities"))  # every file read, every effect checked
+        # every file read, every effect checked; it changes the robot of a requested env
+        check_reality_applies(r, out["env_ids"], _opt("realities"))
     out["realities"] = realities
     modes = _names(cfg.sensor_modes, "sensor_modes", "sensor modes", "('fast', 'image')")
     if not modes:

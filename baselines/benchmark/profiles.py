@@ -194,6 +194,54 @@ def reality_for(env_id: str, name: str) -> Any:
     return reality
 
 
+def default_realities(env_ids: Any, names: tuple[str, ...]) -> tuple[str, ...]:
+    """Of the named profiles ``names``, those for the robot of at least one of ``env_ids``
+    (a default reality list never asks for a profile no requested env can run)."""
+    robots = {ENV_CARDS[e].robot for e in env_ids if e in ENV_CARDS}
+    return tuple(n for n in names if REALITY_PROFILES[n]["robot"] in robots)
+
+
+def check_reality_applies(
+    name: str, env_ids: tuple[str, ...] | list[str], option: str = "--reality"
+) -> None:
+    """Refuse a requested reality that would run no meaningful cell: one whose effects all
+    sit at nominal (or that has none), or one for a robot none of ``env_ids`` is. The check
+    :func:`~realitygap.baselines.benchmark.config.check_benchmark_config` makes for every
+    requested reality before any work (``nominal`` itself is always run and not checked).
+
+    Raises
+    ------
+    ValueError
+        Naming the profile or file, and the envs it applies to.
+    """
+    if name == "nominal":
+        return
+    reality = reality_from_profile(name, option)
+    kind = "reality profile" if name in REALITY_PROFILES else "reality file"
+    if not any(not e.is_nominal() for e in reality.effects):
+        what = (
+            "has no effects"
+            if not reality.effects
+            else "sets every effect to its nominal value ("
+            + ", ".join(e.name for e in reality.effects)
+            + ")"
+        )
+        raise ValueError(
+            f"{option}: {kind} {name!r} {what}, so its cell would be the nominal robot again. "
+            "Fix: give at least one effect a value away from nominal, e.g. "
+            f"{_REALITY_EXAMPLE}, or drop it (the nominal cell always runs)"
+        )
+    robot = reality.robot
+    fits = sorted(i for i, c in ENV_CARDS.items() if c.robot == robot)
+    if not any(ENV_CARDS[e].robot == robot for e in env_ids if e in ENV_CARDS):
+        envs = ", ".join(fits) if fits else "no registered env"
+        raise ValueError(
+            f"{option}: {kind} {name!r} is for the {robot} robot and applies to {envs}, but "
+            f"none of the requested envs ({', '.join(env_ids)}) is one; it would run no cell. "
+            f"Fix: add {fits[0] if fits else 'an env of that robot'} to --envs, or drop this reality"
+        )
+
+
 def env_sensor_mode(env_id: str, mode: str) -> str:
     """The env's ``sensor_mode`` value for the benchmark's ``mode`` (``fast``/``image``)."""
     card = ENV_CARDS.get(env_id)

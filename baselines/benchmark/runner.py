@@ -423,10 +423,11 @@ def _execute_streaming(
     return errors
 
 
-def check_run_options(backend: Any, workers: Any = 1, address: Any = None) -> int:
+def check_run_options(backend: Any, workers: Any = None, address: Any = None) -> int:
     """The options of a benchmark run besides its :class:`BenchmarkConfig`, checked before
     any work: ``backend`` ``"local"`` or ``"ray"`` (Ray importable), ``workers`` a positive
-    integer (local processes), ``address`` only with Ray. Returns ``workers``.
+    integer (local processes; only with ``"local"``, ``None`` for 1), ``address`` only with
+    Ray. Returns ``workers``.
 
     Raises
     ------
@@ -442,6 +443,13 @@ def check_run_options(backend: Any, workers: Any = 1, address: Any = None) -> in
             f"--backend: backend must be 'local' or 'ray', got {backend!r}. Fix: "
             "--backend local (this machine) or --backend ray (a Ray cluster)"
         )
+    if workers is not None and backend != "local":
+        raise ValueError(
+            f"--workers {workers} does nothing with --backend {backend}: it sets local worker "
+            "processes, but Ray runs on the cluster's CPUs. Fix: drop --workers, or use "
+            "--backend local"
+        )
+    workers = 1 if workers is None else workers
     workers = check_int(workers, "--workers (workers)", low=1, what="a positive integer")
     if address is not None:
         if not isinstance(address, str) or not address.strip():
@@ -478,7 +486,7 @@ def run_benchmark(
     cfg: BenchmarkConfig,
     out_dir: str | os.PathLike[str],
     backend: str = "local",
-    workers: int = 1,
+    workers: int | None = None,
     address: str | None = None,
     resume: bool = True,
     verbose: bool = True,

@@ -259,6 +259,13 @@ class Log:
 
     def __post_init__(self) -> None:
         where = _where(self.source)
+        if not isinstance(self.channels, Mapping):
+            raise LogError(
+                f"{where}channels must be a mapping of channel name → (N, k) array (e.g. "
+                f"{{'pose_gt': poses}}), got {type(self.channels).__name__}"
+            )
+        if not isinstance(self.meta, Mapping):
+            raise LogError(f"{where}meta must be a mapping, got {type(self.meta).__name__}")
         try:
             t = as_real(self.t, "t", where)
         except SchemaError as exc:
@@ -511,7 +518,9 @@ class Log:
     # ------------------------------------------------------------------ disk
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the log as ``.npz`` (see the module docstring), atomically."""
-        path = Path(path)
+        from realitygap.core.checks import check_output_path
+
+        path = check_output_path(path, "path")
         header = {
             "format": FORMAT_NAME,
             "version": FORMAT_VERSION,

@@ -83,6 +83,32 @@ _KEYS: dict[str, tuple[str, ...]] = {
 }
 
 
+_RANGES: dict[str, tuple[float, float, str]] = {
+    "wheels.radius": (0.005, 1.0, "m"),
+    "wheels.radius_left": (0.005, 1.0, "m"),
+    "wheels.radius_right": (0.005, 1.0, "m"),
+    "wheels.track": (0.05, 5.0, "m"),
+    "wheels.effective_track": (0.05, 10.0, "m"),
+    "wheels.ticks_per_rev": (1.0, 1e8, "ticks"),
+    "firmware.a_max": (1e-3, 1e3, "m/s²"),
+    "firmware.alpha_max": (1e-3, 1e4, "rad/s²"),
+    "ground_truth.tracked_point.x": (-2.0, 2.0, "m"),
+    "ground_truth.tracked_point.y": (-2.0, 2.0, "m"),
+    "ground_truth.tracked_point.yaw": (-6.3, 6.3, "rad"),
+    "ground_truth.uncertainty.xy": (0.0, 0.5, "m"),
+    "ground_truth.uncertainty.yaw": (0.0, 3.15, "rad"),
+    "arm.tool": (-2.0, 2.0, "m"),
+    "arm.noise": (1e-7, 0.05, "m"),
+    "arm.masses": (0.0, 500.0, "kg"),
+    "arm.payload_mass": (0.0, 500.0, "kg"),
+}
+"""Physical range and unit of every number a robot file holds: a value outside is a wrong
+unit or a typo (a tool offset of 100 m is 100 mm written as metres)."""
+
+RADIUS_RATIO_MAX = 1.25
+"""Largest ratio of the two wheel radii a robot file may state (a 10× ratio is a typo)."""
+
+
 class RobotFileError(ValueError):
     """A robot file (or URDF) that cannot be used; the message names the file, key and fix."""
 
@@ -147,6 +173,15 @@ def _number(
         raise _fail(source, key, f"expected a positive number (SI units), got {value!r}")
     if low is not None and v < low:
         raise _fail(source, key, f"expected at least {low:g}, got {value!r}")
+    if key in _RANGES:
+        lo, hi, unit = _RANGES[key]
+        if not lo <= v <= hi:
+            raise _fail(
+                source,
+                key,
+                f"{value!r} {unit} lies outside the physical range {lo:g}–{hi:g} {unit}: a "
+                f"wrong unit (mm written as m?) or a typo. Fix: give {key} in {unit}",
+            )
     return v
 
 
@@ -318,15 +353,14 @@ def _wheel_section(
         params["ticks_per_rev"] = _number(
             src, "wheels.ticks_per_rev", wheels["ticks_per_rev"], positive=True
         )
-    for key in ("wheel_radius_left", "wheel_radius_right"):
-        radius = params.get(key)
-        if radius is not None and not 0.005 <= radius <= 1.0:
-            raise _fail(
-                src, "wheels.radius", f"{radius:g} m is not a wheel radius (0.005–1 m): metres?"
-            )
-    b = params.get("wheelbase")
-    if b is not None and not 0.05 <= b <= 5.0:
-        raise _fail(src, "wheels.track", f"{b:g} m is not a wheel track (0.05–5 m): metres?")
+    rl, rr = params.get("wheel_radius_left"), params.get("wheel_radius_right")
+    if rl is not None and rr is not None and max(rl, rr) > RADIUS_RATIO_MAX * min(rl, rr):
+        raise _fail(
+            src,
+            "wheels.radius_left/radius_right",
+            f"{rl:g} m and {rr:g} m differ by {max(rl, rr) / min(rl, rr):.2g}×; real wheels of "
+            f"one axle differ by a few per cent (a typo or a unit?). Fix: correct the radius",
+        )
     if kind == "skid_steer":
         meta["drive_kind"] = "skid_steer"
         if "wheelbase" not in params:

@@ -470,11 +470,23 @@ def check_disjoint(
     ValueError
         Naming every overlapping pair.
     """
-    tr = [Path(p) for p in train]
-    ho = [Path(p) for p in holdout]
-    pairs = [(a, b) for a in tr for b in ho if _same_or_inside(a, b) or _same_or_inside(b, a)]
+
+    def resolved(x: str | os.PathLike[str]) -> tuple[Path, Path]:
+        p = Path(x)
+        try:
+            return p.resolve(), p
+        except (OSError, RuntimeError):
+            return p.absolute(), p
+
+    tr = dict(resolved(x) for x in train)
+    holding = {q: p for r, p in tr.items() for q in r.parents}  # folders holding a train path
+    pairs = []
+    for r, b in (resolved(x) for x in holdout):  # linear: dict lookups along the parents
+        a = tr.get(r) or next((tr[q] for q in r.parents if q in tr), None) or holding.get(r)
+        if a is not None:
+            pairs.append((a, b))
     if pairs:
-        listed = "; ".join(f"{a} and {b}" for a, b in pairs)
+        listed = "; ".join(f"{a} and {b}" for a, b in pairs[:5])
         raise ValueError(
             f"the same data is given as {names[0]} and as {names[1]} ({listed}); a held-out "
             f"score needs logs not used for fitting. Fix: remove them from one of the two sets"
@@ -538,18 +550,27 @@ def check_distinct(paths: Iterable[str | os.PathLike[str]], name: str) -> None:
     ValueError
         Naming ``name`` and every repeated pair.
     """
-    ps = [Path(p) for p in paths]
-    pairs = [
-        (a, b)
-        for i, a in enumerate(ps)
-        for b in ps[i + 1 :]
-        if _same_or_inside(a, b) or _same_or_inside(b, a)
-    ]
+    index: dict[Path, Path] = {}
+    pairs: list[tuple[Path, Path]] = []
+    for p in (Path(x) for x in paths):  # linear: one resolve per path, a dict lookup
+        try:
+            r = p.resolve()
+        except (OSError, RuntimeError):  # a link loop: said by the input check
+            r = p.absolute()
+        if r in index:
+            pairs.append((index[r], p))
+        else:
+            index[r] = p
+    for r, p in index.items():  # one inside another given folder
+        outer = next((index[a] for a in r.parents if a in index), None)
+        if outer is not None:
+            pairs.append((outer, p))
     if pairs:
-        listed = "; ".join(f"{a} and {b}" for a, b in pairs)
+        listed = "; ".join(f"{a} and {b}" for a, b in pairs[:5])
+        more = f" (and {len(pairs) - 5} more)" if len(pairs) > 5 else ""
         raise ValueError(
-            f"{name}: the same data is given twice ({listed}); it would count twice. Fix: give "
-            "each input once"
+            f"{name}: the same data is given twice ({listed}{more}); it would count twice. "
+            "Fix: give each input once"
         )
 
 

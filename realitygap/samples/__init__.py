@@ -49,7 +49,9 @@ def _archive(name: str) -> Path:
 def cache_root() -> Path:
     """The user's cache folder of this package (``$XDG_CACHE_HOME/realitygap`` or
     ``~/.cache/realitygap``)."""
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    base = os.environ.get("XDG_CACHE_HOME") or ""
+    if not os.path.isabs(base):  # the XDG spec: a relative path is ignored
+        base = str(Path.home() / ".cache")
     return Path(base) / "realitygap"
 
 
@@ -67,13 +69,16 @@ def _unpack(archive: Path, dest: Path) -> None:
             tar.extractall(dest, members=members)
 
 
-def sample_dir(name: str) -> Path:
+def sample_dir(name: str, *, persistent: bool = False) -> Path:
     """The embedded sample ``name`` as a folder ``<root>/<name>/``, unpacked on first use.
 
     Parameters
     ----------
     name : str
         Sample name, a key of :data:`SAMPLES` (``"optiodom_diffdrive"``).
+    persistent : bool
+        The folder must outlive this process (a path printed for the user). Without it, a
+        cache that cannot be written falls back to a temporary folder removed at exit.
 
     Returns
     -------
@@ -93,7 +98,13 @@ def sample_dir(name: str) -> Path:
     try:
         root.parent.mkdir(parents=True, exist_ok=True)
         staging = Path(tempfile.mkdtemp(prefix=f".{root.name}.", dir=root.parent))
-    except OSError:
+    except OSError as exc:
+        if persistent:
+            raise ValueError(
+                f"the cache folder {root.parent} cannot be written ({exc.strerror or exc}), so "
+                f"the sample {name!r} has nowhere to stay. Fix: set XDG_CACHE_HOME to a "
+                "writable folder"
+            ) from None
         staging = Path(tempfile.mkdtemp(prefix=f"realitygap-{name}-"))
         atexit.register(shutil.rmtree, staging, True)
         _unpack(archive, staging)

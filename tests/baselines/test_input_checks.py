@@ -214,10 +214,11 @@ def test_a_reality_file_is_for_its_robot_only(tmp_path: Path) -> None:
     path = tmp_path / "mine.json"
     path.write_text(json.dumps(bm.reality_from_profile("kobuki-worn").to_dict()))
     assert bm.profile_robot(str(path)) == "diffdrive"
-    cfg = bm.BenchmarkConfig(
-        env_ids=(ARM,), policies=tuple(bm.parse_policies("random")), realities=(str(path),)
-    )
-    assert {t.reality for t in bm.plan_tasks(cfg)} == {"nominal"}
+    # requested for an arm-only run it would run no cell: refused before any work
+    with pytest.raises(ValueError, match=r"mine\.json.*diffdrive.*WheeledNav-v0"):
+        bm.BenchmarkConfig(
+            env_ids=(ARM,), policies=tuple(bm.parse_policies("random")), realities=(str(path),)
+        )
 
 
 def test_train_config_checks_itself(tmp_path: Path) -> None:
@@ -289,3 +290,49 @@ def test_seed_lists() -> None:
     for bad in ("", "a", "-1", "1.5", "1,1", str(2**32)):
         with pytest.raises(ValueError, match="--train-seeds"):
             checks.check_seed_list(bad)
+
+
+NAV = "realitygap/WheeledNav-v0"
+
+
+@pytest.mark.parametrize(
+    "content, match",
+    [
+        ({}, "has no effects"),
+        (
+            {"name": "m", "effects": [{"name": "wheel_diameter_ratio", "values": {}}]},
+            "nominal value",
+        ),
+        (
+            {"name": "m", "effects": [{"name": "arm_joint_offset", "values": {"dtheta1": 0.01}}]},
+            "ArmCalib-v0",
+        ),
+    ],
+)
+def test_a_reality_must_change_a_requested_env(tmp_path: Path, content: Any, match: str) -> None:
+    path = tmp_path / "r.json"
+    path.write_text(json.dumps(content))
+    with pytest.raises(
+        ValueError, match=r"--reality \(realities\): reality file .*r\.json.*" + match
+    ):
+        bm.BenchmarkConfig(
+            env_ids=(NAV,), policies=tuple(bm.parse_policies("random")), realities=(str(path),)
+        )
+
+
+def test_a_profile_for_no_requested_env_is_refused() -> None:
+    with pytest.raises(
+        ValueError, match=r"'kobuki-worn' is for the diffdrive robot.*WheeledNav-v0"
+    ):
+        bm.BenchmarkConfig(
+            env_ids=(ARM,), policies=tuple(bm.parse_policies("random")), realities=("kobuki-worn",)
+        )
+    # left at its default, the reality list holds only what the requested envs can run
+    cfg = bm.BenchmarkConfig(env_ids=(ARM,), policies=tuple(bm.parse_policies("random")))
+    assert cfg.realities == ()
+
+
+def test_workers_with_a_backend_that_uses_none_is_refused() -> None:
+    with pytest.raises(ValueError, match="--workers 4 does nothing with --backend ray"):
+        bm.check_run_options("ray", 4)
+    assert bm.check_run_options("local", None) == 1

@@ -280,13 +280,15 @@ def test_robot_file_errors_name_the_key_and_the_fix(tmp_path: Path) -> None:
     with pytest.raises(RobotFileError, match="robot: expected one of diffdrive, skid_steer, arm"):
         load_robot_file(kind)
     mm = _robot_file(tmp_path / "c.yaml", "robot: diffdrive\nwheels:\n  radius: 35\n")
-    with pytest.raises(RobotFileError, match=r"not a wheel radius.*metres"):
+    with pytest.raises(RobotFileError, match=r"lies outside the physical range.*mm written as m"):
         load_robot_file(mm)
     far = _robot_file(
         tmp_path / "d.json",
         json.dumps({"robot": "diffdrive", "ground_truth": {"tracked_point": {"x": 200}}}),
     )
-    with pytest.raises(RobotFileError, match="more than 2 m from the axle"):
+    with pytest.raises(
+        RobotFileError, match=r"tracked_point\.x: 200 m lies outside the physical range"
+    ):
         load_robot_file(far)
     tag = _robot_file(tmp_path / "e.yaml", "robot: !!python/object:os.system diffdrive\n")
     with pytest.raises(RobotFileError, match="not valid YAML"):

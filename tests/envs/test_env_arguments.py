@@ -14,7 +14,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import realitygap  # noqa: F401  (registers the envs)
+import realitygap
 from realitygap import ENV_IDS
 
 NAN, INF = math.nan, math.inf
@@ -281,5 +281,55 @@ def test_arm_step_before_reset_is_refused() -> None:
     try:
         with pytest.raises(RuntimeError, match="call reset"):
             env.unwrapped.step(np.zeros(6, np.float32))
+    finally:
+        env.close()
+
+
+# --------------------------------------------------------------- state errors and reset options
+@pytest.mark.parametrize(
+    "env_id", ["realitygap/WheeledNav-v0", "realitygap/ArmCalib-v0", "realitygap/WallClimb-v0"]
+)
+def test_closed_env_says_it_is_closed(env_id: str) -> None:
+    import gymnasium as gym
+    from gymnasium.error import ResetNeeded
+
+
+    assert env_id in realitygap.ENV_IDS
+    env = gym.make(env_id, render_mode="rgb_array")
+    with pytest.raises(ResetNeeded, match="call reset"):
+        env.unwrapped.step(env.action_space.sample())
+    env.reset(seed=0)
+    env.close()
+    for call in (
+        lambda: env.step(env.action_space.sample()),
+        lambda: env.reset(seed=0),
+        env.unwrapped.render,
+    ):
+        with pytest.raises(RuntimeError, match=r"closed env.*gymnasium\.make\('" + env_id):
+            call()
+
+
+def test_every_env_id_is_covered() -> None:
+
+    assert set(realitygap.ENV_IDS) == {
+        "realitygap/WheeledNav-v0",
+        "realitygap/ArmCalib-v0",
+        "realitygap/WallClimb-v0",
+    }
+
+
+@pytest.mark.parametrize(
+    "env_id", ["realitygap/WheeledNav-v0", "realitygap/ArmCalib-v0", "realitygap/WallClimb-v0"]
+)
+@pytest.mark.parametrize("options", ["x", ["start"], 3])
+def test_reset_options_must_be_a_mapping(env_id: str, options: object) -> None:
+    import gymnasium as gym
+
+    env = gym.make(env_id)
+    try:
+        with pytest.raises(TypeError, match="options must be None or a dict"):
+            env.reset(seed=0, options=options)
+        with pytest.raises(ValueError, match=r"unknown reset option.*'nope'"):
+            env.reset(seed=0, options={"nope": 1})
     finally:
         env.close()

@@ -299,3 +299,20 @@ def test_reality_in_json_form_is_the_same_robot() -> None:
     assert abs(a.drive.b[0] - 0.230 * 1.04) < 1e-12
     with pytest.raises(TypeError, match="reality must be a Reality"):
         WheeledNavVecEnv(num_envs=1, reality="kobuki-worn")  # type: ignore[arg-type]
+
+
+def test_vec_env_state_errors_and_options() -> None:
+    import gymnasium as gym
+    from gymnasium.error import ResetNeeded
+
+
+    v = gym.make_vec("realitygap/WheeledNavVec-v0", num_envs=2)
+    with pytest.raises(ResetNeeded, match=r"WheeledNavVec-v0: call reset\(\) before step"):
+        v.step(np.zeros((2, 2), np.float32))
+    with pytest.raises(TypeError, match="options must be None or a dict"):
+        v.reset(seed=0, options="x")
+    v.reset(seed=0)
+    v.close()
+    for call in (lambda: v.step(np.zeros((2, 2), np.float32)), lambda: v.reset(seed=0), v.render):
+        with pytest.raises(RuntimeError, match=r"closed env.*gymnasium\.make_vec"):
+            call()

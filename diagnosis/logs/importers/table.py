@@ -580,7 +580,7 @@ def read_table(
     size = p.stat().st_size
     if size > lim.max_file_bytes:
         raise LogError(
-            f"{p}: {size / 2**20:.0f} MB is more than the {lim.max_file_bytes / 2**20:.0f} MB a "
+            f"{p}: {size / 2**20:.3g} MB is more than the {lim.max_file_bytes / 2**20:.3g} MB a "
             "table file may have. Fix: split the file, or raise the limit with the environment "
             "variable REALITYGAP_MAX_FILE_MB"
         )
