@@ -293,7 +293,6 @@ def test_closed_env_says_it_is_closed(env_id: str) -> None:
     import gymnasium as gym
     from gymnasium.error import ResetNeeded
 
-
     assert env_id in realitygap.ENV_IDS
     env = gym.make(env_id, render_mode="rgb_array")
     with pytest.raises(ResetNeeded, match="call reset"):

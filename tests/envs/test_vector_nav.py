@@ -305,7 +305,6 @@ def test_vec_env_state_errors_and_options() -> None:
     import gymnasium as gym
     from gymnasium.error import ResetNeeded
 
-
     v = gym.make_vec("realitygap/WheeledNavVec-v0", num_envs=2)
     with pytest.raises(ResetNeeded, match=r"WheeledNavVec-v0: call reset\(\) before step"):
         v.step(np.zeros((2, 2), np.float32))
