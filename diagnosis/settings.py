@@ -120,7 +120,9 @@ class DiagnosisSettings:
                 )
             twice = sorted({n for n in names if names.count(n) > 1})
             if twice:
-                raise ValueError(f"DiagnosisSettings.effects names {', '.join(twice)} twice")
+                raise ValueError(
+                    f"DiagnosisSettings.effects names {', '.join(map(repr, twice))} more than once"
+                )
             object.__setattr__(self, "effects", names)
         if isinstance(self.holdout_fraction, bool) or not (
             isinstance(self.holdout_fraction, int | float) and 0.0 < self.holdout_fraction < 1.0

@@ -55,7 +55,17 @@ def check_log(log: Any, columns: Mapping[str, str] | None = None) -> None:
     if log.n < 3:
         return
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        _check_log(log, columns or {})
+        try:
+            _check_log(log, columns or {})
+        except SchemaError as exc:
+            note = log.meta.get("clock_overlap") if isinstance(log.meta, Mapping) else None
+            if not note:
+                raise
+            # files of one recording that overlap only partly: a clock offset pairs each
+            # sample with another moment's, which no parameter explains
+            raise SchemaError(
+                f"{exc}\nLikely cause first, a clock offset between the files: {note}"
+            ) from None
 
 
 def _negated(columns: Mapping[str, str], target: str) -> str:

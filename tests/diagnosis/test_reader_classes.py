@@ -259,3 +259,76 @@ def test_a_renamed_session_folder_says_the_name_must_match_the_id(tmp_path: Path
         read_logs(copy)
     with pytest.raises(LogError, match=r"rename the folder after the session ID first"):
         read_logs(copy / "231220200029_metadata.csv")
+
+
+# ---------------------------------------------------------------- files with offset clocks
+def _two_files(tmp_path: Path, shift: float) -> tuple[str, str]:
+    d = drive()
+    enc = {k: d[k] for k in ("t", "encL", "encR", "v", "w")}
+    enc["t"] = enc["t"] + 1.7e9
+    mocap = {"t": d["t"] + 1.7e9 + shift, "x": d["x"], "y": d["y"], "yaw": d["yaw"]}
+    a = write_csv(tmp_path / "enc.csv", enc)
+    b = write_csv(tmp_path / "mocap.csv", mocap)
+    cols = (
+        "t=enc::t,t=mocap::t,ticks.left=enc::encL,ticks.right=enc::encR,cmd.v=enc::v,"
+        "cmd.w=enc::w,pose_gt.x=mocap::x,pose_gt.y=mocap::y,pose_gt.theta=mocap::yaw"
+    )
+    return f"{a}+{b}", cols
+
+
+@pytest.mark.parametrize("shift", [3600.0, -100.0])
+def test_files_that_never_overlap_name_the_clock_offset(tmp_path: Path, shift: float) -> None:
+    path, cols = _two_files(tmp_path, shift)
+    side = "after" if shift > 0 else "before"
+    match = rf"never overlap.*mocap starts {abs(shift):.1f} s.*{side} enc"
+    with pytest.raises(LogError, match=match) as e:
+        read(path, cols)
+    assert f"t=mocap::t{-shift:+.1f}" in str(e.value)
+    assert "1.7e+09" not in str(e.value)
+
+
+def test_files_that_overlap_partly_say_so_and_the_offset_fix_reads_them(tmp_path: Path) -> None:
+    path, cols = _two_files(tmp_path, 12.0)
+    said: list[str] = []
+    try:
+        read_logs(path, ReadOptions(columns=cols), warn=said.append)
+    except LogError as exc:  # the plausibility check may refuse the misaligned drive
+        assert "clock offset between the files" in str(exc)
+        assert "t=mocap::t-12.0" in str(exc)
+    assert any("mocap starts 12.0 s after enc and ends 12.0 s after it" in m for m in said)
+    assert any("t=mocap::t-12.0" in m for m in said)
+    logs, said = read(path, cols.replace("t=mocap::t,", "t=mocap::t-12.0,"))
+    assert not any("overlap" in m for m in said)
+    assert logs[0].duration == pytest.approx(29.98, abs=0.05)
+
+
+def test_the_same_file_twice_is_refused(tmp_path: Path) -> None:
+    path, cols = _two_files(tmp_path, 0.0)
+    enc = path.split("+")[0]
+    with pytest.raises(LogError, match=r"enc\.csv: the same file is given twice"):
+        read(f"{enc}+{enc}", cols)
+
+
+# ---------------------------------------------------------------- time stamps
+def test_reversed_time_is_named_as_rows_in_reverse_order(tmp_path: Path) -> None:
+    with pytest.raises(LogError, match=r"reverse order.*not a clock reset.*Fix: reverse"):
+        Log(np.arange(5.0)[::-1] * 0.1, {"cmd": np.zeros((5, 2))})
+    d = {k: v[::-1] for k, v in drive(n=200).items()}
+    with pytest.raises(LogError, match=r"rev\.csv: the stamps decrease on 199 of 199.*reverse"):
+        read(write_csv(tmp_path / "rev.csv", d))
+    # a real clock reset still splits
+    with pytest.raises(LogError, match="clock was reset"):
+        Log(np.tile(np.arange(50.0), 2) * 0.1, {"cmd": np.zeros((100, 2))})
+
+
+@pytest.mark.parametrize("widen", [False, True])
+def test_float32_epoch_stamps_name_the_precision_loss(widen: bool) -> None:
+    t = (1.7e9 + np.arange(1000) * 0.02).astype(np.float32)
+    tt = t.astype(float) if widen else t
+    with pytest.raises(LogError, match=r"resolve only 128 s.*Fix: store the time as float64"):
+        Log(tt, {"cmd": np.zeros((1000, 2))})
+    # float32 seconds since the start are precise enough
+    assert Log((np.arange(1000) * 0.02).astype(np.float32), {"cmd": np.zeros((1000, 2))}).n == 1000
+    # repeated float64 stamps stay a repeated-sample error
+    with pytest.raises(LogError, match="drop repeated samples"):
+        Log(np.array([0.0, 0.1, 0.2, 0.2, 0.3]), {"cmd": np.zeros((5, 2))})
