@@ -55,17 +55,7 @@ def check_log(log: Any, columns: Mapping[str, str] | None = None) -> None:
     if log.n < 3:
         return
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        try:
-            _check_log(log, columns or {})
-        except SchemaError as exc:
-            note = log.meta.get("clock_overlap") if isinstance(log.meta, Mapping) else None
-            if not note:
-                raise
-            # files of one recording that overlap only partly: a clock offset pairs each
-            # sample with another moment's, which no parameter explains
-            raise SchemaError(
-                f"{exc}\nLikely cause first, a clock offset between the files: {note}"
-            ) from None
+        _check_log(log, columns or {})
 
 
 def _negated(columns: Mapping[str, str], target: str) -> str:

@@ -353,55 +353,7 @@ def as_real(values: npt.ArrayLike, channel: str, where: str = "") -> FloatArray:
         raise SchemaError(
             f"{where}{'time' if channel == 't' else f'channel {channel!r}'}: {problem}"
         )
-    out = np.array(arr, dtype=float)
-    if channel == "t":
-        problem = time_order_problem(out, arr.dtype)
-        if problem is not None:
-            raise SchemaError(f"{where}time: {problem}")
-    return out
-
-
-def time_order_problem(t: npt.ArrayLike, dtype: Any = None) -> str | None:
-    """What makes stamps ``t`` (stored as ``dtype``) fail to increase, when it is not a clock
-    reset nor a few rows out of order: rows in reverse order (time decreases on most steps),
-    or stamps too coarse for their magnitude (float32 epoch seconds resolve only ~128 s), each
-    with its fix; else ``None``."""
-    all_t = np.asarray(t, dtype=float)
-    ts = all_t[np.isfinite(all_t)]
-    if ts.size < 3:
-        return None
-    d = np.diff(ts)
-    back = int((d < 0).sum())
-    if back > d.size // 2:
-        return (
-            f"the stamps decrease on {back} of {d.size} steps ({ts[0]:.6g} s … {ts[-1]:.6g} s): "
-            "the rows are in reverse order (newest first), not a clock reset. Fix: reverse the "
-            "rows (ts[::-1] and every channel's rows alike) or sort them by time"
-        )
-    if not (d <= 0).any():
-        return None
-    top = float(np.max(np.abs(ts)))
-    narrow = dtype is not None and np.dtype(dtype).kind == "f" and np.dtype(dtype).itemsize < 8
-    if narrow:
-        res = float(np.spacing(np.asarray(top, dtype=dtype)))
-        kind = f"{np.dtype(dtype).name} stamps"
-    else:
-        # float64 stamps that hold float32 values exactly: a float32 column widened late
-        as32 = ts.astype(np.float32).astype(float)
-        if not np.array_equal(as32, ts) or top < 1e4:
-            return None
-        res = float(np.spacing(np.float32(top)))
-        kind = "stamps that passed through float32"
-    period = (float(ts.max()) - float(ts.min())) / (ts.size - 1)  # the mean step, at best
-    if not res > 0.5 * period:
-        return None
-    same = int((d == 0).sum())
-    return (
-        f"{same} of {d.size} steps repeat a stamp: {kind} of magnitude {top:.6g} s resolve only "
-        f"{res:.3g} s, coarser than the sampling, so the time precision was lost (not repeated "
-        "samples). Fix: store the time as float64, or as seconds since the start (t - t[0], "
-        "computed in float64 before any narrowing)"
-    )
+    return np.array(arr, dtype=float)
 
 
 def as_seconds(values: npt.ArrayLike) -> FloatArray:

@@ -214,33 +214,3 @@ def test_bag_without_expected_topics(tmp_path) -> None:
         match=r"no topic for truth \(/mocap/pose\); topics present: /cmd_vel.*--truth-topic",
     ):
         read_logs(path, ReadOptions(truth_topic="/mocap/pose"))
-
-
-@pytest.mark.parametrize(
-    ("opts", "match"),
-    [
-        # a pose topic as the commands (both roles on one topic once read nothing for one)
-        (
-            {"truth_topic": "/mocap/pose", "cmd_topic": "/mocap/pose"},
-            r"topic /mocap/pose holds geometry_msgs/msg/PoseStamped messages; --cmd-topic needs "
-            r"one of Twist, TwistStamped\. Topics of those types in this bag: /cmd_vel",
-        ),
-        # a Twist topic as the wheels: refused before any message is read
-        (
-            {"truth_topic": "/mocap/pose", "wheels_topic": "/cmd_vel"},
-            r"topic /cmd_vel holds geometry_msgs/msg/Twist messages; --wheels-topic needs one of "
-            r"JointState\. Topics of those types in this bag: none",
-        ),
-        # a Twist topic as the truth
-        (
-            {"truth_topic": "/cmd_vel"},
-            r"topic /cmd_vel holds .*Twist messages; --truth-topic needs one of .*PoseStamped.*"
-            r"Topics of those types in this bag: /mocap/pose \[geometry_msgs/msg/PoseStamped\]",
-        ),
-    ],
-)
-def test_bag_topic_of_the_wrong_type_for_its_role_is_refused(tmp_path, opts, match) -> None:
-    path = tmp_path / "types_bag"
-    _write_bag(path, 2)
-    with pytest.raises(LogError, match=match):
-        read_logs(path, ReadOptions(**opts))

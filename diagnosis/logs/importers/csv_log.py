@@ -58,7 +58,6 @@ from realitygap.diagnosis.logs.importers.streams import (
     DUPLICATE_POLICIES,
     Stream,
     dedupe,
-    file_overlap,
     reset_pieces,
 )
 from realitygap.diagnosis.logs.importers.table import Table, read_table
@@ -303,15 +302,6 @@ def read_table_logs(
     if not paths:
         raise LogError("no file given to read")
     files = [Path(p) for p in paths]
-    seen: dict[str, Path] = {}
-    for f in files:
-        key = os.path.realpath(f)
-        if key in seen:
-            raise LogError(
-                f"{f}: the same file is given twice ({seen[key]} and {f}); a recording in several "
-                "files needs each file once. Fix: give each file once, or the second file meant"
-            )
-        seen[key] = f
     cmap = (
         column_map
         if isinstance(column_map, ColumnMap)
@@ -460,7 +450,6 @@ def _read_mapped(
     for chan, s in list(streams.items()):
         k = tables.index(s.table)
         streams[chan] = Stream(chan, s.table, times[k][0], s.values, s.lines, s.rows)
-    clock_note = file_overlap(streams, lambda tab: cmap.time_for(tab.source), say)
 
     # ---- rows: drop, fill, select each channel's samples
     for chan, s in list(streams.items()):
@@ -484,8 +473,6 @@ def _read_mapped(
     name = files[0].stem if len(files) == 1 else "+".join(p.stem for p in files)
     source = ",".join(str(p) for p in files)
     full_meta = _meta(params, meta, robot, name, source)
-    if clock_note:
-        full_meta["clock_overlap"] = clock_note
     read = _Assembly(cmap, times, tables, duplicates, pose_rows, max_gap, lim, say)
 
     # ---- clock resets and discontinuities: the recording is read as the pieces between them

@@ -138,90 +138,6 @@ def _twist_of(msg: Any, msgtype: str) -> tuple[float, float] | None:
     return None
 
 
-_POSE_TYPES = (
-    "Odometry",
-    "PoseStamped",
-    "PoseWithCovarianceStamped",
-    "TransformStamped",
-    "Pose",
-)
-#: the message types (last name part) each role accepts, and its CLI option
-_ROLE_TYPES: dict[str, tuple[tuple[str, ...], str]] = {
-    "cmd": (("Twist", "TwistStamped"), "--cmd-topic"),
-    "odom": (_POSE_TYPES, "--odom-topic"),
-    "truth": ((*_POSE_TYPES, "TFMessage"), "--truth-topic"),
-    "wheels": (("JointState",), "--wheels-topic"),
-}
-
-
-def _check_role_types(p: Path, wanted: Mapping[str, str], present: Mapping[str, str]) -> None:
-    """Refuse a topic whose message type its role cannot read, before reading any message."""
-    for key, topic in wanted.items():
-        msgtype = present.get(topic)
-        if msgtype is None:
-            continue
-        accepted, option = _ROLE_TYPES[key]
-        if msgtype.split("/")[-1] in accepted:
-            continue
-        fitting = sorted(t for t, m in present.items() if m.split("/")[-1] in accepted)
-        listing = ", ".join(f"{t} [{present[t]}]" for t in fitting) if fitting else "none"
-        raise LogError(
-            f"{p}: topic {topic} holds {msgtype} messages; {option} needs one of "
-            f"{', '.join(accepted)}. Topics of those types in this bag: {listing}"
-        )
-
-
-def _add_message(
-    p: Path,
-    key: str,
-    msg: Any,
-    conn: Any,
-    t_bag: int,
-    series: dict[str, list[tuple[float, tuple[float, ...]]]],
-    topics: BagTopics,
-    use_header_stamps: bool,
-) -> None:
-    """Append one deserialised message to the series of its role ``key``."""
-    if key == "cmd":
-        tw = _twist_of(msg, conn.msgtype)
-        if tw is None:
-            raise LogError(
-                f"{p}: topic {conn.topic} is {conn.msgtype}, expected geometry_msgs/Twist "
-                "or TwistStamped"
-            )
-        series[key].append((_stamp(msg, t_bag, use_header_stamps), tw))
-    elif key == "wheels":
-        names = list(msg.name)
-        try:
-            il, ir = (names.index(j) for j in topics.wheel_joints)
-        except ValueError:
-            raise LogError(
-                f"{p}: {conn.topic} has joints {names}, not the wheel joints "
-                f"{topics.wheel_joints}. Fix: pass wheel_joints (CLI --wheel-joints)"
-            ) from None
-        pos = msg.position
-        series[key].append((_stamp(msg, t_bag, use_header_stamps), (pos[il], pos[ir])))
-    elif conn.msgtype.endswith("TFMessage"):
-        if not topics.truth_frame:
-            raise LogError(
-                f"{p}: ground truth from {conn.topic} needs the tracked frame. Fix: pass "
-                "truth_frame (CLI --truth-frame)"
-            )
-        for tr in msg.transforms:
-            if tr.child_frame_id.strip("/") == topics.truth_frame.strip("/"):
-                pose = _pose_of(tr, "geometry_msgs/msg/TransformStamped")
-                assert pose is not None
-                series[key].append((_stamp(tr, t_bag, use_header_stamps), pose))
-    else:
-        pose = _pose_of(msg, conn.msgtype)
-        if pose is None:
-            raise LogError(
-                f"{p}: topic {conn.topic} is {conn.msgtype}; expected a pose (PoseStamped, "
-                "Odometry, TransformStamped) or tf2_msgs/TFMessage"
-            )
-        series[key].append((_stamp(msg, t_bag, use_header_stamps), pose))
-
-
 def read_bag(
     path: str | os.PathLike[str],
     topics: BagTopics | None = None,
@@ -353,23 +269,52 @@ def read_bag_logs(
         if topics.odom and topics.odom not in present:
             wanted.pop("odom")
             series.pop("odom")
-        if "odom" in wanted and wanted["odom"] == BagTopics.odom:
-            # the default /odom of another type is not what the user asked for: leave it out
-            if present[wanted["odom"]].split("/")[-1] not in _ROLE_TYPES["odom"][0]:
-                wanted.pop("odom")
-                series.pop("odom")
-        _check_role_types(p, wanted, present)
-        by_topic: dict[str, list[str]] = {}
-        for k, t in wanted.items():
-            by_topic.setdefault(t, []).append(k)
+        by_topic = {t: k for k, t in wanted.items()}
         conns = [c for c in reader.connections if c.topic in by_topic]
         topic = ""
         try:
             for conn, t_bag, raw in reader.messages(connections=conns):
                 topic = conn.topic
+                key = by_topic[conn.topic]
                 msg: Any = reader.deserialize(raw, conn.msgtype)
-                for key in by_topic[conn.topic]:
-                    _add_message(p, key, msg, conn, t_bag, series, topics, use_header_stamps)
+                if key == "cmd":
+                    tw = _twist_of(msg, conn.msgtype)
+                    if tw is None:
+                        raise LogError(
+                            f"{p}: topic {conn.topic} is {conn.msgtype}, expected geometry_msgs/Twist "
+                            "or TwistStamped"
+                        )
+                    series[key].append((_stamp(msg, t_bag, use_header_stamps), tw))
+                elif key == "wheels":
+                    names = list(msg.name)
+                    try:
+                        il, ir = (names.index(j) for j in topics.wheel_joints)
+                    except ValueError:
+                        raise LogError(
+                            f"{p}: {conn.topic} has joints {names}, not the wheel joints "
+                            f"{topics.wheel_joints}. Fix: pass wheel_joints (CLI --wheel-joints)"
+                        ) from None
+                    pos = msg.position
+                    series[key].append((_stamp(msg, t_bag, use_header_stamps), (pos[il], pos[ir])))
+                elif conn.msgtype.endswith("TFMessage"):
+                    if not topics.truth_frame:
+                        raise LogError(
+                            f"{p}: ground truth from {conn.topic} needs the tracked frame. Fix: pass "
+                            "truth_frame (CLI --truth-frame)"
+                        )
+                    for tr in msg.transforms:
+                        if tr.child_frame_id.strip("/") == topics.truth_frame.strip("/"):
+                            pose = _pose_of(tr, "geometry_msgs/msg/TransformStamped")
+                            assert pose is not None
+                            series[key].append((_stamp(tr, t_bag, use_header_stamps), pose))
+                else:
+                    pose = _pose_of(msg, conn.msgtype)
+                    if pose is None:
+                        raise LogError(
+                            f"{p}: topic {conn.topic} is {conn.msgtype}; expected a pose (PoseStamped, "
+                            "Odometry, TransformStamped) or tf2_msgs/TFMessage"
+                        )
+                    series[key].append((_stamp(msg, t_bag, use_header_stamps), pose))
         except LogError:
             raise
         except Exception as exc:  # rosbags' own errors: a cut chunk, an unknown message type

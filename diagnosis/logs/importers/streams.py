@@ -20,18 +20,10 @@ from realitygap.diagnosis.logs.schema import (
     SchemaError,
     clock_resets,
     discontinuities,
-    time_order_problem,
     unwrap_counter,
 )
 
-__all__ = [
-    "DUPLICATE_POLICIES",
-    "Stream",
-    "dedupe",
-    "file_overlap",
-    "jump_rows",
-    "reset_pieces",
-]
+__all__ = ["DUPLICATE_POLICIES", "Stream", "dedupe", "jump_rows", "reset_pieces"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -148,9 +140,6 @@ def reset_pieces(
         t = np.full(tab.n_rows, np.nan)
         for s in own:
             t[s.rows] = s.t
-        reversed_ = time_order_problem(t[idx])
-        if reversed_ is not None and "reverse order" in reversed_:
-            raise LogError(f"{tab.source}: {reversed_}")
         resets, _ = clock_resets(t[idx])
         if resets:
             cuts[k] = [int(idx[i]) for i in resets]
@@ -200,73 +189,3 @@ def reset_pieces(
             part[chan] = Stream(chan, s.table, s.t[m], s.values[m], s.lines[m], s.rows[m])
         out.append(part)
     return out
-
-
-def _span_text(s: float) -> str:
-    return f"{s:.1f} s" if abs(s) < 600 else f"{s:.1f} s ({s / 3600.0:.2f} h)"
-
-
-def file_overlap(
-    streams: Mapping[str, Stream],
-    time_entry: Callable[[Table], Any],
-    say: Callable[[str], None],
-) -> str | None:
-    """Compare the time spans of a recording's files (the streams' tables): refuse files that
-    never overlap, warn when they overlap only partly, each time naming every file's span
-    relative to the first file's start and the clock offset with its fix (``t=FILE::col±S``).
-    Returns the partial-overlap note (for later errors), else ``None``."""
-    spans: dict[int, tuple[Table, float, float]] = {}
-    for s in streams.values():
-        t = s.t[np.isfinite(s.t)]
-        if t.size < 2 or id(s.table) in spans:
-            continue
-        spans[id(s.table)] = (s.table, float(t.min()), float(t.max()))
-    if len(spans) < 2:
-        return None
-    items = list(spans.values())
-    ref, r0, r1 = items[0]
-    rname = ref.source.stem
-    worst: tuple[Table, float, float] | None = None
-    for tab, a, b in items[1:]:
-        overlap = min(b, r1) - max(a, r0)
-        shorter = min(b - a, r1 - r0)
-        if overlap >= 0.8 * shorter:
-            continue
-        if worst is None or overlap < min(worst[2], r1) - max(worst[1], r0):
-            worst = (tab, a, b)
-    if worst is None:
-        return None
-    tab, a, b = worst
-    name = tab.source.stem
-    offset = a - r0
-    relative = ", ".join(
-        f"{t.source.stem}: {_span_text(x - r0)}…{_span_text(y - r0)}" for t, x, y in items
-    )
-    d_end = b - r1
-    where = (
-        f"{name} starts {_span_text(abs(offset))} {'after' if offset >= 0 else 'before'} "
-        f"{rname} and ends {_span_text(abs(d_end))} {'after' if d_end >= 0 else 'before'} it "
-        f"(spans relative to {rname}'s start: {relative})"
-    )
-    src = time_entry(tab)
-    if src is not None and isinstance(src.column, str) and src.factor == 1.0 and not src.offset:
-        entry = f"t={name}::{src.column}{-offset:+.1f}"
-    else:
-        entry = f"add {-offset:+.1f} s to {name}'s time entry (t={name}::COLUMN±OFFSET)"
-    overlap = min(b, r1) - max(a, r0)
-    fix = (
-        f"if the two clocks differ (a clock {_span_text(abs(offset))} "
-        f"{'ahead' if offset >= 0 else 'behind'}, a time zone), shift {name}'s time: {entry}"
-    )
-    if overlap <= 0:
-        raise LogError(
-            f"{ref.source}, {tab.source}: the files of one recording never overlap in time: "
-            f"{where}. A clock offset, not a gap. Fix: {fix}; or check that the files belong to "
-            "one recording"
-        )
-    note = (
-        f"{ref.source}, {tab.source}: the files overlap in time for only {overlap:.1f} s: "
-        f"{where}; only that overlap is read. Fix: {fix}"
-    )
-    say(note)
-    return note
