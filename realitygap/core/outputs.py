@@ -256,14 +256,16 @@ class Outputs:
                     f"cannot be one path. Fix: give {option} another path"
                 )
             here = path.absolute()
-            for inner, outer in ((here, other), (other.path, None)):
-                folder = other.path if outer is not None else here
+            pairs = (
+                (here, option, other.path, other.option),
+                (other.path, other.option, here, option),
+            )
+            for inner, inner_opt, folder, folder_opt in pairs:
                 if folder in inner.parents:
-                    a = option if outer is not None else other.option
-                    b = other.option if outer is not None else option
                     raise OutputError(
-                        f"{a} {inner} lies inside the folder of {b}, which is written whole "
-                        f"(and replaced on the next run). Fix: give {a} a path outside it"
+                        f"{inner_opt} {inner} lies inside the folder of {folder_opt}, which is "
+                        f"written whole (and replaced on the next run). Fix: give {inner_opt} a "
+                        "path outside it"
                     )
         try:
             check_output_path(path, option, inputs=self.inputs, folder=kind != "file")
