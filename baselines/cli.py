@@ -80,6 +80,12 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
         "for nominal only)",
     )
     p.add_argument(
+        "--estimator-reality",
+        default=None,
+        help="a reality profile or file whose effects the envs' default estimators include "
+        "(a diagnosis's twin calibrates the odometry); applies to the envs that take it",
+    )
+    p.add_argument(
         "--sensor-modes", default="fast,image", help="fast and/or image (default fast,image)"
     )
     p.add_argument(
@@ -143,6 +149,24 @@ def add_train_parser(subparsers: Any) -> argparse.ArgumentParser:
             "evaluations run in PyBullet"
         ),
     )
+    p.add_argument(
+        "--reality",
+        default=None,
+        help="train on this robot: a reality profile or a reality file (e.g. a diagnosis's "
+        "--export) instead of the nominal one",
+    )
+    p.add_argument(
+        "--randomize",
+        action="store_true",
+        help="draw each episode's robot from the --reality file's uncertainty (a domain "
+        "randomisation centred on the diagnosis)",
+    )
+    p.add_argument(
+        "--estimator-reality",
+        default=None,
+        help="a reality profile or file whose effects the env's default estimator includes "
+        "(a twin's calibrated odometry; WheeledNav)",
+    )
     p.add_argument("--out", default=None, help="folder (default runs/train/<env>/<algo>/seed<k>)")
     p.add_argument(
         "--init-model",
@@ -196,6 +220,7 @@ def train_config_from_args(args: argparse.Namespace) -> tuple[Any, Any]:
         A bad option, naming it.
     """
     from realitygap.baselines import rl
+    from realitygap.baselines.benchmark import profiles as bm_profiles
     from realitygap.baselines.rl.checks import check_training
 
     vector = bool(getattr(args, "vector", False))
@@ -205,6 +230,9 @@ def train_config_from_args(args: argparse.Namespace) -> tuple[Any, Any]:
     env_id = rl.check_env_id(env_arg)
     hp_id = rl.vector_env_id(env_id) if vector else env_id
     hp = rl.load_hyperparams(args.algo, hp_id, args.hyperparams)
+    sim = bm_profiles.simulator_kwargs(env_id, args.reality, args.randomize, args.estimator_reality)
+    if sim:  # the simulator to train on: the evaluations' env and the vector env alike
+        hp = {**hp, "env_kwargs": {**dict(hp.get("env_kwargs", {}) or {}), **sim}}
     rl.require_sb3()
     out = (
         Path(args.out)
@@ -316,8 +344,26 @@ def benchmark_config_from_args(args: argparse.Namespace) -> tuple[Any, dict[str,
                     f"trained. Fix: add --train, or drop {option}"
                 )
     seeds = check_seed_list("0" if args.train_seeds is None else args.train_seeds)
+    env_kwargs: dict[str, dict[str, Any]] = {}
+    if args.estimator_reality is not None:
+        import gymnasium as gym
+
+        from realitygap.baselines.benchmark.profiles import simulator_kwargs
+
+        takers = [
+            e for e in env_ids if e in gym.registry and "estimator_reality" in bm.env_keywords(e)
+        ]
+        if not takers:
+            raise ValueError(
+                f"--estimator-reality: none of the requested envs ({', '.join(env_ids)}) has "
+                "an estimator that takes a reality. Fix: add realitygap/WheeledNav-v0 to "
+                "--envs, or drop --estimator-reality"
+            )
+        for e in takers:
+            env_kwargs[e] = simulator_kwargs(e, estimator_reality=args.estimator_reality)
     cfg = bm.BenchmarkConfig(
         env_ids=tuple(env_ids),
+        env_kwargs=env_kwargs,
         policies=tuple(bm.parse_policies(args.policies)),
         episodes=args.episodes,
         realities=tuple(realities),

@@ -3,7 +3,7 @@
 ::
 
     realitygap diagnose LOG... [--holdout LOG...] [--robot diffdrive|arm|climber] [--effects a,b,…]
-                        [--drive commands|ticks] [--report DIR] [--json PATH] [--quiet|--verbose]
+                        [--drive commands|ticks] [--report DIR] [--json PATH] [--export PATH] [--quiet|--verbose]
 
 It prints the verdict in sentences and the candidates by held-out shrink; ``--report``
 adds ``report.html`` (self-contained), ``report.md``, ``diagnosis.json`` and figures.
@@ -156,6 +156,12 @@ def add_diagnose_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     p.add_argument("--json", metavar="PATH", help="write the diagnosis as JSON here")
     p.add_argument(
+        "--export",
+        metavar="PATH",
+        help="write the robot the diagnosis found as a reality file (effects, fitted values, "
+        "uncertainties) for gym.make(..., reality=PATH) and --reality PATH",
+    )
+    p.add_argument(
         "--backend",
         choices=("serial", "process", "ray"),
         default="process",
@@ -281,6 +287,7 @@ def _diagnose(args: argparse.Namespace) -> int:
         try:
             json_stage = out.file(args.json, "--json") if args.json else None
             report_stage = out.folder(args.report, "--report") if args.report else None
+            export_stage = out.file(args.export, "--export") if args.export else None
             check_distinct(args.logs, "LOG")
             check_distinct(args.holdout, "--holdout")
             if args.holdout:
@@ -366,10 +373,13 @@ def _diagnose(args: argparse.Namespace) -> int:
             write_json(json_stage, result.to_json())
         if report_stage is not None:
             write_reports([("", result)], report_stage)
+        if export_stage is not None:
+            result.to_reality(name=Path(args.export).stem).save(export_stage)
         out.commit()
-    human = sys.stderr if args.json == "-" else sys.stdout  # stdout holds the JSON
-    if args.json and args.json != "-":
-        say(f"wrote {args.json}")
+    human = sys.stderr if "-" in (args.json, args.export) else sys.stdout  # stdout: the file
+    for option, path in (("--json", args.json), ("--export", args.export)):
+        if path and path != "-":
+            say(f"wrote {path}" + (" (a reality file)" if option == "--export" else ""))
     print_result(result, verbose=args.verbose, file=human)
     if args.report:
         print(f"report: {Path(args.report).resolve() / 'report.html'}", file=human)

@@ -99,7 +99,7 @@ from realitygap.diagnosis.verdict.judge import (
 )
 from realitygap.diagnosis.verdict.notes import alias_notes, regime_consistency, run_discovery
 from realitygap.diagnosis.verdict.types import CoverageNote, Judgement, Verdict, VerdictKind
-from realitygap.robots.effects import EFFECTS
+from realitygap.robots.effects import EFFECTS, Twin
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -208,6 +208,14 @@ class Diagnosis:
         if self.verdict.kind not in (VerdictKind.EFFECTS, VerdictKind.PARTIAL):
             return None
         return self.budget_model
+
+    def to_reality(self, name: str = "") -> Twin:
+        """The robot the logs came from as a reality file's content: the effects found, their
+        fitted values and uncertainties (:mod:`~realitygap.diagnosis.export`); ``.save(path)``
+        writes it, ``gym.make(id, reality=path)`` simulates it."""
+        from realitygap.diagnosis.export import twin_of
+
+        return twin_of(self, name)
 
     def ranking_rows(self) -> list[dict[str, Any]]:
         """The ranking as JSON-able rows (fitted values with units and uncertainty)."""

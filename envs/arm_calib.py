@@ -75,6 +75,7 @@ is not part of a distance calibration).
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Mapping
 from typing import Any
@@ -102,12 +103,14 @@ from realitygap.envs.common import (
     check_estimator,
     check_instance,
     check_open,
+    check_randomize,
     check_reality,
     check_render_mode,
     check_reset_options,
     check_seed,
     check_started,
     check_vector,
+    robot_effects,
 )
 from realitygap.envs.tasks.arm_calib import (
     ArmCalibRewardWeights,
@@ -121,7 +124,7 @@ from realitygap.estimators.arm.identification import IdentificationSettings
 from realitygap.estimators.arm.mdh import MDHTable, tool_positions
 from realitygap.robots.arm import ArmParams, ArmRobot, MoveOutcome
 from realitygap.robots.arm_cell import BoardPlacement, FlangeCamera, build_arm_scene
-from realitygap.robots.effects import Reality
+from realitygap.robots.effects import Reality, draw_reality
 from realitygap.robots.sensors import SensorMode, check_sensor_mode
 from realitygap.robots.world import World
 
@@ -269,6 +272,16 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     randomize_reality : bool
         Draw a new "real" arm (:func:`random_arm_reality`) at every reset
         (the arm body is rebuilt); ``reality`` is then ignored.
+    randomize : ``{"effect.param": (low, high)}`` or a
+        :class:`~realitygap.robots.effects.Twin` (its boxes), optional
+        Draw each campaign's arm as ``reality`` with these parameters drawn uniformly from
+        their boxes (the arm body is rebuilt): a domain randomisation, e.g. centred on a
+        diagnosis's twin. Not with ``randomize_reality``.
+    estimator_reality : Reality, its dict form or a reality file's path, optional
+        The transmission the controller is calibrated to (e.g. a diagnosis's twin): the
+        estimator and the validation see the link angles inferred from the encoders under
+        ``estimator_reality.apply_params(params)`` (its backlash, compliance and encoder
+        scales; :meth:`~realitygap.robots.arm.ArmRobot.link_angles_from_encoders`).
     budget : int
         Attempts per campaign ``K``.
     joint_center, joint_half_range : array_like, shape (6,)
@@ -303,8 +316,10 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         render_mode: str | None = None,
         sensor_mode: str | SensorMode = SensorMode.GEOMETRIC,
         params: ArmParams | None = None,
-        reality: Reality | Mapping[str, Any] | None = None,
+        reality: Reality | Mapping[str, Any] | str | os.PathLike[str] | None = None,
         randomize_reality: bool = False,
+        randomize: Mapping[str, Any] | None = None,
+        estimator_reality: Reality | Mapping[str, Any] | str | os.PathLike[str] | None = None,
         budget: int = 20,
         joint_center: npt.ArrayLike = DEFAULT_JOINT_CENTER,
         joint_half_range: npt.ArrayLike = DEFAULT_JOINT_HALF_RANGE,
@@ -352,6 +367,12 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         check_bool(randomize_reality, "randomize_reality")
         params = check_instance(params, "params", ArmParams, default=ArmParams)
         reality = check_reality(reality, "arm", default=default_arm_reality)
+        self.randomize = check_randomize(randomize, robot_effects("arm"), "arm's effects")
+        if self.randomize and randomize_reality:
+            raise ValueError(
+                "randomize and randomize_reality are both given; randomize_reality draws "
+                "arms of its own and ignores reality. Fix: pass one of them"
+            )
         check_instance(identification, "identification", IdentificationSettings, optional=True)
         measurement = check_instance(
             measurement, "measurement", BoardMeasurementSettings, default=BoardMeasurementSettings
@@ -369,8 +390,12 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self.render_mode = render_mode
         self.params = params
         self.randomize_reality = bool(randomize_reality)
-        self.reality = reality
+        self.reality = self.nominal_reality = reality
         self.true_params: ArmParams = self.reality.apply_params(self.params)
+        self.believed_params: ArmParams | None = None
+        if estimator_reality is not None:
+            believed = check_reality(estimator_reality, "arm", name="estimator_reality")
+            self.believed_params = believed.apply_params(self.params)
         self.joint_center = _check_vec("joint_center", joint_center)
         self.joint_half_range = _check_vec("joint_half_range", joint_half_range, positive=True)
         self.board = board
@@ -485,7 +510,15 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     def validation_errors(self, table: MDHTable, tool: npt.ArrayLike) -> FloatArray:
         """Positioning errors (n_val,) (m) of a model on the validation poses (after the best
         rigid registration)."""
-        return self.task.validation_errors(table, tool, self._true_validation_points())
+        q = None
+        if self.believed_params is not None:  # the model predicts from the inferred angles
+            q = np.array(
+                [
+                    self.robot.link_angles_from_encoders(r, self.believed_params, np.ones(6))
+                    for r in self.validation_q
+                ]
+            )
+        return self.task.validation_errors(table, tool, self._true_validation_points(), q)
 
     # ------------------------------------------------------------------ gym API
     def reset(
@@ -499,6 +532,8 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         rng = self.np_random
         if self.randomize_reality:
             self._rebuild(random_arm_reality(rng))
+        elif self.randomize:
+            self._rebuild(draw_reality(self.nominal_reality, self.randomize, rng))
         self.robot.reset(self.home)
         self._q_enc = self.robot.read_encoders(rng)
         self.estimator.reset()
@@ -589,7 +624,19 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
                 obs.status.value,
                 None,
             )
-        return AttemptOutcome.OK, "", obs.status.value, ArmPoseMeasurement(self._q_enc.copy(), obs)
+        return (
+            AttemptOutcome.OK,
+            "",
+            obs.status.value,
+            ArmPoseMeasurement(self._joint_angles(), obs),
+        )
+
+    def _joint_angles(self) -> FloatArray:
+        """What the estimator is told the joints are: the encoder readings, or the link
+        angles inferred from them under ``estimator_reality``."""
+        if self.believed_params is None:
+            return self._q_enc.copy()
+        return self.robot.link_angles_from_encoders(self._q_enc, self.believed_params)
 
     def _observation(self, est: CalibrationEstimate) -> npt.NDArray[np.float32]:
         obs = np.zeros(N_OBS, dtype=np.float64)

@@ -418,20 +418,43 @@ def check_reality(
     """``reality`` as a :class:`~realitygap.robots.effects.Reality` for a ``robot`` robot.
 
     Accepts a ``Reality``, a mapping in either form :meth:`Reality.from_dict` reads
-    (``{"effects": [...]}`` or ``{"effect_name": {"param": value}}``), or ``None``
+    (``{"effects": [...]}`` or ``{"effect_name": {"param": value}}``), the path of a
+    reality file (:mod:`~realitygap.robots.effects.twin`: its fitted values), or ``None``
     (``default()``, else the nominal ``Reality()``).
 
     Raises
     ------
     TypeError
-        Anything else (a string, a list of effects).
+        Anything else (a number, a list of effects).
     ValueError
-        An unknown effect, a bad parameter, or an effect for another robot, naming it.
+        An unknown effect, a bad parameter, an unreadable file, or an effect for another
+        robot, naming it.
     """
-    from realitygap.robots.effects import Reality
+    import os
+
+    from realitygap.robots.effects import Reality, load_reality
 
     if reality is None:
         reality = default() if default is not None else Reality()
+    elif isinstance(reality, (str, os.PathLike)):
+        if not str(reality).strip():
+            raise ValueError(
+                f"{name} is an empty path. Fix: give a reality file (e.g. a diagnosis's "
+                "--export), a Reality or its dict form"
+            )
+        try:
+            reality = load_reality(os.path.expanduser(reality), name)
+        except FileNotFoundError as exc:  # a bad argument, like any other value
+            hint = (
+                ""
+                if os.sep in str(reality) or str(reality).endswith((".json", ".yaml", ".yml"))
+                else "; a profile name such as 'kobuki-worn' is the command line's, in Python "
+                "realitygap.baselines.benchmark.reality_for(env_id, name) gives its Reality"
+            )
+            raise ValueError(
+                f"{exc}. Fix: give the path of a reality file (a diagnosis's --export), a "
+                f"Reality or its dict form{hint}"
+            ) from None
     elif isinstance(reality, Mapping):
         try:
             reality = Reality.from_dict(reality)
@@ -440,9 +463,9 @@ def check_reality(
             raise ValueError(f"{name}: {msg}") from None
     elif not isinstance(reality, Reality):
         raise TypeError(
-            f"{name} must be a Reality (or its dict form), got {_describe(reality)}. Fix: "
-            f"pass Reality((make_effect(name, **values), ...)) or "
-            "{'effect_name': {'param': value}}"
+            f"{name} must be a Reality, its dict form or a reality file's path, got "
+            f"{_describe(reality)}. Fix: pass Reality((make_effect(name, **values), ...)), "
+            "{'effect_name': {'param': value}} or 'twin.json'"
         )
     try:
         reality.check_robot(robot)
@@ -464,3 +487,97 @@ def check_finite_fields(obj: Any) -> None:
             f"{kind}.{f.name}",
             fix=f"pass a real number, e.g. {kind}({f.name}={f.default!r})",
         )
+
+
+def odometry_belief(estimator_reality: Any, params: Any) -> Any:
+    """The differential drive an odometry calibrated to ``estimator_reality`` believes in:
+    ``params`` with the reality's body effects (wheel sizes, wheelbase) and its encoder gains
+    folded into the wheel radii — a wheel whose encoder reads ``g`` times its angle drives
+    ``r / g`` per read radian. ``estimator_reality`` takes the forms of :func:`check_reality`.
+
+    The encoder effects of the library are gains; the gain of each wheel is read from the
+    reality's inverse encoder hooks at one radian.
+    """
+    reality = check_reality(estimator_reality, "diffdrive", name="estimator_reality")
+    believed = reality.apply_params(params)
+    left, right = 1.0, 1.0
+    for hook in reality.ticks_inverse_hooks():  # reading -> true angle
+        left, right = hook(left, right)
+    if (left, right) != (1.0, 1.0):
+        believed = believed.replace(
+            wheel_radius_left=believed.wheel_radius_left * left,
+            wheel_radius_right=believed.wheel_radius_right * right,
+        )
+    return believed
+
+
+def robot_effects(robot: str) -> tuple[str, ...]:
+    """The names of the registered effects for ``robot``, in registration order."""
+    from realitygap.robots.effects import EFFECTS
+
+    return tuple(n for n, c in EFFECTS.items() if c.robot == robot)
+
+
+def check_randomize(
+    randomize: Any, known: Sequence[str], known_what: str = "effects of this robot"
+) -> dict[str, tuple[float, float]]:
+    """An env's ``randomize``: ``{"effect.param": (low, high)}`` (or
+    ``{"effect": {"param": (low, high)}}``, or a :class:`~realitygap.robots.effects.Twin`,
+    whose boxes it takes), every effect one of ``known`` (``known_what`` says which those are)
+    and every box within the parameter's physical bounds. Each episode draws the parameters
+    uniformly from their boxes (:func:`~realitygap.robots.effects.draw_reality`).
+    """
+    from realitygap.robots.effects import EFFECTS, Twin
+
+    out: dict[str, tuple[float, float]] = {}
+    if isinstance(randomize, Twin):
+        randomize = randomize.randomize
+    if randomize is None:
+        return out
+    if not isinstance(randomize, Mapping):
+        raise TypeError(
+            f"randomize must be None or a mapping {{'effect.param': (low, high)}}, got "
+            f"{randomize!r:.60} ({type(randomize).__name__}). Fix: e.g. "
+            "randomize={'command_latency.delay': (0.0, 0.1)}"
+        )
+    flat: dict[str, Any] = {}
+    for key, value in randomize.items():
+        if isinstance(value, Mapping):  # nested form: effect -> {param: (low, high)}
+            if str(key) not in known:
+                flat[str(key)] = value  # refused below, naming the effect
+                continue
+            if not value:
+                raise ValueError(
+                    f"randomize[{key!r}] names no parameter; effect {key!r} has parameters "
+                    f"{', '.join(s.name for s in EFFECTS[str(key)].specs)}"
+                )
+            for param, bounds in value.items():
+                flat[f"{key}.{param}"] = bounds
+        else:
+            flat[str(key)] = value
+    for key, bounds in flat.items():
+        name, _, param = str(key).partition(".")
+        if name not in known:
+            raise ValueError(
+                f"randomize key {key!r}: expected 'effect.param' with one of the {known_what} "
+                f"({', '.join(known)})"
+            )
+        specs = {s.name: s for s in EFFECTS[name].specs}
+        if param not in specs:
+            raise ValueError(
+                f"randomize key {key!r}: effect {name!r} has parameters {', '.join(specs)}"
+            )
+        try:
+            lo, hi = (float(v) for v in bounds)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"randomize[{key!r}] must be a (low, high) pair of numbers, got {bounds!r}"
+            ) from None
+        s = specs[param]
+        if not (s.low <= lo <= hi <= s.high):
+            raise ValueError(
+                f"randomize[{key!r}] = ({lo}, {hi}) must satisfy {s.low} <= low <= high <= "
+                f"{s.high} {s.unit} (the parameter's physical bounds)"
+            )
+        out[f"{name}.{param}"] = (lo, hi)
+    return out

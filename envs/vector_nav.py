@@ -50,6 +50,7 @@ and the ``bench-vec`` experiment):
 from __future__ import annotations
 
 import math
+import os
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -72,10 +73,12 @@ from realitygap.envs.common import (
     available_memory_bytes,
     check_instance,
     check_open,
+    check_randomize,
     check_reality,
     check_reset_options,
     check_seed,
     check_started,
+    odometry_belief,
 )
 from realitygap.envs.layouts import clearance, free_route_exists, room_grid, room_walls
 from realitygap.envs.tasks.nav import (
@@ -101,7 +104,7 @@ from realitygap.envs.vector_drive import (
     vector_effects,
 )
 from realitygap.robots.diffdrive import DiffDriveParams
-from realitygap.robots.effects import EFFECTS, Reality
+from realitygap.robots.effects import Reality
 from realitygap.robots.world import Primitive
 
 FloatArray = npt.NDArray[np.float64]
@@ -265,62 +268,6 @@ def check_vector_cost(num_envs: int, **shape: int) -> VectorCost:
     return cost
 
 
-def _check_randomize(randomize: Mapping[str, Any] | None) -> dict[str, tuple[float, float]]:
-    """``{"effect.param": (low, high)}`` (or ``{"effect": {"param": (low, high)}}``) checked
-    against the effects' physical bounds."""
-    out: dict[str, tuple[float, float]] = {}
-    known = vector_effects()
-    if randomize is None:
-        return out
-    if not isinstance(randomize, Mapping):
-        raise TypeError(
-            f"randomize must be None or a mapping {{'effect.param': (low, high)}}, got "
-            f"{randomize!r:.60} ({type(randomize).__name__}). Fix: e.g. "
-            "randomize={'command_latency.delay': (0.0, 0.1)}"
-        )
-    flat: dict[str, Any] = {}
-    for key, value in randomize.items():
-        if isinstance(value, Mapping):  # nested form: effect -> {param: (low, high)}
-            if str(key) not in known:
-                flat[str(key)] = value  # refused below, naming the effect
-                continue
-            if not value:
-                raise ValueError(
-                    f"randomize[{key!r}] names no parameter; effect {key!r} has parameters "
-                    f"{', '.join(s.name for s in EFFECTS[str(key)].specs)}"
-                )
-            for param, bounds in value.items():
-                flat[f"{key}.{param}"] = bounds
-        else:
-            flat[str(key)] = value
-    for key, bounds in flat.items():
-        name, _, param = str(key).partition(".")
-        if name not in known:
-            raise ValueError(
-                f"randomize key {key!r}: expected 'effect.param' with an effect that has a "
-                f"surrogate term ({', '.join(known)})"
-            )
-        specs = {s.name: s for s in EFFECTS[name].specs}
-        if param not in specs:
-            raise ValueError(
-                f"randomize key {key!r}: effect {name!r} has parameters {', '.join(specs)}"
-            )
-        try:
-            lo, hi = (float(v) for v in bounds)
-        except (TypeError, ValueError):
-            raise ValueError(
-                f"randomize[{key!r}] must be a (low, high) pair of numbers, got {bounds!r}"
-            ) from None
-        s = specs[param]
-        if not (s.low <= lo <= hi <= s.high):
-            raise ValueError(
-                f"randomize[{key!r}] = ({lo}, {hi}) must satisfy {s.low} <= low <= high <= "
-                f"{s.high} {s.unit} (the parameter's physical bounds)"
-            )
-        out[f"{name}.{param}"] = (lo, hi)
-    return out
-
-
 _ENV_ID = "realitygap/WheeledNavVec-v0"
 """The id the env is registered under (named in its state errors)."""
 
@@ -343,8 +290,11 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
     params : nominal robot parameters.
     reality : effects applied to every robot (each must have a surrogate term); a
         :class:`Reality` or its :meth:`~Reality.to_dict` form.
-    randomize : ``{"effect.param": (low, high)}``: drawn uniformly per robot and
-        episode from the robot's generator, on top of ``reality``.
+    randomize : ``{"effect.param": (low, high)}`` or a
+        :class:`~realitygap.robots.effects.Twin` (its boxes): drawn uniformly per robot
+        and episode from the robot's generator, on top of ``reality``.
+    estimator_reality : effects the odometry's model includes, as
+        :class:`~realitygap.envs.wheeled_nav.WheeledNavEnv`'s.
     calibration : the surrogate's calibration; default: measured once on the
         PyBullet body (:func:`realitygap.robots.diffdrive_surrogate.calibrate`, cached).
     n_obstacles, obstacles, room_half_size, start, goal, success_pos_tol,
@@ -364,6 +314,7 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
         params: DiffDriveParams | None = None,
         reality: Reality | Mapping[str, Any] | None = None,
         randomize: Mapping[str, Any] | None = None,
+        estimator_reality: Reality | Mapping[str, Any] | str | os.PathLike[str] | None = None,
         calibration: Any = None,
         n_obstacles: int = N_OBSTACLES,
         obstacles: list[Primitive] | None = None,
@@ -431,6 +382,9 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
         )
         params = check_instance(params, "params", DiffDriveParams, default=DiffDriveParams)
         reality = check_reality(reality, "diffdrive")
+        believed = params
+        if estimator_reality is not None:
+            believed = odometry_belief(estimator_reality, params)
         n_layout = (
             len(task.fixed_obstacles) if task.fixed_obstacles is not None else task.n_obstacles
         )
@@ -441,7 +395,9 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
         self.params = params
         self.reality = reality
         self.fixed_values = effect_values(self.reality)
-        self.randomize = _check_randomize(randomize)
+        self.randomize = check_randomize(
+            randomize, vector_effects(), "effects with a surrogate term"
+        )
         self.true_params = self.reality.apply_params(self.params)
         self.dt = 1.0 / float(control_hz)
         self.n_beams = int(n_beams)
@@ -489,9 +445,10 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
         self._odo_m_per_tick = (
             2.0
             * math.pi
-            * np.array([self.params.wheel_radius_left, self.params.wheel_radius_right])
-            / self.params.ticks_per_rev
+            * np.array([believed.wheel_radius_left, believed.wheel_radius_right])
+            / believed.ticks_per_rev
         )
+        self._odo_wheelbase = float(believed.wheelbase)
         self._ticks_per_rad = self.params.ticks_per_rev / (2.0 * math.pi)
 
         # state
@@ -793,7 +750,7 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
         s = (ticks - self.ticks) * self._odo_m_per_tick
         self.ticks = ticks
         ds = 0.5 * (s[:, 0] + s[:, 1])
-        dth = (s[:, 1] - s[:, 0]) / self.params.wheelbase
+        dth = (s[:, 1] - s[:, 0]) / self._odo_wheelbase
         est = self.estimate
         with np.errstate(divide="ignore", invalid="ignore"):
             small = np.abs(dth) < 1e-9

@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -103,7 +104,12 @@ from realitygap.robots.climber import (
     ClimbWorld,
     chart_pose,
 )
-from realitygap.robots.climber_sensors import CameraModel, ImuModel, TetherModel
+from realitygap.robots.climber_sensors import (
+    CameraModel,
+    ImuModel,
+    TetherModel,
+    calibrated_measurement,
+)
 from realitygap.robots.diffdrive import FirmwareLimits
 from realitygap.robots.effects import Reality
 from realitygap.robots.sensors import SensorMode, check_sensor_mode
@@ -245,8 +251,16 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     params
         Nominal robot and blade (what the estimator believes).
     reality
-        Effects that make the simulated robot differ from ``params``: a :class:`Reality` or
-        its dict form (:meth:`Reality.from_dict`).
+        Effects that make the simulated robot differ from ``params``: a :class:`Reality`,
+        its dict form (:meth:`Reality.from_dict`) or a reality file's path (a diagnosis's
+        ``--export``).
+    estimator_reality
+        Effects the robot's sensor drivers and default estimator are calibrated to (same
+        forms as ``reality``; e.g. a diagnosis's twin): tether readings are turned back into
+        distances and the constant IMU biases removed under the sensor model of
+        ``estimator_reality.apply_params(params)``
+        (:func:`~realitygap.robots.climber_sensors.calibrated_measurement`), and the
+        estimator uses its anchor.
     faults
         :class:`.ClimbFaults` (bad-input injection).
     start, goal
@@ -279,7 +293,8 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         sensor_mode: str | SensorMode = SensorMode.FAST,
         estimator: str | Any = "docked",
         params: ClimberParams | None = None,
-        reality: Reality | Mapping[str, Any] | None = None,
+        reality: Reality | Mapping[str, Any] | str | os.PathLike[str] | None = None,
+        estimator_reality: Reality | Mapping[str, Any] | str | os.PathLike[str] | None = None,
         faults: ClimbFaults | None = None,
         start: npt.ArrayLike | None = None,
         goal: npt.ArrayLike | None = None,
@@ -318,6 +333,16 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self.params = params
         self.reality = reality
         self.true_params: ClimberParams = self.reality.apply_params(self.params)
+        self.believed_params: ClimberParams | None = None
+        if estimator_reality is not None:
+            if not isinstance(estimator, str):
+                raise ValueError(
+                    "estimator_reality calibrates the default estimators, but estimator is a "
+                    "plug-in. Fix: pass estimator='docked' or 'localiser', or drop "
+                    "estimator_reality"
+                )
+            believed = check_reality(estimator_reality, "climber", name="estimator_reality")
+            self.believed_params = believed.apply_params(self.params)
         self.faults = faults
         self.task = WallClimbTask(
             blade_length=self.params.blade.length,
@@ -386,10 +411,15 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     # ------------------------------------------------------------------ helpers
     def _make_estimator(self, estimator: str | Any) -> Any:
         nominal = self.params
+        anchor = (
+            nominal.anchor_world
+            if self.believed_params is None
+            else self.believed_params.anchor_world_true
+        )
         if estimator == "docked":
             return DockedClimbPipeline(
                 self.cad_surface,
-                nominal.anchor_world,
+                anchor,
                 nominal.h,
                 vio_config=self.vio_config,
                 config=nominal.constrained_config(),
@@ -397,7 +427,7 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         if estimator == "localiser":
             return ClimbLocaliser(
                 self.cad_surface,
-                nominal.anchor_world,
+                anchor,
                 nominal.h,
                 vio_config=self.vio_config,
                 config=nominal.constrained_config(),
@@ -450,13 +480,15 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self._flags = {}
         # one second standing still before the episode (VIO static initialisation)
         n_static = int(round(tp.imu_rate))
-        still = self._imu.at_rest(R, 0.0, n_static)
+        still = self._calibrated(self._imu.at_rest(R, 0.0, n_static))
         self._t0 = n_static / tp.imu_rate
         self._t, self._steps = self._t0, 0
         self._cmd = np.zeros(2)
         self._state = self.robot.state(self._t)
         self._state_prev_imu = self._state
-        self._tether_len = self._tether.read(self._t, pos, 1.0 / tp.camera_rate).length
+        self._tether_len = self._calibrated(
+            [self._tether.read(self._t, pos, 1.0 / tp.camera_rate)]
+        )[0].length
         self._visual_ok = True
         if self.estimator_kind == "docked":
             static = static_initialise(still, gravity=self.vio_config.gravity)
@@ -539,9 +571,18 @@ class WallClimbEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             reading = self._tether.read(
                 self._t, self._state.position, 1.0 / self.params.camera_rate
             )
-            self._tether_len = reading.length
             out.append(reading)
+        out = self._calibrated(out)
+        if (self._steps + 1) % self._cam_every == 0:
+            self._tether_len = out[-1].length
         return out
+
+    def _calibrated(self, measurements: list[Any]) -> list[Any]:
+        """``measurements`` as the drivers calibrated to ``estimator_reality`` report them
+        (unchanged without one)."""
+        if self.believed_params is None:
+            return measurements
+        return [calibrated_measurement(m, self.believed_params) for m in measurements]
 
     def render(self) -> npt.NDArray[np.uint8] | None:
         check_open(self, "render", _ENV_ID)

@@ -42,6 +42,7 @@ success and termination.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Mapping
 from typing import Any
 
@@ -58,6 +59,7 @@ from realitygap.envs.common import (
     check_estimator,
     check_instance,
     check_open,
+    check_randomize,
     check_rates,
     check_reality,
     check_render_mode,
@@ -65,6 +67,8 @@ from realitygap.envs.common import (
     check_seed,
     check_started,
     check_twist_action,
+    odometry_belief,
+    robot_effects,
 )
 from realitygap.envs.tasks.nav import (
     CONTROL_HZ,
@@ -84,7 +88,7 @@ from realitygap.robots.diffdrive import (
     FirmwareLimits,
     encoder_ticks,
 )
-from realitygap.robots.effects import Reality
+from realitygap.robots.effects import Reality, draw_reality
 from realitygap.robots.sensors import PlanarScanner, RGBDCamera, SensorMode, check_sensor_mode
 from realitygap.robots.textures import SurfaceKind
 from realitygap.robots.world import Primitive, World
@@ -151,8 +155,17 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         in fast mode), with the nominal geometry.
     params : nominal robot parameters (what the robot is believed to be).
     reality : effects that make the simulated robot differ from ``params`` ("the real robot"):
-        a :class:`~realitygap.robots.effects.Reality` or its dict form
-        (:meth:`~realitygap.robots.effects.Reality.from_dict`).
+        a :class:`~realitygap.robots.effects.Reality`, its dict form
+        (:meth:`~realitygap.robots.effects.Reality.from_dict`) or the path of a reality
+        file (a diagnosis's ``--export``, :mod:`~realitygap.robots.effects.twin`).
+    randomize : ``{"effect.param": (low, high)}`` or a
+        :class:`~realitygap.robots.effects.Twin` (its boxes): each episode's robot is
+        ``reality`` with these parameters drawn uniformly from their boxes, from the
+        episode's generator (domain randomisation).
+    estimator_reality : effects the default estimator's model includes (same forms as
+        ``reality``): the pipeline believes ``estimator_reality.apply_params(params)`` — e.g.
+        a diagnosis's twin, whose fitted wheel sizes calibrate the odometry. Not with
+        ``estimator``.
     n_obstacles : random obstacles per episode (0: empty room).
     obstacles : a fixed layout instead of random ones.
     room_half_size : half the side of the square room (m).
@@ -188,7 +201,9 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         sensor_mode: str | SensorMode = SensorMode.FAST,
         estimator: Estimator | None = None,
         params: DiffDriveParams | None = None,
-        reality: Reality | Mapping[str, Any] | None = None,
+        reality: Reality | Mapping[str, Any] | str | os.PathLike[str] | None = None,
+        randomize: Mapping[str, Any] | None = None,
+        estimator_reality: Reality | Mapping[str, Any] | str | os.PathLike[str] | None = None,
         n_obstacles: int = N_OBSTACLES,
         obstacles: list[Primitive] | None = None,
         room_half_size: float = ROOM_HALF_SIZE,
@@ -228,17 +243,28 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
             )
         params = check_instance(params, "params", DiffDriveParams, default=DiffDriveParams)
         reality = check_reality(reality, "diffdrive")
+        self.randomize = check_randomize(
+            randomize, robot_effects("diffdrive"), "differential drive's effects"
+        )
         if estimator is not None:
             check_estimator(estimator, ESTIMATOR_METHODS, protocol=ESTIMATOR_PROTOCOL)
+            if estimator_reality is not None:
+                raise ValueError(
+                    "estimator and estimator_reality are both given; estimator_reality builds "
+                    "the default estimator. Fix: pass one of them"
+                )
+        believed = params
+        if estimator_reality is not None:
+            believed = odometry_belief(estimator_reality, params)
         self.render_mode = render_mode
         self.params = params
-        self.reality = reality
+        self.reality = self.nominal_reality = reality
         self.true_params = self.reality.apply_params(self.params)
         self.n_beams = int(n_beams)
         self._scan_every = self._divisor("scan_hz", scan_hz, control_hz)
         self._camera_every = self._divisor("camera_hz", camera_hz, control_hz)
         self.estimator: Estimator = (
-            estimator if estimator is not None else default_estimator(self.params, self.sensor_mode)
+            estimator if estimator is not None else default_estimator(believed, self.sensor_mode)
         )
 
         # the robot applies no external forces: a control period's physics steps run in one
@@ -340,6 +366,9 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         super().reset(seed=check_seed(seed))
         options = check_reset_options(options, ("start", "goal"), "WheeledNav-v0")
         rng = self.np_random
+        if self.randomize:  # this episode's robot, drawn first from the episode's generator
+            self.reality = draw_reality(self.nominal_reality, self.randomize, rng)
+            self.true_params = self.reality.apply_params(self.params)
         radius = self.true_params.body_radius
         start, goal = self.task.sample_start_goal(rng, options, radius)
         self._start_pose = start.copy()

@@ -630,6 +630,33 @@ class ArmRobot:
                 )
         return q
 
+    def link_angles_from_encoders(
+        self, reading: npt.ArrayLike, params: ArmParams, direction: npt.ArrayLike | None = None
+    ) -> FloatArray:
+        """The link angles (6,) (rad) a controller whose model of the transmission is
+        ``params`` infers from encoder ``reading``: :meth:`read_encoders` inverted under that
+        model, :math:`q = r/s - c\\,\tau^g(q) - \tfrac{b}{2}\\,\\mathrm{dir}` (fixed-point
+        iteration), :math:`\tau^g` from the body's declared masses plus the model's flange
+        load. ``direction``: of the last move per joint (default: the robot's)."""
+        dirn = self.direction if direction is None else np.asarray(direction, dtype=float)
+        motor = np.asarray(reading, dtype=float) / np.asarray(params.encoder_scale, dtype=float)
+        play = 0.5 * np.asarray(params.backlash, dtype=float) * dirn
+        q = motor - play
+        c = np.asarray(params.joint_compliance, dtype=float)
+        if np.any(c > 0):
+            for _ in range(3):
+                qs = [float(v) for v in q]
+                tau = np.asarray(
+                    self.world.bullet.calculateInverseDynamics(
+                        self.body, qs, [0.0] * _N, [0.0] * _N
+                    ),
+                    dtype=float,
+                )
+                if params.flange_load != 0.0:
+                    tau = tau + params.flange_load * flange_load_torques(params.mdh, [q])[0]
+                q = motor - play - c * tau
+        return q
+
     def move_to(self, q_cmd: npt.ArrayLike) -> MoveResult:
         """Command the joints to ``q_cmd`` (encoder units, rad), let the servo settle.
 

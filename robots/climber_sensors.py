@@ -11,7 +11,9 @@ handed down by the env.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -225,3 +227,31 @@ class CameraModel:
             n, n, view, proj, renderer=p.ER_TINY_RENDERER, flags=p.ER_NO_SEGMENTATION_MASK
         )
         return np.asarray(rgba, dtype=np.uint8).reshape(n, n, 4)[..., :3].copy()
+
+
+def tether_distance(length: float, params: ClimberParams) -> float:
+    """The straight-line distance ``d`` whose noise-free reading is ``length`` under the
+    tether model of ``params`` (:class:`TetherModel`): the non-negative root of
+    :math:`s\\,(d + k_s d^2 + \\epsilon d) = l`, written in the form that stays exact as
+    :math:`k_s \to 0`."""
+    x = float(length) / params.spool_scale
+    b = 1.0 + params.tether_stretch
+    k = params.tether_sag
+    if k <= 0.0:
+        return x / b
+    return 2.0 * x / (b + math.sqrt(b * b + 4.0 * k * x))
+
+
+def calibrated_measurement(m: Any, params: ClimberParams) -> Any:
+    """Measurement ``m`` as a driver calibrated to the sensor model of ``params`` reports it:
+    a tether reading turned back into the distance (:func:`tether_distance`), an IMU sample
+    without the constant biases; anything else as it is."""
+    if isinstance(m, TetherReading):
+        return dataclasses.replace(m, length=tether_distance(m.length, params))
+    if isinstance(m, ImuSample):
+        return dataclasses.replace(
+            m,
+            gyro=np.asarray(m.gyro, dtype=float) - np.asarray(params.gyro_bias, dtype=float),
+            accel=np.asarray(m.accel, dtype=float) - np.asarray(params.accel_bias, dtype=float),
+        )
+    return m

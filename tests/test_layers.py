@@ -72,6 +72,7 @@ DIAGNOSIS_LAYERS: tuple[tuple[str, int], ...] = (
     ("realitygap.diagnosis.adapters.diffdrive", 5),
     ("realitygap.diagnosis.adapters.arm", 5),
     ("realitygap.diagnosis.adapters.climber", 5),
+    ("realitygap.diagnosis.export", 5),  # reads a diagnosis's parts, not diagnose()
     ("realitygap.diagnosis.settings", 6),
     ("realitygap.diagnosis.diagnose", 6),
     ("realitygap.diagnosis.validation", 7),

@@ -60,10 +60,12 @@ from realitygap.baselines.benchmark.profiles import (
     SENSOR_MODES,
     check_reality_applies,
     default_realities,
+    env_keywords,
     env_sensor_mode,
     profile_robot,
     reality_for,
     reality_from_profile,
+    simulator_kwargs,
 )
 from realitygap.baselines.benchmark.report import markdown_report, plot_success
 from realitygap.baselines.benchmark.runner import (
@@ -114,6 +116,7 @@ __all__ = [
     "check_reality_applies",
     "check_run_options",
     "default_realities",
+    "env_keywords",
     "env_sensor_mode",
     "episode_seeds",
     "execute",
@@ -133,6 +136,7 @@ __all__ = [
     "run_benchmark",
     "run_chunk",
     "run_episode",
+    "simulator_kwargs",
     "summarise",
     "t_interval",
     "transfer_rows",

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-from pathlib import Path
 from typing import Any
 
 from realitygap.cards import ENV_CARDS, load_object
@@ -126,54 +125,13 @@ def reality_from_profile(name: str, option: str = "--reality") -> Any:
 
 
 def load_reality_file(path: str | os.PathLike[str], option: str = "--reality") -> Any:
-    """A :class:`~realitygap.robots.effects.Reality` from a JSON or YAML file in
-    :meth:`Reality.to_dict` format, every effect and parameter checked (bounds included).
-
-    Read with :func:`~realitygap.core.checks.load_json_or_yaml` (errors name the file and
-    line); each message names ``option`` and the file.
+    """A :class:`~realitygap.robots.effects.Reality` from a reality file (JSON or YAML, the
+    schema of :mod:`~realitygap.robots.effects.twin` or :meth:`Reality.to_dict`'s form), every
+    effect and parameter checked (bounds included); each message names ``option`` and the file.
     """
-    from realitygap.core.checks import load_json_or_yaml
-    from realitygap.robots.effects import Reality, make_effect
+    from realitygap.robots.effects import load_reality
 
-    data = load_json_or_yaml(Path(path), option, expect=dict, example=_REALITY_EXAMPLE)
-    where = f"{option} {path}"
-    unknown = sorted(set(map(str, data)) - {"name", "effects", "meta"})
-    if unknown:
-        raise ValueError(
-            f"{where}: unknown key(s) {unknown}; a reality file has 'name' and 'effects', e.g. "
-            f"{_REALITY_EXAMPLE}. Fix: remove or rename them"
-        )
-    effects = data.get("effects", [])
-    if not isinstance(effects, list):
-        raise ValueError(
-            f'{where}: \'effects\' must be a list of {{"name": ..., "values": {{...}}}} '
-            f"objects, got {type(effects).__name__}. Fix: write it as in {_REALITY_EXAMPLE}"
-        )
-    built = []
-    for i, item in enumerate(effects):
-        at = f"{where}: effects[{i}]"
-        if not isinstance(item, dict) or not isinstance(item.get("name"), str):
-            raise ValueError(
-                f"{at} must be an object with a 'name' (str) and 'values', got {item!r:.60}. "
-                f"Fix: write it as in {_REALITY_EXAMPLE}"
-            )
-        values = item.get("values", {})
-        if not isinstance(values, dict):
-            raise ValueError(
-                f"{at} ({item['name']!r}): 'values' must be an object of parameter: number, "
-                f"got {values!r:.60}"
-            )
-        try:
-            built.append(make_effect(item["name"], **{str(k): v for k, v in values.items()}))
-        except KeyError as exc:
-            raise ValueError(f"{at}: {exc.args[0]}") from None
-        except (ValueError, TypeError) as exc:
-            raise ValueError(f"{at}: {exc}") from None
-    name = data.get("name", Path(path).stem)
-    try:
-        return Reality(effects=tuple(built), name=str(name))
-    except (ValueError, TypeError) as exc:
-        raise ValueError(f"{where}: {exc}") from None
+    return load_reality(path, option)
 
 
 def reality_for(env_id: str, name: str) -> Any:
@@ -258,3 +216,76 @@ def profile_robot(name: str) -> str | None:
         return None
     robot = reality_from_profile(name).robot
     return None if robot is None else str(robot)
+
+
+def simulator_kwargs(
+    env_id: str,
+    reality: str | None = None,
+    randomize: bool = False,
+    estimator_reality: str | None = None,
+) -> dict[str, Any]:
+    """``gym.make`` keywords (JSON-able) of the simulator ``realitygap train --reality …
+    [--randomize] [--estimator-reality …]`` asks for: ``reality`` a profile name or a reality
+    file; ``randomize`` draws each episode's robot from the file's uncertainty boxes
+    (:attr:`~realitygap.robots.effects.Twin.randomize`); ``estimator_reality`` a profile or
+    file whose effects the env's default estimator includes (a twin's calibrated odometry).
+
+    Raises
+    ------
+    ValueError
+        ``--randomize`` without a reality file, with a file that holds no uncertainty, or for
+        an env that draws no per-episode robot; an ``--estimator-reality`` for an env without
+        that keyword; any error of the profile or file, naming the option.
+    """
+    from realitygap.robots.effects import Twin
+
+    out: dict[str, Any] = {}
+    accepts = env_keywords(env_id)
+    if reality is not None and reality != "nominal":
+        reality_from_profile(reality, "--reality")  # errors name the option
+        out["reality"] = reality_for(env_id, reality).to_dict()
+    if randomize:
+        if reality is None or reality in REALITY_PROFILES or reality == "nominal":
+            raise ValueError(
+                "--randomize draws each episode's robot from a reality file's uncertainty, but "
+                f"--reality is {reality!r}. Fix: give --reality FILE written by `realitygap "
+                "diagnose … --export FILE`, or drop --randomize"
+            )
+        if "randomize" not in accepts:
+            raise ValueError(
+                f"--randomize: {env_id} draws no per-episode robot (it has no 'randomize' "
+                "keyword). Fix: drop --randomize for this env"
+            )
+        boxes = Twin.load(reality, "--reality").randomize
+        if not boxes:
+            raise ValueError(
+                f"--randomize: reality file {reality!r} holds no uncertainty (no parameter has "
+                "a standard error or an observed range), so every episode would be the same "
+                "robot. Fix: drop --randomize, or export the file from a diagnosis"
+            )
+        out["randomize"] = {k: list(v) for k, v in boxes.items()}
+    if estimator_reality is not None:
+        if "estimator_reality" not in accepts:
+            raise ValueError(
+                f"--estimator-reality: {env_id}'s estimator takes no reality (no "
+                "'estimator_reality' keyword). Fix: drop --estimator-reality for this env"
+            )
+        out["estimator_reality"] = reality_from_profile(
+            estimator_reality, "--estimator-reality"
+        ).to_dict()
+    return out
+
+
+def env_keywords(env_id: str) -> set[str]:
+    """The keyword arguments the env registered as ``env_id`` takes."""
+    import inspect
+
+    import gymnasium as gym
+
+    from realitygap.cards import load_object
+
+    spec = gym.spec(env_id)
+    entry = spec.entry_point or spec.vector_entry_point
+    if isinstance(entry, str):
+        entry = load_object(entry)
+    return set(inspect.signature(entry).parameters)

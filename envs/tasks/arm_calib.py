@@ -217,11 +217,17 @@ class ArmCalibTask:
         return np.array(out)
 
     def validation_errors(
-        self, table: MDHTable, tool: npt.ArrayLike, true_points: FloatArray
+        self,
+        table: MDHTable,
+        tool: npt.ArrayLike,
+        true_points: FloatArray,
+        q: FloatArray | None = None,
     ) -> FloatArray:
         """Positioning errors (n_val,) (m) of a model on :attr:`validation_q` against the
-        ``true_points`` (n_val, 3), after the best rigid registration."""
-        p_model = tool_positions(table, self.validation_q, np.asarray(tool, dtype=float))
+        ``true_points`` (n_val, 3), after the best rigid registration. ``q``: the joint
+        angles the model is given for the validation readings (default: the readings)."""
+        q = self.validation_q if q is None else q
+        p_model = tool_positions(table, q, np.asarray(tool, dtype=float))
         return registered_position_errors(p_model, true_points)
 
     # ------------------------------------------------------------------ episode

@@ -39,6 +39,7 @@ _MODULES = (
     "realitygap.experiments.independent",
     "realitygap.experiments.teleop",
     "realitygap.experiments.benchmark",
+    "realitygap.experiments.twin_transfer",
 )
 
 
@@ -53,6 +54,8 @@ class RunContext:
     verbose: bool = True
     data_used: dict[str, str] = field(default_factory=dict)
     """Data folders the experiment read (sub-folder name → path or sample description)."""
+    plots: dict[str, bytes] = field(default_factory=dict)
+    """Figures the experiment drew, by file name, for its report (:meth:`add_plot`)."""
     diagnoses: list[tuple[str, Any]] = field(default_factory=list)
     """Diagnoses the experiment made, labelled, for its report (:meth:`add_diagnosis`)."""
 
@@ -67,6 +70,12 @@ class RunContext:
             if seconds >= 90
             else f"this run takes roughly {seconds:.0f} s"
         )
+
+    def add_plot(self, name: str, png: bytes) -> None:
+        """Hand a figure (PNG bytes, file name ``name``) to the run's report."""
+        if not name.endswith(".png") or "/" in name or name in self.plots:
+            raise ValueError(f"a plot needs a new file name ending in .png, got {name!r}")
+        self.plots[name] = png
 
     def add_diagnosis(self, label: str, diagnosis: Any) -> None:
         """Hand a :class:`~realitygap.diagnosis.diagnose.Diagnosis` to the run's report."""
@@ -239,6 +248,36 @@ def run(
                 intro=[f"{k}: {v}" for k, v in result.get("data", {}).items()],
             )
         )
+    if report_dir is not None and ctx.plots:
+        result["report"] = str(_write_plots(name, exp.description, result, ctx, Path(report_dir)))
     if json_path is not None:
         write_json(json_path, result)
     return result
+
+
+def _write_plots(
+    name: str, description: str, result: dict[str, Any], ctx: RunContext, folder: Path
+) -> Path:
+    """The experiment's figures as PNG files in ``folder``; without a diagnosis report there,
+    also ``report.md``: the figures, the figures' table and each table. Returns the report."""
+    from realitygap.core.io import atomic_write_bytes, atomic_write_text
+
+    folder.mkdir(parents=True, exist_ok=True)
+    for file, png in ctx.plots.items():
+        atomic_write_bytes(folder / file, png)
+    if ctx.diagnoses:
+        return folder / "report.html"
+    lines = [f"# {name}", "", description, ""]
+    lines += [f"![{file}]({file})" for file in ctx.plots]
+    lines += ["", "```text", format_figures(result), "```", ""]
+    for table, rows in result.get("tables", {}).items():
+        if not rows:
+            continue
+        keys = list(rows[0])
+        lines += [f"## {table}", "", "| " + " | ".join(keys) + " |"]
+        lines.append("|" + "---|" * len(keys))
+        for row in rows:
+            cells = (f"{v:.3g}" if isinstance(v, float) else str(v) for v in row.values())
+            lines.append("| " + " | ".join(cells) + " |")
+        lines.append("")
+    return atomic_write_text(folder / "report.md", "\n".join(lines))

@@ -43,6 +43,7 @@ from realitygap.robots.effects.base import (
     register_robot,
     robot_of_params,
 )
+from realitygap.robots.effects.twin import Twin, draw_reality, load_reality
 
 __all__ = [
     "EFFECTS",
@@ -56,12 +57,15 @@ __all__ = [
     "Reality",
     "Stage",
     "TicksHook",
+    "Twin",
     "WheelHook",
     "arm_base_compliance",
     "arm_measurement_scale",
     "arm_tool_offset",
     "blind_ranges",
+    "draw_reality",
     "library",
+    "load_reality",
     "make_effect",
     "pipeline_key",
     "pipeline_order",

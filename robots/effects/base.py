@@ -687,49 +687,30 @@ class Reality:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Reality:
         """A :class:`Reality` from its dict form: :meth:`to_dict` output
-        (``{"name": ..., "effects": [{"name": ..., "values": {...}}, ...]}``) or the short
-        form ``{"effect_name": {"param": value, ...}, ...}``.
+        (``{"name": ..., "effects": [{"name": ..., "values": {...}}, ...]}``) or a reality
+        file's content (both read by :meth:`~realitygap.robots.effects.twin.Twin.from_dict`),
+        or the short form ``{"effect_name": {"param": value, ...}, ...}``.
 
         Raises
         ------
         KeyError
-            An unknown effect name (with close names).
+            An unknown effect name in the short form (with close names).
         TypeError, ValueError
             Not a mapping, an entry of the wrong shape, an unknown key, or a parameter
             value the effect refuses (:func:`make_effect`).
         """
         if not isinstance(data, Mapping):
             raise TypeError(f"a Reality's dict form must be a mapping, got {type(data).__name__}")
-        if "effects" in data:  # to_dict() form
-            extra = sorted(set(data) - {"name", "effects", "meta"})
-            if extra:
-                raise ValueError(
-                    f"a Reality's to_dict() form holds 'name' and 'effects', got also {extra}"
-                )
-            entries = data["effects"]
-            if isinstance(entries, (str, bytes, Mapping)) or not isinstance(entries, Sequence):
-                raise TypeError(
-                    "a Reality's 'effects' must be a list of {'name': ..., 'values': {...}}, "
-                    f"got {type(entries).__name__}"
-                )
-            pairs: list[tuple[Any, Any]] = []
-            for e in entries:
-                if not isinstance(e, Mapping) or "name" not in e:
-                    raise TypeError(
-                        "each of a Reality's 'effects' must be {'name': ..., 'values': {...}}, "
-                        f"got {e!r}"
-                    )
-                pairs.append((e["name"], e.get("values", {})))
-            name = str(data.get("name", "custom"))
-        else:  # short form: effect name -> parameter values
-            pairs = list(data.items())
-            name = "custom"
+        if "effects" in data:  # to_dict() form, or a reality file's (one reader for both)
+            from realitygap.robots.effects.twin import Twin
+
+            return Twin.from_dict(data, where="reality").reality
         effects = []
-        for effect_name, values in pairs:
+        for effect_name, values in data.items():  # short form: effect name -> values
             if not isinstance(values, Mapping):
                 raise TypeError(
                     f"effect {effect_name!r}: its values must be a mapping "
                     f"{{'param': value}}, got {values!r} ({type(values).__name__})"
                 )
             effects.append(make_effect(effect_name, **dict(values)))
-        return cls(effects=tuple(effects), name=name)
+        return cls(effects=tuple(effects), name="custom")

@@ -65,6 +65,8 @@ def test_diagnose_writes_report_and_json(saved_logs, tmp_path, capsys) -> None:
             str(report),
             "--json",
             str(js),
+            "--export",
+            str(tmp_path / "twin.json"),
             "--backend",
             "serial",
             "--quiet",
@@ -72,6 +74,18 @@ def test_diagnose_writes_report_and_json(saved_logs, tmp_path, capsys) -> None:
     )
     assert rc == 0
     data = json.loads(js.read_text())
+    # the exported reality is the robot found, and the env simulates it
+    import gymnasium as gym
+
+    from realitygap.robots.effects import Twin
+
+    twin = Twin.load(tmp_path / "twin.json")
+    fitted = {e.name: e.values for e in twin.reality.effects}
+    assert fitted["wheelbase_error"]["E_b"] == pytest.approx(0.95, abs=0.005)
+    assert twin.stderr["wheelbase_error.E_b"] > 0
+    env = gym.make("realitygap/WheeledNav-v0", reality=str(tmp_path / "twin.json"))
+    assert env.unwrapped.true_params.wheelbase == pytest.approx(0.95 * P.wheelbase, rel=0.006)
+    env.close()
     assert data["verdict"] == ["wheelbase_error"]
     first = data["ranking"][0]
     assert first["name"] == "wheelbase_error"

@@ -297,8 +297,8 @@ def test_reality_in_json_form_is_the_same_robot() -> None:
     b.reset(seed=0)
     np.testing.assert_array_equal(a.drive.b, b.drive.b)
     assert abs(a.drive.b[0] - 0.230 * 1.04) < 1e-12
-    with pytest.raises(TypeError, match="reality must be a Reality"):
-        WheeledNavVecEnv(num_envs=1, reality="kobuki-worn")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=r"no such file: kobuki-worn.*reality_for"):
+        WheeledNavVecEnv(num_envs=1, reality="kobuki-worn")
 
 
 def test_vec_env_state_errors_and_options() -> None:

@@ -35,7 +35,7 @@ def test_from_dict_reads_both_forms() -> None:
         ({"no_such_effect": {}}, KeyError, "no_such_effect"),
         ({"command_latency": {"delay": -1.0}}, ValueError, "delay"),
         ({"command_latency": 0.05}, TypeError, "command_latency"),
-        ({"effects": "command_latency"}, TypeError, "effects"),
+        ({"effects": "command_latency"}, ValueError, "'effects' must be a list"),
         ({"effects": [], "colour": 1}, ValueError, "colour"),
         ("command_latency", TypeError, "mapping"),
     ],
