@@ -688,7 +688,7 @@ class Reality:
     def from_dict(cls, data: Mapping[str, Any]) -> Reality:
         """A :class:`Reality` from its dict form: :meth:`to_dict` output
         (``{"name": ..., "effects": [{"name": ..., "values": {...}}, ...]}``) or a reality
-        file's content (both read by :meth:`~realitygap.robots.effects.twin.Twin.from_dict`),
+        file's content (both read by :func:`reality_from_file_form`),
         or the short form ``{"effect_name": {"param": value, ...}, ...}``.
 
         Raises
@@ -702,9 +702,7 @@ class Reality:
         if not isinstance(data, Mapping):
             raise TypeError(f"a Reality's dict form must be a mapping, got {type(data).__name__}")
         if "effects" in data:  # to_dict() form, or a reality file's (one reader for both)
-            from realitygap.robots.effects.twin import Twin
-
-            return Twin.from_dict(data, where="reality").reality
+            return reality_from_file_form(data, "reality")
         effects = []
         for effect_name, values in data.items():  # short form: effect name -> values
             if not isinstance(values, Mapping):
@@ -714,3 +712,85 @@ class Reality:
                 )
             effects.append(make_effect(effect_name, **dict(values)))
         return cls(effects=tuple(effects), name="custom")
+
+
+REALITY_SCHEMA = "realitygap.reality/2"
+"""Version of a reality file's layout (:mod:`~realitygap.robots.effects.twin`)."""
+REALITY_EXAMPLE = (
+    '{"schema": "realitygap.reality/2", "name": "mine", "effects": [{"name": '
+    '"command_latency", "values": {"delay": 0.06}}]}'
+)
+_FILE_KEYS = {"written_by", "schema", "name", "robot", "effects", "nominal", "source", "meta"}
+_ENTRY_KEYS = {"name", "values", "parameters", "origin"}
+
+
+def reality_from_file_form(data: Any, where: str = "reality") -> Reality:
+    """The :class:`Reality` (fitted values) of a reality file's content: :meth:`Reality.to_dict`'s
+    form or schema :data:`REALITY_SCHEMA` (whose uncertainty
+    :meth:`~realitygap.robots.effects.twin.Twin.from_dict` reads beside it). The one reader of
+    the layout: its keys, its schema, each entry's shape and every value
+    (:func:`make_effect`) are checked, each error naming ``where`` and the entry.
+
+    Raises
+    ------
+    ValueError
+        Anything the layout does not allow.
+    """
+    if not isinstance(data, Mapping):
+        raise ValueError(
+            f"{where}: a reality file holds an object, got {type(data).__name__}. "
+            f"Fix: write it as {REALITY_EXAMPLE}"
+        )
+    unknown = sorted(set(map(str, data)) - _FILE_KEYS)
+    if unknown:
+        raise ValueError(
+            f"{where}: unknown key(s) {unknown}; a reality file has "
+            f"{sorted(_FILE_KEYS - {'written_by'})}, e.g. {REALITY_EXAMPLE}. Fix: remove or "
+            "rename them"
+        )
+    schema = data.get("schema", REALITY_SCHEMA)
+    if schema not in (REALITY_SCHEMA, "realitygap.reality/1"):
+        raise ValueError(
+            f"{where}: schema {schema!r} is not one this version reads ({REALITY_SCHEMA!r}). "
+            "Fix: export the file again with this version"
+        )
+    entries = data.get("effects", [])
+    if not isinstance(entries, list):
+        raise ValueError(
+            f'{where}: \'effects\' must be a list of {{"name": ..., "values": {{...}}}} '
+            f"objects, got {type(entries).__name__}. Fix: write it as in {REALITY_EXAMPLE}"
+        )
+    effects = []
+    for i, item in enumerate(entries):
+        at = f"{where}: effects[{i}]"
+        if not isinstance(item, Mapping) or not isinstance(item.get("name"), str):
+            raise ValueError(
+                f"{at} must be an object with a 'name' (str) and 'values', got "
+                f"{item!r:.60}. Fix: write it as in {REALITY_EXAMPLE}"
+            )
+        extra = sorted(set(map(str, item)) - _ENTRY_KEYS)
+        if extra:
+            raise ValueError(f"{at} ({item['name']!r}): unknown key(s) {extra}")
+        values = item.get("values", {})
+        if not isinstance(values, Mapping):
+            raise ValueError(
+                f"{at} ({item['name']!r}): 'values' must be an object of parameter: "
+                f"number, got {values!r:.60}"
+            )
+        try:
+            effects.append(make_effect(item["name"], **{str(k): v for k, v in values.items()}))
+        except KeyError as exc:
+            raise ValueError(f"{at}: {exc.args[0]}") from None
+        except (ValueError, TypeError) as exc:
+            raise ValueError(f"{at}: {exc}") from None
+    try:
+        reality = Reality(effects=tuple(effects), name=str(data.get("name", "custom")))
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{where}: {exc}") from None
+    robot = data.get("robot")
+    if robot is not None and reality.robot is not None and robot != reality.robot:
+        raise ValueError(
+            f"{where}: 'robot' is {robot!r} but the effects are for the {reality.robot}. "
+            "Fix: correct 'robot' or the effects"
+        )
+    return reality

@@ -38,22 +38,23 @@ from typing import Any
 
 import numpy as np
 
-from realitygap.robots.effects.base import EFFECTS, ROBOT_PARAMS, Effect, Reality, make_effect
+from realitygap.robots.effects.base import (
+    EFFECTS,
+    REALITY_EXAMPLE,
+    REALITY_SCHEMA,
+    ROBOT_PARAMS,
+    Reality,
+    make_effect,
+    reality_from_file_form,
+)
 
 __all__ = ["SCHEMA", "Twin", "draw_reality", "load_reality", "nominal_parameters"]
 
-SCHEMA = "realitygap.reality/2"
+SCHEMA = REALITY_SCHEMA
 """Version of a reality file's layout (this module's docstring)."""
 
 Z95 = 1.959963984540054
 """Half-width of a two-sided 95 % normal interval, in standard errors."""
-
-_KEYS = {"written_by", "schema", "name", "robot", "effects", "nominal", "source", "meta"}
-_EFFECT_KEYS = {"name", "values", "parameters", "origin"}
-_EXAMPLE = (
-    '{"schema": "realitygap.reality/2", "name": "mine", "effects": [{"name": '
-    '"command_latency", "values": {"delay": 0.06}}]}'
-)
 
 
 def _key(effect: str, param: str) -> str:
@@ -199,56 +200,14 @@ class Twin:
             An unknown key, schema, effect or parameter; a value out of bounds; a standard
             error that is negative; an observed range that is not ``[low, high]``.
         """
-        if not isinstance(data, Mapping):
-            raise ValueError(
-                f"{where}: a reality file holds an object, got {type(data).__name__}. "
-                f"Fix: write it as {_EXAMPLE}"
-            )
-        unknown = sorted(set(map(str, data)) - _KEYS)
-        if unknown:
-            raise ValueError(
-                f"{where}: unknown key(s) {unknown}; a reality file has "
-                f"{sorted(_KEYS - {'written_by'})}, e.g. {_EXAMPLE}. Fix: remove or rename them"
-            )
-        schema = data.get("schema", SCHEMA)
-        if schema not in (SCHEMA, "realitygap.reality/1"):
-            raise ValueError(
-                f"{where}: schema {schema!r} is not one this version reads ({SCHEMA!r}). "
-                "Fix: export the file again with this version"
-            )
-        entries = data.get("effects", [])
-        if not isinstance(entries, list):
-            raise ValueError(
-                f'{where}: \'effects\' must be a list of {{"name": ..., "values": {{...}}}} '
-                f"objects, got {type(entries).__name__}. Fix: write it as in {_EXAMPLE}"
-            )
-        effects: list[Effect] = []
+        reality = reality_from_file_form(data, where)  # keys, schema, effects checked
         stderr: dict[str, float] = {}
         observed: dict[str, tuple[float, float]] = {}
         origin: dict[str, str] = {}
-        for i, item in enumerate(entries):
+        by_name = {e.name: e for e in reality.effects}
+        for i, item in enumerate(data.get("effects", [])):
             at = f"{where}: effects[{i}]"
-            if not isinstance(item, Mapping) or not isinstance(item.get("name"), str):
-                raise ValueError(
-                    f"{at} must be an object with a 'name' (str) and 'values', got "
-                    f"{item!r:.60}. Fix: write it as in {_EXAMPLE}"
-                )
-            extra = sorted(set(map(str, item)) - _EFFECT_KEYS)
-            if extra:
-                raise ValueError(f"{at} ({item['name']!r}): unknown key(s) {extra}")
-            values = item.get("values", {})
-            if not isinstance(values, Mapping):
-                raise ValueError(
-                    f"{at} ({item['name']!r}): 'values' must be an object of parameter: "
-                    f"number, got {values!r:.60}"
-                )
-            try:
-                effect = make_effect(item["name"], **{str(k): v for k, v in values.items()})
-            except KeyError as exc:
-                raise ValueError(f"{at}: {exc.args[0]}") from None
-            except (ValueError, TypeError) as exc:
-                raise ValueError(f"{at}: {exc}") from None
-            effects.append(effect)
+            effect = by_name[item["name"]]
             origin[effect.name] = str(item.get("origin", "file"))
             params = item.get("parameters", {})
             if not isinstance(params, Mapping):
@@ -286,17 +245,6 @@ class Twin:
                             f"got {obs!r:.60}"
                         )
                     observed[k] = (float(obs[0]), float(obs[1]))
-        name = data.get("name", "custom")
-        try:
-            reality = Reality(effects=tuple(effects), name=str(name))
-        except (ValueError, TypeError) as exc:
-            raise ValueError(f"{where}: {exc}") from None
-        robot = data.get("robot")
-        if robot is not None and reality.robot is not None and robot != reality.robot:
-            raise ValueError(
-                f"{where}: 'robot' is {robot!r} but the effects are for the {reality.robot}. "
-                "Fix: correct 'robot' or the effects"
-            )
         source = data.get("source", {})
         if not isinstance(source, Mapping):
             raise ValueError(f"{where}: 'source' must be an object, got {type(source).__name__}")
@@ -313,7 +261,7 @@ class Twin:
         """Read a JSON or YAML reality file (errors name ``option`` and the file)."""
         from realitygap.core.checks import load_json_or_yaml
 
-        data = load_json_or_yaml(Path(path), option, expect=dict, example=_EXAMPLE)
+        data = load_json_or_yaml(Path(path), option, expect=dict, example=REALITY_EXAMPLE)
         twin = cls.from_dict(data, where=f"{option} {os.fspath(path)}")
         if "name" not in data:
             object.__setattr__(twin, "reality", Reality(twin.reality.effects, name=Path(path).stem))

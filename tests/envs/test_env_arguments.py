@@ -106,14 +106,20 @@ VEC_TABLE: dict[str, list[object]] = {
     "randomize": ["yes", 1.0, {"no_such_effect": {}}, {"command_latency": {"delay": (0.5, 0.1)}}],
     "render_mode": ["human"],
 }
+def _id(value: object) -> str:
+    """A test id that is the same in every process (an object's repr holds its address)."""
+    text = repr(value)
+    return f"<{type(value).__name__}>" if " at 0x" in text else text
+
+
 VEC_CASES = [
-    pytest.param(arg, value, id=f"vec-{arg}-{value!r}")
+    pytest.param(arg, value, id=f"vec-{arg}-{_id(value)}")
     for arg, values in VEC_TABLE.items()
     for value in values
 ]
 
 CASES = [
-    pytest.param(env_id, arg, value, id=f"{env_id.split('/')[1]}-{arg}-{value!r}")
+    pytest.param(env_id, arg, value, id=f"{env_id.split('/')[1]}-{arg}-{_id(value)}")
     for env_id, args in TABLE.items()
     for arg, values in args.items()
     for value in values
