@@ -106,6 +106,8 @@ VEC_TABLE: dict[str, list[object]] = {
     "randomize": ["yes", 1.0, {"no_such_effect": {}}, {"command_latency": {"delay": (0.5, 0.1)}}],
     "render_mode": ["human"],
 }
+
+
 def _id(value: object) -> str:
     """A test id that is the same in every process (an object's repr holds its address)."""
     text = repr(value)
