@@ -33,18 +33,15 @@ def acts_on_robot(name: str, values: dict[str, float], robot: str) -> bool:
     physical parameters or makes a command, wheel or encoder hook; an effect that does
     neither but re-stamps or re-frames a channel acts on the recording alone."""
     import dataclasses
-    import importlib
 
-    from realitygap.robots.effects.base import ROBOT_PARAMS
+    from realitygap.robots.effects.twin import nominal_params
 
     effect = make_effect(name, **values)
     if not (effect.channel_time_offsets() or effect.channel_frames()):
         return True
-    if robot in ROBOT_PARAMS:
-        module, _, cls = ROBOT_PARAMS[robot].rpartition(".")
-        nominal = getattr(importlib.import_module(module), cls)()
-        changed = effect.apply_params(nominal)
-        if dataclasses.is_dataclass(nominal) and changed != nominal:
+    nominal = nominal_params(robot)
+    if nominal is not None:
+        if dataclasses.is_dataclass(nominal) and effect.apply_params(nominal) != nominal:
             return True
         hooks = (
             effect.make_command_hook(0.05, nominal),

@@ -444,6 +444,7 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
 
         self.task.validation_q = self.candidate_pool(int(n_validation), int(validation_seed))
         self._truth_cache: FloatArray | None = None
+        self._validation_q_cache: FloatArray | None = None
         self._nominal_param_vec = self.params.mdh.params()
         # episode state
         self._q_enc = self.home.copy()
@@ -510,15 +511,24 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
     def validation_errors(self, table: MDHTable, tool: npt.ArrayLike) -> FloatArray:
         """Positioning errors (n_val,) (m) of a model on the validation poses (after the best
         rigid registration)."""
-        q = None
-        if self.believed_params is not None:  # the model predicts from the inferred angles
-            q = np.array(
+        return self.task.validation_errors(
+            table, tool, self._true_validation_points(), self._validation_angles()
+        )
+
+    def _validation_angles(self) -> FloatArray | None:
+        """The joint angles the model is given for the validation readings: ``None`` (the
+        readings) without ``estimator_reality``, else the link angles inferred from them
+        under it (cached with the truth, per arm body)."""
+        if self.believed_params is None:
+            return None
+        if self._validation_q_cache is None:
+            self._validation_q_cache = np.array(
                 [
                     self.robot.link_angles_from_encoders(r, self.believed_params, np.ones(6))
                     for r in self.validation_q
                 ]
             )
-        return self.task.validation_errors(table, tool, self._true_validation_points(), q)
+        return self._validation_q_cache
 
     # ------------------------------------------------------------------ gym API
     def reset(
@@ -585,6 +595,7 @@ class ArmCalibEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         self.robot = ArmRobot(self.world, self.true_params)
         self.camera = FlangeCamera(self.robot, self.board, self.placement)
         self._truth_cache = None
+        self._validation_q_cache = None
 
     def _attempt(
         self, q_cmd: FloatArray, rng: np.random.Generator

@@ -140,13 +140,24 @@ def record_policy_logs(reality: Any, seeds: list[int], rng: np.random.Generator)
     return logs
 
 
+def diagnosis_settings(robot: str, quick: bool, effects: tuple[str, ...] | None = None) -> Any:
+    """The diagnosis both experiments run: the full attribution, or in quick mode no pairs
+    and one PyBullet check; ``effects`` the library (default: the robot's whole one)."""
+    from realitygap.diagnosis.diagnose import DiagnosisSettings
+    from realitygap.diagnosis.problem.problem import AttributionSettings
+
+    attribution = (
+        AttributionSettings(pair_candidates=0, verify_top=1) if quick else AttributionSettings()
+    )
+    return DiagnosisSettings(robot=robot, effects=effects, attribution=attribution)
+
+
 def _diagnose(robot: dict[str, Any], seed: int, quick: bool) -> tuple[Any, dict[str, Any]]:
     """Record the hidden robot's logs with the classical policy (6 training episodes, 4
     held out; 3 and 2 in quick mode), diagnose them (the withheld effects left out of the
     library) and export the twin."""
     from realitygap.diagnosis.adapters.registry import get_adapter
     from realitygap.diagnosis.diagnose import DiagnosisSettings, candidate_library, diagnose
-    from realitygap.diagnosis.problem.problem import AttributionSettings
 
     adapter = get_adapter("diffdrive")
     t0 = time.perf_counter()
@@ -155,14 +166,9 @@ def _diagnose(robot: dict[str, Any], seed: int, quick: bool) -> tuple[Any, dict[
     base = 70_000 + 100 * seed
     train = record_policy_logs(robot["reality"], list(range(base, base + n_train)), rng)
     hold = record_policy_logs(robot["reality"], list(range(base + 50, base + 50 + n_hold)), rng)
-    settings = DiagnosisSettings(robot="diffdrive")
-    library = tuple(e for e in candidate_library(adapter, settings) if e not in robot["withheld"])
-    settings = DiagnosisSettings(
-        robot="diffdrive",
-        effects=library,
-        attribution=AttributionSettings(pair_candidates=0, verify_top=1)
-        if quick
-        else AttributionSettings(),
+    library = candidate_library(adapter, DiagnosisSettings(robot="diffdrive"))
+    settings = diagnosis_settings(
+        "diffdrive", quick, tuple(e for e in library if e not in robot["withheld"])
     )
     d = diagnose(train, hold, settings=settings, progress=lambda m: None)
     twin = d.to_reality(name=f"twin of {robot['name']}")
@@ -608,8 +614,7 @@ def twin_worn(ctx: RunContext) -> dict[str, Any]:
     from realitygap.baselines.benchmark.profiles import reality_for
     from realitygap.baselines.benchmark.stats import wilson_interval
     from realitygap.core.parallel import available_cpus, make_backend
-    from realitygap.diagnosis.diagnose import DiagnosisSettings, diagnose
-    from realitygap.diagnosis.problem.problem import AttributionSettings
+    from realitygap.diagnosis.diagnose import diagnose
 
     episodes = {"diffdrive": 50, "arm": 20, "climber": 20}
     ctx.expect(90 if ctx.quick else 900)
@@ -622,12 +627,7 @@ def twin_worn(ctx: RunContext) -> dict[str, Any]:
         ctx.progress(f"{profile}: recording logs on it and diagnosing them")
         t0 = time.perf_counter()
         train, hold = record_logs(robot, reality, ctx.seed, ctx.quick)
-        settings = DiagnosisSettings(
-            robot=robot,
-            attribution=AttributionSettings(pair_candidates=0, verify_top=1)
-            if ctx.quick
-            else AttributionSettings(),
-        )
+        settings = diagnosis_settings(robot, ctx.quick)
         d = diagnose(train, hold, settings=settings, progress=lambda m: None)
         twin = d.to_reality(name=f"twin of {profile}")
         twin.save(work / f"{profile}.reality.json")

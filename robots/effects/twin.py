@@ -48,7 +48,14 @@ from realitygap.robots.effects.base import (
     reality_from_file_form,
 )
 
-__all__ = ["SCHEMA", "Twin", "draw_reality", "load_reality", "nominal_parameters"]
+__all__ = [
+    "SCHEMA",
+    "Twin",
+    "draw_reality",
+    "load_reality",
+    "nominal_parameters",
+    "nominal_params",
+]
 
 SCHEMA = REALITY_SCHEMA
 """Version of a reality file's layout (this module's docstring)."""
@@ -61,17 +68,24 @@ def _key(effect: str, param: str) -> str:
     return f"{effect}.{param}"
 
 
-def nominal_parameters(robot: str | None) -> dict[str, Any]:
-    """The nominal physical parameters of a registered ``robot`` as plain data (numbers and
-    nested mappings); empty for ``None`` or a robot without registered parameters."""
-    import dataclasses
+def nominal_params(robot: str | None) -> Any:
+    """A registered ``robot``'s nominal physical parameters (its parameter class's
+    defaults); ``None`` for ``None`` or a robot without registered parameters."""
     import importlib
 
     if robot is None or robot not in ROBOT_PARAMS:
-        return {}
+        return None
     module, _, cls = ROBOT_PARAMS[robot].rpartition(".")
-    params = getattr(importlib.import_module(module), cls)()
-    if not dataclasses.is_dataclass(params):
+    return getattr(importlib.import_module(module), cls)()
+
+
+def nominal_parameters(robot: str | None) -> dict[str, Any]:
+    """:func:`nominal_params` as plain data (numbers and nested mappings); empty for ``None``
+    or a robot without registered dataclass parameters."""
+    import dataclasses
+
+    params = nominal_params(robot)
+    if params is None or not dataclasses.is_dataclass(params):
         return {}
     out = dataclasses.asdict(params)  # type: ignore[arg-type]
     return {k: v for k, v in out.items() if isinstance(v, (int, float, str, dict, list, tuple))}
