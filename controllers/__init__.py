@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from realitygap.controllers.apf import APFOutcome, APFParams, APFResult, ImprovedAPF
 from realitygap.controllers.paths import (
+    grid_shortest_path,
     grid_shortest_path_length,
     path_length,
     points_from_occupancy,
@@ -46,6 +47,7 @@ __all__ = [
     "TimedReference",
     "VelocityLimits",
     "available_qp_solvers",
+    "grid_shortest_path",
     "grid_shortest_path_length",
     "path_length",
     "points_from_occupancy",

@@ -6,8 +6,9 @@ centres of occupied grid cells, :func:`points_from_occupancy`); a robot of
 radius plus margin ``inflation_radius`` m is clear of them where every point is
 farther than that. :class:`ObstacleSet` answers the clearance queries of the
 planner (:class:`~realitygap.controllers.apf.ImprovedAPF`);
-:func:`grid_shortest_path_length` gives the reference length for path-length
-ratios.
+:func:`grid_shortest_path` is the complete planner on a grid that takes over where the
+field gives up, and its length (:func:`grid_shortest_path_length`) is the reference for
+path-length ratios.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ __all__ = [
     "ObstacleSet",
     "check_xy",
     "check_xy_points",
+    "grid_shortest_path",
     "grid_shortest_path_length",
     "path_length",
     "points_from_occupancy",
@@ -222,7 +224,7 @@ def points_from_occupancy(
     ).astype(float)
 
 
-def grid_shortest_path_length(
+def grid_shortest_path(
     start_xy: npt.ArrayLike,
     goal_xy: npt.ArrayLike,
     obstacle_points: npt.ArrayLike | None,
@@ -231,8 +233,12 @@ def grid_shortest_path_length(
     inflation_radius: float = 0.22,
     bounds: tuple[float, float, float, float] | None = None,
     max_cells: int = 4_000_000,
-) -> float:
-    """Length in m of a shortest collision-free path, for path-length ratios.
+) -> FloatArray | None:
+    """A shortest collision-free path as way-points (K, 2), ``None`` where there is none.
+
+    A complete planner on the grid: where the potential field of
+    :class:`~realitygap.controllers.ImprovedAPF` gives up in a trap, this finds the way
+    out whenever one exists at the grid's resolution.
 
     Cells of a grid are free when their centre is farther than
     ``inflation_radius`` from every obstacle point.  Dijkstra's algorithm on
@@ -261,9 +267,9 @@ def grid_shortest_path_length(
 
     Returns
     -------
-    float
-        Path length in m, ``inf`` if start or goal is inside an inflated
-        obstacle or no path exists inside ``bounds``.
+    ndarray (K, 2) or None
+        Way-points from ``start_xy`` to ``goal_xy`` (m); ``None`` if start or goal is
+        inside an inflated obstacle or no path exists inside ``bounds``.
     """
     start = check_xy("start_xy", start_xy)
     goal = check_xy("goal_xy", goal_xy)
@@ -289,9 +295,9 @@ def grid_shortest_path_length(
 
     obstacles = ObstacleSet(points, inflation_radius)
     if obstacles.clearance(start) <= 0.0 or obstacles.clearance(goal) <= 0.0:
-        return math.inf
+        return None
     if obstacles.segment_is_clear(start, goal):
-        return float(np.linalg.norm(goal - start))
+        return np.vstack([start, goal])
 
     shape = np.ceil((upper - lower) / resolution).astype(int) + 1  # (nx, ny)
     nx, ny = int(shape[0]), int(shape[1])
@@ -347,14 +353,38 @@ def grid_shortest_path_length(
     source = entry_cell(start)
     target = entry_cell(goal)
     if source is None or target is None:
-        return math.inf
+        return None
     distances, predecessors = csgraph.dijkstra(
         graph, directed=False, indices=source, return_predecessors=True
     )
     if not math.isfinite(float(distances[target])):
-        return math.inf
+        return None
     cells = [target]
     while cells[-1] != source:
         cells.append(int(predecessors[cells[-1]]))
     polyline = np.vstack([start, centres[cells[::-1]], goal])
-    return path_length(shortcut_waypoints(polyline, points, inflation_radius))
+    return shortcut_waypoints(polyline, points, inflation_radius)
+
+
+def grid_shortest_path_length(
+    start_xy: npt.ArrayLike,
+    goal_xy: npt.ArrayLike,
+    obstacle_points: npt.ArrayLike | None,
+    *,
+    resolution: float = 0.05,
+    inflation_radius: float = 0.22,
+    bounds: tuple[float, float, float, float] | None = None,
+    max_cells: int = 4_000_000,
+) -> float:
+    """Length in m of :func:`grid_shortest_path` (``inf`` without a path), for path-length
+    ratios: within a few per cent of the Euclidean shortest path."""
+    path = grid_shortest_path(
+        start_xy,
+        goal_xy,
+        obstacle_points,
+        resolution=resolution,
+        inflation_radius=inflation_radius,
+        bounds=bounds,
+        max_cells=max_cells,
+    )
+    return math.inf if path is None else path_length(path)

@@ -653,6 +653,10 @@ class PolarStabiliser:
         if rho <= self.align_radius:
             heading_error = float(wrap_angle(goal[2] - pose[2]))
             w = self.align_rate * math.tanh(self.align_gain * heading_error / self.align_rate)
+            # no faster than the robot can stop from within the turn that is left, at the
+            # limits' deceleration: it arrives at rest, not turning past the goal heading
+            w_stop = math.sqrt(2.0 * self.limits.alpha_max * abs(heading_error))
+            w = max(-w_stop, min(w_stop, w))
             along = math.cos(pose[2]) * (goal[0] - pose[0]) + math.sin(pose[2]) * (
                 goal[1] - pose[1]
             )

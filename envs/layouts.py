@@ -41,6 +41,32 @@ def clearance(primitives: list[Primitive], xy: npt.ArrayLike) -> FloatArray:
     return np.min(np.stack([p.footprint_distance(xy) for p in primitives]), axis=0)
 
 
+def outline_points(primitives: list[Primitive], spacing: float = 0.02) -> FloatArray:
+    """Points every ``spacing`` m on the footprint outlines of ``primitives`` (m, world
+    frame): the true map a planner or a reference path length is judged against."""
+    pts = []
+    for prim in primitives:
+        if prim.shape.value == "cylinder":
+            n = max(8, int(2 * math.pi * prim.radius / spacing))
+            a = np.linspace(0, 2 * math.pi, n, endpoint=False)
+            pts.append(np.stack([np.cos(a), np.sin(a)], 1) * prim.radius + np.asarray(prim.center))
+            continue
+        hx, hy = prim.half_extents
+        nx, ny = max(2, int(2 * hx / spacing) + 1), max(2, int(2 * hy / spacing) + 1)
+        xs, ys = np.linspace(-hx, hx, nx), np.linspace(-hy, hy, ny)
+        local = np.concatenate(
+            [
+                np.stack([xs, np.full(nx, -hy)], 1),
+                np.stack([xs, np.full(nx, hy)], 1),
+                np.stack([np.full(ny, -hx), ys], 1),
+                np.stack([np.full(ny, hx), ys], 1),
+            ]
+        )
+        c, s = math.cos(prim.yaw), math.sin(prim.yaw)
+        pts.append(local @ np.array([[c, s], [-s, c]]) + np.asarray(prim.center))
+    return np.concatenate(pts) if pts else np.zeros((0, 2))
+
+
 def room_grid(half_size: float, resolution: float) -> FloatArray:
     """Cell centres ``(n, n, 2)`` of a square grid over ``[-half_size, half_size]²``, about
     ``resolution`` apart, with points on both edges (index ``[i, j]`` is ``(x_i, y_j)``)."""

@@ -103,6 +103,7 @@ from realitygap.envs.vector_drive import (
     sample_start_goals,
     vector_effects,
 )
+from realitygap.estimators.scan import scan_angles
 from realitygap.robots.diffdrive import DiffDriveParams
 from realitygap.robots.effects import Reality
 from realitygap.robots.world import Primitive
@@ -438,8 +439,7 @@ class WheeledNavVecEnv(gym.vector.VectorEnv[Any, Any, Any]):
         self._obs_low, self._obs_high = low, high
 
         cam = self.params.camera
-        half = math.radians(cam.hfov_deg) / 2.0
-        self._beam_offsets = np.linspace(-half, half, self.n_beams)
+        self._beam_offsets = scan_angles(self.n_beams, math.radians(cam.hfov_deg))
         self._beam_cos, self._beam_sin = np.cos(self._beam_offsets), np.sin(self._beam_offsets)
         self.scan_range_max = float(cam.range_max)
         self._odo_m_per_tick = (

@@ -82,6 +82,7 @@ from realitygap.envs.tasks.nav import (
     NavTask,
 )
 from realitygap.estimators.base import DiffDriveMeasurement, Estimate, Estimator, Scan
+from realitygap.estimators.scan import scan_angles
 from realitygap.robots.diffdrive import (
     DiffDriveParams,
     DiffDriveRobot,
@@ -341,8 +342,7 @@ class WheeledNavEnv(gym.Env[npt.NDArray[np.float32], npt.NDArray[np.float32]]):
         """Bearings (rad, base frame) of the scan beams in the observation, as the robot
         believes its camera is mounted (nominal parameters)."""
         cam = self.params.camera
-        half = math.radians(cam.hfov_deg) / 2.0
-        return cam.mount_yaw + np.linspace(-half, half, self.n_beams)
+        return cam.mount_yaw + scan_angles(self.n_beams, math.radians(cam.hfov_deg))
 
     @property
     def scan_range_max(self) -> float:

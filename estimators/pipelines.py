@@ -135,6 +135,11 @@ with the generic :class:`OdometryNoise` (1 cm per √m, 1.8° per √rad) every 
 error — a few millimetres and tenths of a degree in feature-poor views — pulls the pose."""
 
 
+_NEW_CHAIN = frozenset({"initialised", "reinitialised", "reset"})
+"""VO statuses of a frame that starts a new key-frame chain (:class:`~realitygap.estimators.
+vo_params.VOStatus` values): its ``T_prev_curr`` is no measurement of motion."""
+
+
 @dataclass(frozen=True)
 class FusedPipelineSettings:
     """Settings of :class:`FusedOdometryVO`: VO, its noise model, the fusion (odometry noise
@@ -231,7 +236,16 @@ class FusedOdometryVO:
         if measurement.rgbd is not None:
             res = self.vo.update(measurement.rgbd)
             self._vo_status, self._vo_inliers = str(res.status), int(res.n_inliers)
-            if res.ok and res.keyframe:
+            if res.status in _NEW_CHAIN:
+                # VO started a new key-frame chain at this frame: it measured no motion, the
+                # filter anchors its key-frame here (its first relative motion comes next)
+                self.ekf.set_keyframe(t)
+                if res.ok:
+                    self._failures = 0
+                else:
+                    self._failures += 1
+                    self._n_vo_failures += 1
+            elif res.ok and res.keyframe:
                 motion = np.asarray(planar_motion_from_camera(res.T_prev_curr, self.T_base_camera))
                 if self.ekf.update_relative(
                     motion,
@@ -246,8 +260,6 @@ class FusedOdometryVO:
             else:
                 self._failures += 1
                 self._n_vo_failures += 1
-                if res.status in ("reinitialised", "reset", "initialised"):
-                    self.ekf.set_keyframe(t)
         if measurement.scan is not None and self.grid is not None:
             self.grid.update(self.ekf.x[:3].copy(), measurement.scan)
         lost = self._failures >= self.settings.lost_after

@@ -24,10 +24,31 @@ KINECT_V2_HFOV_RAD = float(np.deg2rad(70.6))
 
 
 def scan_angles(n_beams: int, fov: float) -> FloatArray:
-    """Beam bearings (n_beams,) in rad: centres of ``n_beams`` equal bins spanning
-    ``[-fov/2, fov/2]``, counter-clockwise from the base x axis."""
-    step = fov / n_beams
-    return (-0.5 * fov + (np.arange(n_beams) + 0.5) * step).astype(np.float64)
+    """Beam bearings (n_beams,) in rad, counter-clockwise from the base x axis: equally
+    spaced over ``[-fov/2, fov/2]`` with both ends included (one beam: straight ahead; a
+    full circle, ``fov = 2π``: ``-π + 2π k / n_beams``, no bearing twice).
+
+    The one definition of a scan's bearings: the analytic scan casts its rays along them,
+    the env's observation names them, and :func:`scan_from_depth` reports the depth
+    picture's range along each."""
+    if n_beams == 1:
+        return np.zeros(1)
+    if fov >= 2.0 * np.pi:
+        return -np.pi + (2.0 * np.pi / n_beams) * np.arange(n_beams, dtype=np.float64)
+    return np.linspace(-0.5 * fov, 0.5 * fov, n_beams)
+
+
+def beam_window(n_beams: int, fov: float, fx: float) -> float:
+    """Half-width (rad) of the bearings whose pixels a beam takes: a quarter of the beam
+    spacing, at least three quarters of a pixel (``fx`` pixels per rad at the centre) and at
+    most half the spacing. A beam is a ray, as the analytic scan's, not a wedge: the nearest
+    pixel of a wedge over a surface seen at a slant lies at the wedge's edge, up to
+    ``r · tan(incidence) · spacing / 2`` in front of the surface along the beam (20 cm at
+    5 m for a wall seen at 75° across 64 beams of a Kinect v2)."""
+    if n_beams == 1:
+        return 0.5 * fov
+    spacing = (2.0 * np.pi / n_beams) if fov >= 2.0 * np.pi else fov / (n_beams - 1)
+    return float(min(0.5 * spacing, max(0.25 * spacing, 0.75 / fx)))
 
 
 @lru_cache(maxsize=8)
@@ -48,6 +69,19 @@ def _ray_coefficients(
     return coeffs[0], coeffs[1], coeffs[2]
 
 
+@lru_cache(maxsize=8)
+def _floor_depths(intrinsics: CameraIntrinsics, rotation_bytes: bytes, height: float) -> FloatArray:
+    """Per-pixel depth (H·W,) float32 at which the pixel's ray meets the floor, the plane
+    ``z = 0`` of the base frame, for a camera ``height`` m above it; ``inf`` for rays that
+    do not point down."""
+    a2 = _ray_coefficients(intrinsics, rotation_bytes)[2]
+    with np.errstate(divide="ignore"):
+        floor = np.where(a2 < 0.0, -np.float32(height) / a2, np.float32(np.inf))
+    floor = floor.astype(np.float32)
+    floor.setflags(write=False)
+    return floor
+
+
 def scan_from_depth(
     depth: npt.ArrayLike,
     intrinsics: CameraIntrinsics,
@@ -58,6 +92,8 @@ def scan_from_depth(
     range_max: float = 8.0,
     *,
     range_min: float = 0.0,
+    depth_min: float = 0.0,
+    depth_noise: tuple[float, float] = (0.0, 0.0),
     t: float = 0.0,
 ) -> Scan:
     r"""Reduce a depth image to a planar scan in the base frame.
@@ -71,10 +107,24 @@ def scan_from_depth(
               + t_{bc},
 
     kept when its height :math:`z_b` lies in ``z_band`` and its planar range
-    :math:`r = \sqrt{x_b^2 + y_b^2}` in ``[range_min, range_max]``, and binned
-    by bearing :math:`\operatorname{atan2}(y_b, x_b)` into ``n_beams`` equal
-    bins over ``[-fov/2, fov/2]``. Each beam reports the smallest range in its
-    bin, ``inf`` if the bin is empty.
+    :math:`r = \sqrt{x_b^2 + y_b^2}` in ``[range_min, range_max]``, and given to
+    the beam whose bearing (:func:`scan_angles`) is within :func:`beam_window` of its
+    own, :math:`\operatorname{atan2}(y_b, x_b)`. Each beam reports the smallest range
+    of its pixels, ``inf`` if it has none.
+
+    Two properties of a depth camera are taken into account where they are given:
+
+    * **Its blind zone** (``depth_min`` > 0). A pixel returns nothing nearer than
+      ``depth_min``, so an obstacle that close is invisible. But a pixel whose ray meets the
+      floor (``z = 0`` of the base frame) at a depth in ``[depth_min, range_max]`` would
+      have returned the floor or something before it: when it returns nothing, something
+      nearer than ``depth_min`` blocks it. Such a pixel counts as a return at ``depth_min``
+      on its ray, whatever its height (a drop in the floor blocks the ray the same way).
+    * **Its depth noise** (``depth_noise = (a, b)``, σ(z) = a + b z²). The nearest of many
+      noisy pixels lies about 2.5 σ in front of the surface (20 cm at 6 m for a Kinect v2),
+      which fills the free space with phantom obstacles. Each beam reports instead the mean
+      range of its pixels within 4 σ of the nearest one: the surface that nearest pixel
+      belongs to, to within a tenth of σ.
 
     Parameters
     ----------
@@ -96,6 +146,11 @@ def scan_from_depth(
         Farthest planar range kept [m].
     range_min : float
         Nearest planar range kept [m].
+    depth_min : float
+        The camera's nearest valid depth [m] (its blind zone); 0: no blind zone.
+    depth_noise : (float, float)
+        ``(a, b)`` of the camera's depth noise σ(z) = a + b z² [m, 1/m]; ``(0, 0)``: each
+        beam reports its nearest pixel.
     t : float
         Time stamp [s] copied into the scan.
 
@@ -113,10 +168,10 @@ def scan_from_depth(
 
     Notes
     -----
-    The range of a beam is the range of the nearest point in its bin, which is
-    not exactly on the bin's centre line: for a wall at distance ``d`` ahead,
-    a bin spanning bearings ``[φ₁, φ₂]`` reports ``d / cos(min |φ|)`` over the
-    bin, to within the pixel spacing.
+    The range of a beam is that of its nearest pixel, which is not exactly on the
+    beam's bearing ``φ``: for a wall at distance ``d`` ahead, a beam with window ``w``
+    reports ``d / cos(min |φ'|)`` over ``φ' ∈ [φ − w, φ + w]``, to within the pixel
+    spacing.
     """
     if not isinstance(intrinsics, CameraIntrinsics):
         raise TypeError(f"intrinsics must be CameraIntrinsics, got {type(intrinsics).__name__}")
@@ -139,6 +194,11 @@ def scan_from_depth(
         raise ValueError(f"fov must lie in (0, 2π] rad, got {fov}")
     if not 0.0 <= range_min < range_max:
         raise ValueError(f"need 0 ≤ range_min < range_max, got {range_min} and {range_max}")
+    if not 0.0 <= depth_min < range_max:
+        raise ValueError(f"need 0 ≤ depth_min < range_max, got {depth_min} and {range_max}")
+    noise_a, noise_b = (float(v) for v in depth_noise)
+    if not (noise_a >= 0.0 and noise_b >= 0.0 and np.isfinite(noise_a + noise_b)):
+        raise ValueError(f"depth_noise must be two finite values ≥ 0 (a, b), got {depth_noise}")
 
     a0, a1, a2 = _ray_coefficients(intrinsics, np.ascontiguousarray(T[:3, :3]).tobytes())
     # Single precision throughout (relative error ~1e-7, i.e. < 1 µm at 8 m);
@@ -150,16 +210,66 @@ def scan_from_depth(
     # nan, inf and non-positive depths fail the band test
     idx = np.flatnonzero((height >= z_min) & (height <= z_max) & (z > 0.0) & (z < np.inf))
     zs = z[idx]
+    if depth_min > 0.0 and tz > 0.0:
+        # pixels that must have seen the floor but returned nothing: blocked nearer than
+        # depth_min (the comparison is False for nan, so "not a valid depth" is ~(z > 0) or inf)
+        floor = _floor_depths(intrinsics, np.ascontiguousarray(T[:3, :3]).tobytes(), float(tz))
+        # ... where the floor is farther than depth_min and nearer than range_max by five
+        # standard deviations of the depth noise (which may push a pixel out of either limit)
+        with np.errstate(invalid="ignore", over="ignore"):  # inf: rays that miss the floor
+            sigma5 = np.float32(5.0) * (np.float32(noise_a) + np.float32(noise_b) * floor * floor)
+            must_see = (floor - sigma5 >= np.float32(depth_min)) & (
+                floor + sigma5 <= np.float32(range_max)
+            )
+        blind = np.flatnonzero(must_see & ~((z > 0.0) & (z < np.inf)))
+        if len(blind):
+            idx = np.concatenate([idx, blind])
+            zs = np.concatenate([zs, np.full(len(blind), depth_min, dtype=np.float32)])
     x = a0[idx] * zs + tx
     y = a1[idx] * zs + ty
     r2 = x * x + y * y  # squared range: min commutes with sqrt, np.hypot is slow
-    beam = np.floor((np.arctan2(y, x) + np.float32(0.5 * fov)) * np.float32(n_beams / fov))
-    beam = beam.astype(np.intp)
-    if fov >= 2.0 * np.pi:
-        beam %= n_beams
-    keep = (beam >= 0) & (beam < n_beams) & (r2 >= range_min**2) & (r2 <= range_max**2)
+    bearing = np.arctan2(y, x)
+    if n_beams == 1:
+        beam = np.zeros(len(bearing), dtype=np.intp)
+        offset = bearing
+    else:
+        full = fov >= 2.0 * np.pi
+        spacing = np.float32((2.0 * np.pi / n_beams) if full else fov / (n_beams - 1))
+        first = np.float32(-np.pi if full else -0.5 * fov)
+        k = np.rint((bearing - first) / spacing)
+        offset = bearing - (first + k * spacing)
+        beam = k.astype(np.intp)
+        if full:
+            beam %= n_beams
+    window = np.float32(beam_window(n_beams, fov, intrinsics.fx))
+    keep = (
+        (beam >= 0)
+        & (beam < n_beams)
+        & (np.abs(offset) <= window)
+        & (r2 >= range_min**2)
+        & (r2 <= range_max**2)
+    )
     nearest2 = np.full(n_beams, np.inf, dtype=np.float32)
     np.minimum.at(nearest2, beam[keep], r2[keep])
+    if noise_a > 0.0 or noise_b > 0.0:
+        # the mean of each beam's pixels within 4 σ of its nearest one
+        b_k, r_k = beam[keep], np.sqrt(r2[keep])
+        nearest = np.sqrt(nearest2)
+        window = nearest + np.float32(4.0) * (
+            np.float32(noise_a) + np.float32(noise_b) * nearest * nearest
+        )
+        close = r_k <= window[b_k]
+        count = np.bincount(b_k[close], minlength=n_beams)
+        total = np.bincount(b_k[close], weights=r_k[close], minlength=n_beams)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = total / count
+        return Scan(
+            t=float(t),
+            angles=scan_angles(n_beams, fov),
+            ranges=np.where(count > 0, mean, np.inf),
+            range_min=float(range_min),
+            range_max=float(range_max),
+        )
     ranges = np.sqrt(nearest2.astype(np.float64))
     return Scan(
         t=float(t),

@@ -25,6 +25,7 @@ import pybullet as p
 
 from realitygap.core.jit import KERNELS, compiled
 from realitygap.estimators.base import CameraIntrinsics, RGBDFrame, Scan
+from realitygap.estimators.scan import scan_angles
 from realitygap.robots.diffdrive import DiffDriveRobot, RGBDCameraParams
 from realitygap.robots.raycast import cast_rotated_beams, cast_rotated_beams_compiled
 
@@ -184,8 +185,7 @@ class PlanarScanner:
         self.params = params
         self.n_beams = int(n_beams)
         self.z_band = z_band
-        half = math.radians(params.hfov_deg) / 2.0
-        self.angles = params.mount_yaw + np.linspace(-half, half, self.n_beams)
+        self.angles = params.mount_yaw + scan_angles(self.n_beams, math.radians(params.hfov_deg))
         self._cos = np.cos(self.angles)
         self._sin = np.sin(self.angles)
         mx, my = params.mount_xyz[0], params.mount_xyz[1]
@@ -289,6 +289,8 @@ class PlanarScanner:
             n_beams=self.n_beams,
             fov=math.radians(self.params.hfov_deg),
             range_max=self.params.range_max,
+            depth_min=self.params.range_min,
+            depth_noise=(self.params.depth_noise_a, self.params.depth_noise_b),
             t=frame.t,
         )
 

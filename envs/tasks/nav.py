@@ -50,6 +50,18 @@ N_BEAMS = 64  # beams of the planar scan
 SCAN_HZ = 10.0  # Hz
 
 
+REST_SPEED = 0.01
+"""Speed (m/s) below which the robot is at rest."""
+REST_YAW_RATE = 0.05
+"""Yaw rate (rad/s) below which the robot is at rest."""
+
+
+def at_rest(v: float, w: float) -> bool:
+    """Whether a twist (m/s, rad/s) is at rest: ``|v| <`` :data:`REST_SPEED` and
+    ``|ω| <`` :data:`REST_YAW_RATE`."""
+    return abs(v) < REST_SPEED and abs(w) < REST_YAW_RATE
+
+
 class _HasTwist(Protocol):
     def twist(self) -> FloatArray: ...
 
@@ -274,12 +286,12 @@ class NavTask:
         return math.hypot(x - gx, y - gy), abs(d_th)
 
     def is_success(self, dist: float, ang: float, robot: _HasTwist) -> bool:
-        """Within the tolerances of the goal pose and at rest (``|v| < 0.01`` m/s,
-        ``|ω| < 0.05`` rad/s, read from ``robot.twist()`` only when within tolerance)."""
+        """Within the tolerances of the goal pose and at rest (:func:`at_rest`, read from
+        ``robot.twist()`` only when within tolerance)."""
         if dist > self.success_pos_tol or ang > self.success_ang_tol:
             return False
         v, w = robot.twist()
-        return abs(v) < 0.01 and abs(w) < 0.05
+        return at_rest(v, w)
 
     def get_reward(
         self, dist: float, ang: float, action: tuple[float, float], collision: bool, success: bool

@@ -40,6 +40,7 @@ _MODULES = (
     "realitygap.experiments.teleop",
     "realitygap.experiments.benchmark",
     "realitygap.experiments.twin_transfer",
+    "realitygap.experiments.nav_stress",
 )
 
 

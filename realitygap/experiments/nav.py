@@ -398,6 +398,7 @@ def nav8_vo(ctx: RunContext) -> dict[str, Any]:
 def nav_obstacles(ctx: RunContext) -> dict[str, Any]:
     from realitygap.baselines import ClassicalNavPolicy
     from realitygap.controllers import grid_shortest_path_length
+    from realitygap.envs.layouts import outline_points
 
     n_layouts = 10 if ctx.quick else 50
     rows = []
@@ -409,7 +410,7 @@ def nav_obstacles(ctx: RunContext) -> dict[str, Any]:
         base = env.unwrapped
         info = ep["info"]
         # reference: grid shortest path around the true obstacles (inflated by the body radius)
-        pts = _obstacle_outline_points(base)
+        pts = outline_points(list(base.world.scenery_primitives()))
         start_xy = np.asarray(base._start_pose)[:2]
         shortest = grid_shortest_path_length(
             start_xy,
@@ -463,36 +464,3 @@ def nav_obstacles(ctx: RunContext) -> dict[str, Any]:
         "config": {"n_obstacles": 8, "layouts": n_layouts},
         "tables": {"episodes": rows},
     }
-
-
-def _obstacle_outline_points(base: Any, spacing: float = 0.02) -> np.ndarray:
-    """Points on the outlines of the env's true obstacles and walls (for the grid reference)."""
-    pts = []
-    for prim in base.world.scenery_primitives():
-        if prim.shape.value == "cylinder":
-            n = max(8, int(2 * math.pi * prim.radius / spacing))
-            a = np.linspace(0, 2 * math.pi, n, endpoint=False)
-            pts.append(
-                np.stack(
-                    [
-                        prim.center[0] + prim.radius * np.cos(a),
-                        prim.center[1] + prim.radius * np.sin(a),
-                    ],
-                    1,
-                )
-            )
-        else:
-            hx, hy = prim.half_extents
-            nx, ny = max(2, int(2 * hx / spacing) + 1), max(2, int(2 * hy / spacing) + 1)
-            xs, ys = np.linspace(-hx, hx, nx), np.linspace(-hy, hy, ny)
-            local = np.concatenate(
-                [
-                    np.stack([xs, np.full(nx, -hy)], 1),
-                    np.stack([xs, np.full(nx, hy)], 1),
-                    np.stack([np.full(ny, -hx), ys], 1),
-                    np.stack([np.full(ny, hx), ys], 1),
-                ]
-            )
-            c, s = math.cos(prim.yaw), math.sin(prim.yaw)
-            pts.append(local @ np.array([[c, s], [-s, c]]) + np.asarray(prim.center))
-    return np.concatenate(pts) if pts else np.zeros((0, 2))

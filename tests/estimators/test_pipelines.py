@@ -87,3 +87,42 @@ def test_vo_noise_uses_the_solver_covariance_of_keyframe_motions() -> None:
     np.testing.assert_allclose(
         off.covariance(np.array([0.1, 0.0, 0.0]), _result(C6), T_BASE_CAMERA_FORWARD), fixed
     )
+
+
+class _ScriptedVO:
+    """Stands in for the pipeline's VO: returns the results it is given, in turn."""
+
+    def __init__(self, results: list[VOResult]):
+        self.results = list(results)
+
+    def reset(self, *_: object) -> None:
+        pass
+
+    def update(self, frame: object) -> VOResult:
+        return self.results.pop(0)
+
+
+@pytest.mark.parametrize("status", ["initialised", "reinitialised", "reset"])
+def test_a_new_key_frame_chain_measures_no_motion(status: str) -> None:
+    """The frame that starts a VO chain carries the identity as its ``T_prev_curr``; it is
+    no measurement that the robot stood still since the filter's last key-frame. With the
+    robot turning in place, the fused heading must stay the odometry's (it was pulled back
+    1.6° by such a frame, which put the goal 4 cm off at the end of a 2 m drive)."""
+    fused = FusedOdometryVO(KIN, T_BASE_CAMERA_FORWARD)
+    odo = WheelOdometry(KIN)
+    fused.reset([0.0, 0.0, 0.0])
+    odo.reset([0.0, 0.0, 0.0])
+    start = _result(None)
+    start = VOResult(**{**start.__dict__, "status": status, "ok": status == "initialised"})
+    est = ref = None
+    for k in range(1, 9):
+        ticks = WheelTicks(0.05 * k, -60 * k, 60 * k, KIN.ticks_per_rev)  # turning left
+        if k == 8:
+            fused.vo = _ScriptedVO([start])  # type: ignore[assignment]
+            est = fused.update(DiffDriveMeasurement(0.05 * k, ticks, rgbd=_blank(0.05 * k)))
+        else:
+            est = fused.update(DiffDriveMeasurement(0.05 * k, ticks))
+        ref = odo.update(ticks)
+    assert est is not None and ref is not None
+    assert ref.pose[2] > 0.1  # it did turn
+    np.testing.assert_allclose(est.pose, ref.pose, atol=1e-9)

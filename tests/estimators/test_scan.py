@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from realitygap.estimators.base import CameraIntrinsics, Scan
-from realitygap.estimators.scan import scan_angles, scan_from_depth
+from realitygap.estimators.scan import beam_window, scan_angles, scan_from_depth
 from realitygap.estimators.vo import T_BASE_CAMERA_FORWARD
 
 INTR = CameraIntrinsics(width=320, height=240, fx=226.0, fy=226.0, cx=159.5, cy=119.5)
@@ -41,30 +41,93 @@ def floor_depth(height: float = HEIGHT_M) -> np.ndarray:
     return depth.astype(np.float32)
 
 
-def beam_edges(n_beams: int, fov: float) -> tuple[np.ndarray, np.ndarray]:
-    step = fov / n_beams
-    lo = -fov / 2 + step * np.arange(n_beams)
-    return lo, lo + step
-
-
 @pytest.mark.parametrize("distance", [0.8, 2.0, 5.5])
 @pytest.mark.parametrize("n_beams", [31, 120])
 def test_wall_ahead_gives_closed_form_ranges(distance: float, n_beams: int) -> None:
-    """Wall x_b = d: the nearest point of a bin over [φ₁, φ₂] is at d / cos(min |φ|)."""
+    """Wall x_b = d: a beam at bearing φ with window w reports d / cos(min |φ'|) over
+    φ' ∈ [φ − w, φ + w], to within the pixel spacing."""
     offset = 0.12  # camera ahead of the base origin
     fov = np.deg2rad(60.0)  # inside the camera's view of the wall from the base origin
     scan = scan_from_depth(
         wall_depth(distance - offset), INTR, mount(x=offset), (0.05, 1.0), n_beams, fov
     )
-    lo, hi = beam_edges(n_beams, fov)
-    nearest_bearing = np.where(lo * hi <= 0, 0.0, np.minimum(np.abs(lo), np.abs(hi)))
-    expected = distance / np.cos(nearest_bearing)
-    # pixel spacing on the wall bounds the deviation from the closed form
+    angles = scan_angles(n_beams, fov)
+    w = beam_window(n_beams, fov, INTR.fx)
+    expected = distance / np.cos(np.maximum(np.abs(angles) - w, 0.0))
     pixel_m = (distance - offset) / INTR.fx
     assert np.all(np.isfinite(scan.ranges))
     assert np.all(scan.ranges >= expected - 1e-5)
     np.testing.assert_allclose(scan.ranges, expected, atol=pixel_m * 1.5)
-    np.testing.assert_allclose(scan.angles, (lo + hi) / 2, atol=1e-15)
+    np.testing.assert_allclose(scan.angles, angles, atol=1e-15)
+
+
+@pytest.mark.parametrize("incidence_deg", [0.0, 45.0, 70.0, 80.0])
+def test_a_slanted_wall_is_ranged_along_each_beam(incidence_deg: float) -> None:
+    """A wall seen at a slant: every beam reports the range along its own bearing (the
+    closed-form ray-plane intersection), not the nearest pixel of a wedge in front of it —
+    which lies up to ``r · tan(incidence) · spacing / 2`` short at the wedge's edge."""
+    xn, _ = pixel_rays()
+    # wall through (d, 0) in the base frame with normal n at `incidence` from base x
+    d, inc = 3.0, np.deg2rad(incidence_deg)
+    n = np.array([np.cos(inc), np.sin(inc)])
+    # optical frame: x right (= -y_b), z forward (= x_b); depth z where the ray meets it
+    depth = (d * n[0]) / (n[0] * 1.0 + n[1] * (-xn))
+    depth = np.where(depth > 0, depth, np.nan).astype(np.float32)
+    n_beams, fov = 64, np.deg2rad(60.0)
+    scan = scan_from_depth(depth, INTR, mount(), (0.05, 1.0), n_beams, fov)
+    bearing = scan.angles
+    truth = d * n[0] / (n[0] * np.cos(bearing) + n[1] * np.sin(bearing))
+    ok = np.isfinite(truth) & (truth > 0) & (truth < 8.0)
+    # what is left: the window's half-width (a pixel or two) times the range's slope
+    slope = truth * np.abs(np.tan(bearing - inc))
+    window = beam_window(n_beams, fov, INTR.fx)
+    tolerance = slope * window + 2.0 * truth / INTR.fx
+    assert np.all(truth[ok] - scan.ranges[ok] <= tolerance[ok] + 1e-4)
+    assert np.all(scan.ranges[ok] <= truth[ok] + 2.0 * truth[ok] / INTR.fx + 1e-4)
+    # the wedge's error would have been larger wherever the wall is slanted
+    spacing = fov / (n_beams - 1)
+    if incidence_deg >= 45.0:
+        assert np.median((truth - scan.ranges)[ok]) < 0.5 * np.median((slope * spacing / 2)[ok])
+
+
+def test_noisy_depth_gives_unbiased_ranges() -> None:
+    """σ(z) = a + b z²: the nearest of many noisy pixels lies ~2.5 σ short; the beams
+    report the surface to within a few tenths of σ."""
+    a, b = 0.001, 0.002
+    distance = 6.0
+    rng = np.random.default_rng(3)
+    clean = wall_depth(distance).astype(np.float64)
+    sigma = a + b * distance**2
+    depth = (clean + rng.normal(0.0, sigma, clean.shape)).astype(np.float32)
+    fov = np.deg2rad(40.0)
+    plain = scan_from_depth(depth, INTR, mount(), (0.05, 1.0), 32, fov)
+    aware = scan_from_depth(depth, INTR, mount(), (0.05, 1.0), 32, fov, depth_noise=(a, b))
+    truth = distance / np.cos(plain.angles)
+    assert np.median(truth - plain.ranges) > 1.5 * sigma  # the nearest pixel is biased
+    assert abs(np.median(truth - aware.ranges)) < 0.5 * sigma
+
+
+def test_an_obstacle_inside_the_blind_zone_is_reported() -> None:
+    """Pixels whose ray should meet the floor beyond depth_min but return nothing are
+    blocked nearer than depth_min: their beams report the range at depth_min."""
+    depth_min = 0.5
+    floor = floor_depth()
+    depth = np.where(floor >= depth_min, floor, np.nan).astype(np.float32)
+    free = scan_from_depth(depth, INTR, mount(), (0.05, 1.0), 32, depth_min=depth_min)
+    assert np.all(np.isinf(free.ranges))  # the floor alone: nothing in the band
+    # a box nearer than depth_min fills the left third of the picture: no return there
+    blocked = depth.copy()
+    blocked[:, : INTR.width // 3] = np.nan
+    scan = scan_from_depth(blocked, INTR, mount(), (0.05, 1.0), 32, depth_min=depth_min)
+    left = scan.angles > np.arctan(((INTR.width / 3 - INTR.cx) * -1.0) / INTR.fx) + 0.02
+    assert np.all(np.isfinite(scan.ranges[left]))
+    # the point at depth depth_min on a ray at bearing φ lies depth_min / cos φ away
+    assert np.all(scan.ranges[left] <= depth_min / np.cos(scan.angles[left]) + 1e-4)
+    right = scan.angles < -0.05
+    assert np.all(np.isinf(scan.ranges[right]))
+    # without the blind zone the same picture shows nothing at all (the old failure)
+    blind = scan_from_depth(blocked, INTR, mount(), (0.05, 1.0), 32)
+    assert np.all(np.isinf(blind.ranges))
 
 
 def test_height_band_excludes_the_floor() -> None:
@@ -144,8 +207,11 @@ def test_precision_does_not_depend_on_input_dtype() -> None:
 
 
 def test_scan_angles() -> None:
-    angles = scan_angles(4, np.pi)
-    np.testing.assert_allclose(angles, [-3 * np.pi / 8, -np.pi / 8, np.pi / 8, 3 * np.pi / 8])
+    np.testing.assert_allclose(
+        scan_angles(4, np.pi), [-np.pi / 2, -np.pi / 6, np.pi / 6, np.pi / 2]
+    )
+    np.testing.assert_allclose(scan_angles(4, 2 * np.pi), [-np.pi, -np.pi / 2, 0.0, np.pi / 2])
+    np.testing.assert_allclose(scan_angles(1, 1.0), [0.0])
 
 
 def test_errors() -> None:
