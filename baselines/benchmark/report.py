@@ -33,8 +33,11 @@ def markdown_report(
     transfer: Sequence[Mapping[str, Any]],
     notes: Sequence[str] = (),
     surrogate: Sequence[Mapping[str, Any]] = (),
+    mode_gap: Sequence[Mapping[str, Any]] = (),
 ) -> str:
-    """The benchmark tables in Markdown (``surrogate``: the surrogate → PyBullet rows)."""
+    """The benchmark tables in Markdown (``surrogate``: the surrogate → PyBullet rows;
+    ``mode_gap``: fast next to image mode, :func:`~realitygap.baselines.benchmark.stats.
+    mode_gap_rows`)."""
     lines = [
         "# Benchmark",
         "",
@@ -55,6 +58,22 @@ def markdown_report(
             f"{_pm(r, 'time_to_goal_s')} | {_pm(r, 'effort', 3)} | {_pm(r, 'jerk', 0)} | "
             f"{_pm(r, 'compute_ms', 3)} |"
         )
+    if mode_gap:
+        lines += [
+            "",
+            "## Fast vs image mode (success; gap = fast − image, 95 % Newcombe interval)",
+            "",
+            "| env | policy | reality | n fast | n image | success fast | success image | "
+            "gap (pp) | gap 95 % (pp) |",
+            "|---|---|---|---|---|---|---|---|---|",
+        ]
+        for g in mode_gap:
+            lines.append(
+                f"| {g['env']} | {g['policy']} | {g['reality']} | {g['n_fast']} | "
+                f"{g['n_image']} | {_fmt(g['success_fast'])} | {_fmt(g['success_image'])} | "
+                f"{_fmt(g['gap_pp'], 1)} | [{_fmt(g['gap_ci_low_pp'], 1)}, "
+                f"{_fmt(g['gap_ci_high_pp'], 1)}] |"
+            )
     if transfer:
         lines += [
             "",

@@ -29,6 +29,7 @@ from realitygap.baselines.benchmark.stats import (
     METRICS,
     REACHED_RADIUS,
     extra_metrics,
+    mode_gap_rows,
     record_key,
     summarise,
     transfer_rows,
@@ -480,6 +481,8 @@ class BenchmarkResult:
     wall_seconds: float
     surrogate: list[dict[str, Any]] = field(default_factory=list)
     """Surrogate → PyBullet rows (:func:`~realitygap.baselines.benchmark.vector.surrogate_transfer_rows`)."""
+    mode_gap: list[dict[str, Any]] = field(default_factory=list)
+    """Fast next to image mode (:func:`~realitygap.baselines.benchmark.stats.mode_gap_rows`)."""
 
 
 def run_benchmark(
@@ -497,8 +500,9 @@ def run_benchmark(
 
     Files: ``episodes.jsonl`` (streamed), ``summary.csv``, ``transfer.csv``,
     ``surrogate_transfer.csv`` (learned WheeledNav policies: success in the vectorised
-    surrogate next to PyBullet), ``benchmark.md``, ``success.png``, ``learning_curves.png`` (when curves are
-    given), ``config.json``.
+    surrogate next to PyBullet), ``mode_gap.csv`` (cells run in both sensor modes: fast next to
+    image, the gap with its interval), ``benchmark.md``, ``success.png``,
+    ``learning_curves.png`` (when curves are given), ``config.json``.
     """
     t0 = time.perf_counter()
     if not isinstance(cfg, BenchmarkConfig):
@@ -531,6 +535,7 @@ def run_benchmark(
     records = [r for r in store.load() if record_key(r)[:4] in wanted]
     summary = summarise(records)
     transfer = transfer_rows(summary)
+    mode_gap = mode_gap_rows(summary)
     from realitygap.baselines.benchmark.vector import surrogate_transfer_rows
 
     all_notes = list(notes)
@@ -546,6 +551,9 @@ def run_benchmark(
     if surrogate:
         files["surrogate_transfer_csv"] = out / "surrogate_transfer.csv"
         write_csv_atomic(files["surrogate_transfer_csv"], surrogate)
+    if mode_gap:
+        files["mode_gap_csv"] = out / "mode_gap.csv"
+        write_csv_atomic(files["mode_gap_csv"], mode_gap)
     all_notes += [f"failed task: {e}" for e in errors]
     crashed: dict[tuple[str, ...], list[Mapping[str, Any]]] = {}
     for rec in records:
@@ -561,7 +569,8 @@ def run_benchmark(
         if name in REALITY_PROFILES:
             all_notes.append(f"reality `{name}`: {REALITY_PROFILES[name]['description']}")
     atomic_write_text(
-        files["markdown"], markdown_report(summary, transfer, all_notes, surrogate=surrogate)
+        files["markdown"],
+        markdown_report(summary, transfer, all_notes, surrogate=surrogate, mode_gap=mode_gap),
     )
     png = plot_success(summary, out / "success.png")
     if png is not None:
@@ -573,5 +582,5 @@ def run_benchmark(
         if lc is not None:
             files["learning_curves_png"] = lc
     return BenchmarkResult(
-        out, summary, transfer, errors, files, time.perf_counter() - t0, surrogate
+        out, summary, transfer, errors, files, time.perf_counter() - t0, surrogate, mode_gap
     )

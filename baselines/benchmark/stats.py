@@ -83,6 +83,31 @@ def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[f
     return (low, high)
 
 
+def difference_interval(
+    k1: int, n1: int, k2: int, n2: int, confidence: float = 0.95
+) -> tuple[float, float]:
+    r"""Interval of the difference of two rates ``k1/n1 − k2/n2`` (Newcombe's hybrid score
+    interval, his method 10, from the two :func:`wilson_interval`\ s ``(l_i, u_i)``):
+
+    .. math::
+
+        \hat d - \sqrt{(\hat p_1 - l_1)^2 + (u_2 - \hat p_2)^2}, \qquad
+        \hat d + \sqrt{(u_1 - \hat p_1)^2 + (\hat p_2 - l_2)^2}.
+
+    It keeps its coverage near rates of 0 and 1, where the normal approximation's collapses.
+    """
+    if n1 <= 0 or n2 <= 0:
+        return (math.nan, math.nan)
+    p1, p2 = k1 / n1, k2 / n2
+    l1, u1 = wilson_interval(k1, n1, confidence)
+    l2, u2 = wilson_interval(k2, n2, confidence)
+    d = p1 - p2
+    return (
+        d - math.sqrt((p1 - l1) ** 2 + (u2 - p2) ** 2),
+        d + math.sqrt((u1 - p1) ** 2 + (p2 - l2) ** 2),
+    )
+
+
 def extra_metrics(env_id: str) -> tuple[str, ...]:
     """The env's own metrics (:attr:`~realitygap.cards.EnvCard.metrics`); none for an unknown id."""
     card = ENV_CARDS.get(env_id)
@@ -167,6 +192,39 @@ def transfer_rows(summary: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
                 "reached_10cm_reality": r["reached_10cm_mean"],
                 "final_pos_error_cm_nominal": base["final_pos_error_cm_mean"],
                 "final_pos_error_cm_reality": r["final_pos_error_cm_mean"],
+            }
+        )
+    return out
+
+
+def mode_gap_rows(
+    summary: Sequence[Mapping[str, Any]], confidence: float = 0.95
+) -> list[dict[str, Any]]:
+    """Success in fast mode next to image mode, per env, policy and reality, with the
+    gap's interval (:func:`difference_interval`): what rendering the sensors costs."""
+    cells: dict[tuple[str, str, str], dict[str, Mapping[str, Any]]] = {}
+    for r in summary:
+        cells.setdefault((r["env"], r["policy"], r["reality"]), {})[r["sensor_mode"]] = r
+    out = []
+    for (env, policy, reality), modes in cells.items():
+        if "fast" not in modes or "image" not in modes:
+            continue
+        fast, image = modes["fast"], modes["image"]
+        kf = int(round(float(fast["success_mean"]) * int(fast["n"])))
+        ki = int(round(float(image["success_mean"]) * int(image["n"])))
+        lo, hi = difference_interval(kf, int(fast["n"]), ki, int(image["n"]), confidence)
+        out.append(
+            {
+                "env": env,
+                "policy": policy,
+                "reality": reality,
+                "n_fast": int(fast["n"]),
+                "n_image": int(image["n"]),
+                "success_fast": kf / int(fast["n"]),
+                "success_image": ki / int(image["n"]),
+                "gap_pp": 100.0 * (kf / int(fast["n"]) - ki / int(image["n"])),
+                "gap_ci_low_pp": 100.0 * lo,
+                "gap_ci_high_pp": 100.0 * hi,
             }
         )
     return out

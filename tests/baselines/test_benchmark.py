@@ -124,6 +124,34 @@ def test_wilson_interval_matches_the_closed_form() -> None:
         bm.wilson_interval(11, 10)
 
 
+def test_difference_interval_matches_newcombes_example() -> None:
+    """Newcombe (1998), Stat. Med. 17:873, method 10 on 56/70 − 48/80: 0.0524 to 0.3339."""
+    assert bm.difference_interval(56, 70, 48, 80) == pytest.approx((0.0524, 0.3339), abs=5e-5)
+    lo, hi = bm.difference_interval(10, 10, 0, 10)  # stays inside [-1, 1] at the extremes
+    assert hi == pytest.approx(1.0) and 0.5 < lo < 1.0
+    lo, hi = bm.difference_interval(7, 20, 7, 20)
+    assert lo == pytest.approx(-hi) and lo < 0 < hi
+    assert all(math.isnan(v) for v in bm.difference_interval(1, 0, 1, 2))
+
+
+def test_mode_gap_rows_pair_fast_with_image() -> None:
+    def row(mode: str, k: int, n: int, policy: str = "p") -> dict[str, Any]:
+        return {
+            "env": "WheeledNav-v0",
+            "policy": policy,
+            "reality": "nominal",
+            "sensor_mode": mode,
+            "n": n,
+            "success_mean": k / n,
+        }
+
+    rows = [row("fast", 56, 70), row("image", 48, 80), row("fast", 5, 5, "alone")]
+    (gap,) = bm.mode_gap_rows(rows)  # a policy without image mode has no row
+    assert (gap["policy"], gap["n_fast"], gap["n_image"]) == ("p", 70, 80)
+    assert gap["gap_pp"] == pytest.approx(100 * (0.8 - 0.6))
+    assert (gap["gap_ci_low_pp"], gap["gap_ci_high_pp"]) == pytest.approx((5.243, 33.387), abs=1e-2)
+
+
 def test_summary_uses_wilson_for_rates_and_successes_for_time_to_goal() -> None:
     recs = [
         {
