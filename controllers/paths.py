@@ -14,6 +14,7 @@ path-length ratios.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -370,21 +371,10 @@ def grid_shortest_path_length(
     start_xy: npt.ArrayLike,
     goal_xy: npt.ArrayLike,
     obstacle_points: npt.ArrayLike | None,
-    *,
-    resolution: float = 0.05,
-    inflation_radius: float = 0.22,
-    bounds: tuple[float, float, float, float] | None = None,
-    max_cells: int = 4_000_000,
+    **options: Any,
 ) -> float:
-    """Length in m of :func:`grid_shortest_path` (``inf`` without a path), for path-length
-    ratios: within a few per cent of the Euclidean shortest path."""
-    path = grid_shortest_path(
-        start_xy,
-        goal_xy,
-        obstacle_points,
-        resolution=resolution,
-        inflation_radius=inflation_radius,
-        bounds=bounds,
-        max_cells=max_cells,
-    )
+    """Length in m of :func:`grid_shortest_path` (``inf`` without a path; ``options``: its
+    keywords), for path-length ratios: within a few per cent of the Euclidean shortest
+    path."""
+    path = grid_shortest_path(start_xy, goal_xy, obstacle_points, **options)
     return math.inf if path is None else path_length(path)

@@ -144,26 +144,26 @@ def classify_failure(trace: EpisodeTrace) -> tuple[str, str]:
     lo = max(0, end - w)
     err = np.linalg.norm(trace.true_xy[: end + 1] - trace.est_xy[: end + 1], axis=1)
     window_err = float(err[lo:].max()) if len(err) else 0.0
-    if window_err > LOCALISATION_TOLERANCE:
-        first = int(np.argmax(err > LOCALISATION_TOLERANCE))
-        detail = (
-            f"localisation error {100 * window_err:.1f} cm before the failure "
-            f"(above {100 * LOCALISATION_TOLERANCE:.0f} cm from t = {first * trace.dt:.1f} s)"
-        )
-        if bool(np.any(trace.vo_lost[: end + 1])):
-            return "perception: VO lost", detail
-        return "perception: localisation", detail
     final_xy = trace.true_xy[end]
     dist_goal = float(np.linalg.norm(final_xy - trace.goal_xy))
-    if trace.collision_step is None and dist_goal <= DOCKING_RADIUS and err[end] > trace.pos_tol:
-        # it stopped where it believed the goal was, beyond the task's tolerance of it
-        detail = (
-            f"ended {100 * dist_goal:.1f} cm from the goal with a localisation error of "
-            f"{100 * float(err[end]):.1f} cm (tolerance {100 * trace.pos_tol:.0f} cm)"
-        )
-        if bool(np.any(trace.vo_lost[: end + 1])):
-            return "perception: VO lost", detail
-        return "perception: localisation", detail
+    # or it stopped where it believed the goal was, beyond the task's tolerance of it
+    stopped_off = (
+        trace.collision_step is None and dist_goal <= DOCKING_RADIUS and err[end] > trace.pos_tol
+    )
+    if window_err > LOCALISATION_TOLERANCE or stopped_off:
+        if stopped_off:
+            detail = (
+                f"ended {100 * dist_goal:.1f} cm from the goal with a localisation error of "
+                f"{100 * float(err[end]):.1f} cm (tolerance {100 * trace.pos_tol:.0f} cm)"
+            )
+        else:
+            first = int(np.argmax(err > LOCALISATION_TOLERANCE))
+            detail = (
+                f"localisation error {100 * window_err:.1f} cm before the failure (above "
+                f"{100 * LOCALISATION_TOLERANCE:.0f} cm from t = {first * trace.dt:.1f} s)"
+            )
+        lost = bool(np.any(trace.vo_lost[: end + 1]))
+        return ("perception: VO lost" if lost else "perception: localisation"), detail
     if trace.collision_step is not None:
         return _classify_collision(trace, final_xy)
     return _classify_timeout(trace, end)
