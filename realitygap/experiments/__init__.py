@@ -256,6 +256,10 @@ def run(
     return result
 
 
+REPORT_TABLE_ROWS = 60
+"""Rows of a table that ``report.md`` shows; the JSON keeps them all."""
+
+
 def _write_plots(
     name: str, description: str, result: dict[str, Any], ctx: RunContext, folder: Path
 ) -> Path:
@@ -277,8 +281,10 @@ def _write_plots(
         keys = list(rows[0])
         lines += [f"## {table}", "", "| " + " | ".join(keys) + " |"]
         lines.append("|" + "---|" * len(keys))
-        for row in rows:
+        for row in rows[:REPORT_TABLE_ROWS]:
             cells = (f"{v:.3g}" if isinstance(v, float) else str(v) for v in row.values())
             lines.append("| " + " | ".join(cells) + " |")
+        if len(rows) > REPORT_TABLE_ROWS:
+            lines += ["", f"… and {len(rows) - REPORT_TABLE_ROWS} more rows in the JSON."]
         lines.append("")
     return atomic_write_text(folder / "report.md", "\n".join(lines))

@@ -29,3 +29,14 @@ def test_a_plot_needs_a_new_png_file_name(name: str) -> None:
     ctx.add_plot("a.png", b"")
     with pytest.raises(ValueError, match=r"\.png"):
         ctx.add_plot(name, b"")
+
+
+def test_a_long_table_is_cut_in_the_report_not_in_the_result(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from realitygap.experiments import REPORT_TABLE_ROWS
+
+    rows = [{"seed": k} for k in range(REPORT_TABLE_ROWS + 5)]
+    result = {"experiment": "x", "figures": {}, "tables": {"episodes": rows}}
+    text = _write_plots("x", "d", result, RunContext(), tmp_path).read_text()
+    assert f"| {REPORT_TABLE_ROWS - 1} |" in text and f"| {REPORT_TABLE_ROWS} |" not in text
+    assert "5 more rows in the JSON" in text
+    assert len(result["tables"]["episodes"]) == REPORT_TABLE_ROWS + 5
