@@ -417,7 +417,7 @@ def nav_stress(ctx: RunContext) -> dict[str, Any]:
         for mode in ("fast", "image")
         for i in range(0, len(seeds), chunk)
     ]
-    ctx.expect(75 if ctx.quick else 1500)
+    ctx.expect(40 if ctx.quick else 600)
     ctx.progress(
         f"{len(seeds)} episodes per policy and mode over seed ranges {ranges}: {len(items)} chunks"
     )
@@ -449,6 +449,18 @@ def nav_stress(ctx: RunContext) -> dict[str, Any]:
         figures[f"{key}_real_time_factor"] = row["real_time_factor"]
     for row in tables["gaps"]:
         figures[f"{row['policy']}_fast_minus_image_pct"] = row["gap_pct"]
+    from realitygap.experiments.twin_transfer import success_plot
+
+    png = success_plot(
+        [{**r, "panel": "success per policy and sensor mode"} for r in tables["summary"]],
+        group="mode",
+        bars="policy",
+        panels="panel",
+        title="nav-stress: success with 95 % Wilson intervals",
+        ylabel="success (%)",
+    )
+    if png is not None:
+        ctx.add_plot("nav_stress_success.png", png)
     png = _class_plot(tables["classes"])
     if png is not None:
         ctx.add_plot("nav_stress_classes.png", png)

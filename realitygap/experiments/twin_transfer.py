@@ -435,7 +435,12 @@ def _setting_words(index: int) -> dict[str, float]:
 
 
 def success_plot(
-    rows: list[dict[str, Any]], group: str, bars: str, panels: str, title: str
+    rows: list[dict[str, Any]],
+    group: str,
+    bars: str,
+    panels: str,
+    title: str,
+    ylabel: str = "success on the real robot (%)",
 ) -> bytes | None:
     """Success (%) with 95 % Wilson whiskers: one panel per ``rows[i][panels]``, groups of
     bars by ``group``, one bar per ``bars`` value; PNG bytes (``None`` without matplotlib).
@@ -469,7 +474,7 @@ def success_plot(
             ax.bar(xs, vals, width, yerr=err, capsize=2, label=kind)
         ax.set_xticks(np.arange(len(groups)), groups, rotation=20, fontsize=8)
         ax.set_ylim(0, 105)
-        ax.set_ylabel("success on the real robot (%)")
+        ax.set_ylabel(ylabel)
         ax.set_title(str(panel))
         ax.legend(fontsize=7)
     fig.suptitle(title)

@@ -181,3 +181,22 @@ def test_far_returns_do_not_enter_the_memory() -> None:
     policy.predict(observation(np.zeros(3), np.array([-2.0, 0, 0]), np.zeros(2), near))
     mem = policy.obstacle_memory()
     assert len(mem) > 0 and np.all(np.linalg.norm(mem, axis=1) <= policy.config.mark_range)
+
+
+@pytest.mark.parametrize("draw", range(3))
+def test_done_only_at_rest(draw: int) -> None:
+    """Class "controller: docking": the pose passed inside the tolerance while the robot
+    still turned fast; "done" was declared, the ramp-down overshot by 17° and "done" stuck.
+    The policy is done only at rest (the task's own criterion)."""
+    rng = np.random.default_rng(600 + draw)
+    goal = np.array([rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(-math.pi, math.pi)])
+    pose = goal.copy()  # exactly on the goal pose ...
+    policy = make_policy()
+    spinning = np.array([0.0, rng.uniform(0.3, 1.0) * LIMITS.w_max])  # ... but still turning
+    policy.predict(observation(pose, goal, spinning, np.ones(N_BEAMS)))
+    state = policy._states[0]
+    state.phase = "stabilise"
+    policy.predict(observation(pose, goal, spinning, np.ones(N_BEAMS)))
+    assert policy.episode_stats()["phase"] == "stabilise"
+    policy.predict(observation(pose, goal, np.zeros(2), np.ones(N_BEAMS)))  # at rest
+    assert policy.episode_stats()["phase"] == "done"

@@ -369,3 +369,16 @@ def test_plan_smooth_track_and_stabilise_reaches_the_goal_pose(start: list[float
     assert abs(float(wrap_angle(pose[2] - goal[2]))) <= math.radians(0.3)
     body_radius = 0.176
     assert cKDTree(obstacles).query(np.array(trajectory)[:, :2])[0].min() > body_radius
+
+
+def test_the_final_turn_can_stop_before_the_goal_heading() -> None:
+    """On the goal position the stabiliser turns in place no faster than the robot can stop
+    from within the turn that is left: |ω| ≤ √(2 α_max |Δθ|)."""
+    limits = VelocityLimits(v_max=0.7, w_max=3.0, a_max=0.5, alpha_max=0.8)
+    stab = PolarStabiliser(limits=limits, align_rate=3.0)
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        err = float(rng.uniform(-1.0, 1.0)) * 10.0 ** float(rng.uniform(-4, 0))
+        _, w = stab.command([1.0, 2.0, 0.3], [1.0, 2.0, 0.3 + err])
+        assert abs(w) <= math.sqrt(2.0 * limits.alpha_max * abs(err)) + 1e-12
+        assert w * err >= 0.0  # towards the goal heading
