@@ -48,6 +48,7 @@ from realitygap.controllers import (
     ImprovedAPF,
     KanayamaTracker,
     PolarStabiliser,
+    SmoothPath,
     TimedReference,
     VelocityLimits,
     grid_shortest_path,
@@ -76,13 +77,13 @@ class ClassicalNavConfig:
     path_clearance: float = 0.22
     """Re-plan when a newly seen obstacle point is this close to the remaining path (m)."""
     memory_resolution: float = 0.05
+    """Obstacle memory cell size (m); one point is kept per cell."""
     mark_range: float = 4.0
     """Only returns nearer than this (m) enter the obstacle memory. A depth camera's noise
     grows with the square of the range (σ ≈ 3 cm at 4 m, 13 cm at 8 m for a Kinect v2), and
     a remembered point is never taken back: farther returns would fill the free space with
     phantom obstacles. An obstacle beyond it is marked once the robot comes within it, and
     the plan is renewed then."""
-    """Obstacle memory cell size (m); one point is kept per cell."""
     replan_interval: float = 1.0
     """Minimum time between re-plans triggered by new obstacles (s)."""
     speed_fraction: float = 0.8
@@ -142,8 +143,10 @@ class _EpisodeState:
     failed_smoothing: int = 0
     t_stabilise: float = 0.0
     last_outcome: str = ""
+    """Why the last plan ended (:class:`~realitygap.controllers.APFOutcome` value, or
+    ``"grid"`` when the grid planner's path was taken)."""
     last_scan: FloatArray | None = None
-    """Why the last plan ended (:class:`~realitygap.controllers.APFOutcome` value)."""
+    """The scan last remembered (the env repeats a scan between scans)."""
 
 
 class ClassicalNavPolicy(PerEnvPolicy):
@@ -216,7 +219,6 @@ class ClassicalNavPolicy(PerEnvPolicy):
             "smoothing_failures": st.failed_smoothing,
             "phase": st.phase,
             "last_plan": st.last_outcome,
-            "has_path": st.reference is not None,
         }
 
     def planned_path(self, env_index: int = 0) -> FloatArray | None:
@@ -376,7 +378,7 @@ class ClassicalNavPolicy(PerEnvPolicy):
 
     def _smooth_clear_path(
         self, raw: FloatArray, obstacles: FloatArray, pose: FloatArray
-    ) -> tuple[Any, float] | None:
+    ) -> tuple[SmoothPath, float] | None:
         """The smoothed path through the planner's way-points, and its initial heading.
 
         The smoothing fits the way-points without seeing the obstacles, and a fit through
@@ -389,7 +391,7 @@ class ClassicalNavPolicy(PerEnvPolicy):
         tree = cKDTree(obstacles) if len(obstacles) else None
         start_clear = float(tree.query(pose[:2])[0]) if tree is not None else math.inf
         need = min(self.config.path_clearance, start_clear - 0.01)
-        best: tuple[float, Any, float] | None = None
+        best: tuple[float, SmoothPath, float] | None = None
         for waypoints in (
             shortcut_waypoints(raw, obstacles, self.config.apf.inflation_radius),
             raw,

@@ -240,11 +240,6 @@ class FusedOdometryVO:
                 # VO started a new key-frame chain at this frame: it measured no motion, the
                 # filter anchors its key-frame here (its first relative motion comes next)
                 self.ekf.set_keyframe(t)
-                if res.ok:
-                    self._failures = 0
-                else:
-                    self._failures += 1
-                    self._n_vo_failures += 1
             elif res.ok and res.keyframe:
                 motion = np.asarray(planar_motion_from_camera(res.T_prev_curr, self.T_base_camera))
                 if self.ekf.update_relative(
@@ -254,8 +249,7 @@ class FusedOdometryVO:
                     t=t,
                 ):
                     self._n_vo_updates += 1
-                self._failures = 0
-            elif res.ok:
+            if res.ok:
                 self._failures = 0
             else:
                 self._failures += 1

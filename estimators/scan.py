@@ -70,16 +70,27 @@ def _ray_coefficients(
 
 
 @lru_cache(maxsize=8)
-def _floor_depths(intrinsics: CameraIntrinsics, rotation_bytes: bytes, height: float) -> FloatArray:
-    """Per-pixel depth (H·W,) float32 at which the pixel's ray meets the floor, the plane
-    ``z = 0`` of the base frame, for a camera ``height`` m above it; ``inf`` for rays that
-    do not point down."""
-    a2 = _ray_coefficients(intrinsics, rotation_bytes)[2]
+def _must_see_floor(
+    intrinsics: CameraIntrinsics,
+    rotation_bytes: bytes,
+    height: float,
+    depth_min: float,
+    range_max: float,
+    noise: tuple[float, float],
+) -> npt.NDArray[np.intp]:
+    """Indices of the pixels whose ray meets the floor, the plane ``z = 0`` of the base
+    frame, for a camera ``height`` m above it, at a depth within ``[depth_min, range_max]``
+    by five standard deviations σ(z) = a + b z² of the depth noise (which may push a pixel
+    out of either limit): such a pixel returns the floor or something nearer."""
+    a2 = _ray_coefficients(intrinsics, rotation_bytes)[2].astype(np.float64)
     with np.errstate(divide="ignore"):
-        floor = np.where(a2 < 0.0, -np.float32(height) / a2, np.float32(np.inf))
-    floor = floor.astype(np.float32)
-    floor.setflags(write=False)
-    return floor
+        floor = np.where(a2 < 0.0, -height / a2, np.inf)
+    with np.errstate(invalid="ignore"):  # inf - inf for rays that miss the floor
+        sigma5 = 5.0 * (noise[0] + noise[1] * floor * floor)
+        must = (floor - sigma5 >= depth_min) & (floor + sigma5 <= range_max)
+    idx = np.flatnonzero(must)
+    idx.setflags(write=False)
+    return idx
 
 
 def scan_from_depth(
@@ -208,20 +219,21 @@ def scan_from_depth(
     with np.errstate(invalid="ignore"):  # ±inf depth times a zero ray coefficient
         height = a2 * z + tz
     # nan, inf and non-positive depths fail the band test
-    idx = np.flatnonzero((height >= z_min) & (height <= z_max) & (z > 0.0) & (z < np.inf))
+    valid = (z > 0.0) & (z < np.inf)
+    idx = np.flatnonzero((height >= z_min) & (height <= z_max) & valid)
     zs = z[idx]
     if depth_min > 0.0 and tz > 0.0:
         # pixels that must have seen the floor but returned nothing: blocked nearer than
-        # depth_min (the comparison is False for nan, so "not a valid depth" is ~(z > 0) or inf)
-        floor = _floor_depths(intrinsics, np.ascontiguousarray(T[:3, :3]).tobytes(), float(tz))
-        # ... where the floor is farther than depth_min and nearer than range_max by five
-        # standard deviations of the depth noise (which may push a pixel out of either limit)
-        with np.errstate(invalid="ignore", over="ignore"):  # inf: rays that miss the floor
-            sigma5 = np.float32(5.0) * (np.float32(noise_a) + np.float32(noise_b) * floor * floor)
-            must_see = (floor - sigma5 >= np.float32(depth_min)) & (
-                floor + sigma5 <= np.float32(range_max)
-            )
-        blind = np.flatnonzero(must_see & ~((z > 0.0) & (z < np.inf)))
+        # depth_min, they count as a return at depth_min on their ray
+        must = _must_see_floor(
+            intrinsics,
+            np.ascontiguousarray(T[:3, :3]).tobytes(),
+            float(tz),
+            float(depth_min),
+            float(range_max),
+            (noise_a, noise_b),
+        )
+        blind = must[~valid[must]]
         if len(blind):
             idx = np.concatenate([idx, blind])
             zs = np.concatenate([zs, np.full(len(blind), depth_min, dtype=np.float32)])
@@ -255,22 +267,16 @@ def scan_from_depth(
         # the mean of each beam's pixels within 4 σ of its nearest one
         b_k, r_k = beam[keep], np.sqrt(r2[keep])
         nearest = np.sqrt(nearest2)
-        window = nearest + np.float32(4.0) * (
+        upper = nearest + np.float32(4.0) * (
             np.float32(noise_a) + np.float32(noise_b) * nearest * nearest
         )
-        close = r_k <= window[b_k]
+        close = r_k <= upper[b_k]
         count = np.bincount(b_k[close], minlength=n_beams)
         total = np.bincount(b_k[close], weights=r_k[close], minlength=n_beams)
         with np.errstate(invalid="ignore", divide="ignore"):
-            mean = total / count
-        return Scan(
-            t=float(t),
-            angles=scan_angles(n_beams, fov),
-            ranges=np.where(count > 0, mean, np.inf),
-            range_min=float(range_min),
-            range_max=float(range_max),
-        )
-    ranges = np.sqrt(nearest2.astype(np.float64))
+            ranges = np.where(count > 0, total / count, np.inf)
+    else:
+        ranges = np.sqrt(nearest2.astype(np.float64))
     return Scan(
         t=float(t),
         angles=scan_angles(n_beams, fov),

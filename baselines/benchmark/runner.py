@@ -7,7 +7,7 @@ import logging
 import math
 import os
 import time
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -54,8 +54,11 @@ def run_episode(
     seed: int,
     deterministic: bool = True,
     pose_shape: tuple[int, ...] | None = None,
+    on_step: Callable[[Mapping[str, Any]], None] | None = None,
 ) -> dict[str, Any]:
     """Run one seeded episode of ``policy`` through SB3's ``predict``; return its metrics.
+
+    ``on_step`` is called with each step's ``info`` (e.g. to keep a trace of the episode).
 
     The policy is told the episode start (``episode_start``), and re-seeded with
     ``seed`` when it has a ``seed`` method (random policy), so an episode depends on
@@ -92,6 +95,8 @@ def run_episode(
         compute += time.perf_counter() - t0
         start = False
         obs, reward, terminated, truncated, info = env.step(action)
+        if on_step is not None:
+            on_step(info)
         steps += 1
         done = bool(terminated or truncated)
         total_reward += float(reward)

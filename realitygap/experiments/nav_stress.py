@@ -22,7 +22,8 @@ class                               the evidence
                                     where the robot's map showed it free (an unseen
                                     side or corner)
 ``perception: map wrong``           the planner found no path in the robot's map, but
-                                    finds one in the true map (phantom obstacles)
+                                    the complete grid planner finds one in the true map
+                                    (phantom obstacles)
 ``planner: no path``                no path in the robot's map nor in the true one
 ``planner: stale plan``             a collision on a path that the robot's own map showed
                                     blocked (the plan was not renewed)
@@ -49,6 +50,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -118,7 +120,8 @@ class EpisodeTrace:
     pos_tol: float = 0.03
     """The task's success tolerance on the position (m)."""
     true_map_has_path: bool | None = None
-    """Whether the planner finds a path from the final pose in the true map (no-path cases)."""
+    """Whether the complete grid planner finds a path from the final pose in the true map
+    (no-path cases)."""
 
 
 def _hit_obstacle(trace: EpisodeTrace, xy: npt.NDArray[np.float64]) -> Any:
@@ -233,70 +236,66 @@ def _classify_timeout(trace: EpisodeTrace, end: int) -> tuple[str, str]:
 
 
 def run_traced(env: Any, policy: Any, seed: int) -> tuple[EpisodeTrace, dict[str, Any]]:
-    """Run one seeded episode of ``policy`` on a WheeledNav ``env``; its trace and metrics."""
+    """Run one seeded episode of ``policy`` on a WheeledNav ``env`` (the benchmark's episode
+    loop); its trace and metrics."""
+    from realitygap.baselines.benchmark.runner import run_episode
+
     base = env.unwrapped
-    obs, info = env.reset(seed=seed)
-    true_xy, est_xy, lost = [], [], []
-    collision_step = None
-    success = False
-    done, start, k = False, True, 0
+    steps: list[Mapping[str, Any]] = []
+
+    def keep(info: Mapping[str, Any]) -> None:
+        steps.append(
+            {
+                "true": np.asarray(info["true_pose"][:2], dtype=float),
+                "est": np.asarray(info["estimated_pose"][:2], dtype=float),
+                "lost": str(info.get("estimate_status", "")).startswith("vo_lost"),
+                "collision": bool(info["collision"]),
+                "goal": np.asarray(info["goal"][:2], dtype=float),
+            }
+        )
+
+    ep = run_episode(env, policy, seed, on_step=keep)
+    hits = [k for k, s in enumerate(steps) if s["collision"]]
     has_planner = hasattr(policy, "planned_path")
-    path = memory = None
-    stats: dict[str, Any] = {}
-    while not done:
-        action, _ = policy.predict(obs, episode_start=np.array([start]), deterministic=True)
-        start = False
-        obs, _, terminated, truncated, info = env.step(action)
-        done = bool(terminated or truncated)
-        true_xy.append(np.asarray(info["true_pose"][:2], dtype=float))
-        est_xy.append(np.asarray(info["estimated_pose"][:2], dtype=float))
-        lost.append(str(info.get("estimate_status", "")).startswith("vo_lost"))
-        if info["collision"] and collision_step is None:
-            collision_step = k
-        success |= bool(info["is_success"])
-        k += 1
-    if has_planner:
-        path, memory = policy.planned_path(), policy.obstacle_memory()
-        stats = policy.episode_stats()
+    stats = policy.episode_stats() if has_planner else {}
     trace = EpisodeTrace(
         seed=seed,
-        true_xy=np.array(true_xy),
-        est_xy=np.array(est_xy),
-        vo_lost=np.array(lost, dtype=bool),
-        goal_xy=np.asarray(info["goal"][:2], dtype=float),
+        true_xy=np.array([s["true"] for s in steps]),
+        est_xy=np.array([s["est"] for s in steps]),
+        vo_lost=np.array([s["lost"] for s in steps], dtype=bool),
+        goal_xy=steps[-1]["goal"],
         dt=float(base.dt),
-        success=success,
-        collision_step=collision_step,
+        success=bool(ep["success"]),
+        collision_step=hits[0] if hits else None,
         body_radius=float(base.true_params.body_radius),
         obstacles=list(base.world.scenery_primitives()),
-        path=path,
-        memory=memory,
+        path=policy.planned_path() if has_planner else None,
+        memory=policy.obstacle_memory() if has_planner else None,
         phase=str(stats.get("phase", "")),
         last_plan=str(stats.get("last_plan", "")),
         has_planner=has_planner,
         pos_tol=float(base.success_pos_tol),
     )
-    if (
-        has_planner
-        and not success
-        and collision_step is None
-        and path is None
-        and trace.last_plan not in ("", "reached")
-    ):
-        from realitygap.controllers import ImprovedAPF
+    if has_planner and not trace.success and not hits and trace.path is None:
+        # no plan at the end: does the true map have a way? (the complete grid planner)
+        from realitygap.controllers import grid_shortest_path
         from realitygap.envs.layouts import outline_points
 
-        truth = outline_points(trace.obstacles)
-        plan = ImprovedAPF(policy.config.apf).plan(trace.true_xy[-1], trace.goal_xy, truth)
-        trace.true_map_has_path = bool(plan.reached)
+        way = grid_shortest_path(
+            trace.true_xy[-1],
+            trace.goal_xy,
+            outline_points(trace.obstacles),
+            inflation_radius=policy.config.apf.inflation_radius,
+        )
+        trace.true_map_has_path = way is not None
     loc = np.linalg.norm(trace.true_xy - trace.est_xy, axis=1)
     metrics = {
         "final_localisation_error_cm": 100.0 * float(loc[-1]) if len(loc) else 0.0,
-        "steps": k,
-        "final_pos_error_cm": 100.0 * float(info["pos_error"]),
+        "steps": int(ep["steps"]),
+        "final_pos_error_cm": float(ep["final_pos_error_cm"]),
         "max_localisation_error_cm": 100.0 * float(loc.max()) if len(loc) else 0.0,
         "vo_lost_steps": int(trace.vo_lost.sum()),
-        "collision": collision_step is not None,
+        "collision": bool(hits),
     }
     return trace, metrics
 

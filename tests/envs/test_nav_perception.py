@@ -81,11 +81,11 @@ def test_fast_and_image_scans_name_the_same_bearings() -> None:
     """One definition of the beams' bearings: the analytic scan casts its rays along the
     bearings the observation names, and so does the image-mode scan."""
     envs = {m: gym.make("realitygap/WheeledNav-v0", sensor_mode=m) for m in ("fast", "image")}
-    fast_angles = envs["fast"].unwrapped.scan_angles
-    np.testing.assert_allclose(envs["image"].unwrapped.scan_angles, fast_angles)
     obs = {m: e.reset(seed=77)[0] for m, e in envs.items()}
     base = envs["fast"].unwrapped
-    np.testing.assert_allclose(base.scanner.angles, fast_angles)
+    named = base.scan_angles  # what the observation's beams stand for
+    np.testing.assert_allclose(base.scanner.angles, named)  # the analytic scan's rays
+    np.testing.assert_allclose(envs["image"].unwrapped._scan.angles, named)  # the depth scan
     r = {m: o[12:].astype(float) * base.scan_range_max for m, o in obs.items()}
     near = (r["fast"] < 3.0) & (r["image"] < 3.0)
     assert near.sum() > 10
